@@ -1,0 +1,220 @@
+"""PPO configuration: a frozen, validated dataclass with a docstring per field, and presets."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import functools
+import inspect
+import math
+from dataclasses import dataclass
+
+
+class ConfigError(ValueError):
+    """A configuration value a user gave is invalid; the message says what to change."""
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """Hyperparameters of one PPO run on CartPole-v1. Defaults are Stable-Baselines3's."""
+
+    num_envs: int = 1
+    """Parallel environments per seed (SB3: n_envs)."""
+    num_steps: int = 2048
+    """Steps collected per environment per iteration (SB3: n_steps)."""
+    total_timesteps: int = 80_000
+    """Environment steps per seed, rounded up to whole iterations of num_envs x num_steps."""
+    minibatch_size: int = 64
+    """Transitions per gradient step (SB3: batch_size); must divide num_envs x num_steps."""
+    update_epochs: int = 10
+    """Passes over each rollout per iteration (SB3: n_epochs)."""
+    learning_rate: float = 3e-4
+    """Adam step size (initial value when anneal_lr is on)."""
+    anneal_lr: bool = False
+    """Decay the learning rate linearly to 0 over the iterations (as PureJaxRL/CleanRL do)."""
+    adam_eps: float = 1e-5
+    """Adam epsilon."""
+    gamma: float = 0.99
+    """Discount factor, in (0, 1]."""
+    gae_lambda: float = 0.95
+    """GAE lambda, in (0, 1]."""
+    clip_coef: float = 0.2
+    """PPO ratio clip range epsilon (SB3: clip_range)."""
+    ent_coef: float = 0.0
+    """Entropy bonus coefficient."""
+    vf_coef: float = 0.5
+    """Value loss coefficient."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip."""
+    norm_adv: bool = True
+    """Normalise advantages per minibatch (mean 0, std 1)."""
+    bootstrap_truncation: bool = True
+    """Bootstrap from V(final_obs) at time-limit truncations; off treats them as terminations."""
+    hidden_sizes: tuple[int, ...] = (64, 64)
+    """Hidden layer widths of both the actor and the critic MLP, e.g. 64,64."""
+    activation: str = "tanh"
+    """Hidden activation: tanh or relu."""
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    @property
+    def batch_size(self) -> int:
+        """Transitions per iteration: num_envs x num_steps."""
+        return self.num_envs * self.num_steps
+
+    @property
+    def num_minibatches(self) -> int:
+        """Gradient steps per epoch."""
+        return self.batch_size // self.minibatch_size
+
+    @property
+    def num_iterations(self) -> int:
+        """Iterations per seed: total_timesteps rounded up to whole rollouts."""
+        return math.ceil(self.total_timesteps / self.batch_size)
+
+    @property
+    def env_steps_per_seed(self) -> int:
+        """Environment steps actually taken per seed (total_timesteps rounded up)."""
+        return self.num_iterations * self.batch_size
+
+    def to_dict(self) -> dict:
+        """Plain dict of the fields (tuples become lists when dumped to JSON)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> PPOConfig:
+        """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ConfigError(f"unknown config field(s): {', '.join(unknown)}")
+        data = dict(data)
+        if "hidden_sizes" in data:
+            data["hidden_sizes"] = tuple(int(h) for h in data["hidden_sizes"])
+        return cls(**data)
+
+
+# Float hyperparameters that travel through the compiled program as arrays, so that a sweep
+# over them is a vmap axis and changing them never recompiles.
+TRACED_FIELDS = (
+    "learning_rate",
+    "adam_eps",
+    "gamma",
+    "gae_lambda",
+    "clip_coef",
+    "ent_coef",
+    "vf_coef",
+    "max_grad_norm",
+)
+
+
+def validate(config: PPOConfig) -> None:
+    """Raises :class:`ConfigError` naming the first invalid field and what to do about it."""
+    c = config
+    for name in ("num_envs", "num_steps", "total_timesteps", "minibatch_size", "update_epochs"):
+        value = getattr(c, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    if c.batch_size % c.minibatch_size != 0:
+        raise ConfigError(
+            f"minibatch_size={c.minibatch_size} does not divide the rollout of "
+            f"num_envs x num_steps = {c.num_envs} x {c.num_steps} = {c.batch_size}; "
+            f"pick a divisor of {c.batch_size}"
+        )
+    for name in TRACED_FIELDS:
+        value = getattr(c, name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    for name in ("learning_rate", "adam_eps", "clip_coef", "max_grad_norm"):
+        if getattr(c, name) <= 0:
+            raise ConfigError(f"{name} must be > 0, got {getattr(c, name)!r}")
+    for name in ("gamma", "gae_lambda"):
+        value = getattr(c, name)
+        if not 0 < value <= 1:
+            raise ConfigError(f"{name} must be in (0, 1], got {value!r}")
+    for name in ("ent_coef", "vf_coef"):
+        if getattr(c, name) < 0:
+            raise ConfigError(f"{name} must be >= 0, got {getattr(c, name)!r}")
+    if not c.hidden_sizes or any(
+        isinstance(h, bool) or not isinstance(h, int) or h <= 0 for h in c.hidden_sizes
+    ):
+        raise ConfigError(
+            f"hidden_sizes must be one or more positive integers, got {c.hidden_sizes!r}"
+        )
+    if c.activation not in ("tanh", "relu"):
+        raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")
+    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation"):
+        if not isinstance(getattr(c, name), bool):
+            raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
+
+
+PRESETS: dict[str, dict] = {
+    # Stable-Baselines3's PPO defaults on CartPole-v1: PPO("MlpPolicy", "CartPole-v1").learn(80_000)
+    "sb3": {},
+    # PureJaxRL's CartPole PPO settings.
+    "purejaxrl": dict(
+        num_envs=4,
+        num_steps=128,
+        total_timesteps=500_000,
+        minibatch_size=128,
+        update_epochs=4,
+        learning_rate=2.5e-4,
+        anneal_lr=True,
+        ent_coef=0.01,
+    ),
+    # Least wall time to a reliably solved policy on a 2-core CPU; the evidence (a multi-seed
+    # search with jaxcart's own runs) is in benchmarks/fast_preset.md.
+    "fast": dict(
+        num_envs=8,
+        num_steps=64,
+        total_timesteps=40_960,
+        minibatch_size=128,
+        update_epochs=4,
+        learning_rate=1e-3,
+        anneal_lr=True,
+        ent_coef=0.0,
+    ),
+}
+
+
+def preset(name: str, **overrides) -> PPOConfig:
+    """The named preset's config, with ``overrides`` applied."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}")
+    return PPOConfig(**{**PRESETS[name], **overrides})
+
+
+@functools.cache
+def field_docs(cls: type = PPOConfig) -> dict[str, str]:
+    """Attribute docstrings of a dataclass, read from its source (they serve as CLI help)."""
+    tree = ast.parse(inspect.getsource(cls))
+    body = tree.body[0].body
+    docs: dict[str, str] = {}
+    for node, nxt in zip(body, body[1:]):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(nxt, ast.Expr)
+            and isinstance(nxt.value, ast.Constant)
+            and isinstance(nxt.value.value, str)
+        ):
+            docs[node.target.id] = " ".join(nxt.value.value.split())
+    return docs
+
+
+def config_fields() -> list[dataclasses.Field]:
+    """The dataclass fields of :class:`PPOConfig`, in declaration order."""
+    return list(dataclasses.fields(PPOConfig))
+
+
+__all__ = [
+    "ConfigError",
+    "PPOConfig",
+    "PRESETS",
+    "TRACED_FIELDS",
+    "config_fields",
+    "field_docs",
+    "preset",
+    "validate",
+]

@@ -1,0 +1,278 @@
+"""CartPole-v1 as pure JAX functions, numerically matching Gymnasium's classic-control CartPole.
+
+The ground truth is ``gymnasium/envs/classic_control/cartpole.py`` wrapped in ``TimeLimit``
+(what ``gymnasium.make("CartPole-v1")`` returns):
+
+- reward +1 on every step, the terminating one included (Sutton-Barto mode: 0, and -1 on the
+  terminating step);
+- ``terminated`` when ``|x| > x_threshold`` or ``|theta| > theta_threshold_radians`` after
+  the step;
+- ``truncated`` when the episode's step count reaches ``max_episode_steps``; both flags are
+  true when the pole falls on that last step.
+
+:func:`step` resets finished episodes on the same step (the convention of vectorised
+training loops): the returned observation is the first of the next episode and the last
+observation of the finished one is kept in ``info["final_obs"]``. :func:`step_env` is the
+transition alone, without the reset.
+
+Everything is float32 unless JAX's x64 mode is on, in which case it is float64.
+
+Actions: ``1`` pushes right, anything else pushes left. The functional env does not check
+actions (a check inside a compiled program could not raise); the Gymnasium adapter does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+Array = jax.Array
+
+
+@struct.dataclass
+class EnvParams:
+    """Constants of CartPole-v1, named and valued as in Gymnasium's ``CartPoleEnv``.
+
+    Derived quantities (total mass, pole mass times length) are computed in :func:`step_env`
+    from these, so changing ``masspole`` or ``length`` changes the dynamics consistently.
+    """
+
+    gravity: float = 9.8
+    masscart: float = 1.0
+    masspole: float = 0.1
+    length: float = 0.5  # half the pole's length, as in Gymnasium
+    force_mag: float = 10.0
+    tau: float = 0.02  # seconds between state updates
+    x_threshold: float = 2.4
+    theta_threshold_radians: float = 12 * 2 * math.pi / 360
+    max_episode_steps: int = 500
+    sutton_barto_reward: bool = False
+    reset_low: float = -0.05
+    reset_high: float = 0.05
+    # A string selects code, so it is static: changing it recompiles.
+    kinematics_integrator: str = struct.field(pytree_node=False, default="euler")
+
+    def __post_init__(self) -> None:
+        if self.kinematics_integrator not in ("euler", "semi-implicit"):
+            raise ValueError(
+                f"kinematics_integrator must be 'euler' or 'semi-implicit', "
+                f"got {self.kinematics_integrator!r}"
+            )
+
+
+@struct.dataclass
+class EnvState:
+    """Physical state of one cart-pole plus the number of steps taken in this episode.
+
+    All fields are scalars for one env; ``jax.vmap`` adds leading batch axes.
+    """
+
+    x: Array
+    x_dot: Array
+    theta: Array
+    theta_dot: Array
+    step_count: Array  # int32
+
+
+def default_params() -> EnvParams:
+    """The parameters of ``gymnasium.make("CartPole-v1")``."""
+    return EnvParams()
+
+
+def float_dtype() -> jnp.dtype:
+    """float64 when JAX's x64 mode is on, float32 otherwise."""
+    return jnp.zeros(()).dtype
+
+
+def get_obs(state: EnvState) -> Array:
+    """Observation ``[x, x_dot, theta, theta_dot]``, shape ``(4,)`` (plus batch axes)."""
+    return jnp.stack([state.x, state.x_dot, state.theta, state.theta_dot], axis=-1)
+
+
+def state_from_obs(obs: Any, step_count: Any = 0) -> EnvState:
+    """Builds an :class:`EnvState` from an array ``(..., 4)``, e.g. Gymnasium's ``env.state``."""
+    obs = jnp.asarray(obs, dtype=float_dtype())
+    return EnvState(
+        x=obs[..., 0],
+        x_dot=obs[..., 1],
+        theta=obs[..., 2],
+        theta_dot=obs[..., 3],
+        step_count=jnp.broadcast_to(jnp.asarray(step_count, jnp.int32), obs.shape[:-1]),
+    )
+
+
+def reset(key: Array, params: EnvParams) -> tuple[Array, EnvState]:
+    """Starts an episode: each state variable uniform in ``[reset_low, reset_high)``.
+
+    Returns:
+        ``(obs, state)`` with ``obs`` of shape ``(4,)``.
+    """
+    dtype = float_dtype()
+    s = jax.random.uniform(
+        key, (4,), dtype=dtype, minval=params.reset_low, maxval=params.reset_high
+    )
+    state = EnvState(
+        x=s[0], x_dot=s[1], theta=s[2], theta_dot=s[3], step_count=jnp.zeros((), jnp.int32)
+    )
+    return get_obs(state), state
+
+
+def step_env(
+    state: EnvState, action: Array, params: EnvParams
+) -> tuple[Array, EnvState, Array, Array, Array]:
+    """One physics step without autoreset, in Gymnasium's order of operations.
+
+    Args:
+        state: current state (scalar fields).
+        action: int scalar; ``1`` pushes right, anything else left.
+        params: environment constants.
+
+    Returns:
+        ``(obs, state, reward, terminated, truncated)``; obs ``(4,)``, the rest scalars.
+    """
+    total_mass = params.masspole + params.masscart
+    polemass_length = params.masspole * params.length
+    force = jnp.where(action == 1, params.force_mag, -params.force_mag)
+    costheta = jnp.cos(state.theta)
+    sintheta = jnp.sin(state.theta)
+
+    temp = (force + polemass_length * jnp.square(state.theta_dot) * sintheta) / total_mass
+    thetaacc = (params.gravity * sintheta - costheta * temp) / (
+        params.length * (4.0 / 3.0 - params.masspole * jnp.square(costheta) / total_mass)
+    )
+    xacc = temp - polemass_length * thetaacc * costheta / total_mass
+
+    tau = params.tau
+    if params.kinematics_integrator == "euler":
+        x = state.x + tau * state.x_dot
+        x_dot = state.x_dot + tau * xacc
+        theta = state.theta + tau * state.theta_dot
+        theta_dot = state.theta_dot + tau * thetaacc
+    else:  # semi-implicit Euler: velocities first, then positions from the new velocities
+        x_dot = state.x_dot + tau * xacc
+        x = state.x + tau * x_dot
+        theta_dot = state.theta_dot + tau * thetaacc
+        theta = state.theta + tau * theta_dot
+
+    step_count = state.step_count + 1
+    new_state = EnvState(x=x, x_dot=x_dot, theta=theta, theta_dot=theta_dot, step_count=step_count)
+
+    terminated = (
+        (x < -params.x_threshold)
+        | (x > params.x_threshold)
+        | (theta < -params.theta_threshold_radians)
+        | (theta > params.theta_threshold_radians)
+    )
+    # TimeLimit truncates on the step that reaches the limit, whether or not the pole fell.
+    truncated = step_count >= params.max_episode_steps
+    dtype = x.dtype
+    # Gymnasium pays +1 on every step, the terminating one included; Sutton-Barto pays 0 and
+    # -1 on the terminating step.
+    reward = jnp.where(
+        params.sutton_barto_reward,
+        jnp.where(terminated, -1.0, 0.0),
+        1.0,
+    ).astype(dtype)
+    return get_obs(new_state), new_state, reward, terminated, truncated
+
+
+def step(
+    key: Array, state: EnvState, action: Array, params: EnvParams
+) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
+    """One step with same-step autoreset.
+
+    When the episode ends (terminated or truncated), the returned ``obs``/``state`` are those of
+    a fresh episode drawn with ``key``, and the episode's last observation is in
+    ``info["final_obs"]``. When it does not end, ``info["final_obs"]`` equals ``obs``.
+
+    Returns:
+        ``(obs, state, reward, terminated, truncated, info)``; obs and ``final_obs`` ``(4,)``.
+    """
+    final_obs, next_state, reward, terminated, truncated = step_env(state, action, params)
+    reset_obs, reset_state = reset(key, params)
+    done = terminated | truncated
+    state_out = jax.tree.map(lambda r, n: jnp.where(done, r, n), reset_state, next_state)
+    obs = jnp.where(done, reset_obs, final_obs)
+    return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
+
+
+def observation_space(params: EnvParams | None = None):
+    """Gymnasium's ``Box`` for CartPole observations (twice the termination thresholds)."""
+    import numpy as np
+    from gymnasium import spaces
+
+    p = params or EnvParams()
+    high = np.array(
+        [p.x_threshold * 2, np.inf, p.theta_threshold_radians * 2, np.inf], dtype=np.float32
+    )
+    return spaces.Box(-high, high, dtype=np.float32)
+
+
+def action_space(params: EnvParams | None = None):
+    """Gymnasium's ``Discrete(2)``: 0 pushes the cart left, 1 pushes it right."""
+    from gymnasium import spaces
+
+    return spaces.Discrete(2)
+
+
+def describe(params: EnvParams | None = None) -> str:
+    """Human-readable summary of spaces, thresholds and limits (``python -m jaxcart.env``)."""
+    p = params or EnvParams()
+    obs_space = observation_space(p)
+    names = ["cart position x", "cart velocity x_dot", "pole angle theta", "pole ang. vel."]
+    lines = [
+        "jaxcart CartPole-v1 (numerically matches gymnasium.make('CartPole-v1'))",
+        "",
+        f"observation space: {obs_space}",
+    ]
+    for i, name in enumerate(names):
+        lines.append(f"  [{i}] {name:<22} low {obs_space.low[i]: .4f}  high {obs_space.high[i]: .4f}")
+    lines += [
+        f"action space:      {action_space(p)}  (0 = push left, 1 = push right)",
+        "",
+        f"termination: |x| > {p.x_threshold} or |theta| > {p.theta_threshold_radians:.6f} rad "
+        f"({math.degrees(p.theta_threshold_radians):.1f} degrees)",
+        f"truncation:  after {p.max_episode_steps} steps (TimeLimit)",
+        f"reward:      {'Sutton-Barto (0, -1 on failure)' if p.sutton_barto_reward else '+1 every step, terminating step included'}",
+        f"reset:       each state variable uniform in [{p.reset_low}, {p.reset_high})",
+        "",
+        "physics: "
+        + ", ".join(
+            f"{k}={getattr(p, k)}"
+            for k in ("gravity", "masscart", "masspole", "length", "force_mag", "tau")
+        )
+        + f", kinematics_integrator={p.kinematics_integrator!r}",
+        f"float dtype: {float_dtype()} (float64 when jax_enable_x64 is on)",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Prints :func:`describe` for the default parameters."""
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m jaxcart.env", description="Show CartPole's spaces, bounds and limits."
+    )
+    parser.add_argument(
+        "--kinematics-integrator", choices=["euler", "semi-implicit"], default="euler"
+    )
+    parser.add_argument("--sutton-barto-reward", action="store_true")
+    args = parser.parse_args(argv)
+    print(
+        describe(
+            EnvParams(
+                kinematics_integrator=args.kinematics_integrator,
+                sutton_barto_reward=args.sutton_barto_reward,
+            )
+        )
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,460 @@
+"""PPO for CartPole as one compiled program: rollout, GAE and update fused in one step.
+
+Everything here describes a single seed (one independent agent); :func:`train_chunk` vmaps it
+over a leading seed axis and scans it over iterations. Arrays inside an iteration are
+time-major: ``[num_steps, num_envs, ...]``.
+
+The update follows Stable-Baselines3's PPO so that its default run can be compared curve for
+curve: per-minibatch advantage normalisation (unbiased std), clipped surrogate, unclipped
+value MSE (no 1/2 factor), ``loss = pg + ent_coef * (-entropy) + vf_coef * value_mse``,
+global grad-norm clipping, Adam; its logged metrics keep SB3's names and definitions.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import distrax
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from jaxcart import env as cartpole
+from jaxcart.config import TRACED_FIELDS, ConfigError, PPOConfig, preset
+from jaxcart.networks import ActorCritic, init_params
+
+Array = jax.Array
+
+EPISODE_WINDOW = 100
+"""SB3 reports episode return/length means over the last 100 finished episodes."""
+
+METRIC_NAMES = (
+    "rollout/ep_rew_mean",
+    "rollout/ep_len_mean",
+    "train/approx_kl",
+    "train/clip_fraction",
+    "train/entropy_loss",
+    "train/policy_gradient_loss",
+    "train/value_loss",
+    "train/loss",
+    "train/explained_variance",
+    "train/learning_rate",
+)
+"""Per-iteration metrics computed in the compiled step (``time/fps`` is added by the host)."""
+
+
+@struct.dataclass
+class Hyperparams:
+    """The float hyperparameters as (traced) arrays: scalars for one run, ``[S]`` for S runs."""
+
+    learning_rate: Array
+    adam_eps: Array
+    gamma: Array
+    gae_lambda: Array
+    clip_coef: Array
+    ent_coef: Array
+    vf_coef: Array
+    max_grad_norm: Array
+
+    @classmethod
+    def from_config(cls, config: PPOConfig) -> Hyperparams:
+        """Scalar float32 hyperparameters taken from ``config``."""
+        return cls(**{name: jnp.float32(getattr(config, name)) for name in TRACED_FIELDS})
+
+
+@struct.dataclass
+class EpisodeBuffer:
+    """Returns and lengths of the last ``EPISODE_WINDOW`` finished episodes (``valid`` marks
+    filled slots; order inside the window does not matter for the means)."""
+
+    returns: Array  # [EPISODE_WINDOW] float32
+    lengths: Array  # [EPISODE_WINDOW] float32
+    valid: Array  # [EPISODE_WINDOW] bool
+
+
+@struct.dataclass
+class RunnerState:
+    """Everything one seed carries from iteration to iteration."""
+
+    params: dict
+    opt_state: optax.OptState
+    env_state: cartpole.EnvState  # fields [num_envs]
+    obs: Array  # [num_envs, 4]
+    episode_return: Array  # [num_envs] running return of the current episodes
+    episode_length: Array  # [num_envs] int32
+    episodes: EpisodeBuffer
+    key: Array
+
+
+class Transition(NamedTuple):
+    """One rollout step for every env; fields ``[num_envs, ...]`` (``[T, num_envs, ...]`` stacked)."""
+
+    obs: Array
+    action: Array
+    log_prob: Array
+    value: Array
+    reward: Array
+    terminated: Array
+    truncated: Array
+    final_obs: Array  # the true next observation, before any autoreset
+    episode_return: Array  # return of the episode that ended here (valid where done)
+    episode_length: Array
+
+
+class Batch(NamedTuple):
+    """Flattened training data; fields ``[batch, ...]``."""
+
+    obs: Array
+    action: Array
+    log_prob: Array
+    advantage: Array
+    returns: Array
+
+
+def make_network(config: PPOConfig) -> ActorCritic:
+    """The actor-critic described by ``config``."""
+    return ActorCritic(hidden_sizes=tuple(config.hidden_sizes), activation=config.activation)
+
+
+def make_optimizer(hp: Hyperparams) -> optax.GradientTransformation:
+    """Global-norm clipping then Adam's scaling; the learning rate is applied by the caller.
+
+    The hyperparameters may be tracers: the optimizer state's structure does not depend on them.
+    """
+    return optax.chain(
+        optax.clip_by_global_norm(hp.max_grad_norm), optax.scale_by_adam(eps=hp.adam_eps)
+    )
+
+
+def init_runner(key: Array, config: PPOConfig, env_params: cartpole.EnvParams) -> RunnerState:
+    """Fresh network, optimizer and ``num_envs`` reset environments for one seed."""
+    key, net_key, env_key = jax.random.split(key, 3)
+    params = init_params(net_key, make_network(config))
+    opt_state = make_optimizer(Hyperparams.from_config(config)).init(params)
+    obs, env_state = jax.vmap(cartpole.reset, in_axes=(0, None))(
+        jax.random.split(env_key, config.num_envs), env_params
+    )
+    zeros = jnp.zeros((EPISODE_WINDOW,), jnp.float32)
+    return RunnerState(
+        params=params,
+        opt_state=opt_state,
+        env_state=env_state,
+        obs=obs,
+        episode_return=jnp.zeros((config.num_envs,), obs.dtype),
+        episode_length=jnp.zeros((config.num_envs,), jnp.int32),
+        episodes=EpisodeBuffer(zeros, zeros, jnp.zeros((EPISODE_WINDOW,), bool)),
+        key=key,
+    )
+
+
+def collect_rollout(
+    runner: RunnerState, config: PPOConfig, env_params: cartpole.EnvParams
+) -> tuple[RunnerState, Transition]:
+    """Steps ``num_envs`` envs for ``num_steps`` steps, sampling actions from the policy.
+
+    Returns:
+        The advanced runner and a :class:`Transition` with fields ``[num_steps, num_envs, ...]``.
+    """
+    network = make_network(config)
+    step_envs = jax.vmap(cartpole.step, in_axes=(0, 0, 0, None))
+
+    def one_step(runner: RunnerState, _) -> tuple[RunnerState, Transition]:
+        key, act_key, env_key = jax.random.split(runner.key, 3)
+        logits, value = network.apply(runner.params, runner.obs)
+        pi = distrax.Categorical(logits=logits)
+        action = pi.sample(seed=act_key)
+        log_prob = pi.log_prob(action)
+        obs, env_state, reward, terminated, truncated, info = step_envs(
+            jax.random.split(env_key, config.num_envs), runner.env_state, action, env_params
+        )
+        done = terminated | truncated
+        episode_return = runner.episode_return + reward
+        episode_length = runner.episode_length + 1
+        transition = Transition(
+            obs=runner.obs,
+            action=action,
+            log_prob=log_prob,
+            value=value,
+            reward=reward,
+            terminated=terminated,
+            truncated=truncated,
+            final_obs=info["final_obs"],
+            episode_return=episode_return,
+            episode_length=episode_length,
+        )
+        runner = runner.replace(
+            obs=obs,
+            env_state=env_state,
+            episode_return=jnp.where(done, 0.0, episode_return),
+            episode_length=jnp.where(done, 0, episode_length),
+            key=key,
+        )
+        return runner, transition
+
+    return jax.lax.scan(one_step, runner, None, length=config.num_steps)
+
+
+def compute_gae(
+    reward: Array,
+    value: Array,
+    next_value: Array,
+    terminated: Array,
+    truncated: Array,
+    gamma: Array | float,
+    gae_lambda: Array | float,
+    bootstrap_truncation: bool = True,
+) -> tuple[Array, Array]:
+    """Generalised advantage estimation by a reverse ``lax.scan`` over time.
+
+    Args:
+        reward, value: ``[T, E]``; ``value[t] = V(obs_t)``.
+        next_value: ``[T, E]``; V of the true next observation of step t (``V(final_obs)``
+            where the episode ended, ``V(obs_{t+1})`` otherwise).
+        terminated, truncated: ``[T, E]`` bool.
+        bootstrap_truncation: when True a truncated (not terminated) step bootstraps from
+            ``next_value``; when False truncation is treated as termination.
+
+    Returns:
+        ``(advantages, returns)``, both ``[T, E]``, with ``returns = advantages + value``.
+    """
+    done = terminated | truncated
+    # A terminated step bootstraps nothing; a truncated one bootstraps from V(final_obs).
+    stops_bootstrap = terminated if bootstrap_truncation else done
+    delta = reward + gamma * next_value * (1.0 - stops_bootstrap) - value
+    # Any episode end cuts the recursion: the next step belongs to a new episode.
+    carry_on = gamma * gae_lambda * (1.0 - done)
+
+    def backwards(gae_next: Array, xs: tuple[Array, Array]) -> tuple[Array, Array]:
+        delta_t, carry_t = xs
+        gae = delta_t + carry_t * gae_next
+        return gae, gae
+
+    _, advantages = jax.lax.scan(
+        backwards, jnp.zeros_like(delta[0]), (delta, carry_on), reverse=True
+    )
+    return advantages, advantages + value
+
+
+def ppo_loss(
+    params: dict,
+    network: ActorCritic,
+    batch: Batch,
+    hp: Hyperparams,
+    norm_adv: bool = True,
+) -> tuple[Array, dict[str, Array]]:
+    """SB3's PPO loss on one minibatch (fields ``[M, ...]``).
+
+    Returns:
+        ``(loss, aux)`` with aux keys ``policy_gradient_loss, value_loss, entropy_loss,
+        approx_kl, clip_fraction``.
+    """
+    logits, value = network.apply(params, batch.obs)
+    pi = distrax.Categorical(logits=logits)
+    log_prob = pi.log_prob(batch.action)
+    advantage = batch.advantage
+    if norm_adv and advantage.shape[0] > 1:
+        advantage = (advantage - advantage.mean()) / (advantage.std(ddof=1) + 1e-8)
+    log_ratio = log_prob - batch.log_prob
+    ratio = jnp.exp(log_ratio)
+    clipped = jnp.clip(ratio, 1.0 - hp.clip_coef, 1.0 + hp.clip_coef)
+    pg_loss = -jnp.minimum(advantage * ratio, advantage * clipped).mean()
+    value_loss = jnp.square(batch.returns - value).mean()
+    entropy_loss = -pi.entropy().mean()
+    loss = pg_loss + hp.ent_coef * entropy_loss + hp.vf_coef * value_loss
+    aux = {
+        "policy_gradient_loss": pg_loss,
+        "value_loss": value_loss,
+        "entropy_loss": entropy_loss,
+        "approx_kl": jax.lax.stop_gradient(((ratio - 1.0) - log_ratio).mean()),
+        "clip_fraction": jax.lax.stop_gradient(
+            (jnp.abs(ratio - 1.0) > hp.clip_coef).astype(jnp.float32).mean()
+        ),
+        "loss": loss,
+    }
+    return loss, aux
+
+
+def update_epochs(
+    params: dict,
+    opt_state: optax.OptState,
+    batch: Batch,
+    key: Array,
+    hp: Hyperparams,
+    learning_rate: Array,
+    config: PPOConfig,
+) -> tuple[dict, optax.OptState, dict[str, Array]]:
+    """``update_epochs`` passes over ``batch`` (fields ``[B, ...]``) in shuffled minibatches.
+
+    Returns:
+        New params and optimizer state, and the loss terms per gradient step
+        (``[update_epochs, num_minibatches]`` each).
+    """
+    network = make_network(config)
+    optimizer = make_optimizer(hp)
+    grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
+
+    def minibatch_step(carry, minibatch: Batch):
+        params, opt_state = carry
+        (_, aux), grads = grad_fn(params, network, minibatch, hp, config.norm_adv)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        params = jax.tree.map(lambda p, u: p - learning_rate * u, params, updates)
+        return (params, opt_state), aux
+
+    def epoch(carry, epoch_key: Array):
+        perm = jax.random.permutation(epoch_key, config.batch_size)
+        shape = (config.num_minibatches, config.minibatch_size)
+        minibatches = jax.tree.map(lambda x: x[perm].reshape(shape + x.shape[1:]), batch)
+        return jax.lax.scan(minibatch_step, carry, minibatches)
+
+    (params, opt_state), aux = jax.lax.scan(
+        epoch, (params, opt_state), jax.random.split(key, config.update_epochs)
+    )
+    return params, opt_state, aux
+
+
+def update_episode_buffer(buffer: EpisodeBuffer, rollout: Transition) -> EpisodeBuffer:
+    """Adds the episodes that ended during ``rollout`` and keeps the most recent window."""
+    done = (rollout.terminated | rollout.truncated).reshape(-1)
+    valid = jnp.concatenate([buffer.valid, done])
+    returns = jnp.concatenate([buffer.returns, rollout.episode_return.reshape(-1).astype(jnp.float32)])
+    lengths = jnp.concatenate([buffer.lengths, rollout.episode_length.reshape(-1).astype(jnp.float32)])
+    # rank 1 = the most recently finished episode (time-major, then env order, as SB3 fills).
+    rank = jnp.cumsum(valid[::-1])[::-1]
+    slot = jnp.where(valid & (rank <= EPISODE_WINDOW), EPISODE_WINDOW - rank, EPISODE_WINDOW)
+    empty = jnp.zeros((EPISODE_WINDOW,), jnp.float32)
+    return EpisodeBuffer(
+        returns=empty.at[slot].set(returns, mode="drop"),
+        lengths=empty.at[slot].set(lengths, mode="drop"),
+        valid=jnp.zeros((EPISODE_WINDOW,), bool).at[slot].set(True, mode="drop"),
+    )
+
+
+def explained_variance(y_pred: Array, y_true: Array) -> Array:
+    """``1 - Var[y_true - y_pred] / Var[y_true]`` (NaN when ``y_true`` is constant), as SB3."""
+    var_y = jnp.var(y_true)
+    return jnp.where(var_y == 0, jnp.nan, 1.0 - jnp.var(y_true - y_pred) / jnp.where(var_y == 0, 1.0, var_y))
+
+
+def learning_rate_at(hp: Hyperparams, iteration: Array, config: PPOConfig) -> Array:
+    """Constant, or linearly annealed from ``learning_rate`` towards 0 over the iterations."""
+    if not config.anneal_lr:
+        return hp.learning_rate
+    return hp.learning_rate * (1.0 - iteration / config.num_iterations)
+
+
+def train_iteration(
+    runner: RunnerState,
+    hp: Hyperparams,
+    iteration: Array,
+    config: PPOConfig,
+    env_params: cartpole.EnvParams,
+) -> tuple[RunnerState, dict[str, Array]]:
+    """One PPO iteration for one seed: rollout, GAE, all epochs and minibatches.
+
+    Returns:
+        The next runner state and scalar metrics named as in :data:`METRIC_NAMES`.
+    """
+    runner, rollout = collect_rollout(runner, config, env_params)
+    network = make_network(config)
+    next_value = network.apply(runner.params, rollout.final_obs, method=ActorCritic.value)
+    advantages, returns = compute_gae(
+        rollout.reward,
+        rollout.value,
+        next_value,
+        rollout.terminated,
+        rollout.truncated,
+        hp.gamma,
+        hp.gae_lambda,
+        config.bootstrap_truncation,
+    )
+    batch = Batch(
+        obs=rollout.obs,
+        action=rollout.action,
+        log_prob=rollout.log_prob,
+        advantage=advantages,
+        returns=returns,
+    )
+    batch = jax.tree.map(lambda x: x.reshape((config.batch_size,) + x.shape[2:]), batch)
+    key, update_key = jax.random.split(runner.key)
+    learning_rate = learning_rate_at(hp, iteration, config)
+    params, opt_state, aux = update_epochs(
+        runner.params, runner.opt_state, batch, update_key, hp, learning_rate, config
+    )
+    episodes = update_episode_buffer(runner.episodes, rollout)
+    count = episodes.valid.sum()
+    nan = jnp.float32(jnp.nan)
+    metrics = {
+        "rollout/ep_rew_mean": jnp.where(count > 0, (episodes.returns * episodes.valid).sum() / jnp.maximum(count, 1), nan),
+        "rollout/ep_len_mean": jnp.where(count > 0, (episodes.lengths * episodes.valid).sum() / jnp.maximum(count, 1), nan),
+        # SB3 resets its KL list every epoch, so it logs the last epoch's mean.
+        "train/approx_kl": aux["approx_kl"][-1].mean(),
+        "train/clip_fraction": aux["clip_fraction"].mean(),
+        "train/entropy_loss": aux["entropy_loss"].mean(),
+        "train/policy_gradient_loss": aux["policy_gradient_loss"].mean(),
+        "train/value_loss": aux["value_loss"].mean(),
+        "train/loss": aux["loss"][-1, -1],
+        "train/explained_variance": explained_variance(batch.returns - batch.advantage, batch.returns),
+        "train/learning_rate": jnp.asarray(learning_rate, jnp.float32),
+    }
+    runner = runner.replace(params=params, opt_state=opt_state, episodes=episodes, key=key)
+    return runner, metrics
+
+
+def train_chunk(
+    runners: RunnerState,
+    hps: Hyperparams,
+    start_iteration: Array,
+    config: PPOConfig,
+    env_params: cartpole.EnvParams,
+    chunk_size: int,
+) -> tuple[RunnerState, dict[str, Array]]:
+    """Scans ``chunk_size`` iterations of every seed; jit this (config, env_params static-ish).
+
+    Args:
+        runners: a :class:`RunnerState` with a leading seed axis ``[S]``.
+        hps: :class:`Hyperparams` with leaves ``[S]``.
+        start_iteration: int32 scalar, the index of the chunk's first iteration. Iterations at
+            or past ``config.num_iterations`` are skipped (state unchanged, metrics NaN), so one
+            compiled chunk serves any number of iterations.
+
+    Returns:
+        Runners after the chunk and metrics with leaves ``[chunk_size, S]``.
+    """
+    seeds_iteration = jax.vmap(train_iteration, in_axes=(0, 0, None, None, None))
+
+    def run(runners: RunnerState, iteration: Array):
+        return seeds_iteration(runners, hps, iteration, config, env_params)
+
+    def skip(runners: RunnerState, iteration: Array):
+        _, shapes = jax.eval_shape(run, runners, iteration)
+        return runners, jax.tree.map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
+
+    def body(runners: RunnerState, offset: Array):
+        iteration = start_iteration + offset
+        return jax.lax.cond(iteration < config.num_iterations, run, skip, runners, iteration)
+
+    return jax.lax.scan(body, runners, jnp.arange(chunk_size, dtype=jnp.int32))
+
+
+__all__ = [
+    "Batch",
+    "ConfigError",
+    "EpisodeBuffer",
+    "Hyperparams",
+    "METRIC_NAMES",
+    "PPOConfig",
+    "RunnerState",
+    "Transition",
+    "collect_rollout",
+    "compute_gae",
+    "explained_variance",
+    "init_runner",
+    "make_network",
+    "make_optimizer",
+    "ppo_loss",
+    "preset",
+    "train_chunk",
+    "train_iteration",
+    "update_epochs",
+]
