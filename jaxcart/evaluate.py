@@ -124,7 +124,7 @@ def greedy_returns(
     def one_step(carry, _):
         obs, state, alive, total = carry
         action = jnp.argmax(network.apply(params, obs, method=ActorCritic.logits), axis=-1)
-        obs, state, reward, terminated, truncated = jax.vmap(cartpole.step_env, in_axes=(0, 0, 0, None))(
+        obs, state, reward, terminated, truncated = jax.vmap(cartpole.step_env, in_axes=(0, 0, None))(
             state, action, env_params
         )
         total = total + jnp.where(alive, reward, 0.0)

@@ -159,7 +159,8 @@ def train(
     run_seconds = time.perf_counter() - run_start
     names = list(METRIC_NAMES) + ["time/fps"]
     all_metrics = {k: np.concatenate([c[k] for c in chunks]) for k in names}
-    all_metrics["time/elapsed"] = np.concatenate([c["_elapsed"] for c in chunks])
+    elapsed = np.concatenate([c["_elapsed"] for c in chunks])
+    all_metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_seeds, axis=1)
     return TrainResult(
         config=config,
         num_seeds=num_seeds,

@@ -1,0 +1,42 @@
+"""Device set-up that must happen before JAX initialises its backends."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
+
+
+def use_all_host_cores(count: int | None = None) -> None:
+    """Exposes the host's cores to JAX as ``count`` CPU devices (default: all cores).
+
+    XLA on CPU runs one program on one core; with several host devices the seed axis is
+    sharded over them and each core trains its share. Only effective before JAX creates its
+    CPU backend; an explicit ``--xla_force_host_platform_device_count`` in ``XLA_FLAGS``
+    is left alone. GPUs are unaffected (the flag only concerns the host platform).
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if DEVICE_COUNT_FLAG in flags:
+        return
+    count = count or len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    os.environ["XLA_FLAGS"] = f"{flags} {DEVICE_COUNT_FLAG}={count or 1}".strip()
+
+
+def compilation_cache_dir() -> Path:
+    """``$JAXCART_CACHE_DIR`` or ``~/.cache/jaxcart/jax``."""
+    default = Path.home() / ".cache" / "jaxcart" / "jax"
+    return Path(os.environ.get("JAXCART_CACHE_DIR", default))
+
+
+def enable_compilation_cache() -> None:
+    """Turns on JAX's persistent compilation cache so repeated runs skip XLA compilation."""
+    import jax
+
+    path = compilation_cache_dir()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return  # an unwritable cache only costs compile time
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
