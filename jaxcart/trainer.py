@@ -34,6 +34,19 @@ def seed_sharding(num_seeds: int, devices: list | None = None) -> NamedSharding:
     return NamedSharding(mesh, PartitionSpec("seed"))
 
 
+def init_runners(
+    config: PPOConfig, num_seeds: int, seed: int, env_params: cartpole.EnvParams
+) -> RunnerState:
+    """Initial state of every seed, leaves ``[S, ...]``, built on one device.
+
+    Not sharded on purpose: the orthogonal initialiser's batched QR runs on jaxlib's LAPACK
+    kernel, whose parallel batch loop can deadlock when two CPU devices run it at once
+    (seen with jaxlib 0.10.2); the result is placed on the devices afterwards.
+    """
+    init = jax.jit(jax.vmap(functools.partial(init_runner, config=config, env_params=env_params)))
+    return init(seed_keys(seed, num_seeds))
+
+
 def default_chunk_size(num_iterations: int, updates: int = 20) -> int:
     """Iterations per compiled chunk so that progress is reported about ``updates`` times."""
     return max(1, -(-num_iterations // updates))
@@ -110,11 +123,7 @@ def train(
     sharding = seed_sharding(num_seeds, devices)
     hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_seeds)
 
-    init = jax.jit(
-        jax.vmap(functools.partial(init_runner, config=config, env_params=env_params)),
-        out_shardings=sharding,
-    )
-    runners = init(seed_keys(seed, num_seeds))
+    runners = jax.device_put(init_runners(config, num_seeds, seed, env_params), sharding)
     hps = jax.device_put(hps, sharding)
 
     chunk = jax.jit(
