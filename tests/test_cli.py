@@ -1,0 +1,138 @@
+"""``python -m jaxcart.train`` in-process through ``main(argv)``, and ``load_policy``."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import jaxcart
+from jaxcart import rundir
+from jaxcart.ppo import METRIC_NAMES
+from jaxcart.train import build_parser, main
+
+SMALL = ["--num-envs", "4", "--num-steps", "32", "--total-timesteps", "1024", "--minibatch-size", "64",
+         "--update-epochs", "2", "--eval-episodes", "3", "--quiet", "--no-compile-cache"]
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "small"
+    code = main([*SMALL, "--num-seeds", "2", "--seed", "7", "--out", str(out)])
+    assert code == 0
+    return out
+
+
+def test_run_directory_contents(small_run, capsys):
+    info = json.loads((small_run / "config.json").read_text())
+    assert info["num_seeds"] == 2 and info["seed"] == 7 and info["preset"] == "sb3"
+    assert info["config"]["num_envs"] == 4 and info["config"]["learning_rate"] == 3e-4
+    assert info["versions"]["jax"]
+
+    with open(small_run / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    iterations = 1024 // (4 * 32)
+    assert len(rows) == 2 * iterations
+    for name in (*METRIC_NAMES, "time/fps"):
+        assert name in rows[0]
+    assert {r["seed_index"] for r in rows} == {"0", "1"}
+    assert [int(r["env_steps"]) for r in rows[:iterations]] == [128 * (i + 1) for i in range(iterations)]
+    assert all(np.isfinite(float(r["train/value_loss"])) for r in rows)
+    assert all(float(r["time/fps"]) > 0 for r in rows)
+
+    params = rundir.load_params(small_run)
+    assert params["params"]["actor"]["hidden_0"]["kernel"].shape == (2, 4, 64)
+    assert not np.allclose(params["params"]["actor"]["out"]["kernel"][0], params["params"]["actor"]["out"]["kernel"][1])
+
+    ev = json.loads((small_run / "evaluation.json").read_text())
+    assert len(ev["seeds"]) == 2 and len(ev["seeds"][0]["gymnasium_returns"]) == 3
+    for seed in ev["seeds"]:
+        assert seed["solved"] == all(r == 500 for r in seed["gymnasium_returns"])
+
+
+def test_output_reports_compile_table_and_throughput(tmp_path, capsys):
+    code = main([*SMALL, "--out", str(tmp_path / "r")])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "compiled the fused training step in" in out
+    assert "gym mean" in out and "solved" in out
+    assert "env steps at" in out and "wall" in out
+
+
+def test_load_policy_runs_in_gymnasium(small_run):
+    policy = jaxcart.load_policy(small_run, seed_index=1)
+    env = gym.make("CartPole-v1")
+    obs, _ = env.reset(seed=0)
+    action = policy(obs)
+    assert isinstance(action, int) and env.action_space.contains(action)
+    env.step(action)
+    batch = policy(np.zeros((5, 4), np.float32))
+    assert batch.shape == (5,)
+    # the NumPy policy agrees with the flax network's argmax
+    from jaxcart.networks import ActorCritic
+
+    params = rundir.load_params(small_run)
+    one = {"params": {k: {n: {p: v[1] for p, v in layer.items()} for n, layer in sub.items()}
+                      for k, sub in params["params"].items()}}
+    obs = np.random.default_rng(0).normal(size=(100, 4)).astype(np.float32)
+    logits = np.asarray(ActorCritic().apply(one, obs)[0])
+    np.testing.assert_array_equal(policy(obs), logits.argmax(-1))
+
+
+def test_load_policy_rejects_non_runs(tmp_path, small_run):
+    with pytest.raises(rundir.RunDirError, match="not a jaxcart run"):
+        jaxcart.load_policy(tmp_path)
+    with pytest.raises(rundir.RunDirError, match="not a directory"):
+        jaxcart.load_policy(tmp_path / "missing")
+    with pytest.raises(rundir.RunDirError, match="seed_index"):
+        jaxcart.load_policy(small_run, seed_index=5)
+
+
+def test_same_seed_same_metrics(small_run, tmp_path):
+    """Re-running the same command gives bit-identical metrics and parameters."""
+    again = tmp_path / "again"
+    assert main([*SMALL, "--num-seeds", "2", "--seed", "7", "--out", str(again)]) == 0
+    a, b = rundir.read_metrics_csv(small_run / "metrics.csv"), rundir.read_metrics_csv(again / "metrics.csv")
+    for name in METRIC_NAMES:
+        np.testing.assert_array_equal(a[name], b[name])
+    pa, pb = rundir.load_params(small_run), rundir.load_params(again)
+    np.testing.assert_array_equal(pa["params"]["critic"]["out"]["kernel"], pb["params"]["critic"]["out"]["kernel"])
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--minibatch-size", "100"], "does not divide"),
+        (["--learning-rate", "-1"], "learning_rate must be > 0"),
+        (["--gamma", "1.5"], "gamma must be in (0, 1]"),
+        (["--num-seeds", "0"], "--num-seeds must be a positive integer"),
+        (["--preset", "nope"], "unknown preset"),
+        (["--bogus-option", "1"], "unrecognized arguments"),
+        (["--num-envs", "two"], "invalid int value"),
+        (["--hidden-sizes", "64,x"], "comma-separated integers"),
+    ],
+)
+def test_bad_input_is_one_line_error(argv, message, capsys, tmp_path):
+    code = main([*argv, "--out", str(tmp_path / "never")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "never").exists()
+
+
+def test_non_empty_out_dir_refused(tmp_path, capsys):
+    (tmp_path / "keep.txt").write_text("earlier work")
+    assert main([*SMALL, "--out", str(tmp_path)]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert (tmp_path / "keep.txt").read_text() == "earlier work"
+
+
+def test_help_lists_every_config_field_with_its_docstring():
+    text = build_parser().format_help()
+    for flag, doc in (("--minibatch-size", "Transitions per gradient step"), ("--bootstrap-truncation", "V(final_obs)"),
+                      ("--preset", "sb3, purejaxrl, fast"), ("--num-seeds", "independent")):
+        assert flag in text and doc in text

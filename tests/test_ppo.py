@@ -1,0 +1,242 @@
+"""GAE against a NumPy loop and a hand-worked case; PPO loss known answers; config checks."""
+
+from __future__ import annotations
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxcart.config import PRESETS, ConfigError, PPOConfig, field_docs, preset
+from jaxcart.networks import ActorCritic
+from jaxcart.ppo import (
+    Batch,
+    EpisodeBuffer,
+    Hyperparams,
+    Transition,
+    compute_gae,
+    explained_variance,
+    ppo_loss,
+    update_episode_buffer,
+)
+
+
+def gae_numpy(reward, value, next_value, terminated, truncated, gamma, lam, bootstrap_truncation):
+    """Plain loops over envs and time, written from the GAE definition."""
+    T, E = reward.shape
+    adv = np.zeros((T, E))
+    for e in range(E):
+        running = 0.0
+        for t in reversed(range(T)):
+            if terminated[t, e]:
+                target = reward[t, e]
+            elif truncated[t, e] and not bootstrap_truncation:
+                target = reward[t, e]
+            else:
+                target = reward[t, e] + gamma * next_value[t, e]
+            delta = target - value[t, e]
+            episode_ends = terminated[t, e] or truncated[t, e]
+            running = delta + (0.0 if episode_ends else gamma * lam * running)
+            adv[t, e] = running
+    return adv, adv + value
+
+
+@pytest.mark.parametrize("bootstrap_truncation", [True, False])
+def test_gae_matches_numpy_loop(bootstrap_truncation):
+    rng = np.random.default_rng(0)
+    T, E = 64, 7
+    reward = rng.normal(size=(T, E))
+    value = rng.normal(size=(T, E))
+    next_value = rng.normal(size=(T, E))
+    terminated = rng.random((T, E)) < 0.1
+    truncated = rng.random((T, E)) < 0.1  # some steps both: terminated must win
+    assert (terminated & truncated).any() and (truncated & ~terminated).any()
+    expected_adv, expected_ret = gae_numpy(reward, value, next_value, terminated, truncated, 0.97, 0.9, bootstrap_truncation)
+    adv, ret = jax.jit(compute_gae, static_argnums=7)(
+        jnp.asarray(reward, jnp.float32),
+        jnp.asarray(value, jnp.float32),
+        jnp.asarray(next_value, jnp.float32),
+        jnp.asarray(terminated),
+        jnp.asarray(truncated),
+        0.97,
+        0.9,
+        bootstrap_truncation,
+    )
+    chex.assert_shape([adv, ret], (T, E))
+    np.testing.assert_allclose(np.asarray(adv), expected_adv, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(ret), expected_ret, rtol=1e-5, atol=1e-5)
+
+
+def test_gae_hand_worked_three_steps():
+    """gamma = lambda = 0.5, rewards 1, values V(s0..s2) = 1, 2, 3.
+
+    step 2 terminated:                     delta2 = 1 - 3 = -2;            A2 = -2
+    step 1 truncated, V(final_obs) = 4:    delta1 = 1 + 0.5*4 - 2 = 1;     A1 = 1 (episode ends)
+    step 0 continues into s1, V(s1) = 2:   delta0 = 1 + 0.5*2 - 1 = 1;     A0 = 1 + 0.25*A1 = 1.25
+    Without truncation bootstrapping:      delta1 = 1 - 2 = -1 = A1;       A0 = 1 - 0.25 = 0.75
+    """
+    reward = jnp.ones((3, 1))
+    value = jnp.array([[1.0], [2.0], [3.0]])
+    next_value = jnp.array([[2.0], [4.0], [10.0]])  # V(s1), V(final_obs of step 1), V(final_obs of step 2)
+    terminated = jnp.array([[False], [False], [True]])
+    truncated = jnp.array([[False], [True], [False]])
+    adv, ret = compute_gae(reward, value, next_value, terminated, truncated, 0.5, 0.5, True)
+    np.testing.assert_allclose(np.asarray(adv)[:, 0], [1.25, 1.0, -2.0])
+    np.testing.assert_allclose(np.asarray(ret)[:, 0], [2.25, 3.0, 1.0])
+    adv, _ = compute_gae(reward, value, next_value, terminated, truncated, 0.5, 0.5, False)
+    np.testing.assert_allclose(np.asarray(adv)[:, 0], [0.75, -1.0, -2.0])
+
+
+def _setup_loss(num=256, seed=0):
+    network = ActorCritic()
+    key = jax.random.PRNGKey(seed)
+    params = network.init(key, jnp.zeros((4,)))
+    obs = jax.random.normal(jax.random.PRNGKey(seed + 1), (num, 4))
+    logits, value = network.apply(params, obs)
+    action = jax.random.categorical(jax.random.PRNGKey(seed + 2), logits)
+    log_prob = jax.nn.log_softmax(logits)[jnp.arange(num), action]
+    advantage = jax.random.normal(jax.random.PRNGKey(seed + 3), (num,))
+    returns = value + jax.random.normal(jax.random.PRNGKey(seed + 4), (num,))
+    batch = Batch(obs=obs, action=action, log_prob=log_prob, advantage=advantage, returns=returns)
+    return network, params, batch, value
+
+
+def _hp(**kw):
+    base = Hyperparams.from_config(PPOConfig())
+    return base.replace(**{k: jnp.float32(v) for k, v in kw.items()})
+
+
+def test_loss_at_ratio_one():
+    """Fresh data from the same params: ratio 1, KL 0, nothing clipped, pg loss = -mean(A)."""
+    network, params, batch, value = _setup_loss()
+    loss, aux = ppo_loss(params, network, batch, _hp(ent_coef=0.0), norm_adv=False)
+    assert float(aux["approx_kl"]) == pytest.approx(0.0, abs=1e-7)
+    assert float(aux["clip_fraction"]) == 0.0
+    assert float(aux["policy_gradient_loss"]) == pytest.approx(-float(batch.advantage.mean()), abs=1e-6)
+    expected_value_loss = float(jnp.mean((batch.returns - value) ** 2))
+    assert float(aux["value_loss"]) == pytest.approx(expected_value_loss, rel=1e-5)
+    assert float(loss) == pytest.approx(float(aux["policy_gradient_loss"]) + 0.5 * expected_value_loss, rel=1e-5)
+    # normalised advantages have mean 0, so the surrogate at ratio 1 is 0
+    _, aux = ppo_loss(params, network, batch, _hp(), norm_adv=True)
+    assert float(aux["policy_gradient_loss"]) == pytest.approx(0.0, abs=1e-6)
+
+
+def _actor_grad(params, network, batch, hp):
+    def pg_only(p):
+        return ppo_loss(p, network, batch, hp, norm_adv=False)[1]["policy_gradient_loss"]
+
+    return jax.grad(pg_only)(params)["params"]["actor"]
+
+
+def test_zero_policy_gradient_where_clipped():
+    """ratio = e > 1 + clip with positive advantages: every sample clipped, zero gradient;
+    with negative advantages the unclipped branch is the minimum and the gradient is not zero."""
+    network, params, batch, _ = _setup_loss()
+    pushed = batch._replace(log_prob=batch.log_prob - 1.0, advantage=jnp.abs(batch.advantage) + 0.1)
+    _, aux = ppo_loss(params, network, pushed, _hp(), norm_adv=False)
+    assert float(aux["clip_fraction"]) == 1.0
+    grads = _actor_grad(params, network, pushed, _hp())
+    assert all(float(jnp.abs(g).max()) == 0.0 for g in jax.tree.leaves(grads))
+
+    negative = pushed._replace(advantage=-pushed.advantage)
+    grads = _actor_grad(params, network, negative, _hp())
+    assert max(float(jnp.abs(g).max()) for g in jax.tree.leaves(grads)) > 1e-4
+
+
+def test_entropy_loss_is_negative_mean_entropy():
+    network, params, batch, _ = _setup_loss()
+    logits, _ = network.apply(params, batch.obs)
+    p = jax.nn.softmax(logits)
+    entropy = -(p * jnp.log(p)).sum(-1).mean()
+    _, aux = ppo_loss(params, network, batch, _hp(), norm_adv=True)
+    assert float(aux["entropy_loss"]) == pytest.approx(-float(entropy), rel=1e-5)
+    # the 0.01 policy head starts near uniform: entropy close to log 2
+    assert float(entropy) == pytest.approx(np.log(2), abs=0.01)
+
+
+def test_explained_variance():
+    y = jnp.array([1.0, 2.0, 3.0, 4.0])
+    assert float(explained_variance(y, y)) == 1.0
+    assert float(explained_variance(jnp.zeros(4), y)) == pytest.approx(1.0 - float(jnp.var(y)) / float(jnp.var(y)))
+    assert np.isnan(float(explained_variance(y, jnp.ones(4))))
+
+
+def test_episode_buffer_keeps_last_100_in_order():
+    T, E = 60, 3
+    done = np.zeros((T, E), bool)
+    done[::2, :] = True  # 30 x 3 = 90 episodes per rollout
+    returns = np.arange(T * E, dtype=np.float32).reshape(T, E)
+    rollout = Transition(
+        obs=None, action=None, log_prob=None, value=None, reward=None,
+        terminated=jnp.asarray(done), truncated=jnp.zeros((T, E), bool), final_obs=None,
+        episode_return=jnp.asarray(returns), episode_length=jnp.asarray(returns),
+    )
+    empty = EpisodeBuffer(jnp.zeros(100), jnp.zeros(100), jnp.zeros(100, bool))
+    buf = update_episode_buffer(empty, rollout)
+    assert int(buf.valid.sum()) == 90
+    np.testing.assert_allclose(np.sort(np.asarray(buf.returns)[np.asarray(buf.valid)]), np.sort(returns[done]))
+    buf = update_episode_buffer(buf, rollout._replace(episode_return=jnp.asarray(returns + 1000)))
+    kept = np.sort(np.asarray(buf.returns)[np.asarray(buf.valid)])
+    assert len(kept) == 100
+    # the newest 90 plus the 10 most recent of the first rollout
+    expected = np.sort(np.concatenate([returns[done][-10:], returns[done] + 1000]))
+    np.testing.assert_allclose(kept, expected)
+
+
+def test_sb3_defaults():
+    c = PPOConfig()
+    assert (c.num_envs, c.num_steps, c.minibatch_size, c.update_epochs) == (1, 2048, 64, 10)
+    assert (c.learning_rate, c.adam_eps, c.gamma, c.gae_lambda, c.clip_coef) == (3e-4, 1e-5, 0.99, 0.95, 0.2)
+    assert (c.ent_coef, c.vf_coef, c.max_grad_norm) == (0.0, 0.5, 0.5)
+    assert c.num_iterations == 40 and c.env_steps_per_seed == 81_920
+    assert c.hidden_sizes == (64, 64) and c.activation == "tanh" and c.norm_adv and not c.anneal_lr
+    assert preset("sb3") == c
+
+
+def test_purejaxrl_preset():
+    c = preset("purejaxrl")
+    assert (c.num_envs, c.num_steps, c.update_epochs, c.num_minibatches) == (4, 128, 4, 4)
+    assert (c.learning_rate, c.anneal_lr, c.ent_coef, c.total_timesteps) == (2.5e-4, True, 0.01, 500_000)
+
+
+def test_every_field_documented():
+    docs = field_docs()
+    for f in PPOConfig.__dataclass_fields__:
+        assert docs.get(f), f"{f} has no docstring"
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"minibatch_size": 100}, "does not divide"),
+        ({"learning_rate": 0.0}, "learning_rate"),
+        ({"learning_rate": -1e-3}, "learning_rate"),
+        ({"total_timesteps": 0}, "total_timesteps"),
+        ({"gamma": 0.0}, "gamma"),
+        ({"gamma": 1.5}, "gamma"),
+        ({"gae_lambda": -0.1}, "gae_lambda"),
+        ({"ent_coef": -0.01}, "ent_coef"),
+        ({"vf_coef": -1.0}, "vf_coef"),
+        ({"activation": "gelu"}, "activation"),
+        ({"hidden_sizes": ()}, "hidden_sizes"),
+        ({"num_envs": 2.5}, "num_envs"),
+        ({"learning_rate": float("nan")}, "learning_rate"),
+    ],
+)
+def test_config_validation(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        PPOConfig(**kwargs)
+
+
+def test_unknown_preset():
+    with pytest.raises(ConfigError, match="unknown preset"):
+        preset("nope")
+    assert set(PRESETS) == {"sb3", "purejaxrl", "fast"}
+
+
+def test_config_is_frozen_and_round_trips():
+    c = preset("purejaxrl")
+    with pytest.raises(AttributeError):
+        c.num_envs = 3
+    assert PPOConfig.from_dict(c.to_dict()) == c
