@@ -31,8 +31,7 @@ import numpy as np  # noqa: E402
 
 from jaxcart.config import PPOConfig  # noqa: E402
 from jaxcart.evaluate import evaluate_gymnasium, greedy_returns, numpy_policy, summarize  # noqa: E402
-from jaxcart.ppo import Hyperparams  # noqa: E402
-from jaxcart.trainer import seed_keys, train  # noqa: E402
+from jaxcart.trainer import broadcast_hyperparams, seed_keys, train  # noqa: E402
 
 SHAPES = [(4, 128), (8, 64), (16, 32), (16, 64), (32, 32), (64, 16)]
 MINIBATCHES = [2, 4]
@@ -44,11 +43,15 @@ LEARNING_RATES = [1e-3, 2.5e-3, 5e-3]
 def jax_eval(params, config: PPOConfig, num_runs: int) -> np.ndarray:
     """Greedy returns ``[runs, 20]`` in jaxcart's env."""
     keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_keys(12345, num_runs))
-    fn = jax.jit(jax.vmap(lambda p, k: greedy_returns(p, k, config.activation, config.hidden_sizes)))
+    fn = jax.jit(
+        jax.vmap(lambda p, k: greedy_returns(p, k, config.activation, config.hidden_sizes))
+    )
     return np.asarray(fn(params, keys))
 
 
-def candidate(num_envs: int, num_steps: int, minibatches: int, epochs: int, timesteps: int) -> PPOConfig:
+def candidate(
+    num_envs: int, num_steps: int, minibatches: int, epochs: int, timesteps: int
+) -> PPOConfig:
     batch = num_envs * num_steps
     return PPOConfig(
         num_envs=num_envs,
@@ -62,23 +65,34 @@ def candidate(num_envs: int, num_steps: int, minibatches: int, epochs: int, time
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seeds", type=int, default=16, help="seeds per learning rate in the screen")
-    parser.add_argument("--confirm-seeds", type=int, default=64, help="seeds for the Gymnasium re-check")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--seeds", type=int, default=16, help="seeds per learning rate in the screen"
+    )
+    parser.add_argument(
+        "--confirm-seeds", type=int, default=64, help="seeds for the Gymnasium re-check"
+    )
     parser.add_argument("--confirm-top", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/fast_preset_search.json"))
+    parser.add_argument(
+        "--out", type=Path, default=Path("benchmarks/results/fast_preset_search.json")
+    )
     args = parser.parse_args()
     args.out.parent.mkdir(parents=True, exist_ok=True)
 
     results = []
-    for (num_envs, num_steps), mbs, epochs, ts in itertools.product(SHAPES, MINIBATCHES, EPOCHS, TIMESTEPS):
+    for (num_envs, num_steps), mbs, epochs, ts in itertools.product(
+        SHAPES, MINIBATCHES, EPOCHS, TIMESTEPS
+    ):
         config = candidate(num_envs, num_steps, mbs, epochs, ts)
         runs = args.seeds * len(LEARNING_RATES)
-        hp = Hyperparams.from_config(config)
         lrs = jnp.repeat(jnp.asarray(LEARNING_RATES, jnp.float32), args.seeds)
-        hps = jax.tree.map(lambda x: jnp.full((runs,), x, x.dtype), hp).replace(learning_rate=lrs)
+        hps = broadcast_hyperparams(config, runs).replace(learning_rate=lrs)
         sweep = train(config, runs, seed=0, hyperparams=hps)
-        solved = summarize(jax_eval(sweep.params, config, runs))["solved"].reshape(len(LEARNING_RATES), args.seeds)
+        solved = summarize(jax_eval(sweep.params, config, runs))["solved"].reshape(
+            len(LEARNING_RATES), args.seeds
+        )
         # Single-seed timing as the CLI runs it (compile cached by now or not: reported apart).
         single = [train(config, 1, seed=s) for s in range(3)]
         run_s = float(np.median([r.run_seconds for r in single]))
@@ -99,19 +113,44 @@ def main() -> None:
             results.append(row)
             print(json.dumps(row), flush=True)
 
-    reliable = sorted((r for r in results if r["solve_rate"] == 1.0), key=lambda r: r["single_seed_train_s"])
+    reliable = sorted(
+        (r for r in results if r["solve_rate"] == 1.0), key=lambda r: r["single_seed_train_s"]
+    )
     confirmed = []
     for row in reliable[: args.confirm_top]:
-        config = candidate(row["num_envs"], row["num_steps"], row["num_minibatches"], row["update_epochs"], row["total_timesteps"])
+        config = candidate(
+            row["num_envs"],
+            row["num_steps"],
+            row["num_minibatches"],
+            row["update_epochs"],
+            row["total_timesteps"],
+        )
         config = PPOConfig(**{**config.to_dict(), "learning_rate": row["learning_rate"]})
         res = train(config, args.confirm_seeds, seed=1000)
-        gym = summarize(evaluate_gymnasium(numpy_policy(jax.device_get(res.params), config.activation, stacked=True), args.confirm_seeds))
-        confirmed.append({**row, "confirm_seeds": args.confirm_seeds, "gymnasium_solve_rate": float(gym["solved"].mean())})
+        gym = summarize(
+            evaluate_gymnasium(
+                numpy_policy(jax.device_get(res.params), config.activation, stacked=True),
+                args.confirm_seeds,
+            )
+        )
+        confirmed.append(
+            {
+                **row,
+                "confirm_seeds": args.confirm_seeds,
+                "gymnasium_solve_rate": float(gym["solved"].mean()),
+            }
+        )
         print("confirm", json.dumps(confirmed[-1]), flush=True)
 
     report = {
-        "command": "python benchmarks/fast_preset_search.py " + f"--seeds {args.seeds} --confirm-seeds {args.confirm_seeds}",
-        "machine": {"platform": platform.platform(), "processor": platform.processor(), "devices": jax.device_count(), "jax": jax.__version__},
+        "command": "python benchmarks/fast_preset_search.py "
+        + f"--seeds {args.seeds} --confirm-seeds {args.confirm_seeds}",
+        "machine": {
+            "platform": platform.platform(),
+            "processor": platform.processor(),
+            "devices": jax.device_count(),
+            "jax": jax.__version__,
+        },
         "date": time.strftime("%Y-%m-%d"),
         "candidates": results,
         "confirmed": confirmed,

@@ -124,7 +124,11 @@ def validate(config: PPOConfig) -> None:
         )
     for name in TRACED_FIELDS:
         value = getattr(c, name)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+        ):
             raise ConfigError(f"{name} must be a finite number, got {value!r}")
     for name in ("learning_rate", "adam_eps", "clip_coef", "max_grad_norm"):
         if getattr(c, name) <= 0:
@@ -209,10 +213,10 @@ def config_fields() -> list[dataclasses.Field]:
 
 
 __all__ = [
-    "ConfigError",
-    "PPOConfig",
     "PRESETS",
     "TRACED_FIELDS",
+    "ConfigError",
+    "PPOConfig",
     "config_fields",
     "field_docs",
     "preset",

@@ -230,14 +230,21 @@ def describe(params: EnvParams | None = None) -> str:
         f"observation space: {obs_space}",
     ]
     for i, name in enumerate(names):
-        lines.append(f"  [{i}] {name:<22} low {obs_space.low[i]: .4f}  high {obs_space.high[i]: .4f}")
+        lines.append(
+            f"  [{i}] {name:<22} low {obs_space.low[i]: .4f}  high {obs_space.high[i]: .4f}"
+        )
     lines += [
         f"action space:      {action_space(p)}  (0 = push left, 1 = push right)",
         "",
         f"termination: |x| > {p.x_threshold} or |theta| > {p.theta_threshold_radians:.6f} rad "
         f"({math.degrees(p.theta_threshold_radians):.1f} degrees)",
         f"truncation:  after {p.max_episode_steps} steps (TimeLimit)",
-        f"reward:      {'Sutton-Barto (0, -1 on failure)' if p.sutton_barto_reward else '+1 every step, terminating step included'}",
+        "reward:      "
+        + (
+            "Sutton-Barto (0, -1 on failure)"
+            if p.sutton_barto_reward
+            else "+1 every step, terminating step included"
+        ),
         f"reset:       each state variable uniform in [{p.reset_low}, {p.reset_high})",
         "",
         "physics: "

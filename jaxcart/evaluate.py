@@ -26,7 +26,13 @@ class NumpyPolicy:
     ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked ``(S, N, 4) -> (S, N)``.
     """
 
-    def __init__(self, kernels: list[np.ndarray], biases: list[np.ndarray], activation: str, stacked: bool = False):
+    def __init__(
+        self,
+        kernels: list[np.ndarray],
+        biases: list[np.ndarray],
+        activation: str,
+        stacked: bool = False,
+    ):
         self.kernels = [np.asarray(k, np.float32) for k in kernels]
         self.biases = [np.asarray(b, np.float32) for b in biases]
         self.activation = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}[activation]
@@ -36,7 +42,9 @@ class NumpyPolicy:
         """Policy logits for ``obs`` (any leading shape matching the stacking)."""
         x = np.asarray(obs, np.float32)
         if x.shape[-1] != 4:
-            raise ValueError(f"expected observations with 4 values in the last axis, got shape {x.shape}")
+            raise ValueError(
+                f"expected observations with 4 values in the last axis, got shape {x.shape}"
+            )
         last = len(self.kernels) - 1
         for i, (k, b) in enumerate(zip(self.kernels, self.biases)):
             if self.stacked:
@@ -55,7 +63,9 @@ class NumpyPolicy:
 def actor_layers(params: dict) -> tuple[list, list]:
     """The actor's kernels and biases in order, from ``{"params": {"actor": ...}}``."""
     actor = params["params"]["actor"]
-    names = sorted((n for n in actor if n.startswith("hidden_")), key=lambda n: int(n.split("_")[1]))
+    names = sorted(
+        (n for n in actor if n.startswith("hidden_")), key=lambda n: int(n.split("_")[1])
+    )
     names.append("out")
     return [actor[n]["kernel"] for n in names], [actor[n]["bias"] for n in names]
 
@@ -119,14 +129,16 @@ def greedy_returns(
 
     env_params = env_params or cartpole.EnvParams()
     network = ActorCritic(hidden_sizes=tuple(hidden_sizes), activation=activation)
-    obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(jax.random.split(key, num_episodes), env_params)
+    obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
+        jax.random.split(key, num_episodes), env_params
+    )
 
     def one_step(carry, _):
         obs, state, alive, total = carry
         action = jnp.argmax(network.apply(params, obs, method=ActorCritic.logits), axis=-1)
-        obs, state, reward, terminated, truncated = jax.vmap(cartpole.step_env, in_axes=(0, 0, None))(
-            state, action, env_params
-        )
+        obs, state, reward, terminated, truncated = jax.vmap(
+            cartpole.step_env, in_axes=(0, 0, None)
+        )(state, action, env_params)
         total = total + jnp.where(alive, reward, 0.0)
         alive = alive & ~(terminated | truncated)
         return (obs, state, alive, total), None

@@ -88,7 +88,7 @@ class RunnerState:
 
 
 class Transition(NamedTuple):
-    """One rollout step for every env; fields ``[num_envs, ...]`` (``[T, num_envs, ...]`` stacked)."""
+    """One rollout step of every env: fields ``[num_envs, ...]``, ``[T, num_envs, ...]`` stacked."""
 
     obs: Array
     action: Array
@@ -317,8 +317,12 @@ def update_episode_buffer(buffer: EpisodeBuffer, rollout: Transition) -> Episode
     """Adds the episodes that ended during ``rollout`` and keeps the most recent window."""
     done = (rollout.terminated | rollout.truncated).reshape(-1)
     valid = jnp.concatenate([buffer.valid, done])
-    returns = jnp.concatenate([buffer.returns, rollout.episode_return.reshape(-1).astype(jnp.float32)])
-    lengths = jnp.concatenate([buffer.lengths, rollout.episode_length.reshape(-1).astype(jnp.float32)])
+    returns = jnp.concatenate(
+        [buffer.returns, rollout.episode_return.reshape(-1).astype(jnp.float32)]
+    )
+    lengths = jnp.concatenate(
+        [buffer.lengths, rollout.episode_length.reshape(-1).astype(jnp.float32)]
+    )
     # rank 1 = the most recently finished episode (time-major, then env order, as SB3 fills).
     rank = jnp.cumsum(valid[::-1])[::-1]
     slot = jnp.where(valid & (rank <= EPISODE_WINDOW), EPISODE_WINDOW - rank, EPISODE_WINDOW)
@@ -333,7 +337,9 @@ def update_episode_buffer(buffer: EpisodeBuffer, rollout: Transition) -> Episode
 def explained_variance(y_pred: Array, y_true: Array) -> Array:
     """``1 - Var[y_true - y_pred] / Var[y_true]`` (NaN when ``y_true`` is constant), as SB3."""
     var_y = jnp.var(y_true)
-    return jnp.where(var_y == 0, jnp.nan, 1.0 - jnp.var(y_true - y_pred) / jnp.where(var_y == 0, 1.0, var_y))
+    return jnp.where(
+        var_y == 0, jnp.nan, 1.0 - jnp.var(y_true - y_pred) / jnp.where(var_y == 0, 1.0, var_y)
+    )
 
 
 def learning_rate_at(hp: Hyperparams, iteration: Array, config: PPOConfig) -> Array:
@@ -385,8 +391,12 @@ def train_iteration(
     count = episodes.valid.sum()
     nan = jnp.float32(jnp.nan)
     metrics = {
-        "rollout/ep_rew_mean": jnp.where(count > 0, (episodes.returns * episodes.valid).sum() / jnp.maximum(count, 1), nan),
-        "rollout/ep_len_mean": jnp.where(count > 0, (episodes.lengths * episodes.valid).sum() / jnp.maximum(count, 1), nan),
+        "rollout/ep_rew_mean": jnp.where(
+            count > 0, (episodes.returns * episodes.valid).sum() / jnp.maximum(count, 1), nan
+        ),
+        "rollout/ep_len_mean": jnp.where(
+            count > 0, (episodes.lengths * episodes.valid).sum() / jnp.maximum(count, 1), nan
+        ),
         # SB3 resets its KL list every epoch, so it logs the last epoch's mean.
         "train/approx_kl": aux["approx_kl"][-1].mean(),
         "train/clip_fraction": aux["clip_fraction"].mean(),
@@ -394,7 +404,9 @@ def train_iteration(
         "train/policy_gradient_loss": aux["policy_gradient_loss"].mean(),
         "train/value_loss": aux["value_loss"].mean(),
         "train/loss": aux["loss"][-1, -1],
-        "train/explained_variance": explained_variance(batch.returns - batch.advantage, batch.returns),
+        "train/explained_variance": explained_variance(
+            batch.returns - batch.advantage, batch.returns
+        ),
         "train/learning_rate": jnp.asarray(learning_rate, jnp.float32),
     }
     runner = runner.replace(params=params, opt_state=opt_state, episodes=episodes, key=key)
@@ -438,11 +450,11 @@ def train_chunk(
 
 
 __all__ = [
+    "METRIC_NAMES",
     "Batch",
     "ConfigError",
     "EpisodeBuffer",
     "Hyperparams",
-    "METRIC_NAMES",
     "PPOConfig",
     "RunnerState",
     "Transition",

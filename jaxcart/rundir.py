@@ -143,7 +143,9 @@ def read_run_config(run_dir: str | os.PathLike) -> dict:
     """The run's ``config.json`` as a dict, with a clear error when it is not a run."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
-        raise RunDirError(f"{run_dir} is not a directory; pass the --out directory of a jaxcart run")
+        raise RunDirError(
+            f"{run_dir} is not a directory; pass the --out directory of a jaxcart run"
+        )
     path = run_dir / CONFIG_FILE
     if not path.is_file():
         raise RunDirError(f"{run_dir} has no {CONFIG_FILE}: it is not a jaxcart run directory")
@@ -159,7 +161,9 @@ def load_params(run_dir: str | os.PathLike) -> dict:
     """Every seed's parameters, leaves ``[num_seeds, ...]``."""
     path = Path(run_dir) / PARAMS_FILE
     if not path.is_file():
-        raise RunDirError(f"{run_dir} has no {PARAMS_FILE}: the run did not finish saving parameters")
+        raise RunDirError(
+            f"{run_dir} has no {PARAMS_FILE}: the run did not finish saving parameters"
+        )
     try:
         with np.load(path) as data:
             return unflatten_params({k: data[k] for k in data.files})
@@ -185,7 +189,11 @@ def load_policy(run_dir: str | os.PathLike, seed_index: int = 0):
     info = read_run_config(run_dir)
     params = load_params(run_dir)
     num_seeds = int(info.get("num_seeds", 1))
-    if isinstance(seed_index, bool) or not isinstance(seed_index, (int, np.integer)) or not 0 <= seed_index < num_seeds:
+    if (
+        isinstance(seed_index, bool)
+        or not isinstance(seed_index, (int, np.integer))
+        or not 0 <= seed_index < num_seeds
+    ):
         raise RunDirError(f"seed_index must be an integer in [0, {num_seeds}), got {seed_index!r}")
     kernels, biases = actor_layers(params)
     return NumpyPolicy(

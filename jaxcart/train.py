@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 import time
 from pathlib import Path
@@ -30,7 +29,9 @@ def _tuple_of_ints(text: str) -> tuple[int, ...]:
     try:
         return tuple(int(v) for v in text.replace(" ", "").split(",") if v)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers like 64,64, got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers like 64,64, got {text!r}"
+        ) from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,9 +45,15 @@ def build_parser() -> argparse.ArgumentParser:
     run = parser.add_argument_group("run")
     run.add_argument("--preset", default="sb3", help=f"starting config: {', '.join(PRESETS)}")
     run.add_argument("--num-seeds", type=int, default=1, help="independent agents trained together")
-    run.add_argument("--seed", type=int, default=0, help="base seed (seed index i uses fold_in(seed, i))")
-    run.add_argument("--out", type=Path, default=None, help="run directory (default: runs/<preset>-<time>)")
-    run.add_argument("--eval-episodes", type=int, default=20, help="greedy evaluation episodes per seed")
+    run.add_argument(
+        "--seed", type=int, default=0, help="base seed (seed index i uses fold_in(seed, i))"
+    )
+    run.add_argument(
+        "--out", type=Path, default=None, help="run directory (default: runs/<preset>-<time>)"
+    )
+    run.add_argument(
+        "--eval-episodes", type=int, default=20, help="greedy evaluation episodes per seed"
+    )
     run.add_argument(
         "--no-compile-cache",
         action="store_true",
@@ -60,12 +67,27 @@ def build_parser() -> argparse.ArgumentParser:
         flag = "--" + f.name.replace("_", "-")
         help_text = docs.get(f.name, "")
         if f.type in ("bool", bool):
-            group.add_argument(flag, dest=f.name, action=argparse.BooleanOptionalAction, default=argparse.SUPPRESS, help=help_text)
+            group.add_argument(
+                flag,
+                dest=f.name,
+                action=argparse.BooleanOptionalAction,
+                default=argparse.SUPPRESS,
+                help=help_text,
+            )
         elif f.name == "hidden_sizes":
-            group.add_argument(flag, dest=f.name, type=_tuple_of_ints, default=argparse.SUPPRESS, metavar="N,N", help=help_text)
+            group.add_argument(
+                flag,
+                dest=f.name,
+                type=_tuple_of_ints,
+                default=argparse.SUPPRESS,
+                metavar="N,N",
+                help=help_text,
+            )
         else:
             kind = {"int": int, "float": float, "str": str}[str(f.type)]
-            group.add_argument(flag, dest=f.name, type=kind, default=argparse.SUPPRESS, help=help_text)
+            group.add_argument(
+                flag, dest=f.name, type=kind, default=argparse.SUPPRESS, help=help_text
+            )
     return parser
 
 
@@ -91,7 +113,9 @@ def prepare_out_dir(out: Path) -> Path:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} exists and is not a directory; choose another path")
     if out.is_dir() and any(out.iterdir()):
-        raise UsageError(f"--out {out} is not empty; choose a new directory so no earlier run is overwritten")
+        raise UsageError(
+            f"--out {out} is not empty; choose a new directory so no earlier run is overwritten"
+        )
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".write-test"
@@ -136,8 +160,9 @@ def run(args: argparse.Namespace) -> int:
 
     log = sys.stdout
     print(
-        f"jaxcart PPO | preset {args.preset} | {args.num_seeds} seed(s) x {config.env_steps_per_seed:,} "
-        f"env steps ({config.num_iterations} iterations of {config.num_envs} env(s) x {config.num_steps} steps) "
+        f"jaxcart PPO | preset {args.preset} | {args.num_seeds} seed(s) x "
+        f"{config.env_steps_per_seed:,} env steps ({config.num_iterations} iterations of "
+        f"{config.num_envs} env(s) x {config.num_steps} steps) "
         f"| {jax.device_count()} {jax.default_backend()} device(s) | out {out}",
         file=log,
         flush=True,
@@ -162,14 +187,22 @@ def run(args: argparse.Namespace) -> int:
         nonlocal bar
         print(f"compiled the fused training step in {seconds:.2f} s", file=log, flush=True)
         if not args.quiet:
-            bar = tqdm(total=config.num_iterations, unit="it", desc="training", dynamic_ncols=True, file=sys.stderr)
+            bar = tqdm(
+                total=config.num_iterations,
+                unit="it",
+                desc="training",
+                dynamic_ncols=True,
+                file=sys.stderr,
+            )
 
     def on_chunk(progress) -> None:
         if bar is None:
             return
         ret = progress.metrics["rollout/ep_rew_mean"][-1]
         mean_ret = float(np.nanmean(ret)) if np.isfinite(ret).any() else float("nan")
-        bar.set_postfix_str(f"env steps/seed {progress.env_steps:,} | ep_rew_mean {mean_ret:.1f}", refresh=False)
+        bar.set_postfix_str(
+            f"env steps/seed {progress.env_steps:,} | ep_rew_mean {mean_ret:.1f}", refresh=False
+        )
         bar.update(progress.iteration - bar.n)
 
     result = train(config, args.num_seeds, args.seed, on_compiled=on_compiled, on_chunk=on_chunk)
@@ -181,11 +214,17 @@ def run(args: argparse.Namespace) -> int:
     rundir.save_params(out / rundir.PARAMS_FILE, params)
 
     eval_start = time.perf_counter()
-    gym_returns = evaluate_gymnasium(numpy_policy(params, config.activation, stacked=True), args.num_seeds, args.eval_episodes)
+    gym_returns = evaluate_gymnasium(
+        numpy_policy(params, config.activation, stacked=True), args.num_seeds, args.eval_episodes
+    )
     eval_keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_keys(args.seed, args.num_seeds))
     jax_returns = np.asarray(
         jax.jit(
-            jax.vmap(lambda p, k: greedy_returns(p, k, config.activation, config.hidden_sizes, args.eval_episodes))
+            jax.vmap(
+                lambda p, k: greedy_returns(
+                    p, k, config.activation, config.hidden_sizes, args.eval_episodes
+                )
+            )
         )(params, eval_keys)
     )
     eval_seconds = time.perf_counter() - eval_start
@@ -235,20 +274,25 @@ def run(args: argparse.Namespace) -> int:
         file=log,
     )
     print(
-        format_table(rows, ["seed", "gym mean", "gym min", "solved", "jaxcart mean", "train ep_rew_mean"]),
+        format_table(
+            rows, ["seed", "gym mean", "gym min", "solved", "jaxcart mean", "train ep_rew_mean"]
+        ),
         file=log,
     )
     wall = time.perf_counter() - wall_start
     solved = int(gym_summary["solved"].sum())
     print(
         f"\nsolved {solved}/{args.num_seeds} seed(s) | wall {wall:.1f} s "
-        f"(compile {result.compile_seconds:.1f} s, train {result.run_seconds:.1f} s, eval {eval_seconds:.1f} s) | "
+        f"(compile {result.compile_seconds:.1f} s, train {result.run_seconds:.1f} s, "
+        f"eval {eval_seconds:.1f} s) | "
         f"{result.env_steps:,} env steps at {result.env_steps / result.run_seconds:,.0f} steps/s "
         f"({result.env_steps / (result.run_seconds + result.compile_seconds):,.0f} incl. compile) "
         f"on {result.num_devices} device(s)",
         file=log,
     )
-    print(f"run directory: {out}  (policy: jaxcart.load_policy({str(out)!r}))", file=log, flush=True)
+    print(
+        f"run directory: {out}  (policy: jaxcart.load_policy({str(out)!r}))", file=log, flush=True
+    )
     return 0
 
 

@@ -150,7 +150,9 @@ def train(
         prev = chunks[-1]["_elapsed"][-1] if chunks else 0.0
         elapsed = prev + (now - prev) * np.arange(1, take + 1) / take
         steps = (done + np.arange(1, take + 1)) * config.batch_size
-        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_seeds, axis=1).astype(np.float32)
+        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_seeds, axis=1).astype(
+            np.float32
+        )
         metrics["_elapsed"] = elapsed
         chunks.append(metrics)
         done += take

@@ -57,7 +57,9 @@ def run_episodes(integrator: str, policy: str, episodes: int, seed: int = 0):
 def main() -> int:
     for integrator in ("euler", "semi-implicit"):
         worst, lengths, mismatched = run_episodes(integrator, "balancing", episodes=3)
-        print(f"{integrator}: max |diff| {worst:.3g}, lengths {lengths}, flag mismatches {mismatched}")
+        print(
+            f"{integrator}: max |diff| {worst:.3g}, lengths {lengths}, flag mismatches {mismatched}"
+        )
         if worst != 0.0 or mismatched or lengths != [500, 500, 500]:
             return 1
     return 0

@@ -14,8 +14,22 @@ from jaxcart import rundir
 from jaxcart.ppo import METRIC_NAMES
 from jaxcart.train import build_parser, main
 
-SMALL = ["--num-envs", "4", "--num-steps", "32", "--total-timesteps", "1024", "--minibatch-size", "64",
-         "--update-epochs", "2", "--eval-episodes", "3", "--quiet", "--no-compile-cache"]
+SMALL = [
+    "--num-envs",
+    "4",
+    "--num-steps",
+    "32",
+    "--total-timesteps",
+    "1024",
+    "--minibatch-size",
+    "64",
+    "--update-epochs",
+    "2",
+    "--eval-episodes",
+    "3",
+    "--quiet",
+    "--no-compile-cache",
+]
 
 
 @pytest.fixture(scope="module")
@@ -39,13 +53,17 @@ def test_run_directory_contents(small_run, capsys):
     for name in (*METRIC_NAMES, "time/fps"):
         assert name in rows[0]
     assert {r["seed_index"] for r in rows} == {"0", "1"}
-    assert [int(r["env_steps"]) for r in rows[:iterations]] == [128 * (i + 1) for i in range(iterations)]
+    assert [int(r["env_steps"]) for r in rows[:iterations]] == [
+        128 * (i + 1) for i in range(iterations)
+    ]
     assert all(np.isfinite(float(r["train/value_loss"])) for r in rows)
     assert all(float(r["time/fps"]) > 0 for r in rows)
 
     params = rundir.load_params(small_run)
     assert params["params"]["actor"]["hidden_0"]["kernel"].shape == (2, 4, 64)
-    assert not np.allclose(params["params"]["actor"]["out"]["kernel"][0], params["params"]["actor"]["out"]["kernel"][1])
+    assert not np.allclose(
+        params["params"]["actor"]["out"]["kernel"][0], params["params"]["actor"]["out"]["kernel"][1]
+    )
 
     ev = json.loads((small_run / "evaluation.json").read_text())
     assert len(ev["seeds"]) == 2 and len(ev["seeds"][0]["gymnasium_returns"]) == 3
@@ -75,8 +93,12 @@ def test_load_policy_runs_in_gymnasium(small_run):
     from jaxcart.networks import ActorCritic
 
     params = rundir.load_params(small_run)
-    one = {"params": {k: {n: {p: v[1] for p, v in layer.items()} for n, layer in sub.items()}
-                      for k, sub in params["params"].items()}}
+    one = {
+        "params": {
+            k: {n: {p: v[1] for p, v in layer.items()} for n, layer in sub.items()}
+            for k, sub in params["params"].items()
+        }
+    }
     obs = np.random.default_rng(0).normal(size=(100, 4)).astype(np.float32)
     logits = np.asarray(ActorCritic().apply(one, obs)[0])
     np.testing.assert_array_equal(policy(obs), logits.argmax(-1))
@@ -95,11 +117,16 @@ def test_same_seed_same_metrics(small_run, tmp_path):
     """Re-running the same command gives bit-identical metrics and parameters."""
     again = tmp_path / "again"
     assert main([*SMALL, "--num-seeds", "2", "--seed", "7", "--out", str(again)]) == 0
-    a, b = rundir.read_metrics_csv(small_run / "metrics.csv"), rundir.read_metrics_csv(again / "metrics.csv")
+    a, b = (
+        rundir.read_metrics_csv(small_run / "metrics.csv"),
+        rundir.read_metrics_csv(again / "metrics.csv"),
+    )
     for name in METRIC_NAMES:
         np.testing.assert_array_equal(a[name], b[name])
     pa, pb = rundir.load_params(small_run), rundir.load_params(again)
-    np.testing.assert_array_equal(pa["params"]["critic"]["out"]["kernel"], pb["params"]["critic"]["out"]["kernel"])
+    np.testing.assert_array_equal(
+        pa["params"]["critic"]["out"]["kernel"], pb["params"]["critic"]["out"]["kernel"]
+    )
 
 
 @pytest.mark.parametrize(
@@ -133,6 +160,10 @@ def test_non_empty_out_dir_refused(tmp_path, capsys):
 
 def test_help_lists_every_config_field_with_its_docstring():
     text = build_parser().format_help()
-    for flag, doc in (("--minibatch-size", "Transitions per gradient step"), ("--bootstrap-truncation", "V(final_obs)"),
-                      ("--preset", "sb3, purejaxrl, fast"), ("--num-seeds", "independent")):
+    for flag, doc in (
+        ("--minibatch-size", "Transitions per gradient step"),
+        ("--bootstrap-truncation", "V(final_obs)"),
+        ("--preset", "sb3, purejaxrl, fast"),
+        ("--num-seeds", "independent"),
+    ):
         assert flag in text and doc in text

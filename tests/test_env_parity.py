@@ -18,7 +18,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
 from episode_parity import run_episodes
 
 from jaxcart import env as cartpole
@@ -75,7 +74,9 @@ def gym_reference(states_and_actions):
 
     def get(integrator, sutton_barto):
         if (integrator, sutton_barto) not in cache:
-            cache[integrator, sutton_barto] = gymnasium_steps(states, actions, integrator, sutton_barto)
+            cache[integrator, sutton_barto] = gymnasium_steps(
+                states, actions, integrator, sutton_barto
+            )
         return cache[integrator, sutton_barto]
 
     return get
@@ -166,7 +167,9 @@ def test_autoreset_on_termination_keeps_final_obs():
 @pytest.mark.parametrize("low, high", [(-0.05, 0.05), (-0.3, 0.2)], ids=["default", "custom"])
 def test_reset_bounds_match_gymnasium(low, high):
     params = cartpole.EnvParams(reset_low=low, reset_high=high)
-    obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(jax.random.split(jax.random.PRNGKey(0), 20_000), params)
+    obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
+        jax.random.split(jax.random.PRNGKey(0), 20_000), params
+    )
     obs = np.asarray(obs)
     assert obs.dtype == np.float32 and obs.shape == (20_000, 4)
     assert obs.min() >= np.float32(low) and obs.max() < np.float32(high)
@@ -180,7 +183,9 @@ def test_reset_bounds_match_gymnasium(low, high):
     g = np.array([env.reset(seed=i, options=options)[0] for i in range(2000)])
     assert g.min() >= low and g.max() <= high
     # same distribution: both spread over the same interval
-    assert abs(g.min() - obs.min()) < 0.02 * (high - low) and abs(g.max() - obs.max()) < 0.02 * (high - low)
+    assert abs(g.min() - obs.min()) < 0.02 * (high - low) and abs(g.max() - obs.max()) < 0.02 * (
+        high - low
+    )
 
 
 def test_reset_dtype_follows_x64():
@@ -205,7 +210,9 @@ def test_whole_500_step_episodes_bit_identical_without_fma():
     XLA is kept from fusing multiply-adds (see tests/episode_parity.py)."""
     script = Path(__file__).with_name("episode_parity.py")
     env = {**os.environ, "XLA_FLAGS": "--xla_cpu_max_isa=AVX", "JAX_PLATFORMS": "cpu"}
-    proc = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, str(script)], env=env, capture_output=True, text=True, timeout=300
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert proc.stdout.count("max |diff| 0,") == 2, proc.stdout
 
@@ -217,8 +224,17 @@ def test_spaces_match_gymnasium():
     assert env.spec.max_episode_steps == cartpole.EnvParams().max_episode_steps
     u = env.unwrapped
     p = cartpole.EnvParams()
-    for name in ("gravity", "masscart", "masspole", "length", "force_mag", "tau", "x_threshold",
-                 "theta_threshold_radians", "kinematics_integrator"):
+    for name in (
+        "gravity",
+        "masscart",
+        "masspole",
+        "length",
+        "force_mag",
+        "tau",
+        "x_threshold",
+        "theta_threshold_radians",
+        "kinematics_integrator",
+    ):
         assert getattr(p, name) == getattr(u, name), name
 
 

@@ -52,7 +52,9 @@ def test_gae_matches_numpy_loop(bootstrap_truncation):
     terminated = rng.random((T, E)) < 0.1
     truncated = rng.random((T, E)) < 0.1  # some steps both: terminated must win
     assert (terminated & truncated).any() and (truncated & ~terminated).any()
-    expected_adv, expected_ret = gae_numpy(reward, value, next_value, terminated, truncated, 0.97, 0.9, bootstrap_truncation)
+    expected_adv, expected_ret = gae_numpy(
+        reward, value, next_value, terminated, truncated, 0.97, 0.9, bootstrap_truncation
+    )
     adv, ret = jax.jit(compute_gae, static_argnums=7)(
         jnp.asarray(reward, jnp.float32),
         jnp.asarray(value, jnp.float32),
@@ -78,7 +80,9 @@ def test_gae_hand_worked_three_steps():
     """
     reward = jnp.ones((3, 1))
     value = jnp.array([[1.0], [2.0], [3.0]])
-    next_value = jnp.array([[2.0], [4.0], [10.0]])  # V(s1), V(final_obs of step 1), V(final_obs of step 2)
+    next_value = jnp.array(
+        [[2.0], [4.0], [10.0]]
+    )  # V(s1), V(final_obs of step 1), V(final_obs of step 2)
     terminated = jnp.array([[False], [False], [True]])
     truncated = jnp.array([[False], [True], [False]])
     adv, ret = compute_gae(reward, value, next_value, terminated, truncated, 0.5, 0.5, True)
@@ -113,10 +117,14 @@ def test_loss_at_ratio_one():
     loss, aux = ppo_loss(params, network, batch, _hp(ent_coef=0.0), norm_adv=False)
     assert float(aux["approx_kl"]) == pytest.approx(0.0, abs=1e-7)
     assert float(aux["clip_fraction"]) == 0.0
-    assert float(aux["policy_gradient_loss"]) == pytest.approx(-float(batch.advantage.mean()), abs=1e-6)
+    assert float(aux["policy_gradient_loss"]) == pytest.approx(
+        -float(batch.advantage.mean()), abs=1e-6
+    )
     expected_value_loss = float(jnp.mean((batch.returns - value) ** 2))
     assert float(aux["value_loss"]) == pytest.approx(expected_value_loss, rel=1e-5)
-    assert float(loss) == pytest.approx(float(aux["policy_gradient_loss"]) + 0.5 * expected_value_loss, rel=1e-5)
+    assert float(loss) == pytest.approx(
+        float(aux["policy_gradient_loss"]) + 0.5 * expected_value_loss, rel=1e-5
+    )
     # normalised advantages have mean 0, so the surrogate at ratio 1 is 0
     _, aux = ppo_loss(params, network, batch, _hp(), norm_adv=True)
     assert float(aux["policy_gradient_loss"]) == pytest.approx(0.0, abs=1e-6)
@@ -158,7 +166,9 @@ def test_entropy_loss_is_negative_mean_entropy():
 def test_explained_variance():
     y = jnp.array([1.0, 2.0, 3.0, 4.0])
     assert float(explained_variance(y, y)) == 1.0
-    assert float(explained_variance(jnp.zeros(4), y)) == pytest.approx(1.0 - float(jnp.var(y)) / float(jnp.var(y)))
+    assert float(explained_variance(jnp.zeros(4), y)) == pytest.approx(
+        1.0 - float(jnp.var(y)) / float(jnp.var(y))
+    )
     assert np.isnan(float(explained_variance(y, jnp.ones(4))))
 
 
@@ -168,14 +178,23 @@ def test_episode_buffer_keeps_last_100_in_order():
     done[::2, :] = True  # 30 x 3 = 90 episodes per rollout
     returns = np.arange(T * E, dtype=np.float32).reshape(T, E)
     rollout = Transition(
-        obs=None, action=None, log_prob=None, value=None, reward=None,
-        terminated=jnp.asarray(done), truncated=jnp.zeros((T, E), bool), final_obs=None,
-        episode_return=jnp.asarray(returns), episode_length=jnp.asarray(returns),
+        obs=None,
+        action=None,
+        log_prob=None,
+        value=None,
+        reward=None,
+        terminated=jnp.asarray(done),
+        truncated=jnp.zeros((T, E), bool),
+        final_obs=None,
+        episode_return=jnp.asarray(returns),
+        episode_length=jnp.asarray(returns),
     )
     empty = EpisodeBuffer(jnp.zeros(100), jnp.zeros(100), jnp.zeros(100, bool))
     buf = update_episode_buffer(empty, rollout)
     assert int(buf.valid.sum()) == 90
-    np.testing.assert_allclose(np.sort(np.asarray(buf.returns)[np.asarray(buf.valid)]), np.sort(returns[done]))
+    np.testing.assert_allclose(
+        np.sort(np.asarray(buf.returns)[np.asarray(buf.valid)]), np.sort(returns[done])
+    )
     buf = update_episode_buffer(buf, rollout._replace(episode_return=jnp.asarray(returns + 1000)))
     kept = np.sort(np.asarray(buf.returns)[np.asarray(buf.valid)])
     assert len(kept) == 100
@@ -187,7 +206,13 @@ def test_episode_buffer_keeps_last_100_in_order():
 def test_sb3_defaults():
     c = PPOConfig()
     assert (c.num_envs, c.num_steps, c.minibatch_size, c.update_epochs) == (1, 2048, 64, 10)
-    assert (c.learning_rate, c.adam_eps, c.gamma, c.gae_lambda, c.clip_coef) == (3e-4, 1e-5, 0.99, 0.95, 0.2)
+    assert (c.learning_rate, c.adam_eps, c.gamma, c.gae_lambda, c.clip_coef) == (
+        3e-4,
+        1e-5,
+        0.99,
+        0.95,
+        0.2,
+    )
     assert (c.ent_coef, c.vf_coef, c.max_grad_norm) == (0.0, 0.5, 0.5)
     assert c.num_iterations == 40 and c.env_steps_per_seed == 81_920
     assert c.hidden_sizes == (64, 64) and c.activation == "tanh" and c.norm_adv and not c.anneal_lr
@@ -197,7 +222,12 @@ def test_sb3_defaults():
 def test_purejaxrl_preset():
     c = preset("purejaxrl")
     assert (c.num_envs, c.num_steps, c.update_epochs, c.num_minibatches) == (4, 128, 4, 4)
-    assert (c.learning_rate, c.anneal_lr, c.ent_coef, c.total_timesteps) == (2.5e-4, True, 0.01, 500_000)
+    assert (c.learning_rate, c.anneal_lr, c.ent_coef, c.total_timesteps) == (
+        2.5e-4,
+        True,
+        0.01,
+        500_000,
+    )
 
 
 def test_every_field_documented():
