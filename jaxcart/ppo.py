@@ -301,16 +301,35 @@ def update_epochs(
         params = jax.tree.map(lambda p, u: p - learning_rate * u, params, updates)
         return (params, opt_state), aux
 
-    def epoch(carry, epoch_key: Array):
-        perm = jax.random.permutation(epoch_key, config.batch_size)
+    def epoch(carry, perm: Array):
         shape = (config.num_minibatches, config.minibatch_size)
         minibatches = jax.tree.map(lambda x: x[perm].reshape(shape + x.shape[1:]), batch)
         return jax.lax.scan(minibatch_step, carry, minibatches)
 
-    (params, opt_state), aux = jax.lax.scan(
-        epoch, (params, opt_state), jax.random.split(key, config.update_epochs)
-    )
+    perms = random_permutations(key, config.update_epochs, config.batch_size)
+    (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), perms)
     return params, opt_state, aux
+
+
+def random_permutations(key: Array, num: int, size: int) -> Array:
+    """``num`` independent random permutations of ``range(size)``, shape ``[num, size]``.
+
+    Each round sorts one uint32 per element: random high bits with the index in the low
+    bits, so a single-operand integer sort does the shuffle (about 10x faster on CPU than
+    ``jax.random.permutation``'s key-value sorts). Elements whose random bits tie keep their
+    relative order within a round; a second round (when the index takes more than 12 bits)
+    makes such ties negligible.
+    """
+    index_bits = max(1, (size - 1).bit_length())
+    if index_bits > 24:
+        raise ValueError(f"batch of {size} transitions is too large to shuffle (max 2**24)")
+    low = jnp.uint32((1 << index_bits) - 1)
+    perms = jnp.broadcast_to(jnp.arange(size, dtype=jnp.uint32), (num, size))
+    for round_key in jax.random.split(key, 1 if index_bits <= 12 else 2):
+        bits = jax.random.bits(round_key, (num, size), jnp.uint32)
+        order = jnp.sort((bits & ~low) | jnp.arange(size, dtype=jnp.uint32), axis=-1) & low
+        perms = jnp.take_along_axis(perms, order.astype(jnp.int32), axis=-1)
+    return perms.astype(jnp.int32)
 
 
 def update_episode_buffer(buffer: EpisodeBuffer, rollout: Transition) -> EpisodeBuffer:
