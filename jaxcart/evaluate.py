@@ -156,3 +156,116 @@ def summarize(returns: np.ndarray) -> dict[str, np.ndarray]:
         "min": returns.min(axis=-1),
         "solved": (returns >= 500).all(axis=-1),
     }
+
+
+class EvaluateUsageError(Exception):
+    """A mistake on the ``python -m jaxcart.evaluate`` command line; one line, exit code 2."""
+
+
+def _evaluate_parser():
+    """The ``python -m jaxcart.evaluate`` argument parser (errors raise, never exit)."""
+    import argparse
+    from pathlib import Path
+
+    class Parser(argparse.ArgumentParser):
+        def error(self, message: str):  # one line, no usage dump
+            raise EvaluateUsageError(f"{message} (see python -m jaxcart.evaluate --help)")
+
+    parser = Parser(
+        prog="python -m jaxcart.evaluate",
+        description="Evaluate every seed of a jaxcart run greedily in Gymnasium's own "
+        "CartPole-v1 (solved = every episode scores 500); optionally render one seed's "
+        "policy to an animated GIF.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run directory")
+    parser.add_argument(
+        "--episodes", type=int, default=NUM_EVAL_EPISODES, help="greedy episodes per seed"
+    )
+    parser.add_argument(
+        "--gif", type=Path, default=None, help="also render one episode of a seed to this GIF"
+    )
+    parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
+    parser.add_argument(
+        "--gif-seed",
+        type=int,
+        default=EVAL_SEED,
+        help="env.reset seed of the GIF's episode (default: the first evaluation episode's)",
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m jaxcart.evaluate RUN_DIR``: prints the per-seed Gymnasium evaluation table
+    and, with ``--gif``, renders seed ``--seed-index``. Returns 0, or 2 for bad input."""
+    import sys
+
+    from jaxcart import rundir
+    from jaxcart.train import format_table
+
+    try:
+        args = _evaluate_parser().parse_args(argv)
+        if args.episodes <= 0:
+            raise EvaluateUsageError(f"--episodes must be a positive integer, got {args.episodes}")
+        info = rundir.read_run_config(args.run_dir)
+        num_seeds = int(info.get("num_seeds", 1))
+        if args.gif is not None:
+            if args.gif.suffix.lower() != ".gif":
+                raise EvaluateUsageError(f"--gif {args.gif} must end in .gif")
+            if not args.gif.parent.is_dir():
+                raise EvaluateUsageError(
+                    f"--gif {args.gif}: directory {args.gif.parent} does not exist"
+                )
+            if not 0 <= args.seed_index < num_seeds:
+                raise EvaluateUsageError(
+                    f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
+                    f"got {args.seed_index}"
+                )
+        params = rundir.load_params(args.run_dir)
+        try:
+            policy = numpy_policy(params, info["config"].activation, stacked=True)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise rundir.RunDirError(
+                f"{args.run_dir / rundir.PARAMS_FILE} does not hold an actor: {exc}"
+            ) from None
+
+        returns = evaluate_gymnasium(policy, num_seeds, args.episodes)
+        summary = summarize(returns)
+        rows = [
+            [
+                s,
+                f"{summary['mean'][s]:.1f}",
+                f"{summary['min'][s]:.0f}",
+                "yes" if summary["solved"][s] else "no",
+            ]
+            for s in range(num_seeds)
+        ]
+        print(
+            f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
+            f"gymnasium.make('CartPole-v1') (reset seeds {EVAL_SEED}..."
+            f"{EVAL_SEED + args.episodes - 1}):"
+        )
+        print(format_table(rows, ["seed", "mean", "min", "solved"]))
+        print(f"solved {int(summary['solved'].sum())}/{num_seeds} seed(s)", flush=True)
+
+        if args.gif is not None:
+            from jaxcart.render import render_gif
+
+            gif = render_gif(
+                rundir.load_policy(args.run_dir, args.seed_index), args.gif, seed=args.gif_seed
+            )
+            print(
+                f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
+                f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
+            )
+    except (EvaluateUsageError, rundir.RunDirError, ValueError, ImportError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

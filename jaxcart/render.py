@@ -1,0 +1,299 @@
+"""Animated GIFs of a policy balancing the pole in Gymnasium's own CartPole-v1.
+
+Frames come from Gymnasium's renderer (``render_mode="rgb_array"``, which needs ``pygame``);
+without pygame they are drawn with Pillow using the same geometry and colours. The episode
+itself always runs in ``gymnasium.make("CartPole-v1")``, so the GIF shows exactly what the
+evaluation measures. Needs Pillow (``pip install pillow pygame``).
+
+Example::
+
+    import jaxcart
+    from jaxcart.render import render_gif
+
+    render_gif(jaxcart.load_policy("runs/my-run"), "cartpole.gif")
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Literal, NamedTuple
+
+import numpy as np
+
+SCREEN_WIDTH, SCREEN_HEIGHT = 600, 400
+"""Gymnasium's CartPole canvas in pixels."""
+
+SCENE_COLOURS = {
+    (255, 255, 255): "background",
+    (0, 0, 0): "cart and track",
+    (202, 152, 101): "pole",
+    (129, 132, 203): "axle",
+    (60, 60, 60): "caption",
+}
+"""Every colour Gymnasium's renderer (and the caption) uses; the GIF palette blends them."""
+
+CAPTION_COLOUR = (60, 60, 60)
+
+
+class RenderedGif(NamedTuple):
+    """What :func:`render_gif` wrote."""
+
+    path: Path
+    frames: int  # frames in the GIF (after frame skipping)
+    steps: int  # environment steps taken
+    episode_return: float
+    backend: str  # "gymnasium" (pygame) or "pillow"
+
+
+def _prepare_pygame_env() -> None:
+    """Lets pygame render off-screen on a machine without a display, and quietly."""
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        # rgb_array rendering never opens a window; the dummy driver avoids SDL errors.
+        os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+        os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+
+
+def pygame_available() -> bool:
+    """Whether Gymnasium's own renderer (pygame) can be used."""
+    _prepare_pygame_env()
+    try:
+        import pygame  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def draw_frame(state: np.ndarray, length: float = 0.5, x_threshold: float = 2.4) -> np.ndarray:
+    """One ``(400, 600, 3)`` uint8 frame of ``state = (x, x_dot, theta, theta_dot)``, drawn with
+    Pillow in the geometry and colours of Gymnasium's CartPole renderer (no anti-aliasing)."""
+    from PIL import Image, ImageDraw
+
+    scale = SCREEN_WIDTH / (2 * x_threshold)
+    pole_width, pole_len = 10.0, scale * 2 * length
+    cart_width, cart_height = 50.0, 30.0
+    axle_offset = cart_height / 4.0
+    cart_x = float(state[0]) * scale + SCREEN_WIDTH / 2.0
+    cart_y = 100.0  # top of the cart, measured from the bottom like Gymnasium (flipped below)
+    theta = float(state[2])
+
+    def to_image(x: float, y: float) -> tuple[float, float]:
+        return x, SCREEN_HEIGHT - 1 - y  # pygame.transform.flip maps row y to H - 1 - y
+
+    image = Image.new("RGB", (SCREEN_WIDTH, SCREEN_HEIGHT), (255, 255, 255))
+    draw = ImageDraw.Draw(image)
+    left, right, top, bottom = -cart_width / 2, cart_width / 2, cart_height / 2, -cart_height / 2
+    cart = [(left, bottom), (left, top), (right, top), (right, bottom)]
+    draw.polygon([to_image(cart_x + x, cart_y + y) for x, y in cart], fill=(0, 0, 0))
+
+    left, right = -pole_width / 2, pole_width / 2
+    top, bottom = pole_len - pole_width / 2, -pole_width / 2
+    # pygame's Vector2.rotate_rad(-theta) in y-up coordinates: the pole leans right for theta > 0.
+    cos, sin = math.cos(-theta), math.sin(-theta)
+    pole = [
+        to_image(cart_x + x * cos - y * sin, cart_y + axle_offset + x * sin + y * cos)
+        for x, y in [(left, bottom), (left, top), (right, top), (right, bottom)]
+    ]
+    draw.polygon(pole, fill=(202, 152, 101))
+
+    ax, ay = to_image(int(cart_x), int(cart_y + axle_offset))
+    r = int(pole_width / 2)
+    draw.ellipse([ax - r, ay - r, ax + r, ay + r], fill=(129, 132, 203))
+    draw.line([to_image(0, cart_y), to_image(SCREEN_WIDTH, cart_y)], fill=(0, 0, 0))
+    return np.asarray(image)
+
+
+def _check_options(max_steps: int, fps: float, frame_skip: int, scale: float) -> None:
+    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    if isinstance(frame_skip, bool) or not isinstance(frame_skip, int) or frame_skip < 1:
+        raise ValueError(f"frame_skip must be a positive integer, got {frame_skip!r}")
+    if not 0 < scale <= 4:
+        raise ValueError(f"scale must be in (0, 4], got {scale!r}")
+
+
+def render_frames(
+    policy: Callable[[np.ndarray], int],
+    seed: int = 0,
+    max_steps: int = 500,
+    backend: Literal["auto", "gymnasium", "pillow"] = "auto",
+    env_id: str = "CartPole-v1",
+) -> tuple[list[np.ndarray], float, str]:
+    """Runs one greedy episode and yields its frames.
+
+    Args:
+        policy: maps a float32 observation ``(4,)`` to an action (e.g. :func:`jaxcart.load_policy`).
+        seed: ``env.reset(seed=seed)``.
+        max_steps: stop after this many steps even if the episode goes on.
+        backend: ``"gymnasium"`` (pygame), ``"pillow"``, or ``"auto"`` (pygame when installed).
+
+    Returns:
+        ``(frames, episode_return, backend)``: ``steps + 1`` frames ``(400, 600, 3)`` uint8 (the
+        reset state and the state after every step; 360 MB for 500 steps, so
+        :func:`render_gif` streams them instead).
+    """
+    stats: dict = {}
+    frames = list(_iter_frames(policy, seed, max_steps, backend, env_id, stats))
+    return frames, stats["return"], stats["backend"]
+
+
+def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict):
+    """Yields ``(400, 600, 3)`` frames of one episode; fills ``stats`` with its return/backend."""
+    import gymnasium as gym
+
+    if backend not in ("auto", "gymnasium", "pillow"):
+        raise ValueError(f"backend must be 'auto', 'gymnasium' or 'pillow', got {backend!r}")
+    if backend == "auto":
+        backend = "gymnasium" if pygame_available() else "pillow"
+    if backend == "gymnasium" and not pygame_available():
+        raise ImportError(
+            "backend='gymnasium' needs pygame: pip install pygame (or use backend='pillow')"
+        )
+    stats["backend"] = backend
+    env = gym.make(env_id, render_mode="rgb_array" if backend == "gymnasium" else None)
+    core = env.unwrapped
+
+    def frame() -> np.ndarray:
+        if backend == "gymnasium":
+            return env.render()
+        return draw_frame(np.asarray(core.state), core.length, core.x_threshold)
+
+    try:
+        obs, _ = env.reset(seed=seed)
+        total = 0.0
+        stats["return"], stats["steps"] = total, 0
+        yield frame()
+        for step in range(1, max_steps + 1):
+            obs, reward, terminated, truncated, _ = env.step(int(policy(obs)))
+            total += float(reward)
+            stats["return"], stats["steps"] = total, step
+            yield frame()
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+
+
+def _annotate(image, text: str) -> None:
+    """Writes ``text`` in the top-left corner of a PIL image."""
+    from PIL import ImageDraw
+
+    ImageDraw.Draw(image).text((6, 4), text, fill=CAPTION_COLOUR)
+
+
+def render_gif(
+    policy: Callable[[np.ndarray], int],
+    path: str | os.PathLike,
+    seed: int = 0,
+    max_steps: int = 500,
+    fps: float = 50,
+    *,
+    frame_skip: int = 2,
+    scale: float = 0.5,
+    annotate: bool = True,
+    backend: Literal["auto", "gymnasium", "pillow"] = "auto",
+    env_id: str = "CartPole-v1",
+) -> RenderedGif:
+    """Renders one greedy episode of ``policy`` in Gymnasium's CartPole-v1 to an animated GIF.
+
+    Args:
+        policy: maps a float32 observation ``(4,)`` to an action, e.g.
+            ``jaxcart.load_policy(run_dir, seed_index)``.
+        path: the ``.gif`` to write (its directory must exist).
+        seed: the episode's ``env.reset(seed=seed)``.
+        max_steps: at most this many environment steps (CartPole-v1 truncates at 500).
+        fps: environment steps per second of animation; 50 is real time (CartPole's tau is
+            0.02 s). The GIF keeps every ``frame_skip``-th frame, each shown ``frame_skip / fps``
+            seconds, so the playback speed does not depend on ``frame_skip``.
+        frame_skip: keep one frame in this many (the last frame is always kept); 2 halves the
+            file size without visible jerkiness.
+        scale: resize factor of Gymnasium's 600x400 frames (0.5 gives 300x200).
+        annotate: write the step count and return in the corner.
+        backend: ``"gymnasium"`` (pygame renderer), ``"pillow"`` (drawn here), or ``"auto"``.
+
+    Returns:
+        A :class:`RenderedGif` with the path, frame count, steps and episode return.
+    """
+
+    _check_options(max_steps, fps, frame_skip, scale)
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
+    size = (max(1, round(SCREEN_WIDTH * scale)), max(1, round(SCREEN_HEIGHT * scale)))
+    stats: dict = {}
+    palette = gif_palette()
+    images = []
+    last = None
+    for i, frame in enumerate(_iter_frames(policy, seed, max_steps, backend, env_id, stats)):
+        last = (i, frame)
+        if i % frame_skip:
+            continue
+        images.append(_to_gif_frame(frame, size, annotate, stats, palette))
+    if last is not None and last[0] % frame_skip:  # always show how the episode ended
+        images.append(_to_gif_frame(last[1], size, annotate, stats, palette))
+
+    # GIF frame delays are whole centiseconds.
+    duration = max(10, round(100 * frame_skip / fps) * 10)
+    import io
+
+    from jaxcart.rundir import atomic_write_bytes
+
+    buf = io.BytesIO()
+    images[0].save(
+        buf,
+        format="GIF",
+        save_all=True,
+        append_images=images[1:],
+        duration=duration,
+        loop=0,
+        optimize=False,
+        disposal=1,
+    )
+    atomic_write_bytes(path, buf.getvalue())
+    return RenderedGif(path, len(images), stats["steps"], stats["return"], stats["backend"])
+
+
+def gif_palette() -> np.ndarray:
+    """``(N, 3)`` uint8 colours: the scene's colours and 9-step blends between each pair, which
+    covers the anti-aliased edges of the downscaled frames exactly enough."""
+    colours = np.array(list(SCENE_COLOURS), float)
+    blends = np.linspace(0.0, 1.0, 9)[:, None]
+    rows = [
+        np.rint(colours[i] * (1 - blends) + colours[j] * blends)
+        for i in range(len(colours))
+        for j in range(i + 1, len(colours))
+    ]
+    return np.unique(np.concatenate(rows).astype(np.uint8), axis=0)
+
+
+def _to_palette_image(rgb: np.ndarray, palette: np.ndarray):
+    """A ``P``-mode PIL image of ``rgb`` ``(H, W, 3)`` mapped to the nearest ``palette`` colour."""
+    from PIL import Image
+
+    packed = (
+        (rgb[..., 0].astype(np.int32) << 16) | (rgb[..., 1].astype(np.int32) << 8) | rgb[..., 2]
+    )
+    values, inverse = np.unique(packed.ravel(), return_inverse=True)
+    colours = np.stack([(values >> 16) & 255, (values >> 8) & 255, values & 255], axis=1)
+    dist = ((colours[:, None, :] - palette[None, :, :].astype(np.int32)) ** 2).sum(-1)
+    index = np.argmin(dist, axis=1).astype(np.uint8)[inverse].reshape(rgb.shape[:2])
+    image = Image.fromarray(index, mode="P")
+    image.putpalette(palette.ravel().tolist())
+    return image
+
+
+def _to_gif_frame(frame: np.ndarray, size, annotate: bool, stats: dict, palette: np.ndarray):
+    """An RGB frame resized, annotated and mapped onto the GIF's global palette."""
+    from PIL import Image
+
+    image = Image.fromarray(np.asarray(frame, np.uint8))
+    if image.size != size:
+        image = image.resize(size, Image.Resampling.LANCZOS)
+    if annotate:
+        _annotate(image, f"step {stats['steps']}  return {stats['return']:.0f}")
+    return _to_palette_image(np.asarray(image), palette)
