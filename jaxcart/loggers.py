@@ -1,0 +1,413 @@
+"""Metric logging to TensorBoard and SwanLab, off the training hot path.
+
+The host gets metrics after every compiled chunk of iterations. :meth:`Logger.log` only
+validates, copies the arrays and puts them on a queue; one daemon thread per backend does the
+writing, so a slow disk (or a slow library) never stalls training. A backend that fails is
+reported once on stderr, switched off for the rest of the run, and its error is raised again
+by :meth:`Logger.close`; training itself never sees it.
+
+Backends (each imported lazily, in its own thread):
+
+- ``tensorboard``: TensorBoard event files written with ``tensorboardX``, one TensorBoard run
+  per training run in ``out_dir/tensorboard/<run_name>/``, scalars under the
+  Stable-Baselines3 names (``rollout/ep_rew_mean``, ``train/approx_kl``, ...) plus
+  ``time/iterations``, with ``global_step`` = env steps of that run. View with
+  ``tensorboard --logdir out_dir/tensorboard``.
+- ``swanlab``: SwanLab without a server (nothing leaves the machine), written under
+  ``out_dir/swanlog/run-<time>-<id>/``. SwanLab allows one active experiment per process, so
+  the R runs share one experiment: with R > 1 each run's metrics go under
+  ``<run_name>/<metric>`` and the mean over runs (of those that have a value) under the plain
+  SB3 names; ``time/*`` is the same for every run and logged once. With R = 1 only the plain
+  names are logged. The step is env steps per run. Mode ``offline`` by default: records for
+  ``swanlab sync out_dir/swanlog/run-...`` (uploads; needs an account or a self-hosted
+  server). With ``pip install 'swanlab[dashboard]'`` the mode is ``local`` instead, which also
+  fills the database that ``swanlab watch out_dir/swanlog`` serves on localhost.
+
+NaN values (``rollout/ep_rew_mean`` before the first episode ends) are skipped, not logged.
+"""
+
+from __future__ import annotations
+
+import atexit
+import importlib.util
+import json
+import os
+import queue
+import sys
+import textwrap
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+
+
+class LoggerUnavailable(ValueError):
+    """A requested logger's package is not installed (the message says which extra to add)."""
+
+
+class LoggerError(RuntimeError):
+    """One or more backends failed while training; raised by :meth:`Logger.close`."""
+
+
+@dataclass(frozen=True)
+class MetricBatch:
+    """One chunk's metrics, owned by the logger (copied from the caller's arrays).
+
+    Attributes:
+        first_iteration: iterations completed before the chunk (the first row is iteration
+            ``first_iteration + 1``, counted from 1 as SB3's ``time/iterations`` is).
+        env_steps: ``[n]`` env steps of each run after each iteration (the step axis).
+        metrics: name -> ``[n, R]`` float64, one column per run.
+    """
+
+    first_iteration: int
+    env_steps: np.ndarray
+    metrics: dict[str, np.ndarray]
+
+    @property
+    def iterations(self) -> np.ndarray:
+        """``[n]`` SB3's ``time/iterations`` of each row."""
+        return self.first_iteration + 1 + np.arange(len(self.env_steps))
+
+
+class Backend(Protocol):
+    """What a writer implements. ``__init__`` must be cheap and import nothing heavy; ``open``,
+    ``write`` and ``close`` run in the backend's own thread, in that order."""
+
+    name: ClassVar[str]
+    module: ClassVar[str | None]  # package that must be importable (None: nothing needed)
+    extra: ClassVar[str | None]  # pip extra of jaxcart that installs it
+
+    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None: ...
+
+    def open(self) -> None: ...
+
+    def write(self, batch: MetricBatch) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def _json_safe(config: dict) -> dict:
+    """``config`` with every value JSON-able (unknown types become strings)."""
+    return json.loads(json.dumps(config, default=str))
+
+
+class TensorBoardBackend:
+    """One event file per run in ``out_dir/tensorboard/<run_name>/``; each iteration is one
+    event per run holding all its scalars, at ``global_step`` = env steps."""
+
+    name = "tensorboard"
+    module = "tensorboardX"
+    extra = "tensorboard"
+
+    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None:
+        self.run_dirs = [out_dir / "tensorboard" / run for run in run_names]
+        self.config = config
+        self.writers: list[Any] = []
+
+    def open(self) -> None:
+        from tensorboardX import FileWriter
+        from tensorboardX.summary import text
+
+        # Markdown: indenting by four spaces shows the JSON as a code block in the Text tab.
+        config_text = textwrap.indent(json.dumps(self.config, indent=2, default=str), "    ")
+        for run_dir in self.run_dirs:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            writer = FileWriter(str(run_dir), max_queue=1024, flush_secs=30)
+            self.writers.append(writer)
+            writer.add_summary(text("config", config_text), global_step=0)
+
+    def write(self, batch: MetricBatch) -> None:
+        from tensorboardX.proto.summary_pb2 import Summary
+
+        names = sorted(batch.metrics)
+        iterations = batch.iterations
+        for r, writer in enumerate(self.writers):
+            for i, step in enumerate(batch.env_steps):
+                values = [Summary.Value(tag="time/iterations", simple_value=float(iterations[i]))]
+                for name in names:
+                    value = batch.metrics[name][i, r]
+                    if not np.isnan(value):
+                        values.append(Summary.Value(tag=name, simple_value=float(value)))
+                writer.add_summary(Summary(value=values), global_step=int(step))
+            writer.flush()  # TensorBoard sees every chunk as soon as it is written
+
+    def close(self) -> None:
+        for writer in self.writers:
+            writer.close()
+        self.writers = []
+
+
+def swanlab_mode() -> str:
+    """``"local"`` when SwanLab's dashboard (``swanboard``, from ``pip install
+    'swanlab[dashboard]'``) is installed at the version SwanLab asks for: the run is then also
+    written to the database that ``swanlab watch`` serves. Otherwise ``"offline"`` (records
+    only, for ``swanlab sync``). Both stay on this machine."""
+    from importlib import metadata
+
+    try:
+        installed = metadata.version("swanboard")
+    except metadata.PackageNotFoundError:
+        return "offline"
+    if os.environ.get("SWANLAB_SKIP_SWANBOARD_VERSION_CHECK") == "1":
+        return "local"
+    # SwanLab refuses any swanboard but the one its "dashboard" extra pins.
+    pins = (r.replace(" ", "") for r in metadata.requires("swanlab") or [])
+    wanted = {r.split("==")[1].split(";")[0] for r in pins if r.startswith("swanboard==")}
+    return "local" if installed in wanted else "offline"
+
+
+class SwanLabBackend:
+    """One SwanLab experiment for all runs (SwanLab allows one per process): with R > 1,
+    ``<run_name>/<metric>`` per run plus the mean over runs under the plain names."""
+
+    name = "swanlab"
+    module = "swanlab"
+    extra = "swanlab"
+
+    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None:
+        self.log_dir = out_dir / "swanlog"
+        self.experiment = out_dir.resolve().name or "jaxcart"
+        self.run_names = run_names
+        self.config = config
+        self.run: Any = None
+
+    def open(self) -> None:
+        import swanlab
+
+        Settings = swanlab.Settings
+        settings = Settings(
+            # offline/local: write records locally and never contact a server;
+            # interactive=False: never prompt (no TTY in CI); no terminal proxy: SwanLab would
+            # otherwise wrap sys.stdout/sys.stderr (the progress bar's stream); no
+            # hardware-monitor thread; no webhook even if SWANLAB_WEBHOOK is set.
+            mode=swanlab_mode(),
+            interactive=False,
+            log_dir=self.log_dir,
+            terminal=Settings.Terminal(proxy_type="none"),
+            probe=Settings.Probe(monitor=False),
+            integration=Settings.Integration(webhook=Settings.Integration.Webhook(url="")),
+        )
+        # Started from this (non-main) thread on purpose: SwanLab then leaves SIGINT handling
+        # to the training CLI instead of installing its own handler.
+        self.run = swanlab.init(
+            project="jaxcart",
+            name=self.experiment,
+            description=f"{len(self.run_names)} run(s): {', '.join(self.run_names)}",
+            config={**_json_safe(self.config), "run_names": self.run_names},
+            settings=settings,
+        )
+
+    def write(self, batch: MetricBatch) -> None:
+        single = len(self.run_names) == 1
+        iterations = batch.iterations
+        for i, step in enumerate(batch.env_steps):
+            data: dict[str, float] = {"time/iterations": int(iterations[i])}
+            for name, values in batch.metrics.items():
+                row = values[i]
+                present = row[~np.isnan(row)]
+                if present.size:
+                    data[name] = float(present.mean())
+                if single or name.startswith("time/"):
+                    continue
+                for run, value in zip(self.run_names, row):
+                    if not np.isnan(value):
+                        data[f"{run}/{name}"] = float(value)
+            self.run.log(data, step=int(step))
+
+    def close(self) -> None:
+        if self.run is not None:
+            self.run.finish()
+            self.run = None
+
+
+BACKENDS: dict[str, type[Backend]] = {
+    TensorBoardBackend.name: TensorBoardBackend,
+    SwanLabBackend.name: SwanLabBackend,
+}
+"""Logger name -> backend class (tests may register more)."""
+
+LOGGER_NAMES = tuple(BACKENDS)
+"""The names :func:`make_logger` accepts (for the CLI's choices)."""
+
+_STOP = object()
+
+
+class _Worker:
+    """A backend, its queue and the daemon thread that drains it."""
+
+    def __init__(self, backend: Backend) -> None:
+        self.backend = backend
+        self.queue: queue.SimpleQueue = queue.SimpleQueue()
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(
+            target=self._run, name=f"jaxcart-logger-{backend.name}", daemon=True
+        )
+        self.thread.start()
+
+    def _run(self) -> None:
+        self._attempt(self.backend.open)
+        while (item := self.queue.get()) is not _STOP:
+            if self.error is None:
+                self._attempt(self.backend.write, item)
+        # Closed even after a failure: flushes what was written and releases the files.
+        self._attempt(self.backend.close)
+
+    def _attempt(self, fn, *args) -> None:
+        try:
+            fn(*args)
+        except Exception as exc:
+            if self.error is None:
+                self.error = exc
+                print(
+                    f"jaxcart: warning: {self.backend.name} logging failed and is off for the rest "
+                    f"of this run ({type(exc).__name__}: {exc}); logger.close() will raise it",
+                    file=sys.stderr,
+                    flush=True,
+                )
+
+
+class Logger:
+    """Fans each chunk's metrics out to the backends' queues; see :func:`make_logger`.
+
+    Use as a context manager or call :meth:`close`; a logger with no backends does nothing.
+    """
+
+    def __init__(self, backends: Sequence[Backend], num_runs: int) -> None:
+        self.num_runs = num_runs
+        self._workers = [_Worker(b) for b in backends]
+        self._closed = False
+        if self._workers:
+            atexit.register(self._close_at_exit)
+
+    @property
+    def names(self) -> list[str]:
+        """The active backends' names."""
+        return [w.backend.name for w in self._workers]
+
+    @property
+    def errors(self) -> dict[str, BaseException]:
+        """Backend name -> the first error it raised (empty while all is well)."""
+        return {w.backend.name: w.error for w in self._workers if w.error is not None}
+
+    def log(
+        self, first_iteration: int, env_steps: np.ndarray, metrics: dict[str, np.ndarray]
+    ) -> None:
+        """Queues one chunk's metrics and returns at once (the arrays are copied).
+
+        Args:
+            first_iteration: iterations completed before this chunk.
+            env_steps: ``[n]`` env steps of each run after each of the chunk's iterations.
+            metrics: name -> ``[n, R]`` (or ``[n]``, the same for every run).
+
+        Raises:
+            ValueError: a leaf's shape does not match ``[n, R]``.
+            RuntimeError: the logger is closed.
+        """
+        if self._closed:
+            raise RuntimeError("Logger.log() called after close()")
+        if not self._workers:
+            return
+        steps = np.array(env_steps, dtype=np.int64).reshape(-1)
+        n = len(steps)
+        copied = {}
+        for name, value in metrics.items():
+            array = np.array(value, dtype=np.float64)
+            if array.ndim == 1:
+                array = np.repeat(array[:, None], self.num_runs, axis=1)
+            if array.shape != (n, self.num_runs):
+                raise ValueError(
+                    f"metric {name!r} has shape {array.shape}; expected ({n}, {self.num_runs}) "
+                    f"= (len(env_steps), number of runs)"
+                )
+            copied[name] = array
+        if n == 0:
+            return
+        batch = MetricBatch(int(first_iteration), steps, copied)
+        for worker in self._workers:
+            worker.queue.put(batch)
+
+    def close(self) -> None:
+        """Writes everything queued, closes the backends and waits for them. Idempotent.
+
+        Raises:
+            LoggerError: a backend failed during the run (it was already warned about once).
+        """
+        if self._closed:
+            return
+        self._closed = True
+        for worker in self._workers:
+            worker.queue.put(_STOP)
+        for worker in self._workers:
+            worker.thread.join()
+        if self._workers:
+            atexit.unregister(self._close_at_exit)
+        errors = self.errors
+        if errors:
+            message = "; ".join(f"{name} logging failed: {exc!r}" for name, exc in errors.items())
+            raise LoggerError(message) from next(iter(errors.values()))
+
+    def _close_at_exit(self) -> None:
+        try:
+            self.close()
+        except LoggerError:
+            pass  # already reported on stderr
+
+    def __enter__(self) -> Logger:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            try:
+                self.close()
+            except LoggerError:
+                pass  # already reported; let the original exception through
+
+
+def _installed(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def make_logger(
+    names: Sequence[str], out_dir: Path, run_names: Sequence[str], config: dict | None = None
+) -> Logger:
+    """A :class:`Logger` writing to each named backend (``[]``: a logger that does nothing).
+
+    Args:
+        names: backends, a subset of :data:`LOGGER_NAMES` (``"tensorboard"``, ``"swanlab"``).
+        out_dir: the run directory; each backend writes in its own subdirectory.
+        run_names: one name per run (the ``R`` axis of the metrics), used as directory names.
+        config: JSON-able settings stored with the logs.
+
+    Raises:
+        LoggerUnavailable: a backend's package is not installed.
+        ValueError: an unknown backend name or unusable run names.
+    """
+    names = list(dict.fromkeys(names))
+    unknown = [n for n in names if n not in BACKENDS]
+    if unknown:
+        raise ValueError(f"unknown logger(s) {unknown}; choose from {', '.join(BACKENDS)}")
+    run_names = [str(r) for r in run_names]
+    if not run_names or len(set(run_names)) != len(run_names):
+        raise ValueError(f"run_names must be non-empty and unique, got {run_names}")
+    bad = [r for r in run_names if not r or r in (".", "..") or "/" in r or "\\" in r]
+    if bad:
+        raise ValueError(f"run names must be usable as directory names, got {bad}")
+    for name in names:
+        backend = BACKENDS[name]
+        if backend.module is not None and not _installed(backend.module):
+            raise LoggerUnavailable(
+                f"the {name} logger needs the {backend.module} package: "
+                f"pip install 'jaxcart[{backend.extra}]'"
+            )
+    out_dir = Path(out_dir)
+    config = dict(config or {})
+    return Logger([BACKENDS[n](out_dir, run_names, config) for n in names], len(run_names))

@@ -1,0 +1,308 @@
+"""Metric loggers: what TensorBoard and SwanLab files hold after a run, and the queue around them
+(log() never waits for a writer; writer errors are reported, not raised into training)."""
+
+import socket
+import struct
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from jaxcart import loggers
+from jaxcart.loggers import LoggerError, LoggerUnavailable, MetricBatch, make_logger
+
+RUNS = ["seed0", "seed1"]
+BATCH = 128  # env steps per iteration
+
+
+def synthetic_chunks(num_chunks: int = 3, size: int = 2):
+    """``(first_iteration, env_steps [n], metrics [n, 2])`` per chunk; run 0 has no finished
+    episode (NaN ep_rew_mean) during the first chunk, run 1 has one from the start."""
+    chunks = []
+    for c in range(num_chunks):
+        first = c * size
+        iterations = first + 1 + np.arange(size)
+        reward = np.stack([10.0 * iterations, 20.0 * iterations + 1], axis=1)
+        if c == 0:
+            reward[:, 0] = np.nan
+        metrics = {
+            "rollout/ep_rew_mean": reward.astype(np.float32),
+            "train/approx_kl": np.stack([0.01 * iterations, 0.02 * iterations], 1).astype(
+                np.float32
+            ),
+            "time/fps": np.repeat((100.0 * iterations)[:, None], 2, 1).astype(np.float32),
+        }
+        chunks.append((first, iterations * BATCH, metrics))
+    return chunks
+
+
+def expected_points(chunks, run: int) -> dict[str, list[tuple[int, float]]]:
+    """tag -> [(step, value)] that a per-run writer should hold, NaNs left out."""
+    points: dict[str, list[tuple[int, float]]] = {}
+    for first, steps, metrics in chunks:
+        for i, step in enumerate(steps):
+            points.setdefault("time/iterations", []).append((int(step), first + i + 1))
+            for name, values in metrics.items():
+                if not np.isnan(values[i, run]):
+                    points.setdefault(name, []).append((int(step), float(values[i, run])))
+    return points
+
+
+def read_tfrecords(path: Path) -> list[bytes]:
+    """Payloads of a TFRecord file (length u64, masked crc u32, payload, masked crc u32)."""
+    data, records, pos = path.read_bytes(), [], 0
+    while pos < len(data):
+        (length,) = struct.unpack("<Q", data[pos : pos + 8])
+        records.append(data[pos + 12 : pos + 12 + length])
+        pos += 12 + length + 4
+    return records
+
+
+def test_tensorboard_one_run_per_seed_with_env_step_axis(tmp_path):
+    pytest.importorskip("tensorboardX")
+    from tensorboardX.proto.event_pb2 import Event
+
+    chunks = synthetic_chunks()
+    with make_logger(["tensorboard"], tmp_path, RUNS, {"learning_rate": 2.5e-4}) as logger:
+        for chunk in chunks:
+            logger.log(*chunk)
+
+    for r, run in enumerate(RUNS):
+        files = list((tmp_path / "tensorboard" / run).glob("events.out.tfevents.*"))
+        assert len(files) == 1
+        scalars: dict[str, list[tuple[int, float]]] = {}
+        texts = []
+        for record in read_tfrecords(files[0]):
+            event = Event.FromString(record)
+            for value in event.summary.value:
+                if value.HasField("simple_value"):
+                    scalars.setdefault(value.tag, []).append((event.step, value.simple_value))
+                else:
+                    texts.append(value.tensor.string_val[0].decode())
+        expected = expected_points(chunks, r)
+        assert sorted(scalars) == sorted(expected)
+        for tag, points in expected.items():
+            got = scalars[tag]
+            assert [s for s, _ in got] == [s for s, _ in points], tag
+            np.testing.assert_allclose([v for _, v in got], [v for _, v in points], rtol=1e-6)
+        # NaNs skipped: run 0 has no ep_rew_mean in the first chunk (steps 128 and 256).
+        first_step = scalars["rollout/ep_rew_mean"][0][0]
+        assert first_step == (3 * BATCH if r == 0 else BATCH)
+        assert any("learning_rate" in t for t in texts)
+
+
+def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypatch):
+    pytest.importorskip("swanlab")
+    monkeypatch.setenv("CI", "true")
+    monkeypatch.setenv("SWANLAB_WEBHOOK", "http://127.0.0.1:9/hook")  # must not be called
+    monkeypatch.chdir(tmp_path)  # SwanLab reads ./.env and ./swanlab.yaml; keep it clean
+    network = []
+    monkeypatch.setattr(socket, "getaddrinfo", lambda *a, **k: network.append(a) or [])
+    monkeypatch.setattr(socket.socket, "connect", lambda self, addr: network.append(addr))
+    chunks = synthetic_chunks()
+    with make_logger(["swanlab"], tmp_path / "out", RUNS, {"learning_rate": 2.5e-4}) as logger:
+        for chunk in chunks:
+            logger.log(*chunk)
+
+    assert network == []
+    run_dirs = list((tmp_path / "out" / "swanlog").glob("run-*"))
+    assert len(run_dirs) == 1
+    records_file = next(run_dirs[0].glob("*.swanlab"))
+    assert records_file.stat().st_size > 0
+    assert "learning_rate" in (run_dirs[0] / "files" / "config.yaml").read_text()
+
+    try:  # SwanLab's own record reader (internal API): check the values when it is there
+        from swanlab.proto.swanlab.record.v1.record_pb2 import Record
+        from swanlab.sdk.internal.core_python.store import DataStoreReader
+    except ImportError:
+        pytest.skip("this SwanLab version has no record reader to check values with")
+    reader = DataStoreReader()
+    reader.open(records_file)
+    logged: dict[str, list[tuple[int, float]]] = {}
+    finished = False
+    for payload in reader:
+        record = Record.FromString(payload)
+        finished |= record.HasField("finish")
+        if record.HasField("scalar"):
+            scalar = record.scalar
+            logged.setdefault(scalar.key, []).append((scalar.step, scalar.value.number))
+    reader.close()
+    assert finished
+
+    def check(key, points):
+        assert [s for s, _ in logged.get(key, [])] == [s for s, _ in points], key
+        np.testing.assert_allclose([v for _, v in logged[key]], [v for _, v in points], rtol=1e-6)
+
+    per_run = [expected_points(chunks, r) for r in range(2)]
+    for r, run in enumerate(RUNS):
+        for name in ("rollout/ep_rew_mean", "train/approx_kl"):
+            check(f"{run}/{name}", per_run[r][name])
+    assert not any(key.startswith("seed0/time/") for key in logged)
+    check("time/fps", per_run[0]["time/fps"])
+    check("time/iterations", per_run[0]["time/iterations"])
+    # The mean over runs that have a value: run 1 alone while run 0's is NaN.
+    mean = []
+    for first, steps, metrics in chunks:
+        for i, step in enumerate(steps):
+            row = metrics["rollout/ep_rew_mean"][i]
+            mean.append((int(step), float(np.nanmean(row))))
+    check("rollout/ep_rew_mean", mean)
+
+
+class RecordingBackend:
+    """Stands in for a real backend; ``delay`` makes every write slow."""
+
+    name = "recording"
+    module = None
+    extra = None
+    delay = 0.0
+    fail_in: str | None = None
+    instances: ClassVar[list["RecordingBackend"]] = []
+
+    def __init__(self, out_dir, run_names, config):
+        self.batches: list[MetricBatch] = []
+        self.calls: list[str] = []
+        self.thread_names: set[str] = set()
+        RecordingBackend.instances.append(self)
+
+    def _call(self, what):
+        self.calls.append(what)
+        self.thread_names.add(threading.current_thread().name)
+        if self.fail_in == what:
+            raise OSError(f"disk full during {what}")
+
+    def open(self):
+        self._call("open")
+
+    def write(self, batch):
+        time.sleep(self.delay)
+        self._call("write")
+        self.batches.append(batch)
+
+    def close(self):
+        self._call("close")
+
+
+@pytest.fixture
+def recording(monkeypatch):
+    monkeypatch.setitem(loggers.BACKENDS, "recording", RecordingBackend)
+    monkeypatch.setattr(RecordingBackend, "instances", [])
+    return RecordingBackend
+
+
+def test_log_returns_at_once_while_a_slow_writer_catches_up(tmp_path, recording, monkeypatch):
+    monkeypatch.setattr(recording, "delay", 0.1)
+    logger = make_logger(["recording"], tmp_path, RUNS)
+    chunks = synthetic_chunks(num_chunks=5)
+    start = time.perf_counter()
+    for chunk in chunks:
+        logger.log(*chunk)
+    assert time.perf_counter() - start < 0.05  # five writes take >= 0.5 s
+    chunks[0][2]["train/approx_kl"][:] = -1.0  # the logger kept its own copy
+    logger.close()
+
+    backend = recording.instances[0]
+    assert backend.calls == ["open"] + ["write"] * 5 + ["close"]
+    assert backend.thread_names == {"jaxcart-logger-recording"}
+    assert [b.first_iteration for b in backend.batches] == [0, 2, 4, 6, 8]
+    assert backend.batches[0].metrics["train/approx_kl"][0, 1] == pytest.approx(0.02)
+    np.testing.assert_array_equal(backend.batches[1].env_steps, [3 * BATCH, 4 * BATCH])
+    np.testing.assert_array_equal(backend.batches[1].iterations, [3, 4])
+    logger.close()  # idempotent
+
+
+@pytest.mark.parametrize("stage", ["open", "write"])
+def test_writer_error_is_reported_once_and_raised_on_close(
+    tmp_path, recording, monkeypatch, capsys, stage
+):
+    monkeypatch.setattr(recording, "fail_in", stage)
+    logger = make_logger(["recording"], tmp_path, RUNS)
+    for chunk in synthetic_chunks():
+        logger.log(*chunk)  # training goes on
+    with pytest.raises(LoggerError, match=r"recording logging failed.*disk full") as info:
+        logger.close()
+    assert isinstance(info.value.__cause__, OSError)
+    assert "disk full" in str(logger.errors["recording"])
+    err = capsys.readouterr().err
+    assert err.count("warning: recording logging failed") == 1
+    backend = recording.instances[0]
+    assert backend.calls.count("write") == (1 if stage == "write" else 0)
+    assert backend.calls[-1] == "close"  # still closed, to flush what was written
+    logger.close()  # idempotent: raised once
+
+
+def test_context_manager_lets_the_training_error_through(tmp_path, recording, monkeypatch):
+    monkeypatch.setattr(recording, "fail_in", "write")
+    with pytest.raises(KeyError, match="training"):
+        with make_logger(["recording"], tmp_path, RUNS) as logger:
+            logger.log(*synthetic_chunks()[0])
+            raise KeyError("training")
+    assert "recording" in logger.errors
+
+
+def test_shapes_are_checked_when_logging(tmp_path, recording):
+    logger = make_logger(["recording"], tmp_path, RUNS)
+    steps = np.array([128, 256])
+    with pytest.raises(ValueError, match="'train/loss' has shape \\(2, 3\\)"):
+        logger.log(0, steps, {"train/loss": np.zeros((2, 3))})
+    logger.log(0, steps, {"time/fps": np.array([1.0, 2.0])})  # [n]: the same for every run
+    logger.close()
+    np.testing.assert_array_equal(
+        recording.instances[0].batches[0].metrics["time/fps"], [[1, 1], [2, 2]]
+    )
+    with pytest.raises(RuntimeError, match="after close"):
+        logger.log(0, steps, {})
+
+
+def test_no_loggers_is_a_no_op(tmp_path):
+    with make_logger([], tmp_path / "out", RUNS, {}) as logger:
+        for chunk in synthetic_chunks():
+            logger.log(*chunk)
+    assert logger.names == []
+    assert not (tmp_path / "out").exists()
+    assert not [t for t in threading.enumerate() if t.name.startswith("jaxcart-logger")]
+
+
+@pytest.mark.parametrize(
+    ("name", "module"), [("tensorboard", "tensorboardX"), ("swanlab", "swanlab")]
+)
+def test_missing_package_names_the_extra(tmp_path, monkeypatch, name, module):
+    monkeypatch.setitem(sys.modules, module, None)  # makes the import fail
+    with pytest.raises(LoggerUnavailable, match=rf"pip install 'jaxcart\[{name}\]'") as info:
+        make_logger([name], tmp_path, RUNS)
+    assert isinstance(info.value, ValueError)
+    assert "\n" not in str(info.value)
+
+
+def test_bad_names_are_rejected(tmp_path):
+    with pytest.raises(ValueError, match="unknown logger") as info:
+        make_logger(["wandb"], tmp_path, RUNS)
+    assert not isinstance(info.value, LoggerUnavailable)
+    with pytest.raises(ValueError, match="unique"):
+        make_logger([], tmp_path, ["seed0", "seed0"])
+    with pytest.raises(ValueError, match="directory names"):
+        make_logger([], tmp_path, ["../escape"])
+    assert loggers.LOGGER_NAMES == ("tensorboard", "swanlab")
+
+
+@pytest.mark.parametrize(
+    ("installed", "mode"), [(None, "offline"), ("0.1.10b2", "local"), ("0.1.6", "offline")]
+)
+def test_swanlab_mode_is_local_only_with_the_dashboard_swanlab_pins(monkeypatch, installed, mode):
+    from importlib import metadata
+
+    def version(name):
+        if name != "swanboard" or installed is None:
+            raise metadata.PackageNotFoundError(name)
+        return installed
+
+    monkeypatch.setattr(metadata, "version", version)
+    monkeypatch.setattr(
+        metadata, "requires", lambda name: ["swanboard==0.1.10b2; extra == 'dashboard'"]
+    )
+    monkeypatch.delenv("SWANLAB_SKIP_SWANBOARD_VERSION_CHECK", raising=False)
+    assert loggers.swanlab_mode() == mode
