@@ -32,6 +32,7 @@ EPISODE_WINDOW = 100
 METRIC_NAMES = (
     "rollout/ep_rew_mean",
     "rollout/ep_len_mean",
+    "rollout/ep_rew_max",
     "train/approx_kl",
     "train/clip_fraction",
     "train/entropy_loss",
@@ -416,6 +417,14 @@ def train_iteration(
         "rollout/ep_len_mean": jnp.where(
             count > 0, (episodes.lengths * episodes.valid).sum() / jnp.maximum(count, 1), nan
         ),
+        # Best episode finished during this rollout (not an SB3 metric; sweeps rank by the
+        # first time it reaches 500).
+        "rollout/ep_rew_max": jnp.nan_to_num(
+            jnp.max(
+                jnp.where(rollout.terminated | rollout.truncated, rollout.episode_return, -jnp.inf)
+            ),
+            neginf=jnp.nan,
+        ).astype(jnp.float32),
         # SB3 resets its KL list every epoch, so it logs the last epoch's mean.
         "train/approx_kl": aux["approx_kl"][-1].mean(),
         "train/clip_fraction": aux["clip_fraction"].mean(),

@@ -35,21 +35,53 @@ def seed_sharding(num_seeds: int, devices: list | None = None) -> NamedSharding:
 
 
 def init_runners(
-    config: PPOConfig, num_seeds: int, seed: int, env_params: cartpole.EnvParams
+    config: PPOConfig,
+    num_seeds: int,
+    seed: int,
+    env_params: cartpole.EnvParams,
+    seed_indices: np.ndarray | None = None,
 ) -> RunnerState:
-    """Initial state of every seed, leaves ``[S, ...]``, built on one device.
+    """Initial state of every run, leaves ``[S, ...]``, built on one device.
+
+    Run r starts from ``fold_in(PRNGKey(seed), seed_indices[r])`` (default ``r``); a sweep
+    repeats the seed indices for every combination so combinations share random numbers.
 
     Not sharded on purpose: the orthogonal initialiser's batched QR runs on jaxlib's LAPACK
     kernel, whose parallel batch loop can deadlock when two CPU devices run it at once
     (seen with jaxlib 0.10.2); the result is placed on the devices afterwards.
     """
-    init = jax.jit(jax.vmap(functools.partial(init_runner, config=config, env_params=env_params)))
-    return init(seed_keys(seed, num_seeds))
+    init = _init_fn(config, env_params)
+    keys = seed_keys(seed, num_seeds)
+    if seed_indices is not None:
+        keys = seed_keys(seed, int(np.max(seed_indices)) + 1)[np.asarray(seed_indices)]
+    return init(keys)
+
+
+@functools.cache
+def _init_fn(config: PPOConfig, env_params: cartpole.EnvParams) -> Callable:
+    return jax.jit(jax.vmap(functools.partial(init_runner, config=config, env_params=env_params)))
 
 
 def default_chunk_size(num_iterations: int, updates: int = 20) -> int:
     """Iterations per compiled chunk so that progress is reported about ``updates`` times."""
     return max(1, -(-num_iterations // updates))
+
+
+METRIC_COLUMNS = (*METRIC_NAMES, "time/fps", "time/elapsed")
+"""Every per-iteration metric a run records, leaves ``[iterations, S]``."""
+
+
+@dataclass
+class TrainState:
+    """Everything needed to continue a run: per-seed state (leaves ``[S, ...]``), the
+    hyperparameters, iterations done, seconds of training so far and the metrics so far."""
+
+    runners: RunnerState
+    hyperparams: Hyperparams
+    iteration: int
+    elapsed: float
+    metrics: dict[str, np.ndarray]  # METRIC_COLUMNS -> [iteration, S]
+    chunk_size: int
 
 
 @dataclass
@@ -59,8 +91,9 @@ class Progress:
     iteration: int  # iterations completed
     num_iterations: int
     env_steps: int  # per seed
-    elapsed: float  # seconds of running, compile excluded
+    elapsed: float  # seconds of training so far (resumed runs include earlier sessions)
     metrics: dict[str, np.ndarray]  # this chunk's metrics, leaves [iterations_in_chunk, S]
+    state: Callable[[], TrainState]  # the full state now (valid only during the callback)
 
 
 @dataclass
@@ -70,28 +103,62 @@ class TrainResult:
     config: PPOConfig
     num_seeds: int
     seed: int
-    runners: RunnerState
-    metrics: dict[str, np.ndarray]
+    state: TrainState
     compile_seconds: float
-    run_seconds: float
+    run_seconds: float  # this session's training time, compile excluded
     num_devices: int
+    stopped: bool = False  # interrupted before num_iterations (resumable from ``state``)
     extra: dict = field(default_factory=dict)
 
     @property
+    def runners(self) -> RunnerState:
+        return self.state.runners
+
+    @property
+    def metrics(self) -> dict[str, np.ndarray]:
+        return self.state.metrics
+
+    @property
     def env_steps(self) -> int:
-        """Environment steps taken, all seeds together."""
-        return self.config.env_steps_per_seed * self.num_seeds
+        """Environment steps taken in this session, all seeds together."""
+        return (
+            (self.state.iteration - self.extra.get("start_iteration", 0))
+            * self.config.batch_size
+            * self.num_seeds
+        )
 
     @property
     def params(self) -> dict:
         """Network parameters with a leading seed axis ``[S, ...]``."""
-        return self.runners.params
+        return self.state.runners.params
 
 
 def broadcast_hyperparams(config: PPOConfig, num_seeds: int) -> Hyperparams:
     """The config's float hyperparameters repeated for every seed, leaves ``[S]``."""
     hp = Hyperparams.from_config(config)
     return jax.tree.map(lambda x: jnp.full((num_seeds,), x, x.dtype), hp)
+
+
+def initial_state(
+    config: PPOConfig,
+    num_seeds: int,
+    seed: int,
+    hyperparams: Hyperparams | None = None,
+    env_params: cartpole.EnvParams | None = None,
+    chunk_size: int | None = None,
+    seed_indices: np.ndarray | None = None,
+) -> TrainState:
+    """The state before the first iteration (also the template a checkpoint is loaded into)."""
+    env_params = env_params or cartpole.EnvParams()
+    hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_seeds)
+    return TrainState(
+        runners=init_runners(config, num_seeds, seed, env_params, seed_indices),
+        hyperparams=hps,
+        iteration=0,
+        elapsed=0.0,
+        metrics={k: np.zeros((0, num_seeds), np.float32) for k in METRIC_COLUMNS},
+        chunk_size=chunk_size or default_chunk_size(config.num_iterations),
+    )
 
 
 def train(
@@ -103,82 +170,123 @@ def train(
     env_params: cartpole.EnvParams | None = None,
     chunk_size: int | None = None,
     devices: list | None = None,
+    resume: TrainState | None = None,
     on_compiled: Callable[[float], None] | None = None,
     on_chunk: Callable[[Progress], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    seed_indices: np.ndarray | None = None,
 ) -> TrainResult:
     """Trains ``num_seeds`` independent PPO agents in one compiled program.
 
     Args:
         config: shapes and (default) hyperparameters.
         num_seeds: independent runs, a vmap axis sharded over ``devices``.
-        seed: base seed; run i uses ``fold_in(PRNGKey(seed), i)``.
+        seed: base seed; run i uses ``fold_in(PRNGKey(seed), seed_indices[i])``.
         hyperparams: per-run float hyperparameters with leaves ``[num_seeds]`` (a sweep);
             defaults to the config's values for every run.
         chunk_size: iterations per compiled call between progress reports.
+        resume: continue from this state (e.g. a loaded checkpoint) instead of starting anew;
+            the result is bit-identical to a run that was never interrupted.
         on_compiled: called with the compile time in seconds.
         on_chunk: called with a :class:`Progress` after every chunk.
+        should_stop: polled after every chunk; when it returns True training stops early with
+            ``TrainResult.stopped`` set and a resumable state.
+        seed_indices: per-run seed index (default ``arange(num_seeds)``).
     """
     env_params = env_params or cartpole.EnvParams()
-    chunk_size = chunk_size or default_chunk_size(config.num_iterations)
-    sharding = seed_sharding(num_seeds, devices)
-    hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_seeds)
-
-    runners = jax.device_put(init_runners(config, num_seeds, seed, env_params), sharding)
-    hps = jax.device_put(hps, sharding)
-
-    chunk = jax.jit(
-        functools.partial(train_chunk, config=config, env_params=env_params, chunk_size=chunk_size),
-        donate_argnums=0,
+    state = resume or initial_state(
+        config, num_seeds, seed, hyperparams, env_params, chunk_size, seed_indices
     )
+    chunk_size = state.chunk_size
+    sharding = seed_sharding(num_seeds, devices)
+    runners = jax.device_put(state.runners, sharding)
+    hps = jax.device_put(state.hyperparams, sharding)
+
     start = time.perf_counter()
-    compiled = chunk.lower(runners, hps, jnp.int32(0)).compile()
+    compiled, fresh = compiled_chunk(config, env_params, chunk_size, runners, hps)
     compile_seconds = time.perf_counter() - start
     if on_compiled:
         on_compiled(compile_seconds)
 
-    chunks: list[dict[str, np.ndarray]] = []
+    chunks = [state.metrics]
+    done, start_iteration, elapsed_before = state.iteration, state.iteration, state.elapsed
+    stopped = False
     run_start = time.perf_counter()
-    done = 0
     while done < config.num_iterations:
+        if should_stop is not None and should_stop():
+            stopped = True
+            break
         runners, metrics = compiled(runners, hps, jnp.int32(done))
         metrics = jax.device_get(metrics)
-        now = time.perf_counter() - run_start
+        now = elapsed_before + time.perf_counter() - run_start
         take = min(chunk_size, config.num_iterations - done)
         metrics = {k: np.asarray(v[:take]) for k, v in metrics.items()}
         # time/fps as SB3 logs it (steps of this seed / seconds since start); inside a chunk
         # the iterations are timed by spreading the chunk's time evenly.
-        prev = chunks[-1]["_elapsed"][-1] if chunks else 0.0
+        prev = float(chunks[-1]["time/elapsed"][-1, 0]) if len(chunks[-1]["time/elapsed"]) else 0.0
         elapsed = prev + (now - prev) * np.arange(1, take + 1) / take
         steps = (done + np.arange(1, take + 1)) * config.batch_size
-        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_seeds, axis=1).astype(
-            np.float32
-        )
-        metrics["_elapsed"] = elapsed
+        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_seeds, 1).astype(np.float32)
+        metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_seeds, 1).astype(np.float32)
         chunks.append(metrics)
         done += take
+
+        def snapshot(runners=runners, done=done, now=now) -> TrainState:
+            return TrainState(runners, hps, done, now, _concat(chunks), chunk_size)
+
         if on_chunk:
             on_chunk(
                 Progress(
-                    iteration=done,
-                    num_iterations=config.num_iterations,
-                    env_steps=done * config.batch_size,
-                    elapsed=now,
-                    metrics={k: v for k, v in metrics.items() if not k.startswith("_")},
+                    done, config.num_iterations, done * config.batch_size, now, metrics, snapshot
                 )
             )
     jax.block_until_ready(runners)
     run_seconds = time.perf_counter() - run_start
-    names = list(METRIC_NAMES) + ["time/fps"]
-    all_metrics = {k: np.concatenate([c[k] for c in chunks]) for k in names}
-    elapsed = np.concatenate([c["_elapsed"] for c in chunks])
-    all_metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_seeds, axis=1)
+    final = TrainState(
+        runners, hps, done, elapsed_before + run_seconds, _concat(chunks), chunk_size
+    )
     return TrainResult(
         config=config,
         num_seeds=num_seeds,
         seed=seed,
-        runners=runners,
-        metrics=all_metrics,
+        state=final,
         compile_seconds=compile_seconds,
         run_seconds=run_seconds,
         num_devices=len(sharding.mesh.devices.flat),
+        stopped=stopped,
+        extra={"start_iteration": start_iteration, "compiled": fresh},
     )
+
+
+_COMPILED: dict = {}
+
+
+def compiled_chunk(
+    config: PPOConfig, env_params: cartpole.EnvParams, chunk_size: int, runners, hps
+) -> tuple[Callable, bool]:
+    """The compiled :func:`~jaxcart.ppo.train_chunk` for these shapes and devices.
+
+    Kept per process, keyed by everything that shapes the program (config, env constants,
+    chunk size, the runs' array shapes and shardings) but not by the traced float
+    hyperparameters: new learning rates, clip ranges, ... reuse the same executable.
+
+    Returns:
+        ``(compiled, fresh)`` where ``fresh`` says whether it was compiled just now.
+    """
+    signature = tuple(
+        (leaf.shape, str(leaf.dtype), str(leaf.sharding))
+        for leaf in jax.tree.leaves((runners, hps))
+    )
+    key = (config, env_params, chunk_size, signature)
+    if key in _COMPILED:
+        return _COMPILED[key], False
+    chunk = jax.jit(
+        functools.partial(train_chunk, config=config, env_params=env_params, chunk_size=chunk_size),
+        donate_argnums=0,
+    )
+    _COMPILED[key] = chunk.lower(runners, hps, jnp.int32(0)).compile()
+    return _COMPILED[key], True
+
+
+def _concat(chunks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    return {k: np.concatenate([c[k] for c in chunks]) for k in METRIC_COLUMNS}
