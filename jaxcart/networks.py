@@ -12,6 +12,35 @@ import jax.numpy as jnp
 ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
 
 
+def orthogonal(scale: float = 1.0):
+    """Orthogonal initialiser (a Haar-random orthogonal matrix times ``scale``), as
+    ``flax.linen.initializers.orthogonal`` but computed with Gram-Schmidt in plain ``jnp``.
+
+    Flax's version calls LAPACK's QR through jaxlib's FFI kernel, whose parallel batch loop can
+    deadlock on CPU when two such kernels run at once (vmapped seeds, two devices; seen with
+    jaxlib 0.10.2). Gram-Schmidt, orthogonalising twice for accuracy, gives the same
+    distribution: Q of a Gaussian matrix with R's diagonal made positive.
+    """
+
+    def init(key: jax.Array, shape: tuple[int, ...], dtype=jnp.float32) -> jax.Array:
+        n_rows, n_cols = shape
+        rows, cols = max(n_rows, n_cols), min(n_rows, n_cols)
+        a = jax.random.normal(key, (rows, cols), jnp.float32)
+
+        def column(j: int, q: jax.Array) -> jax.Array:
+            v = a[:, j]
+            for _ in range(2):  # classical Gram-Schmidt, twice (CGS2)
+                v = v - q @ (q.T @ v)
+            return q.at[:, j].set(v / jnp.linalg.norm(v))
+
+        q = jax.lax.fori_loop(0, cols, column, jnp.zeros((rows, cols), jnp.float32))
+        if n_rows < n_cols:
+            q = q.T
+        return (scale * q).astype(dtype)
+
+    return init
+
+
 class MLP(nn.Module):
     """Dense layers ``hidden_0 .. hidden_{n-1}`` then a linear ``out`` layer.
 
@@ -30,14 +59,14 @@ class MLP(nn.Module):
         for i, size in enumerate(self.hidden_sizes):
             x = nn.Dense(
                 size,
-                kernel_init=nn.initializers.orthogonal(math.sqrt(2.0)),
+                kernel_init=orthogonal(math.sqrt(2.0)),
                 bias_init=nn.initializers.zeros,
                 name=f"hidden_{i}",
             )(x)
             x = act(x)
         return nn.Dense(
             self.out_dim,
-            kernel_init=nn.initializers.orthogonal(self.out_gain),
+            kernel_init=orthogonal(self.out_gain),
             bias_init=nn.initializers.zeros,
             name="out",
         )(x)

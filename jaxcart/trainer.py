@@ -46,9 +46,8 @@ def init_runners(
     Run r starts from ``fold_in(PRNGKey(seed), seed_indices[r])`` (default ``r``); a sweep
     repeats the seed indices for every combination so combinations share random numbers.
 
-    Not sharded on purpose: the orthogonal initialiser's batched QR runs on jaxlib's LAPACK
-    kernel, whose parallel batch loop can deadlock when two CPU devices run it at once
-    (seen with jaxlib 0.10.2); the result is placed on the devices afterwards.
+    Built on the default device and placed on the devices by the caller (initialisation is
+    tiny; see :func:`jaxcart.networks.orthogonal` for why it avoids LAPACK).
     """
     init = _init_fn(config, env_params)
     keys = seed_keys(seed, num_seeds)
