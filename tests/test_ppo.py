@@ -280,6 +280,8 @@ def test_orthogonal_init_is_orthogonal_with_gain():
         gram = w.T @ w if shape[0] >= shape[1] else w @ w.T
         np.testing.assert_allclose(gram, 4.0 * np.eye(len(gram)), atol=1e-5)
     # Haar-random: entries of many draws are symmetric around 0 with variance 1/n
-    draws = np.stack([np.asarray(orthogonal()(k, (64, 64))) for k in jax.random.split(jax.random.PRNGKey(1), 20)])
+    draws = np.stack(
+        [np.asarray(orthogonal()(k, (64, 64))) for k in jax.random.split(jax.random.PRNGKey(1), 20)]
+    )
     assert abs(draws.mean()) < 0.01 and abs(draws.var() - 1 / 64) < 0.002
     assert not np.allclose(draws[0], draws[1])
