@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# Creates the two virtualenvs the benchmarks run in (from the repository root or anywhere):
+#
+#   benchmarks/.venv-bench  jaxcart + gymnax 1.x, EnvPool, Gymnasium, Stable-Baselines3 (PyTorch,
+#                           CPU build), matplotlib: runs env_throughput.py and train_speed.py.
+#   benchmarks/.venv-rejax  jaxcart + rejax 0.1.3, which needs gymnax 0.0.x (gymnax 1.x changed
+#                           step() to return terminated and truncated separately): train_speed.py
+#                           starts its rejax contenders with this interpreter.
+#
+# PyTorch is installed first, pinned, so that Stable-Baselines3's "torch" requirement is already
+# met: left to itself pip would fetch the newest CUDA build (several GB). Override the pin with
+# TORCH_SPEC (e.g. TORCH_SPEC="torch==2.13.0" on a machine that has that CPU wheel at hand).
+#
+# The package lists mirror the "bench" and "rejax" extras of pyproject.toml; when those extras
+# exist they are used.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3}
+TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
+
+BENCH_PKGS=(
+  "gymnax>=1.0.1,<2"
+  "envpool>=1.2; sys_platform == 'linux'"
+  "gymnasium>=1.0"
+  "stable-baselines3>=2.3"
+  "matplotlib>=3.8"
+)
+REJAX_PKGS=(
+  "rejax==0.1.3"
+  "gymnax==0.0.9"
+)
+
+has_extra() { grep -Eq "^[[:space:]]*$1[[:space:]]*=" pyproject.toml; }
+
+make_venv() {
+  local dir=$1
+  if [ ! -x "$dir/bin/python" ]; then
+    "$PYTHON" -m venv "$dir"
+  fi
+  "$dir/bin/python" -m pip install --quiet --upgrade pip
+}
+
+echo "== benchmarks/.venv-bench"
+make_venv benchmarks/.venv-bench
+benchmarks/.venv-bench/bin/pip install "$TORCH_SPEC"
+if has_extra bench; then
+  benchmarks/.venv-bench/bin/pip install -e '.[bench]'
+else
+  benchmarks/.venv-bench/bin/pip install -e . "${BENCH_PKGS[@]}"
+fi
+
+echo "== benchmarks/.venv-rejax"
+make_venv benchmarks/.venv-rejax
+if has_extra rejax; then
+  benchmarks/.venv-rejax/bin/pip install -e '.[rejax]'
+else
+  benchmarks/.venv-rejax/bin/pip install -e . "${REJAX_PKGS[@]}"
+fi
+
+echo
+echo "Done. Run, from the repository root:"
+echo "  benchmarks/.venv-bench/bin/python benchmarks/env_throughput.py"
+echo "  benchmarks/.venv-bench/bin/python benchmarks/train_speed.py"
