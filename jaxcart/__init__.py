@@ -33,6 +33,10 @@ _LAZY = {
     "PRESETS": "jaxcart.config",
     "train": "jaxcart.trainer",
     "load_policy": "jaxcart.rundir",
+    "JaxCartPoleEnv": "jaxcart.gym_adapter",
+    "JaxCartPoleVectorEnv": "jaxcart.gym_adapter",
+    "plot_runs": "jaxcart.plot",
+    "render_gif": "jaxcart.render",
 }
 
 __all__ = sorted(_LAZY)
