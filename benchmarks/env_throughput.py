@@ -101,9 +101,11 @@ def scan_length(num_envs: int) -> int:
 def jaxcart_random_rollout(num_envs: int, num_steps: int):
     """jaxcart's contender: ``num_steps`` steps of ``num_envs`` envs with uniform random actions.
 
-    Each env carries its own PRNG key; every step splits it into the next key, an action key
-    and the key :func:`jaxcart.env.step` uses to reset a finished episode. The carry's leaves
-    all have a leading env axis, sharded over the devices by :func:`env_sharding`.
+    The batch steps with :func:`jaxcart.env.step_batch` (one key per step for the whole
+    batch; reset states from jaxcart's counter hash). Uniform random actions are 32 to a word:
+    one ``jax.random.bits`` word per 32 envs per step, unpacked bit by bit. The carry's leaves
+    have a leading env axis, sharded over the devices by :func:`env_sharding`; each env keeps
+    its own key so shards draw independent numbers.
 
     Returns:
         ``(rollout, state)``: ``rollout(state) -> state`` is jitted (state donated) and runs
@@ -112,20 +114,24 @@ def jaxcart_random_rollout(num_envs: int, num_steps: int):
     """
     params = cartpole.EnvParams()
     sharding = env_sharding(num_envs)
+    local_envs = num_envs // sharding.mesh.size  # each device steps its own share
 
-    def one_step(carry, _):
+    def one_step(carry, t):
         env_state, keys, episodes = carry
-        split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
-        keys, action_keys, step_keys = split[:, 0], split[:, 1], split[:, 2]
-        actions = jax.vmap(jax.random.bernoulli)(action_keys).astype(jnp.int32)
-        _, env_state, _, terminated, truncated, _ = jax.vmap(
-            cartpole.step, in_axes=(0, 0, 0, None)
-        )(step_keys, env_state, actions, params)
+        # Per step: one action word per 32 envs and one reset key, folded from the env's key.
+        key = jax.random.fold_in(keys[0], t)
+        action_key, reset_key = jax.random.split(key)
+        words = jax.random.bits(action_key, ((local_envs + 31) // 32,), jnp.uint32)
+        shifts = jnp.arange(32, dtype=jnp.uint32)
+        actions = ((words[:, None] >> shifts) & 1).reshape(-1)[:local_envs].astype(jnp.int32)
+        _, env_state, _, terminated, truncated, _ = cartpole.step_batch(
+            reset_key, env_state, actions, params
+        )
         episodes = episodes + (terminated | truncated).astype(jnp.int32)
         return (env_state, keys, episodes), None
 
     def rollout(carry):
-        carry, _ = jax.lax.scan(one_step, carry, None, length=num_steps)
+        carry, _ = jax.lax.scan(one_step, carry, jnp.arange(num_steps, dtype=jnp.uint32))
         return carry
 
     keys = jax.random.split(jax.random.PRNGKey(0), num_envs + 1)
@@ -133,7 +139,10 @@ def jaxcart_random_rollout(num_envs: int, num_steps: int):
     step_keys = jax.random.split(keys[0], num_envs)
     state = (env_state, step_keys, jnp.zeros((num_envs,), jnp.int32))
     state = jax.device_put(state, sharding)
-    fn = jax.jit(rollout, out_shardings=sharding, donate_argnums=0)
+    # shard_map: every device runs the whole scan on its own envs, no cross-device traffic.
+    spec = sharding.spec
+    local = jax.shard_map(rollout, mesh=sharding.mesh, in_specs=(spec,), out_specs=spec)
+    fn = jax.jit(local, out_shardings=sharding, donate_argnums=0)
     return fn, state
 
 
@@ -378,10 +387,13 @@ def markdown(report: dict) -> str:
     out += [
         "How each contender runs:",
         "",
-        "- jaxcart and gymnax: `jit(scan(vmap(step)))`, per-env PRNG keys split every step "
-        "into an action key (`jax.random.bernoulli`) and a reset key; "
-        f"{s['steps_per_call']:,} env steps per compiled call (scan length at most "
-        f"{s['max_scan_length']}); env axis sharded over the "
+        "- gymnax: `jit(scan(vmap(step)))`, per-env PRNG keys split every step into an action "
+        "key (`jax.random.bernoulli`) and a reset key (gymnax's own API takes a key per env).",
+        "- jaxcart: `jit(shard_map(scan(step_batch)))`: one key per step for the whole batch, "
+        "actions from `jax.random.bits` (one 32-bit word per 32 envs), reset states from "
+        "jaxcart's counter hash (`jaxcart.env.hash_uniform`).",
+        f"- Both: {s['steps_per_call']:,} env steps per compiled call (scan length at most "
+        f"{s['max_scan_length']}); env axis split over the "
         f"{len(report['machine']['jax_devices'])} JAX device(s) when N divides evenly.",
         "- Gymnasium and EnvPool: one `step(rng.integers(0, 2, N))` per call; "
         f"SyncVectorEnv skipped for N > {s['sync_max_envs']:,}. They reset a finished "

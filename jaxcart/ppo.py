@@ -158,7 +158,6 @@ def collect_rollout(
         The advanced runner and a :class:`Transition` with fields ``[num_steps, num_envs, ...]``.
     """
     network = make_network(config)
-    step_envs = jax.vmap(cartpole.step, in_axes=(0, 0, 0, None))
 
     def one_step(runner: RunnerState, _) -> tuple[RunnerState, Transition]:
         key, act_key, env_key = jax.random.split(runner.key, 3)
@@ -166,8 +165,8 @@ def collect_rollout(
         pi = distrax.Categorical(logits=logits)
         action = pi.sample(seed=act_key)
         log_prob = pi.log_prob(action)
-        obs, env_state, reward, terminated, truncated, info = step_envs(
-            jax.random.split(env_key, config.num_envs), runner.env_state, action, env_params
+        obs, env_state, reward, terminated, truncated, info = cartpole.step_batch(
+            env_key, runner.env_state, action, env_params
         )
         done = terminated | truncated
         episode_return = runner.episode_return + reward

@@ -263,3 +263,52 @@ def test_describe_lists_bounds_and_limits(capsys):
     out = capsys.readouterr().out
     for text in ("Discrete(2)", "2.4", "0.209440", "500", "-0.05"):
         assert text in out
+
+
+def test_step_batch_matches_step_semantics():
+    """step_batch = vmapped step up to the reset draws: same physics, flags, final_obs."""
+    rng = np.random.default_rng(3)
+    states = np.concatenate([sample_states(rng, 400), [[0.0, 0.0, 0.01, 0.0]] * 4])
+    steps = np.concatenate([rng.integers(0, 499, 400), [499] * 4]).astype(np.int32)
+    actions = rng.integers(0, 2, len(states))
+    params = cartpole.EnvParams()
+    s = cartpole.state_from_obs(states, steps)
+    obs, s2, r, term, trunc, info = jax.jit(cartpole.step_batch)(
+        jax.random.PRNGKey(0), s, jnp.asarray(actions), params
+    )
+    ref = jax.jit(jax.vmap(cartpole.step, in_axes=(0, 0, 0, None)))(
+        jax.random.split(jax.random.PRNGKey(0), len(states)), s, jnp.asarray(actions), params
+    )
+    for a, b in zip((r, term, trunc), (ref[2], ref[3], ref[4])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # same math; XLA may contract multiply-adds differently in the two programs
+    np.testing.assert_allclose(
+        np.asarray(info["final_obs"]), np.asarray(ref[5]["final_obs"]), rtol=0, atol=1e-6
+    )
+    done = np.asarray(term | trunc)
+    assert done.sum() > 50 and np.asarray(trunc)[-4:].all()
+    obs = np.asarray(obs)
+    np.testing.assert_array_equal(obs[~done], np.asarray(info["final_obs"])[~done])
+    assert np.all(np.abs(obs[done]) < 0.05) and np.all(np.asarray(s2.step_count)[done] == 0)
+    np.testing.assert_array_equal(np.asarray(s2.step_count)[~done], steps[~done] + 1)
+
+
+@pytest.mark.parametrize("x64", [False, True], ids=["float32", "x64"])
+def test_hash_uniform_is_uniform_and_independent(x64):
+    from scipy import stats
+
+    with jax.enable_x64(x64):
+        u = np.asarray(cartpole.hash_uniform(jax.random.PRNGKey(1), (200_000,)))
+        v = np.asarray(cartpole.hash_uniform(jax.random.PRNGKey(2), (200_000,)))
+        b = np.asarray(cartpole.hash_uniform(jax.random.PRNGKey(1), (1000, 4), None, -0.05, 0.05))
+        assert u.dtype == (np.float64 if x64 else np.float32)
+    assert u.min() >= 0.0 and u.max() < 1.0
+    assert stats.kstest(u, "uniform").pvalue > 1e-3
+    assert stats.kstest(v, "uniform").pvalue > 1e-3
+    # neighbouring counters and different keys are uncorrelated
+    assert abs(np.corrcoef(u[:-1], u[1:])[0, 1]) < 0.01
+    assert abs(np.corrcoef(u, v)[0, 1]) < 0.01
+    # 2-d uniformity of successive pairs: chi-square over a 16 x 16 grid
+    grid = np.histogram2d(u[0::2], u[1::2], bins=16, range=[[0, 1], [0, 1]])[0]
+    assert stats.chisquare(grid.ravel()).pvalue > 1e-3
+    assert b.min() >= -0.05 and b.max() < 0.05 and b.shape == (1000, 4)
