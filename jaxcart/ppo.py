@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import distrax
 import jax
 import jax.numpy as jnp
 import optax
@@ -162,9 +161,8 @@ def collect_rollout(
     def one_step(runner: RunnerState, _) -> tuple[RunnerState, Transition]:
         key, act_key, env_key = jax.random.split(runner.key, 3)
         logits, value = network.apply(runner.params, runner.obs)
-        pi = distrax.Categorical(logits=logits)
-        action = pi.sample(seed=act_key)
-        log_prob = pi.log_prob(action)
+        action = jax.random.categorical(act_key, logits)
+        log_prob = categorical_log_prob(logits, action)
         obs, env_state, reward, terminated, truncated, info = cartpole.step_batch(
             env_key, runner.env_state, action, env_params
         )
@@ -236,6 +234,22 @@ def compute_gae(
     return advantages, advantages + value
 
 
+def categorical_log_prob(logits: Array, action: Array) -> Array:
+    """``log pi(action)`` for logits ``[..., A]`` and integer actions ``[...]``.
+
+    (Plain ``jax.nn``; ``tests/test_ppo.py`` checks it against ``distrax.Categorical``, whose
+    TensorFlow-Probability import would add over a second to every start.)
+    """
+    log_p = jax.nn.log_softmax(logits)
+    return jnp.take_along_axis(log_p, action[..., None].astype(jnp.int32), axis=-1)[..., 0]
+
+
+def categorical_entropy(logits: Array) -> Array:
+    """Entropy of the categorical distribution with ``logits`` ``[..., A]``."""
+    log_p = jax.nn.log_softmax(logits)
+    return -(jnp.exp(log_p) * log_p).sum(-1)
+
+
 def ppo_loss(
     params: dict,
     network: ActorCritic,
@@ -250,8 +264,7 @@ def ppo_loss(
         approx_kl, clip_fraction``.
     """
     logits, value = network.apply(params, batch.obs)
-    pi = distrax.Categorical(logits=logits)
-    log_prob = pi.log_prob(batch.action)
+    log_prob = categorical_log_prob(logits, batch.action)
     advantage = batch.advantage
     if norm_adv and advantage.shape[0] > 1:
         advantage = (advantage - advantage.mean()) / (advantage.std(ddof=1) + 1e-8)
@@ -260,7 +273,7 @@ def ppo_loss(
     clipped = jnp.clip(ratio, 1.0 - hp.clip_coef, 1.0 + hp.clip_coef)
     pg_loss = -jnp.minimum(advantage * ratio, advantage * clipped).mean()
     value_loss = jnp.square(batch.returns - value).mean()
-    entropy_loss = -pi.entropy().mean()
+    entropy_loss = -categorical_entropy(logits).mean()
     loss = pg_loss + hp.ent_coef * entropy_loss + hp.vf_coef * value_loss
     aux = {
         "policy_gradient_loss": pg_loss,
@@ -465,9 +478,10 @@ def train_chunk(
     def run(runners: RunnerState, iteration: Array):
         return seeds_iteration(runners, hps, iteration, config, env_params)
 
+    num_runs = runners.key.shape[0]
+
     def skip(runners: RunnerState, iteration: Array):
-        _, shapes = jax.eval_shape(run, runners, iteration)
-        return runners, jax.tree.map(lambda s: jnp.full(s.shape, jnp.nan, s.dtype), shapes)
+        return runners, {name: jnp.full((num_runs,), jnp.nan, jnp.float32) for name in METRIC_NAMES}
 
     def body(runners: RunnerState, offset: Array):
         iteration = start_iteration + offset

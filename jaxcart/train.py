@@ -264,15 +264,11 @@ def plan_resume(args: argparse.Namespace) -> Plan:
 
 
 def _load_resume_state(plan: Plan, hps, seed_indices):
-    import jax
-
     from jaxcart import checkpoint, rundir
     from jaxcart.trainer import TrainState, init_runners
 
     template = {
-        "runners": jax.eval_shape(
-            lambda: init_runners(plan.config, plan.num_runs, plan.seed, _env_params(), seed_indices)
-        ),
+        "runners": init_runners(plan.config, plan.num_runs, plan.seed, _env_params(), seed_indices),
         "hyperparams": hps,
     }
     path = plan.out / checkpoint.CHECKPOINT_FILE

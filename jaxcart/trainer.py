@@ -41,24 +41,64 @@ def init_runners(
     env_params: cartpole.EnvParams,
     seed_indices: np.ndarray | None = None,
 ) -> RunnerState:
-    """Initial state of every run, leaves ``[S, ...]``, built on one device.
+    """Initial state of every run, leaves ``[S, ...]`` (NumPy; the caller places it).
 
-    Run r starts from ``fold_in(PRNGKey(seed), seed_indices[r])`` (default ``r``); a sweep
+    Run r draws from ``fold_in(PRNGKey(seed), seed_indices[r])`` (default ``r``); a sweep
     repeats the seed indices for every combination so combinations share random numbers.
-
-    Built on the default device and placed on the devices by the caller (initialisation is
-    tiny; see :func:`jaxcart.networks.orthogonal` for why it avoids LAPACK).
+    Built on the host with NumPy, the same distributions as :func:`jaxcart.ppo.init_runner`
+    (orthogonal kernels with SB3's gains, zero biases, Adam state zero, resets uniform in
+    the reset bounds) without compiling an initialisation program (seconds on CPU).
     """
-    init = _init_fn(config, env_params)
-    keys = seed_keys(seed, num_seeds)
-    if seed_indices is not None:
-        keys = seed_keys(seed, int(np.max(seed_indices)) + 1)[np.asarray(seed_indices)]
-    return init(keys)
+    indices = np.arange(num_seeds) if seed_indices is None else np.asarray(seed_indices)
+    keys = np.asarray(seed_keys(seed, int(indices.max()) + 1))[indices]
+    template = jax.eval_shape(
+        functools.partial(init_runner, config=config, env_params=env_params), keys[0]
+    )
+    dtype = np.dtype(template.obs.dtype)
+    runs = []
+    for key in keys:
+        rng = np.random.default_rng([int(k) for k in key])
+        params = host_init_params(rng, template.params)
+        obs = rng.uniform(env_params.reset_low, env_params.reset_high, (config.num_envs, 4)).astype(
+            dtype
+        )
+        runs.append((params, obs, rng.integers(0, 2**32, 2, dtype=np.uint32)))
+    params = jax.tree.map(lambda *xs: np.stack(xs), *[r[0] for r in runs])
+    obs = np.stack([r[1] for r in runs])
+    zeros = lambda s: np.zeros((len(keys), *s.shape), s.dtype)
+    steps = np.zeros((len(keys), config.num_envs), np.int32)
+    return RunnerState(
+        params=params,
+        opt_state=jax.tree.map(zeros, template.opt_state),  # Adam's moments and count start at 0
+        env_state=cartpole.EnvState(obs[..., 0], obs[..., 1], obs[..., 2], obs[..., 3], steps),
+        obs=obs,
+        episode_return=zeros(template.episode_return),
+        episode_length=zeros(template.episode_length),
+        episodes=jax.tree.map(zeros, template.episodes),
+        key=np.stack([r[2] for r in runs]),
+    )
 
 
-@functools.cache
-def _init_fn(config: PPOConfig, env_params: cartpole.EnvParams) -> Callable:
-    return jax.jit(jax.vmap(functools.partial(init_runner, config=config, env_params=env_params)))
+def host_init_params(rng: np.random.Generator, shapes: dict) -> dict:
+    """Actor-critic parameters with NumPy: orthogonal kernels (gain sqrt(2) for hidden
+    layers, 0.01 for the policy head, 1 for the value head), zero biases."""
+
+    def init(path, leaf):
+        names = [getattr(p, "key", str(p)) for p in path]
+        if names[-1] == "bias":
+            return np.zeros(leaf.shape, leaf.dtype)
+        gain = {"actor": 0.01, "critic": 1.0}[names[-3]] if names[-2] == "out" else np.sqrt(2.0)
+        return (gain * orthogonal_matrix(rng, leaf.shape)).astype(leaf.dtype)
+
+    return jax.tree_util.tree_map_with_path(init, shapes)
+
+
+def orthogonal_matrix(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """A Haar-random matrix with orthonormal rows or columns (QR of a Gaussian matrix)."""
+    rows, cols = max(shape), min(shape)
+    q, r = np.linalg.qr(rng.standard_normal((rows, cols)))
+    q = q * np.sign(np.diag(r))
+    return q if shape[0] >= shape[1] else q.T
 
 
 def default_chunk_size(num_iterations: int, updates: int = 20) -> int:

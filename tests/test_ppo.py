@@ -285,3 +285,21 @@ def test_orthogonal_init_is_orthogonal_with_gain():
     )
     assert abs(draws.mean()) < 0.01 and abs(draws.var() - 1 / 64) < 0.002
     assert not np.allclose(draws[0], draws[1])
+
+
+def test_categorical_helpers_match_distrax():
+    import distrax
+
+    from jaxcart.ppo import categorical_entropy, categorical_log_prob
+
+    logits = jax.random.normal(jax.random.PRNGKey(0), (50, 2)) * 3
+    action = jax.random.randint(jax.random.PRNGKey(1), (50,), 0, 2)
+    dist = distrax.Categorical(logits=logits)
+    np.testing.assert_allclose(
+        categorical_log_prob(logits, action), dist.log_prob(action), rtol=1e-6, atol=1e-6
+    )
+    np.testing.assert_allclose(categorical_entropy(logits), dist.entropy(), rtol=1e-6, atol=1e-6)
+    # sampling frequencies follow the softmax
+    probs = jax.nn.softmax(jnp.array([0.3, -0.4]))
+    draws = jax.random.categorical(jax.random.PRNGKey(2), jnp.array([0.3, -0.4]), shape=(100_000,))
+    assert abs(float((draws == 0).mean()) - float(probs[0])) < 0.01
