@@ -1,0 +1,142 @@
+"""Train Stable-Baselines3's PPO with its defaults and save it as a jaxcart run directory.
+
+The CartPole course comparison: SB3's ``PPO("MlpPolicy", "CartPole-v1").learn(80_000)`` and
+jaxcart's ``sb3`` preset on the same axes. SB3's own CSV log is converted to jaxcart's
+``metrics.csv`` (same metric names), and each seed is evaluated greedily for 20 episodes in
+Gymnasium's CartPole-v1, so ``python -m jaxcart.plot`` can overlay the two:
+
+    benchmarks/.venv-bench/bin/python benchmarks/sb3_reference_run.py --num-seeds 3 --out runs/sb3-torch
+    python -m jaxcart.train --num-seeds 3 --out runs/jaxcart-sb3
+    python -m jaxcart.plot runs/sb3-torch runs/jaxcart-sb3 --out benchmarks/results/sb3_vs_jaxcart.png
+
+(needs ``torch`` and ``stable-baselines3``: ``bash benchmarks/setup_venvs.sh``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from jaxcart import rundir
+from jaxcart.config import PPOConfig
+from jaxcart.evaluate import EVAL_SEED, NUM_EVAL_EPISODES
+from jaxcart.trainer import METRIC_COLUMNS
+
+# SB3 dumps its log before each update, so train/* values appear one row after the rollout
+# they belong to; rollout/* and time/* belong to the row they are on.
+SHIFTED_PREFIX = "train/"
+
+
+def train_one(seed: int, timesteps: int, threads: int) -> tuple[list[dict], object, float]:
+    """SB3 PPO with defaults; returns its CSV log rows, the model and the training seconds."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
+
+    torch.set_num_threads(threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        model = PPO("MlpPolicy", "CartPole-v1", seed=seed, device="cpu")
+        model.set_logger(configure(tmp, ["csv"]))
+        start = time.perf_counter()
+        model.learn(timesteps)
+        seconds = time.perf_counter() - start
+        model.logger.dump(model.num_timesteps)  # the last update's train/* values
+        with open(Path(tmp) / "progress.csv", newline="") as f:
+            rows = list(csv.DictReader(f))
+    return rows, model, seconds
+
+
+def to_metrics(rows: list[dict], batch_size: int) -> dict[str, np.ndarray]:
+    """SB3 CSV rows -> jaxcart metric arrays ``[iterations]`` (NaN where SB3 logged nothing)."""
+
+    def value(row: dict, name: str) -> float:
+        text = row.get(name, "")
+        return float(text) if text not in ("", None) else np.nan
+
+    rollout_rows = [r for r in rows if r.get("time/total_timesteps")]
+    iterations = len(rollout_rows)
+    out = {name: np.full(iterations, np.nan) for name in METRIC_COLUMNS}
+    for i, row in enumerate(rollout_rows):
+        for name in METRIC_COLUMNS:
+            if not name.startswith(SHIFTED_PREFIX):
+                out[name][i] = value(row, name)
+        out["time/elapsed"][i] = value(row, "time/time_elapsed")
+        # this iteration's update is logged on the next row (or the final dump)
+        if i + 1 < len(rows):
+            for name in METRIC_COLUMNS:
+                if name.startswith(SHIFTED_PREFIX):
+                    out[name][i] = value(rows[i + 1], name)
+    return out
+
+
+def greedy_returns(model, episodes: int) -> np.ndarray:
+    import gymnasium as gym
+
+    returns = []
+    for e in range(episodes):
+        env = gym.make("CartPole-v1")
+        obs, _ = env.reset(seed=EVAL_SEED + e)
+        total, done = 0.0, False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, reward, terminated, truncated, _ = env.step(int(action))
+            total += reward
+            done = terminated or truncated
+        returns.append(total)
+    return np.array(returns)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--num-seeds", type=int, default=3)
+    parser.add_argument("--timesteps", type=int, default=80_000)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for this tiny MLP)")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    out = args.out
+    out.mkdir(parents=True, exist_ok=False)
+    config = PPOConfig()  # SB3's defaults, as jaxcart's sb3 preset
+    per_seed, evaluations, seconds = [], [], []
+    for seed in range(args.num_seeds):
+        rows, model, secs = train_one(seed, args.timesteps, args.threads)
+        per_seed.append(to_metrics(rows, config.batch_size))
+        evaluations.append(greedy_returns(model, NUM_EVAL_EPISODES))
+        seconds.append(secs)
+        print(f"seed {seed}: {secs:.1f} s, greedy mean {evaluations[-1].mean():.1f}", flush=True)
+    iterations = min(len(m["time/fps"]) for m in per_seed)
+    metrics = {k: np.stack([m[k][:iterations] for m in per_seed], axis=1) for k in METRIC_COLUMNS}
+    rundir.write_json(
+        out / rundir.CONFIG_FILE,
+        {
+            "format_version": rundir.FORMAT_VERSION,
+            "preset": "sb3",
+            "framework": "stable-baselines3 (torch)",
+            "num_seeds": args.num_seeds,
+            "seed": 0,
+            "config": config.to_dict(),
+            "versions": rundir.package_versions(),
+        },
+    )
+    rundir.write_metrics_csv(out / rundir.METRICS_FILE, metrics, config.batch_size)
+    rundir.write_json(
+        out / rundir.EVALUATION_FILE,
+        {
+            "episodes": NUM_EVAL_EPISODES,
+            "seeds": [
+                {"seed_index": s, "gymnasium_returns": r.tolist(), "gymnasium_mean": float(r.mean()),
+                 "gymnasium_min": float(r.min()), "solved": bool((r >= 500).all()), "train_seconds": seconds[s]}
+                for s, r in enumerate(evaluations)
+            ],
+            "solved_seeds": int(sum((r >= 500).all() for r in evaluations)),
+        },
+    )
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
