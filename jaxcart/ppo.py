@@ -85,6 +85,7 @@ class RunnerState:
     episode_length: Array  # [num_envs] int32
     episodes: EpisodeBuffer
     key: Array
+    diverged_at: Array  # int32: -1 while healthy, else the (1-based) iteration that went non-finite
 
 
 class Transition(NamedTuple):
@@ -145,6 +146,7 @@ def init_runner(key: Array, config: PPOConfig, env_params: cartpole.EnvParams) -
         episode_length=jnp.zeros((config.num_envs,), jnp.int32),
         episodes=EpisodeBuffer(zeros, zeros, jnp.zeros((EPISODE_WINDOW,), bool)),
         key=key,
+        diverged_at=jnp.int32(-1),
     )
 
 
@@ -449,8 +451,28 @@ def train_iteration(
         ),
         "train/learning_rate": jnp.asarray(learning_rate, jnp.float32),
     }
-    runner = runner.replace(params=params, opt_state=opt_state, episodes=episodes, key=key)
-    return runner, metrics
+    new_runner = runner.replace(params=params, opt_state=opt_state, episodes=episodes, key=key)
+    return guard_divergence(runner, new_runner, metrics, iteration)
+
+
+def guard_divergence(
+    old: RunnerState, new: RunnerState, metrics: dict[str, Array], iteration: Array
+) -> tuple[RunnerState, dict[str, Array]]:
+    """Freezes a seed whose update produced non-finite parameters or losses.
+
+    The seed keeps its last finite state (so checkpoints stay usable) and records
+    ``diverged_at``; later iterations leave it untouched and report NaN metrics for it.
+    """
+    finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(new.params)]))
+    for name in ("train/loss", "train/value_loss", "train/policy_gradient_loss"):
+        finite &= jnp.isfinite(metrics[name])
+    frozen = old.diverged_at >= 0
+    accept = finite & ~frozen
+    runner = jax.tree.map(lambda n, o: jnp.where(accept, n, o), new, old)
+    # recorded 1-based, as metrics.csv numbers iterations
+    diverged_at = jnp.where(frozen | finite, old.diverged_at, (iteration + 1).astype(jnp.int32))
+    metrics = {k: jnp.where(frozen, jnp.nan, v) for k, v in metrics.items()}
+    return runner.replace(diverged_at=diverged_at), metrics
 
 
 def train_chunk(

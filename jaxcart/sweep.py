@@ -100,6 +100,7 @@ def rank(
     final_return: np.ndarray,
     steps_to_500: np.ndarray,
     num_seeds: int,
+    diverged_at: np.ndarray | None = None,
 ) -> list[dict]:
     """Per-combination summary sorted by solve rate, final return, then steps to 500.
 
@@ -120,6 +121,7 @@ def rank(
                 else math.nan,
                 "median_steps_to_500": float(np.median(steps)),
                 "seeds_reaching_500": int(np.isfinite(steps).sum()),
+                "seeds_diverged": 0 if diverged_at is None else int((diverged_at[sl] >= 0).sum()),
             }
         )
     return sorted(

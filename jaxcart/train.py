@@ -445,8 +445,18 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
 
+    reported: set[int] = set()
+
     def on_chunk(progress) -> None:
         nonlocal last_save
+        for r in np.flatnonzero(progress.diverged_at >= 0):
+            if int(r) not in reported:
+                reported.add(int(r))
+                message = (
+                    f"{run_names[r]} diverged at iteration {progress.diverged_at[r]} (non-finite loss or "
+                    f"parameters): it stops there with its last finite parameters; other runs continue"
+                )
+                (bar.write if bar is not None else print)(message, file=sys.stderr)
         first = progress.iteration - len(progress.metrics["time/fps"])
         logger.log(
             first,
@@ -509,6 +519,7 @@ def run(args: argparse.Namespace) -> int:
         ]
     )
     timing = {
+        "diverged_at": np.asarray(jax.device_get(result.state.runners.diverged_at)),
         "compile_seconds": result.compile_seconds,
         "train_seconds": result.state.elapsed,
         "eval_seconds": eval_seconds,
@@ -529,6 +540,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
     solved = (gym_returns >= 500).all(axis=1)
+    diverged = np.asarray(jax.device_get(result.state.runners.diverged_at))
     final_rew = result.metrics["rollout/ep_rew_mean"][-1]
     if plan.combos:
         steps = np.arange(1, config.num_iterations + 1) * config.batch_size
@@ -538,6 +550,7 @@ def run(args: argparse.Namespace) -> int:
             final_rew,
             sweeps.first_reach(result.metrics["rollout/ep_rew_max"], steps),
             plan.num_seeds,
+            diverged,
         )
         rundir.write_json(
             out / "sweep.json",
@@ -554,6 +567,7 @@ def run(args: argparse.Namespace) -> int:
                 if not np.isfinite(r["median_steps_to_500"])
                 else f"{r['median_steps_to_500']:,.0f}",
                 f"{r['seeds_reaching_500']}/{plan.num_seeds}",
+                f"{r['seeds_diverged']}/{plan.num_seeds}",
             ]
             for r in ranking
         ]
@@ -571,6 +585,7 @@ def run(args: argparse.Namespace) -> int:
                     "final ep_rew_mean",
                     "median steps to a 500 episode",
                     "reached 500",
+                    "diverged",
                 ],
             ),
             file=log,
@@ -582,7 +597,8 @@ def run(args: argparse.Namespace) -> int:
                 s,
                 f"{gym_returns[s].mean():.1f}",
                 f"{gym_returns[s].min():.0f}",
-                "yes" if solved[s] else "no",
+                ("yes" if solved[s] else "no")
+                + (f" (diverged@{diverged[s]})" if diverged[s] >= 0 else ""),
                 f"{jax_returns[s].mean():.1f}",
                 f"{final_rew[s]:.1f}",
             ]
@@ -673,6 +689,8 @@ def write_outputs(
     rundir.save_params(directory / rundir.PARAMS_FILE, jax.tree.map(lambda x: x[runs], params))
     g, j = gym_returns[runs], jax_returns[runs]
     final = metrics["rollout/ep_rew_mean"][-1, runs]
+    timing = dict(timing)
+    diverged = timing.pop("diverged_at")[runs]
     rundir.write_json(
         directory / rundir.EVALUATION_FILE,
         {
@@ -688,6 +706,7 @@ def write_outputs(
                     "jaxcart_returns": j[s].tolist(),
                     "jaxcart_mean": float(j[s].mean()),
                     "final_ep_rew_mean": float(final[s]),
+                    "diverged_at_iteration": int(diverged[s]) if diverged[s] >= 0 else None,
                 }
                 for s in range(len(g))
             ],

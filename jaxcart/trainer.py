@@ -76,6 +76,7 @@ def init_runners(
         episode_length=zeros(template.episode_length),
         episodes=jax.tree.map(zeros, template.episodes),
         key=np.stack([r[2] for r in runs]),
+        diverged_at=np.full((len(keys),), -1, np.int32),
     )
 
 
@@ -133,6 +134,7 @@ class Progress:
     elapsed: float  # seconds of training so far (resumed runs include earlier sessions)
     metrics: dict[str, np.ndarray]  # this chunk's metrics, leaves [iterations_in_chunk, S]
     state: Callable[[], TrainState]  # the full state now (valid only during the callback)
+    diverged_at: np.ndarray  # [S] int: -1, or the iteration at which that run went non-finite
 
 
 @dataclass
@@ -274,9 +276,16 @@ def train(
             return TrainState(runners, hps, done, now, _concat(chunks), chunk_size)
 
         if on_chunk:
+            diverged = np.asarray(jax.device_get(runners.diverged_at))
             on_chunk(
                 Progress(
-                    done, config.num_iterations, done * config.batch_size, now, metrics, snapshot
+                    done,
+                    config.num_iterations,
+                    done * config.batch_size,
+                    now,
+                    metrics,
+                    snapshot,
+                    diverged,
                 )
             )
     jax.block_until_ready(runners)

@@ -259,3 +259,56 @@ def test_bad_sweeps_rejected(spec, message, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error:") and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()
+
+
+def test_divergence_freezes_only_that_seed(tmp_path):
+    """A seed whose update goes non-finite stops with its last finite state and is marked;
+    the other seed trains exactly as it would have, and checkpoints stay finite."""
+    from jaxcart.trainer import broadcast_hyperparams
+
+    hps = broadcast_hyperparams(TINY, 2)
+    bad = hps.replace(learning_rate=hps.learning_rate.at[1].set(1e35))
+    good = train(TINY, 2, seed=5, hyperparams=hps)
+    mixed = train(TINY, 2, seed=5, hyperparams=bad)
+    diverged = np.asarray(mixed.runners.diverged_at)
+    assert diverged[0] == -1 and diverged[1] >= 1
+    for leaf in jax.tree.leaves(mixed.params):
+        assert np.isfinite(np.asarray(leaf)).all()
+    # seed 0 is untouched by seed 1's divergence
+    for x, y in zip(jax.tree.leaves(good.params), jax.tree.leaves(mixed.params)):
+        np.testing.assert_array_equal(np.asarray(x)[0], np.asarray(y)[0])
+    # after the divergence seed 1 reports NaN metrics
+    assert np.isnan(mixed.metrics["train/value_loss"][diverged[1] :, 1]).all()
+
+
+def test_cli_reports_divergence(tmp_path, capsys):
+    out = tmp_path / "div"
+    argv = [
+        "--num-envs",
+        "4",
+        "--num-steps",
+        "32",
+        "--total-timesteps",
+        "1024",
+        "--minibatch-size",
+        "64",
+        "--update-epochs",
+        "2",
+        "--eval-episodes",
+        "2",
+        "--quiet",
+        "--no-compile-cache",
+        "--sweep",
+        "learning_rate=1e-3,1e35",
+        "--out",
+        str(out),
+    ]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert "combo001-seed0 diverged at iteration" in captured.err
+    seeds = json.loads((out / "combo-001" / "evaluation.json").read_text())["seeds"]
+    assert seeds[0]["diverged_at_iteration"] >= 1
+    ok = json.loads((out / "combo-000" / "evaluation.json").read_text())["seeds"]
+    assert ok[0]["diverged_at_iteration"] is None
+    ranking = json.loads((out / "sweep.json").read_text())["ranking"]
+    assert {r["learning_rate"]: r["seeds_diverged"] for r in ranking} == {1e-3: 0, 1e35: 1}
