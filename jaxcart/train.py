@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import re
 import signal
 import sys
 import time
@@ -139,7 +140,10 @@ def prepare_out_dir(out: Path) -> Path:
     """Creates ``out``; refuses a non-empty or unwritable one with a clear message."""
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} exists and is not a directory; choose another path")
-    if out.is_dir() and any(out.iterdir()):
+    # leftovers of a run killed while writing its first file do not count
+    if out.is_dir() and any(
+        not (p.name.startswith(".") and p.name.endswith(".tmp")) for p in out.iterdir()
+    ):
         raise UsageError(
             f"--out {out} is not empty; choose a new directory so no earlier run is "
             f"overwritten (or continue it with --resume {out})"
@@ -176,6 +180,7 @@ class Plan:
     combos: list[dict[str, float]]
     resume_state: object = None  # TrainState when resuming
     resumed_from_iteration: int = 0
+    has_checkpoint: bool = False
     info: dict = field(default_factory=dict)  # what config.json holds
 
     @property
@@ -230,14 +235,16 @@ def plan_resume(args: argparse.Namespace) -> Plan:
             f"--resume continues a run with its saved settings; drop {', '.join(given)}"
         )
     out = args.resume
+    path = out / checkpoint.CHECKPOINT_FILE
     try:
         info = rundir.read_run_config(out)
-        meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
+        # No checkpoint yet (stopped while starting up): nothing was trained, start at 0.
+        meta = checkpoint.read_checkpoint_meta(path) if path.exists() else None
     except rundir.RunDirError as exc:
         raise UsageError(f"cannot resume: {exc}") from None
     versions = rundir.package_versions()
     for name in ("jaxcart", "jax", "jaxlib"):
-        saved = meta.get("versions", {}).get(name)
+        saved = (meta or info).get("versions", {}).get(name)
         if saved != versions[name]:
             raise UsageError(
                 f"cannot resume: {out} was trained with {name} {saved}, this is {versions[name]}; "
@@ -245,7 +252,8 @@ def plan_resume(args: argparse.Namespace) -> Plan:
             )
     config = info["config"]
     if (
-        meta.get("iteration", 0) >= config.num_iterations
+        meta is not None
+        and meta.get("iteration", 0) >= config.num_iterations
         and (out / rundir.EVALUATION_FILE).exists()
     ):
         raise UsageError(
@@ -259,7 +267,8 @@ def plan_resume(args: argparse.Namespace) -> Plan:
         out, info["preset"], config, int(info["num_seeds"]), int(info["seed"]), sweep, combos
     )
     plan.info = {k: v for k, v in info.items() if k != "config"}
-    plan.resumed_from_iteration = int(meta["iteration"])
+    plan.resumed_from_iteration = int(meta["iteration"]) if meta else 0
+    plan.has_checkpoint = meta is not None
     return plan
 
 
@@ -355,7 +364,7 @@ def run(args: argparse.Namespace) -> int:
 
     from jaxcart import checkpoint, rundir
     from jaxcart import sweep as sweeps
-    from jaxcart.trainer import broadcast_hyperparams, train
+    from jaxcart.trainer import broadcast_hyperparams, initial_state, train
 
     config, out = plan.config, plan.out
     if plan.combos:
@@ -365,7 +374,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         hps, seed_indices = broadcast_hyperparams(config, plan.num_seeds), None
     if args.resume:
-        plan.resume_state = _load_resume_state(plan, hps, seed_indices)
+        if plan.has_checkpoint:
+            plan.resume_state = _load_resume_state(plan, hps, seed_indices)
     else:
         plan.info = {
             "format_version": rundir.FORMAT_VERSION,
@@ -431,6 +441,13 @@ def run(args: argparse.Namespace) -> int:
             },
             extras=state.metrics,
         )
+
+    if plan.resume_state is None:
+        # An iteration-0 checkpoint first: a run killed at any moment can be resumed.
+        plan.resume_state = initial_state(
+            config, plan.num_runs, plan.seed, hps, seed_indices=seed_indices
+        )
+        save(plan.resume_state)
 
     def on_compiled(seconds: float) -> None:
         nonlocal bar
@@ -716,11 +733,29 @@ def write_outputs(
     )
 
 
+def join_negative_values(argv: list[str]) -> list[str]:
+    """``["--learning-rate", "-3e-4"]`` -> ``["--learning-rate=-3e-4"]``: argparse reads a
+    value like ``-3e-4`` as an unknown option, which would hide the real problem (a negative
+    value) behind "expected one argument"."""
+    out: list[str] = []
+    for token in argv:
+        if (
+            out
+            and out[-1].startswith("--")
+            and "=" not in out[-1]
+            and re.fullmatch(r"-(\d|\.\d|inf|nan).*", token)
+        ):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input, 128+signal when interrupted)."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
         return run(args)
     except (UsageError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)

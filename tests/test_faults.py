@@ -1,0 +1,295 @@
+"""Fault injection: real training runs killed at random moments and resumed, and every bad
+input a user can give, each rejected with one line, exit code 2 and no traceback.
+
+The figures (runs killed, resumes verified identical, bad inputs tried/rejected) are printed
+in pytest's terminal summary.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from conftest import FAULT_FIGURES
+
+from jaxcart import checkpoint, rundir
+from jaxcart.ppo import METRIC_NAMES
+
+RUN = [
+    "--num-envs",
+    "4",
+    "--num-steps",
+    "32",
+    "--total-timesteps",
+    "25600",
+    "--minibatch-size",
+    "64",
+    "--update-epochs",
+    "2",
+    "--eval-episodes",
+    "2",
+    "--quiet",
+    "--num-seeds",
+    "2",
+    "--seed",
+    "11",
+    "--checkpoint-every",
+    "0.2",
+]
+ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+
+
+def _start(*args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "jaxcart.train", *args],
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+
+
+def _run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "jaxcart.train", *args],
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def _assert_same_run(a: Path, b: Path) -> None:
+    ma, mb = rundir.read_metrics_csv(a / "metrics.csv"), rundir.read_metrics_csv(b / "metrics.csv")
+    for name in METRIC_NAMES:
+        np.testing.assert_array_equal(ma[name], mb[name], err_msg=name)
+    for x, y in zip(
+        jax.tree.leaves(rundir.load_params(a)), jax.tree.leaves(rundir.load_params(b)), strict=True
+    ):
+        np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.slow
+def test_sigkill_at_random_moments_loses_nothing(tmp_path):
+    """SIGKILL (no chance to clean up) at random moments, then --resume, repeatedly: every
+    interrupted run ends bit-identical to the uninterrupted one and no checkpoint is ever
+    unreadable."""
+    reference = tmp_path / "reference"
+    done = _run(*RUN, "--out", str(reference))
+    assert done.returncode == 0, done.stdout + done.stderr
+
+    rng = random.Random(2026)
+    for trial in range(3):
+        out = tmp_path / f"killed-{trial}"
+        proc = _start(*RUN, "--out", str(out))
+        kills = 0
+        while True:
+            try:
+                proc.wait(timeout=rng.uniform(0.5, 3.0) if kills == 0 else rng.uniform(1.0, 5.0))
+                break  # finished before the kill
+            except subprocess.TimeoutExpired:
+                proc.kill()  # SIGKILL
+                proc.wait()
+                kills += 1
+                FAULT_FIGURES["runs killed (SIGKILL)"] += 1
+                if not (out / "config.json").exists():  # killed before it wrote anything
+                    proc = _start(*RUN, "--out", str(out))
+                    continue
+                # whatever moment it died, a checkpoint on disk is complete and readable
+                if (out / checkpoint.CHECKPOINT_FILE).exists():
+                    meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
+                    assert 0 <= meta["iteration"] <= 200
+                if (out / "evaluation.json").exists():
+                    break  # killed after its last write: the run is complete
+                proc = _start("--resume", str(out), "--quiet")
+                if kills >= 4:
+                    proc.wait(timeout=300)
+                    break
+        assert proc.returncode in (0, -signal.SIGKILL), proc.stdout.read()
+        _assert_same_run(reference, out)
+        FAULT_FIGURES["interrupted runs verified bit-identical"] += 1
+    assert FAULT_FIGURES["runs killed (SIGKILL)"] >= 3
+
+
+@pytest.mark.slow
+def test_sigint_checkpoints_and_prints_resume_command(tmp_path):
+    out = tmp_path / "ctrl-c"
+    proc = _start(*RUN, "--out", str(out))
+    deadline = time.monotonic() + 60
+    text = ""
+    while time.monotonic() < deadline:
+        if (out / checkpoint.CHECKPOINT_FILE).exists() and checkpoint.read_checkpoint_meta(
+            out / checkpoint.CHECKPOINT_FILE
+        )["iteration"] > 0:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    text, _ = proc.communicate(timeout=120)
+    if proc.returncode == 0:
+        pytest.skip("finished before Ctrl-C")
+    assert proc.returncode == 128 + signal.SIGINT, text
+    assert "SIGINT received" in text and f"--resume {out}" in text and "Traceback" not in text
+    FAULT_FIGURES["runs killed (SIGINT)"] += 1
+
+
+def _corrupt_checkpoint(run: Path) -> None:
+    path = run / checkpoint.CHECKPOINT_FILE
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def _old_version_checkpoint(run: Path) -> None:
+    path = run / checkpoint.CHECKPOINT_FILE
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(bytes(arrays["__meta__"]).decode())
+    meta["versions"]["jax"] = "0.0.1"
+    arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    np.savez(path, **arrays)
+
+
+def _garbled_config(run: Path) -> None:
+    (run / "config.json").write_text("{not json")
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bad") / "run"
+    done = _run(
+        "--num-envs",
+        "4",
+        "--num-steps",
+        "32",
+        "--total-timesteps",
+        "256",
+        "--minibatch-size",
+        "64",
+        "--update-epochs",
+        "1",
+        "--eval-episodes",
+        "1",
+        "--quiet",
+        "--out",
+        str(out),
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    return out
+
+
+BAD_OPTIONS = [
+    (["--minibatch-size", "100"], "does not divide"),
+    (["--learning-rate", "0"], "learning_rate must be > 0"),
+    (["--learning-rate", "-3e-4"], "learning_rate must be > 0"),
+    (["--total-timesteps", "0"], "total_timesteps must be a positive integer"),
+    (["--num-steps", "-5"], "num_steps must be a positive integer"),
+    (["--gamma", "0"], "gamma must be in (0, 1]"),
+    (["--gamma", "1.01"], "gamma must be in (0, 1]"),
+    (["--gae-lambda", "2"], "gae_lambda must be in (0, 1]"),
+    (["--ent-coef", "-0.1"], "ent_coef must be >= 0"),
+    (["--vf-coef", "-1"], "vf_coef must be >= 0"),
+    (["--clip-coef", "-0.2"], "clip_coef must be > 0"),
+    (["--max-grad-norm", "0"], "max_grad_norm must be > 0"),
+    (["--learning-rate", "nan"], "learning_rate must be a finite number"),
+    (["--num-seeds", "0"], "--num-seeds must be a positive integer"),
+    (["--num-seeds", "-4"], "--num-seeds must be a positive integer"),
+    (["--preset", "ppo2"], "unknown preset"),
+    (["--not-an-option"], "unrecognized arguments"),
+    (["--num-envs", "four"], "invalid int value"),
+    (["--activation", "gelu"], "activation must be 'tanh' or 'relu'"),
+    (["--hidden-sizes", "64,,x"], "comma-separated integers"),
+    (["--sweep", "learning_rate"], "malformed --sweep"),
+    (["--sweep", "learning_rate=fast"], "values must be numbers"),
+    (["--sweep", "num_envs=1,2"], "cannot sweep 'num_envs'"),
+    (["--sweep", "gamma=0.9,2"], "out of range"),
+    (["--eval-episodes", "0"], "--eval-episodes must be a positive integer"),
+    (["--checkpoint-every", "0"], "--checkpoint-every must be > 0"),
+]
+
+
+@pytest.mark.parametrize("argv, message", BAD_OPTIONS, ids=[" ".join(a) for a, _ in BAD_OPTIONS])
+def test_bad_option_rejected_before_compiling(argv, message, tmp_path):
+    from jaxcart.train import main
+
+    out = tmp_path / "never"
+    FAULT_FIGURES["bad inputs tried"] += 1
+    proc_err = _capture(lambda: main([*argv, "--out", str(out)]))
+    code, err = proc_err
+    assert code == 2, err
+    assert message in err, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists() or not any(out.iterdir())
+    FAULT_FIGURES["bad inputs rejected cleanly"] += 1
+
+
+def _capture(fn):
+    import contextlib
+    import io
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = fn()
+    return code, err.getvalue()
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (_corrupt_checkpoint, "corrupted"),
+        (_old_version_checkpoint, "trained with jax 0.0.1"),
+        (_garbled_config, "corrupted or from an incompatible version"),
+    ],
+    ids=["truncated-checkpoint", "other-jax-version", "garbled-config"],
+)
+def test_bad_resume_directories_rejected(damage, message, finished_run, tmp_path):
+    import shutil
+
+    run = tmp_path / "copy"
+    shutil.copytree(finished_run, run)
+    (run / "evaluation.json").unlink()  # pretend it was interrupted
+    damage(run)
+    FAULT_FIGURES["bad inputs tried"] += 1
+    done = _run("--resume", str(run))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert message in done.stderr and "Traceback" not in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    FAULT_FIGURES["bad inputs rejected cleanly"] += 1
+
+
+def test_other_bad_paths(finished_run, tmp_path):
+    from jaxcart.train import main
+
+    cases = []
+    (tmp_path / "file").write_text("x")
+    cases.append((["--out", str(tmp_path / "file")], "not a directory"))
+    cases.append((["--out", str(finished_run)], "is not empty"))
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    if os.access(locked, os.W_OK):  # root ignores permissions: use a path under a file instead
+        cases.append((["--out", str(tmp_path / "file" / "sub")], "cannot write"))
+    else:
+        cases.append((["--out", str(locked / "sub")], "cannot write"))
+    cases.append((["--resume", str(tmp_path / "missing")], "cannot resume"))
+    cases.append((["--resume", str(finished_run)], "nothing to resume"))
+    cases.append((["--resume", str(finished_run), "--seed", "3"], "drop --seed"))
+    for argv, message in cases:
+        FAULT_FIGURES["bad inputs tried"] += 1
+        code, err = _capture(lambda argv=argv: main(argv))
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1, (argv, err)
+        FAULT_FIGURES["bad inputs rejected cleanly"] += 1
+
+    import jaxcart
+
+    for path in (tmp_path, tmp_path / "missing", tmp_path / "file"):
+        FAULT_FIGURES["bad inputs tried"] += 1
+        with pytest.raises(rundir.RunDirError):
+            jaxcart.load_policy(path)
+        FAULT_FIGURES["bad inputs rejected cleanly"] += 1
