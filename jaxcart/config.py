@@ -170,12 +170,12 @@ PRESETS: dict[str, dict] = {
     # Least wall time to a reliably solved policy on a 2-core CPU; the evidence (a multi-seed
     # search with jaxcart's own runs) is in benchmarks/fast_preset.md.
     "fast": dict(
-        num_envs=8,
-        num_steps=64,
-        total_timesteps=40_960,
+        num_envs=4,
+        num_steps=128,
+        total_timesteps=50_000,
         minibatch_size=128,
         update_epochs=4,
-        learning_rate=1e-3,
+        learning_rate=5e-3,
         anneal_lr=True,
         ent_coef=0.0,
     ),
