@@ -92,10 +92,14 @@ def greedy_returns(model, episodes: int) -> np.ndarray:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--num-seeds", type=int, default=3)
     parser.add_argument("--timesteps", type=int, default=80_000)
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (1 is fastest for this tiny MLP)")
+    parser.add_argument(
+        "--threads", type=int, default=1, help="torch threads (1 is fastest for this tiny MLP)"
+    )
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
     out = args.out
@@ -128,8 +132,14 @@ def main() -> None:
         {
             "episodes": NUM_EVAL_EPISODES,
             "seeds": [
-                {"seed_index": s, "gymnasium_returns": r.tolist(), "gymnasium_mean": float(r.mean()),
-                 "gymnasium_min": float(r.min()), "solved": bool((r >= 500).all()), "train_seconds": seconds[s]}
+                {
+                    "seed_index": s,
+                    "gymnasium_returns": r.tolist(),
+                    "gymnasium_mean": float(r.mean()),
+                    "gymnasium_min": float(r.min()),
+                    "solved": bool((r >= 500).all()),
+                    "train_seconds": seconds[s],
+                }
                 for s, r in enumerate(evaluations)
             ],
             "solved_seeds": int(sum((r >= 500).all() for r in evaluations)),

@@ -15,7 +15,23 @@ from jaxcart.train import main
 @pytest.mark.slow
 def test_fast_preset_solves_cartpole_in_gymnasium(tmp_path, capsys):
     out = tmp_path / "fast"
-    assert main(["--preset", "fast", "--num-seeds", "4", "--seed", "0", "--quiet", "--no-compile-cache", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "--preset",
+                "fast",
+                "--num-seeds",
+                "4",
+                "--seed",
+                "0",
+                "--quiet",
+                "--no-compile-cache",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "solved 4/4 run(s)" in text, text
     evaluation = json.loads((out / "evaluation.json").read_text())
