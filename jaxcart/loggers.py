@@ -376,6 +376,18 @@ def _installed(module: str) -> bool:
         return False
 
 
+def check_available(names: Sequence[str]) -> None:
+    """Raises :class:`LoggerUnavailable` if a named backend's package is not installed
+    (cheap: nothing is imported), so a CLI can refuse before it creates anything."""
+    for name in dict.fromkeys(names):
+        backend = BACKENDS.get(name)
+        if backend is not None and backend.module is not None and not _installed(backend.module):
+            raise LoggerUnavailable(
+                f"the {name} logger needs the {backend.module} package: "
+                f"pip install 'jaxcart[{backend.extra}]'"
+            )
+
+
 def make_logger(
     names: Sequence[str], out_dir: Path, run_names: Sequence[str], config: dict | None = None
 ) -> Logger:
@@ -401,13 +413,7 @@ def make_logger(
     bad = [r for r in run_names if not r or r in (".", "..") or "/" in r or "\\" in r]
     if bad:
         raise ValueError(f"run names must be usable as directory names, got {bad}")
-    for name in names:
-        backend = BACKENDS[name]
-        if backend.module is not None and not _installed(backend.module):
-            raise LoggerUnavailable(
-                f"the {name} logger needs the {backend.module} package: "
-                f"pip install 'jaxcart[{backend.extra}]'"
-            )
+    check_available(names)
     out_dir = Path(out_dir)
     config = dict(config or {})
     return Logger([BACKENDS[n](out_dir, run_names, config) for n in names], len(run_names))

@@ -351,6 +351,13 @@ class StopFlag:
 def run(args: argparse.Namespace) -> int:
     """Trains, checkpoints, evaluates, writes the run directory and prints the summary."""
     wall_start = time.perf_counter()
+    if args.logger:
+        from jaxcart.loggers import LoggerUnavailable, check_available
+
+        try:
+            check_available(args.logger)
+        except LoggerUnavailable as exc:
+            raise UsageError(str(exc)) from None
     plan = plan_resume(args) if args.resume else plan_new(args)
     _check_positive("--eval-episodes", args.eval_episodes)
     if args.checkpoint_every <= 0:
