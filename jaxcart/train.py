@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import os
 import re
 import signal
 import sys
@@ -102,6 +103,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="do not use JAX's persistent compilation cache (~/.cache/jaxcart/jax)",
     )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    dist = parser.add_argument_group(
+        "distributed (one process per host; process 0 writes the run directory)"
+    )
+    dist.add_argument(
+        "--distributed",
+        action="store_true",
+        help="join a jax.distributed run; unset options come from JAX_COORDINATOR_ADDRESS, "
+        "JAX_NUM_PROCESSES, JAX_PROCESS_ID or the cluster (SLURM, ...)",
+    )
+    dist.add_argument("--coordinator-address", default=None, metavar="HOST:PORT")
+    dist.add_argument("--num-processes", type=int, default=None)
+    dist.add_argument("--process-id", type=int, default=None)
 
     docs = field_docs()
     group = parser.add_argument_group("PPO config (defaults shown are the sb3 preset's)")
@@ -193,7 +206,7 @@ def _check_positive(name: str, value: int) -> None:
         raise UsageError(f"{name} must be a positive integer, got {value}")
 
 
-def plan_new(args: argparse.Namespace) -> Plan:
+def plan_new(args: argparse.Namespace, create_out: bool = True) -> Plan:
     """Validates a new run's options (no JAX work yet)."""
     from jaxcart import sweep as sweeps
 
@@ -210,7 +223,9 @@ def plan_new(args: argparse.Namespace) -> Plan:
     for name in sweep:
         if name in config_overrides(args):
             raise UsageError(f"--{name.replace('_', '-')} and --sweep {name} both given; keep one")
-    out = prepare_out_dir(args.out or default_out_dir(preset_name))
+    out = args.out or default_out_dir(preset_name)
+    if create_out:
+        out = prepare_out_dir(out)
     return Plan(out, preset_name, config, num_seeds, seed, sweep, combos)
 
 
@@ -351,6 +366,21 @@ class StopFlag:
 def run(args: argparse.Namespace) -> int:
     """Trains, checkpoints, evaluates, writes the run directory and prints the summary."""
     wall_start = time.perf_counter()
+    from jaxcart import distributed
+
+    if args.distributed:
+        if args.out is None and args.resume is None:
+            raise UsageError("--distributed needs --out DIR (the same path on every process)")
+        try:
+            distributed.initialize(args.coordinator_address, args.num_processes, args.process_id)
+        except (ValueError, TypeError, RuntimeError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise UsageError(f"cannot start jax.distributed: {first}") from None
+    elif any(
+        v is not None for v in (args.coordinator_address, args.num_processes, args.process_id)
+    ):
+        raise UsageError("--coordinator-address/--num-processes/--process-id need --distributed")
+    main_process = not args.distributed or distributed.is_main_process()
     if args.logger:
         from jaxcart.loggers import LoggerUnavailable, check_available
 
@@ -358,7 +388,7 @@ def run(args: argparse.Namespace) -> int:
             check_available(args.logger)
         except LoggerUnavailable as exc:
             raise UsageError(str(exc)) from None
-    plan = plan_resume(args) if args.resume else plan_new(args)
+    plan = plan_resume(args) if args.resume else plan_new(args, create_out=main_process)
     _check_positive("--eval-episodes", args.eval_episodes)
     if args.checkpoint_every <= 0:
         raise UsageError(f"--checkpoint-every must be > 0 seconds, got {args.checkpoint_every}")
@@ -374,6 +404,11 @@ def run(args: argparse.Namespace) -> int:
     from jaxcart.trainer import broadcast_hyperparams, initial_state, train
 
     config, out = plan.config, plan.out
+    if args.distributed and plan.num_runs % jax.device_count():
+        raise UsageError(
+            f"{plan.num_runs} runs cannot be split evenly over {jax.device_count()} devices in "
+            f"{jax.process_count()} processes; use a multiple of {jax.device_count()} seeds"
+        )
     if plan.combos:
         hps, seed_indices = sweeps.sweep_hyperparams(
             sweeps.validate_combinations(config, plan.combos), plan.num_seeds
@@ -395,13 +430,14 @@ def run(args: argparse.Namespace) -> int:
             "backend": jax.default_backend(),
             "device_count": jax.device_count(),
         }
-        rundir.write_json(out / rundir.CONFIG_FILE, {**plan.info, "config": config.to_dict()})
+        if main_process:
+            rundir.write_json(out / rundir.CONFIG_FILE, {**plan.info, "config": config.to_dict()})
     run_names = [
         f"combo{r // plan.num_seeds:03d}-seed{r % plan.num_seeds}" if plan.combos else f"seed{r}"
         for r in range(plan.num_runs)
     ]
     logger = _NullLogger()
-    if args.logger:
+    if args.logger and main_process:
         from jaxcart.loggers import LoggerUnavailable, make_logger
 
         try:
@@ -411,7 +447,7 @@ def run(args: argparse.Namespace) -> int:
         except LoggerUnavailable as exc:
             raise UsageError(str(exc)) from None
 
-    log = sys.stdout
+    log = sys.stdout if main_process else open(os.devnull, "w")
     what = (
         f"{len(plan.combos)} combinations x {plan.num_seeds} seed(s)"
         if plan.combos
@@ -435,9 +471,13 @@ def run(args: argparse.Namespace) -> int:
     last_save = time.monotonic()
 
     def save(state) -> None:
+        # every process takes part in gathering the shards; process 0 writes
+        arrays = distributed.gather({"runners": state.runners, "hyperparams": state.hyperparams})
+        if not main_process:
+            return
         checkpoint.save_checkpoint(
             out / checkpoint.CHECKPOINT_FILE,
-            {"runners": state.runners, "hyperparams": state.hyperparams},
+            arrays,
             {
                 "iteration": state.iteration,
                 "elapsed": state.elapsed,
@@ -459,7 +499,7 @@ def run(args: argparse.Namespace) -> int:
     def on_compiled(seconds: float) -> None:
         nonlocal bar
         print(f"compiled the fused training step in {seconds:.2f} s", file=log, flush=True)
-        if not args.quiet:
+        if not args.quiet and main_process:
             bar = tqdm(
                 total=config.num_iterations,
                 initial=plan.resumed_from_iteration,
@@ -474,7 +514,7 @@ def run(args: argparse.Namespace) -> int:
     def on_chunk(progress) -> None:
         nonlocal last_save
         for r in np.flatnonzero(progress.diverged_at >= 0):
-            if int(r) not in reported:
+            if int(r) not in reported and main_process:
                 reported.add(int(r))
                 message = (
                     f"{run_names[r]} diverged at iteration {progress.diverged_at[r]} (non-finite loss or "
@@ -487,10 +527,9 @@ def run(args: argparse.Namespace) -> int:
             (first + 1 + np.arange(len(progress.metrics["time/fps"]))) * config.batch_size,
             progress.metrics,
         )
-        if (
-            time.monotonic() - last_save >= args.checkpoint_every
-            and progress.iteration < config.num_iterations
-        ):
+        # with several processes, every chunk (all must agree on when to gather)
+        due = args.distributed or time.monotonic() - last_save >= args.checkpoint_every
+        if due and progress.iteration < config.num_iterations:
             save(progress.state())
             last_save = time.monotonic()
         if bar is not None:
@@ -521,16 +560,20 @@ def run(args: argparse.Namespace) -> int:
         logger.close()
     save(result.state)
     if result.stopped:
-        rundir.write_metrics_csv(out / rundir.METRICS_FILE, result.metrics, config.batch_size)
+        if main_process:
+            rundir.write_metrics_csv(out / rundir.METRICS_FILE, result.metrics, config.batch_size)
         print(
             f"stopped at iteration {result.state.iteration}/{config.num_iterations}; checkpoint saved in {out}\n"
             f"resume with: {RESUME_HINT.format(out=out)}",
             file=log,
             flush=True,
         )
-        return 128 + stop.signum
+        return 128 + (stop.signum or signal.SIGTERM)  # another process may have been signalled
 
-    params = jax.device_get(result.params)
+    params = distributed.gather(result.params)
+    diverged_at = np.asarray(distributed.gather(result.state.runners.diverged_at))
+    if not main_process:
+        return 0
     eval_start = time.perf_counter()
     gym_returns, jax_returns = evaluate_runs(params, config, plan, args.eval_episodes, seed_indices)
     eval_seconds = time.perf_counter() - eval_start
@@ -543,7 +586,7 @@ def run(args: argparse.Namespace) -> int:
         ]
     )
     timing = {
-        "diverged_at": np.asarray(jax.device_get(result.state.runners.diverged_at)),
+        "diverged_at": diverged_at,
         "compile_seconds": result.compile_seconds,
         "train_seconds": result.state.elapsed,
         "eval_seconds": eval_seconds,
@@ -564,7 +607,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
     solved = (gym_returns >= 500).all(axis=1)
-    diverged = np.asarray(jax.device_get(result.state.runners.diverged_at))
+    diverged = diverged_at
     final_rew = result.metrics["rollout/ep_rew_mean"][-1]
     if plan.combos:
         steps = np.arange(1, config.num_iterations + 1) * config.batch_size

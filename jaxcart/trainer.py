@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxcart import distributed
 from jaxcart import env as cartpole
 from jaxcart.config import PPOConfig
 from jaxcart.ppo import METRIC_NAMES, Hyperparams, RunnerState, init_runner, train_chunk
@@ -27,8 +28,14 @@ def seed_keys(seed: int, num_seeds: int) -> jax.Array:
 
 
 def seed_sharding(num_seeds: int, devices: list | None = None) -> NamedSharding:
-    """Shards a leading seed axis over as many devices as divide ``num_seeds`` evenly."""
+    """Shards a leading seed axis over as many devices as divide ``num_seeds`` evenly.
+
+    With several processes every device must take part: ``num_seeds`` must then be a multiple
+    of ``jax.device_count()`` (the CLI checks this before starting).
+    """
     devices = list(devices if devices is not None else jax.devices())
+    if jax.process_count() > 1 and num_seeds % len(devices):
+        raise ValueError(f"{num_seeds} runs cannot be split evenly over {len(devices)} devices")
     count = max(d for d in range(1, len(devices) + 1) if num_seeds % d == 0)
     mesh = Mesh(np.array(devices[:count]), ("seed",))
     return NamedSharding(mesh, PartitionSpec("seed"))
@@ -240,8 +247,8 @@ def train(
     )
     chunk_size = state.chunk_size
     sharding = seed_sharding(num_seeds, devices)
-    runners = jax.device_put(state.runners, sharding)
-    hps = jax.device_put(state.hyperparams, sharding)
+    runners = distributed.to_global(state.runners, sharding)
+    hps = distributed.to_global(state.hyperparams, sharding)
 
     start = time.perf_counter()
     compiled, fresh = compiled_chunk(config, env_params, chunk_size, runners, hps)
@@ -254,11 +261,12 @@ def train(
     stopped = False
     run_start = time.perf_counter()
     while done < config.num_iterations:
-        if should_stop is not None and should_stop():
+        # every process must agree, or one would wait forever for the others' next chunk
+        if should_stop is not None and distributed.any_process(should_stop()):
             stopped = True
             break
         runners, metrics = compiled(runners, hps, jnp.int32(done))
-        metrics = jax.device_get(metrics)
+        metrics = distributed.gather(metrics)
         now = elapsed_before + time.perf_counter() - run_start
         take = min(chunk_size, config.num_iterations - done)
         metrics = {k: np.asarray(v[:take]) for k, v in metrics.items()}
@@ -276,7 +284,7 @@ def train(
             return TrainState(runners, hps, done, now, _concat(chunks), chunk_size)
 
         if on_chunk:
-            diverged = np.asarray(jax.device_get(runners.diverged_at))
+            diverged = np.asarray(distributed.gather(runners.diverged_at))
             on_chunk(
                 Progress(
                     done,

@@ -1,0 +1,158 @@
+"""Seeds per second on 1 CPU device, 2 host devices (one process) and 2 processes
+(jax.distributed over 127.0.0.1, one device each): the same CLI command each time.
+
+    python benchmarks/scaling.py --seeds 16 --out benchmarks/results
+
+Each configuration runs ``python -m jaxcart.train`` in fresh processes (compile cache off) and
+reads the training time (compile excluded) from the run's ``evaluation.json``; seeds/s is
+seeds x (env steps per seed / 81,920) / train seconds, i.e. SB3-sized runs per second. Writes
+``scaling.json`` and ``scaling.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchlib
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def env_for(devices: int) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    return {
+        **env,
+        "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}",
+        "JAX_PLATFORMS": "cpu",
+    }
+
+
+def run(kind: str, args: list[str], out: Path) -> dict:
+    cmd = [sys.executable, "-m", "jaxcart.train", *args, "--out", str(out)]
+    start = time.perf_counter()
+    if kind == "2 processes":
+        address = f"127.0.0.1:{free_port()}"
+        procs = [
+            subprocess.Popen(
+                [
+                    *cmd,
+                    "--distributed",
+                    "--coordinator-address",
+                    address,
+                    "--num-processes",
+                    "2",
+                    "--process-id",
+                    str(i),
+                ],
+                env=env_for(1),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
+            for i in range(2)
+        ]
+        texts = [p.communicate()[0] for p in procs]
+        if any(p.returncode for p in procs):
+            raise RuntimeError("\n".join(texts))
+    else:
+        devices = 1 if kind == "1 device" else 2
+        done = subprocess.run(cmd, env=env_for(devices), capture_output=True, text=True)
+        if done.returncode:
+            raise RuntimeError(done.stdout + done.stderr)
+    wall = time.perf_counter() - start
+    ev = json.loads((out / "evaluation.json").read_text())
+    return {
+        "train_seconds": ev["train_seconds"],
+        "compile_seconds": ev["compile_seconds"],
+        "process_wall_seconds": wall,
+        "solved": ev["solved_seeds"],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--seeds", type=int, default=16)
+    parser.add_argument("--preset", default="sb3")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    a = parser.parse_args()
+    from jaxcart.config import preset
+
+    config = preset(a.preset)
+    args = [
+        "--preset",
+        a.preset,
+        "--num-seeds",
+        str(a.seeds),
+        "--quiet",
+        "--no-compile-cache",
+        "--eval-episodes",
+        "2",
+    ]
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind in ("1 device", "2 host devices", "2 processes"):
+            results = [
+                run(kind, args, Path(tmp) / f"{kind.replace(' ', '-')}-{i}")
+                for i in range(a.repeats)
+            ]
+            train = sorted(r["train_seconds"] for r in results)[len(results) // 2]
+            rows[kind] = {
+                "median_train_seconds": train,
+                "seeds_per_second": a.seeds / train,
+                "sb3_runs_per_second": a.seeds * config.env_steps_per_seed / 81_920 / train,
+                "runs": results,
+            }
+            print(kind, json.dumps(rows[kind]), flush=True)
+    command = "python benchmarks/scaling.py " + " ".join(sys.argv[1:])
+    machine = benchlib.machine_info()
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "scaling.json").write_text(
+        json.dumps(
+            {
+                "command": command,
+                "machine": machine,
+                "preset": a.preset,
+                "seeds": a.seeds,
+                "results": rows,
+            },
+            indent=2,
+        )
+        + "\n"
+    )
+    base = rows["1 device"]["seeds_per_second"]
+    lines = [
+        f"# Scaling: {a.seeds} seeds of the `{a.preset}` preset",
+        "",
+        f"Command: `{command}` (median of {a.repeats} runs each; training time, compile excluded).",
+        "",
+        "| configuration | train s | seeds/s | speed-up |",
+        "|---|---:|---:|---:|",
+    ]
+    for kind, row in rows.items():
+        lines.append(
+            f"| {kind} | {row['median_train_seconds']:.2f} | {row['seeds_per_second']:.2f} | "
+            f"{row['seeds_per_second'] / base:.2f}x |"
+        )
+    lines += ["", *benchlib.machine_markdown(machine)]
+    (a.out / "scaling.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()

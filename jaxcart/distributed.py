@@ -1,0 +1,100 @@
+"""Several processes (hosts) training one run with JAX's own distributed runtime.
+
+One code path for one device, many devices and many processes: the seed axis is sharded over
+``jax.devices()`` (every process's devices), each process computes its own shard, and the
+host-side pieces here move data between the global arrays and NumPy:
+
+- :func:`initialize` starts ``jax.distributed`` (CPU processes talk through Gloo collectives);
+- :func:`to_global` turns identical host data on every process into a global sharded array
+  (each process materialises only its own shards);
+- :func:`gather` brings a global array back to NumPy on every process (an all-gather across
+  processes; a plain ``device_get`` in a single process);
+- :func:`any_process` agrees on a flag (e.g. "a stop was requested") across processes.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+
+def initialize(
+    coordinator_address: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+) -> None:
+    """``jax.distributed.initialize`` with CPU collectives; must run before any JAX work.
+
+    Unset arguments come from ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and
+    ``JAX_PROCESS_ID``, else from JAX's cluster auto-detection (SLURM, Open MPI, ...).
+    """
+    import jax
+
+    env = os.environ
+    num_processes = num_processes or (
+        int(env["JAX_NUM_PROCESSES"]) if "JAX_NUM_PROCESSES" in env else None
+    )
+    if process_id is None and "JAX_PROCESS_ID" in env:
+        process_id = int(env["JAX_PROCESS_ID"])
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(
+        coordinator_address=coordinator_address, num_processes=num_processes, process_id=process_id
+    )
+
+
+def process_index() -> int:
+    import jax
+
+    return jax.process_index()
+
+
+def is_main_process() -> bool:
+    """Process 0 writes the run directory and prints."""
+    return process_index() == 0
+
+
+def multi_process() -> bool:
+    import jax
+
+    return jax.process_count() > 1
+
+
+def to_global(tree: Any, sharding) -> Any:
+    """Places host arrays (the same on every process) as global arrays with ``sharding``."""
+    import jax
+
+    if not multi_process():
+        return jax.device_put(tree, sharding)
+
+    def place(x):
+        x = np.asarray(x)
+        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+    return jax.tree.map(place, tree)
+
+
+def gather(tree: Any) -> Any:
+    """NumPy copies of (possibly global, sharded) arrays, on every process."""
+    import jax
+
+    if not multi_process():
+        return jax.device_get(tree)
+    from jax.experimental import multihost_utils
+
+    def one(x):
+        if isinstance(x, jax.Array) and not x.is_fully_addressable:
+            return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+        return np.asarray(x)
+
+    return jax.tree.map(one, tree)
+
+
+def any_process(flag: bool) -> bool:
+    """True on every process if ``flag`` is true on any (a no-op with one process)."""
+    if not multi_process():
+        return flag
+    from jax.experimental import multihost_utils
+
+    return bool(np.asarray(multihost_utils.process_allgather(np.int32(flag))).any())
