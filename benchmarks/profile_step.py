@@ -1,0 +1,148 @@
+"""Where one PPO iteration's time goes: rollout, GAE, update; and compile time.
+
+Each phase is jitted on its own, vmapped over S seeds on one CPU device (what each core runs
+when seeds are sharded), and timed as the median of repeated calls after a warm-up:
+
+    python benchmarks/profile_step.py --preset sb3 --seeds 1,32 --out benchmarks/results
+
+Writes ``profile_step.json`` and ``profile_step.md``.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+
+import argparse  # noqa: E402
+import functools  # noqa: E402
+import json  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchlib  # noqa: E402
+
+from jaxcart import env as cartpole  # noqa: E402
+from jaxcart.config import preset  # noqa: E402
+from jaxcart.ppo import (  # noqa: E402
+    ActorCritic,
+    Batch,
+    collect_rollout,
+    compute_gae,
+    make_network,
+    train_chunk,
+    update_epochs,
+)
+from jaxcart.trainer import broadcast_hyperparams, init_runners  # noqa: E402
+
+
+def timed(fn, *args, repeats: int = 5) -> tuple[float, float]:
+    """(compile seconds, median run seconds) of ``jax.jit(fn)(*args)``."""
+    start = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - start
+    jax.block_until_ready(compiled(*args))
+    runs = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        runs.append(time.perf_counter() - start)
+    return compile_s, sorted(runs)[len(runs) // 2]
+
+
+def profile(preset_name: str, seeds: int) -> dict:
+    config = preset(preset_name)
+    env_params = cartpole.EnvParams()
+    runners = jax.device_put(init_runners(config, seeds, 0, env_params))
+    hps = broadcast_hyperparams(config, seeds)
+    network = make_network(config)
+
+    rollout_fn = jax.vmap(lambda r: collect_rollout(r, config, env_params))
+    _, rollout_s = timed(rollout_fn, runners)
+    _, rollout = jax.jit(rollout_fn)(runners)
+
+    def gae(r, roll, hp):
+        next_value = network.apply(r.params, roll.final_obs, method=ActorCritic.value)
+        return compute_gae(
+            roll.reward,
+            roll.value,
+            next_value,
+            roll.terminated,
+            roll.truncated,
+            hp.gamma,
+            hp.gae_lambda,
+            config.bootstrap_truncation,
+        )
+
+    gae_fn = jax.vmap(gae)
+    _, gae_s = timed(gae_fn, runners, rollout, hps)
+    adv, ret = jax.jit(gae_fn)(runners, rollout, hps)
+    flat = lambda x: x.reshape((seeds, config.batch_size) + x.shape[3:])  # noqa: E731
+    batch = Batch(
+        flat(rollout.obs), flat(rollout.action), flat(rollout.log_prob), flat(adv), flat(ret)
+    )
+    keys = jax.random.split(jax.random.PRNGKey(0), seeds)
+    update_fn = jax.vmap(
+        lambda r, b, k, h: update_epochs(r.params, r.opt_state, b, k, h, h.learning_rate, config)
+    )
+    _, update_s = timed(update_fn, runners, batch, keys, hps)
+
+    chunk = functools.partial(train_chunk, config=config, env_params=env_params, chunk_size=2)
+    compile_s, chunk_s = timed(chunk, runners, hps, jnp.int32(0), repeats=3)
+    iteration_s = chunk_s / 2
+    return {
+        "preset": preset_name,
+        "seeds": seeds,
+        "compile_s": compile_s,
+        "iteration_s": iteration_s,
+        "rollout_s": rollout_s,
+        "gae_s": gae_s,
+        "update_s": update_s,
+        "other_s": max(0.0, iteration_s - rollout_s - gae_s - update_s),
+        "gradient_steps_per_iteration": config.update_epochs * config.num_minibatches,
+        "update_us_per_gradient_step": update_s
+        / (config.update_epochs * config.num_minibatches)
+        * 1e6,
+        "rollout_us_per_env_step": rollout_s / config.num_steps * 1e6,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--preset", default="sb3")
+    parser.add_argument("--seeds", default="1,32")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    args = parser.parse_args()
+    rows = [profile(args.preset, int(s)) for s in args.seeds.split(",")]
+    command = benchlib.command_line()
+    machine = benchlib.machine_info()
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "profile_step.json").write_text(
+        json.dumps({"command": command, "machine": machine, "rows": rows}, indent=2) + "\n"
+    )
+    lines = [
+        f"# Where one `{args.preset}` iteration's time goes (one CPU device)",
+        "",
+        "| seeds on the device | compile s | iteration ms | rollout ms | GAE ms | update ms | other ms | update µs / gradient step | rollout µs / step |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['seeds']} | {r['compile_s']:.2f} | {r['iteration_s'] * 1e3:.1f} | {r['rollout_s'] * 1e3:.1f} | "
+            f"{r['gae_s'] * 1e3:.2f} | {r['update_s'] * 1e3:.1f} | {r['other_s'] * 1e3:.1f} | "
+            f"{r['update_us_per_gradient_step']:.0f} | {r['rollout_us_per_env_step']:.1f} |"
+        )
+    lines += ["", f"Command: `{command}`", "", *benchlib.machine_markdown(machine)]
+    (args.out / "profile_step.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
