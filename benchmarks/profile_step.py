@@ -14,22 +14,22 @@ import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
-import argparse  # noqa: E402
-import functools  # noqa: E402
-import json  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import functools
+import json
+import sys
+import time
+from pathlib import Path
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
+import jax
+import jax.numpy as jnp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib  # noqa: E402
+import benchlib
 
-from jaxcart import env as cartpole  # noqa: E402
-from jaxcart.config import preset  # noqa: E402
-from jaxcart.ppo import (  # noqa: E402
+from jaxcart import env as cartpole
+from jaxcart.config import preset
+from jaxcart.ppo import (
     ActorCritic,
     Batch,
     collect_rollout,
@@ -38,7 +38,7 @@ from jaxcart.ppo import (  # noqa: E402
     train_chunk,
     update_epochs,
 )
-from jaxcart.trainer import broadcast_hyperparams, init_runners  # noqa: E402
+from jaxcart.trainer import broadcast_hyperparams, init_runners
 
 
 def timed(fn, *args, repeats: int = 5) -> tuple[float, float]:
@@ -82,7 +82,7 @@ def profile(preset_name: str, seeds: int) -> dict:
     gae_fn = jax.vmap(gae)
     _, gae_s = timed(gae_fn, runners, rollout, hps)
     adv, ret = jax.jit(gae_fn)(runners, rollout, hps)
-    flat = lambda x: x.reshape((seeds, config.batch_size) + x.shape[3:])  # noqa: E731
+    flat = lambda x: x.reshape((seeds, config.batch_size) + x.shape[3:])
     batch = Batch(
         flat(rollout.obs), flat(rollout.action), flat(rollout.log_prob), flat(adv), flat(ret)
     )
@@ -130,7 +130,8 @@ def main() -> None:
     lines = [
         f"# Where one `{args.preset}` iteration's time goes (one CPU device)",
         "",
-        "| seeds on the device | compile s | iteration ms | rollout ms | GAE ms | update ms | other ms | update µs / gradient step | rollout µs / step |",
+        "| seeds on the device | compile s | iteration ms | rollout ms | GAE ms | update ms "
+        "| other ms | update µs / gradient step | rollout µs / step |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
