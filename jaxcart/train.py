@@ -527,8 +527,9 @@ def run(args: argparse.Namespace) -> int:
             (first + 1 + np.arange(len(progress.metrics["time/fps"]))) * config.batch_size,
             progress.metrics,
         )
-        # with several processes, every chunk (all must agree on when to gather)
-        due = args.distributed or time.monotonic() - last_save >= args.checkpoint_every
+        due = time.monotonic() - last_save >= args.checkpoint_every
+        if args.distributed:  # every process must agree on when to gather the state
+            due = distributed.any_process(due)
         if due and progress.iteration < config.num_iterations:
             save(progress.state())
             last_save = time.monotonic()
