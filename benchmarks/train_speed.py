@@ -509,8 +509,8 @@ def markdown(report: dict) -> str:
         "81,920 steps); once with torch's default thread count (one per core) and once after "
         "`torch.set_num_threads(1)`, which is often faster for a 64-64 MLP and much faster "
         "when the cores are busy.",
-        "- jaxcart's *setup* includes initialising the seeds (a small jitted program of its "
-        "own, compiled there) besides compiling the training step (*compile*).",
+        "- jaxcart's *setup* is initialising the seeds (NumPy, on the host) and compiling the "
+        "training step (*compile*, which includes tracing and lowering).",
         "- jaxcart: `jaxcart.trainer.train(preset(...), num_seeds=S, seed=0)`; seeds sharded "
         "over the CPU devices (one per core).",
         f"- rejax: SB3's hyperparameters except where rejax has no option: {REJAX_DIFFERENCES}; "
