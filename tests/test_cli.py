@@ -8,28 +8,14 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import tiny_args
 
 import jaxcart
 from jaxcart import rundir
 from jaxcart.ppo import METRIC_NAMES
 from jaxcart.train import build_parser, main
 
-SMALL = [
-    "--num-envs",
-    "4",
-    "--num-steps",
-    "32",
-    "--total-timesteps",
-    "1024",
-    "--minibatch-size",
-    "64",
-    "--update-epochs",
-    "2",
-    "--eval-episodes",
-    "3",
-    "--quiet",
-    "--no-compile-cache",
-]
+SMALL = [*tiny_args(1024, eval_episodes=3), "--no-compile-cache"]
 
 
 @pytest.fixture(scope="module")

@@ -8,33 +8,10 @@ import socket
 import subprocess
 import sys
 
-import jax
-import numpy as np
 import pytest
+from helpers import assert_same_run_dirs, tiny_args
 
-from jaxcart import rundir
-from jaxcart.ppo import METRIC_NAMES
-
-ARGS = [
-    "--num-envs",
-    "4",
-    "--num-steps",
-    "32",
-    "--total-timesteps",
-    "2048",
-    "--minibatch-size",
-    "64",
-    "--update-epochs",
-    "2",
-    "--eval-episodes",
-    "2",
-    "--quiet",
-    "--no-compile-cache",
-    "--num-seeds",
-    "4",
-    "--seed",
-    "21",
-]
+ARGS = [*tiny_args(2048, num_seeds=4), "--no-compile-cache", "--seed", "21"]
 
 
 def _free_port() -> int:
@@ -93,18 +70,7 @@ def test_two_processes_match_one_process(tmp_path):
     assert "2 cpu device(s)" in outputs[0] and "solved" in outputs[0]
     assert outputs[1].strip() == "" or "jaxcart PPO" not in outputs[1]  # only process 0 reports
 
-    a, b = (
-        rundir.read_metrics_csv(single / "metrics.csv"),
-        rundir.read_metrics_csv(multi / "metrics.csv"),
-    )
-    for name in METRIC_NAMES:
-        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
-    for x, y in zip(
-        jax.tree.leaves(rundir.load_params(single)),
-        jax.tree.leaves(rundir.load_params(multi)),
-        strict=True,
-    ):
-        np.testing.assert_array_equal(x, y)
+    assert_same_run_dirs(single, multi)
     assert sorted(p.name for p in multi.iterdir()) == sorted(p.name for p in single.iterdir())
 
 

@@ -16,35 +16,14 @@ import sys
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 import pytest
 from conftest import FAULT_FIGURES
+from helpers import assert_same_run_dirs, tiny_args
 
 from jaxcart import checkpoint, rundir
-from jaxcart.ppo import METRIC_NAMES
 
-RUN = [
-    "--num-envs",
-    "4",
-    "--num-steps",
-    "32",
-    "--total-timesteps",
-    "25600",
-    "--minibatch-size",
-    "64",
-    "--update-epochs",
-    "2",
-    "--eval-episodes",
-    "2",
-    "--quiet",
-    "--num-seeds",
-    "2",
-    "--seed",
-    "11",
-    "--checkpoint-every",
-    "0.2",
-]
+RUN = [*tiny_args(25600, num_seeds=2), "--seed", "11", "--checkpoint-every", "0.2"]
 ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
 
 
@@ -66,16 +45,6 @@ def _run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
         text=True,
         timeout=timeout,
     )
-
-
-def _assert_same_run(a: Path, b: Path) -> None:
-    ma, mb = rundir.read_metrics_csv(a / "metrics.csv"), rundir.read_metrics_csv(b / "metrics.csv")
-    for name in METRIC_NAMES:
-        np.testing.assert_array_equal(ma[name], mb[name], err_msg=name)
-    for x, y in zip(
-        jax.tree.leaves(rundir.load_params(a)), jax.tree.leaves(rundir.load_params(b)), strict=True
-    ):
-        np.testing.assert_array_equal(x, y)
 
 
 @pytest.mark.slow
@@ -115,7 +84,7 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
                     proc.wait(timeout=300)
                     break
         assert proc.returncode in (0, -signal.SIGKILL), proc.stdout.read()
-        _assert_same_run(reference, out)
+        assert_same_run_dirs(reference, out)
         FAULT_FIGURES["interrupted runs verified bit-identical"] += 1
     assert FAULT_FIGURES["runs killed (SIGKILL)"] >= 3
 

@@ -12,10 +12,10 @@ import time
 import jax
 import numpy as np
 import pytest
+from helpers import assert_same_results, assert_same_run_dirs, tiny_args
 
 from jaxcart import checkpoint, rundir
 from jaxcart.config import PPOConfig
-from jaxcart.ppo import METRIC_NAMES
 from jaxcart.sweep import parse_sweep
 from jaxcart.train import main
 from jaxcart.trainer import initial_state, train
@@ -29,13 +29,6 @@ TINY = PPOConfig(
     learning_rate=1e-3,
     anneal_lr=True,
 )
-
-
-def _assert_identical(a_metrics, b_metrics, a_params, b_params):
-    for name in METRIC_NAMES:  # time/* are wall-clock figures and may differ
-        np.testing.assert_array_equal(a_metrics[name], b_metrics[name], err_msg=name)
-    for x, y in zip(jax.tree.leaves(a_params), jax.tree.leaves(b_params), strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
 def test_resume_from_checkpoint_is_bit_identical(tmp_path):
@@ -75,7 +68,7 @@ def test_resume_from_checkpoint_is_bit_identical(tmp_path):
     )
     resumed = train(TINY, num_seeds=2, seed=3, resume=resumed_state)
     assert resumed.state.iteration == 32 and not resumed.stopped
-    _assert_identical(full.metrics, resumed.metrics, full.params, resumed.params)
+    assert_same_results(full.metrics, resumed.metrics, full.params, resumed.params)
 
 
 def test_checkpoint_rejects_other_structures(tmp_path):
@@ -94,24 +87,7 @@ def test_checkpoint_rejects_other_structures(tmp_path):
         checkpoint.read_checkpoint_meta(path)
 
 
-CLI_SMALL = [
-    "--num-envs",
-    "4",
-    "--num-steps",
-    "32",
-    "--total-timesteps",
-    "12800",
-    "--minibatch-size",
-    "64",
-    "--update-epochs",
-    "2",
-    "--eval-episodes",
-    "2",
-    "--quiet",
-    "--no-compile-cache",
-    "--num-seeds",
-    "2",
-]
+CLI_SMALL = [*tiny_args(12800, num_seeds=2), "--no-compile-cache"]
 
 
 def _cli(*args):
@@ -148,11 +124,7 @@ def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
     text, _ = proc.communicate(timeout=300)
     assert proc.returncode == 0, text
     assert f"resuming from iteration {stopped_at}/100" in text
-    a, b = (
-        rundir.read_metrics_csv(reference / "metrics.csv"),
-        rundir.read_metrics_csv(out / "metrics.csv"),
-    )
-    _assert_identical(a, b, rundir.load_params(reference), rundir.load_params(out))
+    assert_same_run_dirs(reference, out)
 
 
 def test_resume_errors(tmp_path, capsys):

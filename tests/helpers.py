@@ -1,0 +1,52 @@
+"""Shared pieces of the tests: a tiny training command and run comparisons."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxcart import rundir
+from jaxcart.ppo import METRIC_NAMES
+
+
+def tiny_args(
+    total_timesteps: int, num_seeds: int = 1, eval_episodes: int = 2, epochs: int = 2
+) -> list[str]:
+    """CLI options for a run small enough for a test: 4 envs x 32 steps, minibatches of 64."""
+    return [
+        "--num-envs",
+        "4",
+        "--num-steps",
+        "32",
+        "--total-timesteps",
+        str(total_timesteps),
+        "--minibatch-size",
+        "64",
+        "--update-epochs",
+        str(epochs),
+        "--eval-episodes",
+        str(eval_episodes),
+        "--num-seeds",
+        str(num_seeds),
+        "--quiet",
+    ]
+
+
+def assert_same_results(a_metrics: dict, b_metrics: dict, a_params, b_params) -> None:
+    """Every learning metric and parameter bit-identical (time/* are wall-clock and may differ)."""
+    for name in METRIC_NAMES:
+        np.testing.assert_array_equal(a_metrics[name], b_metrics[name], err_msg=name)
+    for x, y in zip(jax.tree.leaves(a_params), jax.tree.leaves(b_params), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def assert_same_run_dirs(a: Path, b: Path) -> None:
+    """Two run directories hold bit-identical metrics and parameters."""
+    assert_same_results(
+        rundir.read_metrics_csv(a / rundir.METRICS_FILE),
+        rundir.read_metrics_csv(b / rundir.METRICS_FILE),
+        rundir.load_params(a),
+        rundir.load_params(b),
+    )
