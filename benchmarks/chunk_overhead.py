@@ -16,20 +16,27 @@ from jaxcart.trainer import default_chunk_size, train
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--preset", default="sb3")
     parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     config = preset(args.preset)
-    sizes = {"one chunk": config.num_iterations, "default chunks": default_chunk_size(config.num_iterations)}
+    sizes = {
+        "one chunk": config.num_iterations,
+        "default chunks": default_chunk_size(config.num_iterations),
+    }
     times: dict[str, list[float]] = {k: [] for k in sizes}
     for _ in range(args.repeats):  # interleaved, so drift affects both alike
         for name, size in sizes.items():
             times[name].append(train(config, args.seeds, 0, chunk_size=size).run_seconds)
     medians = {k: statistics.median(v) for k, v in times.items()}
     for name, size in sizes.items():
-        print(f"{name:15s} chunk_size={size:3d}: median train {medians[name]:.3f} s over {args.repeats} runs")
+        print(
+            f"{name:15s} chunk_size={size:3d}: median train {medians[name]:.3f} s over {args.repeats} runs"
+        )
     print(f"default chunking / one chunk = {medians['default chunks'] / medians['one chunk']:.3f}")
 
 
