@@ -110,8 +110,11 @@ def orthogonal_matrix(rng: np.random.Generator, shape: tuple[int, int]) -> np.nd
 
 
 def default_chunk_size(num_iterations: int, updates: int = 20) -> int:
-    """Iterations per compiled chunk so that progress is reported about ``updates`` times."""
-    return max(1, -(-num_iterations // updates))
+    """Iterations per compiled chunk so that progress is reported about ``updates`` times,
+    preferably a divisor of ``num_iterations`` (then the chunk needs no end-of-run guard)."""
+    target = max(1, -(-num_iterations // updates))
+    divisors = [d for d in range(max(1, target // 2), 2 * target + 1) if num_iterations % d == 0]
+    return min(divisors, key=lambda d: abs(d - target)) if divisors else target
 
 
 METRIC_COLUMNS = (*METRIC_NAMES, "time/fps", "time/elapsed")

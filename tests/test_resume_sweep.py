@@ -284,3 +284,15 @@ def test_cli_reports_divergence(tmp_path, capsys):
     assert ok[0]["diverged_at_iteration"] is None
     ranking = json.loads((out / "sweep.json").read_text())["ranking"]
     assert {r["learning_rate"]: r["seeds_diverged"] for r in ranking} == {1e-3: 0, 1e35: 1}
+
+
+def test_chunks_that_do_not_tile_the_run():
+    """A chunk size that does not divide the iterations: the guarded program skips the
+    overhang, and the run matches the tiled one (same per-iteration computation)."""
+    tiled = train(TINY, 2, seed=9, chunk_size=2)
+    ragged = train(TINY, 2, seed=9, chunk_size=5)  # 32 iterations = 6 chunks of 5 + 2
+    assert ragged.state.iteration == 32 and ragged.metrics["train/value_loss"].shape == (32, 2)
+    assert np.isfinite(ragged.metrics["train/value_loss"]).all()
+    np.testing.assert_allclose(
+        ragged.metrics["train/value_loss"], tiled.metrics["train/value_loss"], rtol=1e-4
+    )
