@@ -160,6 +160,11 @@ def read_run_config(run_dir: str | os.PathLike) -> dict:
 def load_params(run_dir: str | os.PathLike) -> dict:
     """Every seed's parameters, leaves ``[num_seeds, ...]``."""
     path = Path(run_dir) / PARAMS_FILE
+    if not path.is_file() and (Path(run_dir) / "sweep.json").is_file():
+        raise RunDirError(
+            f"{run_dir} is a sweep: each combination is a run directory of its own, "
+            f"e.g. {Path(run_dir) / 'combo-000'}"
+        )
     if not path.is_file():
         raise RunDirError(
             f"{run_dir} has no {PARAMS_FILE}: the run did not finish saving parameters"

@@ -210,6 +210,11 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
     np.testing.assert_allclose(m0["train/learning_rate"][0], [1e-4, 1e-4])
     np.testing.assert_allclose(m4["train/learning_rate"][0], [1e-2, 1e-2])
     assert not np.allclose(m0["train/value_loss"], m4["train/value_loss"])
+    import jaxcart
+
+    with pytest.raises(rundir.RunDirError, match="is a sweep"):
+        jaxcart.load_policy(out)
+    assert jaxcart.load_policy(out / "combo-001", seed_index=1)(np.zeros(4, np.float32)) in (0, 1)
 
 
 @pytest.mark.parametrize(
