@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,11 +23,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from jaxcart.distributed import launch_local
 
 
 def env_for(devices: int) -> dict:
@@ -44,26 +39,9 @@ def run(kind: str, args: list[str], out: Path) -> dict:
     cmd = [sys.executable, "-m", "jaxcart.train", *args, "--out", str(out)]
     start = time.perf_counter()
     if kind == "2 processes":
-        address = f"127.0.0.1:{free_port()}"
-        procs = [
-            subprocess.Popen(
-                [
-                    *cmd,
-                    "--distributed",
-                    "--coordinator-address",
-                    address,
-                    "--num-processes",
-                    "2",
-                    "--process-id",
-                    str(i),
-                ],
-                env=env_for(1),
-                stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT,
-                text=True,
-            )
-            for i in range(2)
-        ]
+        procs = launch_local(
+            [*args, "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
         texts = [p.communicate()[0] for p in procs]
         if any(p.returncode for p in procs):
             raise RuntimeError("\n".join(texts))

@@ -15,6 +15,9 @@ host-side pieces here move data between the global arrays and NumPy:
 from __future__ import annotations
 
 import os
+import socket
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
@@ -98,3 +101,41 @@ def any_process(flag: bool) -> bool:
     from jax.experimental import multihost_utils
 
     return bool(np.asarray(multihost_utils.process_allgather(np.int32(flag))).any())
+
+
+def launch_local(
+    argv: list[str], num_processes: int = 2, devices_per_process: int = 1, **popen: Any
+) -> list[subprocess.Popen]:
+    """Starts ``python -m jaxcart.train ARGV --distributed`` as ``num_processes`` processes on
+    this machine, talking over 127.0.0.1: a way to try (and test) multi-process training.
+
+    Returns the processes; ``popen`` is passed to :class:`subprocess.Popen` (e.g. ``stdout``).
+    """
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        address = f"127.0.0.1:{s.getsockname()[1]}"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    env.update(
+        XLA_FLAGS=f"--xla_force_host_platform_device_count={devices_per_process}",
+        JAX_PLATFORMS="cpu",
+    )
+    return [
+        subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "jaxcart.train",
+                *argv,
+                "--distributed",
+                "--coordinator-address",
+                address,
+                "--num-processes",
+                str(num_processes),
+                "--process-id",
+                str(i),
+            ],
+            env=env,
+            **popen,
+        )
+        for i in range(num_processes)
+    ]

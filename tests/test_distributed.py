@@ -4,29 +4,15 @@ process with two devices: same per-device batch, so bit-identical results."""
 from __future__ import annotations
 
 import os
-import socket
 import subprocess
 import sys
 
 import pytest
 from helpers import assert_same_run_dirs, tiny_args
 
+from jaxcart.distributed import launch_local
+
 ARGS = [*tiny_args(2048, num_seeds=4), "--no-compile-cache", "--seed", "21"]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _env(devices: int) -> dict:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
-    return {
-        **env,
-        "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}",
-        "JAX_PLATFORMS": "cpu",
-    }
 
 
 def _cmd(*args: str) -> list[str]:
@@ -36,34 +22,17 @@ def _cmd(*args: str) -> list[str]:
 @pytest.mark.slow
 def test_two_processes_match_one_process(tmp_path):
     single = tmp_path / "single"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
     done = subprocess.run(
-        _cmd(*ARGS, "--out", str(single)), env=_env(2), capture_output=True, text=True, timeout=300
+        _cmd(*ARGS, "--out", str(single)), env=env, capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0, done.stdout + done.stderr
 
     multi = tmp_path / "multi"
-    address = f"127.0.0.1:{_free_port()}"
-    procs = [
-        subprocess.Popen(
-            _cmd(
-                *ARGS,
-                "--out",
-                str(multi),
-                "--distributed",
-                "--coordinator-address",
-                address,
-                "--num-processes",
-                "2",
-                "--process-id",
-                str(i),
-            ),
-            env=_env(1),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        for i in range(2)
-    ]
+    procs = launch_local(
+        [*ARGS, "--out", str(multi)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     outputs = [p.communicate(timeout=300)[0] for p in procs]
     for p, text in zip(procs, outputs):
         assert p.returncode == 0, text

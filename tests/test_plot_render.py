@@ -8,29 +8,13 @@ import shutil
 
 import numpy as np
 import pytest
+from helpers import tiny_args
 from PIL import Image, ImageSequence
 
 from jaxcart import evaluate, plot, render
 from jaxcart.train import main as train_main
 
-TINY = [
-    "--num-envs",
-    "4",
-    "--num-steps",
-    "32",
-    "--total-timesteps",
-    "2048",
-    "--minibatch-size",
-    "64",
-    "--update-epochs",
-    "2",
-    "--num-seeds",
-    "2",
-    "--eval-episodes",
-    "2",
-    "--quiet",
-    "--no-compile-cache",
-]
+TINY = [*tiny_args(2048, num_seeds=2), "--no-compile-cache"]
 
 
 def balancing_policy(obs: np.ndarray) -> int:
