@@ -195,9 +195,16 @@ def step(
     final_obs, next_state, reward, terminated, truncated = step_env(state, action, params)
     reset_obs, reset_state = reset(key, params)
     done = terminated | truncated
-    state_out = jax.tree.map(lambda r, n: jnp.where(done, r, n), reset_state, next_state)
-    obs = jnp.where(done, reset_obs, final_obs)
+    obs, state_out = _autoreset(done, reset_obs, reset_state, final_obs, next_state)
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
+
+
+def _autoreset(
+    done: Array, reset_obs: Array, reset_state: EnvState, final_obs: Array, next_state: EnvState
+) -> tuple[Array, EnvState]:
+    """Where ``done``, the fresh episode's observation and state, else the stepped ones."""
+    state = jax.tree.map(lambda r, n: jnp.where(done, r, n), reset_state, next_state)
+    return jnp.where(done[..., None], reset_obs, final_obs), state
 
 
 def _fmix32(x: Array) -> Array:
@@ -256,15 +263,7 @@ def step_batch(
     noise = hash_uniform(
         key, (done.shape[0], 4), final_obs.dtype, params.reset_low, params.reset_high
     )
-    reset_state = EnvState(
-        x=noise[:, 0],
-        x_dot=noise[:, 1],
-        theta=noise[:, 2],
-        theta_dot=noise[:, 3],
-        step_count=jnp.zeros_like(next_state.step_count),
-    )
-    state_out = jax.tree.map(lambda r, n: jnp.where(done, r, n), reset_state, next_state)
-    obs = jnp.where(done[:, None], noise, final_obs)
+    obs, state_out = _autoreset(done, noise, state_from_obs(noise), final_obs, next_state)
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
 
 

@@ -289,10 +289,11 @@ def plan_resume(args: argparse.Namespace) -> Plan:
 
 def _load_resume_state(plan: Plan, hps, seed_indices):
     from jaxcart import checkpoint, rundir
+    from jaxcart.env import EnvParams
     from jaxcart.trainer import TrainState, init_runners
 
     template = {
-        "runners": init_runners(plan.config, plan.num_runs, plan.seed, _env_params(), seed_indices),
+        "runners": init_runners(plan.config, plan.num_runs, plan.seed, EnvParams(), seed_indices),
         "hyperparams": hps,
     }
     path = plan.out / checkpoint.CHECKPOINT_FILE
@@ -311,12 +312,6 @@ def _load_resume_state(plan: Plan, hps, seed_indices):
         metrics=metrics,
         chunk_size=int(meta["chunk_size"]),
     )
-
-
-def _env_params():
-    from jaxcart.env import EnvParams
-
-    return EnvParams()
 
 
 class _NullLogger:
@@ -438,14 +433,9 @@ def run(args: argparse.Namespace) -> int:
     ]
     logger = _NullLogger()
     if args.logger and main_process:
-        from jaxcart.loggers import LoggerUnavailable, make_logger
+        from jaxcart.loggers import make_logger  # availability was checked before anything ran
 
-        try:
-            logger = make_logger(
-                args.logger, out, run_names, {**plan.info, "config": config.to_dict()}
-            )
-        except LoggerUnavailable as exc:
-            raise UsageError(str(exc)) from None
+        logger = make_logger(args.logger, out, run_names, {**plan.info, "config": config.to_dict()})
 
     log = sys.stdout if main_process else open(os.devnull, "w")
     what = (
@@ -470,6 +460,8 @@ def run(args: argparse.Namespace) -> int:
     bar = None
     last_save = time.monotonic()
 
+    versions = rundir.package_versions()  # looked up once, recorded in every checkpoint
+
     def save(state) -> None:
         # every process takes part in gathering the shards; process 0 writes
         arrays = distributed.gather({"runners": state.runners, "hyperparams": state.hyperparams})
@@ -484,7 +476,7 @@ def run(args: argparse.Namespace) -> int:
                 "chunk_size": state.chunk_size,
                 "num_runs": plan.num_runs,
                 "config": config.to_dict(),
-                "versions": rundir.package_versions(),
+                "versions": versions,
             },
             extras=state.metrics,
         )
