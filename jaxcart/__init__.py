@@ -8,8 +8,9 @@ Env API (pure functions over pytrees)::
     obs, state = reset(key, EnvParams())
     obs, state, reward, terminated, truncated, info = step(key, state, action, params)
 
-Training: ``python -m jaxcart.train`` or :func:`jaxcart.trainer.train`; a trained policy:
-:func:`load_policy`.
+Training: ``python -m jaxcart.train``, or from Python :func:`run_new` / :func:`resume_run`
+(:mod:`jaxcart.lifecycle`: a run directory like the command line's) and
+:func:`jaxcart.trainer.train` (arrays only, no files); a trained policy: :func:`load_policy`.
 """
 
 from __future__ import annotations
@@ -32,7 +33,11 @@ _LAZY = {
     "preset": "jaxcart.config",
     "PRESETS": "jaxcart.config",
     "train": "jaxcart.trainer",
-    "load_policy": "jaxcart.rundir",
+    "load_policy": "jaxcart.policy",
+    "RunSpec": "jaxcart.lifecycle",
+    "RunOptions": "jaxcart.lifecycle",
+    "run_new": "jaxcart.lifecycle",
+    "resume_run": "jaxcart.lifecycle",
     "JaxCartPoleEnv": "jaxcart.gym_adapter",
     "JaxCartPoleVectorEnv": "jaxcart.gym_adapter",
     "plot_runs": "jaxcart.plot",

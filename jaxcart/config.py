@@ -7,11 +7,25 @@ import dataclasses
 import functools
 import inspect
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 class ConfigError(ValueError):
-    """A configuration value a user gave is invalid; the message says what to change."""
+    """A configuration value a user gave is invalid; the message says what to change.
+
+    ``option`` names the setting when the message starts with it (``num_seeds must be ...``),
+    so a command line can say ``--num-seeds must be ...`` instead.
+    """
+
+    def __init__(self, message: str, option: str | None = None) -> None:
+        super().__init__(message)
+        self.option = option
+
+
+def traced(default: float) -> float:
+    """A float hyperparameter that travels through the compiled program as an array: changing
+    it never recompiles, and a sweep over it is one vmap axis (see :data:`TRACED_FIELDS`)."""
+    return field(default=default, metadata={"traced": True})
 
 
 @dataclass(frozen=True)
@@ -28,23 +42,23 @@ class PPOConfig:
     """Transitions per gradient step (SB3: batch_size); must divide num_envs x num_steps."""
     update_epochs: int = 10
     """Passes over each rollout per iteration (SB3: n_epochs)."""
-    learning_rate: float = 3e-4
+    learning_rate: float = traced(3e-4)
     """Adam step size (initial value when anneal_lr is on)."""
     anneal_lr: bool = False
     """Decay the learning rate linearly to 0 over the iterations (as PureJaxRL/CleanRL do)."""
-    adam_eps: float = 1e-5
+    adam_eps: float = traced(1e-5)
     """Adam epsilon."""
-    gamma: float = 0.99
+    gamma: float = traced(0.99)
     """Discount factor, in (0, 1]."""
-    gae_lambda: float = 0.95
+    gae_lambda: float = traced(0.95)
     """GAE lambda, in (0, 1]."""
-    clip_coef: float = 0.2
+    clip_coef: float = traced(0.2)
     """PPO ratio clip range epsilon (SB3: clip_range)."""
-    ent_coef: float = 0.0
+    ent_coef: float = traced(0.0)
     """Entropy bonus coefficient."""
-    vf_coef: float = 0.5
+    vf_coef: float = traced(0.5)
     """Value loss coefficient."""
-    max_grad_norm: float = 0.5
+    max_grad_norm: float = traced(0.5)
     """Global gradient-norm clip."""
     norm_adv: bool = True
     """Normalise advantages per minibatch (mean 0, std 1)."""
@@ -78,6 +92,12 @@ class PPOConfig:
         """Environment steps actually taken per seed (total_timesteps rounded up)."""
         return self.num_iterations * self.batch_size
 
+    def static(self) -> PPOConfig:
+        """This config with every traced field at its default: the part that shapes the
+        compiled program (two configs that differ only in traced fields share it)."""
+        defaults = {f.name: f.default for f in dataclasses.fields(self) if f.metadata.get("traced")}
+        return dataclasses.replace(self, **defaults)
+
     def to_dict(self) -> dict:
         """Plain dict of the fields (tuples become lists when dumped to JSON)."""
         return dataclasses.asdict(self)
@@ -95,18 +115,10 @@ class PPOConfig:
         return cls(**data)
 
 
-# Float hyperparameters that travel through the compiled program as arrays, so that a sweep
-# over them is a vmap axis and changing them never recompiles.
-TRACED_FIELDS = (
-    "learning_rate",
-    "adam_eps",
-    "gamma",
-    "gae_lambda",
-    "clip_coef",
-    "ent_coef",
-    "vf_coef",
-    "max_grad_norm",
+TRACED_FIELDS: tuple[str, ...] = tuple(
+    f.name for f in dataclasses.fields(PPOConfig) if f.metadata.get("traced")
 )
+"""The fields declared with :func:`traced`, in declaration order."""
 
 
 def validate(config: PPOConfig) -> None:

@@ -5,75 +5,41 @@
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Callable
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcart import cli, rundir
 from jaxcart import env as cartpole
+from jaxcart.config import PPOConfig
+from jaxcart.networks import ActorCritic
+from jaxcart.policy import load_policy, numpy_policy
+from jaxcart.trainer import seed_keys
 
 NUM_EVAL_EPISODES = 20
 EVAL_SEED = 1_000_000
 """Episode i of a Gymnasium evaluation is reset with seed ``EVAL_SEED + i`` (all runs alike)."""
 
 
-class NumpyPolicy:
-    """Greedy actor in plain NumPy, for one or a stack of seeds.
+SOLVED_RETURN = 500.0
+"""CartPole-v1's maximum return: an episode that lasts until the 500-step time limit."""
+SOLVED_DEFINITION = "all {episodes} greedy episodes score 500 in gymnasium.make('CartPole-v1')"
 
-    ``kernels[i]``/``biases[i]`` are the actor's layers; with a leading seed axis ``[S, ...]``
-    when ``stacked``. Calling it on float32 observations returns argmax actions:
-    ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked ``(S, N, 4) -> (S, N)``.
+
+def is_solved(returns: np.ndarray) -> np.ndarray:
+    """The one definition of solved: every evaluation episode scored 500.
+
+    Args:
+        returns: ``[..., episodes]``.
+
+    Returns:
+        ``[...]`` bool.
     """
-
-    def __init__(
-        self,
-        kernels: list[np.ndarray],
-        biases: list[np.ndarray],
-        activation: str,
-        stacked: bool = False,
-    ):
-        self.kernels = [np.asarray(k, np.float32) for k in kernels]
-        self.biases = [np.asarray(b, np.float32) for b in biases]
-        self.activation = {"tanh": np.tanh, "relu": lambda x: np.maximum(x, 0.0)}[activation]
-        self.stacked = stacked
-
-    def logits(self, obs: np.ndarray) -> np.ndarray:
-        """Policy logits for ``obs`` (any leading shape matching the stacking)."""
-        x = np.asarray(obs, np.float32)
-        if x.shape[-1] != 4:
-            raise ValueError(
-                f"expected observations with 4 values in the last axis, got shape {x.shape}"
-            )
-        last = len(self.kernels) - 1
-        for i, (k, b) in enumerate(zip(self.kernels, self.biases)):
-            if self.stacked:
-                x = np.matmul(x, k) + b[:, None, :]
-            else:
-                x = x @ k + b
-            if i < last:
-                x = self.activation(x)
-        return x
-
-    def __call__(self, obs: np.ndarray):
-        actions = np.argmax(self.logits(obs), axis=-1)
-        return int(actions) if actions.ndim == 0 else actions
-
-
-def actor_layers(params: dict) -> tuple[list, list]:
-    """The actor's kernels and biases in order, from ``{"params": {"actor": ...}}``."""
-    actor = params["params"]["actor"]
-    names = sorted(
-        (n for n in actor if n.startswith("hidden_")), key=lambda n: int(n.split("_")[1])
-    )
-    names.append("out")
-    return [actor[n]["kernel"] for n in names], [actor[n]["bias"] for n in names]
-
-
-def numpy_policy(params: dict, activation: str, stacked: bool = False) -> NumpyPolicy:
-    """A :class:`NumpyPolicy` from flax params (with a leading seed axis when ``stacked``)."""
-    kernels, biases = actor_layers(jax.device_get(params))
-    return NumpyPolicy(kernels, biases, activation, stacked)
+    return (np.asarray(returns) >= SOLVED_RETURN).all(axis=-1)
 
 
 def evaluate_gymnasium(
@@ -125,8 +91,6 @@ def greedy_returns(
     env_params: cartpole.EnvParams | None = None,
 ) -> jax.Array:
     """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able."""
-    from jaxcart.networks import ActorCritic
-
     env_params = env_params or cartpole.EnvParams()
     network = ActorCritic(hidden_sizes=tuple(hidden_sizes), activation=activation)
     obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
@@ -135,7 +99,7 @@ def greedy_returns(
 
     def one_step(carry, _):
         obs, state, alive, total = carry
-        action = jnp.argmax(network.apply(params, obs, method=ActorCritic.logits), axis=-1)
+        action = jnp.argmax(network.logits(params, obs), axis=-1)
         obs, state, reward, terminated, truncated = jax.vmap(
             cartpole.step_env, in_axes=(0, 0, None)
         )(state, action, env_params)
@@ -154,24 +118,39 @@ def summarize(returns: np.ndarray) -> dict[str, np.ndarray]:
     return {
         "mean": returns.mean(axis=-1),
         "min": returns.min(axis=-1),
-        "solved": (returns >= 500).all(axis=-1),
+        "solved": is_solved(returns),
     }
 
 
-class EvaluateUsageError(Exception):
-    """A mistake on the ``python -m jaxcart.evaluate`` command line; one line, exit code 2."""
+def evaluate_runs(
+    params: dict, config: PPOConfig, seed: int, seed_indices: np.ndarray, episodes: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
+    Gymnasium's CartPole-v1 (the same reset seeds for all) and in jaxcart's env (run r's
+    episodes from ``fold_in(seed key of seed_indices[r], 1)``).
+
+    Args:
+        params: network parameters, leaves ``[R, ...]`` (NumPy).
+    """
+    num_runs = len(seed_indices)
+    gym_returns = evaluate_gymnasium(
+        numpy_policy(params, config.activation, stacked=True), num_runs, episodes
+    )
+    indices = np.asarray(seed_indices)
+    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(
+        seed_keys(seed, int(indices.max()) + 1)[indices]
+    )
+    evaluate = jax.jit(
+        jax.vmap(
+            lambda p, k: greedy_returns(p, k, config.activation, config.hidden_sizes, episodes)
+        )
+    )
+    return gym_returns, np.asarray(evaluate(params, keys))
 
 
-def _evaluate_parser():
-    """The ``python -m jaxcart.evaluate`` argument parser (errors raise, never exit)."""
-    import argparse
-    from pathlib import Path
-
-    class Parser(argparse.ArgumentParser):
-        def error(self, message: str):  # one line, no usage dump
-            raise EvaluateUsageError(f"{message} (see python -m jaxcart.evaluate --help)")
-
-    parser = Parser(
+def build_parser() -> argparse.ArgumentParser:
+    """The ``python -m jaxcart.evaluate`` command line."""
+    parser = cli.Parser(
         prog="python -m jaxcart.evaluate",
         description="Evaluate every seed of a jaxcart run greedily in Gymnasium's own "
         "CartPole-v1 (solved = every episode scores 500); optionally render one seed's "
@@ -195,76 +174,61 @@ def _evaluate_parser():
     return parser
 
 
+def _check_gif_options(args: argparse.Namespace, num_seeds: int) -> None:
+    if args.gif.suffix.lower() != ".gif":
+        raise cli.UsageError(f"--gif {args.gif} must end in .gif")
+    if not args.gif.parent.is_dir():
+        raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
+    if not 0 <= args.seed_index < num_seeds:
+        raise cli.UsageError(
+            f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
+            f"got {args.seed_index}"
+        )
+
+
+def _evaluate_command(argv: list[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.episodes <= 0:
+        raise cli.UsageError(f"--episodes must be a positive integer, got {args.episodes}")
+    info = rundir.read_run_config(args.run_dir)
+    num_seeds = int(info.get("num_seeds", 1))
+    if args.gif is not None:
+        _check_gif_options(args, num_seeds)
+    params = rundir.load_params(args.run_dir)
+    try:
+        policy = numpy_policy(params, info["config"].activation, stacked=True)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise rundir.RunDirError(
+            f"{args.run_dir / rundir.PARAMS_FILE} does not hold an actor: {exc}"
+        ) from None
+    summary = summarize(evaluate_gymnasium(policy, num_seeds, args.episodes))
+    rows = [
+        [s, f"{summary['mean'][s]:.1f}", f"{summary['min'][s]:.0f}"]
+        + ["yes" if summary["solved"][s] else "no"]
+        for s in range(num_seeds)
+    ]
+    print(
+        f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
+        f"gymnasium.make('CartPole-v1') (reset seeds {EVAL_SEED}..."
+        f"{EVAL_SEED + args.episodes - 1}):"
+    )
+    print(cli.format_table(rows, ["seed", "mean", "min", "solved"]))
+    print(f"solved {int(summary['solved'].sum())}/{num_seeds} seed(s)", flush=True)
+    if args.gif is not None:
+        from jaxcart.render import render_gif
+
+        gif = render_gif(load_policy(args.run_dir, args.seed_index), args.gif, seed=args.gif_seed)
+        print(
+            f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
+            f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
+        )
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m jaxcart.evaluate RUN_DIR``: prints the per-seed Gymnasium evaluation table
     and, with ``--gif``, renders seed ``--seed-index``. Returns 0, or 2 for bad input."""
-    import sys
-
-    from jaxcart import rundir
-    from jaxcart.train import format_table
-
-    try:
-        args = _evaluate_parser().parse_args(argv)
-        if args.episodes <= 0:
-            raise EvaluateUsageError(f"--episodes must be a positive integer, got {args.episodes}")
-        info = rundir.read_run_config(args.run_dir)
-        num_seeds = int(info.get("num_seeds", 1))
-        if args.gif is not None:
-            if args.gif.suffix.lower() != ".gif":
-                raise EvaluateUsageError(f"--gif {args.gif} must end in .gif")
-            if not args.gif.parent.is_dir():
-                raise EvaluateUsageError(
-                    f"--gif {args.gif}: directory {args.gif.parent} does not exist"
-                )
-            if not 0 <= args.seed_index < num_seeds:
-                raise EvaluateUsageError(
-                    f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
-                    f"got {args.seed_index}"
-                )
-        params = rundir.load_params(args.run_dir)
-        try:
-            policy = numpy_policy(params, info["config"].activation, stacked=True)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise rundir.RunDirError(
-                f"{args.run_dir / rundir.PARAMS_FILE} does not hold an actor: {exc}"
-            ) from None
-
-        returns = evaluate_gymnasium(policy, num_seeds, args.episodes)
-        summary = summarize(returns)
-        rows = [
-            [
-                s,
-                f"{summary['mean'][s]:.1f}",
-                f"{summary['min'][s]:.0f}",
-                "yes" if summary["solved"][s] else "no",
-            ]
-            for s in range(num_seeds)
-        ]
-        print(
-            f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
-            f"gymnasium.make('CartPole-v1') (reset seeds {EVAL_SEED}..."
-            f"{EVAL_SEED + args.episodes - 1}):"
-        )
-        print(format_table(rows, ["seed", "mean", "min", "solved"]))
-        print(f"solved {int(summary['solved'].sum())}/{num_seeds} seed(s)", flush=True)
-
-        if args.gif is not None:
-            from jaxcart.render import render_gif
-
-            gif = render_gif(
-                rundir.load_policy(args.run_dir, args.seed_index), args.gif, seed=args.gif_seed
-            )
-            print(
-                f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
-                f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
-            )
-    except (EvaluateUsageError, rundir.RunDirError, ValueError, ImportError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
-        return 2
-    return 0
+    return cli.run_command(lambda: _evaluate_command(argv), also=(ValueError, ImportError))
 
 
 if __name__ == "__main__":

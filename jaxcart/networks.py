@@ -1,104 +1,134 @@
-"""Separate actor and critic MLPs with Stable-Baselines3's orthogonal initialisation."""
+"""The actor-critic: separate actor and critic MLPs with Stable-Baselines3's initialisation.
+
+Everything about the network lives here: its parameter names, its initialisation (the one
+training uses) and its forward pass (in JAX for training, in NumPy for the policies that
+:mod:`jaxcart.policy` hands to Gymnasium loops).
+
+Parameters are a plain nested dict, ``{"params": {"actor": LAYERS, "critic": LAYERS}}`` with
+``LAYERS = {"hidden_0": {"kernel", "bias"}, ..., "out": {"kernel", "bias"}}``; kernels are
+``[in, out]`` and a layer computes ``x @ kernel + bias``. Run directories store the same names
+(``params/actor/hidden_0/kernel``, ...).
+"""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
 
-import flax.linen as nn
-import jax
 import jax.numpy as jnp
+import numpy as np
 
-ACTIVATIONS = {"tanh": nn.tanh, "relu": nn.relu}
+ROOT = "params"
+ACTOR = "actor"
+CRITIC = "critic"
+OUT = "out"
+HIDDEN_GAIN = math.sqrt(2.0)
+"""Gain of every hidden kernel (SB3's ``ortho_init``)."""
+POLICY_GAIN = 0.01
+"""Gain of the policy head: a near-uniform initial policy."""
+VALUE_GAIN = 1.0
+"""Gain of the value head."""
+ACTIVATIONS = ("tanh", "relu")
 
 
-def orthogonal(scale: float = 1.0):
-    """Orthogonal initialiser (a Haar-random orthogonal matrix times ``scale``), as
-    ``flax.linen.initializers.orthogonal`` but computed with Gram-Schmidt in plain ``jnp``.
+def layer_names(num_hidden: int) -> list[str]:
+    """``["hidden_0", ..., "hidden_{n-1}", "out"]``: one MLP's layers, input first."""
+    return [f"hidden_{i}" for i in range(num_hidden)] + [OUT]
 
-    Flax's version calls LAPACK's QR through jaxlib's FFI kernel, whose parallel batch loop can
-    deadlock on CPU when two such kernels run at once (vmapped seeds, two devices; seen with
-    jaxlib 0.10.2). Gram-Schmidt, orthogonalising twice for accuracy, gives the same
-    distribution: Q of a Gaussian matrix with R's diagonal made positive.
+
+def orthogonal(rng: np.random.Generator, shape: tuple[int, int], gain: float) -> np.ndarray:
+    """``gain`` times a Haar-random matrix with orthonormal rows or columns (QR of a Gaussian
+    matrix with R's diagonal made positive), float64."""
+    rows, cols = max(shape), min(shape)
+    q, r = np.linalg.qr(rng.standard_normal((rows, cols)))
+    q = q * np.sign(np.diag(r))
+    return gain * (q if shape[0] >= shape[1] else q.T)
+
+
+def activate(x: Any, activation: str, xp: ModuleType) -> Any:
+    """The hidden activation, for NumPy (``xp=np``) or JAX (``xp=jnp``) arrays."""
+    return xp.tanh(x) if activation == "tanh" else xp.maximum(x, 0.0)
+
+
+def mlp(layers: dict, x: Any, activation: str, xp: ModuleType = jnp) -> Any:
+    """One MLP's forward pass: ``x [..., in] -> [..., out]``.
+
+    With a leading seed axis on every kernel ``[S, in, out]`` and bias ``[S, 1, out]``, ``x
+    [S, N, in]`` maps to ``[S, N, out]`` (one policy per seed, batched).
     """
-
-    def init(key: jax.Array, shape: tuple[int, ...], dtype=jnp.float32) -> jax.Array:
-        n_rows, n_cols = shape
-        rows, cols = max(n_rows, n_cols), min(n_rows, n_cols)
-        a = jax.random.normal(key, (rows, cols), jnp.float32)
-
-        def column(j: int, q: jax.Array) -> jax.Array:
-            v = a[:, j]
-            for _ in range(2):  # classical Gram-Schmidt, twice (CGS2)
-                v = v - q @ (q.T @ v)
-            return q.at[:, j].set(v / jnp.linalg.norm(v))
-
-        q = jax.lax.fori_loop(0, cols, column, jnp.zeros((rows, cols), jnp.float32))
-        if n_rows < n_cols:
-            q = q.T
-        return (scale * q).astype(dtype)
-
-    return init
+    names = layer_names(len(layers) - 1)
+    for name in names:
+        x = x @ layers[name]["kernel"] + layers[name]["bias"]
+        if name != OUT:
+            x = activate(x, activation, xp)
+    return x
 
 
-class MLP(nn.Module):
-    """Dense layers ``hidden_0 .. hidden_{n-1}`` then a linear ``out`` layer.
-
-    Hidden kernels are orthogonal with gain sqrt(2), the output kernel orthogonal with
-    ``out_gain``; biases start at zero (SB3's ``ortho_init``).
-    """
-
-    hidden_sizes: Sequence[int]
-    out_dim: int
-    out_gain: float
-    activation: str = "tanh"
-
-    @nn.compact
-    def __call__(self, x: jax.Array) -> jax.Array:
-        act = ACTIVATIONS[self.activation]
-        for i, size in enumerate(self.hidden_sizes):
-            x = nn.Dense(
-                size,
-                kernel_init=orthogonal(math.sqrt(2.0)),
-                bias_init=nn.initializers.zeros,
-                name=f"hidden_{i}",
-            )(x)
-            x = act(x)
-        return nn.Dense(
-            self.out_dim,
-            kernel_init=orthogonal(self.out_gain),
-            bias_init=nn.initializers.zeros,
-            name="out",
-        )(x)
-
-
-class ActorCritic(nn.Module):
+@dataclass(frozen=True)
+class ActorCritic:
     """Policy logits and state value from two independent MLPs.
 
-    Maps observations ``(..., obs_dim)`` to ``(logits (..., num_actions), value (...))``.
-    The policy head starts at gain 0.01 (near-uniform initial policy), the value head at 1.0.
+    Maps observations ``[..., obs_dim]`` to ``(logits [..., num_actions], value [...])``.
+    Hashable, so it can be a static argument of a jitted function.
     """
 
-    hidden_sizes: Sequence[int] = (64, 64)
+    hidden_sizes: tuple[int, ...] = (64, 64)
     activation: str = "tanh"
+    obs_dim: int = 4
     num_actions: int = 2
 
-    def setup(self) -> None:
-        self.actor = MLP(self.hidden_sizes, self.num_actions, 0.01, self.activation)
-        self.critic = MLP(self.hidden_sizes, 1, 1.0, self.activation)
+    def __post_init__(self) -> None:
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"activation must be one of {ACTIVATIONS}, got {self.activation!r}")
+        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
 
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
-        return self.actor(obs), self.critic(obs)[..., 0]
+    def shapes(self) -> dict:
+        """The kernel and bias shapes of every layer, as the parameter tree (tuples as leaves)."""
 
-    def value(self, obs: jax.Array) -> jax.Array:
-        """State value only, shape ``obs.shape[:-1]``."""
-        return self.critic(obs)[..., 0]
+        def head(out_dim: int) -> dict:
+            sizes = (self.obs_dim, *self.hidden_sizes, out_dim)
+            names = layer_names(len(self.hidden_sizes))
+            return {
+                n: {"kernel": (sizes[i], sizes[i + 1]), "bias": (sizes[i + 1],)}
+                for i, n in enumerate(names)
+            }
 
-    def logits(self, obs: jax.Array) -> jax.Array:
-        """Policy logits only, shape ``(..., num_actions)``."""
-        return self.actor(obs)
+        return {ROOT: {ACTOR: head(self.num_actions), CRITIC: head(1)}}
+
+    def init(self, rng: np.random.Generator, dtype: Any = np.float32) -> dict:
+        """Fresh parameters (NumPy): orthogonal kernels with gain sqrt(2) in hidden layers,
+        0.01 for the policy head and 1 for the value head, zero biases (SB3's ``ortho_init``).
+
+        Drawn on the host: no initialisation program to compile, and the same numbers on
+        every device count.
+        """
+        params: dict = {ROOT: {}}
+        for head, out_gain in ((ACTOR, POLICY_GAIN), (CRITIC, VALUE_GAIN)):
+            layers = {}
+            for name, shape in self.shapes()[ROOT][head].items():
+                gain = out_gain if name == OUT else HIDDEN_GAIN
+                layers[name] = {
+                    "kernel": orthogonal(rng, shape["kernel"], gain).astype(dtype),
+                    "bias": np.zeros(shape["bias"], dtype),
+                }
+            params[ROOT][head] = layers
+        return params
+
+    def apply(self, params: dict, obs: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+        """``(logits [..., num_actions], value [...])`` for ``obs [..., obs_dim]`` (JAX)."""
+        return self.logits(params, obs), self.value(params, obs)
+
+    def logits(self, params: dict, obs: jnp.ndarray) -> jnp.ndarray:
+        """Policy logits only, ``[..., num_actions]``."""
+        return mlp(params[ROOT][ACTOR], obs, self.activation)
+
+    def value(self, params: dict, obs: jnp.ndarray) -> jnp.ndarray:
+        """State value only, ``obs.shape[:-1]``."""
+        return mlp(params[ROOT][CRITIC], obs, self.activation)[..., 0]
 
 
-def init_params(key: jax.Array, network: ActorCritic, obs_dim: int = 4):
-    """Initial parameters ``{"params": {"actor": ..., "critic": ...}}``."""
-    return network.init(key, jnp.zeros((obs_dim,), jnp.float32))
+def actor_params(params: dict) -> dict:
+    """The actor's layers ``{"hidden_0": {"kernel", "bias"}, ..., "out": ...}``."""
+    return params[ROOT][ACTOR]

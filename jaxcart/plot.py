@@ -23,14 +23,13 @@ import dataclasses
 import io
 import json
 import os
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from jaxcart import rundir
+from jaxcart import cli, rundir
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 ELAPSED_METRIC = "time/elapsed"
@@ -309,18 +308,9 @@ def _disambiguate(runs: list[Run]) -> None:
             runs[i] = dataclasses.replace(run, label=f"{resolved.parent.name}/{resolved.name}")
 
 
-class UsageError(Exception):
-    """A mistake on the command line; printed as one line, exit code 2."""
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # one line, no usage dump
-        raise UsageError(f"{message} (see python -m jaxcart.plot --help)")
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The CLI."""
-    parser = _Parser(
+    parser = cli.Parser(
         prog="python -m jaxcart.plot",
         description="Learning curves of jaxcart runs: episode return vs env steps and vs wall "
         "time, and PPO's key metrics, as the mean across seeds with a 95%% Student-t "
@@ -344,26 +334,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+def _plot_command(argv: list[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.label is not None and len(args.label) != len(args.run_dirs):
+        raise cli.UsageError(
+            f"got {len(args.label)} --label(s) for {len(args.run_dirs)} RUN_DIR(s); "
+            "give one per run directory or none"
+        )
+    if args.dpi <= 0:
+        raise cli.UsageError(f"--dpi must be positive, got {args.dpi}")
     try:
-        args = build_parser().parse_args(argv)
-        if args.label is not None and len(args.label) != len(args.run_dirs):
-            raise UsageError(
-                f"got {len(args.label)} --label(s) for {len(args.run_dirs)} RUN_DIR(s); "
-                "give one per run directory or none"
-            )
-        if args.dpi <= 0:
-            raise UsageError(f"--dpi must be positive, got {args.dpi}")
         out = plot_runs(args.run_dirs, args.out, args.label, dpi=args.dpi)
-    except (UsageError, rundir.RunDirError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
     except OSError as exc:
-        print(f"error: cannot write the plot: {exc.strerror or exc}", file=sys.stderr)
-        return 2
+        raise cli.UsageError(f"cannot write the plot: {exc.strerror or exc}") from None
     print(out)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+    return cli.run_command(lambda: _plot_command(argv), also=(ValueError,))
 
 
 if __name__ == "__main__":

@@ -12,16 +12,17 @@ global grad-norm clipping, Adam; its logged metrics keep SB3's names and definit
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
 from jaxcart import env as cartpole
-from jaxcart.config import TRACED_FIELDS, ConfigError, PPOConfig, preset
-from jaxcart.networks import ActorCritic, init_params
+from jaxcart.config import TRACED_FIELDS, PPOConfig
+from jaxcart.networks import ActorCritic
 
 Array = jax.Array
 
@@ -44,18 +45,49 @@ METRIC_NAMES = (
 """Per-iteration metrics computed in the compiled step (``time/fps`` is added by the host)."""
 
 
-@struct.dataclass
+@jax.tree_util.register_pytree_with_keys_class
 class Hyperparams:
-    """The float hyperparameters as (traced) arrays: scalars for one run, ``[S]`` for S runs."""
+    """The traced float hyperparameters (:data:`~jaxcart.config.TRACED_FIELDS`, declared on
+    :class:`PPOConfig`) as arrays: scalars for one run, ``[S]`` for S runs.
 
-    learning_rate: Array
-    adam_eps: Array
-    gamma: Array
-    gae_lambda: Array
-    clip_coef: Array
-    ent_coef: Array
-    vf_coef: Array
-    max_grad_norm: Array
+    Read them as attributes (``hp.clip_coef``); a pytree whose leaves are named by field.
+    """
+
+    __slots__ = ("_values",)
+
+    def __init__(self, **values: Array) -> None:
+        missing = set(TRACED_FIELDS) - set(values)
+        unknown = set(values) - set(TRACED_FIELDS)
+        if missing or unknown:
+            raise TypeError(
+                f"Hyperparams needs exactly {TRACED_FIELDS}; missing {missing}, unknown {unknown}"
+            )
+        object.__setattr__(self, "_values", {name: values[name] for name in TRACED_FIELDS})
+
+    def __getattr__(self, name: str) -> Array:
+        try:
+            return self._values[name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("Hyperparams is immutable; use .replace(name=value)")
+
+    def __repr__(self) -> str:
+        return f"Hyperparams({', '.join(f'{k}={v!r}' for k, v in self._values.items())})"
+
+    def replace(self, **changes: Array) -> Hyperparams:
+        """A copy with some values replaced."""
+        return Hyperparams(**{**self._values, **changes})
+
+    def tree_flatten_with_keys(self):
+        return [(jax.tree_util.GetAttrKey(k), v) for k, v in self._values.items()], None
+
+    @classmethod
+    def tree_unflatten(cls, aux: None, leaves: list[Array]) -> Hyperparams:
+        obj = object.__new__(cls)
+        object.__setattr__(obj, "_values", dict(zip(TRACED_FIELDS, leaves)))
+        return obj
 
     @classmethod
     def from_config(cls, config: PPOConfig) -> Hyperparams:
@@ -115,7 +147,7 @@ class Batch(NamedTuple):
 
 def make_network(config: PPOConfig) -> ActorCritic:
     """The actor-critic described by ``config``."""
-    return ActorCritic(hidden_sizes=tuple(config.hidden_sizes), activation=config.activation)
+    return ActorCritic(hidden_sizes=config.hidden_sizes, activation=config.activation)
 
 
 def make_optimizer(hp: Hyperparams) -> optax.GradientTransformation:
@@ -128,25 +160,40 @@ def make_optimizer(hp: Hyperparams) -> optax.GradientTransformation:
     )
 
 
-def init_runner(key: Array, config: PPOConfig, env_params: cartpole.EnvParams) -> RunnerState:
-    """Fresh network, optimizer and ``num_envs`` reset environments for one seed."""
-    key, net_key, env_key = jax.random.split(key, 3)
-    params = init_params(net_key, make_network(config))
-    opt_state = make_optimizer(Hyperparams.from_config(config)).init(params)
-    obs, env_state = jax.vmap(cartpole.reset, in_axes=(0, None))(
-        jax.random.split(env_key, config.num_envs), env_params
-    )
-    zeros = jnp.zeros((EPISODE_WINDOW,), jnp.float32)
+def initial_runners(
+    params: dict, obs: np.ndarray, keys: np.ndarray, config: PPOConfig
+) -> RunnerState:
+    """Runners at iteration 0 from host-drawn parameters and reset observations (NumPy).
+
+    Args:
+        params: network parameters with a leading seed axis, leaves ``[S, ...]``.
+        obs: reset observations ``[S, num_envs, 4]`` (they are the env state: velocities and
+            angles are the observation, and the step counters start at 0).
+        keys: raw PRNG keys ``[S, 2]`` uint32.
+
+    Returns:
+        A :class:`RunnerState` with NumPy leaves ``[S, ...]``: Adam's moments and count at 0,
+        no finished episodes, not diverged.
+    """
+    num_seeds, num_envs = obs.shape[:2]
+    one_seed = jax.tree.map(lambda x: x[0], params)
+    opt_shapes = jax.eval_shape(make_optimizer(Hyperparams.from_config(config)).init, one_seed)
+    zeros = lambda shape, dtype: np.zeros((num_seeds, *shape), dtype)
+    window = (EPISODE_WINDOW,)
     return RunnerState(
         params=params,
-        opt_state=opt_state,
-        env_state=env_state,
+        opt_state=jax.tree.map(lambda s: zeros(s.shape, s.dtype), opt_shapes),
+        env_state=cartpole.EnvState(
+            obs[..., 0], obs[..., 1], obs[..., 2], obs[..., 3], zeros((num_envs,), np.int32)
+        ),
         obs=obs,
-        episode_return=jnp.zeros((config.num_envs,), obs.dtype),
-        episode_length=jnp.zeros((config.num_envs,), jnp.int32),
-        episodes=EpisodeBuffer(zeros, zeros, jnp.zeros((EPISODE_WINDOW,), bool)),
-        key=key,
-        diverged_at=jnp.int32(-1),
+        episode_return=zeros((num_envs,), obs.dtype),
+        episode_length=zeros((num_envs,), np.int32),
+        episodes=EpisodeBuffer(
+            zeros(window, np.float32), zeros(window, np.float32), zeros(window, bool)
+        ),
+        key=keys,
+        diverged_at=np.full((num_seeds,), -1, np.int32),
     )
 
 
@@ -398,7 +445,7 @@ def train_iteration(
     """
     runner, rollout = collect_rollout(runner, config, env_params)
     network = make_network(config)
-    next_value = network.apply(runner.params, rollout.final_obs, method=ActorCritic.value)
+    next_value = network.value(runner.params, rollout.final_obs)
     advantages, returns = compute_gae(
         rollout.reward,
         rollout.value,
@@ -520,20 +567,17 @@ def train_chunk(
 __all__ = [
     "METRIC_NAMES",
     "Batch",
-    "ConfigError",
     "EpisodeBuffer",
     "Hyperparams",
-    "PPOConfig",
     "RunnerState",
     "Transition",
     "collect_rollout",
     "compute_gae",
     "explained_variance",
-    "init_runner",
+    "initial_runners",
     "make_network",
     "make_optimizer",
     "ppo_loss",
-    "preset",
     "train_chunk",
     "train_iteration",
     "update_epochs",

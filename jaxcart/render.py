@@ -241,7 +241,7 @@ def render_gif(
     duration = max(10, round(100 * frame_skip / fps) * 10)
     import io
 
-    from jaxcart.rundir import atomic_write_bytes
+    from jaxcart.files import atomic_write_bytes
 
     buf = io.BytesIO()
     images[0].save(

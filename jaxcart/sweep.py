@@ -1,21 +1,70 @@
-"""Hyperparameter sweeps as one compiled program.
+"""Hyperparameter sweeps as one compiled program, and the order of runs on the seed axis.
 
 Every combination x seed is one run on the vmapped axis; the swept float hyperparameters
 travel as arrays (:class:`~jaxcart.ppo.Hyperparams`), so the program compiles once whatever
-the values. Run ``r`` is combination ``r // num_seeds`` with seed index ``r % num_seeds``;
-all combinations share the seeds' random streams.
+the values. :class:`RunGrid` is the one definition of the run order: run ``r`` is combination
+``r // num_seeds`` with seed index ``r % num_seeds``; all combinations share the seeds'
+random streams. "Seeds" are per combination, "runs" are all of them.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import dataclass, field
 
 import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.ppo import Hyperparams
+
+
+@dataclass(frozen=True)
+class RunGrid:
+    """Which runs train together: ``num_seeds`` seeds for each combination (one combination,
+    the config itself, when there is no sweep), combination-major."""
+
+    num_seeds: int
+    combos: tuple[dict[str, float], ...] = field(default_factory=tuple)
+
+    @property
+    def is_sweep(self) -> bool:
+        return bool(self.combos)
+
+    @property
+    def num_combos(self) -> int:
+        return max(1, len(self.combos))
+
+    @property
+    def num_runs(self) -> int:
+        """Every run on the seed axis: combinations x seeds."""
+        return self.num_combos * self.num_seeds
+
+    def run_index(self, combo: int, seed_index: int) -> int:
+        return combo * self.num_seeds + seed_index
+
+    def combo_of(self, run: int) -> int:
+        return run // self.num_seeds
+
+    def seed_index_of(self, run: int) -> int:
+        return run % self.num_seeds
+
+    def seed_indices(self) -> np.ndarray:
+        """Each run's seed index, ``[num_runs]``."""
+        return np.tile(np.arange(self.num_seeds), self.num_combos)
+
+    def runs_of(self, combo: int) -> slice:
+        """The runs of one combination, as a slice of the seed axis."""
+        return slice(self.run_index(combo, 0), self.run_index(combo + 1, 0))
+
+    def run_name(self, run: int) -> str:
+        """``seed3``, or ``combo001-seed3`` in a sweep (also directory names for loggers)."""
+        seed = f"seed{self.seed_index_of(run)}"
+        return f"combo{self.combo_of(run):03d}-{seed}" if self.is_sweep else seed
+
+    def run_names(self) -> list[str]:
+        return [self.run_name(r) for r in range(self.num_runs)]
 
 
 def parse_sweep(specs: list[str]) -> dict[str, list[float]]:
@@ -66,17 +115,17 @@ def validate_combinations(config: PPOConfig, combos: list[dict[str, float]]) -> 
     return out
 
 
-def sweep_hyperparams(configs: list[PPOConfig], num_seeds: int) -> tuple[Hyperparams, np.ndarray]:
-    """Hyperparameters of every run, leaves ``[C * S]``, and each run's seed index."""
+def sweep_hyperparams(configs: list[PPOConfig], grid: RunGrid) -> Hyperparams:
+    """Hyperparameters of every run in ``grid`` order, leaves ``[num_runs]``: one config per
+    combination (or the config alone when there is no sweep)."""
     per_combo = [Hyperparams.from_config(c) for c in configs]
-    hps = Hyperparams(
+    combo_of = np.array([grid.combo_of(r) for r in range(grid.num_runs)])
+    return Hyperparams(
         **{
-            name: jnp.repeat(jnp.stack([getattr(h, name) for h in per_combo]), num_seeds)
+            name: jnp.stack([getattr(h, name) for h in per_combo])[combo_of]
             for name in TRACED_FIELDS
         }
     )
-    seed_indices = np.tile(np.arange(num_seeds), len(configs))
-    return hps, seed_indices
 
 
 def first_reach(returns: np.ndarray, env_steps: np.ndarray, target: float = 500.0) -> np.ndarray:
@@ -95,33 +144,32 @@ def first_reach(returns: np.ndarray, env_steps: np.ndarray, target: float = 500.
 
 
 def rank(
-    combos: list[dict[str, float]],
+    grid: RunGrid,
     solved: np.ndarray,
     final_return: np.ndarray,
     steps_to_500: np.ndarray,
-    num_seeds: int,
     diverged_at: np.ndarray | None = None,
 ) -> list[dict]:
     """Per-combination summary sorted by solve rate, final return, then steps to 500.
 
     Args:
-        solved, final_return, steps_to_500: per run, ``[C * S]``.
+        solved, final_return, steps_to_500, diverged_at: per run, ``[num_runs]``.
     """
     rows = []
-    for c, combo in enumerate(combos):
-        sl = slice(c * num_seeds, (c + 1) * num_seeds)
-        steps = steps_to_500[sl]
+    for c, combo in enumerate(grid.combos):
+        runs = grid.runs_of(c)
+        steps = steps_to_500[runs]
         rows.append(
             {
                 "combination": c,
                 **combo,
-                "solve_rate": float(np.mean(solved[sl])),
-                "final_return": float(np.nanmean(final_return[sl]))
-                if np.isfinite(final_return[sl]).any()
+                "solve_rate": float(np.mean(solved[runs])),
+                "final_return": float(np.nanmean(final_return[runs]))
+                if np.isfinite(final_return[runs]).any()
                 else math.nan,
                 "median_steps_to_500": float(np.median(steps)),
                 "seeds_reaching_500": int(np.isfinite(steps).sum()),
-                "seeds_diverged": 0 if diverged_at is None else int((diverged_at[sl] >= 0).sum()),
+                "seeds_diverged": 0 if diverged_at is None else int((diverged_at[runs] >= 0).sum()),
             }
         )
     return sorted(

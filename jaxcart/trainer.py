@@ -1,5 +1,9 @@
-"""Host side of training: builds the seed batch, shards it over devices, compiles the fused
+"""Host side of training: builds the batch of runs, shards it over devices, compiles the fused
 chunk once (timed on its own), and runs it chunk by chunk so progress can be reported.
+
+This is the engine under :mod:`jaxcart.lifecycle`: it knows runs (the vmapped axis), not run
+directories, combinations or printing. A run is one independent agent; without a sweep the
+runs are the seeds.
 """
 
 from __future__ import annotations
@@ -7,7 +11,7 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +21,14 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxcart import distributed
 from jaxcart import env as cartpole
 from jaxcart.config import PPOConfig
-from jaxcart.ppo import METRIC_NAMES, Hyperparams, RunnerState, init_runner, train_chunk
+from jaxcart.ppo import (
+    METRIC_NAMES,
+    Hyperparams,
+    RunnerState,
+    initial_runners,
+    make_network,
+    train_chunk,
+)
 
 
 def seed_keys(seed: int, num_seeds: int) -> jax.Array:
@@ -27,86 +38,58 @@ def seed_keys(seed: int, num_seeds: int) -> jax.Array:
     return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(num_seeds, dtype=jnp.uint32))
 
 
-def seed_sharding(num_seeds: int, devices: list | None = None) -> NamedSharding:
-    """Shards a leading seed axis over as many devices as divide ``num_seeds`` evenly.
+def devices_for(num_runs: int, devices: list | None = None) -> list:
+    """The devices the run axis is sharded over: as many as divide ``num_runs`` evenly.
 
-    With several processes every device must take part: ``num_seeds`` must then be a multiple
-    of ``jax.device_count()`` (the CLI checks this before starting).
+    With several processes every device must take part, so ``num_runs`` must then be a
+    multiple of the device count.
+
+    Raises:
+        ValueError: several processes and ``num_runs`` does not divide over their devices.
     """
     devices = list(devices if devices is not None else jax.devices())
-    if jax.process_count() > 1 and num_seeds % len(devices):
-        raise ValueError(f"{num_seeds} runs cannot be split evenly over {len(devices)} devices")
-    count = max(d for d in range(1, len(devices) + 1) if num_seeds % d == 0)
-    mesh = Mesh(np.array(devices[:count]), ("seed",))
+    if jax.process_count() > 1 and num_runs % len(devices):
+        raise ValueError(
+            f"{num_runs} runs cannot be split evenly over {len(devices)} devices in "
+            f"{jax.process_count()} processes; use a multiple of {len(devices)} seeds"
+        )
+    return devices[: max(d for d in range(1, len(devices) + 1) if num_runs % d == 0)]
+
+
+def run_sharding(num_runs: int, devices: list | None = None) -> NamedSharding:
+    """Shards a leading run axis over :func:`devices_for` ``(num_runs)``."""
+    mesh = Mesh(np.array(devices_for(num_runs, devices)), ("seed",))
     return NamedSharding(mesh, PartitionSpec("seed"))
 
 
 def init_runners(
     config: PPOConfig,
-    num_seeds: int,
     seed: int,
-    env_params: cartpole.EnvParams,
-    seed_indices: np.ndarray | None = None,
+    seed_indices: np.ndarray,
+    env_params: cartpole.EnvParams | None = None,
 ) -> RunnerState:
-    """Initial state of every run, leaves ``[S, ...]`` (NumPy; the caller places it).
+    """Initial state of every run, NumPy leaves ``[R, ...]`` (the caller places them).
 
-    Run r draws from ``fold_in(PRNGKey(seed), seed_indices[r])`` (default ``r``); a sweep
-    repeats the seed indices for every combination so combinations share random numbers.
-    Built on the host with NumPy, the same distributions as :func:`jaxcart.ppo.init_runner`
-    (orthogonal kernels with SB3's gains, zero biases, Adam state zero, resets uniform in
-    the reset bounds) without compiling an initialisation program (seconds on CPU).
+    Run r draws from ``fold_in(PRNGKey(seed), seed_indices[r])``: seed index i starts the same
+    whatever runs beside it, and a sweep repeats the seed indices for every combination so
+    combinations share random numbers. Drawn on the host (:meth:`ActorCritic.init
+    <jaxcart.networks.ActorCritic.init>` and resets uniform in the reset bounds), so there
+    is no initialisation program to compile.
     """
-    indices = np.arange(num_seeds) if seed_indices is None else np.asarray(seed_indices)
+    env_params = env_params or cartpole.EnvParams()
+    indices = np.asarray(seed_indices)
     keys = np.asarray(seed_keys(seed, int(indices.max()) + 1))[indices]
-    template = jax.eval_shape(
-        functools.partial(init_runner, config=config, env_params=env_params), keys[0]
-    )
-    dtype = np.dtype(template.obs.dtype)
-    runs = []
+    dtype = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0].dtype
+    network = make_network(config)
+    params, obs, run_keys = [], [], []
     for key in keys:
         rng = np.random.default_rng([int(k) for k in key])
-        params = host_init_params(rng, template.params)
-        obs = rng.uniform(env_params.reset_low, env_params.reset_high, (config.num_envs, 4)).astype(
-            dtype
-        )
-        runs.append((params, obs, rng.integers(0, 2**32, 2, dtype=np.uint32)))
-    params = jax.tree.map(lambda *xs: np.stack(xs), *[r[0] for r in runs])
-    obs = np.stack([r[1] for r in runs])
-    zeros = lambda s: np.zeros((len(keys), *s.shape), s.dtype)
-    steps = np.zeros((len(keys), config.num_envs), np.int32)
-    return RunnerState(
-        params=params,
-        opt_state=jax.tree.map(zeros, template.opt_state),  # Adam's moments and count start at 0
-        env_state=cartpole.EnvState(obs[..., 0], obs[..., 1], obs[..., 2], obs[..., 3], steps),
-        obs=obs,
-        episode_return=zeros(template.episode_return),
-        episode_length=zeros(template.episode_length),
-        episodes=jax.tree.map(zeros, template.episodes),
-        key=np.stack([r[2] for r in runs]),
-        diverged_at=np.full((len(keys),), -1, np.int32),
-    )
-
-
-def host_init_params(rng: np.random.Generator, shapes: dict) -> dict:
-    """Actor-critic parameters with NumPy: orthogonal kernels (gain sqrt(2) for hidden
-    layers, 0.01 for the policy head, 1 for the value head), zero biases."""
-
-    def init(path, leaf):
-        names = [getattr(p, "key", str(p)) for p in path]
-        if names[-1] == "bias":
-            return np.zeros(leaf.shape, leaf.dtype)
-        gain = {"actor": 0.01, "critic": 1.0}[names[-3]] if names[-2] == "out" else np.sqrt(2.0)
-        return (gain * orthogonal_matrix(rng, leaf.shape)).astype(leaf.dtype)
-
-    return jax.tree_util.tree_map_with_path(init, shapes)
-
-
-def orthogonal_matrix(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
-    """A Haar-random matrix with orthonormal rows or columns (QR of a Gaussian matrix)."""
-    rows, cols = max(shape), min(shape)
-    q, r = np.linalg.qr(rng.standard_normal((rows, cols)))
-    q = q * np.sign(np.diag(r))
-    return q if shape[0] >= shape[1] else q.T
+        params.append(network.init(rng))
+        shape = (config.num_envs, network.obs_dim)
+        obs.append(rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype))
+        run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))
+    stacked = jax.tree.map(lambda *xs: np.stack(xs), *params)
+    return initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
 
 
 def default_chunk_size(num_iterations: int, updates: int = 20) -> int:
@@ -118,19 +101,19 @@ def default_chunk_size(num_iterations: int, updates: int = 20) -> int:
 
 
 METRIC_COLUMNS = (*METRIC_NAMES, "time/fps", "time/elapsed")
-"""Every per-iteration metric a run records, leaves ``[iterations, S]``."""
+"""Every per-iteration metric a run records, leaves ``[iterations, R]``."""
 
 
 @dataclass
 class TrainState:
-    """Everything needed to continue a run: per-seed state (leaves ``[S, ...]``), the
+    """Everything needed to continue training: per-run state (leaves ``[R, ...]``), the
     hyperparameters, iterations done, seconds of training so far and the metrics so far."""
 
     runners: RunnerState
     hyperparams: Hyperparams
     iteration: int
     elapsed: float
-    metrics: dict[str, np.ndarray]  # METRIC_COLUMNS -> [iteration, S]
+    metrics: dict[str, np.ndarray]  # METRIC_COLUMNS -> [iteration, R]
     chunk_size: int
 
 
@@ -140,26 +123,29 @@ class Progress:
 
     iteration: int  # iterations completed
     num_iterations: int
-    env_steps: int  # per seed
+    env_steps: int  # per run
     elapsed: float  # seconds of training so far (resumed runs include earlier sessions)
-    metrics: dict[str, np.ndarray]  # this chunk's metrics, leaves [iterations_in_chunk, S]
+    metrics: dict[str, np.ndarray]  # this chunk's metrics, leaves [iterations_in_chunk, R]
     state: Callable[[], TrainState]  # the full state now (valid only during the callback)
-    diverged_at: np.ndarray  # [S] int: -1, or the iteration at which that run went non-finite
+    diverged_at: np.ndarray  # [R] int: -1, or the iteration at which that run went non-finite
 
 
 @dataclass
 class TrainResult:
-    """Outcome of :func:`train`: final per-seed state, metrics ``[iterations, S]`` and timings."""
+    """Outcome of :func:`train`: final state of every run, metrics ``[iterations, R]``, timings."""
 
     config: PPOConfig
-    num_seeds: int
-    seed: int
     state: TrainState
     compile_seconds: float
     run_seconds: float  # this session's training time, compile excluded
     num_devices: int
+    start_iteration: int  # where this session started (> 0 when resumed)
+    compiled: bool  # whether this call compiled the program (False: reused in-process)
     stopped: bool = False  # interrupted before num_iterations (resumable from ``state``)
-    extra: dict = field(default_factory=dict)
+
+    @property
+    def num_runs(self) -> int:
+        return int(self.state.runners.diverged_at.shape[0])
 
     @property
     def runners(self) -> RunnerState:
@@ -171,50 +157,51 @@ class TrainResult:
 
     @property
     def env_steps(self) -> int:
-        """Environment steps taken in this session, all seeds together."""
+        """Environment steps taken in this session, all runs together."""
         return (
-            (self.state.iteration - self.extra.get("start_iteration", 0))
-            * self.config.batch_size
-            * self.num_seeds
+            (self.state.iteration - self.start_iteration) * self.config.batch_size * self.num_runs
         )
 
     @property
     def params(self) -> dict:
-        """Network parameters with a leading seed axis ``[S, ...]``."""
+        """Network parameters with a leading run axis ``[R, ...]``."""
         return self.state.runners.params
 
 
-def broadcast_hyperparams(config: PPOConfig, num_seeds: int) -> Hyperparams:
-    """The config's float hyperparameters repeated for every seed, leaves ``[S]``."""
+def broadcast_hyperparams(config: PPOConfig, num_runs: int) -> Hyperparams:
+    """The config's float hyperparameters repeated for every run, leaves ``[R]``."""
     hp = Hyperparams.from_config(config)
-    return jax.tree.map(lambda x: jnp.full((num_seeds,), x, x.dtype), hp)
+    return jax.tree.map(lambda x: jnp.full((num_runs,), x, x.dtype), hp)
 
 
 def initial_state(
     config: PPOConfig,
-    num_seeds: int,
+    num_runs: int,
     seed: int,
     hyperparams: Hyperparams | None = None,
     env_params: cartpole.EnvParams | None = None,
     chunk_size: int | None = None,
     seed_indices: np.ndarray | None = None,
 ) -> TrainState:
-    """The state before the first iteration (also the template a checkpoint is loaded into)."""
-    env_params = env_params or cartpole.EnvParams()
-    hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_seeds)
+    """The state before the first iteration (also the template a checkpoint is loaded into).
+
+    ``seed_indices`` defaults to ``arange(num_runs)`` (every run its own seed index).
+    """
+    indices = np.arange(num_runs) if seed_indices is None else np.asarray(seed_indices)
+    hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_runs)
     return TrainState(
-        runners=init_runners(config, num_seeds, seed, env_params, seed_indices),
+        runners=init_runners(config, seed, indices, env_params),
         hyperparams=hps,
         iteration=0,
         elapsed=0.0,
-        metrics={k: np.zeros((0, num_seeds), np.float32) for k in METRIC_COLUMNS},
+        metrics={k: np.zeros((0, num_runs), np.float32) for k in METRIC_COLUMNS},
         chunk_size=chunk_size or default_chunk_size(config.num_iterations),
     )
 
 
 def train(
     config: PPOConfig,
-    num_seeds: int = 1,
+    num_runs: int = 1,
     seed: int = 0,
     *,
     hyperparams: Hyperparams | None = None,
@@ -227,94 +214,104 @@ def train(
     should_stop: Callable[[], bool] | None = None,
     seed_indices: np.ndarray | None = None,
 ) -> TrainResult:
-    """Trains ``num_seeds`` independent PPO agents in one compiled program.
+    """Trains ``num_runs`` independent PPO agents in one compiled program.
 
     Args:
         config: shapes and (default) hyperparameters.
-        num_seeds: independent runs, a vmap axis sharded over ``devices``.
-        seed: base seed; run i uses ``fold_in(PRNGKey(seed), seed_indices[i])``.
-        hyperparams: per-run float hyperparameters with leaves ``[num_seeds]`` (a sweep);
+        num_runs: independent runs, a vmap axis sharded over ``devices``.
+        seed: base seed; run r uses ``fold_in(PRNGKey(seed), seed_indices[r])``.
+        hyperparams: per-run float hyperparameters with leaves ``[num_runs]`` (a sweep);
             defaults to the config's values for every run.
         chunk_size: iterations per compiled call between progress reports.
         resume: continue from this state (e.g. a loaded checkpoint) instead of starting anew;
             the result is bit-identical to a run that was never interrupted.
         on_compiled: called with the compile time in seconds.
         on_chunk: called with a :class:`Progress` after every chunk.
-        should_stop: polled after every chunk; when it returns True training stops early with
-            ``TrainResult.stopped`` set and a resumable state.
-        seed_indices: per-run seed index (default ``arange(num_seeds)``).
+        should_stop: polled before every chunk; when it returns True training stops early
+            with ``TrainResult.stopped`` set and a resumable state.
+        seed_indices: per-run seed index (default ``arange(num_runs)``).
     """
     env_params = env_params or cartpole.EnvParams()
     state = resume or initial_state(
-        config, num_seeds, seed, hyperparams, env_params, chunk_size, seed_indices
+        config, num_runs, seed, hyperparams, env_params, chunk_size, seed_indices
     )
-    chunk_size = state.chunk_size
-    sharding = seed_sharding(num_seeds, devices)
+    sharding = run_sharding(num_runs, devices)
     runners = distributed.to_global(state.runners, sharding)
     hps = distributed.to_global(state.hyperparams, sharding)
 
     start = time.perf_counter()
-    compiled, fresh = compiled_chunk(config, env_params, chunk_size, runners, hps)
+    compiled, fresh = compiled_chunk(config, env_params, state.chunk_size, runners, hps)
     compile_seconds = time.perf_counter() - start
     if on_compiled:
         on_compiled(compile_seconds)
 
-    chunks = [state.metrics]
-    done, start_iteration, elapsed_before = state.iteration, state.iteration, state.elapsed
+    loop = _ChunkLoop(config, state, hps)
     stopped = False
-    run_start = time.perf_counter()
-    while done < config.num_iterations:
+    while loop.done < config.num_iterations:
         # every process must agree, or one would wait forever for the others' next chunk
         if should_stop is not None and distributed.any_process(should_stop()):
             stopped = True
             break
-        runners, metrics = compiled(runners, hps, jnp.int32(done))
-        metrics = distributed.gather(metrics)
-        now = elapsed_before + time.perf_counter() - run_start
-        take = min(chunk_size, config.num_iterations - done)
-        metrics = {k: np.asarray(v[:take]) for k, v in metrics.items()}
-        # time/fps as SB3 logs it (steps of this seed / seconds since start); inside a chunk
-        # the iterations are timed by spreading the chunk's time evenly.
-        prev = float(chunks[-1]["time/elapsed"][-1, 0]) if len(chunks[-1]["time/elapsed"]) else 0.0
-        elapsed = prev + (now - prev) * np.arange(1, take + 1) / take
-        steps = (done + np.arange(1, take + 1)) * config.batch_size
-        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_seeds, 1).astype(np.float32)
-        metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_seeds, 1).astype(np.float32)
-        chunks.append(metrics)
-        done += take
-
-        def snapshot(runners=runners, done=done, now=now) -> TrainState:
-            return TrainState(runners, hps, done, now, _concat(chunks), chunk_size)
-
+        runners, metrics = compiled(runners, hps, jnp.int32(loop.done))
+        progress = loop.record(runners, distributed.gather(metrics))
         if on_chunk:
-            diverged = np.asarray(distributed.gather(runners.diverged_at))
-            on_chunk(
-                Progress(
-                    done,
-                    config.num_iterations,
-                    done * config.batch_size,
-                    now,
-                    metrics,
-                    snapshot,
-                    diverged,
-                )
-            )
+            on_chunk(progress)
     jax.block_until_ready(runners)
-    run_seconds = time.perf_counter() - run_start
-    final = TrainState(
-        runners, hps, done, elapsed_before + run_seconds, _concat(chunks), chunk_size
-    )
+    final = loop.final_state(runners)
     return TrainResult(
         config=config,
-        num_seeds=num_seeds,
-        seed=seed,
         state=final,
         compile_seconds=compile_seconds,
-        run_seconds=run_seconds,
+        run_seconds=final.elapsed - state.elapsed,
         num_devices=len(sharding.mesh.devices.flat),
+        start_iteration=state.iteration,
+        compiled=fresh,
         stopped=stopped,
-        extra={"start_iteration": start_iteration, "compiled": fresh},
     )
+
+
+class _ChunkLoop:
+    """The host's bookkeeping between compiled chunks: iterations done, training time and
+    the metrics so far (with SB3's ``time/fps`` and ``time/elapsed`` added)."""
+
+    def __init__(self, config: PPOConfig, state: TrainState, hps: Hyperparams) -> None:
+        self.config, self.hps, self.chunk_size = config, hps, state.chunk_size
+        self.done, self.elapsed_before = state.iteration, state.elapsed
+        self.chunks = [state.metrics]
+        self.start = time.perf_counter()
+
+    def now(self) -> float:
+        return self.elapsed_before + time.perf_counter() - self.start
+
+    def record(self, runners: RunnerState, metrics: dict) -> Progress:
+        """Takes one chunk's metrics ``[chunk_size, R]`` and returns the progress after it."""
+        config, now = self.config, self.now()
+        take = min(self.chunk_size, config.num_iterations - self.done)
+        metrics = {k: np.asarray(v[:take]) for k, v in metrics.items()}
+        num_runs = next(iter(metrics.values())).shape[1]
+        # time/fps as SB3 logs it (steps of this run / seconds since start); inside a chunk
+        # the iterations are timed by spreading the chunk's time evenly.
+        last = self.chunks[-1]["time/elapsed"]
+        prev = float(last[-1, 0]) if len(last) else 0.0
+        elapsed = prev + (now - prev) * np.arange(1, take + 1) / take
+        steps = (self.done + np.arange(1, take + 1)) * config.batch_size
+        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_runs, 1).astype(np.float32)
+        metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_runs, 1).astype(np.float32)
+        self.chunks.append(metrics)
+        self.done += take
+        snapshot = functools.partial(self._snapshot, runners, self.done, now)
+        diverged = np.asarray(distributed.gather(runners.diverged_at))
+        done = self.done
+        return Progress(
+            done, config.num_iterations, done * config.batch_size, now, metrics, snapshot, diverged
+        )
+
+    def _snapshot(self, runners: RunnerState, done: int, now: float) -> TrainState:
+        metrics = _concat(self.chunks)
+        return TrainState(runners, self.hps, done, now, metrics, self.chunk_size)
+
+    def final_state(self, runners: RunnerState) -> TrainState:
+        return self._snapshot(runners, self.done, self.now())
 
 
 _COMPILED: dict = {}
@@ -325,13 +322,15 @@ def compiled_chunk(
 ) -> tuple[Callable, bool]:
     """The compiled :func:`~jaxcart.ppo.train_chunk` for these shapes and devices.
 
-    Kept per process, keyed by everything that shapes the program (config, env constants,
-    chunk size, the runs' array shapes and shardings) but not by the traced float
-    hyperparameters: new learning rates, clip ranges, ... reuse the same executable.
+    Kept per process, keyed by what shapes the program: the static part of the config
+    (:meth:`PPOConfig.static`), the env constants, the chunk size and the runs' array shapes
+    and shardings. The traced float hyperparameters are not part of the key (nor of the
+    program): new learning rates, clip ranges, ... reuse the same executable.
 
     Returns:
         ``(compiled, fresh)`` where ``fresh`` says whether it was compiled just now.
     """
+    config = config.static()
     signature = tuple(
         (leaf.shape, str(leaf.dtype), str(leaf.sharding))
         for leaf in jax.tree.leaves((runners, hps))
@@ -344,7 +343,7 @@ def compiled_chunk(
     )
     sharding = jax.tree.leaves(runners)[0].sharding
     if isinstance(sharding, NamedSharding) and sharding.mesh.size > 1:
-        # Every device runs the same program on its own seeds with no communication: say so
+        # Every device runs the same program on its own runs with no communication: say so
         # with shard_map rather than leaving it to the SPMD partitioner (faster to compile).
         spec = sharding.spec
         local = jax.shard_map(
@@ -352,7 +351,7 @@ def compiled_chunk(
             mesh=sharding.mesh,
             in_specs=(spec, spec, PartitionSpec()),
             out_specs=(spec, PartitionSpec(None, *spec)),
-            check_vma=False,  # per-seed metrics vs the skip branch's constants
+            check_vma=False,  # per-run metrics vs the skip branch's constants
         )
     chunk = jax.jit(local, donate_argnums=0)
     _COMPILED[key] = chunk.lower(runners, hps, jnp.int32(0)).compile()

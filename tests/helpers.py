@@ -8,7 +8,18 @@ import jax
 import numpy as np
 
 from jaxcart import rundir
+from jaxcart.config import PPOConfig
 from jaxcart.ppo import METRIC_NAMES
+
+TINY = PPOConfig(  # 32 iterations of 128 transitions: a training test in seconds
+    num_envs=4,
+    num_steps=32,
+    total_timesteps=4096,
+    minibatch_size=64,
+    update_epochs=2,
+    learning_rate=1e-3,
+    anneal_lr=True,
+)
 
 
 def tiny_args(

@@ -1,0 +1,181 @@
+"""What the commands print: tables, the run header and summary line, the progress bar.
+
+Nothing here trains or writes files; :class:`ConsoleReport` turns a run's lifecycle events
+(:class:`jaxcart.lifecycle.Hooks`) into terminal output.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+from typing import IO, TYPE_CHECKING
+
+import numpy as np
+
+from jaxcart.cli import format_table
+
+if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
+    from jaxcart.lifecycle import Outcome, Run
+    from jaxcart.trainer import Progress
+
+
+def header_line(run: Run, device_count: int, backend: str) -> str:
+    """``jaxcart PPO | preset sb3 | 2 seed(s) x 81,920 env steps (...) | 2 cpu device(s) | out ...``."""
+    grid, config = run.grid, run.config
+    what = (
+        f"{grid.num_combos} combinations x {grid.num_seeds} seed(s)"
+        if grid.is_sweep
+        else f"{grid.num_seeds} seed(s)"
+    )
+    return (
+        f"jaxcart PPO | preset {run.preset} | {what} x {config.env_steps_per_seed:,} env steps "
+        f"({config.num_iterations} iterations of {config.num_envs} env(s) x {config.num_steps} steps) "
+        f"| {device_count} {backend} device(s) | out {run.out}"
+    )
+
+
+def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
+    """The per-seed table of a run without a sweep."""
+    ev, final = outcome.evaluation, outcome.result.metrics["rollout/ep_rew_mean"][-1]
+    diverged = outcome.diverged_at
+    rows = [
+        [
+            s,
+            f"{ev.gym_returns[s].mean():.1f}",
+            f"{ev.gym_returns[s].min():.0f}",
+            ("yes" if ev.solved[s] else "no")
+            + (f" (diverged@{diverged[s]})" if diverged[s] >= 0 else ""),
+            f"{ev.jax_returns[s].mean():.1f}",
+            f"{final[s]:.1f}",
+        ]
+        for s in range(len(ev.solved))
+    ]
+    return rows, ["seed", "gym mean", "gym min", "solved", "jaxcart mean", "train ep_rew_mean"]
+
+
+def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
+    """The ranking table of a sweep."""
+    names, n = list(outcome.run.sweep), outcome.run.grid.num_seeds
+    rows = [
+        [
+            r["combination"],
+            *[f"{r[name]:g}" for name in names],
+            f"{r['solve_rate']:.0%}",
+            f"{r['final_return']:.1f}",
+            "never"
+            if not np.isfinite(r["median_steps_to_500"])
+            else f"{r['median_steps_to_500']:,.0f}",
+            f"{r['seeds_reaching_500']}/{n}",
+            f"{r['seeds_diverged']}/{n}",
+        ]
+        for r in outcome.ranking
+    ]
+    header = [
+        "combo",
+        *names,
+        "solved",
+        "final ep_rew_mean",
+        "median steps to a 500 episode",
+        "reached 500",
+        "diverged",
+    ]
+    return rows, header
+
+
+def results_text(outcome: Outcome) -> str:
+    """The evaluation table (or the sweep ranking) after a finished run."""
+    episodes, grid = outcome.evaluation.episodes, outcome.run.grid
+    if grid.is_sweep:
+        rows, header = sweep_rows(outcome)
+        return (
+            f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = all {episodes} greedy "
+            f"Gymnasium episodes score 500):\n{format_table(rows, header)}\n"
+            f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
+        )
+    rows, header = evaluation_rows(outcome)
+    return (
+        f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('CartPole-v1'):\n"
+        + format_table(rows, header)
+    )
+
+
+def summary_line(outcome: Outcome, wall_seconds: float) -> str:
+    """``solved 2/2 run(s) | wall ... | N env steps at M steps/s ... on D device(s)``."""
+    result, ev = outcome.result, outcome.evaluation
+    steps, run_s, compile_s = result.env_steps, result.run_seconds, result.compile_seconds
+    return (
+        f"\nsolved {int(ev.solved.sum())}/{len(ev.solved)} run(s) | wall {wall_seconds:.1f} s "
+        f"(compile {compile_s:.1f} s, train {run_s:.1f} s, eval {ev.seconds:.1f} s) | "
+        f"{steps:,} env steps at {steps / run_s:,.0f} steps/s "
+        f"({steps / (run_s + compile_s):,.0f} incl. compile) on {result.num_devices} device(s)"
+    )
+
+
+def stopped_text(run: Run, iteration: int, resume_hint: str) -> str:
+    return (
+        f"stopped at iteration {iteration}/{run.config.num_iterations}; checkpoint saved in "
+        f"{run.out}\nresume with: {resume_hint}"
+    )
+
+
+class ConsoleReport:
+    """Lifecycle hooks that print: the header, compile time, a tqdm progress bar,
+    divergences and signals. ``out`` gets the lines, stderr the bar and warnings."""
+
+    def __init__(self, out: IO[str], progress_bar: bool = True) -> None:
+        self.out, self.progress_bar = out, progress_bar
+        self.bar = None
+        self.run: Run | None = None
+
+    def print(self, text: str) -> None:
+        print(text, file=self.out, flush=True)
+
+    def on_start(self, run: Run, device_count: int, backend: str) -> None:
+        self.run = run
+        self.print(header_line(run, device_count, backend))
+        if run.resumed_from is not None:
+            self.print(f"resuming from iteration {run.resumed_from}/{run.config.num_iterations}")
+
+    def on_compiled(self, seconds: float) -> None:
+        from tqdm import tqdm
+
+        self.print(f"compiled the fused training step in {seconds:.2f} s")
+        if self.progress_bar:
+            self.bar = tqdm(
+                total=self.run.config.num_iterations,
+                initial=self.run.resumed_from or 0,
+                unit="it",
+                desc="training",
+                dynamic_ncols=True,
+                file=sys.stderr,
+            )
+
+    def on_chunk(self, progress: Progress) -> None:
+        if self.bar is None:
+            return
+        ret = progress.metrics["rollout/ep_rew_mean"][-1]
+        mean_ret = float(np.nanmean(ret)) if np.isfinite(ret).any() else float("nan")
+        self.bar.set_postfix_str(
+            f"env steps/seed {progress.env_steps:,} | ep_rew_mean {mean_ret:.1f}", refresh=False
+        )
+        self.bar.update(progress.iteration - self.bar.n)
+
+    def on_diverged(self, run_name: str, iteration: int) -> None:
+        message = (
+            f"{run_name} diverged at iteration {iteration} (non-finite loss or parameters): "
+            f"it stops there with its last finite parameters; other runs continue"
+        )
+        (self.bar.write if self.bar is not None else print)(message, file=sys.stderr)
+
+    def on_signal(self, signum: int) -> None:
+        name = signal.Signals(signum).name
+        print(
+            f"\n{name} received: finishing the current chunk and saving a checkpoint...",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None

@@ -1,0 +1,110 @@
+"""PPOConfig: SB3's defaults, presets, validation with messages, traced fields declared once."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import pytest
+
+from jaxcart.config import PRESETS, TRACED_FIELDS, ConfigError, PPOConfig, field_docs, preset
+from jaxcart.ppo import Hyperparams
+
+
+def test_sb3_defaults():
+    c = PPOConfig()
+    assert (c.num_envs, c.num_steps, c.minibatch_size, c.update_epochs) == (1, 2048, 64, 10)
+    assert (c.learning_rate, c.adam_eps, c.gamma, c.gae_lambda, c.clip_coef) == (
+        3e-4,
+        1e-5,
+        0.99,
+        0.95,
+        0.2,
+    )
+    assert (c.ent_coef, c.vf_coef, c.max_grad_norm) == (0.0, 0.5, 0.5)
+    assert c.num_iterations == 40 and c.env_steps_per_seed == 81_920
+    assert c.hidden_sizes == (64, 64) and c.activation == "tanh" and c.norm_adv and not c.anneal_lr
+    assert preset("sb3") == c
+
+
+def test_purejaxrl_preset():
+    c = preset("purejaxrl")
+    assert (c.num_envs, c.num_steps, c.update_epochs, c.num_minibatches) == (4, 128, 4, 4)
+    assert (c.learning_rate, c.anneal_lr, c.ent_coef, c.total_timesteps) == (
+        2.5e-4,
+        True,
+        0.01,
+        500_000,
+    )
+
+
+def test_every_field_documented():
+    docs = field_docs()
+    for f in PPOConfig.__dataclass_fields__:
+        assert docs.get(f), f"{f} has no docstring"
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"minibatch_size": 100}, "does not divide"),
+        ({"learning_rate": 0.0}, "learning_rate"),
+        ({"learning_rate": -1e-3}, "learning_rate"),
+        ({"total_timesteps": 0}, "total_timesteps"),
+        ({"gamma": 0.0}, "gamma"),
+        ({"gamma": 1.5}, "gamma"),
+        ({"gae_lambda": -0.1}, "gae_lambda"),
+        ({"ent_coef": -0.01}, "ent_coef"),
+        ({"vf_coef": -1.0}, "vf_coef"),
+        ({"activation": "gelu"}, "activation"),
+        ({"hidden_sizes": ()}, "hidden_sizes"),
+        ({"num_envs": 2.5}, "num_envs"),
+        ({"learning_rate": float("nan")}, "learning_rate"),
+    ],
+)
+def test_config_validation(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        PPOConfig(**kwargs)
+
+
+def test_unknown_preset():
+    with pytest.raises(ConfigError, match="unknown preset"):
+        preset("nope")
+    assert set(PRESETS) == {"sb3", "purejaxrl", "fast"}
+
+
+def test_config_is_frozen_and_round_trips():
+    c = preset("purejaxrl")
+    with pytest.raises(AttributeError):
+        c.num_envs = 3
+    assert PPOConfig.from_dict(c.to_dict()) == c
+
+
+def test_traced_fields_are_declared_once_on_the_config():
+    """The traced float hyperparameters come from field metadata; Hyperparams follows them."""
+    traced = [f.name for f in dataclasses.fields(PPOConfig) if f.metadata.get("traced")]
+    assert list(TRACED_FIELDS) == traced
+    assert set(traced) == {
+        "learning_rate",
+        "adam_eps",
+        "gamma",
+        "gae_lambda",
+        "clip_coef",
+        "ent_coef",
+        "vf_coef",
+        "max_grad_norm",
+    }
+    hp = Hyperparams.from_config(PPOConfig(clip_coef=0.3))
+    assert float(hp.clip_coef) == pytest.approx(0.3)
+    paths = [path[0].name for path, _ in jax.tree_util.tree_flatten_with_path(hp)[0]]
+    assert paths == list(TRACED_FIELDS)
+    with pytest.raises(TypeError):
+        Hyperparams(learning_rate=1.0)
+
+
+def test_static_part_ignores_traced_fields_only():
+    a = preset("fast", learning_rate=1e-3, clip_coef=0.1, gamma=0.9)
+    b = preset("fast")
+    assert a != b and a.static() == b.static() and hash(a.static()) == hash(b.static())
+    assert preset("fast", num_envs=8).static() != b.static()
+    assert preset("fast", anneal_lr=False).static() != b.static()

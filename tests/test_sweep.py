@@ -1,0 +1,111 @@
+"""Sweeps: every combination x seed in one compiled program, the run order, bad sweeps."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import tiny_args
+
+from jaxcart import rundir
+from jaxcart.sweep import RunGrid, parse_sweep
+from jaxcart.train import main
+
+
+def test_run_grid_is_the_one_run_order():
+    grid = RunGrid(3, ({"learning_rate": 1e-3}, {"learning_rate": 1e-2}))
+    assert grid.num_runs == 6 and grid.num_combos == 2 and grid.is_sweep
+    assert [grid.run_index(c, s) for c in range(2) for s in range(3)] == list(range(6))
+    assert [(grid.combo_of(r), grid.seed_index_of(r)) for r in range(6)] == [
+        (c, s) for c in range(2) for s in range(3)
+    ]
+    assert grid.seed_indices().tolist() == [0, 1, 2, 0, 1, 2]
+    assert grid.runs_of(1) == slice(3, 6)
+    assert grid.run_names()[4] == "combo001-seed1"
+    plain = RunGrid(2)
+    assert plain.num_runs == 2 and not plain.is_sweep and plain.run_names() == ["seed0", "seed1"]
+
+
+def test_sweep_cli_trains_every_combination(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    argv = [
+        *tiny_args(2048, num_seeds=2),
+        "--no-compile-cache",
+        "--sweep",
+        "learning_rate=1e-4,1e-3,1e-2",
+        "--sweep",
+        "clip_coef=0.1,0.3",
+        "--out",
+        str(out),
+    ]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert (
+        "Sweep ranking" in text
+        and "3 combinations" not in text
+        and "6 combinations x 2 seed(s)" in text
+    )
+    ranking = json.loads((out / "sweep.json").read_text())["ranking"]
+    assert len(ranking) == 6 and {r["learning_rate"] for r in ranking} == {1e-4, 1e-3, 1e-2}
+    rates = [r["solve_rate"] for r in ranking]
+    assert rates == sorted(rates, reverse=True)
+    for c in range(6):
+        info = json.loads((out / f"combo-{c:03d}" / "config.json").read_text())
+        assert info["config"]["learning_rate"] == info["combination"]["learning_rate"]
+        assert (out / f"combo-{c:03d}" / "params.npz").exists()
+        assert (
+            len(json.loads((out / f"combo-{c:03d}" / "evaluation.json").read_text())["seeds"]) == 2
+        )
+    m0 = rundir.read_metrics_csv(out / "combo-000" / "metrics.csv")
+    m4 = rundir.read_metrics_csv(out / "combo-004" / "metrics.csv")
+    np.testing.assert_allclose(m0["train/learning_rate"][0], [1e-4, 1e-4])
+    np.testing.assert_allclose(m4["train/learning_rate"][0], [1e-2, 1e-2])
+    assert not np.allclose(m0["train/value_loss"], m4["train/value_loss"])
+    import jaxcart
+
+    with pytest.raises(rundir.RunDirError, match="is a sweep"):
+        jaxcart.load_policy(out)
+    assert jaxcart.load_policy(out / "combo-001", seed_index=1)(np.zeros(4, np.float32)) in (0, 1)
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        (["learning_rate"], "malformed"),
+        (["learning_rate=a,b"], "must be numbers"),
+        (["num_envs=1,2"], "only float hyperparameters"),
+        (["gamma=0.9,1.5"], None),
+        (["clip_coef=0.1", "clip_coef=0.2"], "given twice"),
+    ],
+)
+def test_bad_sweeps_rejected(spec, message, tmp_path, capsys):
+    if message:
+        with pytest.raises(ValueError, match=message):
+            parse_sweep(spec)
+    argv = [x for s in spec for x in ("--sweep", s)]
+    assert main([*argv, "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_cli_reports_divergence(tmp_path, capsys):
+    out = tmp_path / "div"
+    argv = [
+        *tiny_args(1024),
+        "--no-compile-cache",
+        "--sweep",
+        "learning_rate=1e-3,1e35",
+        "--out",
+        str(out),
+    ]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert "combo001-seed0 diverged at iteration" in captured.err
+    seeds = json.loads((out / "combo-001" / "evaluation.json").read_text())["seeds"]
+    assert seeds[0]["diverged_at_iteration"] >= 1
+    ok = json.loads((out / "combo-000" / "evaluation.json").read_text())["seeds"]
+    assert ok[0]["diverged_at_iteration"] is None
+    ranking = json.loads((out / "sweep.json").read_text())["ranking"]
+    assert {r["learning_rate"]: r["seeds_diverged"] for r in ranking} == {1e-3: 0, 1e35: 1}

@@ -1,0 +1,123 @@
+"""The training engine: resume bit-identity, traced hyperparameters compile once, the
+divergence guard, chunking, and run r's seed index."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+from helpers import TINY, assert_same_results
+
+from jaxcart import checkpoint
+from jaxcart.env import EnvParams
+from jaxcart.trainer import broadcast_hyperparams, compiled_chunk, initial_state, train
+
+
+def test_resume_from_checkpoint_is_bit_identical(tmp_path):
+    full = train(TINY, num_runs=2, seed=3, chunk_size=2)
+    assert not full.stopped and full.state.iteration == TINY.num_iterations == 32
+
+    chunks = []
+    part = train(
+        TINY,
+        num_runs=2,
+        seed=3,
+        chunk_size=2,
+        on_chunk=chunks.append,
+        should_stop=lambda: len(chunks) == 5,
+    )
+    assert part.stopped and part.state.iteration == 10
+
+    path = tmp_path / "checkpoint.npz"
+    checkpoint.save_checkpoint(path, part.state, {"note": "test"})
+    resumed_state = checkpoint.load_checkpoint(path, initial_state(TINY, 2, 3, chunk_size=2))
+    assert resumed_state.iteration == 10 and resumed_state.chunk_size == 2
+    resumed = train(TINY, num_runs=2, seed=3, resume=resumed_state)
+    assert resumed.state.iteration == 32 and not resumed.stopped
+    assert_same_results(full.metrics, resumed.metrics, full.params, resumed.params)
+
+
+def test_new_hyperparameter_values_do_not_recompile():
+    """Float hyperparameters are traced: a second run with other values compiles nothing and
+    the new values take effect."""
+    compiles = []
+
+    def listener(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles.append(duration)
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    hps = broadcast_hyperparams(TINY, 4)
+    other = hps.replace(
+        learning_rate=hps.learning_rate * 3,
+        clip_coef=hps.clip_coef * 0.5,
+        ent_coef=hps.ent_coef + 0.01,
+    )
+    first = train(TINY, 4, seed=1, hyperparams=hps)
+    mid = len(compiles)
+    second = train(TINY, 4, seed=1, hyperparams=other)
+    assert first.compiled and not second.compiled
+    assert len(compiles) == mid, "new hyperparameter values triggered a compilation"
+    np.testing.assert_allclose(second.metrics["train/learning_rate"][0], 3e-3, rtol=1e-6)
+    assert not np.allclose(first.metrics["train/value_loss"], second.metrics["train/value_loss"])
+
+
+def test_divergence_freezes_only_that_seed(tmp_path):
+    """A seed whose update goes non-finite stops with its last finite state and is marked;
+    the other seed trains exactly as it would have, and checkpoints stay finite."""
+    hps = broadcast_hyperparams(TINY, 2)
+    bad = hps.replace(learning_rate=hps.learning_rate.at[1].set(1e35))
+    good = train(TINY, 2, seed=5, hyperparams=hps)
+    mixed = train(TINY, 2, seed=5, hyperparams=bad)
+    diverged = np.asarray(mixed.runners.diverged_at)
+    assert diverged[0] == -1 and diverged[1] >= 1
+    for leaf in jax.tree.leaves(mixed.params):
+        assert np.isfinite(np.asarray(leaf)).all()
+    # seed 0 is untouched by seed 1's divergence
+    for x, y in zip(jax.tree.leaves(good.params), jax.tree.leaves(mixed.params)):
+        np.testing.assert_array_equal(np.asarray(x)[0], np.asarray(y)[0])
+    # after the divergence seed 1 reports NaN metrics
+    assert np.isnan(mixed.metrics["train/value_loss"][diverged[1] :, 1]).all()
+
+
+def test_chunks_that_do_not_tile_the_run():
+    """A chunk size that does not divide the iterations: the guarded program skips the
+    overhang, and the run matches the tiled one (same per-iteration computation)."""
+    tiled = train(TINY, 2, seed=9, chunk_size=2)
+    ragged = train(TINY, 2, seed=9, chunk_size=5)  # 32 iterations = 6 chunks of 5 + 2
+    assert ragged.state.iteration == 32 and ragged.metrics["train/value_loss"].shape == (32, 2)
+    assert np.isfinite(ragged.metrics["train/value_loss"]).all()
+    np.testing.assert_allclose(
+        ragged.metrics["train/value_loss"], tiled.metrics["train/value_loss"], rtol=1e-4
+    )
+
+
+def test_configs_differing_only_in_traced_fields_compile_once():
+    """The compiled-step cache keys on the static part of the config: a config with other
+    learning rate, clip range, gamma, ... reuses the executable; a new shape does not."""
+    a = dataclasses.replace(TINY, total_timesteps=2048)  # a shape no other test compiles
+    b = dataclasses.replace(a, learning_rate=7e-3, clip_coef=0.3, gamma=0.9, ent_coef=0.01)
+    first, second = train(a, 2, seed=0), train(b, 2, seed=0)
+    assert first.compiled and not second.compiled
+    np.testing.assert_allclose(second.metrics["train/learning_rate"][0], 7e-3, rtol=1e-6)
+    third = train(dataclasses.replace(a, num_steps=64, total_timesteps=2048), 2, seed=0)
+    assert third.compiled
+
+
+def test_compiled_chunk_key_ignores_traced_config_values():
+    state = initial_state(TINY, 2, 0)
+    runners = jax.device_put(state.runners)
+    hps = jax.device_put(state.hyperparams)
+    env = EnvParams()
+    exe_a, _ = compiled_chunk(TINY, env, 4, runners, hps)
+    exe_b, fresh = compiled_chunk(dataclasses.replace(TINY, vf_coef=2.0), env, 4, runners, hps)
+    assert exe_a is exe_b and not fresh
+
+
+def test_seed_index_not_run_position_picks_the_random_stream():
+    """Initial state of run r depends on its seed index only (sweeps repeat seed indices)."""
+    a = initial_state(TINY, 3, 7, seed_indices=np.array([0, 1, 2]))
+    b = initial_state(TINY, 2, 7, seed_indices=np.array([2, 0]))
+    for x, y in zip(jax.tree.leaves(a.runners), jax.tree.leaves(b.runners)):
+        np.testing.assert_array_equal(np.asarray(x)[[2, 0]], np.asarray(y))
