@@ -1,4 +1,5 @@
-"""Shared helpers of the benchmark scripts: machine details, the exact command, Markdown.
+"""Shared helpers of the benchmark scripts: machine details, the exact command, command-line
+lists, JSON + Markdown reports and the finishing of their plots.
 
 Imports nothing heavy (no JAX, no torch), so the scripts can use it in every virtualenv,
 the rejax one included, and before JAX's device count is set.
@@ -6,6 +7,7 @@ the rejax one included, and before JAX's device count is set.
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import importlib.metadata
 import json
@@ -14,6 +16,7 @@ import platform
 import shlex
 import subprocess
 import sys
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -87,23 +90,18 @@ def load_average() -> list[float] | None:
         return None
 
 
+def _git(*args: str) -> str:
+    """Output of ``git ARGS`` run in the repository, stripped."""
+    return subprocess.run(
+        ["git", *args], cwd=REPO_ROOT, capture_output=True, text=True, check=True
+    ).stdout.strip()
+
+
 def git_revision() -> str:
     """``HEAD`` of the repository, with ``+dirty`` when the work tree has changes."""
     try:
-        rev = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=REPO_ROOT,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=REPO_ROOT,
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        rev = _git("rev-parse", "--short", "HEAD")
+        dirty = _git("status", "--porcelain", "--untracked-files=no")
         return rev + ("+dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
@@ -181,3 +179,160 @@ def write_json(path: Path, data: dict) -> None:
     """Writes ``data`` as indented JSON, creating the folder."""
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=2, default=str) + "\n")
+
+
+def write_markdown(path: Path, lines: list[str]) -> None:
+    """Writes ``lines`` (and a final newline) to ``path`` and prints them."""
+    text = "\n".join(lines)
+    path.write_text(text + "\n")
+    print(text)
+
+
+def provenance_markdown(report: dict, extra: Iterable[str] = ()) -> list[str]:
+    """The end of a report: the command, the machine (then ``extra`` bullet lines) and the
+    load average at the end of the run."""
+    return [
+        f"Command: `{report['command']}`",
+        "",
+        "Machine:",
+        "",
+        *machine_markdown(report["machine"]),
+        *extra,
+        f"- load average at end: {report['load_average_end']}",
+        "",
+    ]
+
+
+# Command line
+
+
+def arg_parser(doc: str | None) -> argparse.ArgumentParser:
+    """An argument parser whose ``--help`` shows the script's docstring as written."""
+    return argparse.ArgumentParser(
+        description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+
+
+def split_list(text: str) -> list[str]:
+    """``"a, b,,c"`` -> ``["a", "b", "c"]``."""
+    return [v.strip() for v in text.split(",") if v.strip()]
+
+
+def parse_ints(text: str, error: str = "expected positive integers") -> list[int]:
+    """Comma-separated positive integers (an argparse ``type``); ``error`` starts the message
+    for values that are not positive."""
+    try:
+        values = [int(v) for v in split_list(text)]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers, got {text!r}"
+        ) from None
+    if not values or any(v <= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"{error}, got {text!r}")
+    return values
+
+
+def add_output_options(parser: argparse.ArgumentParser) -> None:
+    """``--out`` and ``--from-json``, as every plotting benchmark takes them."""
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default benchmarks/results[/quick])"
+    )
+    parser.add_argument(
+        "--from-json",
+        type=Path,
+        default=None,
+        help="only re-render the Markdown and plot of an earlier run's JSON (next to it)",
+    )
+
+
+def output_dir(out: Path | None, quick: bool) -> Path:
+    """``--out``, or ``benchmarks/results`` (``benchmarks/results/quick`` with ``--quick``)."""
+    return out or (RESULTS_DIR / "quick" if quick else RESULTS_DIR)
+
+
+# Reports: JSON, then Markdown and a plot rendered from it
+
+
+def new_report(
+    benchmark: str, settings: dict, contenders: list[str], jax_devices: list[str] | None = None
+) -> dict:
+    """The start of a report: what ran, the command, the machine and the settings."""
+    return {
+        "benchmark": benchmark,
+        "command": command_line(),
+        "machine": machine_info(jax_devices),
+        "settings": settings,
+        "contenders": contenders,
+        "results": [],
+    }
+
+
+Render = Callable[[dict], str]
+Plot = Callable[[dict, Path], None]
+
+
+def write_outputs(report: dict, out: Path, stem: str, markdown: Render, plot: Plot) -> None:
+    """Writes the Markdown and the plot of ``report`` to ``out`` and prints the Markdown."""
+    text = markdown(report)
+    (out / f"{stem}.md").write_text(text)
+    plot(report, out / f"{stem}.png")
+    print(text)
+    print(f"wrote {out / f'{stem}.json'}, .md and .png")
+
+
+def save_report(report: dict, out: Path, stem: str, markdown: Render, plot: Plot) -> None:
+    """Ends a run: the load average now, then the JSON, Markdown and plot in ``out``."""
+    report["load_average_end"] = load_average()
+    write_json(out / f"{stem}.json", report)
+    write_outputs(report, out, stem, markdown, plot)
+
+
+def rerender(path: Path, stem: str, markdown: Render, plot: Plot) -> None:
+    """``--from-json``: the Markdown and plot of a saved report, written next to it."""
+    write_outputs(json.loads(path.read_text()), path.parent, stem, markdown, plot)
+
+
+# Plots
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on the non-interactive Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def machine_title(title: str, machine: dict) -> str:
+    """``title`` with the CPU model and the cores used on a second line."""
+    return f"{title}\n{machine['cpu_model']}, {machine['cpus_available']} cores"
+
+
+def finish_loglog(
+    fig,
+    ax,
+    path: Path,
+    labels: tuple[str, str, str],
+    xticks: list[int] | None = None,
+    legend: dict | None = None,
+) -> None:
+    """Log-log axes, ``labels`` = (x label, y label, title), a grid, the legend (``legend``:
+    its keyword arguments) when anything is labelled; saves ``fig`` to ``path`` and closes it.
+    With ``xticks``, exactly those x ticks and no minor ticks (grid on the major ones)."""
+    xlabel, ylabel, title = labels
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    if xticks is not None:
+        ax.set_xticks(xticks, [str(x) for x in xticks])
+        ax.minorticks_off()
+    ax.grid(True, which="major" if xticks is not None else "both", alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**(legend or {}))
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    pyplot().close(fig)

@@ -8,17 +8,19 @@ Prints the median training time (compile excluded) of each and their ratio.
 
 from __future__ import annotations
 
-import argparse
 import statistics
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchlib
 
 from jaxcart.config import preset
 from jaxcart.trainer import default_chunk_size, train
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = benchlib.arg_parser(__doc__)
     parser.add_argument("--preset", default="sb3")
     parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=5)

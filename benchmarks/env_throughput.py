@@ -34,237 +34,29 @@ from jaxcart import devices
 devices.use_all_host_cores()
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from jax.sharding import Mesh, NamedSharding, PartitionSpec  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib  # noqa: E402
+from env_throughput_contenders import (  # noqa: E402
+    CONTENDERS,
+    LABELS,
+    MAX_SCAN_LENGTH,
+    STEPS_PER_CALL,
+    Runner,
+    Unavailable,
+    make_runner,
+)
 
-import jaxcart.env as cartpole  # noqa: E402
-
-CONTENDERS = ("jaxcart", "gymnax", "gymnasium-vector", "gymnasium-sync", "envpool")
-LABELS = {
-    "jaxcart": "jaxcart (jit/scan/vmap)",
-    "gymnax": "gymnax 1.x (jit/scan/vmap)",
-    "gymnasium-vector": "Gymnasium CartPoleVectorEnv (NumPy)",
-    "gymnasium-sync": "Gymnasium SyncVectorEnv",
-    "envpool": "EnvPool (C++)",
-}
 DEFAULT_SIZES = (1, 16, 256, 4096, 65536)
 QUICK_SIZES = (1, 16, 256)
-# Env steps per compiled call (num_steps x num_envs) aimed at; a call is a scan this long.
-STEPS_PER_CALL = 2**19
-MAX_SCAN_LENGTH = 2000
-
-
-class Unavailable(Exception):
-    """A contender cannot run here (not installed, or fails to start); the message says why."""
-
-
-@dataclass
-class Runner:
-    """One contender at one size: ``call()`` runs ``steps_per_call`` env steps and blocks."""
-
-    call: Callable[[], None]
-    steps_per_call: int
-    setup_seconds: float
-    notes: dict = field(default_factory=dict)
-    close: Callable[[], None] = lambda: None
-
-
-def env_sharding(num_envs: int) -> NamedSharding:
-    """Shards a leading env axis over all JAX devices when ``num_envs`` divides evenly,
-    otherwise keeps it on the first device."""
-    devs = jax.devices()
-    if num_envs % len(devs) != 0:
-        devs = devs[:1]
-    return NamedSharding(Mesh(np.array(devs), ("env",)), PartitionSpec("env"))
-
-
-def scan_length(num_envs: int) -> int:
-    """Steps per compiled call: about :data:`STEPS_PER_CALL` env steps, at most
-    :data:`MAX_SCAN_LENGTH` and at least 4."""
-    return int(min(MAX_SCAN_LENGTH, max(4, STEPS_PER_CALL // num_envs)))
-
-
-def jaxcart_random_rollout(num_envs: int, num_steps: int):
-    """jaxcart's contender: ``num_steps`` steps of ``num_envs`` envs with uniform random actions.
-
-    The batch steps with :func:`jaxcart.env.step_batch` (one key per step for the whole
-    batch; reset states from jaxcart's counter hash). Uniform random actions are 32 to a word:
-    one ``jax.random.bits`` word per 32 envs per step, unpacked bit by bit. The carry's leaves
-    have a leading env axis, sharded over the devices by :func:`env_sharding`; each env keeps
-    its own key so shards draw independent numbers.
-
-    Returns:
-        ``(rollout, state)``: ``rollout(state) -> state`` is jitted (state donated) and runs
-        ``num_steps x num_envs`` env steps; ``state`` is the initial carry, on the devices.
-        The carry counts finished episodes per env, so the result depends on every step.
-    """
-    params = cartpole.EnvParams()
-    sharding = env_sharding(num_envs)
-    local_envs = num_envs // sharding.mesh.size  # each device steps its own share
-
-    def one_step(carry, t):
-        env_state, keys, episodes = carry
-        # Per step: one action word per 32 envs and one reset key, folded from the env's key.
-        key = jax.random.fold_in(keys[0], t)
-        action_key, reset_key = jax.random.split(key)
-        words = jax.random.bits(action_key, ((local_envs + 31) // 32,), jnp.uint32)
-        shifts = jnp.arange(32, dtype=jnp.uint32)
-        actions = ((words[:, None] >> shifts) & 1).reshape(-1)[:local_envs].astype(jnp.int32)
-        _, env_state, _, terminated, truncated, _ = cartpole.step_batch(
-            reset_key, env_state, actions, params
-        )
-        episodes = episodes + (terminated | truncated).astype(jnp.int32)
-        return (env_state, keys, episodes), None
-
-    def rollout(carry):
-        carry, _ = jax.lax.scan(one_step, carry, jnp.arange(num_steps, dtype=jnp.uint32))
-        return carry
-
-    keys = jax.random.split(jax.random.PRNGKey(0), num_envs + 1)
-    _, env_state = jax.vmap(cartpole.reset, in_axes=(0, None))(keys[1:], params)
-    step_keys = jax.random.split(keys[0], num_envs)
-    state = (env_state, step_keys, jnp.zeros((num_envs,), jnp.int32))
-    state = jax.device_put(state, sharding)
-    # shard_map: every device runs the whole scan on its own envs, no cross-device traffic.
-    spec = sharding.spec
-    local = jax.shard_map(rollout, mesh=sharding.mesh, in_specs=(spec,), out_specs=spec)
-    fn = jax.jit(local, out_shardings=sharding, donate_argnums=0)
-    return fn, state
-
-
-def gymnax_random_rollout(num_envs: int, num_steps: int):
-    """gymnax 1.x ``CartPole-v1`` driven exactly like :func:`jaxcart_random_rollout`."""
-    try:
-        import gymnax
-    except ImportError as e:
-        raise Unavailable(f"gymnax is not installed ({e})") from None
-    env, params = gymnax.make("CartPole-v1")
-    sharding = env_sharding(num_envs)
-
-    def one_step(carry, _):
-        env_state, keys, episodes = carry
-        split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
-        keys, action_keys, step_keys = split[:, 0], split[:, 1], split[:, 2]
-        actions = jax.vmap(jax.random.bernoulli)(action_keys).astype(jnp.int32)
-        out = jax.vmap(env.step, in_axes=(0, 0, 0, None))(step_keys, env_state, actions, params)
-        if len(out) == 6:  # gymnax >= 1.0: obs, state, reward, terminated, truncated, info
-            _, env_state, _, terminated, truncated, _ = out
-            done = terminated | truncated
-        else:  # gymnax 0.0.x: obs, state, reward, done, info
-            _, env_state, _, done, _ = out
-        episodes = episodes + done.astype(jnp.int32)
-        return (env_state, keys, episodes), None
-
-    def rollout(carry):
-        carry, _ = jax.lax.scan(one_step, carry, None, length=num_steps)
-        return carry
-
-    keys = jax.random.split(jax.random.PRNGKey(0), num_envs + 1)
-    _, env_state = jax.vmap(env.reset, in_axes=(0, None))(keys[1:], params)
-    step_keys = jax.random.split(keys[0], num_envs)
-    state = (env_state, step_keys, jnp.zeros((num_envs,), jnp.int32))
-    state = jax.device_put(state, sharding)
-    fn = jax.jit(rollout, out_shardings=sharding, donate_argnums=0)
-    return fn, state
-
-
-def jax_runner(make_rollout, num_envs: int) -> Runner:
-    """Compiles (timed) a rollout of :func:`scan_length` steps; each call continues the state."""
-    num_steps = scan_length(num_envs)
-    start = time.perf_counter()
-    fn, state = make_rollout(num_envs, num_steps)
-    compiled = fn.lower(state).compile()
-    compile_seconds = time.perf_counter() - start
-    holder = [state]
-
-    def call():
-        holder[0] = compiled(holder[0])
-        jax.block_until_ready(holder[0])
-
-    devices_used = len(env_sharding(num_envs).mesh.devices.flat)
-    return Runner(
-        call=call,
-        steps_per_call=num_envs * num_steps,
-        setup_seconds=compile_seconds,
-        notes={"scan_length": num_steps, "devices": devices_used},
-    )
-
-
-def gymnasium_runner(num_envs: int, mode: str) -> Runner:
-    """Gymnasium's vector env (``mode``: ``vector_entry_point`` or ``sync``), one step a call."""
-    try:
-        import gymnasium as gym
-    except ImportError as e:
-        raise Unavailable(f"gymnasium is not installed ({e})") from None
-    start = time.perf_counter()
-    envs = gym.make_vec("CartPole-v1", num_envs=num_envs, vectorization_mode=mode)
-    envs.reset(seed=0)
-    setup = time.perf_counter() - start
-    rng = np.random.default_rng(0)
-
-    def call():
-        envs.step(rng.integers(0, 2, size=num_envs))
-
-    return Runner(
-        call=call,
-        steps_per_call=num_envs,
-        setup_seconds=setup,
-        notes={"env": type(envs).__name__, "autoreset": str(envs.metadata.get("autoreset_mode"))},
-        close=envs.close,
-    )
-
-
-def envpool_runner(num_envs: int) -> Runner:
-    """EnvPool's CartPole-v1 (synchronous: each call steps all envs), one step a call."""
-    try:
-        import envpool
-    except ImportError as e:
-        raise Unavailable(f"envpool is not installed ({e})") from None
-    start = time.perf_counter()
-    envs = envpool.make("CartPole-v1", env_type="gymnasium", num_envs=num_envs, seed=0)
-    envs.reset()
-    setup = time.perf_counter() - start
-    rng = np.random.default_rng(0)
-
-    def call():
-        envs.step(rng.integers(0, 2, size=num_envs, dtype=np.int32))
-
-    spec = envs.spec.config
-    return Runner(
-        call=call,
-        steps_per_call=num_envs,
-        setup_seconds=setup,
-        notes={"num_threads": getattr(spec, "num_threads", None)},
-        close=envs.close,
-    )
-
-
-def make_runner(name: str, num_envs: int) -> Runner:
-    if name == "jaxcart":
-        return jax_runner(jaxcart_random_rollout, num_envs)
-    if name == "gymnax":
-        return jax_runner(gymnax_random_rollout, num_envs)
-    if name == "gymnasium-vector":
-        return gymnasium_runner(num_envs, "vector_entry_point")
-    if name == "gymnasium-sync":
-        return gymnasium_runner(num_envs, "sync")
-    if name == "envpool":
-        return envpool_runner(num_envs)
-    raise ValueError(name)
+STEM = "env_throughput"
 
 
 def timed(runner: Runner, calls: int) -> float:
@@ -337,7 +129,8 @@ def cell(rows: list[dict], name: str, n: int) -> str:
     return r["status"]
 
 
-def markdown(report: dict) -> str:
+def throughput_tables(report: dict) -> tuple[list[str], list[list], list[list], list[list]]:
+    """Headers, then the rows of the throughput, speed-up and setup-time tables."""
     rows, sizes, names = report["results"], report["settings"]["sizes"], report["contenders"]
     headers = ["contender"] + [f"N={n:,}" for n in sizes]
     throughput = [[LABELS[c]] + [cell(rows, c, n) for n in sizes] for c in names]
@@ -358,6 +151,34 @@ def markdown(report: dict) -> str:
             ok = r is not None and r["status"] == "ok"
             line.append(f"{r['setup_seconds']:.2f}" if ok else "-")
         setup_rows.append(line)
+    return headers, throughput, ratio_rows, setup_rows
+
+
+def how_each_runs(report: dict) -> list[str]:
+    """The Markdown notes on how the contenders run."""
+    s = report["settings"]
+    return [
+        "How each contender runs:",
+        "",
+        "- gymnax: `jit(scan(vmap(step)))`, per-env PRNG keys split every step into an action "
+        "key (`jax.random.bernoulli`) and a reset key (gymnax's own API takes a key per env).",
+        "- jaxcart: `jit(shard_map(scan(step_batch)))`: one key per step for the whole batch, "
+        "actions from `jax.random.bits` (one 32-bit word per 32 envs), reset states from "
+        "jaxcart's counter hash (`jaxcart.env.hash_uniform`).",
+        f"- Both: {s['steps_per_call']:,} env steps per compiled call (scan length at most "
+        f"{s['max_scan_length']}); env axis split over the "
+        f"{len(report['machine']['jax_devices'])} JAX device(s) when N divides evenly.",
+        "- Gymnasium and EnvPool: one `step(rng.integers(0, 2, N))` per call; "
+        f"SyncVectorEnv skipped for N > {s['sync_max_envs']:,}. They reset a finished "
+        "episode on the env's next step (a step that only resets, counted like the others; "
+        "about 1 in 23 with random actions), jaxcart and gymnax on the same step.",
+        "",
+    ]
+
+
+def markdown(report: dict) -> str:
+    rows, sizes = report["results"], report["settings"]["sizes"]
+    headers, throughput, ratio_rows, setup_rows = throughput_tables(report)
     notes = []
     for r in rows:
         if r["status"] != "ok" and (r["status"] == "unavailable" or r["num_envs"] == sizes[-1]):
@@ -384,41 +205,14 @@ def markdown(report: dict) -> str:
     ]
     if notes:
         out += ["Not measured:", "", *sorted(set(notes)), ""]
-    out += [
-        "How each contender runs:",
-        "",
-        "- gymnax: `jit(scan(vmap(step)))`, per-env PRNG keys split every step into an action "
-        "key (`jax.random.bernoulli`) and a reset key (gymnax's own API takes a key per env).",
-        "- jaxcart: `jit(shard_map(scan(step_batch)))`: one key per step for the whole batch, "
-        "actions from `jax.random.bits` (one 32-bit word per 32 envs), reset states from "
-        "jaxcart's counter hash (`jaxcart.env.hash_uniform`).",
-        f"- Both: {s['steps_per_call']:,} env steps per compiled call (scan length at most "
-        f"{s['max_scan_length']}); env axis split over the "
-        f"{len(report['machine']['jax_devices'])} JAX device(s) when N divides evenly.",
-        "- Gymnasium and EnvPool: one `step(rng.integers(0, 2, N))` per call; "
-        f"SyncVectorEnv skipped for N > {s['sync_max_envs']:,}. They reset a finished "
-        "episode on the env's next step (a step that only resets, counted like the others; "
-        "about 1 in 23 with random actions), jaxcart and gymnax on the same step.",
-        "",
-        f"Command: `{report['command']}`",
-        "",
-        "Machine:",
-        "",
-        *benchlib.machine_markdown(report["machine"]),
-        f"- load average at end: {report['load_average_end']}",
-        "",
-    ]
+    out += how_each_runs(report)
+    out += benchlib.provenance_markdown(report)
     return "\n".join(out)
 
 
 def plot(report: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     rows = report["results"]
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    fig, ax = benchlib.pyplot().subplots(figsize=(7, 4.5))
     for c in report["contenders"]:
         pts = [
             (r["num_envs"], r["median_steps_per_second"])
@@ -428,37 +222,17 @@ def plot(report: dict, path: Path) -> None:
         if pts:
             xs, ys = zip(*pts)
             ax.plot(xs, ys, marker="o", label=LABELS[c], lw=2.5 if c == "jaxcart" else 1.5)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("parallel environments N")
-    ax.set_ylabel("env steps / s (median)")
-    cpu = report["machine"]["cpu_model"]
-    ax.set_title(
-        f"CartPole-v1 random-action throughput\n{cpu}, {report['machine']['cpus_available']} cores",
-        fontsize=10,
-    )
-    ax.grid(True, which="both", alpha=0.3)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    title = benchlib.machine_title("CartPole-v1 random-action throughput", report["machine"])
+    labels = ("parallel environments N", "env steps / s (median)", title)
+    benchlib.finish_loglog(fig, ax, path, labels, legend={"fontsize": 8})
 
 
 def parse_sizes(text: str) -> list[int]:
-    try:
-        sizes = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated integers, got {text!r}"
-        ) from None
-    if not sizes or any(n <= 0 for n in sizes):
-        raise argparse.ArgumentTypeError(f"sizes must be positive, got {text!r}")
-    return sizes
+    return benchlib.parse_ints(text, "sizes must be positive")
 
 
 def parse_names(text: str) -> list[str]:
-    names = [v.strip() for v in text.split(",") if v.strip()]
+    names = benchlib.split_list(text)
     unknown = [n for n in names if n not in CONTENDERS]
     if unknown:
         raise argparse.ArgumentTypeError(
@@ -468,9 +242,7 @@ def parse_names(text: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = benchlib.arg_parser(__doc__)
     parser.add_argument(
         "--sizes",
         type=parse_sizes,
@@ -495,48 +267,33 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--quick", action="store_true", help="smoke test: N=1,16,256, 2 repeats of 0.1 s"
     )
-    parser.add_argument(
-        "--from-json",
-        type=Path,
-        default=None,
-        help="only re-render the Markdown and plot of an earlier run's JSON (next to it)",
-    )
-    parser.add_argument(
-        "--out", type=Path, default=None, help="output folder (default benchmarks/results[/quick])"
-    )
+    benchlib.add_output_options(parser)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.from_json:
-        report = json.loads(args.from_json.read_text())
-        write_outputs(report, args.from_json.parent)
+        benchlib.rerender(args.from_json, STEM, markdown, plot)
         return 0
     quick = args.quick
     args.sizes = args.sizes or list(QUICK_SIZES if quick else DEFAULT_SIZES)
     args.repeats = args.repeats or (2 if quick else 5)
     args.seconds = args.seconds or (0.1 if quick else 1.0)
-    out = args.out or (benchlib.RESULTS_DIR / "quick" if quick else benchlib.RESULTS_DIR)
+    out = benchlib.output_dir(args.out, quick)
     names = [c for c in CONTENDERS if c in args.only]
 
     jax_devices = [str(d) for d in jax.devices()]
-    report = {
-        "benchmark": "env_throughput",
-        "command": benchlib.command_line(),
-        "machine": benchlib.machine_info(jax_devices),
-        "settings": {
-            "sizes": args.sizes,
-            "repeats": args.repeats,
-            "seconds": args.seconds,
-            "sync_max_envs": args.sync_max_envs,
-            "steps_per_call": STEPS_PER_CALL,
-            "max_scan_length": MAX_SCAN_LENGTH,
-            "quick": quick,
-        },
-        "contenders": names,
-        "results": [],
+    settings = {
+        "sizes": args.sizes,
+        "repeats": args.repeats,
+        "seconds": args.seconds,
+        "sync_max_envs": args.sync_max_envs,
+        "steps_per_call": STEPS_PER_CALL,
+        "max_scan_length": MAX_SCAN_LENGTH,
+        "quick": quick,
     }
+    report = benchlib.new_report("env_throughput", settings, names, jax_devices)
     print(f"JAX devices: {', '.join(jax_devices)}")
     for n in args.sizes:
         for name in names:
@@ -550,21 +307,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
             else:
                 print(f"N={n:>6,}  {name:<17} {row['status']}: {row['reason']}", flush=True)
-    report["load_average_end"] = benchlib.load_average()
-
-    out.mkdir(parents=True, exist_ok=True)
-    benchlib.write_json(out / "env_throughput.json", report)
-    write_outputs(report, out)
+    benchlib.save_report(report, out, STEM, markdown, plot)
     return 0
-
-
-def write_outputs(report: dict, out: Path) -> None:
-    """Writes the Markdown and the plot of ``report`` to ``out`` and prints the Markdown."""
-    text = markdown(report)
-    (out / "env_throughput.md").write_text(text)
-    plot(report, out / "env_throughput.png")
-    print(text)
-    print(f"wrote {out / 'env_throughput.json'}, .md and .png")
 
 
 if __name__ == "__main__":

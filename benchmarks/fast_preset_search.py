@@ -18,16 +18,19 @@ from jaxcart import devices
 
 devices.use_all_host_cores()
 
-import argparse  # noqa: E402
 import itertools  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchlib  # noqa: E402
 
 from jaxcart.config import PPOConfig  # noqa: E402
 from jaxcart.evaluate import evaluate_gymnasium, greedy_returns, numpy_policy, summarize  # noqa: E402
@@ -64,34 +67,20 @@ def candidate(
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument(
-        "--seeds", type=int, default=16, help="seeds per learning rate in the screen"
-    )
-    parser.add_argument(
-        "--confirm-seeds", type=int, default=64, help="seeds for the Gymnasium re-check"
-    )
-    parser.add_argument("--confirm-top", type=int, default=3)
-    parser.add_argument(
-        "--out", type=Path, default=Path("benchmarks/results/fast_preset_search.json")
-    )
-    args = parser.parse_args()
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-
+def screen(seeds: int) -> list[dict]:
+    """Every candidate shape x learning rate: solve rate over ``seeds`` seeds (jaxcart's env)
+    and the single-seed train and compile time."""
     results = []
     for (num_envs, num_steps), mbs, epochs, ts in itertools.product(
         SHAPES, MINIBATCHES, EPOCHS, TIMESTEPS
     ):
         config = candidate(num_envs, num_steps, mbs, epochs, ts)
-        runs = args.seeds * len(LEARNING_RATES)
-        lrs = jnp.repeat(jnp.asarray(LEARNING_RATES, jnp.float32), args.seeds)
+        runs = seeds * len(LEARNING_RATES)
+        lrs = jnp.repeat(jnp.asarray(LEARNING_RATES, jnp.float32), seeds)
         hps = broadcast_hyperparams(config, runs).replace(learning_rate=lrs)
         sweep = train(config, runs, seed=0, hyperparams=hps)
         solved = summarize(jax_eval(sweep.params, config, runs))["solved"].reshape(
-            len(LEARNING_RATES), args.seeds
+            len(LEARNING_RATES), seeds
         )
         # Single-seed timing as the CLI runs it (compile cached by now or not: reported apart).
         single = [train(config, 1, seed=s) for s in range(3)]
@@ -112,34 +101,50 @@ def main() -> None:
             }
             results.append(row)
             print(json.dumps(row), flush=True)
+    return results
 
+
+def confirm(row: dict, seeds: int) -> dict:
+    """``row`` with its solve rate over ``seeds`` new seeds in Gymnasium's CartPole-v1."""
+    config = candidate(
+        row["num_envs"],
+        row["num_steps"],
+        row["num_minibatches"],
+        row["update_epochs"],
+        row["total_timesteps"],
+    )
+    config = PPOConfig(**{**config.to_dict(), "learning_rate": row["learning_rate"]})
+    res = train(config, seeds, seed=1000)
+    gym = summarize(
+        evaluate_gymnasium(
+            numpy_policy(jax.device_get(res.params), config.activation, stacked=True), seeds
+        )
+    )
+    return {**row, "confirm_seeds": seeds, "gymnasium_solve_rate": float(gym["solved"].mean())}
+
+
+def main() -> None:
+    parser = benchlib.arg_parser(__doc__)
+    parser.add_argument(
+        "--seeds", type=int, default=16, help="seeds per learning rate in the screen"
+    )
+    parser.add_argument(
+        "--confirm-seeds", type=int, default=64, help="seeds for the Gymnasium re-check"
+    )
+    parser.add_argument("--confirm-top", type=int, default=3)
+    parser.add_argument(
+        "--out", type=Path, default=Path("benchmarks/results/fast_preset_search.json")
+    )
+    args = parser.parse_args()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+
+    results = screen(args.seeds)
     reliable = sorted(
         (r for r in results if r["solve_rate"] == 1.0), key=lambda r: r["single_seed_train_s"]
     )
     confirmed = []
     for row in reliable[: args.confirm_top]:
-        config = candidate(
-            row["num_envs"],
-            row["num_steps"],
-            row["num_minibatches"],
-            row["update_epochs"],
-            row["total_timesteps"],
-        )
-        config = PPOConfig(**{**config.to_dict(), "learning_rate": row["learning_rate"]})
-        res = train(config, args.confirm_seeds, seed=1000)
-        gym = summarize(
-            evaluate_gymnasium(
-                numpy_policy(jax.device_get(res.params), config.activation, stacked=True),
-                args.confirm_seeds,
-            )
-        )
-        confirmed.append(
-            {
-                **row,
-                "confirm_seeds": args.confirm_seeds,
-                "gymnasium_solve_rate": float(gym["solved"].mean()),
-            }
-        )
+        confirmed.append(confirm(row, args.confirm_seeds))
         print("confirm", json.dumps(confirmed[-1]), flush=True)
 
     report = {
@@ -155,7 +160,7 @@ def main() -> None:
         "candidates": results,
         "confirmed": confirmed,
     }
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    benchlib.write_json(args.out, report)
     print("wrote", args.out)
 
 

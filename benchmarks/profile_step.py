@@ -14,9 +14,7 @@ import os
 
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
-import argparse
 import functools
-import json
 import sys
 import time
 from pathlib import Path
@@ -112,37 +110,36 @@ def profile(preset_name: str, seeds: int) -> dict:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--preset", default="sb3")
-    parser.add_argument("--seeds", default="1,32")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
-    args = parser.parse_args()
-    rows = [profile(args.preset, int(s)) for s in args.seeds.split(",")]
-    command = benchlib.command_line()
-    machine = benchlib.machine_info()
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "profile_step.json").write_text(
-        json.dumps({"command": command, "machine": machine, "rows": rows}, indent=2) + "\n"
-    )
+def markdown_lines(report: dict, preset_name: str) -> list[str]:
+    """The Markdown summary of ``profile_step.json``."""
     lines = [
-        f"# Where one `{args.preset}` iteration's time goes (one CPU device)",
+        f"# Where one `{preset_name}` iteration's time goes (one CPU device)",
         "",
         "| seeds on the device | compile s | iteration ms | rollout ms | GAE ms | update ms "
         "| other ms | update µs / gradient step | rollout µs / step |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for r in rows:
+    for r in report["rows"]:
         lines.append(
-            f"| {r['seeds']} | {r['compile_s']:.2f} | {r['iteration_s'] * 1e3:.1f} | {r['rollout_s'] * 1e3:.1f} | "
+            f"| {r['seeds']} | {r['compile_s']:.2f} | {r['iteration_s'] * 1e3:.1f} | "
+            f"{r['rollout_s'] * 1e3:.1f} | "
             f"{r['gae_s'] * 1e3:.2f} | {r['update_s'] * 1e3:.1f} | {r['other_s'] * 1e3:.1f} | "
             f"{r['update_us_per_gradient_step']:.0f} | {r['rollout_us_per_env_step']:.1f} |"
         )
-    lines += ["", f"Command: `{command}`", "", *benchlib.machine_markdown(machine)]
-    (args.out / "profile_step.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    command = report["command"]
+    return [*lines, "", f"Command: `{command}`", "", *benchlib.machine_markdown(report["machine"])]
+
+
+def main() -> None:
+    parser = benchlib.arg_parser(__doc__)
+    parser.add_argument("--preset", default="sb3")
+    parser.add_argument("--seeds", type=benchlib.parse_ints, default="1,32")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    args = parser.parse_args()
+    rows = [profile(args.preset, s) for s in args.seeds]
+    report = {"command": benchlib.command_line(), "machine": benchlib.machine_info(), "rows": rows}
+    benchlib.write_json(args.out / "profile_step.json", report)
+    benchlib.write_markdown(args.out / "profile_step.md", markdown_lines(report, args.preset))
 
 
 if __name__ == "__main__":

@@ -14,13 +14,16 @@ Gymnasium's CartPole-v1, so ``python -m jaxcart.plot`` can overlay the two:
 
 from __future__ import annotations
 
-import argparse
 import csv
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchlib
 
 from jaxcart import rundir
 from jaxcart.config import PPOConfig
@@ -91,27 +94,9 @@ def greedy_returns(model, episodes: int) -> np.ndarray:
     return np.array(returns)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--num-seeds", type=int, default=3)
-    parser.add_argument("--timesteps", type=int, default=80_000)
-    parser.add_argument(
-        "--threads", type=int, default=1, help="torch threads (1 is fastest for this tiny MLP)"
-    )
-    parser.add_argument("--out", type=Path, required=True)
-    args = parser.parse_args()
-    out = args.out
-    out.mkdir(parents=True, exist_ok=False)
-    config = PPOConfig()  # SB3's defaults, as jaxcart's sb3 preset
-    per_seed, evaluations, seconds = [], [], []
-    for seed in range(args.num_seeds):
-        rows, model, secs = train_one(seed, args.timesteps, args.threads)
-        per_seed.append(to_metrics(rows, config.batch_size))
-        evaluations.append(greedy_returns(model, NUM_EVAL_EPISODES))
-        seconds.append(secs)
-        print(f"seed {seed}: {secs:.1f} s, greedy mean {evaluations[-1].mean():.1f}", flush=True)
+def write_run(out: Path, config: PPOConfig, per_seed: list, evaluations: list, seconds: list):
+    """Writes the seeds' metrics and evaluations as a jaxcart run directory ``out``."""
+    num_seeds = len(per_seed)
     iterations = min(len(m["time/fps"]) for m in per_seed)
     metrics = {k: np.stack([m[k][:iterations] for m in per_seed], axis=1) for k in METRIC_COLUMNS}
     rundir.write_json(
@@ -120,7 +105,7 @@ def main() -> None:
             "format_version": rundir.FORMAT_VERSION,
             "preset": "sb3",
             "framework": "stable-baselines3 (torch)",
-            "num_seeds": args.num_seeds,
+            "num_seeds": num_seeds,
             "seed": 0,
             "config": config.to_dict(),
             "versions": rundir.package_versions(),
@@ -145,6 +130,28 @@ def main() -> None:
             "solved_seeds": int(sum((r >= 500).all() for r in evaluations)),
         },
     )
+
+
+def main() -> None:
+    parser = benchlib.arg_parser(__doc__)
+    parser.add_argument("--num-seeds", type=int, default=3)
+    parser.add_argument("--timesteps", type=int, default=80_000)
+    parser.add_argument(
+        "--threads", type=int, default=1, help="torch threads (1 is fastest for this tiny MLP)"
+    )
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+    out = args.out
+    out.mkdir(parents=True, exist_ok=False)
+    config = PPOConfig()  # SB3's defaults, as jaxcart's sb3 preset
+    per_seed, evaluations, seconds = [], [], []
+    for seed in range(args.num_seeds):
+        rows, model, secs = train_one(seed, args.timesteps, args.threads)
+        per_seed.append(to_metrics(rows, config.batch_size))
+        evaluations.append(greedy_returns(model, NUM_EVAL_EPISODES))
+        seconds.append(secs)
+        print(f"seed {seed}: {secs:.1f} s, greedy mean {evaluations[-1].mean():.1f}", flush=True)
+    write_run(out, config, per_seed, evaluations, seconds)
     print(f"wrote {out}")
 
 

@@ -11,7 +11,6 @@ seeds x (env steps per seed / 81,920) / train seconds, i.e. SB3-sized runs per s
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
@@ -24,6 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
 
 from jaxcart.distributed import launch_local
+
+KINDS = ("1 device", "2 host devices", "2 processes")
 
 
 def env_for(devices: int) -> dict:
@@ -60,64 +61,28 @@ def run(kind: str, args: list[str], out: Path) -> dict:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--seeds", type=int, default=16)
-    parser.add_argument("--preset", default="sb3")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
-    a = parser.parse_args()
-    from jaxcart.config import preset
+def measure(kind: str, args: list[str], repeats: int, tmp: Path, seeds: int, steps: int) -> dict:
+    """``repeats`` runs of one configuration (``steps``: env steps per seed): the median
+    training time, seeds/s and SB3-sized runs/s, and every run."""
+    results = [run(kind, args, tmp / f"{kind.replace(' ', '-')}-{i}") for i in range(repeats)]
+    train = sorted(r["train_seconds"] for r in results)[len(results) // 2]
+    return {
+        "median_train_seconds": train,
+        "seeds_per_second": seeds / train,
+        "sb3_runs_per_second": seeds * steps / 81_920 / train,
+        "runs": results,
+    }
 
-    config = preset(a.preset)
-    args = [
-        "--preset",
-        a.preset,
-        "--num-seeds",
-        str(a.seeds),
-        "--quiet",
-        "--no-compile-cache",
-        "--eval-episodes",
-        "2",
-    ]
-    rows = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for kind in ("1 device", "2 host devices", "2 processes"):
-            results = [
-                run(kind, args, Path(tmp) / f"{kind.replace(' ', '-')}-{i}")
-                for i in range(a.repeats)
-            ]
-            train = sorted(r["train_seconds"] for r in results)[len(results) // 2]
-            rows[kind] = {
-                "median_train_seconds": train,
-                "seeds_per_second": a.seeds / train,
-                "sb3_runs_per_second": a.seeds * config.env_steps_per_seed / 81_920 / train,
-                "runs": results,
-            }
-            print(kind, json.dumps(rows[kind]), flush=True)
-    command = "python benchmarks/scaling.py " + " ".join(sys.argv[1:])
-    machine = benchlib.machine_info()
-    a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / "scaling.json").write_text(
-        json.dumps(
-            {
-                "command": command,
-                "machine": machine,
-                "preset": a.preset,
-                "seeds": a.seeds,
-                "results": rows,
-            },
-            indent=2,
-        )
-        + "\n"
-    )
+
+def markdown_lines(report: dict, repeats: int) -> list[str]:
+    """The Markdown summary of ``scaling.json``."""
+    rows = report["results"]
     base = rows["1 device"]["seeds_per_second"]
     lines = [
-        f"# Scaling: {a.seeds} seeds of the `{a.preset}` preset",
+        f"# Scaling: {report['seeds']} seeds of the `{report['preset']}` preset",
         "",
-        f"Command: `{command}` (median of {a.repeats} runs each; training time, compile excluded).",
+        f"Command: `{report['command']}` (median of {repeats} runs each; training time, "
+        "compile excluded).",
         "",
         "| configuration | train s | seeds/s | speed-up |",
         "|---|---:|---:|---:|",
@@ -127,9 +92,35 @@ def main() -> None:
             f"| {kind} | {row['median_train_seconds']:.2f} | {row['seeds_per_second']:.2f} | "
             f"{row['seeds_per_second'] / base:.2f}x |"
         )
-    lines += ["", *benchlib.machine_markdown(machine)]
-    (a.out / "scaling.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    return [*lines, "", *benchlib.machine_markdown(report["machine"])]
+
+
+def main() -> None:
+    parser = benchlib.arg_parser(__doc__)
+    parser.add_argument("--seeds", type=int, default=16)
+    parser.add_argument("--preset", default="sb3")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    a = parser.parse_args()
+    from jaxcart.config import preset
+
+    config = preset(a.preset)
+    args = ["--preset", a.preset, "--num-seeds", str(a.seeds), "--quiet", "--no-compile-cache"]
+    args += ["--eval-episodes", "2"]
+    steps, rows = config.env_steps_per_seed, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind in KINDS:
+            rows[kind] = measure(kind, args, a.repeats, Path(tmp), a.seeds, steps)
+            print(kind, json.dumps(rows[kind]), flush=True)
+    report = {
+        "command": "python benchmarks/scaling.py " + " ".join(sys.argv[1:]),
+        "machine": benchlib.machine_info(),
+        "preset": a.preset,
+        "seeds": a.seeds,
+        "results": rows,
+    }
+    benchlib.write_json(a.out / "scaling.json", report)
+    benchlib.write_markdown(a.out / "scaling.md", markdown_lines(report, a.repeats))
 
 
 if __name__ == "__main__":

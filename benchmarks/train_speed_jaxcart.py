@@ -1,0 +1,50 @@
+"""train_speed.py's jaxcart contenders (``jaxcart-PRESET-xS``): S seeds of a jaxcart preset
+trained together in one compiled program, sharded over the CPU devices."""
+
+from __future__ import annotations
+
+import time
+
+from train_speed_common import QUICK_TIMESTEPS, configure_jax_cache
+
+
+def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
+    """``jaxcart.trainer.train(preset(preset_name), num_seeds, seed=0)``.
+
+    Returns:
+        ``(data, policy)``: the timings and settings, and the seeds' stacked greedy policy
+        for the harness to evaluate.
+    """
+    from jaxcart import devices
+
+    devices.use_all_host_cores()
+    import jax
+
+    configure_jax_cache(cache_dir)
+    from jaxcart.config import preset
+    from jaxcart.evaluate import numpy_policy
+    from jaxcart.trainer import train
+
+    overrides = {"total_timesteps": QUICK_TIMESTEPS[preset_name]} if quick else {}
+    config = preset(preset_name, **overrides)
+    marks = {}
+
+    def on_compiled(seconds: float) -> None:
+        marks["compiled_cpu"] = time.process_time()
+
+    t0 = time.perf_counter()
+    result = train(config, num_seeds=num_seeds, seed=0, on_compiled=on_compiled)
+    t1, c1 = time.perf_counter(), time.process_time()
+    params = jax.device_get(result.params)
+    data = {
+        "num_seeds": num_seeds,
+        "env_steps": int(result.env_steps),
+        "setup_seconds": (t1 - t0) - result.run_seconds,
+        "compile_seconds": result.compile_seconds,
+        "train_seconds": result.run_seconds,
+        "train_cpu_seconds": c1 - marks["compiled_cpu"],
+        "jax_devices": [str(d) for d in jax.devices()],
+        "devices_used": result.num_devices,
+        "config": config.to_dict(),
+    }
+    return data, numpy_policy(params, config.activation, stacked=True)
