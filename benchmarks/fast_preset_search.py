@@ -33,7 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib  # noqa: E402
 
 from jaxcart.config import PPOConfig  # noqa: E402
-from jaxcart.evaluate import evaluate_gymnasium, greedy_returns, numpy_policy, summarize  # noqa: E402
+from jaxcart.evaluate import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
+from jaxcart.policy import numpy_policy  # noqa: E402
 from jaxcart.trainer import broadcast_hyperparams, seed_keys, train  # noqa: E402
 
 SHAPES = [(4, 128), (8, 64), (16, 32), (16, 64), (32, 32), (64, 16)]

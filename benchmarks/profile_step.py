@@ -21,6 +21,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
@@ -28,7 +29,6 @@ import benchlib
 from jaxcart import env as cartpole
 from jaxcart.config import preset
 from jaxcart.ppo import (
-    ActorCritic,
     Batch,
     collect_rollout,
     compute_gae,
@@ -56,7 +56,7 @@ def timed(fn, *args, repeats: int = 5) -> tuple[float, float]:
 def profile(preset_name: str, seeds: int) -> dict:
     config = preset(preset_name)
     env_params = cartpole.EnvParams()
-    runners = jax.device_put(init_runners(config, seeds, 0, env_params))
+    runners = jax.device_put(init_runners(config, 0, np.arange(seeds), env_params))
     hps = broadcast_hyperparams(config, seeds)
     network = make_network(config)
 
@@ -65,7 +65,7 @@ def profile(preset_name: str, seeds: int) -> dict:
     _, rollout = jax.jit(rollout_fn)(runners)
 
     def gae(r, roll, hp):
-        next_value = network.apply(r.params, roll.final_obs, method=ActorCritic.value)
+        next_value = network.value(r.params, roll.final_obs)
         return compute_gae(
             roll.reward,
             roll.value,

@@ -22,7 +22,7 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
 
     configure_jax_cache(cache_dir)
     from jaxcart.config import preset
-    from jaxcart.evaluate import numpy_policy
+    from jaxcart.policy import numpy_policy
     from jaxcart.trainer import train
 
     overrides = {"total_timesteps": QUICK_TIMESTEPS[preset_name]} if quick else {}
@@ -33,7 +33,7 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
         marks["compiled_cpu"] = time.process_time()
 
     t0 = time.perf_counter()
-    result = train(config, num_seeds=num_seeds, seed=0, on_compiled=on_compiled)
+    result = train(config, num_runs=num_seeds, seed=0, on_compiled=on_compiled)
     t1, c1 = time.perf_counter(), time.process_time()
     params = jax.device_get(result.params)
     data = {

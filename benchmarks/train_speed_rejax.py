@@ -48,13 +48,14 @@ def rejax_config(quick: bool) -> dict:
 
 def greedy_policy(p: dict):
     """jaxcart's NumPy policy over the seeds' stacked rejax actor parameters (``params``)."""
-    from jaxcart.evaluate import NumpyPolicy
+    from jaxcart.policy import NumpyPolicy
 
-    kernels = [p["features"]["Dense_0"]["kernel"], p["features"]["Dense_1"]["kernel"]]
-    kernels.append(p["action_logits"]["kernel"])
-    biases = [p["features"]["Dense_0"]["bias"], p["features"]["Dense_1"]["bias"]]
-    biases.append(p["action_logits"]["bias"])
-    return NumpyPolicy(kernels, biases, "tanh", stacked=True)
+    layers = {
+        "hidden_0": p["features"]["Dense_0"],
+        "hidden_1": p["features"]["Dense_1"],
+        "out": p["action_logits"],
+    }
+    return NumpyPolicy(layers, "tanh", stacked=True)
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
