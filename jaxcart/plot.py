@@ -26,10 +26,14 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from jaxcart import cli, rundir
+
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
+    from matplotlib.figure import Figure
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 ELAPSED_METRIC = "time/elapsed"
@@ -203,7 +207,6 @@ def plot_runs(
         rundir.RunDirError: a path is not a usable run directory.
         ValueError: bad ``labels``/``out``.
     """
-    from matplotlib.figure import Figure
 
     run_dirs = [Path(p) for p in run_dirs]
     if not run_dirs:
@@ -222,6 +225,18 @@ def plot_runs(
     if not out.parent.is_dir():
         raise ValueError(f"cannot write {out}: directory {out.parent} does not exist")
 
+    fig = draw_figure(runs)
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format=fmt, dpi=dpi)
+    rundir.atomic_write_bytes(out, buf.getvalue())
+    return out
+
+
+def draw_figure(runs: list[Run]) -> Figure:
+    """The whole figure: return vs steps and vs wall time, the key metrics, the summary."""
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(15, 11), layout="constrained")
     grid = fig.add_gridspec(3, 6)
     ax_steps = fig.add_subplot(grid[0, 0:3])
@@ -229,8 +244,19 @@ def plot_runs(
     metric_axes = [
         fig.add_subplot(grid[1 + k // 3, 2 * (k % 3) : 2 * (k % 3) + 2]) for k in range(5)
     ]
-    ax_summary = fig.add_subplot(grid[2, 4:6])
     colours = [f"C{i % 10}" for i in range(len(runs))]
+    _draw_curves(runs, colours, ax_steps, ax_time, metric_axes)
+    _draw_summary(fig.add_subplot(grid[2, 4:6]), runs, colours)
+    num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
+    fig.suptitle(
+        f"jaxcart PPO on CartPole-v1, {num}: mean across seeds, "
+        f"shaded {CONFIDENCE:.0%} Student-t confidence interval",
+        fontsize=13,
+    )
+    return fig
+
+
+def _draw_curves(runs: list[Run], colours: list[str], ax_steps, ax_time, metric_axes) -> None:
 
     for run, colour in zip(runs, colours):
         seeds = f"{run.num_seeds} seeds" if run.num_seeds > 1 else "1 seed, no band"
@@ -269,6 +295,8 @@ def plot_runs(
             _no_data(ax, f"{name} not recorded")
     ax_steps.legend(loc="lower right", fontsize=9)
 
+
+def _draw_summary(ax_summary, runs: list[Run], colours: list[str]) -> None:
     ax_summary.axis("off")
     offset = 0.0  # points below the panel's top, so each run's block sits under the last
     for run, colour in zip(runs, colours):
@@ -286,17 +314,6 @@ def plot_runs(
             color=colour,
         )
         offset += 8.5 * 1.25 * (text.count("\n") + 1) + 4
-    num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
-    fig.suptitle(
-        f"jaxcart PPO on CartPole-v1, {num}: mean across seeds, "
-        f"shaded {CONFIDENCE:.0%} Student-t confidence interval",
-        fontsize=13,
-    )
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format=fmt, dpi=dpi)
-    rundir.atomic_write_bytes(out, buf.getvalue())
-    return out
 
 
 def _disambiguate(runs: list[Run]) -> None:

@@ -42,7 +42,20 @@ def build_parser() -> argparse.ArgumentParser:
         "episodes in Gymnasium's own CartPole-v1 (solved = all 20 score 500).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    run = parser.add_argument_group("run")
+    _add_run_options(parser.add_argument_group("run"))
+    _add_distributed_options(
+        parser.add_argument_group(
+            "distributed (one process per host; process 0 writes the run directory)"
+        )
+    )
+    _add_config_options(
+        parser.add_argument_group("PPO config (defaults shown are the sb3 preset's)")
+    )
+    return parser
+
+
+def _add_run_options(run: argparse._ArgumentGroup) -> None:
+    """What to train, where to write it, how to carry it out."""
     run.add_argument(
         "--preset", default=None, help=f"starting config: {', '.join(PRESETS)} (default sb3)"
     )
@@ -94,9 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="do not use JAX's persistent compilation cache (~/.cache/jaxcart/jax)",
     )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
-    dist = parser.add_argument_group(
-        "distributed (one process per host; process 0 writes the run directory)"
-    )
+
+
+def _add_distributed_options(dist: argparse._ArgumentGroup) -> None:
+    """Joining a jax.distributed run."""
     dist.add_argument(
         "--distributed",
         action="store_true",
@@ -107,8 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
     dist.add_argument("--num-processes", type=int, default=None)
     dist.add_argument("--process-id", type=int, default=None)
 
+
+def _add_config_options(group: argparse._ArgumentGroup) -> None:
+    """One option per PPOConfig field, its docstring as the help."""
     docs = field_docs()
-    group = parser.add_argument_group("PPO config (defaults shown are the sb3 preset's)")
     for f in config_fields():
         flag = "--" + f.name.replace("_", "-")
         help_text = docs.get(f.name, "")
@@ -121,7 +137,6 @@ def build_parser() -> argparse.ArgumentParser:
             group.add_argument(
                 flag, type={"int": int, "float": float, "str": str}[str(f.type)], **kwargs
             )
-    return parser
 
 
 @dataclass(frozen=True)
