@@ -148,6 +148,28 @@ def evaluate_runs(
     return gym_returns, np.asarray(evaluate(params, keys))
 
 
+def evaluate_run_dir(
+    run_dir: str | Path, episodes: int = NUM_EVAL_EPISODES
+) -> tuple[np.ndarray, dict]:
+    """Evaluates every seed of a finished run directory in Gymnasium's CartPole-v1.
+
+    Returns:
+        ``(returns [num_seeds, episodes], info)`` with ``info`` the run's ``config.json``.
+
+    Raises:
+        rundir.RunDirError: not a finished run (or a sweep: evaluate its combinations).
+    """
+    info = rundir.read_run_config(run_dir)
+    params = rundir.load_params(run_dir)
+    try:
+        policy = numpy_policy(params, info["config"].activation, stacked=True)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise rundir.RunDirError(
+            f"{Path(run_dir) / rundir.PARAMS_FILE} does not hold an actor: {exc}"
+        ) from None
+    return evaluate_gymnasium(policy, int(info.get("num_seeds", 1)), episodes), info
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m jaxcart.evaluate`` command line."""
     parser = cli.Parser(
@@ -194,14 +216,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
     num_seeds = int(info.get("num_seeds", 1))
     if args.gif is not None:
         _check_gif_options(args, num_seeds)
-    params = rundir.load_params(args.run_dir)
-    try:
-        policy = numpy_policy(params, info["config"].activation, stacked=True)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise rundir.RunDirError(
-            f"{args.run_dir / rundir.PARAMS_FILE} does not hold an actor: {exc}"
-        ) from None
-    summary = summarize(evaluate_gymnasium(policy, num_seeds, args.episodes))
+    summary = summarize(evaluate_run_dir(args.run_dir, args.episodes)[0])
     rows = [
         [s, f"{summary['mean'][s]:.1f}", f"{summary['min'][s]:.0f}"]
         + ["yes" if summary["solved"][s] else "no"]

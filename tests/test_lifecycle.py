@@ -1,0 +1,95 @@
+"""The run lifecycle as a library, as a notebook uses it: run, stop, resume and evaluate a run
+with a few calls, events through hooks, and nothing printed."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import TINY, assert_same_run_dirs
+
+from jaxcart import lifecycle, rundir
+from jaxcart.config import ConfigError, PPOConfig
+from jaxcart.evaluate import evaluate_run_dir
+
+SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
+OPTIONS = lifecycle.RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
+
+
+def test_run_new_writes_a_run_directory_and_prints_nothing(tmp_path, capsys):
+    events: dict[str, list] = {"start": [], "compiled": [], "chunk": []}
+    hooks = lifecycle.Hooks(
+        on_start=lambda run, n, backend: events["start"].append((run.out, n, backend)),
+        on_compiled=events["compiled"].append,
+        on_chunk=lambda p: events["chunk"].append(p.iteration),
+    )
+    spec = lifecycle.RunSpec(SMALL, preset="custom", num_seeds=2, seed=4)
+    outcome = lifecycle.run_new(spec, tmp_path / "run", OPTIONS, hooks)
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""
+    assert events["start"] == [(tmp_path / "run", 2, "cpu")]
+    assert len(events["compiled"]) == 1 and events["chunk"] == [2, 4, 6, 8]
+    assert not outcome.stopped and outcome.evaluation.gym_returns.shape == (2, 2)
+    assert outcome.evaluation.solved.shape == (2,) and outcome.ranking is None
+    for name in ("config.json", "metrics.csv", "params.npz", "evaluation.json", "checkpoint.npz"):
+        assert (tmp_path / "run" / name).is_file(), name
+    info = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert info["preset"] == "custom" and info["num_seeds"] == 2 and info["seed"] == 4
+    returns, _ = evaluate_run_dir(tmp_path / "run", episodes=2)
+    np.testing.assert_array_equal(returns, outcome.evaluation.gym_returns)
+
+
+def test_stop_then_resume_run_matches_an_uninterrupted_run(tmp_path):
+    spec = lifecycle.RunSpec(SMALL, num_seeds=2, seed=6)
+    lifecycle.run_new(spec, tmp_path / "whole", OPTIONS)
+
+    # A run stopped after its second chunk (as Ctrl-C in a notebook would)...
+    run = lifecycle.Run.create(spec, tmp_path / "part")
+    chunks: list[int] = []
+    hooks = lifecycle.Hooks(on_chunk=lambda p: chunks.append(p.iteration))
+    result = run.train(OPTIONS, hooks, should_stop=lambda: len(chunks) == 2)
+    assert result.stopped and result.state.iteration == 4
+    run.save_checkpoint(result.state)
+    # ...resumes from its checkpoint and ends bit-identical.
+    resumed = lifecycle.resume_run(tmp_path / "part", OPTIONS)
+    assert resumed.run.resumed_from == 4 and not resumed.stopped
+    assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
+    with pytest.raises(rundir.RunDirError, match="nothing to resume"):
+        lifecycle.resume_run(tmp_path / "part", OPTIONS)
+
+
+def test_sweep_through_the_library(tmp_path):
+    spec = lifecycle.RunSpec(SMALL, num_seeds=2, sweep={"learning_rate": [1e-3, 3e-3]})
+    outcome = lifecycle.run_new(spec, tmp_path / "sweep", OPTIONS)
+    assert outcome.run.grid.num_runs == 4 and len(outcome.ranking) == 2
+    assert rundir.is_sweep(tmp_path / "sweep")
+    for c in range(2):
+        combo = json.loads((rundir.combo_dir(tmp_path / "sweep", c) / "config.json").read_text())
+        assert combo["config"]["learning_rate"] == [1e-3, 3e-3][c]
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"num_seeds": 0}, "num_seeds must be a positive integer"),
+        ({"seed": -1}, "seed must be in"),
+        ({"sweep": {"gamma": [0.9, 2.0]}}, "out of range"),
+    ],
+)
+def test_bad_specs_fail_before_anything_is_created(kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        lifecycle.RunSpec(SMALL, **kwargs)
+
+
+def test_bad_options_and_directories(tmp_path):
+    with pytest.raises(ConfigError, match="eval_episodes"):
+        lifecycle.RunOptions(eval_episodes=0)
+    with pytest.raises(ConfigError, match="checkpoint_every"):
+        lifecycle.RunOptions(checkpoint_every=0)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("")
+    with pytest.raises(ConfigError, match="not empty"):
+        lifecycle.Run.create(lifecycle.RunSpec(SMALL), tmp_path / "full")
+    with pytest.raises(rundir.RunDirError, match="not a directory"):
+        lifecycle.resume_run(tmp_path / "missing")
