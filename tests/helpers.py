@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import jax
@@ -60,4 +63,19 @@ def assert_same_run_dirs(a: Path, b: Path) -> None:
         rundir.read_metrics_csv(b / rundir.METRICS_FILE),
         rundir.load_params(a),
         rundir.load_params(b),
+    )
+
+
+TRAIN_ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+"""Environment of a training subprocess: two CPU devices, as in-process tests have."""
+
+
+def start_train(*args: str) -> subprocess.Popen:
+    """``python -m jaxcart.train ARGS`` in a subprocess, stdout and stderr merged as text."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "jaxcart.train", *args],
+        env=TRAIN_ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )

@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import signal
-import subprocess
-import sys
 import time
 
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import assert_same_run_dirs, tiny_args
+from helpers import assert_same_run_dirs, start_train, tiny_args
 
 import jaxcart
 from jaxcart import checkpoint, rundir
@@ -163,24 +160,13 @@ def test_help_lists_every_config_field_with_its_docstring():
 CLI_SMALL = [*tiny_args(12800, num_seeds=2), "--no-compile-cache"]
 
 
-def _cli(*args):
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    return subprocess.Popen(
-        [sys.executable, "-m", "jaxcart.train", *args],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-
-
 def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
     """SIGTERM mid-run: a checkpoint and a resume hint; --resume finishes bit-identically."""
     reference = tmp_path / "ref"
     assert main([*CLI_SMALL, "--out", str(reference)]) == 0
 
     out = tmp_path / "interrupted"
-    proc = _cli(*CLI_SMALL, "--out", str(out), "--checkpoint-every", "0.05")
+    proc = start_train(*CLI_SMALL, "--out", str(out), "--checkpoint-every", "0.05")
     deadline = time.monotonic() + 120
     while not (out / "checkpoint.npz").exists() and time.monotonic() < deadline:
         time.sleep(0.02)
@@ -193,7 +179,7 @@ def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
     stopped_at = checkpoint.read_checkpoint_meta(out / "checkpoint.npz")["iteration"]
     assert 0 <= stopped_at < 100
 
-    proc = _cli("--resume", str(out), "--quiet")
+    proc = start_train("--resume", str(out), "--quiet")
     text, _ = proc.communicate(timeout=300)
     assert proc.returncode == 0, text
     assert f"resuming from iteration {stopped_at}/100" in text

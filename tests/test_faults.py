@@ -19,28 +19,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import FAULT_FIGURES
-from helpers import assert_same_run_dirs, tiny_args
+from helpers import TRAIN_ENV, assert_same_run_dirs, start_train, tiny_args
 
 from jaxcart import checkpoint, rundir
 
 RUN = [*tiny_args(25600, num_seeds=2), "--seed", "11", "--checkpoint-every", "0.2"]
-ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-
-
-def _start(*args: str) -> subprocess.Popen:
-    return subprocess.Popen(
-        [sys.executable, "-m", "jaxcart.train", *args],
-        env=ENV,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
 
 
 def _run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "jaxcart.train", *args],
-        env=ENV,
+        env=TRAIN_ENV,
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -59,7 +48,7 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
     rng = random.Random(2026)
     for trial in range(3):
         out = tmp_path / f"killed-{trial}"
-        proc = _start(*RUN, "--out", str(out))
+        proc = start_train(*RUN, "--out", str(out))
         kills = 0
         while True:
             try:
@@ -71,7 +60,7 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
                 kills += 1
                 FAULT_FIGURES["runs killed (SIGKILL)"] += 1
                 if not (out / "config.json").exists():  # killed before it wrote anything
-                    proc = _start(*RUN, "--out", str(out))
+                    proc = start_train(*RUN, "--out", str(out))
                     continue
                 # whatever moment it died, a checkpoint on disk is complete and readable
                 if (out / checkpoint.CHECKPOINT_FILE).exists():
@@ -79,7 +68,7 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
                     assert 0 <= meta["iteration"] <= 200
                 if (out / "evaluation.json").exists():
                     break  # killed after its last write: the run is complete
-                proc = _start("--resume", str(out), "--quiet")
+                proc = start_train("--resume", str(out), "--quiet")
                 if kills >= 4:
                     proc.wait(timeout=300)
                     break
@@ -92,7 +81,7 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
 @pytest.mark.slow
 def test_sigint_checkpoints_and_prints_resume_command(tmp_path):
     out = tmp_path / "ctrl-c"
-    proc = _start(*RUN, "--out", str(out))
+    proc = start_train(*RUN, "--out", str(out))
     deadline = time.monotonic() + 60
     text = ""
     while time.monotonic() < deadline:
