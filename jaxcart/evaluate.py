@@ -18,6 +18,7 @@ from jaxcart import env as cartpole
 from jaxcart.config import PPOConfig
 from jaxcart.networks import ActorCritic
 from jaxcart.policy import load_policy, numpy_policy
+from jaxcart.signals import Stopped
 from jaxcart.trainer import seed_keys
 
 NUM_EVAL_EPISODES = 20
@@ -48,6 +49,7 @@ def evaluate_gymnasium(
     num_episodes: int = NUM_EVAL_EPISODES,
     seed: int = EVAL_SEED,
     env_id: str = "CartPole-v1",
+    should_stop: Callable[[], bool] | None = None,
 ) -> np.ndarray:
     """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``.
 
@@ -69,6 +71,8 @@ def evaluate_gymnasium(
     returns = np.zeros((num_policies, num_episodes))
     alive = np.ones((num_policies, num_episodes), bool)
     while alive.any():
+        if should_stop is not None and should_stop():
+            raise Stopped("evaluation interrupted")
         actions = np.asarray(policy(obs))
         for p, e in zip(*np.nonzero(alive)):
             o, r, terminated, truncated, _ = envs[p][e].step(int(actions[p, e]))
@@ -123,7 +127,12 @@ def summarize(returns: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def evaluate_runs(
-    params: dict, config: PPOConfig, seed: int, seed_indices: np.ndarray, episodes: int
+    params: dict,
+    config: PPOConfig,
+    seed: int,
+    seed_indices: np.ndarray,
+    episodes: int,
+    should_stop: Callable[[], bool] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
     Gymnasium's CartPole-v1 (the same reset seeds for all) and in jaxcart's env (run r's
@@ -133,9 +142,8 @@ def evaluate_runs(
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
     num_runs = len(seed_indices)
-    gym_returns = evaluate_gymnasium(
-        numpy_policy(params, config.activation, stacked=True), num_runs, episodes
-    )
+    policy = numpy_policy(params, config.activation, stacked=True)
+    gym_returns = evaluate_gymnasium(policy, num_runs, episodes, should_stop=should_stop)
     indices = np.asarray(seed_indices)
     keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(
         seed_keys(seed, int(indices.max()) + 1)[indices]

@@ -14,11 +14,10 @@ A :class:`Hooks` receives the events (start, compiled, each chunk, divergences, 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import signal
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,10 +31,11 @@ from jaxcart.evaluate import SOLVED_DEFINITION, evaluate_runs, is_solved
 from jaxcart.files import RunDirError
 from jaxcart.loggers import Logger, LoggerUnavailable, check_available, make_logger
 from jaxcart.ppo import Hyperparams
+from jaxcart.runlock import RunLock
+from jaxcart.signals import Stopped, StopRequest
 from jaxcart.trainer import Progress, TrainResult, TrainState, devices_for, initial_state, train
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def _check(ok: bool, option: str, problem: str) -> None:
@@ -133,6 +133,7 @@ class Hooks:
     on_chunk: Callable[[Progress], None] | None = None
     on_diverged: Callable[[str, int], None] | None = None  # run name, iteration
     on_signal: Callable[[int], None] | None = None  # first SIGINT/SIGTERM
+    on_init: Callable[[int, int], None] | None = None  # runs initialised so far, of all
 
 
 @dataclass
@@ -154,15 +155,12 @@ class Outcome:
     """What a call of :func:`run_new` / :func:`resume_run` did."""
 
     run: Run
-    result: TrainResult
+    result: TrainResult | None  # None when stopped before training started
     diverged_at: np.ndarray  # [R]: -1, or the iteration where that run went non-finite
-    evaluation: Evaluation | None = None  # None when stopped early
+    evaluation: Evaluation | None = None  # None when stopped before the outputs were written
     ranking: list[dict] | None = None  # sweeps: the combinations, best first
-    signum: int | None = None  # the signal that stopped it
-
-    @property
-    def stopped(self) -> bool:
-        return self.result.stopped
+    signum: int | None = None  # the signal that stopped it (or arrived while writing)
+    stopped: bool = False  # stopped before the run directory was complete (resumable)
 
 
 class Run:
@@ -173,6 +171,11 @@ class Run:
         self.grid = spec.grid
         self.resumed_from: int | None = None  # iteration of the checkpoint resumed from
         self.has_checkpoint = False
+        self.lock = RunLock(out)  # held by the main process from create/open to close
+
+    def close(self) -> None:
+        """Releases the run directory for other processes."""
+        self.lock.release()
 
     config = property(lambda self: self.spec.config)
     preset = property(lambda self: self.spec.preset)
@@ -182,8 +185,10 @@ class Run:
     def create(cls, spec: RunSpec, out: str | Path | None = None, main_process: bool = True) -> Run:
         """A new run directory (refusing a non-empty one) with its ``config.json``."""
         out = Path(out) if out is not None else default_out_dir(spec.preset)
+        lock = RunLock(out)
         if main_process:
             prepare_out_dir(out)
+            lock.acquire()
         info = {
             "format_version": rundir.FORMAT_VERSION,
             "preset": spec.preset,
@@ -195,9 +200,17 @@ class Run:
             "backend": jax.default_backend(),
             "device_count": jax.device_count(),
         }
+        run = cls(out, spec, info, main_process)
+        run.lock = lock
         if main_process:
-            rundir.write_json(out / rundir.CONFIG_FILE, {**info, "config": spec.config.to_dict()})
-        return cls(out, spec, info, main_process)
+            try:
+                rundir.write_json(
+                    out / rundir.CONFIG_FILE, {**info, "config": spec.config.to_dict()}
+                )
+            except BaseException:
+                lock.release()
+                raise
+        return run
 
     @classmethod
     def open(cls, out: str | Path, main_process: bool = True) -> Run:
@@ -208,6 +221,19 @@ class Run:
         """
         out = Path(out)
         info = rundir.read_run_config(out)
+        lock = RunLock(out)
+        if main_process:
+            lock.acquire()  # before reading the checkpoint another process may be writing
+        try:
+            run = cls._from_info(out, info, main_process)
+        except BaseException:
+            lock.release()
+            raise
+        run.lock = lock
+        return run
+
+    @classmethod
+    def _from_info(cls, out: Path, info: dict, main_process: bool) -> Run:
         path = out / checkpoint.CHECKPOINT_FILE
         # No checkpoint yet (stopped while starting up): nothing was trained, start at 0.
         meta = checkpoint.read_checkpoint_meta(path) if path.exists() else None
@@ -232,9 +258,12 @@ class Run:
         """Every run's traced hyperparameters, leaves ``[R]``."""
         return sweeps.sweep_hyperparams(self.spec.combo_configs(), self.grid)
 
-    def initial_state(self, chunk_size: int | None = None) -> TrainState:
+    def initial_state(
+        self, chunk_size: int | None = None, on_progress: Callable[[int, int], None] | None = None
+    ) -> TrainState:
         """The checkpoint's state when there is one; else a fresh state, saved at once as the
-        iteration-0 checkpoint so that a run killed at any moment can be resumed."""
+        iteration-0 checkpoint so that a run killed at any moment can be resumed.
+        ``on_progress(done, total)`` follows the initialisation of large runs."""
         fresh = initial_state(
             self.config,
             self.grid.num_runs,
@@ -242,6 +271,7 @@ class Run:
             self.hyperparams(),
             chunk_size=chunk_size,
             seed_indices=self.grid.seed_indices(),
+            on_progress=on_progress,
         )
         if self.has_checkpoint:
             return checkpoint.load_checkpoint(self.out / checkpoint.CHECKPOINT_FILE, fresh)
@@ -268,8 +298,19 @@ class Run:
         self, options: RunOptions, hooks: Hooks, should_stop: Callable[[], bool] | None = None
     ) -> TrainResult:
         """Trains from :meth:`initial_state` to the end (or until ``should_stop``), logging
-        metrics and checkpointing every ``options.checkpoint_every`` seconds."""
-        state = self.initial_state(options.chunk_size)
+        metrics and checkpointing every ``options.checkpoint_every`` seconds.
+
+        Raises:
+            Stopped: ``should_stop`` turned true during the initialisation.
+        """
+
+        def on_progress(done: int, total: int) -> None:
+            if should_stop is not None and should_stop():
+                raise Stopped("initialisation interrupted")
+            if hooks.on_init:
+                hooks.on_init(done, total)
+
+        state = self.initial_state(options.chunk_size, on_progress)
         loggers = list(options.loggers) if self.main_process else []
         logger = make_logger(
             loggers, self.out, self.grid.run_names(), {**self.info, "config": self.config.to_dict()}
@@ -289,11 +330,17 @@ class Run:
         finally:
             logger.close()
 
-    def evaluate(self, params: dict, episodes: int) -> Evaluation:
-        """Greedy returns of every run in Gymnasium's CartPole-v1 and in jaxcart."""
+    def evaluate(self, params: dict, episodes: int, stop: StopRequest | None = None) -> Evaluation:
+        """Greedy returns of every run in Gymnasium's CartPole-v1 and in jaxcart (raises
+        :class:`~jaxcart.signals.Stopped` when ``stop`` is requested meanwhile)."""
         start = time.perf_counter()
         gym_returns, jax_returns = evaluate_runs(
-            params, self.config, self.spec.seed, self.grid.seed_indices(), episodes
+            params,
+            self.config,
+            self.spec.seed,
+            self.grid.seed_indices(),
+            episodes,
+            should_stop=stop,
         )
         return Evaluation(episodes, gym_returns, jax_returns, time.perf_counter() - start)
 
@@ -468,39 +515,6 @@ def prepare_out_dir(out: Path) -> Path:
     return out
 
 
-class StopRequest:
-    """Set by SIGINT/SIGTERM: training stops before the next chunk and checkpoints. A second
-    Ctrl-C stops at once (the last periodic checkpoint is kept)."""
-
-    def __init__(self, on_signal: Callable[[int], None] | None = None) -> None:
-        self.signum: int | None = None
-        self.on_signal = on_signal
-
-    def __call__(self) -> bool:
-        return self.signum is not None
-
-    def handle(self, signum: int, frame: object) -> None:
-        if self.signum is not None and signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        self.signum = signum
-        if self.on_signal:
-            self.on_signal(signum)
-
-    @contextlib.contextmanager
-    def installed(self) -> Iterator[StopRequest]:
-        previous = {}
-        try:
-            for sig in SIGNALS:
-                previous[sig] = signal.signal(sig, self.handle)
-        except ValueError:  # not the main thread (e.g. called from a worker): no handlers
-            pass
-        try:
-            yield self
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-
-
 def start_distributed(
     coordinator_address: str | None = None,
     num_processes: int | None = None,
@@ -527,6 +541,7 @@ def run_new(
     out: str | Path | None = None,
     options: RunOptions | None = None,
     hooks: Hooks | None = None,
+    stop: StopRequest | None = None,
 ) -> Outcome:
     """Creates a run directory for ``spec`` and carries the run out (see :func:`carry_out`)."""
     options = options or RunOptions()
@@ -534,42 +549,71 @@ def run_new(
         devices.enable_compilation_cache()
     check_devices(spec.grid.num_runs)
     run = Run.create(spec, out, main_process=distributed.is_main_process())
-    return carry_out(run, options, hooks)
+    return carry_out(run, options, hooks, stop)
 
 
 def resume_run(
-    out: str | Path, options: RunOptions | None = None, hooks: Hooks | None = None
+    out: str | Path,
+    options: RunOptions | None = None,
+    hooks: Hooks | None = None,
+    stop: StopRequest | None = None,
 ) -> Outcome:
     """Continues an interrupted run from its last checkpoint, bit-identically."""
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
     run = Run.open(out, main_process=distributed.is_main_process())
-    check_devices(run.grid.num_runs)
-    return carry_out(run, options, hooks)
+    try:
+        check_devices(run.grid.num_runs)
+    except BaseException:
+        run.close()
+        raise
+    return carry_out(run, options, hooks, stop)
 
 
-def carry_out(run: Run, options: RunOptions, hooks: Hooks | None = None) -> Outcome:
-    """Trains (Ctrl-C and SIGTERM checkpoint and stop), then evaluates every run and writes
-    the run directory. A stopped run keeps its checkpoint and partial metrics.csv."""
+def carry_out(
+    run: Run, options: RunOptions, hooks: Hooks | None = None, stop: StopRequest | None = None
+) -> Outcome:
+    """Trains, then evaluates every run and writes the run directory; holds the run's lock
+    throughout and releases it at the end.
+
+    SIGINT and SIGTERM (handled here unless the caller passes its own ``stop``) stop at the
+    next safe point: the state is checkpointed and the outcome is ``stopped``, resumable.
+    A stopped run keeps its checkpoint and a partial metrics.csv.
+    """
     hooks = hooks or Hooks()
+    stop = stop or StopRequest(hooks.on_signal)
+    try:
+        with stop.installed():
+            return _carry_out(run, options, hooks, stop)
+    finally:
+        run.close()
+
+
+def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -> Outcome:
     if hooks.on_start:
         hooks.on_start(run, jax.device_count(), jax.default_backend())
-    stop = StopRequest(hooks.on_signal)
-    with stop.installed():
+    try:
         result = run.train(options, hooks, should_stop=stop)
+    except Stopped:  # during initialisation: the checkpoint on disk (if any) is untouched
+        runs = np.full(run.grid.num_runs, -1)
+        return Outcome(run, None, runs, signum=stop.signum or signal.SIGTERM, stopped=True)
     run.save_checkpoint(result.state)
     diverged_at = np.asarray(distributed.gather(result.state.runners.diverged_at))
-    outcome = Outcome(run, result, diverged_at, signum=stop.signum)
-    if result.stopped:
+    outcome = Outcome(run, result, diverged_at, signum=stop.signum, stopped=result.stopped)
+    params = None if result.stopped else distributed.gather(result.params)
+    if run.main_process and not result.stopped:
+        try:
+            stop.check()
+            outcome.evaluation = run.evaluate(params, options.eval_episodes, stop)
+        except Stopped:
+            outcome.stopped = True
+    if outcome.stopped:  # what there is so far, and a resumable state
         if run.main_process:
             metrics_path = run.out / rundir.METRICS_FILE
             rundir.write_metrics_csv(metrics_path, result.metrics, run.config.batch_size)
         outcome.signum = stop.signum or signal.SIGTERM  # another process may have been signalled
         return outcome
-    params = distributed.gather(result.params)
-    if not run.main_process:
-        return outcome
-    outcome.evaluation = run.evaluate(params, options.eval_episodes)
-    outcome.ranking = run.write_outputs(result, params, outcome.evaluation, diverged_at)
-    return outcome
+    if run.main_process:
+        outcome.ranking = run.write_outputs(result, params, outcome.evaluation, diverged_at)
+    return outcome  # signum set when a signal came while writing: the run finished all the same

@@ -111,10 +111,25 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
     )
 
 
-def stopped_text(run: Run, iteration: int, resume_hint: str) -> str:
+def stopped_text(run: Run, iteration: int | None, resume_hint: str) -> str:
+    """What a stopped run prints: where it stopped and how to resume."""
+    where = (
+        "before training started"
+        if iteration is None
+        else f"at iteration {iteration}/{run.config.num_iterations}"
+    )
+    return f"stopped {where}; checkpoint saved in {run.out}\nresume with: {resume_hint}"
+
+
+def interrupted_text(run: Run | None, signum: int | None) -> str:
+    """The one line after a second signal stopped the process at once."""
+    from jaxcart.lifecycle import RESUME_HINT
+
+    if run is None or not (run.out / "config.json").exists():
+        return "stopped at once; no run directory was written"
     return (
-        f"stopped at iteration {iteration}/{run.config.num_iterations}; checkpoint saved in "
-        f"{run.out}\nresume with: {resume_hint}"
+        f"stopped at once; the last checkpoint in {run.out} is intact: resume with: "
+        + RESUME_HINT.format(out=run.out)
     )
 
 
@@ -125,6 +140,7 @@ class ConsoleReport:
     def __init__(self, out: IO[str], progress_bar: bool = True) -> None:
         self.out, self.progress_bar = out, progress_bar
         self.bar = None
+        self.init_bar = None
         self.run: Run | None = None
 
     def print(self, text: str) -> None:
@@ -170,12 +186,41 @@ class ConsoleReport:
     def on_signal(self, signum: int) -> None:
         name = signal.Signals(signum).name
         print(
-            f"\n{name} received: finishing the current chunk and saving a checkpoint...",
+            f"\n{name} received: stopping at the next safe point and saving a checkpoint "
+            "(again to stop at once)...",
             file=sys.stderr,
             flush=True,
         )
 
+    def on_init(self, done: int, total: int) -> None:
+        """A progress bar for initialising large runs (on the host, seconds per 10^4 runs)."""
+        if total < 4096 or not self.progress_bar:
+            return
+        if self.init_bar is None:
+            from tqdm import tqdm
+
+            self.init_bar = tqdm(total=total, unit="run", desc="initialising", file=sys.stderr)
+        self.init_bar.update(done - self.init_bar.n)
+        if done + 1024 >= total:
+            self.init_bar.update(total - self.init_bar.n)
+            self.init_bar.close()
+            self.init_bar = None
+
+    def hooks(self):  # -> lifecycle.Hooks
+        """These methods as the lifecycle's hooks."""
+        from jaxcart.lifecycle import Hooks
+
+        return Hooks(
+            on_start=self.on_start,
+            on_compiled=self.on_compiled,
+            on_chunk=self.on_chunk,
+            on_diverged=self.on_diverged,
+            on_signal=self.on_signal,
+            on_init=self.on_init,
+        )
+
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-            self.bar = None
+        for bar in (self.bar, self.init_bar):
+            if bar is not None:
+                bar.close()
+        self.bar = self.init_bar = None

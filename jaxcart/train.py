@@ -17,12 +17,14 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
-from jaxcart import cli, devices, distributed, lifecycle, report
+from jaxcart import cli, devices
 from jaxcart.config import PRESETS, config_fields, field_docs, preset
-from jaxcart.files import RunDirError
-from jaxcart.sweep import parse_sweep
+from jaxcart.signals import StopRequest
+
+if TYPE_CHECKING:  # the modules that import JAX load in main(), once signals are handled
+    from jaxcart import lifecycle, report
 
 
 def _tuple_of_ints(text: str) -> tuple[int, ...]:
@@ -185,6 +187,9 @@ class TrainOptions:
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
+        from jaxcart import lifecycle
+        from jaxcart.sweep import parse_sweep
+
         sweep = parse_sweep(list(self.sweep))
         for name in sweep:
             if name in self.overrides:
@@ -202,6 +207,8 @@ class TrainOptions:
 
     def run_options(self) -> lifecycle.RunOptions:
         """How to carry the run out."""
+        from jaxcart import lifecycle
+
         return lifecycle.RunOptions(
             checkpoint_every=self.checkpoint_every,
             eval_episodes=self.eval_episodes,
@@ -239,8 +246,12 @@ class TrainOptions:
             raise cli.UsageError("--distributed needs --out DIR (the same path on every process)")
 
 
-def _train(opts: TrainOptions) -> int:
+def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport) -> int:
     """Plans, trains, evaluates and reports; returns the exit code."""
+    from jaxcart import distributed, lifecycle
+    from jaxcart.files import RunDirError
+    from jaxcart.signals import Stopped
+
     wall_start = time.perf_counter()
     opts.check_distributed()
     if opts.resume is not None:
@@ -249,36 +260,39 @@ def _train(opts: TrainOptions) -> int:
     run_options = opts.run_options()
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
-    main_process = distributed.is_main_process()
-    console = report.ConsoleReport(
-        sys.stdout if main_process else _devnull(), progress_bar=not opts.quiet and main_process
-    )
-    hooks = lifecycle.Hooks(
-        on_start=console.on_start,
-        on_compiled=console.on_compiled,
-        on_chunk=console.on_chunk,
-        on_diverged=console.on_diverged,
-        on_signal=console.on_signal,
-    )
+    if not distributed.is_main_process():
+        console.out, console.progress_bar = _devnull(), False
+    hooks = console.hooks()
     try:
         if spec is None:
             try:
-                outcome = lifecycle.resume_run(opts.resume, run_options, hooks)
+                outcome = lifecycle.resume_run(opts.resume, run_options, hooks, stop)
             except RunDirError as exc:
                 raise cli.UsageError(f"cannot resume: {exc}") from None
         else:
-            outcome = lifecycle.run_new(spec, opts.out, run_options, hooks)
+            outcome = lifecycle.run_new(spec, opts.out, run_options, hooks, stop)
+    except Stopped:
+        console.print("stopped before the run started; nothing was written")
+        return 128 + (stop.signum or 15)
     finally:
         console.close()
+    return _report(outcome, console, time.perf_counter() - wall_start)
+
+
+def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: float) -> int:
+    from jaxcart import lifecycle, report
+
     if outcome.stopped:
         hint = lifecycle.RESUME_HINT.format(out=outcome.run.out)
-        console.print(report.stopped_text(outcome.run, outcome.result.state.iteration, hint))
+        iteration = outcome.result.state.iteration if outcome.result else None
+        console.print(report.stopped_text(outcome.run, iteration, hint))
         return 128 + outcome.signum
-    if outcome.evaluation is not None:
-        console.print(report.results_text(outcome))
-        console.print(report.summary_line(outcome, time.perf_counter() - wall_start))
-        console.print(f"run directory: {outcome.run.out}")
-    return 0
+    if outcome.evaluation is None:  # not process 0: it evaluates and reports
+        return 0
+    console.print(report.results_text(outcome))
+    console.print(report.summary_line(outcome, wall))
+    console.print(f"run directory: {outcome.run.out}")
+    return 128 + outcome.signum if outcome.signum else 0
 
 
 def _devnull() -> IO[str]:
@@ -286,14 +300,27 @@ def _devnull() -> IO[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input, 128+signal when interrupted)."""
+    """Entry point; returns the exit code (0 ok, 2 bad input, 1 a failed write, 128+signal
+    when interrupted). Signals are handled from the start: a first SIGINT/SIGTERM stops at
+    the next safe point with a checkpoint, a second one at once; never with a traceback."""
+    from jaxcart import report
+
+    console = report.ConsoleReport(sys.stdout)
+    stop = StopRequest(on_signal=console.on_signal)
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
-        args = build_parser().parse_args(cli.join_negative_values(argv_))
-        return _train(TrainOptions.from_args(args))
+        opts = TrainOptions.from_args(build_parser().parse_args(cli.join_negative_values(argv_)))
+        console.progress_bar = not opts.quiet
+        return _train(opts, stop, console)
 
-    return cli.run_command(body)
+    try:
+        with stop.installed():
+            return cli.run_command(body)
+    except KeyboardInterrupt:  # the second signal: stop at once
+        console.close()
+        print(report.interrupted_text(console.run, stop.signum), file=sys.stderr, flush=True)
+        return 128 + (stop.signum or 2)
 
 
 if __name__ == "__main__":

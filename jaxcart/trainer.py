@@ -29,6 +29,7 @@ from jaxcart.ppo import (
     make_network,
     train_chunk,
 )
+from jaxcart.signals import wait_interruptibly
 
 
 def seed_keys(seed: int, num_seeds: int) -> jax.Array:
@@ -67,6 +68,7 @@ def init_runners(
     seed: int,
     seed_indices: np.ndarray,
     env_params: cartpole.EnvParams | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
 ) -> RunnerState:
     """Initial state of every run, NumPy leaves ``[R, ...]`` (the caller places them).
 
@@ -74,7 +76,8 @@ def init_runners(
     whatever runs beside it, and a sweep repeats the seed indices for every combination so
     combinations share random numbers. Drawn on the host (:meth:`ActorCritic.init
     <jaxcart.networks.ActorCritic.init>` and resets uniform in the reset bounds), so there
-    is no initialisation program to compile.
+    is no initialisation program to compile. ``on_progress(done, total)`` is called every
+    1024 runs (it may raise to abandon the initialisation).
     """
     env_params = env_params or cartpole.EnvParams()
     indices = np.asarray(seed_indices)
@@ -82,7 +85,9 @@ def init_runners(
     dtype = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0].dtype
     network = make_network(config)
     params, obs, run_keys = [], [], []
-    for key in keys:
+    for i, key in enumerate(keys):
+        if on_progress is not None and i % 1024 == 0:
+            on_progress(i, len(keys))
         rng = np.random.default_rng([int(k) for k in key])
         params.append(network.init(rng))
         shape = (config.num_envs, network.obs_dim)
@@ -182,15 +187,17 @@ def initial_state(
     env_params: cartpole.EnvParams | None = None,
     chunk_size: int | None = None,
     seed_indices: np.ndarray | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
 ) -> TrainState:
     """The state before the first iteration (also the template a checkpoint is loaded into).
 
-    ``seed_indices`` defaults to ``arange(num_runs)`` (every run its own seed index).
+    ``seed_indices`` defaults to ``arange(num_runs)`` (every run its own seed index);
+    ``on_progress`` as in :func:`init_runners`.
     """
     indices = np.arange(num_runs) if seed_indices is None else np.asarray(seed_indices)
     hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_runs)
     return TrainState(
-        runners=init_runners(config, seed, indices, env_params),
+        runners=init_runners(config, seed, indices, env_params, on_progress),
         hyperparams=hps,
         iteration=0,
         elapsed=0.0,
@@ -240,7 +247,11 @@ def train(
     hps = distributed.to_global(state.hyperparams, sharding)
 
     start = time.perf_counter()
-    compiled, fresh = compiled_chunk(config, env_params, state.chunk_size, runners, hps)
+    compiled, fresh = None, False
+    if state.iteration < config.num_iterations:  # a finished state needs no program
+        compiled, fresh = wait_interruptibly(
+            lambda: compiled_chunk(config, env_params, state.chunk_size, runners, hps)
+        )
     compile_seconds = time.perf_counter() - start
     if on_compiled:
         on_compiled(compile_seconds)
@@ -253,7 +264,10 @@ def train(
             stopped = True
             break
         runners, metrics = compiled(runners, hps, jnp.int32(loop.done))
-        progress = loop.record(runners, distributed.gather(metrics))
+        # waits for the chunk on a worker thread, so that signals are handled meanwhile
+        progress = loop.record(
+            runners, wait_interruptibly(functools.partial(distributed.gather, metrics))
+        )
         if on_chunk:
             on_chunk(progress)
     jax.block_until_ready(runners)

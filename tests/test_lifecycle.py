@@ -51,6 +51,9 @@ def test_stop_then_resume_run_matches_an_uninterrupted_run(tmp_path):
     result = run.train(OPTIONS, hooks, should_stop=lambda: len(chunks) == 2)
     assert result.stopped and result.state.iteration == 4
     run.save_checkpoint(result.state)
+    with pytest.raises(rundir.RunDirError, match="in use by another jaxcart process"):
+        lifecycle.resume_run(tmp_path / "part", OPTIONS)  # this process still holds it
+    run.close()
     # ...resumes from its checkpoint and ends bit-identical.
     resumed = lifecycle.resume_run(tmp_path / "part", OPTIONS)
     assert resumed.run.resumed_from == 4 and not resumed.stopped

@@ -1,0 +1,97 @@
+"""Stopping a run cleanly on SIGINT or SIGTERM, at any moment.
+
+The first signal sets a flag that the run checks at its safe points (between initialisation
+batches, after compiling, between chunks, before evaluation); a second SIGINT or SIGTERM
+raises :class:`KeyboardInterrupt` at once. Long calls into XLA (compiling, waiting for a
+chunk) run on a worker thread while the main thread waits in short steps, so a signal is
+handled (and its message printed) when it arrives, not when the call returns.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from typing import TypeVar
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+T = TypeVar("T")
+
+
+class Stopped(Exception):
+    """Raised at a safe point after a stop was requested."""
+
+
+class StopRequest:
+    """Set by the first SIGINT/SIGTERM (``on_signal`` is told which); a second one raises
+    :class:`KeyboardInterrupt`. Calling it says whether a stop was requested."""
+
+    def __init__(self, on_signal: Callable[[int], None] | None = None) -> None:
+        self.signum: int | None = None
+        self.on_signal = on_signal
+        self._installed = 0
+
+    def __call__(self) -> bool:
+        return self.signum is not None
+
+    def check(self) -> None:
+        """Raises :class:`Stopped` when a stop was requested."""
+        if self.signum is not None:
+            raise Stopped(signal.Signals(self.signum).name)
+
+    def request(self, signum: int) -> None:
+        """What the handler does; callable directly (tests, notebooks)."""
+        if self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
+        if self.on_signal:
+            self.on_signal(signum)
+
+    def _handle(self, signum: int, frame: object) -> None:
+        self.request(signum)
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[StopRequest]:
+        """Handles SIGINT and SIGTERM inside the block (nested use is a no-op; outside the
+        main thread signals cannot be handled and the block runs without)."""
+        previous = {}
+        if self._installed == 0:
+            try:
+                for sig in SIGNALS:
+                    previous[sig] = signal.signal(sig, self._handle)
+            except ValueError:  # not the main thread
+                pass
+        self._installed += 1
+        try:
+            yield self
+        finally:
+            self._installed -= 1
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
+def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
+    """``fn()`` on a worker thread while this thread waits in short steps, so that signal
+    handlers run promptly (Python runs them only between bytecodes of the main thread).
+
+    Exceptions of ``fn`` are re-raised here; a :class:`KeyboardInterrupt` raised by a handler
+    while waiting propagates at once (the worker is a daemon and is abandoned).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return fn()
+    box: dict[str, object] = {}
+
+    def work() -> None:
+        try:
+            box["value"] = fn()
+        except BaseException as exc:  # handed to the waiting thread
+            box["error"] = exc
+
+    worker = threading.Thread(target=work, name="jaxcart-wait", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(poll_seconds)
+    if "error" in box:
+        raise box["error"]  # type: ignore[misc]
+    return box["value"]  # type: ignore[return-value]
