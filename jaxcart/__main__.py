@@ -1,9 +1,5 @@
 """``python -m jaxcart`` is ``python -m jaxcart.train``."""
 
-from jaxcart import devices
+from jaxcart.train import cli_main
 
-devices.use_all_host_cores()
-
-from jaxcart.train import main  # noqa: E402
-
-raise SystemExit(main())
+cli_main()

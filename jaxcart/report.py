@@ -121,6 +121,20 @@ def stopped_text(run: Run, iteration: int | None, resume_hint: str) -> str:
     return f"stopped {where}; checkpoint saved in {run.out}\nresume with: {resume_hint}"
 
 
+def write_failed_text(run: Run | None, exc: OSError) -> str:
+    """The one line after a write failed (ENOSPC, EROFS, EACCES, ...)."""
+    from jaxcart.checkpoint import CHECKPOINT_FILE
+    from jaxcart.lifecycle import RESUME_HINT
+
+    what = f"error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}"
+    if run is None or not (run.out / CHECKPOINT_FILE).exists():
+        return what
+    return (
+        f"{what}; the last checkpoint is intact: once the disk has room, resume with: "
+        + RESUME_HINT.format(out=run.out)
+    )
+
+
 def interrupted_text(run: Run | None, signum: int | None) -> str:
     """The one line after a second signal stopped the process at once."""
     from jaxcart.lifecycle import RESUME_HINT

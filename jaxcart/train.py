@@ -248,7 +248,7 @@ class TrainOptions:
 
 def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport) -> int:
     """Plans, trains, evaluates and reports; returns the exit code."""
-    from jaxcart import distributed, lifecycle
+    from jaxcart import distributed, lifecycle, report
     from jaxcart.files import RunDirError
     from jaxcart.signals import Stopped
 
@@ -274,6 +274,10 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
     except Stopped:
         console.print("stopped before the run started; nothing was written")
         return 128 + (stop.signum or 15)
+    except OSError as exc:  # a full or read-only disk: earlier checkpoints stay intact
+        console.close()
+        print(report.write_failed_text(console.run, exc), file=sys.stderr, flush=True)
+        return 1
     finally:
         console.close()
     return _report(outcome, console, time.perf_counter() - wall_start)
@@ -320,9 +324,27 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # the second signal: stop at once
         console.close()
         print(report.interrupted_text(console.run, stop.signum), file=sys.stderr, flush=True)
+        global _stopped_at_once
+        _stopped_at_once = True
         return 128 + (stop.signum or 2)
 
 
-if __name__ == "__main__":
+_stopped_at_once = False
+"""Set when a second signal stopped the run: XLA may still be compiling on a worker thread,
+which must not be torn down with the interpreter (see the ``__main__`` block)."""
+
+
+def cli_main() -> None:
+    """The process entry point (``python -m jaxcart.train``, ``jaxcart-train``): one CPU
+    device per core, :func:`main`, and the exit code."""
     devices.use_all_host_cores()
-    raise SystemExit(main())
+    code = main()
+    if _stopped_at_once:  # leave at once: no interpreter teardown under a running XLA call
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    raise SystemExit(code)
+
+
+if __name__ == "__main__":
+    cli_main()

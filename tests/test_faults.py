@@ -7,9 +7,11 @@ in pytest's terminal summary.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -251,3 +253,205 @@ def test_other_bad_paths(finished_run, tmp_path):
         with pytest.raises(rundir.RunDirError):
             jaxcart.load_policy(path)
         FAULT_FIGURES["bad inputs rejected cleanly"] += 1
+
+
+# --- one process per run directory ------------------------------------------------------
+
+
+def _wait_for(predicate, timeout: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError("timed out waiting")
+        time.sleep(0.02)
+
+
+@pytest.mark.slow
+def test_concurrent_use_of_a_run_is_refused_and_a_killed_holder_never_blocks(tmp_path):
+    out = tmp_path / "busy"
+    holder = start_train(*RUN, "--out", str(out))
+    _wait_for(lambda: (out / checkpoint.CHECKPOINT_FILE).exists())
+    second = _run("--resume", str(out), "--quiet", timeout=120)
+    FAULT_FIGURES["concurrent starts tried"] += 1
+    assert second.returncode == 2, second.stdout + second.stderr
+    assert f"in use by another jaxcart process (PID {holder.pid})" in second.stderr
+    assert len(second.stderr.strip().splitlines()) == 1 and "Traceback" not in second.stderr
+    FAULT_FIGURES["concurrent starts refused"] += 1
+    holder.kill()  # SIGKILL: the lock file stays, the lock does not
+    holder.wait()
+    assert (out / ".lock").exists()
+    resumed = _run("--resume", str(out), "--quiet")
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+
+
+# --- signals at any moment ----------------------------------------------------------------
+
+
+def _signal_when(proc, ready, sig: int, then: float = 0.0) -> str:
+    _wait_for(ready)
+    time.sleep(then)
+    proc.send_signal(sig)
+    text, _ = proc.communicate(timeout=300)
+    return text
+
+
+def _clean_stop(text: str, code: int, proc, sig: int) -> None:
+    assert proc.returncode == code, text
+    assert "Traceback" not in text and f"{signal.Signals(sig).name} received" in text
+    FAULT_FIGURES[f"runs stopped by {signal.Signals(sig).name} cleanly"] += 1
+
+
+@pytest.mark.slow
+def test_sigint_during_compilation_is_acknowledged_at_once(tmp_path):
+    out = tmp_path / "compiling"
+    proc = start_train(*RUN, "--out", str(out), "--no-compile-cache")
+    # the iteration-0 checkpoint is written just before compiling starts
+    text = _signal_when(proc, lambda: (out / checkpoint.CHECKPOINT_FILE).exists(), signal.SIGINT)
+    _clean_stop(text, 128 + signal.SIGINT, proc, signal.SIGINT)
+    # the message came before compilation ended, not after it
+    assert text.index("SIGINT received") < text.index("compiled the fused training step")
+    assert "stopped at iteration 0/200" in text and f"--resume {out}" in text
+    assert checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)["iteration"] == 0
+
+
+@pytest.mark.slow
+def test_sigterm_during_initialisation_of_a_large_run(tmp_path):
+    out = tmp_path / "init"
+    big = ["--num-seeds", "30000", "--num-envs", "1", "--num-steps", "64", "--minibatch-size"]
+    proc = start_train(*big, "64", "--total-timesteps", "64", "--out", str(out))
+    text = _signal_when(proc, lambda: (out / "config.json").exists(), signal.SIGTERM, 0.3)
+    _clean_stop(text, 128 + signal.SIGTERM, proc, signal.SIGTERM)
+    assert "stopped before training started" in text and f"--resume {out}" in text
+
+
+@pytest.mark.slow
+def test_sigint_during_evaluation_then_resume_evaluates(tmp_path):
+    out = tmp_path / "evaluating"
+    args = [*tiny_args(512, num_seeds=2, eval_episodes=200), "--out", str(out)]
+    proc = start_train(*args)
+    text = _signal_when(
+        proc, lambda: (out / "metrics.csv").exists() or _trained(out), signal.SIGINT
+    )
+    if proc.returncode == 0:
+        pytest.skip("the evaluation finished before SIGINT arrived")
+    _clean_stop(text, 128 + signal.SIGINT, proc, signal.SIGINT)
+    assert not (out / "evaluation.json").exists()
+    resumed = _run("--resume", str(out), "--quiet")
+    assert resumed.returncode == 0 and (out / "evaluation.json").exists(), resumed.stderr
+
+
+def _trained(out: Path) -> bool:
+    path = out / checkpoint.CHECKPOINT_FILE
+    try:
+        return path.exists() and checkpoint.read_checkpoint_meta(path)["iteration"] == 4
+    except rundir.RunDirError:
+        return False
+
+
+@pytest.mark.slow
+def test_second_sigint_stops_at_once_and_leaves_the_checkpoint_valid(tmp_path):
+    out = tmp_path / "twice"
+    proc = start_train(*RUN, "--out", str(out), "--no-compile-cache")
+    _wait_for(lambda: (out / checkpoint.CHECKPOINT_FILE).exists())
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    text, _ = proc.communicate(timeout=60)
+    _clean_stop(text, 128 + signal.SIGINT, proc, signal.SIGINT)
+    assert "stopped at once; the last checkpoint" in text and f"--resume {out}" in text
+    checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)  # readable
+    resumed = _run("--resume", str(out), "--quiet")
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+
+
+# --- full and read-only disks -------------------------------------------------------------
+
+SMALL_RUN = [*tiny_args(6400, num_seeds=2), "--seed", "5", "--no-compile-cache"]
+
+
+def test_a_failing_checkpoint_write_keeps_the_last_one_and_resume_finishes(
+    tmp_path, monkeypatch, capsys
+):
+    """ENOSPC injected into the third checkpoint write: one line naming the file, exit 1,
+    the previous checkpoint intact and no temporary left; --resume then finishes the run
+    bit-identically once writes work again."""
+    from jaxcart import files
+    from jaxcart.train import main
+
+    reference = tmp_path / "reference"
+    assert main([*SMALL_RUN, "--out", str(reference)]) == 0
+    out = tmp_path / "full-disk"
+    real_fdopen, writes = files.os.fdopen, []
+
+    def fdopen(fd, mode="r", *args, **kwargs):
+        f = real_fdopen(fd, mode, *args, **kwargs)
+        name = os.readlink(f"/proc/self/fd/{fd}")
+        if ".checkpoint.npz." in name:
+            writes.append(name)
+            if len(writes) == 3:
+                f.write = lambda data: (_ for _ in ()).throw(
+                    OSError(errno.ENOSPC, "No space left on device")
+                )
+        return f
+
+    monkeypatch.setattr(files.os, "fdopen", fdopen)
+    capsys.readouterr()
+    code = main([*SMALL_RUN, "--out", str(out), "--checkpoint-every", "0.001"])
+    err = capsys.readouterr().err
+    FAULT_FIGURES["failing writes injected"] += 1
+    assert code == 1, err
+    assert f"cannot write {out / 'checkpoint.npz'}: No space left on device" in err
+    assert "resume with" in err and len(err.strip().splitlines()) == 1
+    meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
+    assert meta["iteration"] > 0
+    assert not list(out.glob(".*.tmp"))
+    monkeypatch.undo()
+    assert main(["--resume", str(out), "--quiet"]) == 0
+    assert_same_run_dirs(reference, out)
+    FAULT_FIGURES["failing writes survived"] += 1
+
+
+@pytest.mark.slow
+def test_a_full_small_filesystem(tmp_path):
+    """A real 400 KiB tmpfs: the second checkpoint does not fit beside the first."""
+    mount = tmp_path / "small"
+    mount.mkdir()
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=400k", "tmpfs", str(mount)])
+    if made.returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        out = mount / "run"
+        done = _run(*SMALL_RUN, "--out", str(out), "--checkpoint-every", "0.001")
+        FAULT_FIGURES["failing writes injected"] += 1
+        assert done.returncode == 1, done.stdout + done.stderr
+        assert "No space left on device" in done.stderr and "Traceback" not in done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1
+        checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
+        moved = tmp_path / "moved"  # "space freed": the run continues elsewhere
+        shutil.copytree(out, moved)
+        resumed = _run("--resume", str(moved), "--quiet")
+        assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+        FAULT_FIGURES["failing writes survived"] += 1
+    finally:
+        subprocess.run(["umount", str(mount)])
+
+
+@pytest.mark.slow
+def test_a_read_only_filesystem(tmp_path, finished_run):
+    """--resume of an unfinished run on a read-only mount: one line, a non-zero exit."""
+    mount = tmp_path / "ro"
+    mount.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mount)]).returncode:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+    try:
+        shutil.copytree(finished_run, mount / "run")
+        (mount / "run" / "evaluation.json").unlink()
+        subprocess.run(["mount", "-o", "remount,ro", str(mount)], check=True)
+        done = _run("--resume", str(mount / "run"), "--quiet")
+        FAULT_FIGURES["failing writes injected"] += 1
+        assert done.returncode == 1, done.stdout + done.stderr
+        assert "Read-only file system" in done.stderr and "Traceback" not in done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1
+        FAULT_FIGURES["failing writes survived"] += 1
+    finally:
+        subprocess.run(["umount", str(mount)])
