@@ -59,27 +59,38 @@ def read_checkpoint_meta(path: str | os.PathLike) -> dict:
     return meta
 
 
-def load_checkpoint(path: str | os.PathLike, template: TrainState) -> TrainState:
+def load_checkpoint(
+    path: str | os.PathLike, template: TrainState, num_runs: int | None = None
+) -> TrainState:
     """Restores a checkpoint into the structure of ``template`` (NumPy leaves).
 
+    ``template`` gives the names, dtypes and per-run shapes; its leading run axis may be
+    shorter than the checkpoint's ``num_runs`` (a one-run template is enough). Every header
+    is checked before anything is read, and the state must be finite.
+
     Raises:
-        RunDirError: missing, corrupted, or saved from a different structure/shape.
+        RunDirError: missing, corrupted, crafted, or saved from a different structure/shape.
     """
     meta = read_checkpoint_meta(path)
-    arrays, _ = files.load_tree(path)
-    expected = _state_arrays(template)
-    if set(expected) != {k for k in arrays if k.startswith(STATE)}:
+    expected = _expected_headers(template, num_runs, int(meta["iteration"]))
+    limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
+    found = files.read_headers(path, max_bytes=limit + (1 << 20))
+    found.pop(files.META_KEY, None)
+    if set(found) != set(expected):
         raise RunDirError(
             f"checkpoint {path} does not match this version's training state (different structure)"
         )
-    for name, leaf in expected.items():
-        if (arrays[name].shape, arrays[name].dtype) != (leaf.shape, leaf.dtype):
+    for name, (shape, dtype) in expected.items():
+        if found[name] != (shape, dtype):
             raise RunDirError(
-                f"checkpoint {path}: {name} has shape/dtype {arrays[name].shape}/"
-                f"{arrays[name].dtype}, expected {leaf.shape}/{leaf.dtype}"
+                f"checkpoint {path}: {name} has shape/dtype {found[name][0]}/{found[name][1]}, "
+                f"expected {shape}/{dtype}"
             )
+    arrays, _ = files.load_tree(path, max_bytes=limit + (1 << 20))
+    state_names = [n for n in expected if n.startswith(STATE)]
+    files.check_finite({n: arrays[n] for n in state_names}, path)
     tree = {"runners": template.runners, "hyperparams": template.hyperparams}
-    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in expected])
+    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
     metrics = {n[len(METRICS) :]: a for n, a in arrays.items() if n.startswith(METRICS)}
     return TrainState(
         runners=restored["runners"],
@@ -89,3 +100,14 @@ def load_checkpoint(path: str | os.PathLike, template: TrainState) -> TrainState
         metrics=metrics,
         chunk_size=int(meta["chunk_size"]),
     )
+
+
+def _expected_headers(template: TrainState, num_runs: int | None, iterations: int) -> dict:
+    """Names, shapes and dtypes a checkpoint of ``num_runs`` runs at ``iterations`` holds."""
+    runs = num_runs if num_runs is not None else len(template.runners.diverged_at)
+    expected = {
+        name: ((runs, *a.shape[1:]), a.dtype) for name, a in _state_arrays(template).items()
+    }
+    for name, a in template.metrics.items():
+        expected[METRICS + name] = ((iterations, runs), np.asarray(a).dtype)
+    return expected

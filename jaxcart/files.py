@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
@@ -81,12 +82,14 @@ def path_name(path: tuple) -> str:
     return "/".join(parts)
 
 
-def flatten(tree: Any) -> dict[str, np.ndarray]:
-    """``{"a": {"b": x}} -> {"a/b": x}`` for any pytree (leaves as NumPy arrays)."""
+def flatten(tree: Any, is_leaf: Any = None) -> dict[str, Any]:
+    """``{"a": {"b": x}} -> {"a/b": x}`` for any pytree (array leaves as NumPy arrays)."""
     import jax
 
-    leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(tree))[0]
-    return {path_name(path): np.asarray(leaf) for path, leaf in leaves}
+    leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(tree), is_leaf=is_leaf)[0]
+    return {
+        path_name(path): leaf if is_leaf is not None else np.asarray(leaf) for path, leaf in leaves
+    }
 
 
 def unflatten(flat: dict[str, np.ndarray]) -> dict:
@@ -120,23 +123,107 @@ def _reading(path: str | os.PathLike) -> Iterator[None]:
         yield
     except FileNotFoundError:
         raise RunDirError(f"{path} does not exist") from None
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+    except RunDirError:
+        raise
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
         raise RunDirError(f"{path} is corrupted: {exc}") from None
 
 
-def load_tree(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict | None]:
-    """Every named array of a tree file and its metadata (None when it has none).
+Header = tuple[tuple[int, ...], np.dtype]
+"""An array's shape and dtype, read from its ``.npy`` header."""
+MAX_META_BYTES = 1 << 20
+
+
+def inside(directory: str | os.PathLike, name: str) -> Path:
+    """``directory / name`` after checking that it is a regular file there, not a link out of
+    the directory (a run directory someone else made may hold anything).
 
     Raises:
-        RunDirError: the file is missing, not an ``.npz``, torn or holds objects.
+        RunDirError: missing, not a regular file, or resolving outside ``directory``.
     """
+    path = Path(directory) / name
+    if not path.is_file():
+        raise RunDirError(f"{path} does not exist")
+    if Path(directory).resolve() not in path.resolve().parents:
+        raise RunDirError(f"{path} is a link out of {directory}; refusing to read it")
+    return path
+
+
+def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
+    """Each array's shape and dtype from its header alone, after checking that the file is
+    a plain ``.npz`` whose declared sizes add up and stay under ``max_bytes``: a crafted
+    file is refused before anything large is read.
+
+    Raises:
+        RunDirError: not a zip of ``.npy`` arrays, object arrays, sizes that do not match
+            their headers, or more than ``max_bytes`` in all.
+    """
+    headers: dict[str, Header] = {}
+    with _reading(path), zipfile.ZipFile(path) as zf:
+        infos = zf.infolist()
+        total = sum(i.file_size for i in infos)
+        if total > max_bytes:
+            raise RunDirError(
+                f"{path} declares {total:,} bytes, more than the {max_bytes:,} expected"
+            )
+        for info in infos:
+            if not info.filename.endswith(".npy"):
+                raise RunDirError(f"{path}: unexpected entry {info.filename!r}")
+            with zf.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                read_header = {
+                    (1, 0): np.lib.format.read_array_header_1_0,
+                    (2, 0): np.lib.format.read_array_header_2_0,
+                }.get(version)
+                if read_header is None:
+                    raise RunDirError(f"{path}: {info.filename} has .npy version {version}")
+                shape, fortran, dtype = read_header(f)
+                if dtype.hasobject or fortran:
+                    raise RunDirError(f"{path}: {info.filename} holds objects; refusing it")
+                data_bytes = math.prod(shape) * dtype.itemsize
+                if f.tell() + data_bytes != info.file_size:
+                    raise RunDirError(f"{path}: {info.filename}'s size does not match its header")
+            headers[info.filename[: -len(".npy")]] = (tuple(shape), dtype)
+    return headers
+
+
+def load_tree(
+    path: str | os.PathLike, max_bytes: int = 1 << 34
+) -> tuple[dict[str, np.ndarray], dict | None]:
+    """Every named array of a tree file and its metadata (None when it has none), reading
+    at most ``max_bytes`` (checked against the headers before any array is read).
+
+    Raises:
+        RunDirError: the file is missing, not an ``.npz``, torn, too large or holds objects.
+    """
+    read_headers(path, max_bytes)
     with _reading(path), np.load(path, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files if k != META_KEY}
-        meta = json.loads(bytes(data[META_KEY]).decode()) if META_KEY in data.files else None
+        meta = _meta(data) if META_KEY in data.files else None
     return arrays, meta
+
+
+def _meta(data: Any) -> dict:
+    raw = data[META_KEY]
+    if raw.dtype != np.uint8 or raw.size > MAX_META_BYTES:
+        raise ValueError("metadata is not a JSON text of reasonable size")
+    meta = json.loads(bytes(raw).decode())
+    if not isinstance(meta, dict):
+        raise ValueError("metadata is not a JSON object")
+    return meta
 
 
 def read_meta(path: str | os.PathLike) -> dict:
     """Only the JSON metadata of a tree file (the arrays are not read)."""
+    headers = read_headers(path, max_bytes=1 << 40)  # sizes are checked, nothing large read
+    if META_KEY not in headers:
+        raise RunDirError(f"{path} has no metadata")
     with _reading(path), np.load(path, allow_pickle=False) as data:
-        return json.loads(bytes(data[META_KEY]).decode())
+        return _meta(data)
+
+
+def check_finite(arrays: dict[str, np.ndarray], path: str | os.PathLike) -> None:
+    """Refuses NaN or infinite values in floating-point arrays."""
+    for name, a in arrays.items():
+        if np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
+            raise RunDirError(f"{path}: {name} holds NaN or infinite values; refusing it")

@@ -264,17 +264,20 @@ class Run:
         """The checkpoint's state when there is one; else a fresh state, saved at once as the
         iteration-0 checkpoint so that a run killed at any moment can be resumed.
         ``on_progress(done, total)`` follows the initialisation of large runs."""
+        grid = self.grid
+        if self.has_checkpoint:  # a one-run template names the arrays; the file has them all
+            template = initial_state(self.config, 1, self.spec.seed, chunk_size=chunk_size)
+            path = self.out / checkpoint.CHECKPOINT_FILE
+            return checkpoint.load_checkpoint(path, template, num_runs=grid.num_runs)
         fresh = initial_state(
             self.config,
-            self.grid.num_runs,
+            grid.num_runs,
             self.spec.seed,
             self.hyperparams(),
             chunk_size=chunk_size,
-            seed_indices=self.grid.seed_indices(),
+            seed_indices=grid.seed_indices(),
             on_progress=on_progress,
         )
-        if self.has_checkpoint:
-            return checkpoint.load_checkpoint(self.out / checkpoint.CHECKPOINT_FILE, fresh)
         self.save_checkpoint(fresh)
         self.has_checkpoint = True
         return fresh

@@ -455,3 +455,153 @@ def test_a_read_only_filesystem(tmp_path, finished_run):
         FAULT_FIGURES["failing writes survived"] += 1
     finally:
         subprocess.run(["umount", str(mount)])
+
+
+# --- untrusted files ----------------------------------------------------------------------
+
+
+def _rewrite_params(run: Path, change) -> None:
+    from jaxcart import files
+
+    arrays, _ = files.load_tree(run / "params.npz")
+    change(arrays)
+    np.savez(run / "params.npz", **arrays)
+
+
+def _npy_entry(shape: tuple, data: bytes) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    header = {"descr": "<f4", "fortran_order": False, "shape": shape}
+    np.lib.format.write_array_header_1_0(buf, header)
+    return buf.getvalue() + data
+
+
+def _huge_declared_entry(run: Path) -> None:
+    """A 1e12-element array declared in the header, 16 bytes of data behind it."""
+    import zipfile
+
+    with zipfile.ZipFile(run / "params.npz", "w") as zf:
+        zf.writestr("params/actor/out/kernel.npy", _npy_entry((10**6, 10**6), b"\0" * 16))
+
+
+def _zip_bomb_entry(run: Path) -> None:
+    """A deflated entry that would expand to 2 GiB of zeros."""
+    import zipfile
+
+    with zipfile.ZipFile(run / "params.npz", "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("params/actor/out/kernel.npy", "w", force_zip64=True) as f:
+            f.write(_npy_entry((2**29,), b""))
+            block = b"\0" * (1 << 24)
+            for _ in range(128):
+                f.write(block)
+
+
+def _pickled_params(run: Path) -> None:
+    np.savez(run / "params.npz", **{"params/actor/out/kernel": np.array([{"x": 1}], object)})
+
+
+def _symlink_out(run: Path) -> None:
+    outside = run.parent / "elsewhere.npz"
+    (run / "params.npz").rename(outside)
+    (run / "params.npz").symlink_to(outside)
+
+
+CRAFTED = [
+    (
+        lambda r: _rewrite_params(r, lambda a: a.update({k: v[..., :1] for k, v in a.items()})),
+        "does not hold this run's network",
+    ),
+    (
+        lambda r: _rewrite_params(
+            r, lambda a: a.update({k: v.astype(np.float64) for k, v in a.items()})
+        ),
+        "does not hold this run's network",
+    ),
+    (
+        lambda r: _rewrite_params(
+            r, lambda a: a["params/actor/out/kernel"].__setitem__((0, 0, 0), np.nan)
+        ),
+        "NaN or infinite",
+    ),
+    (lambda r: (r / "params.npz").write_bytes((r / "params.npz").read_bytes()[:5000]), "corrupted"),
+    (_huge_declared_entry, "params.npz"),
+    (_zip_bomb_entry, "params.npz"),
+    (_pickled_params, "params.npz"),
+    (_symlink_out, "link out of"),
+    (lambda r: (r / "config.json").write_text("[1, 2, 3]"), "not a JSON object"),
+    (lambda r: (r / "config.json").write_text('{"config": {"num_envs": "many"}}'), "corrupted"),
+    (lambda r: (r / "config.json").write_text("{" * 100000), "corrupted"),
+]
+
+
+@pytest.mark.parametrize("damage, message", CRAFTED, ids=[str(i) for i in range(len(CRAFTED))])
+def test_crafted_run_directories_rejected_by_every_reader(damage, message, finished_run, tmp_path):
+    """load_policy, evaluate and plot each refuse a crafted file with one line, quickly and
+    without reading what the file claims to hold."""
+    import resource
+
+    import jaxcart
+    from jaxcart import evaluate
+
+    run = tmp_path / "crafted"
+    shutil.copytree(finished_run, run)
+    damage(run)
+    FAULT_FIGURES["crafted files tried"] += 1
+    start, peak = time.monotonic(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(rundir.RunDirError, match=message):
+        jaxcart.load_policy(run)
+    code, err = _capture(lambda: evaluate.main([str(run), "--episodes", "1"]))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert time.monotonic() - start < 10
+    grown_mib = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak) / 1024
+    assert grown_mib < 200, f"reading a crafted file grew the process by {grown_mib:.0f} MiB"
+    FAULT_FIGURES["crafted files rejected"] += 1
+
+
+def _crafted_checkpoint(run: Path) -> None:
+    from jaxcart import files
+
+    arrays, meta = files.load_tree(run / checkpoint.CHECKPOINT_FILE)
+    name = next(k for k in arrays if k.endswith("actor/out/kernel"))
+    arrays[name] = np.full_like(arrays[name], np.inf)
+    files.save_tree(run / checkpoint.CHECKPOINT_FILE, arrays, meta)
+
+
+def _huge_checkpoint_config(run: Path) -> None:
+    info = json.loads((run / "config.json").read_text())
+    info["num_seeds"] = 10**9  # the checkpoint holds 1 seed: refused before any allocation
+    (run / "config.json").write_text(json.dumps(info))
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [(_crafted_checkpoint, "NaN or infinite"), (_huge_checkpoint_config, "shape/dtype")],
+)
+def test_crafted_checkpoints_rejected_on_resume(damage, message, finished_run, tmp_path):
+    run = tmp_path / "crafted"
+    shutil.copytree(finished_run, run)
+    (run / "evaluation.json").unlink()
+    damage(run)
+    FAULT_FIGURES["crafted files tried"] += 1
+    done = _run("--resume", str(run), "--quiet", timeout=60)
+    assert done.returncode == 2 and message in done.stderr, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+    FAULT_FIGURES["crafted files rejected"] += 1
+
+
+def test_nothing_is_ever_unpickled(finished_run, tmp_path, monkeypatch):
+    """Every load goes through np.load with allow_pickle=False."""
+    calls = []
+    real = np.load
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs.get("allow_pickle"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(np, "load", spy)
+    import jaxcart
+
+    jaxcart.load_policy(finished_run)
+    checkpoint.read_checkpoint_meta(finished_run / checkpoint.CHECKPOINT_FILE)
+    assert calls and all(c is False for c in calls)
