@@ -33,7 +33,7 @@ from jaxcart.loggers import Logger, LoggerUnavailable, check_available, make_log
 from jaxcart.ppo import Hyperparams
 from jaxcart.runlock import RunLock
 from jaxcart.signals import Stopped, StopRequest
-from jaxcart.trainer import Progress, TrainResult, TrainState, devices_for, initial_state, train
+from jaxcart.trainer import Progress, TrainResult, TrainState, initial_state, train
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 
@@ -531,14 +531,6 @@ def start_distributed(
         raise ConfigError(f"cannot start jax.distributed: {first}") from None
 
 
-def check_devices(num_runs: int) -> None:
-    """Refuses a run that several processes cannot split evenly, before anything is written."""
-    try:
-        devices_for(num_runs)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-
-
 def run_new(
     spec: RunSpec,
     out: str | Path | None = None,
@@ -550,7 +542,6 @@ def run_new(
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
-    check_devices(spec.grid.num_runs)
     run = Run.create(spec, out, main_process=distributed.is_main_process())
     return carry_out(run, options, hooks, stop)
 
@@ -566,11 +557,6 @@ def resume_run(
     if options.compile_cache:
         devices.enable_compilation_cache()
     run = Run.open(out, main_process=distributed.is_main_process())
-    try:
-        check_devices(run.grid.num_runs)
-    except BaseException:
-        run.close()
-        raise
     return carry_out(run, options, hooks, stop)
 
 

@@ -163,6 +163,14 @@ class ConsoleReport:
     def on_start(self, run: Run, device_count: int, backend: str) -> None:
         self.run = run
         self.print(header_line(run, device_count, backend))
+        runs = run.grid.num_runs
+        if runs % device_count:
+            padded = -(-runs // device_count) * device_count
+            self.print(
+                f"{runs} runs padded to {padded} so that each of the {device_count} devices "
+                f"takes {padded // device_count} ({padded - runs} padding run(s) computed and "
+                "discarded)"
+            )
         if run.resumed_from is not None:
             self.print(f"resuming from iteration {run.resumed_from}/{run.config.num_iterations}")
 

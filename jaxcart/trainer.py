@@ -12,6 +12,7 @@ import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -39,28 +40,26 @@ def seed_keys(seed: int, num_seeds: int) -> jax.Array:
     return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(num_seeds, dtype=jnp.uint32))
 
 
-def devices_for(num_runs: int, devices: list | None = None) -> list:
-    """The devices the run axis is sharded over: as many as divide ``num_runs`` evenly.
-
-    With several processes every device must take part, so ``num_runs`` must then be a
-    multiple of the device count.
-
-    Raises:
-        ValueError: several processes and ``num_runs`` does not divide over their devices.
-    """
-    devices = list(devices if devices is not None else jax.devices())
-    if jax.process_count() > 1 and num_runs % len(devices):
-        raise ValueError(
-            f"{num_runs} runs cannot be split evenly over {len(devices)} devices in "
-            f"{jax.process_count()} processes; use a multiple of {len(devices)} seeds"
-        )
-    return devices[: max(d for d in range(1, len(devices) + 1) if num_runs % d == 0)]
+def padded_runs(num_runs: int, num_devices: int) -> int:
+    """The run axis rounded up to a multiple of the device count: every device takes an equal
+    share, and the padding runs (copies of the last run) are computed and discarded."""
+    return -(-num_runs // num_devices) * num_devices
 
 
-def run_sharding(num_runs: int, devices: list | None = None) -> NamedSharding:
-    """Shards a leading run axis over :func:`devices_for` ``(num_runs)``."""
-    mesh = Mesh(np.array(devices_for(num_runs, devices)), ("seed",))
-    return NamedSharding(mesh, PartitionSpec("seed"))
+def run_sharding(devices: list) -> NamedSharding:
+    """Shards a leading run axis over ``devices`` (every device of every process)."""
+    return NamedSharding(Mesh(np.array(devices), ("seed",)), PartitionSpec("seed"))
+
+
+def pad_runs(tree: Any, num_runs: int) -> Any:
+    """Host arrays ``[R, ...]`` -> ``[num_runs, ...]``, repeating the last run."""
+
+    def pad(x: Any) -> np.ndarray:
+        x = np.asarray(x)
+        extra = num_runs - x.shape[0]
+        return x if extra == 0 else np.concatenate([x, np.repeat(x[-1:], extra, axis=0)])
+
+    return jax.tree.map(pad, tree)
 
 
 def init_runners(
@@ -242,9 +241,11 @@ def train(
     state = resume or initial_state(
         config, num_runs, seed, hyperparams, env_params, chunk_size, seed_indices
     )
-    sharding = run_sharding(num_runs, devices)
-    runners = distributed.to_global(state.runners, sharding)
-    hps = distributed.to_global(state.hyperparams, sharding)
+    devices = list(devices if devices is not None else jax.devices())
+    sharding = run_sharding(devices)
+    padded = padded_runs(num_runs, len(devices))
+    runners = distributed.to_global(pad_runs(state.runners, padded), sharding)
+    hps = distributed.to_global(pad_runs(state.hyperparams, padded), sharding)
 
     start = time.perf_counter()
     compiled, fresh = None, False
@@ -256,7 +257,7 @@ def train(
     if on_compiled:
         on_compiled(compile_seconds)
 
-    loop = _ChunkLoop(config, state, hps)
+    loop = _ChunkLoop(config, state, hps, num_runs)
     stopped = False
     while loop.done < config.num_iterations:
         # every process must agree, or one would wait forever for the others' next chunk
@@ -277,7 +278,7 @@ def train(
         state=final,
         compile_seconds=compile_seconds,
         run_seconds=final.elapsed - state.elapsed,
-        num_devices=len(sharding.mesh.devices.flat),
+        num_devices=len(devices),
         start_iteration=state.iteration,
         compiled=fresh,
         stopped=stopped,
@@ -288,8 +289,11 @@ class _ChunkLoop:
     """The host's bookkeeping between compiled chunks: iterations done, training time and
     the metrics so far (with SB3's ``time/fps`` and ``time/elapsed`` added)."""
 
-    def __init__(self, config: PPOConfig, state: TrainState, hps: Hyperparams) -> None:
+    def __init__(
+        self, config: PPOConfig, state: TrainState, hps: Hyperparams, num_runs: int
+    ) -> None:
         self.config, self.hps, self.chunk_size = config, hps, state.chunk_size
+        self.num_runs = num_runs  # the real runs: padding runs beyond them are dropped
         self.done, self.elapsed_before = state.iteration, state.elapsed
         self.chunks = [state.metrics]
         self.start = time.perf_counter()
@@ -300,9 +304,8 @@ class _ChunkLoop:
     def record(self, runners: RunnerState, metrics: dict) -> Progress:
         """Takes one chunk's metrics ``[chunk_size, R]`` and returns the progress after it."""
         config, now = self.config, self.now()
-        take = min(self.chunk_size, config.num_iterations - self.done)
-        metrics = {k: np.asarray(v[:take]) for k, v in metrics.items()}
-        num_runs = next(iter(metrics.values())).shape[1]
+        take, num_runs = min(self.chunk_size, config.num_iterations - self.done), self.num_runs
+        metrics = {k: np.asarray(v[:take, :num_runs]) for k, v in metrics.items()}
         # time/fps as SB3 logs it (steps of this run / seconds since start); inside a chunk
         # the iterations are timed by spreading the chunk's time evenly.
         last = self.chunks[-1]["time/elapsed"]
@@ -314,15 +317,17 @@ class _ChunkLoop:
         self.chunks.append(metrics)
         self.done += take
         snapshot = functools.partial(self._snapshot, runners, self.done, now)
-        diverged = np.asarray(distributed.gather(runners.diverged_at))
+        diverged = np.asarray(distributed.gather(runners.diverged_at))[:num_runs]
         done = self.done
         return Progress(
             done, config.num_iterations, done * config.batch_size, now, metrics, snapshot, diverged
         )
 
     def _snapshot(self, runners: RunnerState, done: int, now: float) -> TrainState:
+        """The state of the real runs (device arrays with the padding sliced off)."""
+        real = functools.partial(jax.tree.map, lambda x: x[: self.num_runs])
         metrics = _concat(self.chunks)
-        return TrainState(runners, self.hps, done, now, metrics, self.chunk_size)
+        return TrainState(real(runners), real(self.hps), done, now, metrics, self.chunk_size)
 
     def final_state(self, runners: RunnerState) -> TrainState:
         return self._snapshot(runners, self.done, self.now())

@@ -121,3 +121,19 @@ def test_seed_index_not_run_position_picks_the_random_stream():
     b = initial_state(TINY, 2, 7, seed_indices=np.array([2, 0]))
     for x, y in zip(jax.tree.leaves(a.runners), jax.tree.leaves(b.runners)):
         np.testing.assert_array_equal(np.asarray(x)[[2, 0]], np.asarray(y))
+
+
+def test_runs_that_do_not_divide_over_devices_are_padded_not_squeezed():
+    """3 runs on 2 devices use both (padded to 4, the padding discarded); the real runs are
+    bit-identical to the first 3 of a 4-run training, which has the same per-device batch."""
+    import jax as _jax
+
+    assert len(_jax.devices()) == 2  # conftest gives the tests two CPU devices
+    three = train(TINY, 3, seed=2, chunk_size=8)
+    four = train(TINY, 4, seed=2, chunk_size=8)
+    assert three.num_devices == 2 and three.num_runs == 3
+    assert three.metrics["train/value_loss"].shape == (32, 3)
+    for name in ("train/value_loss", "rollout/ep_rew_mean"):
+        np.testing.assert_array_equal(three.metrics[name], four.metrics[name][:, :3])
+    for x, y in zip(jax.tree.leaves(three.params), jax.tree.leaves(four.params)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y)[:3])
