@@ -229,7 +229,7 @@ def comparison_notes(entries: list[Entry], baseline: int) -> list[str]:
         groups.setdefault(count, []).append(name)
     if len(groups) > 1:
         listed = "; ".join(
-            f"{count} for {', '.join(names) if len(names) <= 2 else f'{len(names)} runs'}"
+            f"{count} for {names[0] if len(names) == 1 else f'{len(names)} runs'}"
             for count, names in sorted(groups.items(), reverse=True)
         )
         notes.append(
