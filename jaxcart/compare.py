@@ -103,7 +103,8 @@ def read_scores(run: plot.Run) -> tuple[np.ndarray, int, int | None]:
         scores = np.array([float(s["gymnasium_mean"]) for s in seeds])
         solved = sum(bool(s.get("solved")) for s in seeds)
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise rundir.RunDirError(f"{path} is corrupted: {exc!r}") from None
+        detail = f"no {exc} entry" if isinstance(exc, KeyError) else str(exc)
+        raise rundir.RunDirError(f"{path} is corrupted: {detail}") from None
     if scores.size == 0 or not np.isfinite(scores).all():
         raise rundir.RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
     episodes = (run.evaluation or {}).get("episodes")
@@ -135,11 +136,11 @@ def load_entries(
             index = resolved.index(Path(baseline).resolve())
         else:
             runs = plot.load_runs([baseline, *run_dirs])
-    seen: dict[Path, Path] = {}
+    seen: set[Path] = set()
     for run in runs:
         if run.path.resolve() in seen:
             raise cli.UsageError(f"{run.path} is given twice")
-        seen[run.path.resolve()] = run.path
+        seen.add(run.path.resolve())
     return [Entry(run, *read_scores(run)) for run in runs], index
 
 
@@ -163,8 +164,7 @@ class RunSummary:
             "path": str(entry.run.path),
             "num_seeds": len(entry.scores),
             "scores": entry.scores.tolist(),
-            **{name: self.estimates[name].to_dict() for name in ("mean", "median", "iqm")},
-            "optimality_gap": self.estimates["optimality_gap"].to_dict(),
+            **{name: self.estimates[name].to_dict() for name in stats.ESTIMATORS},
             "probability_of_improvement": self.improvement and self.improvement.to_dict(),
             "solved_seeds": entry.solved,
             "evaluation_episodes": entry.episodes,
@@ -217,10 +217,10 @@ def summarise(
                 entry.first_reached(entry.run.elapsed),
             )
         )
-    return Comparison(runs, baseline, reps, seed, comparison_notes(entries, baseline))
+    return Comparison(runs, baseline, reps, seed, comparison_notes(entries))
 
 
-def comparison_notes(entries: list[Entry], baseline: int) -> list[str]:
+def comparison_notes(entries: list[Entry]) -> list[str]:
     """What the numbers do not say by themselves: unequal or single seeds, and the rest."""
     notes = []
     counts = {e.name: len(e.scores) for e in entries}
