@@ -11,6 +11,10 @@ Env API (pure functions over pytrees)::
 Training: ``python -m jaxcart.train``, or from Python :func:`run_new` / :func:`resume_run`
 (:mod:`jaxcart.lifecycle`: a run directory like the command line's) and
 :func:`jaxcart.trainer.train` (arrays only, no files); a trained policy: :func:`load_policy`.
+
+Comparing runs over seeds: :func:`compare_runs` (``python -m jaxcart.compare``), with the
+statistics in :mod:`jaxcart.stats` (:func:`iqm`, :func:`bootstrap_ci`,
+:func:`probability_of_improvement`).
 """
 
 from __future__ import annotations
@@ -41,6 +45,10 @@ _LAZY = {
     "JaxCartPoleEnv": "jaxcart.gym_adapter",
     "JaxCartPoleVectorEnv": "jaxcart.gym_adapter",
     "plot_runs": "jaxcart.plot",
+    "compare_runs": "jaxcart.compare",
+    "iqm": "jaxcart.stats",
+    "bootstrap_ci": "jaxcart.stats",
+    "probability_of_improvement": "jaxcart.stats",
     "render_gif": "jaxcart.render",
 }
 

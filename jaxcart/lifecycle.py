@@ -388,6 +388,7 @@ class Run:
         steps = np.arange(1, self.config.num_iterations + 1) * self.config.batch_size
         ranking = sweeps.rank(
             self.grid,
+            evaluation.gym_returns.mean(-1),
             evaluation.solved,
             result.metrics["rollout/ep_rew_mean"][-1],
             sweeps.first_reach(result.metrics["rollout/ep_rew_max"], steps),

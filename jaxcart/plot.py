@@ -6,12 +6,18 @@ PPO metric (``train/approx_kl``, ``train/clip_fraction``, ``train/entropy_loss``
 ``train/value_loss``, ``train/explained_variance``) against env steps, and a summary of each
 run's Gymnasium evaluation.
 
-Each curve is the mean across seeds; the shaded band is a 95% Student-t confidence interval
-for that mean across seeds (``mean ± t(0.975, n - 1) · sd / sqrt(n)``, ``sd`` with ``ddof=1``),
-computed per iteration from the ``n`` seeds with a finite value there. NaN entries
-(``ep_rew_mean`` is NaN until a seed's first episode ends) are left out, so the curve starts
-when the first seed has a value and the band when two seeds do; a single-seed run has no band.
-Several run directories overlay in one figure, with a legend.
+Each curve is the mean across seeds; the shaded band is a 95% percentile bootstrap confidence
+interval of that mean (:func:`jaxcart.stats.curve_band`: whole seeds resampled, a fixed seed
+so the figure is deterministic), clipped to the metric's range (:data:`METRIC_BOUNDS`: returns
+in [0, 500], clip fraction in [0, 1], KL and value loss >= 0, explained variance <= 1, ...).
+NaN entries (``ep_rew_mean`` is NaN until a seed's first episode ends) are left out, so the
+curve starts when the first seed has a value and the band when two seeds do; a single-seed
+run has no band.
+
+Several run directories overlay in one figure, with a legend. A sweep directory (``sweep.json``
+and ``combo-000/``, ``combo-001/``, ...) stands for its combinations, each labelled by its
+hyperparameter values (``learning_rate=0.001,clip_coef=0.2``). One run is drawn into
+``RUN_DIR/curves.png`` by default, several into ``comparison.png`` in the current directory.
 
 Uses matplotlib's object API (no pyplot), so it never changes the caller's backend.
 """
@@ -22,7 +28,9 @@ import argparse
 import dataclasses
 import io
 import json
+import math
 import os
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from jaxcart import cli, rundir
+from jaxcart import cli, rundir, stats
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
     from matplotlib.figure import Figure
@@ -44,8 +52,19 @@ KEY_METRICS = (
     ("train/value_loss", "value loss"),
     ("train/explained_variance", "explained variance"),
 )
+METRIC_BOUNDS: dict[str, tuple[float, float]] = {
+    "rollout/ep_rew_mean": (0.0, 500.0),  # CartPole-v1 pays 1 per step, at most 500 steps
+    "rollout/ep_rew_max": (0.0, 500.0),
+    "rollout/ep_len_mean": (0.0, 500.0),
+    "train/approx_kl": (0.0, math.inf),  # (r - 1) - log r >= 0
+    "train/clip_fraction": (0.0, 1.0),
+    "train/entropy_loss": (-math.log(2.0), 0.0),  # -entropy of two actions
+    "train/value_loss": (0.0, math.inf),
+    "train/explained_variance": (-math.inf, 1.0),
+}
+"""Each metric's range; confidence bands are clipped to it."""
 FORMATS = ("png", "svg", "pdf")
-CONFIDENCE = 0.95
+CONFIDENCE = stats.CONFIDENCE
 
 
 @dataclass(frozen=True)
@@ -59,6 +78,7 @@ class Run:
     elapsed: np.ndarray | None  # [iterations] seconds of training, None if not recorded
     num_seeds: int
     evaluation: dict | None  # evaluation.json, None if missing
+    combination: dict[str, float] | None = None  # a sweep's combination: its swept values
 
 
 def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
@@ -99,20 +119,75 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
         except (OSError, json.JSONDecodeError):
             evaluation = None
     num_seeds = next(iter(metrics.values())).shape[1]
+    combination = info.get("combination") or None
+    if label is None:
+        label = combination_label(combination) if combination else default_label(path)
     return Run(
         path=path,
-        label=label if label is not None else default_label(path),
+        label=label,
         metrics=metrics,
         env_steps=env_steps,
         elapsed=elapsed,
         num_seeds=int(info.get("num_seeds", num_seeds)),
         evaluation=evaluation,
+        combination=combination,
     )
 
 
 def default_label(path: Path) -> str:
     """The run directory's name (``runs/sb3-x/`` and ``.`` resolve to a real name)."""
     return path.resolve().name or str(path)
+
+
+def combination_label(combination: dict[str, float]) -> str:
+    """``{"learning_rate": 0.001, "clip_coef": 0.2}`` -> ``learning_rate=0.001,clip_coef=0.2``."""
+    return ",".join(f"{name}={value:g}" for name, value in combination.items())
+
+
+def sweep_combinations(sweep_dir: Path) -> list[Path]:
+    """The run directories of a sweep's combinations, in combination order.
+
+    Raises:
+        rundir.RunDirError: the sweep holds none.
+    """
+    combos = sorted(p for p in Path(sweep_dir).glob("combo-[0-9][0-9][0-9]*") if p.is_dir())
+    if not combos:
+        raise rundir.RunDirError(
+            f"{sweep_dir} is a sweep without combination directories (combo-000/, ...)"
+        )
+    return combos
+
+
+def load_runs(
+    run_dirs: Sequence[str | os.PathLike], labels: Sequence[str] | None = None
+) -> list[Run]:
+    """Loads run directories, a sweep directory standing for its combinations.
+
+    Args:
+        run_dirs: run or sweep directories.
+        labels: one per entry of ``run_dirs`` (default: directory names, and a combination's
+            hyperparameter values); a sweep's label prefixes its combinations' labels.
+
+    Raises:
+        rundir.RunDirError: a path is not a usable run directory.
+    """
+    runs: list[Run] = []
+    for i, path in enumerate(Path(p) for p in run_dirs):
+        label = labels[i] if labels is not None else None
+        if rundir.is_sweep(path):
+            rundir.read_run_config(path)  # a clear error for a broken sweep
+            for combo in sweep_combinations(path):
+                run = load_run(combo)
+                runs.append(run if label is None else _prefixed(run, label))
+        else:
+            runs.append(load_run(path, label))
+    if labels is None:
+        _disambiguate(runs)
+    return runs
+
+
+def _prefixed(run: Run, prefix: str) -> Run:
+    return dataclasses.replace(run, label=f"{prefix} {run.label}")
 
 
 def _first_finite(values: np.ndarray) -> np.ndarray:
@@ -126,9 +201,12 @@ def _first_finite(values: np.ndarray) -> np.ndarray:
 
 
 def mean_and_band(
-    values: np.ndarray, confidence: float = CONFIDENCE
+    values: np.ndarray,
+    bounds: tuple[float, float] = (-math.inf, math.inf),
+    confidence: float = CONFIDENCE,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """NaN-aware mean across seeds and its Student-t confidence interval.
+    """NaN-aware mean across seeds and its percentile bootstrap confidence interval
+    (:func:`jaxcart.stats.curve_band`, deterministic), clipped to ``bounds``.
 
     Args:
         values: ``[iterations, num_seeds]``, NaN where a seed has no value.
@@ -137,23 +215,13 @@ def mean_and_band(
         ``(mean, low, high)``, each ``[iterations]``. ``mean`` is NaN where no seed has a value;
         ``low``/``high`` are NaN where fewer than two seeds do.
     """
-    from scipy import stats
-
-    values = np.asarray(values, float)
-    finite = np.isfinite(values)
-    n = finite.sum(axis=1)
-    filled = np.where(finite, values, 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(n > 0, filled.sum(axis=1) / n, np.nan)
-        sq = np.where(finite, (values - mean[:, None]) ** 2, 0.0).sum(axis=1)
-        sd = np.sqrt(sq / (n - 1))
-        t = stats.t.ppf(0.5 + confidence / 2, np.maximum(n - 1, 1))
-        half = np.where(n > 1, t * sd / np.sqrt(n), np.nan)
-    return mean, mean - half, mean + half
+    return stats.curve_band(values, "mean", confidence=confidence, bounds=bounds)
 
 
-def _plot_metric(ax, x: np.ndarray, values: np.ndarray, colour, label: str | None) -> None:
-    mean, low, high = mean_and_band(values)
+def _plot_metric(
+    ax, x: np.ndarray, values: np.ndarray, colour, label: str | None, name: str
+) -> None:
+    mean, low, high = mean_and_band(values, METRIC_BOUNDS.get(name, (-math.inf, math.inf)))
     ax.plot(x, mean, color=colour, lw=1.6, label=label)
     if np.isfinite(low).any():
         ax.fill_between(x, low, high, color=colour, alpha=0.2, lw=0)
@@ -194,10 +262,13 @@ def plot_runs(
     """Plots the learning curves of one or several run directories into one image.
 
     Args:
-        run_dirs: jaxcart run directories (what ``python -m jaxcart.train --out`` wrote).
+        run_dirs: jaxcart run directories (what ``python -m jaxcart.train --out`` wrote); a
+            sweep directory stands for its combinations.
         out: the image to write (``.png``, ``.svg`` or ``.pdf``); default
-            ``<run_dirs[0]>/curves.png``, or ``comparison.png`` there for several runs.
-        labels: legend labels, one per run (default: each run directory's name).
+            ``<run_dirs[0]>/curves.png`` for one run, ``comparison.png`` in the current
+            directory for several (a sweep is several).
+        labels: legend labels, one per entry of ``run_dirs`` (default: each run directory's
+            name, or a combination's hyperparameter values; a sweep's label prefixes them).
         dpi: resolution of a PNG (the figure is 15 x 11 inches).
 
     Returns:
@@ -213,11 +284,9 @@ def plot_runs(
         raise ValueError("give at least one run directory")
     if labels is not None and len(labels) != len(run_dirs):
         raise ValueError(f"got {len(labels)} label(s) for {len(run_dirs)} run directories")
-    runs = [load_run(p, labels[i] if labels else None) for i, p in enumerate(run_dirs)]
-    if labels is None:
-        _disambiguate(runs)
+    runs = load_runs(run_dirs, labels)
     if out is None:
-        out = run_dirs[0] / ("curves.png" if len(runs) == 1 else "comparison.png")
+        out = runs[0].path / "curves.png" if len(runs) == 1 else Path("comparison.png")
     out = Path(out)
     fmt = out.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
@@ -250,7 +319,7 @@ def draw_figure(runs: list[Run]) -> Figure:
     num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
     fig.suptitle(
         f"jaxcart PPO on CartPole-v1, {num}: mean across seeds, "
-        f"shaded {CONFIDENCE:.0%} Student-t confidence interval",
+        f"shaded {CONFIDENCE:.0%} bootstrap confidence interval",
         fontsize=13,
     )
     return fig
@@ -263,12 +332,12 @@ def _draw_curves(runs: list[Run], colours: list[str], ax_steps, ax_time, metric_
         label = f"{run.label} ({seeds})"
         ret = run.metrics.get(RETURN_METRIC)
         if ret is not None:
-            _plot_metric(ax_steps, run.env_steps, ret, colour, label)
+            _plot_metric(ax_steps, run.env_steps, ret, colour, label, RETURN_METRIC)
             if run.elapsed is not None:
-                _plot_metric(ax_time, run.elapsed, ret, colour, label)
+                _plot_metric(ax_time, run.elapsed, ret, colour, label, RETURN_METRIC)
         for ax, (name, _) in zip(metric_axes, KEY_METRICS):
             if name in run.metrics:
-                _plot_metric(ax, run.env_steps, run.metrics[name], colour, label)
+                _plot_metric(ax, run.env_steps, run.metrics[name], colour, label, name)
 
     ax_steps.set(
         title="episode return vs env steps",
@@ -284,6 +353,8 @@ def _draw_curves(runs: list[Run], colours: list[str], ax_steps, ax_time, metric_
         _no_data(ax_steps, f"{RETURN_METRIC} not recorded")
     if not ax_time.lines:
         _no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
+    else:
+        draw_notes(ax_time, wall_time_notes(runs))
     for ax in (ax_steps, ax_time):
         ax.axhline(500, color="0.6", lw=0.8, ls="--")  # CartPole-v1's maximum return
         ax.set_ylim(0, 520)
@@ -294,6 +365,35 @@ def _draw_curves(runs: list[Run], colours: list[str], ax_steps, ax_time, metric_
         if not ax.lines:
             _no_data(ax, f"{name} not recorded")
     ax_steps.legend(loc="lower right", fontsize=9)
+
+
+def wall_time_notes(runs: list[Run]) -> list[str]:
+    """What the wall-time axis does not say: a run's seeds (and a sweep's combinations)
+    train together in one program, so its wall time covers all of them."""
+    notes = []
+    counts = sorted({run.num_seeds for run in runs})
+    if len(counts) > 1:
+        notes.append(
+            f"different seed counts ({', '.join(map(str, counts))}): each run's wall time "
+            "is for all its seeds trained together"
+        )
+    if any(run.combination for run in runs):
+        notes.append("a sweep's combinations train in one program: they share its wall time")
+    return notes
+
+
+def draw_notes(ax, notes: list[str], fontsize: float = 8.5, width: int = 60) -> None:
+    """Notes in the top left corner of a panel, over a white background."""
+    if notes:
+        ax.text(
+            0.02,
+            0.98,
+            "\n".join(textwrap.fill(note, width) for note in notes),
+            transform=ax.transAxes,
+            va="top",
+            fontsize=fontsize,
+            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+        )
 
 
 def _draw_summary(ax_summary, runs: list[Run], colours: list[str]) -> None:
@@ -317,12 +417,17 @@ def _draw_summary(ax_summary, runs: list[Run], colours: list[str]) -> None:
 
 
 def _disambiguate(runs: list[Run]) -> None:
-    """Runs that share a directory name are labelled ``parent/name`` instead."""
+    """Runs that share a label are labelled ``parent/label`` instead: ``parent/name`` for
+    run directories, ``sweep/values`` for sweeps' combinations."""
     names = [r.label for r in runs]
     for i, run in enumerate(runs):
         if names.count(run.label) > 1:
             resolved = run.path.resolve()
-            runs[i] = dataclasses.replace(run, label=f"{resolved.parent.name}/{resolved.name}")
+            if run.combination:
+                label = f"{resolved.parent.name}/{run.label}"
+            else:
+                label = f"{resolved.parent.name}/{resolved.name}"
+            runs[i] = dataclasses.replace(run, label=label)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -330,22 +435,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser = cli.Parser(
         prog="python -m jaxcart.plot",
         description="Learning curves of jaxcart runs: episode return vs env steps and vs wall "
-        "time, and PPO's key metrics, as the mean across seeds with a 95%% Student-t "
-        "confidence band. Several run directories overlay.",
+        "time, and PPO's key metrics, as the mean across seeds with a 95%% bootstrap "
+        "confidence band clipped to each metric's range. Several run directories overlay; "
+        "a sweep directory stands for its combinations.",
     )
     parser.add_argument("run_dirs", nargs="+", type=Path, metavar="RUN_DIR")
     parser.add_argument(
         "--out",
         type=Path,
         default=None,
-        help="image to write (.png, .svg, .pdf); default RUN_DIR/curves.png, or "
-        "comparison.png in the first RUN_DIR for several",
+        help="image to write (.png, .svg, .pdf); default RUN_DIR/curves.png for one run, "
+        "comparison.png in the current directory for several (or a sweep)",
     )
     parser.add_argument(
         "--label",
         action="append",
         default=None,
-        help="legend label; repeat once per RUN_DIR, in order (default: directory names)",
+        help="legend label; repeat once per RUN_DIR, in order (default: directory names, "
+        "and a sweep combination's hyperparameter values, which a sweep's label prefixes)",
     )
     parser.add_argument("--dpi", type=int, default=100, help="PNG resolution (15x11 in figure)")
     return parser

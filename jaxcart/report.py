@@ -54,12 +54,21 @@ def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
 
 
 def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
-    """The ranking table of a sweep."""
+    """The ranking table of a sweep: IQM of the seeds' greedy Gymnasium returns with its 95%
+    bootstrap interval, and the probability of improvement over combination 0."""
+
+    def interval(e: dict | None, digits: int) -> str:
+        if e is None:
+            return "-"
+        return f"{e['value']:.{digits}f} [{e['ci_low']:.{digits}f}, {e['ci_high']:.{digits}f}]"
+
     names, n = list(outcome.run.sweep), outcome.run.grid.num_seeds
     rows = [
         [
             r["combination"],
             *[f"{r[name]:g}" for name in names],
+            interval(r["iqm"], 1),
+            interval(r["probability_of_improvement"], 2),
             f"{r['solve_rate']:.0%}",
             f"{r['final_return']:.1f}",
             "never"
@@ -73,6 +82,8 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
     header = [
         "combo",
         *names,
+        "IQM gym return [95% CI]",
+        "P(> combo 0) [95% CI]",
         "solved",
         "final ep_rew_mean",
         "median steps to a 500 episode",

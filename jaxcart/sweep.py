@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcart import stats
 from jaxcart.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.ppo import Hyperparams
 
@@ -145,24 +146,40 @@ def first_reach(returns: np.ndarray, env_steps: np.ndarray, target: float = 500.
 
 def rank(
     grid: RunGrid,
+    scores: np.ndarray,
     solved: np.ndarray,
     final_return: np.ndarray,
     steps_to_500: np.ndarray,
     diverged_at: np.ndarray | None = None,
+    reps: int = stats.DEFAULT_REPS,
+    seed: int = stats.DEFAULT_SEED,
 ) -> list[dict]:
-    """Per-combination summary sorted by solve rate, final return, then steps to 500.
+    """Per-combination summary, best first: by the IQM of the per-seed scores (then solve
+    rate, final return, steps to 500), with the statistics of :mod:`jaxcart.compare`.
+
+    Each row holds ``iqm`` and ``probability_of_improvement`` over combination 0 (None for
+    combination 0 itself) as ``{value, ci_low, ci_high}`` with 95% percentile bootstrap
+    intervals (``reps`` resamples from ``seed``: deterministic).
 
     Args:
+        scores: per run, ``[num_runs]``: each seed's mean greedy Gymnasium return.
         solved, final_return, steps_to_500, diverged_at: per run, ``[num_runs]``.
     """
+    scores = np.asarray(scores, float)
+    first = scores[grid.runs_of(0)]
     rows = []
     for c, combo in enumerate(grid.combos):
         runs = grid.runs_of(c)
         steps = steps_to_500[runs]
+        improvement = None
+        if c > 0:
+            improvement = stats.probability_of_improvement_ci(scores[runs], first, reps, seed=seed)
         rows.append(
             {
                 "combination": c,
                 **combo,
+                "iqm": stats.bootstrap_ci(scores[runs], stats.iqm, reps, seed=seed).to_dict(),
+                "probability_of_improvement": improvement and improvement.to_dict(),
                 "solve_rate": float(np.mean(solved[runs])),
                 "final_return": float(np.nanmean(final_return[runs]))
                 if np.isfinite(final_return[runs]).any()
@@ -175,6 +192,7 @@ def rank(
     return sorted(
         rows,
         key=lambda r: (
+            -r["iqm"]["value"],
             -r["solve_rate"],
             -np.nan_to_num(r["final_return"], nan=-1.0),
             r["median_steps_to_500"],

@@ -60,15 +60,26 @@ def assert_nontrivial_png(path, min_size=(600, 400)):
     assert blue > 100
 
 
-def test_mean_and_band_ignores_nan_and_needs_two_seeds():
+def test_mean_and_band_ignores_nan_needs_two_seeds_and_stays_in_range():
     values = np.array([[np.nan, np.nan], [1.0, 3.0], [2.0, np.nan], [5.0, 5.0]])
     mean, low, high = plot.mean_and_band(values)
     np.testing.assert_allclose(mean, [np.nan, 2.0, 2.0, 5.0])
-    # n = 2, sd = sqrt(2): half-width t(0.975, 1) * sqrt(2) / sqrt(2) = 12.7062...
-    np.testing.assert_allclose(high[1] - mean[1], 12.7062047, rtol=1e-6)
-    np.testing.assert_allclose(mean[1] - low[1], 12.7062047, rtol=1e-6)
+    # Bootstrap of two seeds {1, 3}: resampled means 1, 2, 3 (P = 1/4, 1/2, 1/4), so the 95%
+    # interval is [1, 3] (a Student-t interval would be 2 ± 12.7).
+    np.testing.assert_allclose([low[1], high[1]], [1.0, 3.0])
     assert np.isnan(low[[0, 2]]).all() and np.isnan(high[[0, 2]]).all()
     np.testing.assert_allclose([low[3], high[3]], [5.0, 5.0])
+    again = plot.mean_and_band(values)  # deterministic
+    np.testing.assert_array_equal(np.nan_to_num(again[1]), np.nan_to_num(low))
+    # A metric's range clips the band: explained variance <= 1, clip fraction in [0, 1].
+    rng = np.random.default_rng(0)
+    ev = np.stack([rng.uniform(-20, 1, 8), np.ones(8)])
+    _, low, high = plot.mean_and_band(ev, plot.METRIC_BOUNDS["train/explained_variance"])
+    assert (high <= 1).all() and low[0] < -5
+    _, low, high = plot.mean_and_band(np.array([[0.5, 3.0]]), (0.0, 1.0))
+    assert low[0] == 0.5 and high[0] == 1.0
+    assert plot.METRIC_BOUNDS["rollout/ep_rew_mean"] == (0.0, 500.0)
+    assert plot.METRIC_BOUNDS["train/approx_kl"][0] == 0.0
 
 
 def test_plot_one_run_default_path(tiny_run, capsys):
@@ -78,10 +89,15 @@ def test_plot_one_run_default_path(tiny_run, capsys):
     assert_nontrivial_png(out, min_size=(1000, 700))
 
 
-def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path):
-    # The single-seed run (no band, NaN returns at first) overlaid on the two-seed one.
+def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path, monkeypatch):
+    # The single-seed run (no band, NaN returns at first) overlaid on the two-seed one; several
+    # runs go to comparison.png in the current directory, not into a run directory.
+    monkeypatch.chdir(tmp_path)
     assert plot.main([str(single_seed_run), str(tiny_run), "--dpi", "50"]) == 0
-    assert_nontrivial_png(single_seed_run / "comparison.png")
+    assert_nontrivial_png(tmp_path / "comparison.png")
+    assert not (single_seed_run / "comparison.png").exists()
+    runs = plot.load_runs([single_seed_run, tiny_run])
+    assert "different seed counts (1, 2)" in plot.wall_time_notes(runs)[0]
     out = plot.plot_runs([tiny_run, single_seed_run], tmp_path / "both.png", ["a", "b"], dpi=50)
     assert out == tmp_path / "both.png"
     assert_nontrivial_png(out)
@@ -89,6 +105,47 @@ def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path):
         pixels = np.asarray(image.convert("RGB"), float)
     orange = (np.abs(pixels - [255, 127, 14]).sum(-1) < 30).sum()  # the second run (C1)
     assert orange > 100
+
+
+def fake_sweep(tiny_run, out, rates=(0.001, 0.01)):
+    """A sweep directory whose combinations are copies of ``tiny_run``."""
+    out.mkdir()
+    for c, rate in enumerate(rates):
+        combo = out / f"combo-{c:03d}"
+        shutil.copytree(tiny_run, combo)
+        info = json.loads((combo / "config.json").read_text())
+        info["combination"] = {"learning_rate": rate, "clip_coef": 0.2}
+        (combo / "config.json").write_text(json.dumps(info))
+    shutil.copy(tiny_run / "config.json", out / "config.json")
+    (out / "sweep.json").write_text(json.dumps({"ranking": []}))
+    return out
+
+
+def test_plot_expands_sweeps_into_labelled_combinations(tiny_run, tmp_path, monkeypatch):
+    sweep = fake_sweep(tiny_run, tmp_path / "sweep")
+    runs = plot.load_runs([sweep])
+    assert [r.label for r in runs] == [
+        "learning_rate=0.001,clip_coef=0.2",
+        "learning_rate=0.01,clip_coef=0.2",
+    ]
+    assert [r.path for r in runs] == [sweep / "combo-000", sweep / "combo-001"]
+    assert "share its wall time" in plot.wall_time_notes(runs)[0]
+    labelled = plot.load_runs([tiny_run, sweep], labels=["base", "lr"])
+    assert [r.label for r in labelled] == ["base", *(f"lr {r.label}" for r in runs)]
+    # The same combinations from two sweeps are told apart by the sweep's name.
+    other = fake_sweep(tiny_run, tmp_path / "other")
+    both = [r.label for r in plot.load_runs([sweep, other])]
+    assert both[0] == "sweep/learning_rate=0.001,clip_coef=0.2"
+    assert both[2] == "other/learning_rate=0.001,clip_coef=0.2"
+    monkeypatch.chdir(tmp_path)
+    assert plot.main([str(sweep), "--dpi", "50"]) == 0
+    assert_nontrivial_png(tmp_path / "comparison.png")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    shutil.copy(sweep / "config.json", empty)
+    shutil.copy(sweep / "sweep.json", empty)
+    with pytest.raises(plot.rundir.RunDirError, match="without combination directories"):
+        plot.load_runs([empty])
 
 
 def one_line_error(capsys) -> str:

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from helpers import tiny_args
 
-from jaxcart import rundir
-from jaxcart.sweep import RunGrid, parse_sweep
+from jaxcart import rundir, stats
+from jaxcart.sweep import RunGrid, parse_sweep, rank
 from jaxcart.train import main
 
 
@@ -46,10 +46,26 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
         and "3 combinations" not in text
         and "6 combinations x 2 seed(s)" in text
     )
+    assert "IQM gym return [95% CI]" in text and "P(> combo 0) [95% CI]" in text
     ranking = json.loads((out / "sweep.json").read_text())["ranking"]
     assert len(ranking) == 6 and {r["learning_rate"] for r in ranking} == {1e-4, 1e-3, 1e-2}
-    rates = [r["solve_rate"] for r in ranking]
-    assert rates == sorted(rates, reverse=True)
+    iqms = [r["iqm"]["value"] for r in ranking]
+    assert iqms == sorted(iqms, reverse=True)
+
+    def scores(c: int) -> list[float]:
+        seeds = json.loads((out / f"combo-{c:03d}" / "evaluation.json").read_text())["seeds"]
+        return [s["gymnasium_mean"] for s in seeds]
+
+    for r in ranking:
+        c = r["combination"]
+        assert r["iqm"]["value"] == pytest.approx(stats.iqm(np.array(scores(c))))
+        assert r["iqm"]["ci_low"] <= r["iqm"]["value"] <= r["iqm"]["ci_high"]
+        poi = r["probability_of_improvement"]
+        if c == 0:
+            assert poi is None
+        else:
+            expected = stats.probability_of_improvement(scores(c), scores(0))
+            assert poi["value"] == pytest.approx(expected)
     for c in range(6):
         info = json.loads((out / f"combo-{c:03d}" / "config.json").read_text())
         assert info["config"]["learning_rate"] == info["combination"]["learning_rate"]
@@ -67,6 +83,25 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
     with pytest.raises(rundir.RunDirError, match="is a sweep"):
         jaxcart.load_policy(out)
     assert jaxcart.load_policy(out / "combo-001", seed_index=1)(np.zeros(4, np.float32)) in (0, 1)
+
+
+def test_rank_by_iqm_with_probability_of_improvement():
+    grid = RunGrid(4, ({"learning_rate": 1e-3}, {"learning_rate": 1e-2}, {"learning_rate": 0.1}))
+    scores = np.array([500, 500, 100, 100, 400, 400, 400, 400, 500, 500, 500, 20], float)
+    solved = scores == 500
+    ranking = rank(grid, scores, solved, scores, np.full(12, np.inf))
+    # IQM (mean of the middle two of four): 300, 400, 500; solve rates 0.5, 0, 0.75.
+    assert [r["combination"] for r in ranking] == [2, 1, 0]
+    assert [r["iqm"]["value"] for r in ranking] == [500.0, 400.0, 300.0]
+    assert [r["solve_rate"] for r in ranking] == [0.75, 0.0, 0.5]
+    poi = {r["combination"]: r["probability_of_improvement"] for r in ranking}
+    assert poi[0] is None
+    # 400 beats both 100s and loses to both 500s: 8 of 16 pairs.
+    assert poi[1]["value"] == 0.5
+    # each 500 ties two 500s (0.5 each) and beats two 100s: 3 x 3; the 20 wins nothing: 9 / 16.
+    assert poi[2]["value"] == 0.5625
+    assert poi[2]["ci_low"] <= 0.5625 <= poi[2]["ci_high"]
+    assert ranking == rank(grid, scores, solved, scores, np.full(12, np.inf))  # deterministic
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,333 @@
+"""Statistics for many seeds: the estimators of Agarwal et al. (2021), "Deep Reinforcement
+Learning at the Edge of the Statistical Precipice" (the ``rliable`` library), in NumPy.
+
+A run's *scores* are one number per seed (``[num_seeds]``; :mod:`jaxcart.compare` uses each
+seed's mean greedy Gymnasium return). Over them:
+
+- point estimates: :func:`iqm` (the interquartile mean, 25% trimmed mean), mean, median,
+  :func:`optimality_gap` (how far below CartPole-v1's maximum of 500, on average);
+- :func:`bootstrap_ci`: a 95% percentile bootstrap confidence interval of any of them;
+- :func:`probability_of_improvement` of run X over run Y, ``P(X > Y) + 0.5 P(X = Y)`` over
+  all seed pairs, and :func:`probability_of_improvement_ci` (both runs' seeds resampled
+  independently);
+- :func:`performance_profile` (fraction of seeds scoring above tau) and
+  :func:`performance_profile_band`;
+- :func:`curve_band`: a statistic across seeds of a learning curve ``[iterations, seeds]``
+  with a bootstrap band per iteration (whole curves are resampled, as rliable does).
+
+Definitions follow rliable 1.2.0 (``rliable/metrics.py`` and ``library.py``): IQM is
+``scipy.stats.trim_mean(x, 0.25)``; the optimality gap ``gamma - mean(min(x, gamma))`` equals
+``mean(max(gamma - x, 0))``; the probability of improvement is the Mann-Whitney U statistic
+over ``n * m``; profiles count scores strictly above tau; intervals are the 2.5th and 97.5th
+percentiles of the bootstrap distribution (NumPy's linear interpolation). With one task
+(CartPole) rliable's stratified bootstrap is the ordinary bootstrap over seeds.
+
+**Why not rliable itself.** ``rliable`` 1.2.0 resolves beside jaxcart's pins without a
+conflict, but brings eight packages (``arch``, ``statsmodels``, ``pandas``, ``seaborn``,
+``patsy``, ...) for about a hundred lines of arithmetic, and its bootstrap (``arch``'s
+``IIDBootstrap``) calls the statistic once per resample in a Python loop (rliable's default is
+50,000 resamples per interval), where a comparison needs hundreds of intervals (every run,
+estimator, tau and curve point). Here every bootstrap is a few array operations over all
+resamples at once (10 runs x 64 seeds take well under a second), and jaxcart's dependencies
+stay as they are. ``tests/test_stats.py`` checks each definition on fixed
+samples against values worked out by hand or by brute force.
+
+Everything is deterministic: resamples come from ``np.random.default_rng(seed)``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+MAX_RETURN = 500.0
+"""CartPole-v1's maximum return (the optimality gap's target)."""
+DEFAULT_REPS = 2000
+"""Bootstrap resamples: enough for stable 2.5%/97.5% percentiles (rliable's profile default)."""
+CONFIDENCE = 0.95
+DEFAULT_SEED = 0
+_CHUNK_ELEMENTS = 1 << 22  # resampled curve values held at once (32 MiB of float64)
+
+Statistic = Callable[..., np.ndarray]
+"""``statistic(values, axis=-1)``: reduces the last axis, e.g. ``np.mean`` or :func:`iqm`."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A point estimate and its confidence interval."""
+
+    value: float
+    ci_low: float
+    ci_high: float
+
+    def to_dict(self) -> dict[str, float]:
+        return {"value": self.value, "ci_low": self.ci_low, "ci_high": self.ci_high}
+
+    def format(self, digits: int = 1) -> str:
+        """``412.3 [380.0, 450.5]``."""
+        return f"{self.value:.{digits}f} [{self.ci_low:.{digits}f}, {self.ci_high:.{digits}f}]"
+
+
+def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Interquartile mean: the mean of the middle 50% (``int(0.25 n)`` cut from each end),
+    ``scipy.stats.trim_mean(scores, 0.25, axis)`` as rliable computes it, in NumPy alone
+    (importing ``scipy.stats`` takes about two seconds).
+
+    Args:
+        scores: ``[..., n]`` (reduced along ``axis``).
+    """
+    ordered = np.sort(np.moveaxis(np.asarray(scores, float), axis, -1), axis=-1)
+    n = ordered.shape[-1]
+    cut = int(0.25 * n)
+    return ordered[..., cut : n - cut].mean(-1)
+
+
+def optimality_gap(scores: np.ndarray, axis: int = -1, target: float = MAX_RETURN) -> np.ndarray:
+    """Mean shortfall from ``target``: ``mean(max(target - x, 0))`` along ``axis``."""
+    return np.mean(np.maximum(target - np.asarray(scores, float), 0.0), axis=axis)
+
+
+ESTIMATORS: dict[str, Statistic] = {
+    "mean": np.mean,
+    "median": np.median,
+    "iqm": iqm,
+    "optimality_gap": optimality_gap,
+}
+"""The aggregate estimates of a run, by name (each reduces ``axis``)."""
+
+
+def resample_indices(num: int, reps: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of ``reps`` bootstrap resamples of ``num`` samples, ``[reps, num]``."""
+    return rng.integers(0, num, size=(reps, num))
+
+
+def resample_counts(num: int, reps: int, rng: np.random.Generator) -> np.ndarray:
+    """How often each sample is drawn in each resample, ``[reps, num]`` (rows sum to num)."""
+    idx = resample_indices(num, reps, rng)
+    flat = (idx + num * np.arange(reps)[:, None]).ravel()
+    return np.bincount(flat, minlength=reps * num).reshape(reps, num)
+
+
+def percentile_interval(
+    boot: np.ndarray, confidence: float = CONFIDENCE
+) -> tuple[np.ndarray, np.ndarray]:
+    """The percentile interval of bootstrap replicates ``[reps, ...]`` -> two ``[...]``
+    (NaN replicates, e.g. resamples with no finite value, are left out)."""
+    tail = 100 * (1 - confidence) / 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # "All-NaN slice": NaN is the answer
+        low, high = np.nanpercentile(boot, [tail, 100 - tail], axis=0)
+    return low, high
+
+
+def bootstrap_ci(
+    scores: np.ndarray,
+    statistic: Statistic,
+    reps: int = DEFAULT_REPS,
+    confidence: float = CONFIDENCE,
+    seed: int = DEFAULT_SEED,
+) -> Estimate:
+    """``statistic(scores)`` and its percentile bootstrap confidence interval.
+
+    Args:
+        scores: ``[n]``, one per seed; ``statistic(values, axis=-1)`` reduces ``[reps, n]``.
+
+    Returns:
+        The estimate; with one seed the interval is that one value (degenerate).
+    """
+    return bootstrap_cis(scores, {"x": statistic}, reps, confidence, seed)["x"]
+
+
+def bootstrap_cis(
+    scores: np.ndarray,
+    statistics: dict[str, Statistic],
+    reps: int = DEFAULT_REPS,
+    confidence: float = CONFIDENCE,
+    seed: int = DEFAULT_SEED,
+) -> dict[str, Estimate]:
+    """Several statistics of ``scores`` ``[n]`` over one shared set of resamples."""
+    scores = np.asarray(scores, float)
+    if scores.ndim != 1 or scores.size == 0:
+        raise ValueError(f"scores must be a non-empty 1-D array, got shape {scores.shape}")
+    resampled = scores[resample_indices(scores.size, reps, np.random.default_rng(seed))]
+    out = {}
+    for name, statistic in statistics.items():
+        low, high = percentile_interval(statistic(resampled, axis=-1), confidence)
+        out[name] = Estimate(float(statistic(scores, axis=-1)), float(low), float(high))
+    return out
+
+
+def _pair_wins(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``[n, m]``: 1 where ``x_i > y_j``, 0.5 where equal, 0 where less."""
+    x, y = np.asarray(x, float)[:, None], np.asarray(y, float)[None, :]
+    return (x > y) + 0.5 * (x == y)
+
+
+def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
+    """``P(X > Y) + 0.5 P(X = Y)`` for a random seed of X and a random seed of Y: the share of
+    the ``n * m`` seed pairs that X wins, ties counting half (Mann-Whitney ``U / (n m)``).
+
+    Args:
+        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y.
+    """
+    return float(_pair_wins(x, y).mean())
+
+
+def probability_of_improvement_ci(
+    x: np.ndarray,
+    y: np.ndarray,
+    reps: int = DEFAULT_REPS,
+    confidence: float = CONFIDENCE,
+    seed: int = DEFAULT_SEED,
+) -> Estimate:
+    """:func:`probability_of_improvement` with a bootstrap interval; X's and Y's seeds are
+    resampled independently (rliable's ``StratifiedIndependentBootstrap``).
+
+    Args:
+        x: ``[n]``; y: ``[m]``.
+    """
+    wins = _pair_wins(x, y)  # [n, m]
+    n, m = wins.shape
+    rng = np.random.default_rng(seed)
+    cx, cy = resample_counts(n, reps, rng), resample_counts(m, reps, rng)  # [reps, n], [reps, m]
+    # A resample's pairs: x_i drawn cx_i times, y_j drawn cy_j times -> cx_i cy_j pairs.
+    boot = ((cx @ wins) * cy).sum(-1) / (n * m)
+    low, high = percentile_interval(boot, confidence)
+    return Estimate(float(wins.mean()), float(low), float(high))
+
+
+def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
+    """Fraction of seeds scoring strictly above each tau (rliable's score distribution).
+
+    Args:
+        scores: ``[..., n]``; taus: ``[T]``.
+
+    Returns:
+        ``[..., T]``.
+    """
+    scores, taus = np.asarray(scores, float), np.asarray(taus, float)
+    return (scores[..., :, None] > taus).mean(axis=-2)
+
+
+def performance_profile_band(
+    scores: np.ndarray,
+    taus: np.ndarray,
+    reps: int = DEFAULT_REPS,
+    confidence: float = CONFIDENCE,
+    seed: int = DEFAULT_SEED,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The profile of ``scores`` ``[n]`` at ``taus`` ``[T]`` and its bootstrap band.
+
+    Returns:
+        ``(profile, low, high)``, each ``[T]``.
+    """
+    above = (np.asarray(scores, float)[:, None] > np.asarray(taus, float)).astype(float)
+    n = above.shape[0]
+    counts = resample_counts(n, reps, np.random.default_rng(seed))  # [reps, n]
+    low, high = percentile_interval(counts @ above / n, confidence)  # [reps, T] -> [T]
+    return above.mean(axis=0), low, high
+
+
+def nan_iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    """:func:`iqm` of the finite entries along ``axis`` (NaN where there are none)."""
+    values = np.moveaxis(np.asarray(values, float), axis, -1)
+    finite = np.isfinite(values)
+    if values.shape[-1] and finite.all():  # the common case, twice as fast
+        return iqm(values)
+    ordered = np.sort(values, axis=-1)  # NaN sorts last
+    n = finite.sum(-1, keepdims=True)
+    cut = np.floor(0.25 * n)  # scipy's int(0.25 * n)
+    pos = np.arange(values.shape[-1])
+    keep = (pos >= cut) & (pos < n - cut)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(keep, ordered, 0.0).sum(-1) / keep.sum(-1)
+
+
+def _nan_mean(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    finite = np.isfinite(values)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(finite, values, 0.0).sum(axis) / finite.sum(axis)
+
+
+CURVE_STATISTICS: dict[str, Statistic] = {"mean": _nan_mean, "iqm": nan_iqm}
+
+
+def curve_band(
+    values: np.ndarray,
+    statistic: str = "mean",
+    reps: int = DEFAULT_REPS,
+    confidence: float = CONFIDENCE,
+    seed: int = DEFAULT_SEED,
+    bounds: tuple[float, float] = (-math.inf, math.inf),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A statistic across seeds of a learning curve, per iteration, with a bootstrap band.
+
+    Each resample draws whole seeds (one set of seed indices for every iteration, as rliable
+    resamples runs); NaN entries (no value yet) are left out of each statistic.
+
+    Args:
+        values: ``[iterations, num_seeds]``, NaN where a seed has no value.
+        statistic: ``"mean"`` or ``"iqm"``.
+        bounds: the metric's range; the band is clipped to it.
+
+    Returns:
+        ``(point, low, high)``, each ``[iterations]``: ``point`` NaN where no seed has a value,
+        ``low``/``high`` NaN where fewer than two seeds do.
+    """
+    values = np.asarray(values, float)
+    if values.ndim != 2:
+        raise ValueError(f"values must be [iterations, num_seeds], got shape {values.shape}")
+    reduce = CURVE_STATISTICS[statistic]
+    point = reduce(values, axis=-1)
+    rng = np.random.default_rng(seed)
+    if statistic == "mean":
+        # A resample's mean is a weighted sum: two matrix products over all resamples at once.
+        counts = resample_counts(values.shape[1], reps, rng).T  # [S, reps]
+        finite = np.isfinite(values)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            boot = (np.where(finite, values, 0.0) @ counts) / (finite @ counts)  # [T, reps]
+        low, high = percentile_interval(boot.T, confidence)
+    else:
+        idx = resample_indices(values.shape[1], reps, rng)  # [reps, S]
+        rows = max(1, _CHUNK_ELEMENTS // idx.size)
+        parts = [
+            percentile_interval(reduce(values[i : i + rows][:, idx], axis=-1).T, confidence)
+            for i in range(0, len(values), rows)
+        ]
+        low = np.concatenate([p[0] for p in parts])
+        high = np.concatenate([p[1] for p in parts])
+    few = np.isfinite(values).sum(-1) < 2
+    low, high = np.where(few, np.nan, low), np.where(few, np.nan, high)
+    return point, np.clip(low, *bounds), np.clip(high, *bounds)
+
+
+def first_at_least(values: np.ndarray, x: np.ndarray, target: float) -> np.ndarray:
+    """Where each seed's curve first reaches ``target``.
+
+    Args:
+        values: ``[iterations, num_seeds]`` (NaN never reaches); x: ``[iterations]``, e.g.
+            env steps or seconds.
+
+    Returns:
+        ``[num_seeds]``: ``x`` at the first iteration with ``values >= target``, ``inf`` for
+        seeds that never do.
+    """
+    reached = np.nan_to_num(np.asarray(values, float), nan=-np.inf) >= target
+    first = reached.argmax(0)
+    return np.where(reached.any(0), np.asarray(x, float)[first], np.inf)
+
+
+def fraction_reached(first: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Fraction of seeds that had reached the target by each ``x``.
+
+    Args:
+        first: ``[num_seeds]`` from :func:`first_at_least`; x: ``[P]``.
+
+    Returns:
+        ``[P]``.
+    """
+    return (np.asarray(first, float)[:, None] <= np.asarray(x, float)).mean(0)
