@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
 import os
 import time
 from collections.abc import Sequence
@@ -99,7 +98,7 @@ def read_scores(run: plot.Run) -> tuple[np.ndarray, int, int | None]:
             "evaluation, which training writes when it finishes"
         )
     try:
-        seeds = json.loads(path.read_text())["seeds"]
+        seeds = rundir.read_json(run.path, rundir.EVALUATION_FILE)["seeds"]
         scores = np.array([float(s["gymnasium_mean"]) for s in seeds])
         solved = sum(bool(s.get("solved")) for s in seeds)
     except (OSError, ValueError, KeyError, TypeError) as exc:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import io
-import json
 import math
 import os
 import textwrap
@@ -38,7 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from jaxcart import cli, rundir, stats
+from jaxcart import cli, files, rundir, stats
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
     from matplotlib.figure import Figure
@@ -90,17 +89,13 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
     """
     path = Path(run_dir)
     info = rundir.read_run_config(path)
-    metrics_path = path / rundir.METRICS_FILE
-    if not metrics_path.is_file():
+    if not (path / rundir.METRICS_FILE).exists():
         raise rundir.RunDirError(
             f"{path} has no {rundir.METRICS_FILE}: the run did not finish training"
         )
-    try:
-        metrics = rundir.read_metrics_csv(metrics_path)
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        if isinstance(exc, rundir.RunDirError):
-            raise
-        raise rundir.RunDirError(f"{metrics_path} is corrupted: {exc}") from None
+    metrics_path = files.inside(path, rundir.METRICS_FILE)
+    max_rows = int(info.get("num_seeds", 1)) * info["config"].num_iterations
+    metrics = rundir.read_metrics_csv(metrics_path, max_rows=max_rows)
     if "env_steps" not in metrics:
         raise rundir.RunDirError(f"{metrics_path} has no env_steps column")
     env_steps = _first_finite(metrics["env_steps"])
@@ -112,12 +107,8 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
     else:
         elapsed = None
     evaluation = None
-    eval_path = path / rundir.EVALUATION_FILE
-    if eval_path.is_file():
-        try:
-            evaluation = json.loads(eval_path.read_text())
-        except (OSError, json.JSONDecodeError):
-            evaluation = None
+    if (path / rundir.EVALUATION_FILE).exists():
+        evaluation = rundir.read_json(path, rundir.EVALUATION_FILE)
     num_seeds = next(iter(metrics.values())).shape[1]
     combination = info.get("combination") or None
     if label is None:

@@ -605,3 +605,38 @@ def test_nothing_is_ever_unpickled(finished_run, tmp_path, monkeypatch):
     jaxcart.load_policy(finished_run)
     checkpoint.read_checkpoint_meta(finished_run / checkpoint.CHECKPOINT_FILE)
     assert calls and all(c is False for c in calls)
+
+
+def _symlink_metrics_out(run: Path) -> None:
+    (run / "metrics.csv").unlink()
+    (run / "metrics.csv").symlink_to("/etc/passwd")
+
+
+CRAFTED_OUTPUTS = [
+    (lambda r: (r / "evaluation.json").write_text('{"seeds": '), "evaluation.json is corrupted"),
+    (lambda r: (r / "evaluation.json").write_text('"text"'), "not a JSON object"),
+    (
+        lambda r: (r / "metrics.csv").write_text("seed_index,iteration\n" + "0,1\n" * 400000),
+        "larger than",
+    ),
+    (lambda r: (r / "metrics.csv").write_text("seed_index,iteration,x\n-5,1,2\n"), "out of range"),
+    (_symlink_metrics_out, "link out of"),
+    (lambda r: (r / "config.json").write_text('{"config": {}, "num_seeds": -3}'), "corrupted"),
+]
+
+
+@pytest.mark.parametrize(
+    "damage, message", CRAFTED_OUTPUTS, ids=[str(i) for i in range(len(CRAFTED_OUTPUTS))]
+)
+def test_crafted_outputs_rejected_by_plot_and_compare(damage, message, finished_run, tmp_path):
+    from jaxcart import compare, plot
+
+    run = tmp_path / "crafted"
+    shutil.copytree(finished_run, run)
+    damage(run)
+    for command in (plot.main, compare.main):
+        FAULT_FIGURES["crafted files tried"] += 1
+        code, err = _capture(lambda c=command: c([str(run), "--out", str(tmp_path / "o.png")]))
+        assert code == 2 and message in err, err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+        FAULT_FIGURES["crafted files rejected"] += 1
