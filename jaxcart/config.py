@@ -121,6 +121,12 @@ TRACED_FIELDS: tuple[str, ...] = tuple(
 """The fields declared with :func:`traced`, in declaration order."""
 
 
+MAX_WEIGHTS = 1 << 26
+"""Weights per MLP (64 M): far above any CartPole network, a bound for untrusted configs."""
+MAX_BATCH = 1 << 24
+"""Transitions per iteration: the minibatch shuffle packs an index into 24 bits."""
+
+
 def validate(config: PPOConfig) -> None:
     """Raises :class:`ConfigError` naming the first invalid field and what to do about it."""
     c = config
@@ -157,6 +163,18 @@ def validate(config: PPOConfig) -> None:
     ):
         raise ConfigError(
             f"hidden_sizes must be one or more positive integers, got {c.hidden_sizes!r}"
+        )
+    sizes = (4, *c.hidden_sizes)
+    weights = sum(a * b for a, b in zip(sizes, sizes[1:]))
+    if weights > MAX_WEIGHTS:
+        raise ConfigError(
+            f"hidden_sizes={c.hidden_sizes!r} makes {weights:,} weights per MLP, more than "
+            f"the {MAX_WEIGHTS:,} this trainer supports; use smaller layers"
+        )
+    if c.batch_size > MAX_BATCH:
+        raise ConfigError(
+            f"num_envs x num_steps = {c.batch_size:,} transitions per iteration is more than "
+            f"the {MAX_BATCH:,} one minibatch shuffle supports; use fewer envs or steps"
         )
     if c.activation not in ("tanh", "relu"):
         raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")

@@ -177,8 +177,8 @@ def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
                 }.get(version)
                 if read_header is None:
                     raise RunDirError(f"{path}: {info.filename} has .npy version {version}")
-                shape, fortran, dtype = read_header(f)
-                if dtype.hasobject or fortran:
+                shape, _, dtype = read_header(f)
+                if dtype.hasobject:
                     raise RunDirError(f"{path}: {info.filename} holds objects; refusing it")
                 data_bytes = math.prod(shape) * dtype.itemsize
                 if f.tell() + data_bytes != info.file_size:

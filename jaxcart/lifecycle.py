@@ -24,16 +24,17 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxcart import checkpoint, devices, distributed, rundir
+from jaxcart import checkpoint, devices, distributed, files, outputs, rundir
 from jaxcart import sweep as sweeps
 from jaxcart.config import ConfigError, PPOConfig
-from jaxcart.evaluate import SOLVED_DEFINITION, evaluate_runs, is_solved
+from jaxcart.evaluate import NUM_EVAL_EPISODES, evaluate_runs, is_solved
 from jaxcart.files import RunDirError
 from jaxcart.loggers import Logger, LoggerUnavailable, check_available, make_logger
 from jaxcart.ppo import Hyperparams
 from jaxcart.runlock import RunLock
 from jaxcart.signals import Stopped, StopRequest
 from jaxcart.trainer import Progress, TrainResult, TrainState, initial_state, train
+from jaxcart.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 
@@ -92,8 +93,8 @@ class RunOptions:
 
     checkpoint_every: float = 30.0
     """Seconds between checkpoints."""
-    eval_episodes: int = 20
-    """Greedy Gymnasium evaluation episodes per seed."""
+    eval_episodes: int | None = None
+    """Greedy Gymnasium evaluation episodes per seed (None: 20, or a resumed run's own)."""
     loggers: tuple[str, ...] = ()
     """Metric backends besides metrics.csv: ``tensorboard``, ``swanlab``."""
     compile_cache: bool = True
@@ -103,7 +104,7 @@ class RunOptions:
 
     def __post_init__(self) -> None:
         _check(
-            _is_int(self.eval_episodes) and self.eval_episodes > 0,
+            self.eval_episodes is None or (_is_int(self.eval_episodes) and self.eval_episodes > 0),
             "eval_episodes",
             f"must be a positive integer, got {self.eval_episodes}",
         )
@@ -134,6 +135,7 @@ class Hooks:
     on_diverged: Callable[[str, int], None] | None = None  # run name, iteration
     on_signal: Callable[[int], None] | None = None  # first SIGINT/SIGTERM
     on_init: Callable[[int, int], None] | None = None  # runs initialised so far, of all
+    on_wave: Callable[[int, int, range], None] | None = None  # wave, of how many, its runs
 
 
 @dataclass
@@ -155,12 +157,18 @@ class Outcome:
     """What a call of :func:`run_new` / :func:`resume_run` did."""
 
     run: Run
-    result: TrainResult | None  # None when stopped before training started
-    diverged_at: np.ndarray  # [R]: -1, or the iteration where that run went non-finite
+    result: TrainResult | None  # the last wave's training; None if stopped before training
+    diverged_at: np.ndarray | None = None  # [R]: -1, or the iteration that went non-finite
+    final_return: np.ndarray | None = None  # [R]: rollout/ep_rew_mean at the last iteration
     evaluation: Evaluation | None = None  # None when stopped before the outputs were written
     ranking: list[dict] | None = None  # sweeps: the combinations, best first
     signum: int | None = None  # the signal that stopped it (or arrived while writing)
     stopped: bool = False  # stopped before the run directory was complete (resumable)
+    compile_seconds: float = 0.0  # this session's, every wave
+    train_seconds: float = 0.0  # this session's training, compile excluded
+    env_steps: int = 0  # this session's, all runs
+    num_devices: int = 1
+    stopped_at: tuple[int, int] | None = None  # (wave, iteration) of the checkpoint on disk
 
 
 class Run:
@@ -170,7 +178,9 @@ class Run:
         self.out, self.spec, self.info, self.main_process = Path(out), spec, info, main_process
         self.grid = spec.grid
         self.resumed_from: int | None = None  # iteration of the checkpoint resumed from
-        self.has_checkpoint = False
+        self.checkpoint_meta: dict | None = None  # of the checkpoint on disk, when there is one
+        self.resume_wave = 0  # the wave a resume continues with
+        self.plan = WavePlan(self.grid.num_runs, info.get("wave_size") or self.grid.num_runs, 0, 0)
         self.lock = RunLock(out)  # held by the main process from create/open to close
 
     def close(self) -> None:
@@ -182,8 +192,20 @@ class Run:
     sweep = property(lambda self: self.spec.sweep)
 
     @classmethod
-    def create(cls, spec: RunSpec, out: str | Path | None = None, main_process: bool = True) -> Run:
-        """A new run directory (refusing a non-empty one) with its ``config.json``."""
+    def create(
+        cls,
+        spec: RunSpec,
+        out: str | Path | None = None,
+        main_process: bool = True,
+        plan: WavePlan | None = None,
+        extra: dict | None = None,
+    ) -> Run:
+        """A new run directory (refusing a non-empty one) with its ``config.json``.
+
+        ``plan`` says how many runs train at once (default: as many as fit in memory);
+        ``extra`` is recorded in config.json too (the command line, evaluation episodes).
+        """
+        plan = plan or plan_waves(spec.config, spec.grid.num_runs, jax.device_count())
         out = Path(out) if out is not None else default_out_dir(spec.preset)
         lock = RunLock(out)
         if main_process:
@@ -199,9 +221,11 @@ class Run:
             "versions": rundir.package_versions(),
             "backend": jax.default_backend(),
             "device_count": jax.device_count(),
+            "wave_size": plan.wave_size,
+            **(extra or {}),
         }
         run = cls(out, spec, info, main_process)
-        run.lock = lock
+        run.plan, run.lock = plan, lock
         if main_process:
             try:
                 rundir.write_json(
@@ -250,39 +274,59 @@ class Run:
         sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
         spec = RunSpec(config, info["preset"], int(info["num_seeds"]), int(info["seed"]), sweep)
         run = cls(out, spec, info, main_process)
-        run.has_checkpoint = meta is not None
-        run.resumed_from = int(meta["iteration"]) if meta else 0
+        if run.plan.num_waves > 1:  # the plan it was started with, and today's estimate
+            per_run = bytes_per_run(config)
+            run.plan = WavePlan(run.grid.num_runs, run.plan.wave_size, per_run, available_bytes())
+        run.checkpoint_meta = meta
+        run.resume_wave = run.first_unfinished_wave()
+        same_wave = meta is not None and meta.get("wave", 0) == run.resume_wave
+        run.resumed_from = int(meta["iteration"]) if same_wave else 0
         return run
+
+    def first_unfinished_wave(self) -> int:
+        """The first wave without a saved block (0 for a run trained in one wave)."""
+        waves = self.plan.num_waves
+        if waves == 1:
+            return 0
+        return next(
+            (w for w in range(waves) if not outputs.block_path(self.out, w).exists()), waves
+        )
 
     def hyperparams(self) -> Hyperparams:
         """Every run's traced hyperparameters, leaves ``[R]``."""
         return sweeps.sweep_hyperparams(self.spec.combo_configs(), self.grid)
 
     def initial_state(
-        self, chunk_size: int | None = None, on_progress: Callable[[int, int], None] | None = None
+        self,
+        runs: range,
+        wave: int = 0,
+        chunk_size: int | None = None,
+        on_progress: Callable[[int, int], None] | None = None,
     ) -> TrainState:
-        """The checkpoint's state when there is one; else a fresh state, saved at once as the
-        iteration-0 checkpoint so that a run killed at any moment can be resumed.
-        ``on_progress(done, total)`` follows the initialisation of large runs."""
-        grid = self.grid
-        if self.has_checkpoint:  # a one-run template names the arrays; the file has them all
+        """The state of ``runs`` (wave ``wave``) from the checkpoint when it holds that wave;
+        else a fresh state, saved at once as the wave's iteration-0 checkpoint, so that a run
+        killed at any moment can be resumed. ``on_progress(done, total)`` follows the
+        initialisation of large runs."""
+        meta = self.checkpoint_meta
+        if meta is not None and meta.get("wave", 0) == wave:
+            # a one-run template names the arrays; the file has them all
             template = initial_state(self.config, 1, self.spec.seed, chunk_size=chunk_size)
             path = self.out / checkpoint.CHECKPOINT_FILE
-            return checkpoint.load_checkpoint(path, template, num_runs=grid.num_runs)
+            return checkpoint.load_checkpoint(path, template, num_runs=len(runs))
+        hps = jax.tree.map(lambda x: x[runs.start : runs.stop], self.hyperparams())
         fresh = initial_state(
             self.config,
-            grid.num_runs,
+            len(runs),
             self.spec.seed,
-            self.hyperparams(),
+            hps,
             chunk_size=chunk_size,
-            seed_indices=grid.seed_indices(),
+            seed_indices=self.grid.seed_indices()[runs.start : runs.stop],
             on_progress=on_progress,
         )
-        self.save_checkpoint(fresh)
-        self.has_checkpoint = True
+        self.save_checkpoint(fresh, wave)
         return fresh
 
-    def save_checkpoint(self, state: TrainState) -> None:
+    def save_checkpoint(self, state: TrainState, wave: int = 0) -> None:
         """Every process takes part in gathering the state; process 0 writes it."""
         arrays = distributed.gather({"runners": state.runners, "hyperparams": state.hyperparams})
         if not self.main_process:
@@ -291,21 +335,30 @@ class Run:
             state, runners=arrays["runners"], hyperparams=arrays["hyperparams"]
         )
         meta = {
-            "num_runs": self.grid.num_runs,
+            "num_runs": len(arrays["runners"].diverged_at),
+            "wave": wave,
             "config": self.config.to_dict(),
             "versions": _package_versions(),
         }
         checkpoint.save_checkpoint(self.out / checkpoint.CHECKPOINT_FILE, gathered, meta)
+        self.checkpoint_meta = {**meta, "iteration": state.iteration}
 
     def train(
-        self, options: RunOptions, hooks: Hooks, should_stop: Callable[[], bool] | None = None
+        self,
+        options: RunOptions,
+        hooks: Hooks,
+        should_stop: Callable[[], bool] | None = None,
+        runs: range | None = None,
+        wave: int = 0,
     ) -> TrainResult:
-        """Trains from :meth:`initial_state` to the end (or until ``should_stop``), logging
-        metrics and checkpointing every ``options.checkpoint_every`` seconds.
+        """Trains ``runs`` (default: all; wave ``wave`` of the plan) from
+        :meth:`initial_state` to the end or until ``should_stop``, logging metrics and
+        checkpointing every ``options.checkpoint_every`` seconds.
 
         Raises:
             Stopped: ``should_stop`` turned true during the initialisation.
         """
+        runs = runs if runs is not None else range(self.grid.num_runs)
 
         def on_progress(done: int, total: int) -> None:
             if should_stop is not None and should_stop():
@@ -313,19 +366,18 @@ class Run:
             if hooks.on_init:
                 hooks.on_init(done, total)
 
-        state = self.initial_state(options.chunk_size, on_progress)
+        state = self.initial_state(runs, wave, options.chunk_size, on_progress)
+        names = [self.grid.run_name(r) for r in runs]
         loggers = list(options.loggers) if self.main_process else []
-        logger = make_logger(
-            loggers, self.out, self.grid.run_names(), {**self.info, "config": self.config.to_dict()}
-        )
-        handler = _ChunkHandler(self, options, hooks, logger)
+        info = {**self.info, "config": self.config.to_dict()}
+        logger = make_logger(loggers, self.out, names, info)
+        handler = _ChunkHandler(self, options, hooks, logger, runs, wave)
         try:
             return train(
                 self.config,
-                self.grid.num_runs,
+                len(runs),
                 self.spec.seed,
                 resume=state,
-                seed_indices=self.grid.seed_indices(),
                 on_compiled=hooks.on_compiled,
                 on_chunk=handler,
                 should_stop=should_stop,
@@ -333,113 +385,75 @@ class Run:
         finally:
             logger.close()
 
-    def evaluate(self, params: dict, episodes: int, stop: StopRequest | None = None) -> Evaluation:
-        """Greedy returns of every run in Gymnasium's CartPole-v1 and in jaxcart (raises
-        :class:`~jaxcart.signals.Stopped` when ``stop`` is requested meanwhile)."""
+    def evaluate(
+        self,
+        params: dict,
+        episodes: int,
+        runs: range | None = None,
+        stop: StopRequest | None = None,
+    ) -> Evaluation:
+        """Greedy returns of ``runs`` (default all) in Gymnasium's CartPole-v1 and in jaxcart
+        (raises :class:`~jaxcart.signals.Stopped` when ``stop`` is requested meanwhile)."""
+        runs = runs if runs is not None else range(self.grid.num_runs)
         start = time.perf_counter()
         gym_returns, jax_returns = evaluate_runs(
             params,
             self.config,
             self.spec.seed,
-            self.grid.seed_indices(),
+            self.grid.seed_indices()[runs.start : runs.stop],
             episodes,
             should_stop=stop,
         )
         return Evaluation(episodes, gym_returns, jax_returns, time.perf_counter() - start)
 
-    def write_outputs(
-        self, result: TrainResult, params: dict, evaluation: Evaluation, diverged_at: np.ndarray
-    ) -> list[dict] | None:
-        """metrics.csv, params.npz and evaluation.json (per combination for a sweep, with
-        its own config.json, and sweep.json ranking them). Returns the ranking of a sweep.
-
-        ``params`` are every run's parameters gathered to the host, leaves ``[R, ...]``.
-        """
-        timing = {
-            "compile_seconds": result.compile_seconds,
-            "train_seconds": result.state.elapsed,
-            "eval_seconds": evaluation.seconds,
-            "devices": result.num_devices,
-        }
+    def write_outputs(self, blocks: list, episodes: int, timing: dict) -> list[dict] | None:
+        """metrics.csv, params.npz and evaluation.json from the runs' blocks (per
+        combination for a sweep, with its own config.json, and sweep.json ranking them).
+        Returns the ranking of a sweep."""
         configs = self.spec.combo_configs()
         for c, combo in enumerate(self.grid.combos or ({},)):
             directory = rundir.combo_dir(self.out, c) if self.grid.is_sweep else self.out
-            runs = self.grid.runs_of(c)
             directory.mkdir(parents=True, exist_ok=True)
+            runs = self.grid.runs_of(c)
+            runs = range(runs.start, runs.stop)
             if combo:
                 info = {**self.info, "combination": combo, "sweep": {}, "combinations": []}
-                rundir.write_json(
-                    directory / rundir.CONFIG_FILE, {**info, "config": configs[c].to_dict()}
-                )
-            metrics = {k: v[:, runs] for k, v in result.metrics.items()}
-            rundir.write_metrics_csv(
-                directory / rundir.METRICS_FILE, metrics, self.config.batch_size
-            )
-            rundir.save_params(directory / rundir.PARAMS_FILE, _take(params, runs))
-            record = evaluation_record(
-                evaluation, runs, metrics["rollout/ep_rew_mean"][-1], diverged_at[runs]
-            )
-            rundir.write_json(directory / rundir.EVALUATION_FILE, {**record, **timing})
-        return self._write_ranking(result, evaluation, diverged_at) if self.grid.is_sweep else None
+                config = configs[c].to_dict()
+                rundir.write_json(directory / rundir.CONFIG_FILE, {**info, "config": config})
+            batch = self.config.batch_size
+            outputs.write_metrics_csv(directory / rundir.METRICS_FILE, blocks, runs, batch)
+            outputs.write_params(directory / rundir.PARAMS_FILE, blocks, runs)
+            path = directory / rundir.EVALUATION_FILE
+            outputs.write_evaluation(path, blocks, runs, episodes, timing)
+        return self._write_ranking(blocks) if self.grid.is_sweep else None
 
-    def _write_ranking(
-        self, result: TrainResult, evaluation: Evaluation, diverged_at: np.ndarray
-    ) -> list[dict]:
+    def _write_ranking(self, blocks: list) -> list[dict]:
         steps = np.arange(1, self.config.num_iterations + 1) * self.config.batch_size
-        ranking = sweeps.rank(
-            self.grid,
-            evaluation.gym_returns.mean(-1),
-            evaluation.solved,
-            result.metrics["rollout/ep_rew_mean"][-1],
-            sweeps.first_reach(result.metrics["rollout/ep_rew_max"], steps),
-            diverged_at,
-        )
+        columns: dict[str, list] = {k: [] for k in ("score", "solved", "final", "reach", "div")}
+        for block, take in outputs._overlapping(blocks, range(self.grid.num_runs)):
+            columns["score"].append(block.gym_returns[take].mean(-1))
+            columns["solved"].append(is_solved(block.gym_returns[take]))
+            columns["final"].append(block.metrics["rollout/ep_rew_mean"][-1, take])
+            columns["reach"].append(
+                sweeps.first_reach(block.metrics["rollout/ep_rew_max"][:, take], steps)
+            )
+            columns["div"].append(block.diverged_at[take])
+        score, solved, final, reach, div = (np.concatenate(columns[k]) for k in columns)
+        ranking = sweeps.rank(self.grid, score, solved, final, reach, div)
         data = {"sweep": self.sweep, "num_seeds": self.grid.num_seeds, "ranking": ranking}
         rundir.write_json(self.out / rundir.SWEEP_FILE, data)
         return ranking
-
-
-def _take(params: dict, runs: slice) -> dict:
-    return jax.tree.map(lambda x: x[runs], params)
-
-
-def evaluation_record(
-    evaluation: Evaluation, runs: slice, final_return: np.ndarray, diverged_at: np.ndarray
-) -> dict:
-    """``evaluation.json`` of one run directory (the seeds in ``runs``)."""
-    g, j, solved = (
-        evaluation.gym_returns[runs],
-        evaluation.jax_returns[runs],
-        evaluation.solved[runs],
-    )
-    seeds = [
-        {
-            "seed_index": s,
-            "gymnasium_returns": g[s].tolist(),
-            "gymnasium_mean": float(g[s].mean()),
-            "gymnasium_min": float(g[s].min()),
-            "solved": bool(solved[s]),
-            "jaxcart_returns": j[s].tolist(),
-            "jaxcart_mean": float(j[s].mean()),
-            "final_ep_rew_mean": float(final_return[s]),
-            "diverged_at_iteration": int(diverged_at[s]) if diverged_at[s] >= 0 else None,
-        }
-        for s in range(len(g))
-    ]
-    return {
-        "episodes": evaluation.episodes,
-        "solved_definition": SOLVED_DEFINITION.format(episodes=evaluation.episodes),
-        "seeds": seeds,
-        "solved_seeds": int(solved.sum()),
-    }
 
 
 class _ChunkHandler:
     """What happens after every chunk: loggers, periodic checkpoints, divergence reports,
     then the caller's ``on_chunk``."""
 
-    def __init__(self, run: Run, options: RunOptions, hooks: Hooks, logger: Logger) -> None:
+    def __init__(
+        self, run: Run, options: RunOptions, hooks: Hooks, logger: Logger, runs: range, wave: int
+    ) -> None:
         self.run, self.options, self.hooks, self.logger = run, options, hooks, logger
+        self.runs, self.wave = runs, wave  # progress.diverged_at is indexed within the wave
         self.last_save = time.monotonic()
         self.reported: set[int] = set()
 
@@ -451,7 +465,8 @@ class _ChunkHandler:
         self.reported.update(new)
         if self.hooks.on_diverged and run.main_process:
             for r in new:
-                self.hooks.on_diverged(run.grid.run_name(r), int(progress.diverged_at[r]))
+                name = run.grid.run_name(self.runs.start + r)
+                self.hooks.on_diverged(name, int(progress.diverged_at[r]))
         count = len(progress.metrics["time/fps"])
         first = progress.iteration - count
         steps = (first + 1 + np.arange(count)) * run.config.batch_size
@@ -459,7 +474,7 @@ class _ChunkHandler:
         due = time.monotonic() - self.last_save >= self.options.checkpoint_every
         due = distributed.any_process(due)  # every process must agree on when to gather
         if due and progress.iteration < run.config.num_iterations:
-            run.save_checkpoint(progress.state())
+            run.save_checkpoint(progress.state(), self.wave)
             self.last_save = time.monotonic()
         if self.hooks.on_chunk:
             self.hooks.on_chunk(progress)
@@ -538,12 +553,23 @@ def run_new(
     options: RunOptions | None = None,
     hooks: Hooks | None = None,
     stop: StopRequest | None = None,
+    command: list[str] | None = None,
 ) -> Outcome:
-    """Creates a run directory for ``spec`` and carries the run out (see :func:`carry_out`)."""
+    """Creates a run directory for ``spec`` and carries the run out (see :func:`carry_out`).
+
+    The runs train in waves when they do not all fit in memory (:mod:`jaxcart.waves`);
+    ``command`` (the command line, when there is one) is recorded in ``config.json``.
+    """
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
-    run = Run.create(spec, out, main_process=distributed.is_main_process())
+    episodes = options.eval_episodes or NUM_EVAL_EPISODES
+    options = dataclasses.replace(options, eval_episodes=episodes)
+    plan = plan_waves(spec.config, spec.grid.num_runs, jax.device_count(), episodes)
+    if stop is not None:
+        stop.check()
+    extra = {"eval_episodes": episodes, **({"command": list(command)} if command else {})}
+    run = Run.create(spec, out, distributed.is_main_process(), plan, extra)
     return carry_out(run, options, hooks, stop)
 
 
@@ -557,19 +583,28 @@ def resume_run(
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
+    if stop is not None:
+        stop.check()
     run = Run.open(out, main_process=distributed.is_main_process())
-    return carry_out(run, options, hooks, stop)
+    recorded = run.info.get("eval_episodes")
+    if recorded and options.eval_episodes and options.eval_episodes != recorded:
+        run.close()
+        raise ConfigError(
+            f"{out} evaluates {recorded} episodes per seed (config.json); drop --eval-episodes",
+        )
+    episodes = options.eval_episodes or recorded or NUM_EVAL_EPISODES
+    return carry_out(run, dataclasses.replace(options, eval_episodes=episodes), hooks, stop)
 
 
 def carry_out(
     run: Run, options: RunOptions, hooks: Hooks | None = None, stop: StopRequest | None = None
 ) -> Outcome:
-    """Trains, then evaluates every run and writes the run directory; holds the run's lock
-    throughout and releases it at the end.
+    """Trains (wave by wave), evaluates every run and writes the run directory; holds the
+    run's lock throughout and releases it at the end.
 
     SIGINT and SIGTERM (handled here unless the caller passes its own ``stop``) stop at the
     next safe point: the state is checkpointed and the outcome is ``stopped``, resumable.
-    A stopped run keeps its checkpoint and a partial metrics.csv.
+    A stopped run keeps its checkpoint (and, trained in one wave, a partial metrics.csv).
     """
     hooks = hooks or Hooks()
     stop = stop or StopRequest(hooks.on_signal)
@@ -583,27 +618,102 @@ def carry_out(
 def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -> Outcome:
     if hooks.on_start:
         hooks.on_start(run, jax.device_count(), jax.default_backend())
+    outcome = Outcome(run, None, num_devices=jax.device_count())
+    blocks: list = []
+    num_waves = run.plan.num_waves
+    for wave, runs in enumerate(run.plan.waves()):
+        path = outputs.block_path(run.out, wave)
+        if num_waves > 1 and path.exists():
+            blocks.append(path)  # finished before an interruption
+            continue
+        if hooks.on_wave:
+            hooks.on_wave(wave, num_waves, runs)
+        block = _train_wave(run, options, hooks, stop, outcome, runs, wave)
+        if block is None:
+            meta = run.checkpoint_meta or {}
+            same_wave = meta.get("wave", 0) == wave
+            outcome.stopped_at = (wave, int(meta.get("iteration", 0)) if same_wave else 0)
+            outcome.stopped = True
+            outcome.signum = (
+                stop.signum or signal.SIGTERM
+            )  # another process may have been signalled
+            return outcome
+        if num_waves > 1 and run.main_process:
+            path.parent.mkdir(exist_ok=True)
+            block.save(path)
+            blocks.append(path)
+        else:
+            blocks.append(block)
+    if run.main_process:
+        _finish(run, blocks, options.eval_episodes, outcome)
+    return outcome  # signum set when a signal came while writing: the run finished all the same
+
+
+def _train_wave(
+    run: Run,
+    options: RunOptions,
+    hooks: Hooks,
+    stop: StopRequest,
+    outcome: Outcome,
+    runs: range,
+    wave: int,
+) -> outputs.Block | None:
+    """Trains and evaluates one wave; None when stopped (its state checkpointed)."""
     try:
-        result = run.train(options, hooks, should_stop=stop)
+        result = run.train(options, hooks, should_stop=stop, runs=runs, wave=wave)
     except Stopped:  # during initialisation: the checkpoint on disk (if any) is untouched
-        runs = np.full(run.grid.num_runs, -1)
-        return Outcome(run, None, runs, signum=stop.signum or signal.SIGTERM, stopped=True)
-    run.save_checkpoint(result.state)
-    diverged_at = np.asarray(distributed.gather(result.state.runners.diverged_at))
-    outcome = Outcome(run, result, diverged_at, signum=stop.signum, stopped=result.stopped)
-    params = None if result.stopped else distributed.gather(result.params)
-    if run.main_process and not result.stopped:
+        return None
+    outcome.result = result
+    outcome.compile_seconds += result.compile_seconds
+    outcome.train_seconds += result.run_seconds
+    outcome.env_steps += result.env_steps
+    run.save_checkpoint(result.state, wave)
+    diverged = np.asarray(distributed.gather(result.state.runners.diverged_at))
+    if result.stopped:
+        if run.main_process and run.plan.num_waves == 1:
+            path = run.out / rundir.METRICS_FILE
+            rundir.write_metrics_csv(path, result.metrics, run.config.batch_size)
+        return None
+    params = distributed.gather(result.params)
+    evaluation = Evaluation(
+        options.eval_episodes, np.zeros((len(runs), 0)), np.zeros((len(runs), 0)), 0.0
+    )
+    if run.main_process:
         try:
             stop.check()
-            outcome.evaluation = run.evaluate(params, options.eval_episodes, stop)
+            evaluation = run.evaluate(params, options.eval_episodes, runs, stop)
         except Stopped:
-            outcome.stopped = True
-    if outcome.stopped:  # what there is so far, and a resumable state
-        if run.main_process:
-            metrics_path = run.out / rundir.METRICS_FILE
-            rundir.write_metrics_csv(metrics_path, result.metrics, run.config.batch_size)
-        outcome.signum = stop.signum or signal.SIGTERM  # another process may have been signalled
-        return outcome
-    if run.main_process:
-        outcome.ranking = run.write_outputs(result, params, outcome.evaluation, diverged_at)
-    return outcome  # signum set when a signal came while writing: the run finished all the same
+            return None
+    timing = {
+        "compile_seconds": result.compile_seconds,
+        "train_seconds": result.state.elapsed,
+        "eval_seconds": evaluation.seconds,
+    }
+    return outputs.Block(
+        runs.start,
+        runs.stop,
+        files.flatten(params),
+        result.metrics,
+        diverged,
+        evaluation.gym_returns,
+        evaluation.jax_returns,
+        timing,
+    )
+
+
+def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
+    """The run directory's outputs and the outcome's per-run summary, from every block."""
+    columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final")}
+    timing = {"compile_seconds": 0.0, "train_seconds": 0.0, "eval_seconds": 0.0}
+    for block, take in outputs._overlapping(blocks, range(run.grid.num_runs)):
+        columns["gym"].append(block.gym_returns[take])
+        columns["jax"].append(block.jax_returns[take])
+        columns["div"].append(block.diverged_at[take])
+        columns["final"].append(block.metrics["rollout/ep_rew_mean"][-1, take])
+        for k in timing:
+            timing[k] += float(block.timing.get(k, 0.0))
+    gym, jax_returns, div, final = (np.concatenate(columns[k]) for k in columns)
+    outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"])
+    outcome.diverged_at, outcome.final_return = div, final
+    extra = {**timing, "devices": outcome.num_devices, "waves": len(blocks)}
+    outcome.ranking = run.write_outputs(blocks, episodes, extra)

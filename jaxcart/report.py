@@ -19,6 +19,10 @@ if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from jaxcart.trainer import Progress
 
 
+MAX_TABLE_ROWS = 100
+"""Seeds listed on the terminal; evaluation.json holds them all."""
+
+
 def header_line(run: Run, device_count: int, backend: str) -> str:
     """``jaxcart PPO | preset sb3 | 2 seed(s) x 81,920 env steps (...) | 2 cpu device(s) | out ...``."""
     grid, config = run.grid, run.config
@@ -36,8 +40,7 @@ def header_line(run: Run, device_count: int, backend: str) -> str:
 
 def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
     """The per-seed table of a run without a sweep."""
-    ev, final = outcome.evaluation, outcome.result.metrics["rollout/ep_rew_mean"][-1]
-    diverged = outcome.diverged_at
+    ev, final, diverged = outcome.evaluation, outcome.final_return, outcome.diverged_at
     rows = [
         [
             s,
@@ -48,8 +51,11 @@ def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
             f"{ev.jax_returns[s].mean():.1f}",
             f"{final[s]:.1f}",
         ]
-        for s in range(len(ev.solved))
+        for s in range(min(len(ev.solved), MAX_TABLE_ROWS))
     ]
+    if len(ev.solved) > MAX_TABLE_ROWS:
+        rows.append(["...", f"{len(ev.solved) - MAX_TABLE_ROWS:,} more in evaluation.json"])
+        rows[-1] += [""] * 4
     return rows, ["seed", "gym mean", "gym min", "solved", "jaxcart mean", "train ep_rew_mean"]
 
 
@@ -112,23 +118,25 @@ def results_text(outcome: Outcome) -> str:
 
 def summary_line(outcome: Outcome, wall_seconds: float) -> str:
     """``solved 2/2 run(s) | wall ... | N env steps at M steps/s ... on D device(s)``."""
-    result, ev = outcome.result, outcome.evaluation
-    steps, run_s, compile_s = result.env_steps, result.run_seconds, result.compile_seconds
+    ev = outcome.evaluation
+    steps, run_s, compile_s = outcome.env_steps, outcome.train_seconds, outcome.compile_seconds
     return (
         f"\nsolved {int(ev.solved.sum())}/{len(ev.solved)} run(s) | wall {wall_seconds:.1f} s "
         f"(compile {compile_s:.1f} s, train {run_s:.1f} s, eval {ev.seconds:.1f} s) | "
         f"{steps:,} env steps at {steps / run_s:,.0f} steps/s "
-        f"({steps / (run_s + compile_s):,.0f} incl. compile) on {result.num_devices} device(s)"
+        f"({steps / (run_s + compile_s):,.0f} incl. compile) on {outcome.num_devices} device(s)"
     )
 
 
-def stopped_text(run: Run, iteration: int | None, resume_hint: str) -> str:
+def stopped_text(outcome: Outcome, resume_hint: str) -> str:
     """What a stopped run prints: where it stopped and how to resume."""
-    where = (
-        "before training started"
-        if iteration is None
-        else f"at iteration {iteration}/{run.config.num_iterations}"
-    )
+    run, (wave, iteration) = outcome.run, outcome.stopped_at or (0, 0)
+    if outcome.result is None and wave == 0:
+        where = "before training started"
+    else:
+        where = f"at iteration {iteration}/{run.config.num_iterations}"
+        if run.plan.num_waves > 1:
+            where += f" of wave {wave + 1}/{run.plan.num_waves}"
     return f"stopped {where}; checkpoint saved in {run.out}\nresume with: {resume_hint}"
 
 
@@ -166,6 +174,7 @@ class ConsoleReport:
         self.out, self.progress_bar = out, progress_bar
         self.bar = None
         self.init_bar = None
+        self.wave_offset = 0
         self.run: Run | None = None
 
     def print(self, text: str) -> None:
@@ -174,25 +183,47 @@ class ConsoleReport:
     def on_start(self, run: Run, device_count: int, backend: str) -> None:
         self.run = run
         self.print(header_line(run, device_count, backend))
-        runs = run.grid.num_runs
+        runs = len(run.plan.wave(run.plan.num_waves - 1))  # the others divide over the devices
         if runs % device_count:
             padded = -(-runs // device_count) * device_count
+            last = " in the last wave" if run.plan.num_waves > 1 else ""
             self.print(
-                f"{runs} runs padded to {padded} so that each of the {device_count} devices "
-                f"takes {padded // device_count} ({padded - runs} padding run(s) computed and "
-                "discarded)"
+                f"{runs} runs{last} padded to {padded} so that each of the {device_count} "
+                f"devices takes {padded // device_count} ({padded - runs} padding run(s) "
+                "computed and discarded)"
+            )
+        if run.plan.num_waves > 1:
+            what = "runs" if run.grid.is_sweep else "seeds"
+            self.print(
+                run.plan.describe(what)
+                if run.plan.bytes_per_run
+                else f"{run.plan.num_runs:,} {what} in {run.plan.num_waves:,} waves of "
+                f"{run.plan.wave_size:,}"
             )
         if run.resumed_from is not None:
-            self.print(f"resuming from iteration {run.resumed_from}/{run.config.num_iterations}")
+            wave = run.resume_wave
+            at = f" of wave {wave + 1}/{run.plan.num_waves}" if run.plan.num_waves > 1 else ""
+            self.print(
+                f"resuming from iteration {run.resumed_from}/{run.config.num_iterations}{at}"
+            )
+
+    def on_wave(self, wave: int, num_waves: int, runs: range) -> None:
+        """Each wave's iterations continue the one progress bar."""
+        self.wave_offset = wave * self.run.config.num_iterations
+        if self.bar is not None:
+            self.bar.set_description(f"training (wave {wave + 1}/{num_waves})")
 
     def on_compiled(self, seconds: float) -> None:
         from tqdm import tqdm
 
+        if self.bar is not None:  # a later wave: the program is cached
+            return
         self.print(f"compiled the fused training step in {seconds:.2f} s")
         if self.progress_bar:
+            waves = self.run.plan.num_waves
             self.bar = tqdm(
-                total=self.run.config.num_iterations,
-                initial=self.run.resumed_from or 0,
+                total=self.run.config.num_iterations * waves,
+                initial=self.wave_offset + (self.run.resumed_from or 0),
                 unit="it",
                 desc="training",
                 dynamic_ncols=True,
@@ -207,7 +238,7 @@ class ConsoleReport:
         self.bar.set_postfix_str(
             f"env steps/seed {progress.env_steps:,} | ep_rew_mean {mean_ret:.1f}", refresh=False
         )
-        self.bar.update(progress.iteration - self.bar.n)
+        self.bar.update(self.wave_offset + progress.iteration - self.bar.n)
 
     def on_diverged(self, run_name: str, iteration: int) -> None:
         message = (
@@ -250,6 +281,7 @@ class ConsoleReport:
             on_diverged=self.on_diverged,
             on_signal=self.on_signal,
             on_init=self.on_init,
+            on_wave=self.on_wave,
         )
 
     def close(self) -> None:

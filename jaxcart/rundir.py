@@ -117,7 +117,7 @@ def read_json(run_dir: str | os.PathLike, name: str) -> dict:
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise RunDirError(f"{path} is corrupted: {exc}") from None
+        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
     if not isinstance(data, dict):
         raise RunDirError(f"{path} is corrupted: not a JSON object")
     return data
@@ -149,6 +149,9 @@ def _check_run_fields(data: dict) -> None:
         raise ValueError(f"num_seeds {num_seeds!r}")
     if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
         raise ValueError(f"seed {seed!r}")
+    wave_size = data.get("wave_size", num_seeds)
+    if not isinstance(wave_size, int) or isinstance(wave_size, bool) or wave_size < 1:
+        raise ValueError(f"wave_size {wave_size!r}")
     sweep = data.get("sweep", {})
     if not isinstance(sweep, dict) or not all(
         isinstance(v, list) and all(isinstance(x, (int, float)) for x in v) for v in sweep.values()

@@ -94,7 +94,10 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         help="checkpoint interval",
     )
     run.add_argument(
-        "--eval-episodes", type=int, default=20, help="greedy evaluation episodes per seed"
+        "--eval-episodes",
+        type=int,
+        default=None,
+        help="greedy evaluation episodes per seed (default 20; a resumed run keeps its own)",
     )
     run.add_argument(
         "--logger",
@@ -153,7 +156,7 @@ class TrainOptions:
     sweep: tuple[str, ...] = ()
     resume: Path | None = None
     checkpoint_every: float = 30.0
-    eval_episodes: int = 20
+    eval_episodes: int | None = None
     loggers: tuple[str, ...] = ()
     compile_cache: bool = True
     quiet: bool = False
@@ -161,9 +164,10 @@ class TrainOptions:
     coordinator_address: str | None = None
     num_processes: int | None = None
     process_id: int | None = None
+    argv: tuple[str, ...] = ()  # as typed, recorded in config.json
 
     @classmethod
-    def from_args(cls, args: argparse.Namespace) -> TrainOptions:
+    def from_args(cls, args: argparse.Namespace, argv: list[str] = ()) -> TrainOptions:
         names = {f.name for f in config_fields()}
         values = vars(args)
         return cls(
@@ -183,6 +187,7 @@ class TrainOptions:
             coordinator_address=args.coordinator_address,
             num_processes=args.num_processes,
             process_id=args.process_id,
+            argv=tuple(argv),
         )
 
     def run_spec(self) -> lifecycle.RunSpec:
@@ -270,7 +275,8 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
             except RunDirError as exc:
                 raise cli.UsageError(f"cannot resume: {exc}") from None
         else:
-            outcome = lifecycle.run_new(spec, opts.out, run_options, hooks, stop)
+            command = ["python -m jaxcart.train", *opts.argv]
+            outcome = lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
     except Stopped:
         console.print("stopped before the run started; nothing was written")
         return 128 + (stop.signum or 15)
@@ -288,8 +294,7 @@ def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: flo
 
     if outcome.stopped:
         hint = lifecycle.RESUME_HINT.format(out=outcome.run.out)
-        iteration = outcome.result.state.iteration if outcome.result else None
-        console.print(report.stopped_text(outcome.run, iteration, hint))
+        console.print(report.stopped_text(outcome, hint))
         return 128 + outcome.signum
     if outcome.evaluation is None:  # not process 0: it evaluates and reports
         return 0
@@ -314,7 +319,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
-        opts = TrainOptions.from_args(build_parser().parse_args(cli.join_negative_values(argv_)))
+        args = build_parser().parse_args(cli.join_negative_values(argv_))
+        opts = TrainOptions.from_args(args, argv_)
         console.progress_bar = not opts.quiet
         return _train(opts, stop, console)
 

@@ -570,7 +570,8 @@ def _crafted_checkpoint(run: Path) -> None:
 
 def _huge_checkpoint_config(run: Path) -> None:
     info = json.loads((run / "config.json").read_text())
-    info["num_seeds"] = 10**9  # the checkpoint holds 1 seed: refused before any allocation
+    info["num_seeds"] = info["wave_size"] = 10**9  # the checkpoint holds 1 seed: refused
+    # from the headers, before anything of that size is allocated
     (run / "config.json").write_text(json.dumps(info))
 
 

@@ -1,0 +1,198 @@
+"""A run directory's outputs, written from blocks of consecutive runs.
+
+A :class:`Block` holds what training and evaluation produced for runs ``[start, stop)``:
+parameters, metrics, divergences and evaluation returns. A run trained in one go is one
+block in memory; a run trained in waves keeps one block file per finished wave
+(``waves/wave-00003.npz``) and the outputs are streamed from them, so that no step holds
+more than one wave in memory: ``metrics.csv``, ``params.npz`` and ``evaluation.json``, for
+the whole run or for one combination of a sweep.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+import zipfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from jaxcart import files
+from jaxcart.evaluate import SOLVED_DEFINITION, is_solved
+
+WAVES_DIR = "waves"
+PARAMS = "params/"
+METRICS = "metrics/"
+
+
+@dataclass
+class Block:
+    """Results of runs ``[start, stop)``: arrays with a leading (or, for metrics, second)
+    axis of ``stop - start`` runs."""
+
+    start: int
+    stop: int
+    params: dict[str, np.ndarray]  # flattened names -> [n, ...]
+    metrics: dict[str, np.ndarray]  # name -> [iterations, n]
+    diverged_at: np.ndarray  # [n]
+    gym_returns: np.ndarray  # [n, episodes]
+    jax_returns: np.ndarray  # [n, episodes]
+    timing: dict[str, float]
+
+    def save(self, path: Path) -> None:
+        arrays = {PARAMS + k: v for k, v in self.params.items()}
+        arrays |= {METRICS + k: np.asarray(v) for k, v in self.metrics.items()}
+        arrays |= {
+            "diverged_at": self.diverged_at,
+            "gym_returns": self.gym_returns,
+            "jax_returns": self.jax_returns,
+        }
+        files.save_tree(path, arrays, {"start": self.start, "stop": self.stop, **self.timing})
+
+    @classmethod
+    def load(cls, path: Path) -> Block:
+        arrays, meta = files.load_tree(path)
+        take = lambda prefix: {
+            k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)
+        }
+        timing = {k: v for k, v in meta.items() if k not in ("start", "stop")}
+        return cls(
+            int(meta["start"]),
+            int(meta["stop"]),
+            take(PARAMS),
+            take(METRICS),
+            arrays["diverged_at"],
+            arrays["gym_returns"],
+            arrays["jax_returns"],
+            timing,
+        )
+
+
+def block_path(run_dir: Path, wave: int) -> Path:
+    return Path(run_dir) / WAVES_DIR / f"wave-{wave:05d}.npz"
+
+
+def _overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
+    """Each block that holds some of ``runs`` (loaded when it is a path), with the slice of
+    its axis that does."""
+    for item in blocks:
+        block = Block.load(item) if isinstance(item, Path) else item
+        lo, hi = max(block.start, runs.start), min(block.stop, runs.stop)
+        if lo < hi:
+            yield block, slice(lo - block.start, hi - block.start)
+
+
+def write_metrics_csv(path: Path, blocks: list, runs: range, batch_size: int) -> None:
+    """Rows ``seed_index, iteration, env_steps, <metrics...>`` for ``runs`` (seed index
+    counted from ``runs.start``), streamed block by block and renamed into place."""
+    with atomic_text(path) as f:
+        writer, header = csv.writer(f, lineterminator="\n"), None
+        for block, take in _overlapping(blocks, runs):
+            names = list(block.metrics)
+            if header is None:
+                header = ["seed_index", "iteration", "env_steps", *names]
+                writer.writerow(header)
+            iterations = next(iter(block.metrics.values())).shape[0]
+            first = block.start + take.start - runs.start
+            for s in range(take.stop - take.start):
+                for i in range(iterations):
+                    row = [float(block.metrics[n][i, take.start + s]) for n in names]
+                    writer.writerow([first + s, i + 1, (i + 1) * batch_size, *row])
+
+
+def write_params(path: Path, blocks: list, runs: range) -> None:
+    """``params.npz`` for ``runs``: each array's header for the whole run, then its blocks'
+    bytes in order (a leading-axis concatenation), written to a temporary and renamed."""
+    first, _ = next(_overlapping(blocks, runs))
+    names = list(first.params)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        with zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
+            for name in names:
+                a = first.params[name]
+                shape = (len(runs), *a.shape[1:])
+                with zf.open(name + ".npy", "w", force_zip64=True) as f:
+                    header = {
+                        "descr": np.lib.format.dtype_to_descr(a.dtype),
+                        "fortran_order": False,
+                        "shape": shape,
+                    }
+                    np.lib.format.write_array_header_1_0(f, header)
+                    for block, take in _overlapping(blocks, runs):
+                        f.write(np.ascontiguousarray(block.params[name][take]).tobytes())
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
+
+
+def write_evaluation(path: Path, blocks: list, runs: range, episodes: int, extra: dict) -> None:
+    """``evaluation.json`` for ``runs``: per-seed returns and solved flags, streamed."""
+    solved_total = 0
+    with atomic_text(path) as f:
+        definition = json.dumps(SOLVED_DEFINITION.format(episodes=episodes))
+        head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
+        f.write(head + '  "seeds": [')
+        sep = "\n"
+        for block, take in _overlapping(blocks, runs):
+            final = block.metrics["rollout/ep_rew_mean"][-1, take]
+            g, j, d = block.gym_returns[take], block.jax_returns[take], block.diverged_at[take]
+            solved = is_solved(g)
+            solved_total += int(solved.sum())
+            first = block.start + take.start - runs.start
+            for s in range(len(g)):
+                seed = {
+                    "seed_index": first + s,
+                    "gymnasium_returns": g[s].tolist(),
+                    "gymnasium_mean": float(g[s].mean()),
+                    "gymnasium_min": float(g[s].min()),
+                    "solved": bool(solved[s]),
+                    "jaxcart_returns": j[s].tolist(),
+                    "jaxcart_mean": float(j[s].mean()),
+                    "final_ep_rew_mean": float(final[s]),
+                    "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
+                }
+                f.write(sep + "    " + json.dumps(seed))
+                sep = ",\n"
+        tail = {"solved_seeds": solved_total, **extra}
+        f.write("\n  ],\n" + json.dumps(tail, indent=2)[2:] + "\n")
+
+
+class atomic_text:
+    """A text file written beside ``path`` and renamed into place on success."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+
+    def __enter__(self) -> io.TextIOWrapper:
+        fd, self.tmp = tempfile.mkstemp(
+            dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp"
+        )
+        self.file = os.fdopen(fd, "w", newline="")
+        return self.file
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self.file.flush()
+                os.fsync(self.file.fileno())
+            self.file.close()
+            if exc_type is None:
+                os.replace(self.tmp, self.path)
+        except OSError as err:
+            Path(self.tmp).unlink(missing_ok=True)
+            raise OSError(err.errno, err.strerror or str(err), str(self.path)) from None
+        if exc_type is not None:
+            Path(self.tmp).unlink(missing_ok=True)
+            if isinstance(exc, OSError):
+                raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
