@@ -598,6 +598,7 @@ def test_invalid_autoreset_mode_is_a_clear_error(mode, error):
 def test_vector_env_outputs_are_fresh_writable_arrays():
     """Outputs are NumPy arrays of their own, so editing one or stepping again (which reuses the
     device buffer) changes nothing already returned."""
+    gymnasium_obs = CartPoleVectorEnv(3).reset(seed=0)[0]
     for mode in AutoresetMode:
         envs = JaxCartPoleVectorEnv(num_envs=3, autoreset_mode=mode)
         obs, _ = envs.reset(seed=0)
@@ -605,7 +606,10 @@ def test_vector_env_outputs_are_fresh_writable_arrays():
         kept = [a.copy() for a in (obs, *step[:4])]
         for a in (obs, *step[:4]):
             assert isinstance(a, np.ndarray) and a.flags.writeable
-        assert step[0].flags.c_contiguous and step[0].shape == (3, 4)
+        assert step[0].shape == (3, 4)
+        # The memory layout of Gymnasium's CartPoleVectorEnv's observations (Fortran order).
+        assert step[0].flags.f_contiguous == gymnasium_obs.flags.f_contiguous
+        assert obs.flags.f_contiguous == gymnasium_obs.flags.f_contiguous
         envs.step(np.array([0, 0, 0]))
         for a, k in zip((obs, *step[:4]), kept):
             np.testing.assert_array_equal(a, k)
