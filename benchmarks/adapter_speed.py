@@ -37,7 +37,9 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -58,7 +60,7 @@ KINDS = ("single", "vector", "vector-same-step", "sync")
 DEFAULT_SIZES = (1, 64, 4096)
 SEED = 0
 # Env steps (N per vector step) per measurement; the sync pair steps N Python envs per step.
-ENV_STEPS = {"single": 100_000, "vector": 400_000, "vector-same-step": 400_000, "sync": 40_000}
+ENV_STEPS = {"single": 50_000, "vector": 200_000, "vector-same-step": 200_000, "sync": 20_000}
 MAX_STEPS, MIN_STEPS = 10_000, 10
 LABELS = {
     "single": "single env",
@@ -187,7 +189,7 @@ def dispatch_costs(quick: bool) -> dict:
     """JAX's fixed cost per call on this machine, µs: an empty jitted function; a small one
     and its result fetched to NumPy; the same with over 1000 flops, which XLA's CPU client
     hands to a worker thread instead of running it on the calling thread."""
-    calls = 2000 if quick else 20000
+    calls = 1000 if quick else 10000
     empty = jax.jit(lambda: None)
     add_one = jax.jit(lambda x: x + 1)
     small, large = jnp.zeros(5), jnp.zeros(1024)
@@ -206,7 +208,7 @@ def profile_vector(num_envs: int, quick: bool) -> dict:
     env = JaxCartPoleVectorEnv(num_envs)
     env.reset(seed=SEED)
     actions = np.random.default_rng(SEED).integers(0, 2, num_envs)
-    calls = max(20, (200 if quick else 2000) * 64 // max(num_envs, 64))
+    calls = max(20, (100 if quick else 1000) * 64 // max(num_envs, 64))
     inputs = np.concatenate([actions, [1, 2]]).astype(np.uint32)  # actions, then a key
 
     def compiled_call():
@@ -217,7 +219,8 @@ def profile_vector(num_envs: int, quick: bool) -> dict:
 
     def unpack():
         obs = rows[:4].T.astype(np.float32)
-        return obs, rows[5].astype(np.float32), rows[6] != 0, rows[7] != 0
+        code = rows[6].astype(np.uint8)  # terminated + 2 * truncated
+        return obs, rows[5].astype(np.float32), (code & 1) != 0, (code & 2) != 0
 
     gymnasium = CartPoleVectorEnv(num_envs)
     gymnasium.reset(seed=SEED)
@@ -255,7 +258,7 @@ def profile_vector(num_envs: int, quick: bool) -> dict:
 def profile_single(quick: bool) -> dict:
     """Where a ``JaxCartPoleEnv`` step's time goes, µs per step."""
     env, gymnasium = JaxCartPoleEnv(), CartPoleEnv()
-    calls = 2000 if quick else 20000
+    calls = 1000 if quick else 10000
 
     def step(e):
         if e.step(1)[2]:
@@ -282,9 +285,9 @@ def profile_single(quick: bool) -> dict:
     return {"num_envs": 1, "microseconds_per_step": profile}
 
 
-def results_table(report: dict) -> str:
+def results_table(results: list[dict]) -> str:
     rows = []
-    for r in report["results"]:
+    for r in results:
         med = r["median_steps_per_second"]
         ratios = r["paired_ratios"]
         rows.append(
@@ -309,6 +312,36 @@ def profile_tables(report: dict) -> list[str]:
     return out
 
 
+def dispatch_lines(d: dict) -> list[str]:
+    return [
+        "JAX's fixed cost per call on this machine (µs, median):",
+        "",
+        f"- an empty jitted function: {d['empty_jit_call_us']:.1f}",
+        f"- a 5-element `x + 1`, result fetched to NumPy: {d['small_call_and_fetch_us']:.1f}",
+        "- the same on 1024 elements (over XLA's 1000-flop threshold: with JAX's default "
+        "asynchronous CPU dispatch, XLA's CPU client runs it on a worker thread and the caller "
+        f"waits for it): {d['call_and_fetch_over_1000_flops_us']:.1f}",
+    ]
+
+
+def sync_dispatch_lines(report: dict) -> list[str]:
+    """The subprocess run with ``jax_cpu_enable_async_dispatch=False``, if there was one."""
+    sync = report.get("sync_dispatch")
+    if not sync:
+        return []
+    return [
+        "The same pairs in a fresh interpreter with "
+        '`jax.config.update("jax_cpu_enable_async_dispatch", False)` set before JAX first '
+        "runs, so that XLA runs every step on the calling thread (a process-wide JAX setting, "
+        "which the adapter leaves to the user):",
+        "",
+        results_table(sync["results"]),
+        "",
+        *dispatch_lines(sync["dispatch"]),
+        "",
+    ]
+
+
 def markdown(report: dict) -> str:
     s = report["settings"]
     d = report["dispatch"]
@@ -322,16 +355,11 @@ def markdown(report: dict) -> str:
         "the measurements taken back to back. Construction, compilation and warm-up "
         "excluded. Both float64 (jaxcart's default, as Gymnasium's).",
         "",
-        results_table(report),
+        results_table(report["results"]),
         "",
-        "JAX's fixed cost per call on this machine (µs, median):",
+        *dispatch_lines(d),
         "",
-        f"- an empty jitted function: {d['empty_jit_call_us']:.1f}",
-        f"- a 5-element `x + 1`, result fetched to NumPy: {d['small_call_and_fetch_us']:.1f}",
-        "- the same on 1024 elements (over XLA's 1000-flop threshold, so XLA's CPU client runs "
-        f"it on a worker thread and the caller waits for it): "
-        f"{d['call_and_fetch_over_1000_flops_us']:.1f}",
-        "",
+        *sync_dispatch_lines(report),
         "Where a jaxcart step's time goes (µs per step, each part timed on its own in a loop; "
         "Gymnasium's step alongside). The compiled step is jaxcart's `step_env` plus the "
         "autoreset; XLA:CPU splits it into "
@@ -367,13 +395,48 @@ def build_parser() -> argparse.ArgumentParser:
         "--jax-sync-dispatch",
         action="store_true",
         help="run JAX's CPU computations on the calling thread "
-        "(jax_cpu_enable_async_dispatch=False)",
+        "(jax_cpu_enable_async_dispatch=False); the full run does this in a subprocess too",
+    )
+    parser.add_argument(
+        "--no-profile",
+        action="store_true",
+        help="measure the pairs and the dispatch cost only; write the JSON only",
     )
     parser.add_argument("--out", type=Path, default=None, help="output folder")
     parser.add_argument(
         "--from-json", type=Path, default=None, help="only re-render the Markdown of a saved run"
     )
     return parser
+
+
+def measure_all(args, repeats: int) -> list[dict]:
+    """Every pair of ``args.kinds`` at every size of ``args.sizes``, printed as it goes."""
+    results = []
+    for n in args.sizes:
+        for kind in [k for k in KINDS if k in args.kinds and applies(k, n)]:
+            row = measure_pair(kind, n, repeats, args.quick)
+            results.append(row)
+            med = row["median_steps_per_second"]
+            print(
+                f"{kind:>16} N={n:>5}: jaxcart {med['jaxcart']:>12,.0f}  "
+                f"gymnasium {med['gymnasium']:>12,.0f}  ratio {row['median_paired_ratio']:.2f}",
+                flush=True,
+            )
+    return results
+
+
+def sync_dispatch_run(args, repeats: int) -> dict:
+    """The single and vector pairs again in a fresh interpreter whose JAX runs computations
+    on the calling thread (the setting must precede JAX's first use, hence the subprocess)."""
+    kinds = ",".join(k for k in ("single", "vector") if k in args.kinds)
+    with tempfile.TemporaryDirectory() as tmp:
+        command = [sys.executable, __file__, "--jax-sync-dispatch", "--no-profile"]
+        command += ["--kinds", kinds, "--sizes", ",".join(map(str, args.sizes))]
+        command += ["--repeats", str(repeats), "--out", tmp] + ["--quick"] * args.quick
+        print("with jax_cpu_enable_async_dispatch=False:", flush=True)
+        subprocess.run(command, check=True, stdout=sys.stderr)
+        sub = json.loads((Path(tmp) / f"{STEM}.json").read_text())
+    return {"results": sub["results"], "dispatch": sub["dispatch"]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -396,24 +459,19 @@ def main(argv: list[str] | None = None) -> int:
     report = benchlib.new_report(
         STEM, settings, ["jaxcart", "gymnasium"], [str(d) for d in jax.devices()]
     )
-    for n in args.sizes:
-        for kind in [k for k in KINDS if k in args.kinds and applies(k, n)]:
-            row = measure_pair(kind, n, repeats, args.quick)
-            report["results"].append(row)
-            med = row["median_steps_per_second"]
-            print(
-                f"{kind:>16} N={n:>5}: jaxcart {med['jaxcart']:>12,.0f}  "
-                f"gymnasium {med['gymnasium']:>12,.0f}  ratio {row['median_paired_ratio']:.2f}",
-                flush=True,
-            )
+    report["results"] = measure_all(args, repeats)
     report["dispatch"] = dispatch_costs(args.quick)
-    report["profiles"] = [profile_single(args.quick)] + [
-        profile_vector(n, args.quick) for n in args.sizes
-    ]
+    if not args.no_profile:
+        report["profiles"] = [profile_single(args.quick)] + [
+            profile_vector(n, args.quick) for n in args.sizes
+        ]
+    if not (args.jax_sync_dispatch or args.no_profile):
+        report["sync_dispatch"] = sync_dispatch_run(args, repeats)
     report["load_average_end"] = benchlib.load_average()
     out.mkdir(parents=True, exist_ok=True)
     benchlib.write_json(out / f"{STEM}.json", report)
-    benchlib.write_markdown(out / f"{STEM}.md", markdown(report).splitlines())
+    if not args.no_profile:
+        benchlib.write_markdown(out / f"{STEM}.md", markdown(report).splitlines())
     return 0
 
 

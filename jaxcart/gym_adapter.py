@@ -21,10 +21,11 @@ of autoreset mode (``autoreset_mode=``: ``NEXT_STEP`` by default, as Gymnasium's
 with ``SyncVectorEnv``'s ``final_obs``/``final_info`` layout; ``DISABLED`` with
 ``reset(options={"reset_mask": mask})``).
 
-Each ``step`` is one call of a compiled function: the state stays on the JAX device (donated
-to the call, so it is updated in place), the outputs come back to NumPy in one transfer of one
-packed array, and the info dict is built from that array. Programs are compiled ahead of time,
-once per (parameters, size, mode, precision) and shared by every env instance.
+Each ``step`` is one call of a program compiled ahead of time: the state stays on the JAX
+device as one array, donated to the call (XLA writes the new state over the old), and comes
+back to NumPy in one copy, from which the observations, rewards, flags and info dict are built
+on the host. A program is compiled once per (size, autoreset mode, precision, non-float
+parameters) and shared by every env instance; the float parameters are an argument.
 
 Both step the physics in float64 by default (JAX's x64 mode switched on for the adapters' own
 calls only), as Gymnasium's CartPole keeps its state in float64, so that whole episodes track
@@ -81,8 +82,7 @@ def _make_params(
     params: EnvParams | None, sutton_barto_reward: bool | None, max_episode_steps: int | None
 ) -> EnvParams:
     """``params`` (default: CartPole-v1's) with the explicitly given options applied, and every
-    leaf a Python scalar: the parameters are compiled into the step as constants, and the
-    compiled programs are cached by their value."""
+    leaf a Python scalar, so that :func:`_compile_key` can key the cache of compiled programs."""
     import jax
 
     from jaxcart import env as cartpole
@@ -155,8 +155,8 @@ def _autoreset_mode(mode: AutoresetMode | str) -> AutoresetMode:
         ) from None
 
 
-# The compiled programs. Their parameters are compile-time constants and their state argument
-# is donated: XLA writes the new state into the old one's buffer.
+# The compiled programs. Their state argument is donated: XLA writes the new state into the
+# old one's buffer.
 
 
 def _single_step(packed, action, floats, params: EnvParams):
@@ -176,15 +176,19 @@ def _single_step(packed, action, floats, params: EnvParams):
 # The vector env's device state is one array ``[rows, num_envs]`` in the env's float dtype,
 # which each step donates and gets back whole, and which comes to the host in one copy: one
 # buffer in, one buffer out, one transfer. Its rows:
-_STATE_ROWS = slice(0, 4)  # x, x_dot, theta, theta_dot: the state going into the next step
+_STATE_ROWS = slice(0, 4)  # x, x_dot, theta, theta_dot after the last step (and its reset,
+# except in SAME_STEP, where an env that ended restarts from its _START_ROWS on the next step)
 _STEP_COUNT = 4  # steps taken in the current episode (exact in float32 up to 2**24)
-_REWARD, _TERMINATED, _TRUNCATED = 5, 6, 7  # of the last step (flags 0 or 1)
-_FINAL_OBS_ROWS = slice(8, 12)  # SAME_STEP only: the last step's observation before any reset
+_REWARD = 5  # of the last step
+_ENDED = 6  # how the last step ended the episode: terminated + 2 * truncated (0: it did not)
+_START_ROWS = slice(7, 11)  # SAME_STEP only: a fresh start state, used where the episode ended
+# Few rows on purpose: XLA:CPU fuses a concatenation of at most 8 operands only, and the
+# step's output is one (4 state rows, step count, reward, ended, start rows).
 _KEY_BLOCK = 1024  # step keys drawn from np_random at a time
 
 
 def _num_rows(mode: AutoresetMode) -> int:
-    return 12 if mode is AutoresetMode.SAME_STEP else 8
+    return 11 if mode is AutoresetMode.SAME_STEP else 7
 
 
 def _start_states(key, floats, num_envs: int, dtype):
@@ -218,38 +222,39 @@ def _vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
 
     NEXT_STEP: the envs whose episode ended on the previous step start a new one instead of
     stepping (reward 0, not terminated or truncated), as Gymnasium's ``CartPoleVectorEnv``.
-    SAME_STEP: the envs whose episode ends on this step start a new one; the last observation
-    of the finished one goes to the final-obs rows. DISABLED: no reset.
+    SAME_STEP: the envs whose episode ended on the previous step step from the start state
+    drawn then (the host returned it as their observation), and every env gets a fresh start
+    state in case its episode ends now; the state rows keep the stepped state, the host's
+    ``final_obs``. DISABLED: no reset.
+
+    The stepped state is used once: XLA:CPU would compute it again (its sin and cos included)
+    for a second use.
     """
     import jax.numpy as jnp
 
     from jaxcart import env as cartpole
 
     actions, key = inputs[:-2], inputs[-2:]
-    state = cartpole.EnvState(
-        x=rows[0],
-        x_dot=rows[1],
-        theta=rows[2],
-        theta_dot=rows[3],
-        step_count=rows[_STEP_COUNT].astype(jnp.int32),
-    )
+    ended = rows[_ENDED] != 0  # on the previous step
+    start, steps = rows[_STATE_ROWS], rows[_STEP_COUNT].astype(jnp.int32)
+    if mode is AutoresetMode.SAME_STEP:
+        start = jnp.where(ended, rows[_START_ROWS], start)
+        steps = jnp.where(ended, 0, steps)
+    state = cartpole.EnvState(start[0], start[1], start[2], start[3], step_count=steps)
     params = _with_floats(params, floats)
     _, state, reward, terminated, truncated = cartpole.step_env(state, actions, params)
-    stepped = jnp.stack([state.x, state.x_dot, state.theta, state.theta_dot])
+    new = jnp.stack([state.x, state.x_dot, state.theta, state.theta_dot])
     steps = state.step_count
-    new = stepped
-    if mode is not AutoresetMode.DISABLED:
-        if mode is AutoresetMode.NEXT_STEP:
-            reset = (rows[_TERMINATED] != 0) | (rows[_TRUNCATED] != 0)
-            reward = jnp.where(reset, jnp.zeros_like(reward), reward)
-            terminated, truncated = terminated & ~reset, truncated & ~reset
-        else:
-            reset = terminated | truncated
-        new = jnp.where(reset, _start_states(key, floats, rows.shape[1], rows.dtype), stepped)
-        steps = jnp.where(reset, 0, steps)
-    out = [new, steps[None], reward[None], terminated[None], truncated[None]]
+    fresh = _start_states(key, floats, rows.shape[1], rows.dtype)
+    if mode is AutoresetMode.NEXT_STEP:
+        new = jnp.where(ended, fresh, new)
+        steps = jnp.where(ended, 0, steps)
+        reward = jnp.where(ended, jnp.zeros_like(reward), reward)
+        terminated, truncated = terminated & ~ended, truncated & ~ended
+    code = terminated.astype(rows.dtype) + 2 * truncated.astype(rows.dtype)
+    out = [new, steps[None], reward[None], code[None]]
     if mode is AutoresetMode.SAME_STEP:
-        out.append(stepped)
+        out.append(fresh)
     return jnp.concatenate([r.astype(rows.dtype) for r in out])
 
 
@@ -335,15 +340,14 @@ def _observations(rows: np.ndarray) -> np.ndarray:
 
 
 def _same_step_info(final_rows: np.ndarray, done: np.ndarray) -> dict[str, Any]:
-    """``SyncVectorEnv``'s same-step info from the final-obs rows ``[4, num_envs]``:
+    """``SyncVectorEnv``'s same-step info from the stepped states ``[4, num_envs]``:
     ``final_obs`` an object array ``[num_envs]`` holding the last observation of each env whose
     episode ended (``None`` elsewhere), ``final_info`` the (empty) info of those steps, each
     with its mask."""
-    ended = np.flatnonzero(done)
-    final_obs = np.ascontiguousarray(final_rows[:, ended].T, dtype=np.float32)
+    final_obs = final_rows.T[done].astype(np.float32)  # [ended, 4], C order
     per_env = np.full(done.shape[0], None, dtype=object)
     # One row of final_obs per ended env, without a Python loop.
-    per_env[ended] = np.fromiter(final_obs, dtype=object, count=ended.size)
+    per_env[done] = np.fromiter(final_obs, dtype=object, count=len(final_obs))
     return {"final_obs": per_env, "_final_obs": done, "final_info": {}, "_final_info": done.copy()}
 
 
@@ -539,9 +543,11 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
       ``AssertionError`` until ``reset(options={"reset_mask": mask})`` restarts it.
 
     ``reset(options={"reset_mask": mask})`` (bool ``[num_envs]``) restarts only the masked envs
-    in every mode, as with ``SyncVectorEnv``. Resets draw from a JAX key taken from
-    ``self.np_random``, so ``reset(seed=...)`` is deterministic (the start states differ from
-    Gymnasium's vector CartPole, which draws them with NumPy).
+    in every mode, as with ``SyncVectorEnv``. Start states are drawn on the device with keys
+    taken from ``self.np_random``, so ``reset(seed=...)`` makes the run deterministic (they
+    differ from the states Gymnasium's vector CartPole draws with NumPy). Observations are
+    float32 ``[num_envs, 4]`` in Fortran order, as Gymnasium's ``CartPoleVectorEnv`` returns
+    them; rewards float32, flags bool.
 
     Args:
         num_envs: number of sub-environments.
@@ -607,7 +613,11 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     def state(self) -> np.ndarray | None:
         if self._rows is None:
             return None
-        return _read_only(np.array(self._rows)[_STATE_ROWS])
+        rows = np.array(self._rows)
+        if self.autoreset_mode is not AutoresetMode.SAME_STEP:
+            return _read_only(rows[_STATE_ROWS])
+        ended = rows[_ENDED] != 0
+        return _read_only(np.where(ended, rows[_START_ROWS], rows[_STATE_ROWS]))
 
     @state.setter
     def state(self, value: Any) -> None:
@@ -617,6 +627,8 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             raise ValueError(f"state must have shape (4, {self.num_envs}), got {value.shape}")
         with _precision(self._x64):
             self._rows = self._rows.at[_STATE_ROWS].set(value)
+            if self.autoreset_mode is AutoresetMode.SAME_STEP:  # where an episode just ended
+                self._rows = self._rows.at[_START_ROWS].set(value)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -672,12 +684,14 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         rows = np.array(self._rows)
         obs = _observations(rows)
         reward = rows[_REWARD].astype(np.float32)
-        terminated, truncated = rows[_TERMINATED] != 0, rows[_TRUNCATED] != 0
+        code = rows[_ENDED].astype(np.uint8)
+        terminated, truncated = (code & 1) != 0, (code & 2) != 0
         info: dict[str, Any] = {}
         if self.autoreset_mode is AutoresetMode.SAME_STEP:
             done = terminated | truncated
             if done.any():
-                info = _same_step_info(rows[_FINAL_OBS_ROWS], done)
+                info = _same_step_info(rows[_STATE_ROWS], done)
+                obs[done] = rows[_START_ROWS].T[done]  # the next episodes' first
         elif self.autoreset_mode is AutoresetMode.DISABLED:
             self._ended = terminated | truncated
         return obs, reward, terminated, truncated, info
