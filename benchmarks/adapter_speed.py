@@ -9,8 +9,9 @@ Pairs, each at every number of envs N in ``--sizes`` where it applies:
 - ``vector-same-step``: ``JaxCartPoleVectorEnv(N, autoreset_mode="SameStep")`` (which builds
   the ``final_obs`` info) against the same Gymnasium ``CartPoleVectorEnv(N)`` (which has no
   same-step mode).
-- ``sync``: Gymnasium's ``SyncVectorEnv`` of N ``JaxCartPoleEnv`` against N ``CartPoleEnv``
-  (what ``gym.make_vec(..., vectorization_mode="sync")`` builds, without the wrappers).
+- ``sync`` (1 < N <= 64): Gymnasium's ``SyncVectorEnv`` of N ``JaxCartPoleEnv`` against N
+  ``CartPoleEnv`` (what ``gym.make_vec(..., vectorization_mode="sync")`` builds, without the
+  wrappers).
 
 The envs are built directly (no ``TimeLimit``/``OrderEnforcing``/checker wrappers, which cost
 both sides the same). Both contenders of a pair run the same harness code on the same
@@ -21,10 +22,12 @@ alternate between the two contenders (the order flips every repeat); the figures
 over ``--repeats``. Construction, compilation, the first reset and a short warm-up are
 excluded.
 
-Also measured: JAX's per-call dispatch cost on this machine (which bounds N = 1), and where a
-jaxcart step's time goes (the action check, the compiled call, the transfer, the unpacking).
+Also measured: JAX's per-call dispatch cost on this machine (which bounds N = 1), where a
+jaxcart step's time goes (the action check, the compiled call, the transfer, the unpacking),
+and, in a subprocess, the single and vector pairs again with JAX's CPU computations run on the
+calling thread (``jax_cpu_enable_async_dispatch=False``, a process-wide JAX setting).
 
-    python benchmarks/adapter_speed.py              # about a minute
+    python benchmarks/adapter_speed.py              # about a minute and a half
     python benchmarks/adapter_speed.py --quick      # smoke test, seconds
     python benchmarks/adapter_speed.py --sizes 1,64 --repeats 9 --kinds vector
 
@@ -60,7 +63,8 @@ KINDS = ("single", "vector", "vector-same-step", "sync")
 DEFAULT_SIZES = (1, 64, 4096)
 SEED = 0
 # Env steps (N per vector step) per measurement; the sync pair steps N Python envs per step.
-ENV_STEPS = {"single": 50_000, "vector": 200_000, "vector-same-step": 200_000, "sync": 20_000}
+ENV_STEPS = {"single": 30_000, "vector": 120_000, "vector-same-step": 120_000, "sync": 10_000}
+SYNC_MAX_ENVS = 64  # a SyncVectorEnv of 4096 single envs takes tens of ms per step
 MAX_STEPS, MIN_STEPS = 10_000, 10
 LABELS = {
     "single": "single env",
@@ -91,10 +95,11 @@ def make_pair(kind: str, num_envs: int) -> dict[str, Callable[[], object]]:
 
 
 def applies(kind: str, num_envs: int) -> bool:
-    """The single env runs at N = 1 only; a SyncVectorEnv of one env would repeat it."""
+    """The single env runs at N = 1 only (a SyncVectorEnv of one env would repeat it), the
+    SyncVectorEnv pair up to :data:`SYNC_MAX_ENVS`."""
     if kind == "single":
         return num_envs == 1
-    return kind != "sync" or num_envs > 1
+    return kind != "sync" or 1 < num_envs <= SYNC_MAX_ENVS
 
 
 def num_steps(kind: str, num_envs: int, quick: bool) -> int:
@@ -308,19 +313,26 @@ def profile_tables(report: dict) -> list[str]:
     out = []
     for prof in report["profiles"]:
         rows = [[k, f"{v:,.1f}"] for k, v in prof["microseconds_per_step"].items()]
-        out += [f"N = {prof['num_envs']:,}:", "", benchlib.markdown_table(["", "µs"], rows), ""]
+        env = "vector env" if "step_fusions" in prof else "single env"
+        title = f"{env}, N = {prof['num_envs']:,}:"
+        out += [title, "", benchlib.markdown_table(["", "µs"], rows), ""]
     return out
 
 
-def dispatch_lines(d: dict) -> list[str]:
+def dispatch_lines(d: dict, asynchronous: bool = True) -> list[str]:
+    how = (
+        "with JAX's default asynchronous CPU dispatch, XLA's CPU client runs it on a worker "
+        "thread and the caller waits for it"
+        if asynchronous
+        else "here run on the calling thread too"
+    )
     return [
         "JAX's fixed cost per call on this machine (µs, median):",
         "",
         f"- an empty jitted function: {d['empty_jit_call_us']:.1f}",
         f"- a 5-element `x + 1`, result fetched to NumPy: {d['small_call_and_fetch_us']:.1f}",
-        "- the same on 1024 elements (over XLA's 1000-flop threshold: with JAX's default "
-        "asynchronous CPU dispatch, XLA's CPU client runs it on a worker thread and the caller "
-        f"waits for it): {d['call_and_fetch_over_1000_flops_us']:.1f}",
+        f"- the same on 1024 elements (over XLA's 1000-flop threshold; {how}): "
+        f"{d['call_and_fetch_over_1000_flops_us']:.1f}",
     ]
 
 
@@ -337,7 +349,7 @@ def sync_dispatch_lines(report: dict) -> list[str]:
         "",
         results_table(sync["results"]),
         "",
-        *dispatch_lines(sync["dispatch"]),
+        *dispatch_lines(sync["dispatch"], asynchronous=False),
         "",
     ]
 
