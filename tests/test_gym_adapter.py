@@ -2,8 +2,11 @@
 
 ``gymnasium.make("CartPole-v1")`` is the reference: the same start state (from the seed or
 injected), the same actions, then observations within 1e-5 and rewards and flags identical on
-every step. The vector env is checked step by step against one Gymnasium CartPole per
-sub-environment, re-injected at each same-step autoreset.
+every step. The vector env is checked step by step, in each autoreset mode, against
+Gymnasium's ``CartPoleVectorEnv`` (next-step) and ``SyncVectorEnv`` of ``CartPole-v1`` with the
+same mode: the same injected start states and actions, then observations, rewards, flags and
+info dicts compared, with jaxcart's fresh start states injected into Gymnasium's envs after
+each reset (their random draws differ).
 """
 
 from __future__ import annotations
@@ -16,9 +19,10 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.envs.classic_control.cartpole import CartPoleVectorEnv
 from gymnasium.utils.env_checker import check_env
 from gymnasium.utils.env_match import check_environments_match
-from gymnasium.vector import AutoresetMode
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space
 
 from jaxcart.gym_adapter import ENV_ID, JaxCartPoleEnv, JaxCartPoleVectorEnv
@@ -73,7 +77,12 @@ def test_make_and_make_vec():
     envs = gym.make_vec(ENV_ID, num_envs=8, vectorization_mode="vector_entry_point")
     assert isinstance(envs, JaxCartPoleVectorEnv)
     assert envs.num_envs == 8
-    assert envs.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+    # The default autoreset mode is that of Gymnasium's own vector CartPole.
+    gymnasium_vector = gym.make_vec(
+        "CartPole-v1", num_envs=8, vectorization_mode="vector_entry_point"
+    )
+    assert envs.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+    assert envs.metadata["autoreset_mode"] is gymnasium_vector.metadata["autoreset_mode"]
     assert envs.params.max_episode_steps == 500
     assert envs.single_observation_space == reference.observation_space
     assert envs.observation_space == batch_space(reference.observation_space, 8)
@@ -111,6 +120,50 @@ def test_make_by_module_id_in_a_fresh_interpreter():
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "JaxCartPoleEnv"
+
+
+def run_fresh(code: str) -> str:
+    """Runs ``code`` in a fresh interpreter (CPU JAX) and returns its stdout."""
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
+    assert out.returncode == 0, out.stderr
+    return out.stdout.strip()
+
+
+@pytest.mark.parametrize("first", ["jaxcart", "gymnasium"])
+def test_import_jaxcart_registers_the_env_in_a_fresh_interpreter(first):
+    """``import jaxcart``, before or after ``import gymnasium``, is all ``gym.make`` and
+    ``gym.make_vec`` need; registering loads neither JAX nor the adapter, and leaves
+    Gymnasium's module as it was."""
+    imports = ["import jaxcart", "import gymnasium as gym"]
+    code = "\n".join(
+        [
+            "import sys",
+            *(imports if first == "jaxcart" else imports[::-1]),
+            "assert 'jax' not in sys.modules and 'jaxcart.gym_adapter' not in sys.modules",
+            "loader = gym.__spec__.loader",
+            "assert gym.__loader__ is loader and type(loader).__name__ == 'SourceFileLoader'",
+            "assert not any('jaxcart' in type(f).__module__ for f in sys.meta_path)",
+            "env = gym.make('jaxcart/CartPole-v1')",
+            "obs, _ = env.reset(seed=0)",
+            "assert obs.tolist() == gym.make('CartPole-v1').reset(seed=0)[0].tolist()",
+            "envs = gym.make_vec('jaxcart/CartPole-v1', num_envs=3)",
+            "print(type(env.unwrapped).__name__, type(envs).__name__, envs.reset(seed=0)[0].shape)",
+        ]
+    )
+    assert run_fresh(code) == "JaxCartPoleEnv JaxCartPoleVectorEnv (3, 4)"
+
+
+def test_import_jaxcart_imports_neither_gymnasium_nor_numpy():
+    code = (
+        "import sys, jaxcart\nprint([m for m in ('gymnasium', 'numpy', 'jax') if m in sys.modules])"
+    )
+    assert run_fresh(code) == "[]"
 
 
 @pytest.mark.parametrize("options", [None, {"low": -0.2, "high": 0.3}])
@@ -242,7 +295,13 @@ def test_step_before_reset_raises():
 
 def test_vector_env_matches_gymnasium_with_same_step_autoreset():
     num_envs = 8
-    envs = gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    envs = gym.make_vec(
+        ENV_ID,
+        num_envs=num_envs,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode="SameStep",
+    )
+    assert envs.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
     envs = gym.wrappers.vector.RecordEpisodeStatistics(envs)
     obs, _ = envs.reset(seed=42)
     np.testing.assert_array_equal(obs, envs.reset(seed=42)[0])  # seeded resets repeat
@@ -290,9 +349,13 @@ def test_vector_env_matches_gymnasium_with_same_step_autoreset():
     assert episodes >= num_envs
 
 
-def test_vector_env_truncates_and_reports_final_obs():
+def test_vector_env_same_step_truncates_and_reports_final_obs():
     envs = gym.make_vec(
-        ENV_ID, num_envs=4, vectorization_mode="vector_entry_point", max_episode_steps=5
+        ENV_ID,
+        num_envs=4,
+        vectorization_mode="vector_entry_point",
+        max_episode_steps=5,
+        autoreset_mode=AutoresetMode.SAME_STEP,
     )
     first, _ = envs.reset(seed=0)
     actions = np.array([0, 1, 0, 1])
@@ -307,6 +370,261 @@ def test_vector_env_truncates_and_reports_final_obs():
     assert not np.allclose(obs, final) and np.all(np.abs(obs) <= 0.05)  # already reset
     # The step after a truncation counts from one again.
     assert not envs.step(actions)[3].any()
+
+
+def random_states(rng: np.random.Generator, num_envs: int) -> np.ndarray:
+    """Start states ``[4, num_envs]`` (Gymnasium's vector layout) away from the reset box."""
+    return (rng.uniform(-1, 1, (num_envs, 4)) * [1.0, 0.5, 0.1, 0.5]).T.copy()
+
+
+def sync_cartpoles(num_envs: int, mode: AutoresetMode, **make_kwargs) -> SyncVectorEnv:
+    """Gymnasium's ``SyncVectorEnv`` of ``gym.make("CartPole-v1")`` with ``mode``."""
+    return SyncVectorEnv(
+        [lambda: gym.make("CartPole-v1", **make_kwargs)] * num_envs, autoreset_mode=mode
+    )
+
+
+def inject(reference: SyncVectorEnv, states: np.ndarray, which: np.ndarray) -> None:
+    """Sets the state of ``reference``'s sub-envs ``which`` from ``states`` ``[4, num_envs]``."""
+    for i in np.flatnonzero(which):
+        reference.envs[i].unwrapped.state = states[:, i].copy()
+
+
+def assert_step_matches(step: tuple, ref_step: tuple, compare_obs: np.ndarray) -> None:
+    """Rewards, flags and info equal; observations within OBS_TOL where ``compare_obs``."""
+    obs, reward, terminated, truncated, info = step
+    ref_obs, ref_reward, ref_terminated, ref_truncated, ref_info = ref_step
+    assert obs.dtype == np.float32 and obs.shape == ref_obs.shape
+    assert reward.dtype == np.float32 and terminated.dtype == truncated.dtype == np.bool_
+    np.testing.assert_allclose(obs[compare_obs], ref_obs[compare_obs], rtol=0, atol=OBS_TOL)
+    np.testing.assert_array_equal(reward, ref_reward)
+    np.testing.assert_array_equal(terminated, ref_terminated)
+    np.testing.assert_array_equal(truncated, ref_truncated)
+    assert info.keys() == ref_info.keys()
+
+
+def test_vector_env_next_step_matches_gymnasiums_vector_cartpole_step_by_step():
+    """Default (next-step) autoreset against Gymnasium's ``CartPoleVectorEnv``: the step that
+    ends an episode reports it with the last observation; the next step is a reset step."""
+    num_envs = 8
+    envs = gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    reference = CartPoleVectorEnv(num_envs)
+    envs.reset(seed=0)
+    reference.reset(seed=0)
+    rng = np.random.default_rng(2)
+    start = random_states(rng, num_envs)
+    envs.state = start
+    reference.state = start.copy()
+    np.testing.assert_array_equal(envs.state, start)
+    reset_steps = episodes = 0
+    for _ in range(200):
+        actions = rng.integers(0, 2, num_envs)
+        resetting = reference.prev_done.copy()  # its episode ended on the previous step
+        step = envs.step(actions)
+        ref_step = reference.step(actions)
+        assert_step_matches(step, ref_step, compare_obs=~resetting)
+        obs, reward, terminated, truncated, info = step
+        assert info == ref_step[4] == {}
+        # A reset step: the first observation of a new episode, reward 0, no flag.
+        assert np.all(np.abs(obs[resetting]) <= 0.05)
+        assert not (reward[resetting].any() or terminated[resetting].any())
+        assert not truncated[resetting].any()
+        reset_steps += resetting.sum()
+        episodes += (terminated | truncated).sum()
+        # Gymnasium drew its own fresh states: continue both from jaxcart's.
+        ref_state = reference.state.copy()
+        ref_state[:, resetting] = envs.state[:, resetting]
+        reference.state = ref_state
+    assert reset_steps >= num_envs and episodes - reset_steps <= num_envs
+
+
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+def test_vector_env_truncation_matches_sync_vector_env(mode):
+    """Truncation, the reset that follows it (on the next step or the same one) and the step
+    counting after it, against ``SyncVectorEnv`` of ``CartPole-v1`` with a 5-step limit."""
+    mode = AutoresetMode(mode)
+    envs = JaxCartPoleVectorEnv(num_envs=4, max_episode_steps=5, autoreset_mode=mode)
+    reference = sync_cartpoles(4, mode, max_episode_steps=5)
+    envs.reset(seed=0)
+    reference.reset(seed=0)
+    inject(reference, envs.state, np.ones(4, bool))
+    actions = np.array([0, 1, 0, 1])
+    truncations, truncated = [], np.zeros(4, bool)
+    for t in range(1, 14):
+        ended_before = truncated
+        step, ref_step = envs.step(actions), reference.step(actions)
+        actions = 1 - actions  # alternate pushes: the pole stays up
+        obs, reward, terminated, truncated, info = step
+        # The envs that start a new episode on this step, each with its own random draw.
+        reset = truncated if mode is AutoresetMode.SAME_STEP else ended_before
+        assert_step_matches(step, ref_step, compare_obs=~reset)
+        assert not terminated.any()
+        assert truncated.all() or not truncated.any()  # the four envs run in step
+        if truncated.any():
+            truncations.append(t)
+        if mode is AutoresetMode.SAME_STEP and truncated.any():
+            for i in range(4):
+                np.testing.assert_allclose(
+                    info["final_obs"][i], ref_step[4]["final_obs"][i], rtol=0, atol=OBS_TOL
+                )
+        else:
+            assert info == ref_step[4] == {}
+        inject(reference, envs.state, reset)
+    # NEXT_STEP spends a step on the reset: 5 steps, a reset step, 5 steps, ...
+    assert truncations == ([5, 10] if mode is AutoresetMode.SAME_STEP else [5, 11])
+
+
+def test_vector_env_same_step_info_matches_sync_vector_env():
+    """Same-step autoreset against ``SyncVectorEnv(autoreset_mode=SAME_STEP)``: the info dict
+    has the same keys, masks, ``final_obs`` (object array, None where no episode ended) and
+    ``final_info``."""
+    num_envs = 6
+    envs = JaxCartPoleVectorEnv(num_envs, autoreset_mode=AutoresetMode.SAME_STEP)
+    reference = sync_cartpoles(num_envs, AutoresetMode.SAME_STEP)
+    envs.reset(seed=1)
+    reference.reset(seed=1)
+    rng = np.random.default_rng(3)
+    envs.state = random_states(rng, num_envs)
+    inject(reference, envs.state, np.ones(num_envs, bool))
+    ended = 0
+    for _ in range(150):
+        actions = rng.integers(0, 2, num_envs)
+        step, ref_step = envs.step(actions), reference.step(actions)
+        done = step[2] | step[3]
+        assert_step_matches(step, ref_step, compare_obs=~done)
+        info, ref_info = step[4], ref_step[4]
+        if done.any():
+            assert list(info) == ["final_obs", "_final_obs", "final_info", "_final_info"]
+            assert set(ref_info) == set(info)
+            for key in ("_final_obs", "_final_info"):
+                assert info[key].dtype == np.bool_
+                np.testing.assert_array_equal(info[key], ref_info[key])
+            assert info["final_info"] == ref_info["final_info"] == {}
+            assert info["final_obs"].dtype == ref_info["final_obs"].dtype == object
+            for i in range(num_envs):
+                final, ref_final = info["final_obs"][i], ref_info["final_obs"][i]
+                if done[i]:
+                    assert final.dtype == ref_final.dtype == np.float32
+                    np.testing.assert_allclose(final, ref_final, rtol=0, atol=OBS_TOL)
+                else:
+                    assert final is None and ref_final is None
+            ended += done.sum()
+        else:
+            assert info == ref_info == {}
+        inject(reference, envs.state, done)
+    assert ended >= num_envs
+
+
+def test_vector_env_disabled_autoreset_matches_sync_vector_env():
+    """No autoreset: stepping an ended env raises as in ``SyncVectorEnv``, and
+    ``reset(options={"reset_mask": mask})`` restarts only the masked envs."""
+    num_envs = 4
+    envs = JaxCartPoleVectorEnv(num_envs, autoreset_mode="Disabled")
+    reference = sync_cartpoles(num_envs, AutoresetMode.DISABLED)
+    assert envs.metadata["autoreset_mode"] is AutoresetMode.DISABLED
+    envs.reset(seed=0)
+    reference.reset(seed=0)
+    inject(reference, envs.state, np.ones(num_envs, bool))
+    rng = np.random.default_rng(4)
+    restarts = 0
+    for _ in range(60):
+        actions = rng.integers(0, 2, num_envs)
+        step, ref_step = envs.step(actions), reference.step(actions)
+        assert_step_matches(step, ref_step, compare_obs=np.ones(num_envs, bool))
+        assert step[4] == ref_step[4] == {}
+        done = step[2] | step[3]
+        if not done.any():
+            continue
+        with pytest.raises(AssertionError, match="reset them"):
+            envs.step(actions)
+        obs, info = envs.reset(options={"reset_mask": done.copy()})
+        ref_obs, ref_info = reference.reset(options={"reset_mask": done.copy()})
+        assert info == ref_info == {}
+        np.testing.assert_array_equal(obs[~done], step[0][~done])  # the others carry on
+        np.testing.assert_array_equal(ref_obs[~done], ref_step[0][~done])
+        assert np.all(np.abs(obs[done]) <= 0.05)
+        inject(reference, envs.state, done)
+        restarts += done.sum()
+    assert restarts >= num_envs
+    # Gymnasium raises too (after stepping the envs before the ended one: checked last).
+    while not (done := reference.step(np.ones(num_envs, int))[2]).any():
+        pass
+    with pytest.raises(AssertionError):
+        reference.step(np.ones(num_envs, int))
+
+
+@pytest.mark.parametrize(
+    "mask, error",
+    [
+        ([True, False, False, False], TypeError),
+        (np.array([True, False]), ValueError),
+        (np.array([1, 0, 0, 0]), TypeError),
+        (np.zeros(4, bool), ValueError),
+    ],
+    ids=["list", "shape", "dtype", "none"],
+)
+def test_invalid_reset_masks_raise_as_in_sync_vector_env(mask, error):
+    envs = JaxCartPoleVectorEnv(num_envs=4, autoreset_mode="Disabled")
+    reference = sync_cartpoles(4, AutoresetMode.DISABLED)
+    messages = []
+    for env in (envs, reference):
+        env.reset(seed=0)
+        with pytest.raises(error) as raised:
+            env.reset(options={"reset_mask": mask})
+        messages.append(str(raised.value))
+    assert messages[0] == messages[1]
+
+
+@pytest.mark.parametrize("mode", list(AutoresetMode) + [m.value for m in AutoresetMode])
+def test_autoreset_mode_by_enum_or_value(mode):
+    envs = gym.make_vec(
+        ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", autoreset_mode=mode
+    )
+    assert envs.metadata["autoreset_mode"] is AutoresetMode(mode)
+    assert envs.autoreset_mode is AutoresetMode(mode)
+    # The class's metadata keeps the default.
+    assert JaxCartPoleVectorEnv.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+
+
+@pytest.mark.parametrize(
+    "mode, error",
+    [("next_step", ValueError), ("NEXT_STEP", ValueError), ("", ValueError), (1, TypeError)],
+)
+def test_invalid_autoreset_mode_is_a_clear_error(mode, error):
+    with pytest.raises(error, match=r"autoreset_mode must be .*'NextStep', 'SameStep', 'Disabled'"):
+        JaxCartPoleVectorEnv(num_envs=2, autoreset_mode=mode)
+
+
+def test_vector_env_outputs_are_fresh_writable_arrays():
+    """Outputs are NumPy arrays of their own, so editing one or stepping again (which reuses the
+    device buffer) changes nothing already returned."""
+    gymnasium_obs = CartPoleVectorEnv(3).reset(seed=0)[0]
+    for mode in AutoresetMode:
+        envs = JaxCartPoleVectorEnv(num_envs=3, autoreset_mode=mode)
+        obs, _ = envs.reset(seed=0)
+        step = envs.step(np.array([1, 1, 1]))
+        kept = [a.copy() for a in (obs, *step[:4])]
+        for a in (obs, *step[:4]):
+            assert isinstance(a, np.ndarray) and a.flags.writeable
+        assert step[0].shape == (3, 4)
+        # The memory layout of Gymnasium's CartPoleVectorEnv's observations (Fortran order).
+        assert step[0].flags.f_contiguous == gymnasium_obs.flags.f_contiguous
+        assert obs.flags.f_contiguous == gymnasium_obs.flags.f_contiguous
+        envs.step(np.array([0, 0, 0]))
+        for a, k in zip((obs, *step[:4]), kept):
+            np.testing.assert_array_equal(a, k)
+
+
+def test_vector_env_float32():
+    envs = JaxCartPoleVectorEnv(num_envs=5, float64=False)
+    reference = CartPoleVectorEnv(5)
+    envs.reset(seed=0)
+    reference.reset(seed=0)
+    reference.state = envs.state.astype(np.float64)
+    for _ in range(5):
+        obs, *_ = envs.step(np.array([1, 0, 1, 0, 1]))
+        ref_obs, *_ = reference.step(np.array([1, 0, 1, 0, 1]))
+        np.testing.assert_allclose(obs, ref_obs, rtol=0, atol=OBS_TOL)
 
 
 def test_vector_env_rejects_invalid_actions():
