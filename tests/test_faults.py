@@ -641,3 +641,43 @@ def test_crafted_outputs_rejected_by_plot_and_compare(damage, message, finished_
         assert code == 2 and message in err, err
         assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
         FAULT_FIGURES["crafted files rejected"] += 1
+
+
+def _checkpoint_iteration(out: Path) -> int:
+    try:
+        return checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)["iteration"]
+    except rundir.RunDirError:
+        return -1
+
+
+@pytest.mark.slow
+def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path):
+    """A 64-seed run SIGKILLed again and again (each time a few seconds after its newest
+    checkpoint, always resumed) until it finishes: it ends bit-identical to the
+    uninterrupted run."""
+    soak = [*tiny_args(51200, num_seeds=64), "--seed", "17", "--checkpoint-every", "0.3"]
+    reference = tmp_path / "reference"
+    done = _run(*soak, "--out", str(reference))
+    assert done.returncode == 0, done.stdout + done.stderr
+    out, rng, kills = tmp_path / "soaked", random.Random(64), 0
+    proc = start_train(*soak, "--out", str(out))
+    for _ in range(40):
+        before, deadline = _checkpoint_iteration(out), time.monotonic() + 120
+        while proc.poll() is None and _checkpoint_iteration(out) <= before:
+            assert time.monotonic() < deadline, "no checkpoint progress in 120 s"
+            time.sleep(0.05)
+        try:
+            proc.wait(timeout=rng.uniform(0.1, 1.0))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+            kills += 1
+            FAULT_FIGURES["soak: kills (SIGKILL)"] += 1
+        if (out / "evaluation.json").exists():
+            break
+        proc = start_train("--resume", str(out), "--quiet", "--checkpoint-every", "0.3")
+    else:
+        pytest.fail("the soak run did not finish after 40 restarts")
+    assert kills >= 3, "the run finished before it was killed 3 times; the soak proved little"
+    assert_same_run_dirs(reference, out)
+    FAULT_FIGURES["soak: 64-seed runs ending bit-identical"] += 1
