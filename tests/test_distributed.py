@@ -31,7 +31,11 @@ def test_two_processes_match_one_process(tmp_path):
 
     multi = tmp_path / "multi"
     procs = launch_local(
-        [*ARGS, "--out", str(multi)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        [*ARGS, "--out", str(multi)],
+        wait=False,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )
     outputs = [p.communicate(timeout=300)[0] for p in procs]
     for p, text in zip(procs, outputs):
