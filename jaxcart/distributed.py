@@ -19,6 +19,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,9 @@ def initialize(
     if process_id is None and "JAX_PROCESS_ID" in env:
         process_id = int(env["JAX_PROCESS_ID"])
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    # JAX's preemption service would take SIGTERM over from jaxcart's handler (and do nothing
+    # with it): SIGTERM must stop a distributed run with a checkpoint, as it does one process.
+    jax.config.update("jax_enable_preemption_service", False)
     jax.distributed.initialize(
         coordinator_address=coordinator_address, num_processes=num_processes, process_id=process_id
     )
@@ -171,7 +175,11 @@ def wait_forwarding_signals(procs: list[subprocess.Popen]) -> list[int]:
     except ValueError:  # not the main thread
         pass
     try:
-        return [p.wait() for p in procs]
+        while any(p.poll() is None for p in procs):
+            # short waits: a signal that another thread took is handled here within 0.1 s
+            # (a blocking wait would only see it once the processes ended)
+            time.sleep(0.1)
+        return [p.returncode for p in procs]
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

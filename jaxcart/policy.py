@@ -195,15 +195,15 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
     info = rundir.read_run_config(run_dir)
     combos = info.get("combinations") or []
     if combos or rundir.is_sweep(run_dir):
-        count = len(combos) if combos else "its"
         if (
             isinstance(combination, bool)
             or not isinstance(combination, (int, np.integer))
             or not 0 <= combination < max(len(combos), 1)
         ):
+            count, bounds = (f" of {len(combos)} combinations", f" in [0, {len(combos)})")
             raise RunDirError(
-                f"{run_dir} is a sweep of {count} combinations: choose one with "
-                f"combination=C (--combination C) in [0, {len(combos)}), got {combination!r}"
+                f"{run_dir} is a sweep{count if combos else ''}: choose a combination with "
+                f"combination=C (--combination C){bounds if combos else ''}, got {combination!r}"
             )
         if rundir.is_sweep(run_dir):  # finished: each combination is a run directory
             return run_params(rundir.combo_dir(run_dir, int(combination)))
