@@ -17,7 +17,7 @@ from jaxcart import cli, rundir
 from jaxcart import env as cartpole
 from jaxcart.config import PPOConfig
 from jaxcart.networks import ActorCritic
-from jaxcart.policy import RunParams, numpy_policy, run_params
+from jaxcart.policy import RunParams, combinations, numpy_policy, run_params
 from jaxcart.signals import Stopped
 from jaxcart.trainer import seed_keys
 
@@ -237,7 +237,7 @@ def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) ->
 def _sources(run_dir: Path, combination: int | None) -> list[tuple[str | None, RunParams]]:
     """What to evaluate: the run, one combination, or every combination of a sweep, each
     with its label (``0 learning_rate=0.001``) in a sweep."""
-    combos = rundir.read_run_config(run_dir).get("combinations") or []
+    combos = combinations(rundir.read_run_config(run_dir))
     if not combos:
         return [(None, run_params(run_dir, combination))]
     chosen = range(len(combos)) if combination is None else [combination]
@@ -255,7 +255,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
         raise cli.UsageError(f"--episodes must be a positive integer, got {args.episodes}")
     info = rundir.read_run_config(args.run_dir)
     num_seeds = int(info.get("num_seeds", 1))
-    sweep = bool(info.get("combinations"))
+    sweep = bool(combinations(info))
     if args.gif is not None:
         _check_gif_options(args, num_seeds, sweep)
     sources = _sources(args.run_dir, args.combination)

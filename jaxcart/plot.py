@@ -147,6 +147,7 @@ def checkpoint_runs(path: Path, info: dict, labels: Sequence[str] | None = None)
         rundir.RunDirError: no usable checkpoint, or no iteration finished yet.
     """
     from jaxcart.policy import checkpoint_runs as read_checkpoint
+    from jaxcart.policy import combinations
 
     saved = read_checkpoint(path, info)
     if saved.iteration == 0:
@@ -154,7 +155,7 @@ def checkpoint_runs(path: Path, info: dict, labels: Sequence[str] | None = None)
     config, num_seeds = info["config"], int(info.get("num_seeds", 1))
     env_steps = np.arange(1, saved.iteration + 1) * config.batch_size
     elapsed = saved.metrics.get(ELAPSED_METRIC)
-    combos = info.get("combinations") or [None]
+    combos = combinations(info) or [None]
     runs = []
     for c, combination in enumerate(combos):
         metrics = {k: v[:, c * num_seeds : (c + 1) * num_seeds] for k, v in saved.metrics.items()}

@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 from jaxcart import files, networks, rundir
-from jaxcart.config import PPOConfig
+from jaxcart.config import ConfigError, PPOConfig
 from jaxcart.files import RunDirError
 
 CHECKPOINT_PARAMS = "state/runners/params/"
@@ -146,7 +146,7 @@ def checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> Che
         raise RunDirError(f"{run_dir} has no {rundir.PARAMS_FILE} and no {CHECKPOINT_FILE}")
     path = files.inside(run_dir, CHECKPOINT_FILE)
     meta = read_checkpoint_meta(path)
-    runs = int(info.get("num_seeds", 1)) * max(1, len(info.get("combinations") or []))
+    runs = int(info.get("num_seeds", 1)) * max(1, len(combinations(info)))
     iteration = meta.get("iteration")
     if (
         meta.get("num_runs") != runs
@@ -163,8 +163,8 @@ def checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> Che
     if any(found.get(name) != header for name, header in expected.items()):
         raise RunDirError(f"{path} does not hold this run's network")
     metric_names = [n for n in found if n.startswith(CHECKPOINT_METRICS)]
-    if any(found[n][0] != (iteration, runs) for n in metric_names):
-        raise RunDirError(f"{path} holds metrics of another shape than [{iteration}, {runs}]")
+    if any(found[n][0] != (iteration, runs) or found[n][1].kind != "f" for n in metric_names):
+        raise RunDirError(f"{path} holds metrics other than floats [{iteration}, {runs}]")
     arrays, _ = files.load_tree(path, max_bytes=limit)
     params = {name[len(CHECKPOINT_PARAMS) :]: arrays[name] for name in expected}
     files.check_finite(params, path)
@@ -193,7 +193,7 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
     """
     run_dir = Path(run_dir)
     info = rundir.read_run_config(run_dir)
-    combos = info.get("combinations") or []
+    combos = combinations(info)
     if combos or rundir.is_sweep(run_dir):
         if (
             isinstance(combination, bool)
@@ -222,8 +222,27 @@ def _combo_config(info: dict, combination: int | None) -> PPOConfig:
     """The config of one combination of an unfinished sweep (the run's config otherwise)."""
     if combination is None:
         return info["config"]
-    values = info["combinations"][combination]
-    return PPOConfig.from_dict({**info["config"].to_dict(), **values})
+    values = combinations(info)[combination]
+    try:
+        return PPOConfig.from_dict({**info["config"].to_dict(), **values})
+    except (ConfigError, TypeError, ValueError) as exc:
+        raise RunDirError(f"config.json: combination {combination} is unusable: {exc}") from None
+
+
+def combinations(info: dict) -> list[dict[str, float]]:
+    """A run's ``config.json`` ``combinations`` (``[]`` without a sweep), checked: a list of
+    ``{name: number}``."""
+    combos = info.get("combinations") or []
+    if not isinstance(combos, list) or not all(
+        isinstance(c, dict)
+        and all(
+            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+            for k, v in c.items()
+        )
+        for c in combos
+    ):
+        raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
+    return combos
 
 
 def load_policy(

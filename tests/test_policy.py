@@ -264,7 +264,14 @@ CRAFTED = [
     (_lying_entry, "does not match its header"),
     (_link_out, "link out of"),
     (lambda r: (r / CHECKPOINT_FILE).write_bytes(b"PK\x03\x04 torn"), "corrupted"),
+    (lambda r: _edit_config(r, combinations="combo"), "combinations is not a list"),
+    (lambda r: _edit_config(r, combinations=[{"learning_rate": "x"}]), "combinations is not"),
 ]
+
+
+def _edit_config(run, **changes):
+    info = json.loads((run / "config.json").read_text())
+    (run / "config.json").write_text(json.dumps({**info, **changes}))
 
 
 @pytest.mark.parametrize("damage, message", CRAFTED, ids=[str(i) for i in range(len(CRAFTED))])
