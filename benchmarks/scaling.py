@@ -41,7 +41,11 @@ def run(kind: str, args: list[str], out: Path) -> dict:
     start = time.perf_counter()
     if kind == "2 processes":
         procs = launch_local(
-            [*args, "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+            [*args, "--out", str(out)],
+            wait=False,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
         )
         texts = [p.communicate()[0] for p in procs]
         if any(p.returncode for p in procs):

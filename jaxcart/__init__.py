@@ -11,9 +11,14 @@ Env API (pure functions over pytrees)::
 Gymnasium: ``import jaxcart`` registers ``"jaxcart/CartPole-v1"`` (:mod:`jaxcart.gym_adapter`),
 so ``gymnasium.make("jaxcart/CartPole-v1")`` and ``gymnasium.make_vec(...)`` work.
 
-Training: ``python -m jaxcart.train``, or from Python :func:`run_new` / :func:`resume_run`
-(:mod:`jaxcart.lifecycle`: a run directory like the command line's) and
-:func:`jaxcart.trainer.train` (arrays only, no files); a trained policy: :func:`load_policy`.
+Training: ``python -m jaxcart.train`` (``python -m jaxcart`` lists the commands), or from
+Python :func:`run_new` / :func:`resume_run` (:mod:`jaxcart.lifecycle`: a run directory like
+the command line's) and :func:`train_runs` (:func:`jaxcart.trainer.train`: arrays only, no
+files); a trained policy: :func:`load_policy`. Call :func:`use_all_host_cores` first, before
+any JAX work, to train on one CPU device per core as the command line does.
+
+``jaxcart.train`` is the command-line module, never the training function, so that
+``import jaxcart.train`` cannot change what ``jaxcart.train_runs`` is.
 
 Comparing runs over seeds: :func:`compare_runs` (``python -m jaxcart.compare``), with the
 statistics in :mod:`jaxcart.stats` (:func:`iqm`, :func:`bootstrap_ci`,
@@ -29,7 +34,7 @@ import warnings
 
 __version__ = "0.1.0"
 
-_LAZY = {
+_LAZY: dict[str, str | tuple[str, str]] = {
     "EnvParams": "jaxcart.env",
     "EnvState": "jaxcart.env",
     "reset": "jaxcart.env",
@@ -42,7 +47,8 @@ _LAZY = {
     "ConfigError": "jaxcart.config",
     "preset": "jaxcart.config",
     "PRESETS": "jaxcart.config",
-    "train": "jaxcart.trainer",
+    "train_runs": ("jaxcart.trainer", "train"),
+    "use_all_host_cores": "jaxcart.devices",
     "load_policy": "jaxcart.policy",
     "RunSpec": "jaxcart.lifecycle",
     "RunOptions": "jaxcart.lifecycle",
@@ -63,9 +69,15 @@ __all__ = sorted(_LAZY)
 
 def __getattr__(name: str):
     if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
+        module, attr = _LAZY[name] if isinstance(_LAZY[name], tuple) else (_LAZY[name], name)
+        value = getattr(importlib.import_module(module), attr)
         globals()[name] = value
         return value
+    if name == "train":  # the submodule, once imported, is an attribute and never gets here
+        raise AttributeError(
+            "jaxcart.train is the command-line module (import jaxcart.train); the training "
+            "function is jaxcart.train_runs (jaxcart.trainer.train) or jaxcart.run_new"
+        )
     raise AttributeError(f"module 'jaxcart' has no attribute {name!r}")
 
 

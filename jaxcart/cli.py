@@ -1,29 +1,117 @@
-"""What every ``python -m jaxcart.*`` command shares: one-line errors with exit code 2, and
-plain-text tables."""
+"""What every ``python -m jaxcart.*`` command shares: one parser (one-line errors with exit
+code 2, no abbreviations, "did you mean" hints, ``--version``, one default per option in
+``--help``), and plain-text tables."""
 
 from __future__ import annotations
 
 import argparse
+import difflib
 import re
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
+from jaxcart import __version__
 from jaxcart.config import ConfigError
 from jaxcart.files import RunDirError
 
 EXIT_USAGE = 2
+VERSION_TEXT = f"jaxcart {__version__}"
 
 
 class UsageError(Exception):
     """A mistake a user made on the command line; printed as one line, exit code 2."""
 
 
+class ParserExit(SystemExit):
+    """``--help`` or ``--version`` was answered: :func:`run_command` returns the code, so
+    ``main(argv)`` returns instead of exiting (uncaught, it exits as argparse would)."""
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """At most one ``(default: X)`` per option: added from the option's default unless its
+    help states one already or there is none worth showing (``None``, ``False``, ``[]``)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text, default = action.help or "", action.default
+        if (
+            "(default" in text
+            or not action.option_strings
+            or default is None
+            or default is False
+            or default is argparse.SUPPRESS
+            or (isinstance(default, list) and not default)
+        ):
+            return text
+        return f"{text} (default: %(default)s)"
+
+    def _format_text(self, text: str) -> str:
+        # argparse %-formats a description only when it names %(prog); read "%%" as "%"
+        # in the others too, as in every help string.
+        if "%(prog)" not in text:
+            text = text.replace("%%", "%")
+        return super()._format_text(text)
+
+
+def suggestion(token: str, options: Sequence[str]) -> str | None:
+    """The option an unknown ``token`` probably meant: ``--num_seeds`` -> ``--num-seeds``,
+    ``--learn`` -> ``--learning-rate``, ``--lerning-rate`` -> ``--learning-rate``."""
+    name = token.split("=", 1)[0]
+    if not name.startswith("-") or name == "-":
+        return None
+    longs = [o for o in options if o.startswith("--")]
+    wanted = "--" + name.lstrip("-").replace("_", "-").lower()
+    if wanted in longs:
+        return wanted
+    # a prefix (--learn), a last part (--epochs: --update-epochs), else a near spelling
+    bare = wanted[2:]
+    for found in (
+        [o for o in longs if o.startswith(wanted)],
+        [o for o in longs if bare and o.endswith("-" + bare)],
+        difflib.get_close_matches(wanted, longs, n=1, cutoff=0.75),
+    ):
+        if found:
+            return found[0] if len(found) == 1 else f"one of {', '.join(found[:5])}"
+    return None
+
+
 class Parser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose errors raise :class:`UsageError` (one line, no usage dump)
-    instead of exiting, so ``main(argv)`` can be called in-process."""
+    """An ``ArgumentParser`` for every jaxcart command: errors raise :class:`UsageError` (one
+    line, no usage dump) instead of exiting, so ``main(argv)`` can be called in-process;
+    options must be spelled out (no abbreviations) and an unknown one gets a "did you mean"
+    hint; ``--version`` prints ``jaxcart X.Y.Z``."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+        self.add_argument(
+            "--version", action="version", version=VERSION_TEXT, help="print the version and exit"
+        )
 
     def error(self, message: str):
         raise UsageError(f"{message} (see {self.prog} --help)")
+
+    def exit(self, status: int = 0, message: str | None = None):
+        if message:
+            self._print_message(message, sys.stderr)
+        raise ParserExit(status)
+
+    def parse_args(self, args=None, namespace=None):  # type: ignore[override]
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            self.error(self.unrecognized_text(extras))
+        return namespace
+
+    def unrecognized_text(self, extras: list[str]) -> str:
+        """``unrecognized arguments: --num_seeds 3 (did you mean --num-seeds?)``."""
+        options = list(self._option_string_actions)
+        hints = [(t, s) for t in extras if (s := suggestion(t, options))]
+        text = f"unrecognized arguments: {' '.join(extras)}"
+        if len(hints) == 1:
+            return f"{text} (did you mean {hints[0][1]}?)"
+        if hints:
+            return text + "".join(f"; {t}: did you mean {s}?" for t, s in hints)
+        return text
 
 
 def join_negative_values(argv: list[str]) -> list[str]:
@@ -59,6 +147,8 @@ def run_command(body: Callable[[], int], also: tuple[type[Exception], ...] = ())
     ``error: ...`` on stderr and exit code 2."""
     try:
         return body()
+    except ParserExit as exc:  # --help, --version
+        return int(exc.code or 0)
     except ConfigError as exc:
         message, option = str(exc), exc.option
         if option and message.startswith(option):  # name the setting as the command line does

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import sys
+import warnings
 from pathlib import Path
 
 DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
@@ -12,12 +14,24 @@ def use_all_host_cores(count: int | None = None) -> None:
     """Exposes the host's cores to JAX as ``count`` CPU devices (default: all cores).
 
     XLA on CPU runs one program on one core; with several host devices the seed axis is
-    sharded over them and each core trains its share. Only effective before JAX creates its
-    CPU backend; an explicit ``--xla_force_host_platform_device_count`` in ``XLA_FLAGS``
-    is left alone. GPUs are unaffected (the flag only concerns the host platform).
+    sharded over them and each core trains its share. The command line calls it; from
+    Python, call ``jaxcart.use_all_host_cores()`` before any JAX work to train the same way
+    (otherwise JAX gives one CPU device). Only effective before JAX creates its CPU backend
+    (a warning says when it is too late); an explicit
+    ``--xla_force_host_platform_device_count`` in ``XLA_FLAGS`` is left alone. GPUs are
+    unaffected (the flag only concerns the host platform).
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if DEVICE_COUNT_FLAG in flags:
+        return
+    bridge = sys.modules.get("jax._src.xla_bridge")
+    if bridge is not None and getattr(bridge, "_backends", None):
+        warnings.warn(
+            "use_all_host_cores() comes too late: JAX has started with its devices already; "
+            "call it before any JAX work (or set XLA_FLAGS before starting Python)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
         return
     if count is None:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()

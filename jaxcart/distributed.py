@@ -15,9 +15,11 @@ host-side pieces here move data between the global arrays and NumPy:
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
+import time
 from typing import Any
 
 import numpy as np
@@ -42,6 +44,9 @@ def initialize(
     if process_id is None and "JAX_PROCESS_ID" in env:
         process_id = int(env["JAX_PROCESS_ID"])
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    # JAX's preemption service would take SIGTERM over from jaxcart's handler (and do nothing
+    # with it): SIGTERM must stop a distributed run with a checkpoint, as it does one process.
+    jax.config.update("jax_enable_preemption_service", False)
     jax.distributed.initialize(
         coordinator_address=coordinator_address, num_processes=num_processes, process_id=process_id
     )
@@ -104,13 +109,30 @@ def any_process(flag: bool) -> bool:
 
 
 def launch_local(
-    argv: list[str], num_processes: int = 2, devices_per_process: int = 1, **popen: Any
-) -> list[subprocess.Popen]:
-    """Starts ``python -m jaxcart.train ARGV --distributed`` as ``num_processes`` processes on
+    argv: list[str],
+    num_processes: int = 2,
+    devices_per_process: int = 1,
+    wait: bool = True,
+    **popen: Any,
+) -> list[int] | list[subprocess.Popen]:
+    """Runs ``python -m jaxcart.train ARGV --distributed`` as ``num_processes`` processes on
     this machine, talking over 127.0.0.1: a way to try (and test) multi-process training.
 
-    Returns the processes; ``popen`` is passed to :class:`subprocess.Popen` (e.g. ``stdout``).
+    Each process sees ``devices_per_process`` CPU devices (its own ``XLA_FLAGS``; this
+    process's environment is left as it is).
+
+    Args:
+        wait: wait for every process and return their exit codes, forwarding SIGINT and
+            SIGTERM (Ctrl-C) to them meanwhile, so they checkpoint and stop together (a
+            second one stops them at once). False returns the running processes at once.
+        popen: passed to :class:`subprocess.Popen` (e.g. ``stdout``); reading pipes needs
+            ``wait=False``, which leaves the waiting (and the signals) to the caller.
+
+    Returns:
+        The exit codes (``wait=True``), or the :class:`subprocess.Popen` objects.
     """
+    if wait and subprocess.PIPE in (popen.get("stdout"), popen.get("stderr")):
+        raise ValueError("launch_local(wait=True) cannot drain pipes: pass wait=False")
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         address = f"127.0.0.1:{s.getsockname()[1]}"
@@ -119,23 +141,45 @@ def launch_local(
         XLA_FLAGS=f"--xla_force_host_platform_device_count={devices_per_process}",
         JAX_PLATFORMS="cpu",
     )
-    return [
-        subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "jaxcart.train",
-                *argv,
-                "--distributed",
-                "--coordinator-address",
-                address,
-                "--num-processes",
-                str(num_processes),
-                "--process-id",
-                str(i),
-            ],
-            env=env,
-            **popen,
-        )
-        for i in range(num_processes)
-    ]
+    common = ["--distributed", "--coordinator-address", address]
+    common += ["--num-processes", str(num_processes)]
+    if wait:  # a terminal's Ctrl-C reaches this process only; it passes the signal on once
+        popen.setdefault("process_group", 0)
+    procs: list[subprocess.Popen] = []
+    try:
+        for i in range(num_processes):
+            cmd = [sys.executable, "-m", "jaxcart.train", *argv, *common, "--process-id", str(i)]
+            procs.append(subprocess.Popen(cmd, env=env, **popen))
+    except BaseException:
+        for p in procs:
+            p.kill()
+        raise
+    return wait_forwarding_signals(procs) if wait else procs
+
+
+def wait_forwarding_signals(procs: list[subprocess.Popen]) -> list[int]:
+    """Waits for every process, passing SIGINT and SIGTERM on to them; their exit codes.
+
+    Outside the main thread (where Python cannot handle signals) it only waits.
+    """
+
+    def forward(signum: int, frame: object) -> None:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signum)
+
+    previous = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, forward)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        while any(p.poll() is None for p in procs):
+            # short waits: a signal that another thread took is handled here within 0.1 s
+            # (a blocking wait would only see it once the processes ended)
+            time.sleep(0.1)
+        return [p.returncode for p in procs]
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

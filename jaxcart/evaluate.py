@@ -17,7 +17,7 @@ from jaxcart import cli, rundir
 from jaxcart import env as cartpole
 from jaxcart.config import PPOConfig
 from jaxcart.networks import ActorCritic
-from jaxcart.policy import load_policy, numpy_policy
+from jaxcart.policy import RunParams, combinations, numpy_policy, run_params
 from jaxcart.signals import Stopped
 from jaxcart.trainer import seed_keys
 
@@ -157,25 +157,33 @@ def evaluate_runs(
 
 
 def evaluate_run_dir(
-    run_dir: str | Path, episodes: int = NUM_EVAL_EPISODES
+    run_dir: str | Path, episodes: int = NUM_EVAL_EPISODES, combination: int | None = None
 ) -> tuple[np.ndarray, dict]:
-    """Evaluates every seed of a finished run directory in Gymnasium's CartPole-v1.
+    """Evaluates every seed of a run directory in Gymnasium's CartPole-v1: a finished run's
+    ``params.npz``, or the last checkpoint of one that did not finish.
+
+    Args:
+        combination: for a sweep directory, which combination.
 
     Returns:
-        ``(returns [num_seeds, episodes], info)`` with ``info`` the run's ``config.json``.
+        ``(returns [num_seeds, episodes], info)`` with ``info`` the run's ``config.json``
+        and ``info["note"]``: None, or where the parameters came from when the run did not
+        finish (``from the checkpoint at iteration 12/40: the run did not finish``).
 
     Raises:
-        rundir.RunDirError: not a finished run (or a sweep: evaluate its combinations).
+        rundir.RunDirError: not a usable run (or a sweep without ``combination``).
     """
     info = rundir.read_run_config(run_dir)
-    params = rundir.load_params(run_dir)
+    trained = run_params(run_dir, combination)
+    return _evaluate_params(run_dir, trained, episodes), {**info, "note": trained.note}
+
+
+def _evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> np.ndarray:
     try:
-        policy = numpy_policy(params, info["config"].activation, stacked=True)
+        policy = numpy_policy(trained.params, trained.config.activation, stacked=True)
     except (KeyError, TypeError, ValueError) as exc:
-        raise rundir.RunDirError(
-            f"{Path(run_dir) / rundir.PARAMS_FILE} does not hold an actor: {exc}"
-        ) from None
-    return evaluate_gymnasium(policy, int(info.get("num_seeds", 1)), episodes), info
+        raise rundir.RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
+    return evaluate_gymnasium(policy, trained.num_seeds, episodes)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -184,36 +192,61 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m jaxcart.evaluate",
         description="Evaluate every seed of a jaxcart run greedily in Gymnasium's own "
         "CartPole-v1 (solved = every episode scores 500); optionally render one seed's "
-        "policy to an animated GIF.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        "policy to an animated GIF. A run that did not finish is evaluated from its last "
+        "checkpoint (and says so); a sweep directory, every combination.",
     )
-    parser.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run directory")
+    parser.add_argument(
+        "run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run (or sweep) directory"
+    )
     parser.add_argument(
         "--episodes", type=int, default=NUM_EVAL_EPISODES, help="greedy episodes per seed"
     )
     parser.add_argument(
-        "--gif", type=Path, default=None, help="also render one episode of a seed to this GIF"
+        "--combination",
+        type=int,
+        default=None,
+        metavar="C",
+        help="only this combination of a sweep (needed with --gif)",
     )
+    parser.add_argument("--gif", type=Path, default=None, help="also render one episode to a GIF")
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
     parser.add_argument(
         "--gif-seed",
         type=int,
         default=EVAL_SEED,
-        help="env.reset seed of the GIF's episode (default: the first evaluation episode's)",
+        help=f"env.reset seed of the GIF's episode (default: {EVAL_SEED}, the first "
+        "evaluation episode's)",
     )
     return parser
 
 
-def _check_gif_options(args: argparse.Namespace, num_seeds: int) -> None:
+def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) -> None:
     if args.gif.suffix.lower() != ".gif":
         raise cli.UsageError(f"--gif {args.gif} must end in .gif")
     if not args.gif.parent.is_dir():
         raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
+    if sweep and args.combination is None:
+        raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
     if not 0 <= args.seed_index < num_seeds:
         raise cli.UsageError(
             f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
             f"got {args.seed_index}"
         )
+
+
+def _sources(run_dir: Path, combination: int | None) -> list[tuple[str | None, RunParams]]:
+    """What to evaluate: the run, one combination, or every combination of a sweep, each
+    with its label (``0 learning_rate=0.001``) in a sweep."""
+    combos = combinations(rundir.read_run_config(run_dir))
+    if not combos:
+        return [(None, run_params(run_dir, combination))]
+    chosen = range(len(combos)) if combination is None else [combination]
+    return [(_combo_label(c, combos), run_params(run_dir, c)) for c in chosen]
+
+
+def _combo_label(c: int, combos: list) -> str:
+    values = combos[c] if 0 <= c < len(combos) else {}
+    return f"{c} " + ",".join(f"{k}={v:g}" for k, v in values.items())
 
 
 def _evaluate_command(argv: list[str] | None) -> int:
@@ -222,30 +255,48 @@ def _evaluate_command(argv: list[str] | None) -> int:
         raise cli.UsageError(f"--episodes must be a positive integer, got {args.episodes}")
     info = rundir.read_run_config(args.run_dir)
     num_seeds = int(info.get("num_seeds", 1))
+    sweep = bool(combinations(info))
     if args.gif is not None:
-        _check_gif_options(args, num_seeds)
-    summary = summarize(evaluate_run_dir(args.run_dir, args.episodes)[0])
-    rows = [
-        [s, f"{summary['mean'][s]:.1f}", f"{summary['min'][s]:.0f}"]
-        + ["yes" if summary["solved"][s] else "no"]
-        for s in range(num_seeds)
-    ]
+        _check_gif_options(args, num_seeds, sweep)
+    sources = _sources(args.run_dir, args.combination)
+    note = sources[0][1].note
+    if note:
+        print(
+            f"note: parameters {note} (resume with: python -m jaxcart.train --resume "
+            f"{args.run_dir})"
+        )
+    rows = []
+    for label, trained in sources:
+        summary = summarize(_evaluate_params(args.run_dir, trained, args.episodes))
+        rows += [
+            ([label] if sweep else [])
+            + [s, f"{summary['mean'][s]:.1f}", f"{summary['min'][s]:.0f}"]
+            + ["yes" if summary["solved"][s] else "no"]
+            for s in range(num_seeds)
+        ]
     print(
         f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
         f"gymnasium.make('CartPole-v1') (reset seeds {EVAL_SEED}..."
         f"{EVAL_SEED + args.episodes - 1}):"
     )
-    print(cli.format_table(rows, ["seed", "mean", "min", "solved"]))
-    print(f"solved {int(summary['solved'].sum())}/{num_seeds} seed(s)", flush=True)
+    print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
+    solved = sum(r[-1] == "yes" for r in rows)
+    print(f"solved {solved}/{len(rows)} seed(s)", flush=True)
     if args.gif is not None:
-        from jaxcart.render import render_gif
-
-        gif = render_gif(load_policy(args.run_dir, args.seed_index), args.gif, seed=args.gif_seed)
-        print(
-            f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
-            f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
-        )
+        _write_gif(args, sources[0][1])
     return 0
+
+
+def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
+    from jaxcart.render import render_gif
+
+    one = jax.tree.map(lambda x: x[args.seed_index], trained.params)
+    policy = numpy_policy(one, trained.config.activation)
+    gif = render_gif(policy, args.gif, seed=args.gif_seed)
+    print(
+        f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
+        f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

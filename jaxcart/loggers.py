@@ -384,7 +384,8 @@ def check_available(names: Sequence[str]) -> None:
         if backend is not None and backend.module is not None and not _installed(backend.module):
             raise LoggerUnavailable(
                 f"the {name} logger needs the {backend.module} package: "
-                f"pip install 'jaxcart[{backend.extra}]'"
+                f"pip install 'jaxcart[{backend.extra}]' (in a clone of jaxcart: "
+                f"pip install -e '.[{backend.extra}]')"
             )
 
 

@@ -29,6 +29,7 @@ import dataclasses
 import io
 import math
 import os
+import sys
 import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -78,10 +79,20 @@ class Run:
     num_seeds: int
     evaluation: dict | None  # evaluation.json, None if missing
     combination: dict[str, float] | None = None  # a sweep's combination: its swept values
+    note: str | None = None  # "from the checkpoint at iteration 12/40: ..." when unfinished
+
+
+def unfinished(path: Path) -> bool:
+    """A run (or sweep) that did not write its outputs but has a checkpoint to plot from."""
+    from jaxcart.checkpoint import CHECKPOINT_FILE
+
+    done = rundir.PARAMS_FILE if not rundir.is_sweep(path) else rundir.SWEEP_FILE
+    return not (path / done).exists() and (path / CHECKPOINT_FILE).exists()
 
 
 def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
-    """Reads a run directory's config, metrics and evaluation.
+    """Reads a run directory's config, metrics and evaluation; a run that did not finish,
+    its metrics so far from its checkpoint (:attr:`Run.note` says so).
 
     Raises:
         rundir.RunDirError: ``run_dir`` is not a jaxcart run directory, or its
@@ -89,9 +100,12 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
     """
     path = Path(run_dir)
     info = rundir.read_run_config(path)
+    if unfinished(path):
+        return checkpoint_runs(path, info, [label] if label is not None else None)[0]
     if not (path / rundir.METRICS_FILE).exists():
         raise rundir.RunDirError(
-            f"{path} has no {rundir.METRICS_FILE}: the run did not finish training"
+            f"{path} has no {rundir.METRICS_FILE} and no checkpoint.npz: the run never "
+            "started training"
         )
     metrics_path = files.inside(path, rundir.METRICS_FILE)
     max_rows = int(info.get("num_seeds", 1)) * info["config"].num_iterations
@@ -123,6 +137,45 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
         evaluation=evaluation,
         combination=combination,
     )
+
+
+def checkpoint_runs(path: Path, info: dict, labels: Sequence[str] | None = None) -> list[Run]:
+    """The curves so far of an unfinished run, or of each combination of an unfinished sweep
+    (whose checkpoint holds every combination x seed), from ``checkpoint.npz``.
+
+    Raises:
+        rundir.RunDirError: no usable checkpoint, or no iteration finished yet.
+    """
+    from jaxcart.policy import checkpoint_runs as read_checkpoint
+    from jaxcart.policy import combinations
+
+    saved = read_checkpoint(path, info)
+    if saved.iteration == 0:
+        raise rundir.RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
+    config, num_seeds = info["config"], int(info.get("num_seeds", 1))
+    env_steps = np.arange(1, saved.iteration + 1) * config.batch_size
+    elapsed = saved.metrics.get(ELAPSED_METRIC)
+    combos = combinations(info) or [None]
+    runs = []
+    for c, combination in enumerate(combos):
+        metrics = {k: v[:, c * num_seeds : (c + 1) * num_seeds] for k, v in saved.metrics.items()}
+        label = labels[c] if labels is not None else None
+        if label is None:
+            label = combination_label(combination) if combination else default_label(path)
+        runs.append(
+            Run(
+                path=path,
+                label=label,
+                metrics=metrics,
+                env_steps=env_steps,
+                elapsed=None if elapsed is None else _first_finite(elapsed),
+                num_seeds=num_seeds,
+                evaluation=None,
+                combination=combination,
+                note=saved.note,
+            )
+        )
+    return runs
 
 
 def default_label(path: Path) -> str:
@@ -170,6 +223,9 @@ def load_runs(
             for combo in sweep_combinations(path):
                 run = load_run(combo)
                 runs.append(run if label is None else _prefixed(run, label))
+        elif (info := rundir.read_run_config(path)).get("combinations") and unfinished(path):
+            combos = checkpoint_runs(path, info)  # an unfinished sweep: no combo-NNN/ yet
+            runs += combos if label is None else [_prefixed(run, label) for run in combos]
         else:
             runs.append(load_run(path, label))
     if labels is None:
@@ -231,7 +287,9 @@ def _summary_lines(run: Run) -> list[str]:
     steps = f"{int(run.env_steps[-1]):,} steps/seed" if np.isfinite(run.env_steps[-1]) else ""
     line = ", ".join(p for p in (f"{run.num_seeds} seed(s)", steps, final) if p)
     ev = run.evaluation
-    if ev and ev.get("seeds"):
+    if run.note:
+        eval_line = f"not evaluated: {run.note}"
+    elif ev and ev.get("seeds"):
         seeds = ev["seeds"]
         solved = sum(bool(s.get("solved")) for s in seeds)
         mean = np.mean([s.get("gymnasium_mean", np.nan) for s in seeds])
@@ -275,7 +333,11 @@ def plot_runs(
         raise ValueError("give at least one run directory")
     if labels is not None and len(labels) != len(run_dirs):
         raise ValueError(f"got {len(labels)} label(s) for {len(run_dirs)} run directories")
-    runs = load_runs(run_dirs, labels)
+    return draw_runs(load_runs(run_dirs, labels), out, dpi)
+
+
+def draw_runs(runs: list[Run], out: str | os.PathLike | None = None, dpi: int = 100) -> Path:
+    """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`)."""
     if out is None:
         out = runs[0].path / "curves.png" if len(runs) == 1 else Path("comparison.png")
     out = Path(out)
@@ -414,8 +476,9 @@ def _disambiguate(runs: list[Run]) -> None:
     for i, run in enumerate(runs):
         if names.count(run.label) > 1:
             resolved = run.path.resolve()
-            if run.combination:
-                label = f"{resolved.parent.name}/{run.label}"
+            if run.combination:  # combo-NNN/ of a sweep, or an unfinished sweep itself
+                sweep = resolved.parent if resolved.name.startswith("combo-") else resolved
+                label = f"{sweep.name}/{run.label}"
             else:
                 label = f"{resolved.parent.name}/{resolved.name}"
             runs[i] = dataclasses.replace(run, label=label)
@@ -426,9 +489,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = cli.Parser(
         prog="python -m jaxcart.plot",
         description="Learning curves of jaxcart runs: episode return vs env steps and vs wall "
-        "time, and PPO's key metrics, as the mean across seeds with a 95%% bootstrap "
+        "time, and PPO's key metrics, as the mean across seeds with a 95% bootstrap "
         "confidence band clipped to each metric's range. Several run directories overlay; "
-        "a sweep directory stands for its combinations.",
+        "a sweep directory stands for its combinations. A run or sweep that did not finish "
+        "is drawn so far from its checkpoint (and says so).",
     )
     parser.add_argument("run_dirs", nargs="+", type=Path, metavar="RUN_DIR")
     parser.add_argument(
@@ -458,12 +522,32 @@ def _plot_command(argv: list[str] | None) -> int:
         )
     if args.dpi <= 0:
         raise cli.UsageError(f"--dpi must be positive, got {args.dpi}")
+    runs = load_runs(args.run_dirs, args.label)
     try:
-        out = plot_runs(args.run_dirs, args.out, args.label, dpi=args.dpi)
+        out = draw_runs(runs, args.out, dpi=args.dpi)
     except OSError as exc:
         raise cli.UsageError(f"cannot write the plot: {exc.strerror or exc}") from None
+    for line in unfinished_notes(runs):
+        print(f"note: {line}", file=sys.stderr)
     print(out)
     return 0
+
+
+def unfinished_notes(runs: list[Run]) -> list[str]:
+    """One line per unfinished run or sweep: what was drawn, and what is missing."""
+    lines = []
+    for path in dict.fromkeys(run.path for run in runs if run.note):
+        mine = [run for run in runs if run.path == path]
+        what = (
+            f"a sweep: its {len(mine)} combinations drawn"
+            if mine[0].combination
+            else "curves drawn"
+        )
+        lines.append(
+            f"{path}: {what} {mine[0].note}; no Gymnasium evaluation until it finishes "
+            f"(python -m jaxcart.train --resume {path})"
+        )
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

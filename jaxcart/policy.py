@@ -1,26 +1,49 @@
-"""Trained policies as plain NumPy callables, for any Gymnasium loop (no JAX call per step)."""
+"""Trained policies as plain NumPy callables, for any Gymnasium loop (no JAX call per step).
+
+Parameters come from ``params.npz`` of a finished run, or, for a run that did not finish
+(stopped, killed, or stopped before its outputs were written), from its ``checkpoint.npz``:
+:func:`run_params` says which in :attr:`RunParams.note`.
+"""
 
 from __future__ import annotations
 
+import math
 import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
 
 import jax
 import numpy as np
 
-from jaxcart import networks, rundir
+from jaxcart import files, networks, rundir
+from jaxcart.config import ConfigError, PPOConfig
 from jaxcart.files import RunDirError
+
+CHECKPOINT_PARAMS = "state/runners/params/"
+"""Where a checkpoint (:mod:`jaxcart.checkpoint`) keeps the parameters, leaves ``[R, ...]``."""
+CHECKPOINT_METRICS = "metrics/"
+"""Where it keeps the metrics so far, ``metrics/<name>``, each ``[iterations, R]``."""
 
 
 class NumpyPolicy:
-    """Greedy actor in plain NumPy, for one or a stack of seeds.
+    """Actor in plain NumPy, for one or a stack of seeds.
 
     ``actor`` holds the actor's layers (:func:`jaxcart.networks.actor_params`), with a leading
     seed axis ``[S, ...]`` on every array when ``stacked``. Calling it on float32 observations
-    returns argmax actions: ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked
-    ``(S, N, 4) -> (S, N)``.
+    returns actions: ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked
+    ``(S, N, 4) -> (S, N)``. Greedy (argmax) when ``deterministic``, else sampled from the
+    policy's softmax with ``rng`` (a NumPy ``Generator``, or a seed for one).
     """
 
-    def __init__(self, actor: dict, activation: str, stacked: bool = False) -> None:
+    def __init__(
+        self,
+        actor: dict,
+        activation: str,
+        stacked: bool = False,
+        deterministic: bool = True,
+        rng: np.random.Generator | int | None = None,
+    ) -> None:
         def layer(p: dict) -> dict:
             kernel, bias = np.asarray(p["kernel"], np.float32), np.asarray(p["bias"], np.float32)
             # stacked: bias [S, out] -> [S, 1, out] broadcasts over the N observations
@@ -29,6 +52,14 @@ class NumpyPolicy:
         self.actor = {name: layer(p) for name, p in actor.items()}
         self.activation = activation
         self.stacked = stacked
+        self.deterministic = deterministic
+        self.rng = np.random.default_rng(rng)
+        self.note: str | None = None  # where the parameters came from, if not a finished run
+
+    @property
+    def num_seeds(self) -> int | None:
+        """The leading seed axis of a stacked policy (None when not stacked)."""
+        return next(iter(self.actor.values()))["kernel"].shape[0] if self.stacked else None
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
         """Policy logits for ``obs`` (any leading shape matching the stacking)."""
@@ -37,20 +68,200 @@ class NumpyPolicy:
             raise ValueError(
                 f"expected observations with 4 values in the last axis, got shape {x.shape}"
             )
+        if self.stacked and (x.ndim != 3 or x.shape[0] != self.num_seeds):
+            raise ValueError(
+                f"a policy of {self.num_seeds} stacked seeds takes observations "
+                f"[{self.num_seeds}, N, 4], got shape {x.shape}"
+            )
         return networks.mlp(self.actor, x, self.activation, xp=np)
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        actions = np.argmax(self.logits(obs), axis=-1)
+        logits = self.logits(obs)
+        if not self.deterministic:  # Gumbel-max: argmax(logits + Gumbel noise) ~ softmax
+            logits = logits + self.rng.gumbel(size=logits.shape)
+        actions = np.argmax(logits, axis=-1)
         return int(actions) if actions.ndim == 0 else actions
 
 
-def numpy_policy(params: dict, activation: str, stacked: bool = False) -> NumpyPolicy:
+def numpy_policy(
+    params: dict,
+    activation: str,
+    stacked: bool = False,
+    deterministic: bool = True,
+    rng: np.random.Generator | int | None = None,
+) -> NumpyPolicy:
     """A :class:`NumpyPolicy` from network parameters (a leading seed axis when ``stacked``)."""
-    return NumpyPolicy(networks.actor_params(jax.device_get(params)), activation, stacked)
+    actor = networks.actor_params(jax.device_get(params))
+    return NumpyPolicy(actor, activation, stacked, deterministic, rng)
 
 
-def load_policy(run_dir: str | os.PathLike, seed_index: int = 0) -> NumpyPolicy:
-    """A greedy policy of one trained seed, usable in any Gymnasium loop.
+@dataclass(frozen=True)
+class RunParams:
+    """Every seed's parameters of one run directory (or one combination of a sweep)."""
+
+    params: dict  # leaves [num_seeds, ...]
+    config: PPOConfig
+    num_seeds: int
+    note: str | None = None
+    """``from the checkpoint at iteration 12/40: the run did not finish`` when the parameters
+    are not a finished run's; None for ``params.npz``."""
+
+
+@dataclass(frozen=True)
+class CheckpointRuns:
+    """What a run's checkpoint holds for reading: every run's parameters and metrics so far.
+
+    A sweep's checkpoint (in the sweep directory) holds all combinations x seeds: run ``r``
+    is combination ``r // num_seeds``, seed index ``r % num_seeds``.
+    """
+
+    params: dict  # leaves [R, ...]
+    metrics: dict[str, np.ndarray]  # name -> [iteration, R]
+    iteration: int
+    num_iterations: int
+
+    @property
+    def note(self) -> str:
+        where = f"from the checkpoint at iteration {self.iteration}/{self.num_iterations}"
+        if self.iteration >= self.num_iterations:
+            return f"{where}: training finished but the run stopped before writing its outputs"
+        return f"{where}: the run did not finish"
+
+
+def checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> CheckpointRuns:
+    """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
+    optimizer or env state is restored), refusing crafted files: the metadata must match the
+    run's ``config.json``, every array header is checked before anything is read, the whole
+    file is bounded by what this config's checkpoint can hold, and parameters must be finite.
+
+    Raises:
+        RunDirError: no usable checkpoint.
+    """
+    from jaxcart.checkpoint import CHECKPOINT_FILE, read_checkpoint_meta
+
+    run_dir = Path(run_dir)
+    info = info or rundir.read_run_config(run_dir)
+    config = info["config"]
+    if not (run_dir / CHECKPOINT_FILE).exists():
+        raise RunDirError(f"{run_dir} has no {rundir.PARAMS_FILE} and no {CHECKPOINT_FILE}")
+    path = files.inside(run_dir, CHECKPOINT_FILE)
+    meta = read_checkpoint_meta(path)
+    runs = int(info.get("num_seeds", 1)) * max(1, len(combinations(info)))
+    iteration = meta.get("iteration")
+    if (
+        meta.get("num_runs") != runs
+        or not isinstance(iteration, int)
+        or not 0 <= iteration <= config.num_iterations
+    ):
+        raise RunDirError(f"{path} does not belong to this run's config.json")
+    expected = {
+        CHECKPOINT_PARAMS + name: header
+        for name, header in rundir.params_headers(config, runs).items()
+    }
+    limit = _checkpoint_bytes(config, runs, iteration)
+    found = files.read_headers(path, max_bytes=limit)
+    if any(found.get(name) != header for name, header in expected.items()):
+        raise RunDirError(f"{path} does not hold this run's network")
+    metric_names = [n for n in found if n.startswith(CHECKPOINT_METRICS)]
+    if any(found[n][0] != (iteration, runs) or found[n][1].kind != "f" for n in metric_names):
+        raise RunDirError(f"{path} holds metrics other than floats [{iteration}, {runs}]")
+    arrays, _ = files.load_tree(path, max_bytes=limit)
+    params = {name[len(CHECKPOINT_PARAMS) :]: arrays[name] for name in expected}
+    files.check_finite(params, path)
+    metrics = {n[len(CHECKPOINT_METRICS) :]: arrays[n].astype(float) for n in metric_names}
+    return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
+
+
+def _checkpoint_bytes(config: PPOConfig, runs: int, iterations: int) -> int:
+    """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
+    two moments, per-env state, episode statistics, and metrics so far."""
+    params = sum(
+        math.prod(shape) * dtype.itemsize
+        for shape, dtype in rundir.params_headers(config, runs).values()
+    )
+    per_run = config.num_envs * 256 + (1 << 14)
+    return 4 * params + runs * per_run + (iterations + 1) * runs * 64 * 8 + (1 << 20)
+
+
+def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> RunParams:
+    """Every seed's parameters of a run directory: ``params.npz`` when the run finished,
+    else its checkpoint (:attr:`RunParams.note` says so). A sweep needs ``combination``
+    (its ``combo-NNN/`` directory, or its runs in the sweep's checkpoint if unfinished).
+
+    Raises:
+        RunDirError: not a run directory, nothing usable in it, or a bad ``combination``.
+    """
+    run_dir = Path(run_dir)
+    info = rundir.read_run_config(run_dir)
+    combos = combinations(info)
+    if combos or rundir.is_sweep(run_dir):
+        if (
+            isinstance(combination, bool)
+            or not isinstance(combination, (int, np.integer))
+            or not 0 <= combination < max(len(combos), 1)
+        ):
+            count, bounds = (f" of {len(combos)} combinations", f" in [0, {len(combos)})")
+            raise RunDirError(
+                f"{run_dir} is a sweep{count if combos else ''}: choose a combination with "
+                f"combination=C (--combination C){bounds if combos else ''}, got {combination!r}"
+            )
+        if rundir.is_sweep(run_dir):  # finished: each combination is a run directory
+            return run_params(rundir.combo_dir(run_dir, int(combination)))
+    elif combination is not None:
+        raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
+    num_seeds = int(info.get("num_seeds", 1))
+    if not combos and (run_dir / rundir.PARAMS_FILE).exists():
+        return RunParams(rundir.load_params(run_dir), info["config"], num_seeds)
+    saved = checkpoint_runs(run_dir, info)  # unfinished
+    first = (combination or 0) * num_seeds
+    params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
+    return RunParams(params, _combo_config(info, combination), num_seeds, saved.note)
+
+
+def _combo_config(info: dict, combination: int | None) -> PPOConfig:
+    """The config of one combination of an unfinished sweep (the run's config otherwise)."""
+    if combination is None:
+        return info["config"]
+    values = combinations(info)[combination]
+    try:
+        return PPOConfig.from_dict({**info["config"].to_dict(), **values})
+    except (ConfigError, TypeError, ValueError) as exc:
+        raise RunDirError(f"config.json: combination {combination} is unusable: {exc}") from None
+
+
+def combinations(info: dict) -> list[dict[str, float]]:
+    """A run's ``config.json`` ``combinations`` (``[]`` without a sweep), checked: a list of
+    ``{name: number}``."""
+    combos = info.get("combinations") or []
+    if not isinstance(combos, list) or not all(
+        isinstance(c, dict)
+        and all(
+            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+            for k, v in c.items()
+        )
+        for c in combos
+    ):
+        raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
+    return combos
+
+
+def load_policy(
+    run_dir: str | os.PathLike,
+    seed_index: int | str = 0,
+    combination: int | None = None,
+    deterministic: bool = True,
+    rng: np.random.Generator | int | None = None,
+) -> NumpyPolicy:
+    """A policy of a trained run, usable in any Gymnasium loop.
+
+    Args:
+        run_dir: a run directory. One that did not finish gives the parameters of its last
+            checkpoint, with a warning saying so (and ``policy.note``).
+        seed_index: which seed, or ``"all"`` for every seed stacked (observations
+            ``[S, N, 4]`` -> actions ``[S, N]``).
+        combination: a sweep's combination (required for a sweep directory).
+        deterministic: argmax actions (as evaluated); False samples from the policy.
+        rng: the NumPy ``Generator`` (or its seed) that samples when not ``deterministic``.
 
     Returns:
         A callable mapping a float32 observation ``(4,)`` to an ``int`` action, or ``(N, 4)``
@@ -62,17 +273,23 @@ def load_policy(run_dir: str | os.PathLike, seed_index: int = 0) -> NumpyPolicy:
         obs, _ = env.reset()
         obs, reward, terminated, truncated, _ = env.step(policy(obs))
     """
-    info = rundir.read_run_config(run_dir)
-    params = rundir.load_params(run_dir)
-    num_seeds = int(info.get("num_seeds", 1))
-    if (
+    trained = run_params(run_dir, combination)
+    num_seeds = trained.num_seeds
+    stacked = seed_index == "all"
+    if not stacked and (
         isinstance(seed_index, bool)
         or not isinstance(seed_index, (int, np.integer))
         or not 0 <= seed_index < num_seeds
     ):
-        raise RunDirError(f"seed_index must be an integer in [0, {num_seeds}), got {seed_index!r}")
-    one = jax.tree.map(lambda x: x[seed_index], params)
+        raise RunDirError(
+            f"seed_index must be an integer in [0, {num_seeds}) or 'all', got {seed_index!r}"
+        )
+    params = trained.params if stacked else jax.tree.map(lambda x: x[seed_index], trained.params)
     try:
-        return numpy_policy(one, info["config"].activation)
+        policy = numpy_policy(params, trained.config.activation, stacked, deterministic, rng)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor network: {exc}") from None
+    if trained.note:
+        policy.note = trained.note
+        warnings.warn(f"{run_dir}: parameters {trained.note}", UserWarning, stacklevel=2)
+    return policy

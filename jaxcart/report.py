@@ -13,6 +13,7 @@ from typing import IO, TYPE_CHECKING
 import numpy as np
 
 from jaxcart.cli import format_table
+from jaxcart.config import PRESETS, config_fields, preset
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from jaxcart.lifecycle import Outcome, Run
@@ -24,15 +25,22 @@ MAX_TABLE_ROWS = 100
 
 
 def header_line(run: Run, device_count: int, backend: str) -> str:
-    """``jaxcart PPO | preset sb3 | 2 seed(s) x 81,920 env steps (...) | 2 cpu device(s) | out ...``."""
+    """``jaxcart PPO | preset sb3 + learning_rate=0.001 | 2 seed(s) x 81,920 env steps (...) |
+    2 cpu device(s) | out ...``."""
     grid, config = run.grid, run.config
-    what = (
-        f"{grid.num_combos} combinations x {grid.num_seeds} seed(s)"
-        if grid.is_sweep
-        else f"{grid.num_seeds} seed(s)"
-    )
+    combos = f"{grid.num_combos} combination{'s' if grid.num_combos != 1 else ''}"
+    what = f"{combos} x {grid.num_seeds} seed(s)" if grid.is_sweep else f"{grid.num_seeds} seed(s)"
+    changed = []  # what the config changes from its preset, spelled as on the command line
+    base = preset(run.preset) if run.preset in PRESETS else config
+    for f in config_fields():
+        value = getattr(config, f.name)
+        if value != getattr(base, f.name):
+            text = ",".join(map(str, value)) if isinstance(value, tuple) else value
+            changed.append(f"{f.name}={text:g}" if isinstance(value, float) else f"{f.name}={text}")
+    modified = f" + {', '.join(changed)}" if changed else ""
     return (
-        f"jaxcart PPO | preset {run.preset} | {what} x {config.env_steps_per_seed:,} env steps "
+        f"jaxcart PPO | preset {run.preset}{modified} | {what} x "
+        f"{config.env_steps_per_seed:,} env steps "
         f"({config.num_iterations} iterations of {config.num_envs} env(s) x {config.num_steps} steps) "
         f"| {device_count} {backend} device(s) | out {run.out}"
     )

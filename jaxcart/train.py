@@ -42,7 +42,6 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m jaxcart.train",
         description="Train PPO on CartPole-v1 with JAX; every seed is evaluated for 20 greedy "
         "episodes in Gymnasium's own CartPole-v1 (solved = all 20 score 500).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     _add_run_options(parser.add_argument_group("run"))
     _add_distributed_options(
@@ -51,7 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
         )
     )
     _add_config_options(
-        parser.add_argument_group("PPO config (defaults shown are the sb3 preset's)")
+        parser.add_argument_group(
+            "PPO config (defaults shown are the sb3 preset's; --preset changes them)"
+        )
     )
     return parser
 
@@ -59,19 +60,19 @@ def build_parser() -> argparse.ArgumentParser:
 def _add_run_options(run: argparse._ArgumentGroup) -> None:
     """What to train, where to write it, how to carry it out."""
     run.add_argument(
-        "--preset", default=None, help=f"starting config: {', '.join(PRESETS)} (default sb3)"
+        "--preset", default=None, help=f"starting config: {', '.join(PRESETS)} (default: sb3)"
     )
     run.add_argument(
         "--num-seeds",
         type=int,
         default=None,
-        help="independent agents trained together (default 1)",
+        help="independent agents trained together (default: 1)",
     )
     run.add_argument(
         "--seed",
         type=int,
         default=None,
-        help="base seed; seed index i uses fold_in(seed, i) (default 0)",
+        help="base seed; seed index i uses fold_in(seed, i) (default: 0)",
     )
     run.add_argument(
         "--out", type=Path, default=None, help="run directory (default: runs/<preset>-<time>)"
@@ -127,12 +128,23 @@ def _add_distributed_options(dist: argparse._ArgumentGroup) -> None:
     dist.add_argument("--process-id", type=int, default=None)
 
 
+def _default_text(value: object) -> str:
+    """A config value as the command line spells it: ``64,64``, ``on``/``off``, ``0.0003``."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, tuple):
+        return ",".join(map(str, value))
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 def _add_config_options(group: argparse._ArgumentGroup) -> None:
-    """One option per PPOConfig field, its docstring as the help."""
-    docs = field_docs()
+    """One option per PPOConfig field, its docstring as the help, the sb3 preset's value as
+    the default shown (the option itself defaults to "not given", so presets apply)."""
+    docs, defaults = field_docs(), preset("sb3")
     for f in config_fields():
         flag = "--" + f.name.replace("_", "-")
-        help_text = docs.get(f.name, "")
+        shown = _default_text(getattr(defaults, f.name)).replace("%", "%%")
+        help_text = f"{docs.get(f.name, '').replace('%', '%%')} (default: {shown})"
         kwargs = dict(dest=f.name, default=argparse.SUPPRESS, help=help_text)
         if f.type in ("bool", bool):
             group.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
@@ -340,11 +352,11 @@ _stopped_at_once = False
 which must not be torn down with the interpreter (see the ``__main__`` block)."""
 
 
-def cli_main() -> None:
-    """The process entry point (``python -m jaxcart.train``, ``jaxcart-train``): one CPU
-    device per core, :func:`main`, and the exit code."""
+def cli_main(argv: list[str] | None = None) -> None:
+    """The process entry point (``python -m jaxcart.train``, ``jaxcart-train``,
+    ``python -m jaxcart train``): one CPU device per core, :func:`main`, and the exit code."""
     devices.use_all_host_cores()
-    code = main()
+    code = main(argv)
     if _stopped_at_once:  # leave at once: no interpreter teardown under a running XLA call
         sys.stdout.flush()
         sys.stderr.flush()

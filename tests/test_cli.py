@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import signal
 import time
 
@@ -191,3 +192,111 @@ def test_resume_errors(tmp_path, capsys):
     assert "cannot resume" in capsys.readouterr().err
     assert main(["--resume", str(tmp_path), "--learning-rate", "1e-3"]) == 2
     assert "drop --learning-rate" in capsys.readouterr().err
+
+
+# --- the command line itself: spelling, help, version ------------------------------------
+
+
+def _commands():
+    from jaxcart import compare, evaluate, plot
+
+    return {"train": main, "evaluate": evaluate.main, "plot": plot.main, "compare": compare.main}
+
+
+def _parsers():
+    from jaxcart import compare, evaluate, plot
+
+    return [build_parser(), evaluate.build_parser(), plot.build_parser(), compare.build_parser()]
+
+
+@pytest.mark.parametrize(
+    "command, argv, hint",
+    [
+        ("train", ["--learn", "1e-3"], "did you mean --learning-rate?"),
+        ("train", ["--num_seeds", "2"], "did you mean --num-seeds?"),
+        ("train", ["--lerning-rate", "1e-3"], "did you mean --learning-rate?"),
+        ("train", ["--epochs", "3"], "did you mean --update-epochs?"),
+        ("evaluate", ["RUN", "--episode", "3"], "did you mean --episodes?"),
+        ("plot", ["RUN", "--lab", "x"], "did you mean --label?"),
+        ("compare", ["RUN", "--base", "RUN"], "did you mean --baseline?"),
+    ],
+)
+def test_abbreviations_refused_with_a_suggestion(command, argv, hint, tmp_path, capsys):
+    code = _commands()[command]([*argv, "--out", str(tmp_path / "never")])
+    err = capsys.readouterr().err
+    assert code == 2 and "unrecognized arguments" in err and hint in err, err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "never").exists()
+
+
+def test_unknown_options_without_a_near_spelling_get_no_hint(capsys):
+    assert main(["--zzzz"]) == 2
+    err = capsys.readouterr().err
+    assert "unrecognized arguments: --zzzz" in err and "did you mean" not in err
+
+
+def test_help_shows_one_default_per_option():
+    from jaxcart.config import PPOConfig, config_fields
+
+    for parser in _parsers():
+        text = parser.format_help()
+        assert "(default: None)" not in text and "%%" not in text, parser.prog
+        assert "(default: [])" not in text and "(default: False)" not in text, parser.prog
+        for block in re.split(r"\n  (?=-)", text):  # one option's lines
+            assert len(re.findall(r"\(default", block)) <= 1, (parser.prog, block)
+    text = build_parser().format_help()
+    blocks = {b.split()[0]: " ".join(b.split()) for b in re.split(r"\n  (?=-)", text)}
+    sb3 = PPOConfig()
+    for f in config_fields():  # the PPO group shows the sb3 preset's value of every field
+        block = blocks["--" + f.name.replace("_", "-") + ("," if f.type == "bool" else "")]
+        assert "(default: " in block, block
+    assert "(default: 0.0003)" in blocks["--learning-rate"] and sb3.learning_rate == 3e-4
+    assert "(default: 64,64)" in blocks["--hidden-sizes"]
+    assert "(default: off)" in blocks["--anneal-lr,"]
+    assert "(default: sb3)" in blocks["--preset"] and "(default: 1)" in blocks["--num-seeds"]
+    from jaxcart import evaluate, plot
+
+    gif_seed = " ".join(evaluate.build_parser().format_help().split())
+    assert "(default: 1000000, the first evaluation episode's)" in gif_seed
+    assert "95% bootstrap" in " ".join(plot.build_parser().format_help().split())
+
+
+@pytest.mark.parametrize("command", ["train", "evaluate", "plot", "compare"])
+def test_version_on_every_command(command, capsys):
+    assert _commands()[command](["--version"]) == 0
+    assert capsys.readouterr().out == f"jaxcart {jaxcart.__version__}\n"
+
+
+def test_help_returns_zero_in_process(capsys):
+    assert main(["--help"]) == 0
+    assert "--learning-rate" in capsys.readouterr().out
+
+
+def test_header_names_what_overrides_the_preset(tmp_path):
+    from types import SimpleNamespace
+
+    from jaxcart.config import preset
+    from jaxcart.report import header_line
+    from jaxcart.sweep import RunGrid
+
+    def header(config, grid=None, name="sb3"):
+        run = SimpleNamespace(grid=grid or RunGrid(2), config=config, preset=name, out=tmp_path)
+        return header_line(run, 2, "cpu")
+
+    assert "| preset sb3 | 2 seed(s) x" in header(preset("sb3"))
+    changed = header(preset("sb3", learning_rate=1e-3, hidden_sizes=(32, 32)))
+    assert "| preset sb3 + learning_rate=0.001, hidden_sizes=32,32 |" in changed
+    assert "| preset fast + anneal_lr=False |" in header(
+        preset("fast", anneal_lr=False), name="fast"
+    )
+    one = header(preset("sb3"), RunGrid(2, ({"learning_rate": 1e-3},)))
+    assert "| 1 combination x 2 seed(s) x" in one
+    two = header(preset("sb3"), RunGrid(2, ({"gamma": 0.9}, {"gamma": 0.99})))
+    assert "| 2 combinations x 2 seed(s) x" in two
+
+
+def test_run_header_shows_the_overrides(tmp_path, capsys):
+    assert main([*SMALL, "--learning-rate", "1e-3", "--out", str(tmp_path / "r")]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first.startswith("jaxcart PPO | preset sb3 + num_envs=4, num_steps=32, ")
+    assert "learning_rate=0.001 |" in first

@@ -4,8 +4,12 @@ process with two devices: same per-device batch, so bit-identical results."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import threading
+import time
+from pathlib import Path
 
 import pytest
 from helpers import assert_same_run_dirs, tiny_args
@@ -31,7 +35,11 @@ def test_two_processes_match_one_process(tmp_path):
 
     multi = tmp_path / "multi"
     procs = launch_local(
-        [*ARGS, "--out", str(multi)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        [*ARGS, "--out", str(multi)],
+        wait=False,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
     )
     outputs = [p.communicate(timeout=300)[0] for p in procs]
     for p, text in zip(procs, outputs):
@@ -50,3 +58,57 @@ def test_distributed_needs_out_and_even_split(tmp_path, capsys):
     assert "--distributed needs --out" in capsys.readouterr().err
     assert main(["--process-id", "1", "--out", str(tmp_path / "x")]) == 2
     assert "need --distributed" in capsys.readouterr().err
+
+
+def test_launch_local_waits_and_returns_exit_codes(tmp_path):
+    # bad input: each process exits 2 before joining jax.distributed
+    codes = launch_local(
+        ["--num-seeds", "0", "--out", str(tmp_path / "x")],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    assert codes == [2, 2]
+    with pytest.raises(ValueError, match="wait=False"):
+        launch_local(["--out", str(tmp_path / "y")], stdout=subprocess.PIPE)
+    assert not (tmp_path / "y").exists()
+
+
+@pytest.mark.slow
+def test_launch_local_forwards_sigterm_to_its_processes(tmp_path):
+    """SIGTERM to the launching process reaches both trainings: they checkpoint and stop
+    together (exit 128 + SIGTERM), and the launcher carries on with its own handler back."""
+    out = tmp_path / "dist"
+    args = [*tiny_args(10**7, num_seeds=2), "--no-compile-cache", "--out", str(out)]
+    before = signal.getsignal(signal.SIGTERM)
+    returned = threading.Event()
+
+    def signal_when_training_started() -> None:
+        deadline = time.monotonic() + 120
+        while not (out / "checkpoint.npz").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        if not returned.is_set():  # 10^7 steps take minutes: still running
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    watcher = threading.Thread(target=signal_when_training_started, daemon=True)
+    watcher.start()
+    try:
+        codes = launch_local(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    finally:
+        returned.set()
+    assert codes == [128 + signal.SIGTERM] * 2
+    assert signal.getsignal(signal.SIGTERM) is before
+    assert not (out / "params.npz").exists() and (out / "checkpoint.npz").exists()
+
+
+def test_readme_two_process_recipe_leaves_no_xla_flags_behind():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "export XLA_FLAGS" not in readme
+    recipe = readme[readme.index("Two processes on one machine") :]
+    recipe = recipe[: recipe.index("From Python")]
+    commands = [line for line in recipe.splitlines() if "python -m jaxcart.train" in line]
+    assert len(commands) == 2
+    assert all(
+        c.startswith("XLA_FLAGS=--xla_force_host_platform_device_count=1 ") for c in commands
+    )
+    assert "wait" in recipe
