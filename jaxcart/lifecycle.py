@@ -237,11 +237,14 @@ class Run:
         return run
 
     @classmethod
-    def open(cls, out: str | Path, main_process: bool = True) -> Run:
-        """An existing, unfinished run directory, to resume.
+    def open(cls, out: str | Path, main_process: bool = True, extend_to: int | None = None) -> Run:
+        """An existing, unfinished run directory, to resume; or, with ``extend_to`` env steps
+        per seed, an interrupted or finished one to train further.
 
         Raises:
             RunDirError: not a run, unreadable, another package version, or already finished.
+            ConfigError: an extension that cannot be done (annealed learning rate, fewer
+                steps, a run trained in waves).
         """
         out = Path(out)
         info = rundir.read_run_config(out)
@@ -249,7 +252,13 @@ class Run:
         if main_process:
             lock.acquire()  # before reading the checkpoint another process may be writing
         try:
-            run = cls._from_info(out, info, main_process)
+            if extend_to is not None:
+                info = _extend(out, info, extend_to)
+            run = cls._from_info(out, dict(info), main_process)
+            if extend_to is not None and main_process:
+                rundir.write_json(
+                    out / rundir.CONFIG_FILE, {**info, "config": run.config.to_dict()}
+                )
         except BaseException:
             lock.release()
             raise
@@ -480,6 +489,29 @@ class _ChunkHandler:
             self.hooks.on_chunk(progress)
 
 
+def _extend(out: Path, info: dict, total_timesteps: int) -> dict:
+    """``config.json``'s contents for a run extended to ``total_timesteps`` env steps per
+    seed."""
+    config = info["config"]
+    if config.anneal_lr:
+        raise ConfigError(
+            f"cannot extend {out}: its learning rate anneals to 0 at its last iteration "
+            "(anneal_lr), so there is no schedule to continue; start a new run instead"
+        )
+    if (info.get("wave_size") or info.get("num_seeds")) < info.get("num_seeds", 1) * max(
+        1, len(info.get("combinations", []))
+    ):
+        raise ConfigError(f"cannot extend {out}: it trained in waves, which keep no final state")
+    extended = dataclasses.replace(config, total_timesteps=total_timesteps)
+    if extended.num_iterations <= config.num_iterations:
+        raise ConfigError(
+            f"--total-timesteps {total_timesteps:,} does not extend {out}: it already trains "
+            f"{config.env_steps_per_seed:,} env steps per seed"
+        )
+    history = [*info.get("extended_from", []), config.total_timesteps]
+    return {**info, "config": extended, "extended_from": history}
+
+
 def _package_versions() -> dict[str, str]:
     """The package versions, looked up once per process (recorded in every checkpoint)."""
     global _versions
@@ -578,14 +610,18 @@ def resume_run(
     options: RunOptions | None = None,
     hooks: Hooks | None = None,
     stop: StopRequest | None = None,
+    total_timesteps: int | None = None,
 ) -> Outcome:
-    """Continues an interrupted run from its last checkpoint, bit-identically."""
+    """Continues an interrupted run from its last checkpoint, bit-identically; with
+    ``total_timesteps``, extends an interrupted or finished run to that many env steps per
+    seed (constant learning rates only), as SB3's ``learn(more, reset_num_timesteps=False)``.
+    """
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
     if stop is not None:
         stop.check()
-    run = Run.open(out, main_process=distributed.is_main_process())
+    run = Run.open(out, main_process=distributed.is_main_process(), extend_to=total_timesteps)
     recorded = run.info.get("eval_episodes")
     if recorded and options.eval_episodes and options.eval_episodes != recorded:
         run.close()

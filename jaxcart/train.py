@@ -234,8 +234,9 @@ class TrainOptions:
         )
 
     def check_resume(self) -> None:
-        """``--resume`` continues with the run's saved settings: refuse new ones."""
-        given = [f"--{k.replace('_', '-')}" for k in self.overrides]
+        """``--resume`` continues with the run's saved settings: refuse new ones (but
+        ``--total-timesteps``, which extends the run)."""
+        given = [f"--{k.replace('_', '-')}" for k in self.overrides if k != "total_timesteps"]
         for flag, value in (
             ("--preset", self.preset),
             ("--num-seeds", self.num_seeds),
@@ -283,7 +284,8 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
     try:
         if spec is None:
             try:
-                outcome = lifecycle.resume_run(opts.resume, run_options, hooks, stop)
+                extend_to = opts.overrides.get("total_timesteps")
+                outcome = lifecycle.resume_run(opts.resume, run_options, hooks, stop, extend_to)
             except RunDirError as exc:
                 raise cli.UsageError(f"cannot resume: {exc}") from None
         else:

@@ -96,3 +96,29 @@ def test_bad_options_and_directories(tmp_path):
         lifecycle.Run.create(lifecycle.RunSpec(SMALL), tmp_path / "full")
     with pytest.raises(rundir.RunDirError, match="not a directory"):
         lifecycle.resume_run(tmp_path / "missing")
+
+
+def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
+    """--resume RUN --total-timesteps N: a finished constant-rate run trains on to N steps
+    and ends bit-identical to a run started with N (same chunking)."""
+    from jaxcart.train import main
+
+    longer = PPOConfig(**{**SMALL.to_dict(), "anneal_lr": False, "total_timesteps": 2048})
+    shorter = PPOConfig(**{**longer.to_dict(), "total_timesteps": 1024})
+    lifecycle.run_new(lifecycle.RunSpec(longer, num_seeds=2), tmp_path / "long", OPTIONS)
+    lifecycle.run_new(lifecycle.RunSpec(shorter, num_seeds=2), tmp_path / "ext", OPTIONS)
+    outcome = lifecycle.resume_run(tmp_path / "ext", OPTIONS, total_timesteps=2048)
+    assert not outcome.stopped and outcome.run.resumed_from == 8
+    assert_same_run_dirs(tmp_path / "long", tmp_path / "ext")
+    info = json.loads((tmp_path / "ext" / "config.json").read_text())
+    assert info["config"]["total_timesteps"] == 2048 and info["extended_from"] == [1024]
+    # through the command line, and the refusals
+    assert main(["--resume", str(tmp_path / "ext"), "--total-timesteps", "4096", "--quiet"]) == 0
+    assert "resuming from iteration 16/32" in capsys.readouterr().out
+    assert main(["--resume", str(tmp_path / "ext"), "--total-timesteps", "1024"]) == 2
+    assert "does not extend" in capsys.readouterr().err
+    annealed = PPOConfig(**{**SMALL.to_dict(), "anneal_lr": True})
+    lifecycle.run_new(lifecycle.RunSpec(annealed), tmp_path / "annealed", OPTIONS)
+    assert main(["--resume", str(tmp_path / "annealed"), "--total-timesteps", "4096"]) == 2
+    err = capsys.readouterr().err
+    assert "anneals to 0" in err and len(err.strip().splitlines()) == 1
