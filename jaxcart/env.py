@@ -326,11 +326,18 @@ def describe(params: EnvParams | None = None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Prints :func:`describe` for the default parameters."""
+    """Prints :func:`describe` for the default parameters. (The env module imports nothing of
+    the command-line layer: options are spelled out in full, as everywhere in jaxcart.)"""
     import argparse
+    from importlib import metadata
 
     parser = argparse.ArgumentParser(
-        prog="python -m jaxcart.env", description="Show CartPole's spaces, bounds and limits."
+        prog="python -m jaxcart.env",
+        description="Show CartPole's spaces, bounds and limits.",
+        allow_abbrev=False,
+    )
+    parser.add_argument(
+        "--version", action="version", version=f"jaxcart {metadata.version('jaxcart')}"
     )
     parser.add_argument(
         "--kinematics-integrator", choices=["euler", "semi-implicit"], default="euler"

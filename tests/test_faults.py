@@ -651,11 +651,26 @@ def _checkpoint_iteration(out: Path) -> int:
 
 
 @pytest.mark.slow
-def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path):
+@pytest.mark.parametrize("waves", [1, 4], ids=["one-batch", "in-4-waves"])
+def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path, monkeypatch, waves):
     """A 64-seed run SIGKILLed again and again (each time a few seconds after its newest
     checkpoint, always resumed) until it finishes: it ends bit-identical to the
-    uninterrupted run."""
+    uninterrupted run, trained in one batch or in waves of 16."""
     soak = [*tiny_args(51200, num_seeds=64), "--seed", "17", "--checkpoint-every", "0.3"]
+    if waves > 1:
+        from jaxcart.config import preset
+        from jaxcart.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run
+
+        config = preset(
+            "sb3",
+            num_envs=4,
+            num_steps=32,
+            total_timesteps=51200,
+            minibatch_size=64,
+            update_epochs=2,
+        )
+        memory = PROCESS_RESERVE_BYTES + 16 * bytes_per_run(config, 2) / USABLE_FRACTION + 10
+        monkeypatch.setitem(TRAIN_ENV, "JAXCART_MEMORY_BYTES", str(int(memory)))
     reference = tmp_path / "reference"
     done = _run(*soak, "--out", str(reference))
     assert done.returncode == 0, done.stdout + done.stderr
@@ -680,4 +695,6 @@ def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path):
         pytest.fail("the soak run did not finish after 40 restarts")
     assert kills >= 3, "the run finished before it was killed 3 times; the soak proved little"
     assert_same_run_dirs(reference, out)
-    FAULT_FIGURES["soak: 64-seed runs ending bit-identical"] += 1
+    if waves > 1:
+        assert len(list((out / "waves").iterdir())) == waves
+    FAULT_FIGURES[f"soak: 64-seed runs ({waves} wave(s)) ending bit-identical"] += 1

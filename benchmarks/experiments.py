@@ -1,0 +1,84 @@
+"""The course's CartPole claims as experiments: each one trains its arms with 64 seeds (from a
+base seed used nowhere else in the project) and compares them with ``python -m
+jaxcart.compare``, writing ``docs/experiments/<name>/`` (compare.json, compare.png and the
+table). ``docs/experiments.md`` holds the conclusions.
+
+    python benchmarks/experiments.py                       # every experiment available
+    python benchmarks/experiments.py --only truncation     # one of them
+    python benchmarks/experiments.py --seeds 8 --out /tmp/exp   # a quick look
+
+Every arm is ``python -m jaxcart.train`` with the options below, so a figure can be redone
+by hand. Runs already present in ``--runs`` are reused (delete them to retrain).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+BASE_SEED = 314159  # unseen: not used by tests, presets, benchmarks or the README
+
+EXPERIMENTS: dict[str, dict[str, list[str]]] = {
+    # 1. Treating the 500-step truncation as termination ("learns that 500 steps is bad").
+    "truncation-sb3": {
+        "sb3": ["--preset", "sb3"],
+        "sb3-no-bootstrap": ["--preset", "sb3", "--no-bootstrap-truncation"],
+    },
+    "truncation-purejaxrl": {
+        "purejaxrl-bootstrap": ["--preset", "purejaxrl"],
+        "purejaxrl-no-bootstrap": ["--preset", "purejaxrl", "--no-bootstrap-truncation"],
+    },
+    # 2. The chapter's from-scratch PPO uses ReLU; SB3 uses tanh.
+    "activation": {
+        "sb3": ["--preset", "sb3"],  # the same run as truncation-sb3's baseline
+        "sb3-relu": ["--preset", "sb3", "--activation", "relu"],
+    },
+}
+
+
+def train(name: str, options: list[str], seeds: int, runs: Path) -> Path:
+    """Trains one arm (or reuses a finished one) and returns its run directory."""
+    out = runs / name
+    if (out / "evaluation.json").exists():
+        print(f"{name}: reusing {out}", flush=True)
+        return out
+    command = [sys.executable, "-m", "jaxcart.train", *options, "--num-seeds", str(seeds)]
+    command += ["--seed", str(BASE_SEED), "--quiet", "--out", str(out)]
+    print(" ".join(command[1:]), flush=True)
+    subprocess.run(command, check=True, cwd=ROOT)
+    return out
+
+
+def compare(arms: list[Path], out: Path) -> str:
+    """``python -m jaxcart.compare`` on the arms (the first is the baseline); its table."""
+    command = [sys.executable, "-m", "jaxcart.compare", *map(str, arms), "--out", str(out)]
+    done = subprocess.run(command, check=True, cwd=ROOT, capture_output=True, text=True)
+    (out / "table.txt").write_text(done.stdout)
+    return done.stdout
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", default=",".join(EXPERIMENTS), help="comma-separated names")
+    parser.add_argument("--seeds", type=int, default=64)
+    parser.add_argument("--runs", type=Path, default=ROOT / "runs" / "experiments")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "experiments")
+    args = parser.parse_args(argv)
+    names = [n for n in args.only.split(",") if n]
+    unknown = sorted(set(names) - set(EXPERIMENTS))
+    if unknown:
+        parser.error(f"unknown experiment(s) {unknown}; choose from {', '.join(EXPERIMENTS)}")
+    args.runs.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        arms = [train(arm, opts, args.seeds, args.runs) for arm, opts in EXPERIMENTS[name].items()]
+        out = args.out / name
+        out.mkdir(parents=True, exist_ok=True)
+        print(compare(arms, out), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
