@@ -52,9 +52,16 @@ def train(name: str, options: list[str], seeds: int, runs: Path) -> Path:
     return out
 
 
+def _relative(path: Path) -> str:
+    """``path`` relative to the repository when it is inside it (for portable outputs)."""
+    path = path.resolve()
+    return str(path.relative_to(ROOT)) if ROOT in path.parents else str(path)
+
+
 def compare(arms: list[Path], out: Path) -> str:
     """``python -m jaxcart.compare`` on the arms (the first is the baseline); its table."""
-    command = [sys.executable, "-m", "jaxcart.compare", *map(str, arms), "--out", str(out)]
+    paths = [_relative(a) for a in arms]
+    command = [sys.executable, "-m", "jaxcart.compare", *paths, "--out", _relative(out)]
     done = subprocess.run(command, check=True, cwd=ROOT, capture_output=True, text=True)
     (out / "table.txt").write_text(done.stdout)
     return done.stdout
