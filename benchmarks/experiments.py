@@ -36,6 +36,16 @@ EXPERIMENTS: dict[str, dict[str, list[str]]] = {
         "sb3": ["--preset", "sb3"],  # the same run as truncation-sb3's baseline
         "sb3-relu": ["--preset", "sb3", "--activation", "relu"],
     },
+    # 3. "A linear policy softmax(Ws + b) can work on CartPole."
+    "linear-policy": {
+        "sb3": ["--preset", "sb3"],
+        "sb3-linear-actor": ["--preset", "sb3", "--linear-actor"],
+    },
+    # 4. Orthogonal initialisation with a 0.01 policy head against the default initialisation.
+    "initialisation": {
+        "sb3": ["--preset", "sb3"],  # orthogonal, 0.01 policy head
+        "sb3-default-init": ["--preset", "sb3", "--weight-init", "default"],
+    },
 }
 
 

@@ -68,6 +68,13 @@ class PPOConfig:
     """Hidden layer widths of both the actor and the critic MLP, e.g. 64,64."""
     activation: str = "tanh"
     """Hidden activation: tanh or relu."""
+    linear_actor: bool = False
+    """A linear policy, softmax(W obs + b): the actor has no hidden layers (the critic keeps
+    hidden_sizes)."""
+    weight_init: str = "orthogonal"
+    """Weight initialisation: orthogonal (SB3: gains sqrt(2), 0.01 for the policy head, 1 for
+    the value head, zero biases) or default (PyTorch's nn.Linear: weights and biases uniform in
+    +-1/sqrt(fan_in))."""
 
     def __post_init__(self) -> None:
         validate(self)
@@ -178,7 +185,9 @@ def validate(config: PPOConfig) -> None:
         )
     if c.activation not in ("tanh", "relu"):
         raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")
-    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation"):
+    if c.weight_init not in ("orthogonal", "default"):
+        raise ConfigError(f"weight_init must be 'orthogonal' or 'default', got {c.weight_init!r}")
+    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor"):
         if not isinstance(getattr(c, name), bool):
             raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
 

@@ -31,6 +31,7 @@ POLICY_GAIN = 0.01
 VALUE_GAIN = 1.0
 """Gain of the value head."""
 ACTIVATIONS = ("tanh", "relu")
+INITS = ("orthogonal", "default")
 
 
 def layer_names(num_hidden: int) -> list[str]:
@@ -78,28 +79,50 @@ class ActorCritic:
     activation: str = "tanh"
     obs_dim: int = 4
     num_actions: int = 2
+    linear_actor: bool = False  # the actor is one linear layer (logits = obs @ W + b)
+    weight_init: str = "orthogonal"  # or "default": PyTorch's nn.Linear initialisation
 
     def __post_init__(self) -> None:
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"activation must be one of {ACTIVATIONS}, got {self.activation!r}")
+        if self.weight_init not in INITS:
+            raise ValueError(f"weight_init must be one of {INITS}, got {self.weight_init!r}")
         object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+
+    @classmethod
+    def from_config(cls, config: Any) -> ActorCritic:
+        """The network a :class:`~jaxcart.config.PPOConfig` describes."""
+        return cls(
+            hidden_sizes=config.hidden_sizes,
+            activation=config.activation,
+            linear_actor=config.linear_actor,
+            weight_init=config.weight_init,
+        )
 
     def shapes(self) -> dict:
         """The kernel and bias shapes of every layer, as the parameter tree (tuples as leaves)."""
 
-        def head(out_dim: int) -> dict:
-            sizes = (self.obs_dim, *self.hidden_sizes, out_dim)
-            names = layer_names(len(self.hidden_sizes))
+        def head(hidden: tuple[int, ...], out_dim: int) -> dict:
+            sizes = (self.obs_dim, *hidden, out_dim)
+            names = layer_names(len(hidden))
             return {
                 n: {"kernel": (sizes[i], sizes[i + 1]), "bias": (sizes[i + 1],)}
                 for i, n in enumerate(names)
             }
 
-        return {ROOT: {ACTOR: head(self.num_actions), CRITIC: head(1)}}
+        actor_hidden = () if self.linear_actor else self.hidden_sizes
+        return {
+            ROOT: {
+                ACTOR: head(actor_hidden, self.num_actions),
+                CRITIC: head(self.hidden_sizes, 1),
+            }
+        }
 
     def init(self, rng: np.random.Generator, dtype: Any = np.float32) -> dict:
-        """Fresh parameters (NumPy): orthogonal kernels with gain sqrt(2) in hidden layers,
-        0.01 for the policy head and 1 for the value head, zero biases (SB3's ``ortho_init``).
+        """Fresh parameters (NumPy). ``weight_init="orthogonal"``: orthogonal kernels with gain
+        sqrt(2) in hidden layers, 0.01 for the policy head and 1 for the value head, zero
+        biases (SB3's ``ortho_init``). ``weight_init="default"``: PyTorch's ``nn.Linear`` default,
+        weights and biases uniform in +-1/sqrt(fan_in).
 
         Drawn on the host: no initialisation program to compile, and the same numbers on
         every device count.
@@ -108,11 +131,14 @@ class ActorCritic:
         for head, out_gain in ((ACTOR, POLICY_GAIN), (CRITIC, VALUE_GAIN)):
             layers = {}
             for name, shape in self.shapes()[ROOT][head].items():
-                gain = out_gain if name == OUT else HIDDEN_GAIN
-                layers[name] = {
-                    "kernel": orthogonal(rng, shape["kernel"], gain).astype(dtype),
-                    "bias": np.zeros(shape["bias"], dtype),
-                }
+                if self.weight_init == "default":
+                    bound = 1.0 / math.sqrt(shape["kernel"][0])
+                    kernel = rng.uniform(-bound, bound, shape["kernel"])
+                    bias = rng.uniform(-bound, bound, shape["bias"])
+                else:
+                    gain = out_gain if name == OUT else HIDDEN_GAIN
+                    kernel, bias = orthogonal(rng, shape["kernel"], gain), np.zeros(shape["bias"])
+                layers[name] = {"kernel": kernel.astype(dtype), "bias": bias.astype(dtype)}
             params[ROOT][head] = layers
         return params
 

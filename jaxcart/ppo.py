@@ -147,7 +147,7 @@ class Batch(NamedTuple):
 
 def make_network(config: PPOConfig) -> ActorCritic:
     """The actor-critic described by ``config``."""
-    return ActorCritic(hidden_sizes=config.hidden_sizes, activation=config.activation)
+    return ActorCritic.from_config(config)
 
 
 def make_optimizer(hp: Hyperparams) -> optax.GradientTransformation:

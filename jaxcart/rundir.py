@@ -161,7 +161,7 @@ def _check_run_fields(data: dict) -> None:
 
 def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
     """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes."""
-    network = ActorCritic(config.hidden_sizes, config.activation)
+    network = ActorCritic.from_config(config)
     shapes = files.flatten(network.shapes(), is_leaf=lambda x: isinstance(x, tuple))
     return {name: ((num_seeds, *shape), np.dtype(np.float32)) for name, shape in shapes.items()}
 

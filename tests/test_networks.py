@@ -110,3 +110,30 @@ def test_numpy_policy_matches_jax_logits_single_and_stacked():
 def test_bad_activation_rejected():
     with pytest.raises(ValueError, match="activation"):
         ActorCritic(activation="gelu")
+
+
+def test_linear_actor_is_one_layer_and_the_critic_keeps_its_hidden_layers():
+    network = ActorCritic(hidden_sizes=(64, 64), linear_actor=True)
+    params = network.init(np.random.default_rng(0))
+    assert list(params["params"]["actor"]) == ["out"]
+    assert params["params"]["actor"]["out"]["kernel"].shape == (4, 2)
+    assert list(params["params"]["critic"]) == ["hidden_0", "hidden_1", "out"]
+    obs = np.random.default_rng(1).normal(size=(6, 4)).astype(np.float32)
+    w, b = params["params"]["actor"]["out"]["kernel"], params["params"]["actor"]["out"]["bias"]
+    np.testing.assert_allclose(network.logits(params, jnp.asarray(obs)), obs @ w + b, rtol=1e-5)
+    policy = NumpyPolicy(actor_params(params), "tanh")
+    np.testing.assert_array_equal(policy(obs), (obs @ w + b).argmax(-1))
+
+
+def test_default_init_is_pytorchs_uniform_fan_in():
+    network = ActorCritic(hidden_sizes=(64, 64), weight_init="default")
+    draws = [network.init(np.random.default_rng(s)) for s in range(10)]
+    for head in ("actor", "critic"):
+        for name in ("hidden_0", "hidden_1", "out"):
+            kernel = np.stack([d["params"][head][name]["kernel"] for d in draws])
+            bias = np.stack([d["params"][head][name]["bias"] for d in draws])
+            bound = 1 / math.sqrt(kernel.shape[1])
+            assert np.abs(kernel).max() <= bound and np.abs(bias).max() <= bound
+            # uniform on [-b, b]: variance b^2 / 3
+            assert abs(kernel.var() / (bound**2 / 3) - 1) < 0.15
+            assert np.abs(bias).max() > 0  # not zero, unlike the orthogonal scheme
