@@ -566,6 +566,49 @@ def prepare_out_dir(out: Path) -> Path:
     return out
 
 
+def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> TrainResult:
+    """Trains one seed of a run again, alone, bit-identical to how it trained in its batch:
+    the seed is padded to the per-device batch width it had (the padding is discarded).
+
+    Needs the run's device count (``XLA_FLAGS=--xla_force_host_platform_device_count=N``)
+    and package versions; costs that width's compute, not one seed's.
+
+    Raises:
+        RunDirError: not a run, or another device count.
+        ConfigError: a seed index or combination out of range.
+    """
+    info = rundir.read_run_config(run_dir)
+    spec = RunSpec(
+        info["config"],
+        info["preset"],
+        int(info["num_seeds"]),
+        int(info["seed"]),
+        {k: list(v) for k, v in info.get("sweep", {}).items()},
+    )
+    grid, devices_now = spec.grid, jax.device_count()
+    if info.get("device_count") != devices_now:
+        raise RunDirError(
+            f"{run_dir} trained on {info.get('device_count')} device(s), this process has "
+            f"{devices_now}; set XLA_FLAGS=--xla_force_host_platform_device_count="
+            f"{info.get('device_count')} to replay it"
+        )
+    _check(0 <= seed_index < grid.num_seeds, "seed_index", f"must be in [0, {grid.num_seeds})")
+    _check(0 <= combination < grid.num_combos, "combination", f"must be in [0, {grid.num_combos})")
+    run = grid.run_index(combination, seed_index)
+    plan = WavePlan(grid.num_runs, int(info.get("wave_size") or grid.num_runs), 0, 0)
+    width = -(-len(plan.wave(run // plan.wave_size)) // devices_now)
+    config = spec.combo_configs()[combination]
+    hps = sweeps.sweep_hyperparams([config], sweeps.RunGrid(1))
+    return train(
+        config,
+        1,
+        spec.seed,
+        hyperparams=hps,
+        seed_indices=np.array([seed_index]),
+        runs_per_device=width,
+    )
+
+
 def start_distributed(
     coordinator_address: str | None = None,
     num_processes: int | None = None,

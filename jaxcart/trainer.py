@@ -219,6 +219,7 @@ def train(
     on_chunk: Callable[[Progress], None] | None = None,
     should_stop: Callable[[], bool] | None = None,
     seed_indices: np.ndarray | None = None,
+    runs_per_device: int | None = None,
 ) -> TrainResult:
     """Trains ``num_runs`` independent PPO agents in one compiled program.
 
@@ -236,6 +237,10 @@ def train(
         should_stop: polled before every chunk; when it returns True training stops early
             with ``TrainResult.stopped`` set and a resumable state.
         seed_indices: per-run seed index (default ``arange(num_runs)``).
+        runs_per_device: pad the run axis to at least this many runs per device. A run's
+            numbers depend on the per-device batch width (XLA compiles a different program
+            for another width), not on its position or neighbours: padding one seed to the
+            width it trained at replays it bit for bit.
     """
     env_params = env_params or cartpole.EnvParams()
     state = resume or initial_state(
@@ -243,7 +248,7 @@ def train(
     )
     devices = list(devices if devices is not None else jax.devices())
     sharding = run_sharding(devices)
-    padded = padded_runs(num_runs, len(devices))
+    padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
     runners = distributed.to_global(pad_runs(state.runners, padded), sharding)
     hps = distributed.to_global(pad_runs(state.hyperparams, padded), sharding)
 

@@ -122,3 +122,22 @@ def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
     assert main(["--resume", str(tmp_path / "annealed"), "--total-timesteps", "4096"]) == 2
     err = capsys.readouterr().err
     assert "anneals to 0" in err and len(err.strip().splitlines()) == 1
+
+
+def test_replay_one_seed_alone_bit_identical_to_its_batch(tmp_path):
+    """Seed 2 of a 5-seed run (3 per device on 2 devices), trained again alone: padded to
+    its width it matches bit for bit; at its own width of 1 it does not have to."""
+    spec = lifecycle.RunSpec(SMALL, num_seeds=5, seed=9)
+    lifecycle.run_new(spec, tmp_path / "five", OPTIONS)
+    replayed = lifecycle.replay_seed(tmp_path / "five", 2)
+    metrics = rundir.read_metrics_csv(tmp_path / "five" / "metrics.csv")
+    np.testing.assert_array_equal(
+        replayed.metrics["train/value_loss"][:, 0], metrics["train/value_loss"][:, 2]
+    )
+    params = rundir.load_params(tmp_path / "five")
+    np.testing.assert_array_equal(
+        np.asarray(replayed.params["params"]["actor"]["out"]["kernel"])[0],
+        params["params"]["actor"]["out"]["kernel"][2],
+    )
+    with pytest.raises(ConfigError, match="seed_index"):
+        lifecycle.replay_seed(tmp_path / "five", 5)
