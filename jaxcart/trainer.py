@@ -247,10 +247,7 @@ def train(
         config, num_runs, seed, hyperparams, env_params, chunk_size, seed_indices
     )
     devices = list(devices if devices is not None else jax.devices())
-    sharding = run_sharding(devices)
-    padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
-    runners = distributed.to_global(pad_runs(state.runners, padded), sharding)
-    hps = distributed.to_global(pad_runs(state.hyperparams, padded), sharding)
+    runners, hps = _place(state, devices, num_runs, runs_per_device)
 
     start = time.perf_counter()
     compiled, fresh = None, False
@@ -288,6 +285,16 @@ def train(
         compiled=fresh,
         stopped=stopped,
     )
+
+
+def _place(
+    state: TrainState, devices: list, num_runs: int, runs_per_device: int | None
+) -> tuple[RunnerState, Hyperparams]:
+    """The state's runs padded to fill every device equally and placed on them."""
+    sharding = run_sharding(devices)
+    padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
+    runners = distributed.to_global(pad_runs(state.runners, padded), sharding)
+    return runners, distributed.to_global(pad_runs(state.hyperparams, padded), sharding)
 
 
 class _ChunkLoop:
