@@ -596,7 +596,8 @@ def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> T
     _check(0 <= combination < grid.num_combos, "combination", f"must be in [0, {grid.num_combos})")
     run = grid.run_index(combination, seed_index)
     plan = WavePlan(grid.num_runs, int(info.get("wave_size") or grid.num_runs), 0, 0)
-    width = -(-len(plan.wave(run // plan.wave_size)) // devices_now)
+    wave = len(plan.wave(run // plan.wave_size))
+    used = min(devices_now, wave)  # fewer runs than devices trained on that many devices
     config = spec.combo_configs()[combination]
     hps = sweeps.sweep_hyperparams([config], sweeps.RunGrid(1))
     return train(
@@ -605,7 +606,8 @@ def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> T
         spec.seed,
         hyperparams=hps,
         seed_indices=np.array([seed_index]),
-        runs_per_device=width,
+        devices=jax.devices()[:used],
+        runs_per_device=-(-wave // used),
     )
 
 
@@ -742,7 +744,7 @@ def _train_wave(
         result = run.train(options, hooks, should_stop=stop, runs=runs, wave=wave)
     except Stopped:  # during initialisation: the checkpoint on disk (if any) is untouched
         return None
-    outcome.result = result
+    outcome.result, outcome.num_devices = result, result.num_devices
     outcome.compile_seconds += result.compile_seconds
     outcome.train_seconds += result.run_seconds
     outcome.env_steps += result.env_steps

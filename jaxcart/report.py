@@ -192,7 +192,9 @@ class ConsoleReport:
         self.run = run
         self.print(header_line(run, device_count, backend))
         runs = len(run.plan.wave(run.plan.num_waves - 1))  # the others divide over the devices
-        if runs % device_count:
+        if runs < device_count and run.plan.num_waves == 1:
+            self.print(f"{runs} run(s) on {runs} of the {device_count} devices (one each)")
+        elif runs % device_count:
             padded = -(-runs // device_count) * device_count
             last = " in the last wave" if run.plan.num_waves > 1 else ""
             self.print(

@@ -246,7 +246,7 @@ def train(
     state = resume or initial_state(
         config, num_runs, seed, hyperparams, env_params, chunk_size, seed_indices
     )
-    devices = list(devices if devices is not None else jax.devices())
+    devices = _devices(devices, num_runs, runs_per_device)
     runners, hps = _place(state, devices, num_runs, runs_per_device)
 
     start = time.perf_counter()
@@ -285,6 +285,14 @@ def train(
         compiled=fresh,
         stopped=stopped,
     )
+
+
+def _devices(devices: list | None, num_runs: int, runs_per_device: int | None) -> list:
+    """All devices; or, with fewer runs than devices in one process, one device per run."""
+    devices = list(devices if devices is not None else jax.devices())
+    if num_runs < len(devices) and not runs_per_device and jax.process_count() == 1:
+        return devices[:num_runs]
+    return devices
 
 
 def _place(

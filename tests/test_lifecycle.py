@@ -141,3 +141,12 @@ def test_replay_one_seed_alone_bit_identical_to_its_batch(tmp_path):
     )
     with pytest.raises(ConfigError, match="seed_index"):
         lifecycle.replay_seed(tmp_path / "five", 5)
+
+
+def test_replay_of_a_one_seed_run(tmp_path):
+    """One seed on a 2-device machine trains on one device; its replay does the same."""
+    lifecycle.run_new(lifecycle.RunSpec(SMALL, seed=2), tmp_path / "one", OPTIONS)
+    replayed = lifecycle.replay_seed(tmp_path / "one", 0)
+    assert replayed.num_devices == 1
+    metrics = rundir.read_metrics_csv(tmp_path / "one" / "metrics.csv")
+    np.testing.assert_array_equal(replayed.metrics["train/value_loss"], metrics["train/value_loss"])

@@ -137,3 +137,8 @@ def test_runs_that_do_not_divide_over_devices_are_padded_not_squeezed():
         np.testing.assert_array_equal(three.metrics[name], four.metrics[name][:, :3])
     for x, y in zip(jax.tree.leaves(three.params), jax.tree.leaves(four.params)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y)[:3])
+
+
+def test_fewer_runs_than_devices_use_one_device_each():
+    one = train(TINY, 1, seed=4, chunk_size=8)
+    assert one.num_devices == 1 and one.metrics["train/value_loss"].shape == (32, 1)
