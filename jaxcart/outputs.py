@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart import files
+from jaxcart import files, rundir
 from jaxcart.evaluate import SOLVED_DEFINITION, is_solved
 
 WAVES_DIR = "waves"
@@ -77,14 +77,36 @@ def block_path(run_dir: Path, wave: int) -> Path:
     return Path(run_dir) / WAVES_DIR / f"wave-{wave:05d}.npz"
 
 
+def _overlap(start: int, stop: int, runs: range) -> slice | None:
+    """The slice of a block of runs ``[start, stop)`` that holds some of ``runs``."""
+    lo, hi = max(start, runs.start), min(stop, runs.stop)
+    return slice(lo - start, hi - start) if lo < hi else None
+
+
 def _overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
     """Each block that holds some of ``runs`` (loaded when it is a path), with the slice of
     its axis that does."""
     for item in blocks:
         block = Block.load(item) if isinstance(item, Path) else item
-        lo, hi = max(block.start, runs.start), min(block.stop, runs.stop)
-        if lo < hi:
-            yield block, slice(lo - block.start, hi - block.start)
+        take = _overlap(block.start, block.stop, runs)
+        if take is not None:
+            yield block, take
+
+
+def _param_slices(blocks: list, runs: range, name: str) -> Iterator[np.ndarray]:
+    """One parameter array of each block that holds some of ``runs``, sliced to them; a
+    block file is read for that array alone."""
+    for item in blocks:
+        if not isinstance(item, Path):
+            take = _overlap(item.start, item.stop, runs)
+            if take is not None:
+                yield item.params[name][take]
+            continue
+        meta = files.read_meta(item)
+        take = _overlap(int(meta["start"]), int(meta["stop"]), runs)
+        if take is not None:
+            with np.load(item, allow_pickle=False) as data:
+                yield data[PARAMS + name][take]
 
 
 def write_metrics_csv(path: Path, blocks: list, runs: range, batch_size: int) -> None:
@@ -93,16 +115,11 @@ def write_metrics_csv(path: Path, blocks: list, runs: range, batch_size: int) ->
     with atomic_text(path) as f:
         writer, header = csv.writer(f, lineterminator="\n"), None
         for block, take in _overlapping(blocks, runs):
-            names = list(block.metrics)
             if header is None:
-                header = ["seed_index", "iteration", "env_steps", *names]
+                header = rundir.metrics_csv_header(list(block.metrics))
                 writer.writerow(header)
-            iterations = next(iter(block.metrics.values())).shape[0]
             first = block.start + take.start - runs.start
-            for s in range(take.stop - take.start):
-                for i in range(iterations):
-                    row = [float(block.metrics[n][i, take.start + s]) for n in names]
-                    writer.writerow([first + s, i + 1, (i + 1) * batch_size, *row])
+            writer.writerows(rundir.metrics_csv_rows(block.metrics, batch_size, first, take))
 
 
 def write_params(path: Path, blocks: list, runs: range) -> None:
@@ -124,8 +141,8 @@ def write_params(path: Path, blocks: list, runs: range) -> None:
                         "shape": shape,
                     }
                     np.lib.format.write_array_header_1_0(f, header)
-                    for block, take in _overlapping(blocks, runs):
-                        f.write(np.ascontiguousarray(block.params[name][take]).tobytes())
+                    for part in _param_slices(blocks, runs, name):
+                        f.write(np.ascontiguousarray(part).tobytes())
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -19,6 +19,7 @@ import csv
 import io
 import json
 import os
+from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
 
@@ -58,20 +59,31 @@ def save_params(path: str | os.PathLike, params: dict) -> None:
     files.save_tree(path, files.flatten(params))
 
 
-def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], batch_size: int) -> None:
-    """Rows ``seed_index, iteration, env_steps, <metrics...>`` from leaves ``[iterations, S]``."""
+def metrics_csv_header(names: list[str]) -> list[str]:
+    """The columns of ``metrics.csv``."""
+    return ["seed_index", "iteration", "env_steps", *names]
+
+
+def metrics_csv_rows(
+    metrics: dict[str, np.ndarray], batch_size: int, first_seed: int = 0, runs: slice = slice(None)
+) -> Iterator[list]:
+    """The rows of ``metrics.csv`` for the runs ``runs`` of metrics ``[iterations, R]``,
+    numbered from ``first_seed``: seed by seed, iteration by iteration."""
     names = list(metrics)
-    iterations, num_seeds = next(iter(metrics.values())).shape[:2]
-    lines = []
+    columns = [np.asarray(metrics[n])[:, runs] for n in names]
+    iterations, num_seeds = columns[0].shape
     for s in range(num_seeds):
         for i in range(iterations):
-            row = [s, i + 1, (i + 1) * batch_size]
-            row += [float(metrics[n][i, s]) for n in names]
-            lines.append(row)
+            row = [float(c[i, s]) for c in columns]
+            yield [first_seed + s, i + 1, (i + 1) * batch_size, *row]
+
+
+def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], batch_size: int) -> None:
+    """Rows ``seed_index, iteration, env_steps, <metrics...>`` from leaves ``[iterations, S]``."""
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["seed_index", "iteration", "env_steps", *names])
-    writer.writerows(lines)
+    writer.writerow(metrics_csv_header(list(metrics)))
+    writer.writerows(metrics_csv_rows(metrics, batch_size))
     atomic_write_bytes(Path(path), out.getvalue().encode())
 
 
