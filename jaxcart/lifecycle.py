@@ -415,10 +415,10 @@ class Run:
         )
         return Evaluation(episodes, gym_returns, jax_returns, time.perf_counter() - start)
 
-    def write_outputs(self, blocks: list, episodes: int, timing: dict) -> list[dict] | None:
+    def write_outputs(self, blocks: list, episodes: int, timing: dict) -> None:
         """metrics.csv, params.npz and evaluation.json from the runs' blocks (per
-        combination for a sweep, with its own config.json, and sweep.json ranking them).
-        Returns the ranking of a sweep."""
+        combination for a sweep, with its own config.json; :meth:`write_ranking` adds
+        sweep.json)."""
         configs = self.spec.combo_configs()
         for c, combo in enumerate(self.grid.combos or ({},)):
             directory = rundir.combo_dir(self.out, c) if self.grid.is_sweep else self.out
@@ -434,21 +434,17 @@ class Run:
             outputs.write_params(directory / rundir.PARAMS_FILE, blocks, runs)
             path = directory / rundir.EVALUATION_FILE
             outputs.write_evaluation(path, blocks, runs, episodes, timing)
-        return self._write_ranking(blocks) if self.grid.is_sweep else None
 
-    def _write_ranking(self, blocks: list) -> list[dict]:
-        steps = np.arange(1, self.config.num_iterations + 1) * self.config.batch_size
-        columns: dict[str, list] = {k: [] for k in ("score", "solved", "final", "reach", "div")}
-        for block, take in outputs._overlapping(blocks, range(self.grid.num_runs)):
-            columns["score"].append(block.gym_returns[take].mean(-1))
-            columns["solved"].append(is_solved(block.gym_returns[take]))
-            columns["final"].append(block.metrics["rollout/ep_rew_mean"][-1, take])
-            columns["reach"].append(
-                sweeps.first_reach(block.metrics["rollout/ep_rew_max"][:, take], steps)
-            )
-            columns["div"].append(block.diverged_at[take])
-        score, solved, final, reach, div = (np.concatenate(columns[k]) for k in columns)
-        ranking = sweeps.rank(self.grid, score, solved, final, reach, div)
+    def write_ranking(
+        self,
+        evaluation: Evaluation,
+        final_return: np.ndarray,
+        steps_to_500: np.ndarray,
+        diverged_at: np.ndarray,
+    ) -> list[dict]:
+        """``sweep.json``: the combinations ranked by IQM (per-run arrays ``[R]``)."""
+        score, solved = evaluation.gym_returns.mean(-1), evaluation.solved
+        ranking = sweeps.rank(self.grid, score, solved, final_return, steps_to_500, diverged_at)
         data = {"sweep": self.sweep, "num_seeds": self.grid.num_seeds, "ranking": ranking}
         rundir.write_json(self.out / rundir.SWEEP_FILE, data)
         return ranking
@@ -784,17 +780,24 @@ def _train_wave(
 
 def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
     """The run directory's outputs and the outcome's per-run summary, from every block."""
-    columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final")}
+    config = run.config
+    steps = np.arange(1, config.num_iterations + 1) * config.batch_size
+    columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final", "reach")}
     timing = {"compile_seconds": 0.0, "train_seconds": 0.0, "eval_seconds": 0.0}
     for block, take in outputs._overlapping(blocks, range(run.grid.num_runs)):
         columns["gym"].append(block.gym_returns[take])
         columns["jax"].append(block.jax_returns[take])
         columns["div"].append(block.diverged_at[take])
         columns["final"].append(block.metrics["rollout/ep_rew_mean"][-1, take])
+        reached = sweeps.first_reach(block.metrics["rollout/ep_rew_max"][:, take], steps)
+        columns["reach"].append(reached)
         for k in timing:
             timing[k] += float(block.timing.get(k, 0.0))
-    gym, jax_returns, div, final = (np.concatenate(columns[k]) for k in columns)
+    gym, jax_returns, div, final, reach = (np.concatenate(columns[k]) for k in columns)
     outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"])
     outcome.diverged_at, outcome.final_return = div, final
-    extra = {**timing, "devices": outcome.num_devices, "waves": len(blocks)}
-    outcome.ranking = run.write_outputs(blocks, episodes, extra)
+    run.write_outputs(
+        blocks, episodes, {**timing, "devices": outcome.num_devices, "waves": len(blocks)}
+    )
+    if run.grid.is_sweep:
+        outcome.ranking = run.write_ranking(outcome.evaluation, final, reach, div)

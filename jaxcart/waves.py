@@ -39,11 +39,11 @@ MEMORY_ENV = "JAXCART_MEMORY_BYTES"
 
 def bytes_per_run(config: PPOConfig, eval_episodes: int = 20) -> int:
     """Estimated peak host memory of one run while it trains and is evaluated, in bytes."""
+    import jax
+
     from jaxcart.trainer import initial_state
 
     state = initial_state(config, 1, 0)
-    import jax
-
     state_bytes = sum(np.asarray(x).nbytes for x in jax.tree.leaves(state.runners))
     transitions = config.num_envs * config.num_steps
     metrics = config.num_iterations * len(state.metrics) * 4
