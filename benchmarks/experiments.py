@@ -20,6 +20,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE_SEED = 314159  # unseen: not used by tests, presets, benchmarks or the README
+# An arm trained by Stable-Baselines3 itself (benchmarks/sb3_reference_run.py, PyTorch, in the
+# benchmark venv) instead of by ``python -m jaxcart.train``.
+SB3_TORCH = ["<stable-baselines3 (torch) via benchmarks/sb3_reference_run.py>"]
+SB3_PYTHON = ROOT / "benchmarks" / ".venv-bench" / "bin" / "python"
 
 EXPERIMENTS: dict[str, dict[str, list[str]]] = {
     # 1. Treating the 500-step truncation as termination ("learns that 500 steps is bad").
@@ -46,14 +50,27 @@ EXPERIMENTS: dict[str, dict[str, list[str]]] = {
         "sb3": ["--preset", "sb3"],  # orthogonal, 0.01 policy head
         "sb3-default-init": ["--preset", "sb3", "--weight-init", "default"],
     },
+    # 5. Stable-Baselines3 itself (baseline) against jaxcart's sb3 preset, same hyperparameters.
+    "sb3-torch": {
+        "sb3-torch": SB3_TORCH,
+        "sb3": ["--preset", "sb3"],
+    },
 }
 
 
-def train(name: str, options: list[str], seeds: int, runs: Path) -> Path:
+def train(name: str, options: list[str], seeds: int, runs: Path, jobs: int = 2) -> Path:
     """Trains one arm (or reuses a finished one) and returns its run directory."""
     out = runs / name
     if (out / "evaluation.json").exists():
         print(f"{name}: reusing {out}", flush=True)
+        return out
+    if options is SB3_TORCH:
+        if not SB3_PYTHON.exists():
+            raise SystemExit(f"{name} needs {SB3_PYTHON}: run bash benchmarks/setup_venvs.sh")
+        command = [str(SB3_PYTHON), "benchmarks/sb3_reference_run.py", "--num-seeds", str(seeds)]
+        command += ["--first-seed", str(BASE_SEED), "--jobs", str(jobs), "--out", str(out)]
+        print(" ".join(command), flush=True)
+        subprocess.run(command, check=True, cwd=ROOT)
         return out
     command = [sys.executable, "-m", "jaxcart.train", *options, "--num-seeds", str(seeds)]
     command += ["--seed", str(BASE_SEED), "--quiet", "--out", str(out)]
@@ -81,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", default=",".join(EXPERIMENTS), help="comma-separated names")
     parser.add_argument("--seeds", type=int, default=64)
+    parser.add_argument(
+        "--jobs", type=int, default=2, help="Stable-Baselines3 seeds trained at once (per core)"
+    )
     parser.add_argument("--runs", type=Path, default=ROOT / "runs" / "experiments")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "experiments")
     args = parser.parse_args(argv)
@@ -90,7 +110,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"unknown experiment(s) {unknown}; choose from {', '.join(EXPERIMENTS)}")
     args.runs.mkdir(parents=True, exist_ok=True)
     for name in names:
-        arms = [train(arm, opts, args.seeds, args.runs) for arm, opts in EXPERIMENTS[name].items()]
+        arms = [
+            train(arm, opts, args.seeds, args.runs, args.jobs)
+            for arm, opts in EXPERIMENTS[name].items()
+        ]
         out = args.out / name
         out.mkdir(parents=True, exist_ok=True)
         print(compare(arms, out), flush=True)

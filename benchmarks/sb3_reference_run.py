@@ -15,9 +15,11 @@ Gymnasium's CartPole-v1, so ``python -m jaxcart.plot`` can overlay the two:
 from __future__ import annotations
 
 import csv
+import multiprocessing
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -94,7 +96,22 @@ def greedy_returns(model, episodes: int) -> np.ndarray:
     return np.array(returns)
 
 
-def write_run(out: Path, config: PPOConfig, per_seed: list, evaluations: list, seconds: list):
+def run_seed(seed: int, timesteps: int, threads: int) -> tuple[dict, np.ndarray, float]:
+    """One seed end to end: SB3's training log as jaxcart metrics, greedy returns, seconds."""
+    rows, model, seconds = train_one(seed, timesteps, threads)
+    return to_metrics(rows, PPOConfig().batch_size), greedy_returns(model, NUM_EVAL_EPISODES), seconds
+
+
+def write_run(
+    out: Path,
+    config: PPOConfig,
+    per_seed: list,
+    evaluations: list,
+    seconds: list,
+    first_seed: int = 0,
+    wall_seconds: float | None = None,
+    jobs: int = 1,
+):
     """Writes the seeds' metrics and evaluations as a jaxcart run directory ``out``."""
     num_seeds = len(per_seed)
     iterations = min(len(m["time/fps"]) for m in per_seed)
@@ -106,7 +123,9 @@ def write_run(out: Path, config: PPOConfig, per_seed: list, evaluations: list, s
             "preset": "sb3",
             "framework": "stable-baselines3 (torch)",
             "num_seeds": num_seeds,
-            "seed": 0,
+            "seed": first_seed,
+            "jobs": jobs,
+            "wall_seconds": wall_seconds,
             "config": config.to_dict(),
             "versions": rundir.package_versions(),
         },
@@ -139,20 +158,31 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=int, default=1, help="torch threads (1 is fastest for this tiny MLP)"
     )
+    parser.add_argument(
+        "--first-seed", type=int, default=0, help="seeds are first-seed ... first-seed+num-seeds-1"
+    )
+    parser.add_argument(
+        "--jobs", type=int, default=1, help="seeds trained at once, one process each (one per core)"
+    )
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
     out = args.out
     out.mkdir(parents=True, exist_ok=False)
     config = PPOConfig()  # SB3's defaults, as jaxcart's sb3 preset
-    per_seed, evaluations, seconds = [], [], []
-    for seed in range(args.num_seeds):
-        rows, model, secs = train_one(seed, args.timesteps, args.threads)
-        per_seed.append(to_metrics(rows, config.batch_size))
-        evaluations.append(greedy_returns(model, NUM_EVAL_EPISODES))
-        seconds.append(secs)
-        print(f"seed {seed}: {secs:.1f} s, greedy mean {evaluations[-1].mean():.1f}", flush=True)
-    write_run(out, config, per_seed, evaluations, seconds)
-    print(f"wrote {out}")
+    seeds = range(args.first_seed, args.first_seed + args.num_seeds)
+    start = time.perf_counter()
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(args.jobs, mp_context=context) as pool:
+        futures = [pool.submit(run_seed, s, args.timesteps, args.threads) for s in seeds]
+        results = []
+        for seed, future in zip(seeds, futures):
+            results.append(future.result())
+            secs, returns = results[-1][2], results[-1][1]
+            print(f"seed {seed}: {secs:.1f} s, greedy mean {returns.mean():.1f}", flush=True)
+    wall = time.perf_counter() - start
+    per_seed, evaluations, seconds = (list(column) for column in zip(*results))
+    write_run(out, config, per_seed, evaluations, seconds, args.first_seed, wall, args.jobs)
+    print(f"wrote {out} ({wall:.1f} s wall, {args.jobs} job(s))")
 
 
 if __name__ == "__main__":

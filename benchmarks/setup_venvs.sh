@@ -6,6 +6,8 @@
 #   benchmarks/.venv-rejax  jaxcart + rejax 0.1.3, which needs gymnax 0.0.x (gymnax 1.x changed
 #                           step() to return terminated and truncated separately): train_speed.py
 #                           starts its rejax contenders with this interpreter.
+#   benchmarks/.venv-sbx    jaxcart + sbx (sbx-rl, Stable-Baselines3's JAX port, with the same
+#                           torch CPU pin because it installs Stable-Baselines3 too).
 #
 # PyTorch is installed first, pinned, so that Stable-Baselines3's "torch" requirement is already
 # met: left to itself pip would fetch the newest CUDA build (several GB). Override the pin with
@@ -24,6 +26,9 @@ BENCH_PKGS=(
   "gymnasium>=1.0"
   "stable-baselines3>=2.3"
   "matplotlib>=3.8"
+)
+SBX_PKGS=(
+  "sbx-rl>=0.20"
 )
 REJAX_PKGS=(
   "rejax==0.1.3"
@@ -55,6 +60,15 @@ if has_extra rejax; then
   benchmarks/.venv-rejax/bin/pip install -e '.[rejax]'
 else
   benchmarks/.venv-rejax/bin/pip install -e . "${REJAX_PKGS[@]}"
+fi
+
+echo "== benchmarks/.venv-sbx"
+make_venv benchmarks/.venv-sbx
+benchmarks/.venv-sbx/bin/pip install "$TORCH_SPEC"
+if has_extra sbx; then
+  benchmarks/.venv-sbx/bin/pip install -e '.[sbx]'
+else
+  benchmarks/.venv-sbx/bin/pip install -e . "${SBX_PKGS[@]}"
 fi
 
 echo
