@@ -1,8 +1,12 @@
 """The contenders of env_throughput.py: how each one is built and stepped.
 
 A contender at N envs is a :class:`Runner` whose ``call()`` runs a fixed number of env steps
-with uniformly random actions and blocks until they are done. Imported by env_throughput.py
-after it has exposed the host's cores as JAX devices.
+with uniformly random actions and blocks until they are done. Every contender is driven by the
+same harness code: the same action generator (one random bit per env and step:
+:func:`jax_actions`, :func:`host_actions`) and the same consumed outputs (:func:`consume`, a
+checksum of observations, rewards, terminations and truncations); the JAX contenders also share
+one rollout (:func:`jax_rollout`), so they differ only in their env's ``step``. Imported by
+env_throughput.py's worker after it has set the process's cores and JAX devices.
 """
 
 from __future__ import annotations
@@ -18,14 +22,6 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import jaxcart.env as cartpole
 
-CONTENDERS = ("jaxcart", "gymnax", "gymnasium-vector", "gymnasium-sync", "envpool")
-LABELS = {
-    "jaxcart": "jaxcart (jit/scan/vmap)",
-    "gymnax": "gymnax 1.x (jit/scan/vmap)",
-    "gymnasium-vector": "Gymnasium CartPoleVectorEnv (NumPy)",
-    "gymnasium-sync": "Gymnasium SyncVectorEnv",
-    "envpool": "EnvPool (C++)",
-}
 # Env steps per compiled call (num_steps x num_envs) aimed at; a call is a scan this long.
 STEPS_PER_CALL = 2**19
 MAX_SCAN_LENGTH = 2000
@@ -61,90 +57,115 @@ def scan_length(num_envs: int) -> int:
     return int(min(MAX_SCAN_LENGTH, max(4, STEPS_PER_CALL // num_envs)))
 
 
-def initial_carry(reset, params, num_envs: int, sharding: NamedSharding) -> tuple:
-    """A rollout's first carry, ``(env states, per-env keys, finished-episode counts)``, with
-    every env reset from its own key (all split from key 0), placed with ``sharding``."""
-    keys = jax.random.split(jax.random.PRNGKey(0), num_envs + 1)
-    _, env_state = jax.vmap(reset, in_axes=(0, None))(keys[1:], params)
-    step_keys = jax.random.split(keys[0], num_envs)
-    state = (env_state, step_keys, jnp.zeros((num_envs,), jnp.int32))
-    return jax.device_put(state, sharding)
+# The harness: every contender gets the same actions and has every output consumed.
 
 
-def jaxcart_random_rollout(num_envs: int, num_steps: int):
-    """jaxcart's contender: ``num_steps`` steps of ``num_envs`` envs with uniform random actions.
+def jax_actions(key: jax.Array, num_envs: int) -> jax.Array:
+    """Uniform random actions ``[num_envs]`` int32: one ``jax.random.bits`` word per 32 envs,
+    unpacked bit by bit (the cheapest exact fair coin; used for every JAX contender)."""
+    words = jax.random.bits(key, ((num_envs + 31) // 32,), jnp.uint32)
+    shifts = jnp.arange(32, dtype=jnp.uint32)
+    return ((words[:, None] >> shifts) & 1).reshape(-1)[:num_envs].astype(jnp.int32)
 
-    The batch steps with :func:`jaxcart.env.step_batch` (one key per step for the whole
-    batch; reset states from jaxcart's counter hash). Uniform random actions are 32 to a word:
-    one ``jax.random.bits`` word per 32 envs per step, unpacked bit by bit. The carry's leaves
-    have a leading env axis, sharded over the devices by :func:`env_sharding`; each env keeps
-    its own key so shards draw independent numbers.
+
+def host_actions(rng: np.random.Generator, num_envs: int) -> np.ndarray:
+    """:func:`jax_actions` for the host contenders: one random bit per env, from random bytes."""
+    packed = rng.integers(0, 256, size=(num_envs + 7) // 8, dtype=np.uint8)
+    return np.unpackbits(packed, count=num_envs).astype(np.int32)
+
+
+def consume(obs, reward, terminated, truncated, xp=jnp):
+    """What the harness keeps of a step: a checksum of every output (observations, rewards,
+    terminations, truncations), so no contender can skip computing any of them."""
+    return (
+        xp.sum(obs, dtype=xp.float32)
+        + xp.sum(reward, dtype=xp.float32)
+        + xp.sum(terminated, dtype=xp.float32)
+        + 2 * xp.sum(truncated, dtype=xp.float32)
+    )
+
+
+def jax_rollout(step, reset_state, num_envs: int, num_steps: int):
+    """The one rollout of every JAX contender: ``num_steps`` steps of ``num_envs`` envs.
+
+    Per step and device: one key ``fold_in(key, t)``, split into an action key
+    (:func:`jax_actions`) and an env key that ``step(env_key, state, actions)`` uses as its API
+    needs (for its autoreset draws); the step's outputs go into :func:`consume`'s checksum.
+    The env axis is sharded over the devices by :func:`env_sharding` with ``shard_map``, so
+    every device runs the whole scan on its own envs with no cross-device traffic.
+
+    Args:
+        step: ``(key, state [n], actions [n]) -> (obs [n, 4], state, reward, terminated,
+            truncated)`` for a device's ``n`` envs.
+        reset_state: ``(key, n) -> state [n]``, the first states.
 
     Returns:
-        ``(rollout, state)``: ``rollout(state) -> state`` is jitted (state donated) and runs
-        ``num_steps x num_envs`` env steps; ``state`` is the initial carry, on the devices.
-        The carry counts finished episodes per env, so the result depends on every step.
+        ``(rollout, carry)``: ``rollout(carry) -> carry`` (jitted, carry donated) runs
+        ``num_steps x num_envs`` env steps; ``carry = (state, key [devices], checksum
+        [devices])`` on the devices.
     """
-    params = cartpole.EnvParams()
     sharding = env_sharding(num_envs)
-    local_envs = num_envs // sharding.mesh.size  # each device steps its own share
+    num_devices = sharding.mesh.size
+    local_envs = num_envs // num_devices
 
     def one_step(carry, t):
-        env_state, keys, episodes = carry
-        # Per step: one action word per 32 envs and one reset key, folded from the env's key.
-        key = jax.random.fold_in(keys[0], t)
-        action_key, reset_key = jax.random.split(key)
-        words = jax.random.bits(action_key, ((local_envs + 31) // 32,), jnp.uint32)
-        shifts = jnp.arange(32, dtype=jnp.uint32)
-        actions = ((words[:, None] >> shifts) & 1).reshape(-1)[:local_envs].astype(jnp.int32)
-        _, env_state, _, terminated, truncated, _ = cartpole.step_batch(
-            reset_key, env_state, actions, params
+        state, key, total = carry
+        action_key, env_key = jax.random.split(jax.random.fold_in(key[0], t))
+        obs, state, reward, terminated, truncated = step(
+            env_key, state, jax_actions(action_key, local_envs)
         )
-        episodes = episodes + (terminated | truncated).astype(jnp.int32)
-        return (env_state, keys, episodes), None
+        return (state, key, total + consume(obs, reward, terminated, truncated)), None
 
     def rollout(carry):
         carry, _ = jax.lax.scan(one_step, carry, jnp.arange(num_steps, dtype=jnp.uint32))
         return carry
 
-    state = initial_carry(cartpole.reset, params, num_envs, sharding)
-    # shard_map: every device runs the whole scan on its own envs, no cross-device traffic.
+    keys = jax.random.split(jax.random.PRNGKey(0), num_devices + 1)
+    state = reset_state(keys[0], num_envs)
+    carry = (state, keys[1:], jnp.zeros((num_devices,), jnp.float32))
+    carry = jax.device_put(carry, sharding)
     spec = sharding.spec
     local = jax.shard_map(rollout, mesh=sharding.mesh, in_specs=(spec,), out_specs=spec)
-    fn = jax.jit(local, out_shardings=sharding, donate_argnums=0)
-    return fn, state
+    return jax.jit(local, out_shardings=sharding, donate_argnums=0), carry
+
+
+def jaxcart_random_rollout(num_envs: int, num_steps: int):
+    """jaxcart in :func:`jax_rollout`: :func:`jaxcart.env.step_batch` (its API takes one key
+    per step for the whole batch; reset states from jaxcart's counter hash)."""
+    params = cartpole.EnvParams()
+
+    def step(key, state, actions):
+        return cartpole.step_batch(key, state, actions, params)[:5]
+
+    def reset_state(key, n):
+        return jax.vmap(cartpole.reset, in_axes=(0, None))(jax.random.split(key, n), params)[1]
+
+    return jax_rollout(step, reset_state, num_envs, num_steps)
 
 
 def gymnax_random_rollout(num_envs: int, num_steps: int):
-    """gymnax 1.x ``CartPole-v1`` driven exactly like :func:`jaxcart_random_rollout`."""
+    """gymnax ``CartPole-v1`` in :func:`jax_rollout`: ``vmap(env.step)``, whose API takes a key
+    per env, given ``jax.random.split(env_key, n)`` (the cheapest way to make them)."""
     try:
         import gymnax
     except ImportError as e:
         raise Unavailable(f"gymnax is not installed ({e})") from None
     env, params = gymnax.make("CartPole-v1")
-    sharding = env_sharding(num_envs)
 
-    def one_step(carry, _):
-        env_state, keys, episodes = carry
-        split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
-        keys, action_keys, step_keys = split[:, 0], split[:, 1], split[:, 2]
-        actions = jax.vmap(jax.random.bernoulli)(action_keys).astype(jnp.int32)
-        out = jax.vmap(env.step, in_axes=(0, 0, 0, None))(step_keys, env_state, actions, params)
+    def step(key, state, actions):
+        keys = jax.random.split(key, actions.shape[0])
+        out = jax.vmap(env.step, in_axes=(0, 0, 0, None))(keys, state, actions, params)
         if len(out) == 6:  # gymnax >= 1.0: obs, state, reward, terminated, truncated, info
-            _, env_state, _, terminated, truncated, _ = out
-            done = terminated | truncated
-        else:  # gymnax 0.0.x: obs, state, reward, done, info
-            _, env_state, _, done, _ = out
-        episodes = episodes + done.astype(jnp.int32)
-        return (env_state, keys, episodes), None
+            obs, state, reward, terminated, truncated, _ = out
+        else:  # gymnax 0.0.x: obs, state, reward, done, info (no truncation flag)
+            obs, state, reward, terminated, _ = out
+            truncated = jnp.zeros_like(terminated)
+        return obs, state, reward, terminated, truncated
 
-    def rollout(carry):
-        carry, _ = jax.lax.scan(one_step, carry, None, length=num_steps)
-        return carry
+    def reset_state(key, n):
+        return jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(key, n), params)[1]
 
-    state = initial_carry(env.reset, params, num_envs, sharding)
-    fn = jax.jit(rollout, out_shardings=sharding, donate_argnums=0)
-    return fn, state
+    return jax_rollout(step, reset_state, num_envs, num_steps)
 
 
 def jax_runner(make_rollout, num_envs: int) -> Runner:
@@ -165,7 +186,7 @@ def jax_runner(make_rollout, num_envs: int) -> Runner:
         call=call,
         steps_per_call=num_envs * num_steps,
         setup_seconds=compile_seconds,
-        notes={"scan_length": num_steps, "devices": devices_used},
+        notes={"scan_length": num_steps, "threads": devices_used},
     )
 
 
@@ -180,45 +201,58 @@ def gymnasium_runner(num_envs: int, mode: str) -> Runner:
     envs.reset(seed=0)
     setup = time.perf_counter() - start
     rng = np.random.default_rng(0)
+    total = [0.0]
 
     def call():
-        envs.step(rng.integers(0, 2, size=num_envs))
+        obs, reward, terminated, truncated, _ = envs.step(host_actions(rng, num_envs))
+        total[0] += float(consume(obs, reward, terminated, truncated, np))
 
     return Runner(
         call=call,
         steps_per_call=num_envs,
         setup_seconds=setup,
-        notes={"env": type(envs).__name__, "autoreset": str(envs.metadata.get("autoreset_mode"))},
+        notes={
+            "env": type(envs).__name__,
+            "autoreset": str(envs.metadata.get("autoreset_mode")),
+            "threads": 1,
+        },
         close=envs.close,
     )
 
 
-def envpool_runner(num_envs: int) -> Runner:
-    """EnvPool's CartPole-v1 (synchronous: each call steps all envs), one step a call."""
+def envpool_runner(num_envs: int, threads: int) -> Runner:
+    """EnvPool's CartPole-v1 (synchronous: each call steps all envs) on ``threads`` threads,
+    one step a call."""
     try:
         import envpool
     except ImportError as e:
         raise Unavailable(f"envpool is not installed ({e})") from None
     start = time.perf_counter()
-    envs = envpool.make("CartPole-v1", env_type="gymnasium", num_envs=num_envs, seed=0)
+    envs = envpool.make(
+        "CartPole-v1", env_type="gymnasium", num_envs=num_envs, seed=0, num_threads=threads
+    )
     envs.reset()
     setup = time.perf_counter() - start
     rng = np.random.default_rng(0)
+    total = [0.0]
 
     def call():
-        envs.step(rng.integers(0, 2, size=num_envs, dtype=np.int32))
+        obs, reward, terminated, truncated, _ = envs.step(host_actions(rng, num_envs))
+        total[0] += float(consume(obs, reward, terminated, truncated, np))
 
     spec = envs.spec.config
     return Runner(
         call=call,
         steps_per_call=num_envs,
         setup_seconds=setup,
-        notes={"num_threads": getattr(spec, "num_threads", None)},
+        notes={"threads": getattr(spec, "num_threads", threads)},
         close=envs.close,
     )
 
 
-def make_runner(name: str, num_envs: int) -> Runner:
+def make_runner(name: str, num_envs: int, cores: int) -> Runner:
+    """Contender ``name`` at ``num_envs`` envs; ``cores`` is how many the process may use (the
+    JAX contenders use every JAX device, EnvPool that many threads, Gymnasium one thread)."""
     if name == "jaxcart":
         return jax_runner(jaxcart_random_rollout, num_envs)
     if name == "gymnax":
@@ -228,5 +262,5 @@ def make_runner(name: str, num_envs: int) -> Runner:
     if name == "gymnasium-sync":
         return gymnasium_runner(num_envs, "sync")
     if name == "envpool":
-        return envpool_runner(num_envs)
+        return envpool_runner(num_envs, cores)
     raise ValueError(name)

@@ -356,22 +356,47 @@ def update_epochs(
     network = make_network(config)
     optimizer = make_optimizer(hp)
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
+    rows = pack_batch(batch)
 
-    def minibatch_step(carry, minibatch: Batch):
+    def minibatch_step(carry, minibatch: Array):
         params, opt_state = carry
+        minibatch = unpack_batch(minibatch, batch)
         (_, aux), grads = grad_fn(params, network, minibatch, hp, config.norm_adv)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         params = jax.tree.map(lambda p, u: p - learning_rate * u, params, updates)
         return (params, opt_state), aux
 
     def epoch(carry, perm: Array):
-        shape = (config.num_minibatches, config.minibatch_size)
-        minibatches = jax.tree.map(lambda x: x[perm].reshape(shape + x.shape[1:]), batch)
-        return jax.lax.scan(minibatch_step, carry, minibatches)
+        # one gather of whole rows per epoch, rather than one per field
+        shape = (config.num_minibatches, config.minibatch_size, rows.shape[-1])
+        return jax.lax.scan(minibatch_step, carry, rows[perm].reshape(shape))
 
     perms = random_permutations(key, config.update_epochs, config.batch_size)
     (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), perms)
     return params, opt_state, aux
+
+
+def pack_batch(batch: Batch) -> Array:
+    """The batch as one array of rows ``[B, obs_dim + 4]``: observation, action, log-prob,
+    advantage, return (the action as a float, exact for any action index below 2**24), so a
+    shuffle is one gather of contiguous rows."""
+    columns = [batch.action, batch.log_prob, batch.advantage, batch.returns]
+    dtype = jnp.result_type(batch.obs, *columns[1:])  # no float field loses precision
+    columns = [batch.obs.astype(dtype)] + [c.astype(dtype)[:, None] for c in columns]
+    return jnp.concatenate(columns, axis=-1)
+
+
+def unpack_batch(rows: Array, like: Batch) -> Batch:
+    """:func:`pack_batch` undone for rows ``[M, obs_dim + 4]``, with ``like``'s dtypes."""
+    obs_dim = like.obs.shape[-1]
+    column = lambda i, field: rows[:, obs_dim + i].astype(field.dtype)
+    return Batch(
+        obs=rows[:, :obs_dim].astype(like.obs.dtype),
+        action=column(0, like.action),
+        log_prob=column(1, like.log_prob),
+        advantage=column(2, like.advantage),
+        returns=column(3, like.returns),
+    )
 
 
 def random_permutations(key: Array, num: int, size: int) -> Array:

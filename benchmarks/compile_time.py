@@ -1,0 +1,181 @@
+"""Where the cold compile of the default training step goes, and what XLA flags do to it.
+
+The default run (``python -m jaxcart.train``: the ``sb3`` preset, one seed, one device)
+compiles one program, :func:`jaxcart.ppo.train_chunk`. Each variant below runs in a fresh
+process with the persistent cache off and measures, for that program:
+
+- ``trace``: Python tracing to a jaxpr, ``lower``: jaxpr to StableHLO (JAX's side);
+- ``compile``: XLA's side (HLO optimisation passes, then LLVM code generation);
+- the optimised HLO's size (instructions) and its ``while`` loops;
+- wall and CPU seconds of each stage, the median of ``--repeats`` fresh processes.
+
+Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
+
+- ``default``: the flags ``python -m jaxcart.train`` uses;
+- ``O0``/``O1``: ``--xla_backend_optimization_level=0/1``: less LLVM optimisation, showing
+  LLVM's share of the compile (and what it costs at run time: ``--run`` times a chunk);
+- ``no-expensive``: ``--xla_llvm_disable_expensive_passes=true``;
+- ``split-N``: ``--xla_cpu_parallel_codegen_split_count=N`` (codegen in N parallel parts).
+
+    python benchmarks/compile_time.py                       # every variant, 3 processes each
+    python benchmarks/compile_time.py --variants default,O1 --repeats 5 --run
+
+Writes ``compile_time.json`` and ``compile_time.md`` to ``--out`` (default
+``benchmarks/results``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import benchlib
+
+VARIANTS = {
+    "default": "",
+    "O0": "--xla_backend_optimization_level=0",
+    "O1": "--xla_backend_optimization_level=1",
+    "no-expensive": "--xla_llvm_disable_expensive_passes=true",
+    "split-2": "--xla_cpu_parallel_codegen_split_count=2",
+    "split-4": "--xla_cpu_parallel_codegen_split_count=4",
+}
+
+
+def child(run: bool) -> dict:
+    """In a fresh process: trace, lower and compile the default run's chunk; optionally run it."""
+    import time
+
+    import jax
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxcart import env as cartpole
+    from jaxcart.config import preset
+    from jaxcart.ppo import train_chunk
+    from jaxcart.trainer import broadcast_hyperparams, default_chunk_size, init_runners
+
+    config = preset("sb3")
+    env_params = cartpole.EnvParams()
+    chunk_size = default_chunk_size(config.num_iterations)
+    runners = jax.device_put(init_runners(config, 0, np.arange(1), env_params))
+    hps = broadcast_hyperparams(config, 1)
+
+    def fn(runners, hps, start):
+        return train_chunk(runners, hps, start, config, env_params, chunk_size)
+
+    marks = [(time.perf_counter(), time.process_time())]
+    traced = jax.jit(fn).trace(runners, hps, jnp.int32(0))
+    marks.append((time.perf_counter(), time.process_time()))
+    lowered = traced.lower()
+    marks.append((time.perf_counter(), time.process_time()))
+    compiled = lowered.compile()
+    marks.append((time.perf_counter(), time.process_time()))
+    stages = ("trace", "lower", "compile")
+    out = {f"{s}_wall": marks[i + 1][0] - marks[i][0] for i, s in enumerate(stages)}
+    out.update({f"{s}_cpu": marks[i + 1][1] - marks[i][1] for i, s in enumerate(stages)})
+    text = compiled.as_text()
+    out["hlo_instructions"] = sum(1 for line in text.splitlines() if " = " in line)
+    out["hlo_while_loops"] = text.count(" while(")
+    if run:
+        jax.block_until_ready(compiled(runners, hps, jnp.int32(0)))
+        start = time.perf_counter()
+        jax.block_until_ready(compiled(runners, hps, jnp.int32(0)))
+        out["run_seconds_per_iteration"] = (time.perf_counter() - start) / chunk_size
+    return out
+
+
+def measure(variant: str, repeats: int, run: bool) -> dict:
+    """Median stage times of ``variant`` over ``repeats`` fresh processes."""
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {VARIANTS[variant]}".strip()
+    command = [sys.executable, str(Path(__file__).resolve()), "--child"]
+    if run:
+        command.append("--run")
+    samples = []
+    for _ in range(repeats):
+        done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
+        samples.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    row = {"variant": variant, "xla_flags": VARIANTS[variant], "samples": samples}
+    for key in samples[0]:
+        row[key] = statistics.median(s[key] for s in samples)
+    return row
+
+
+def markdown(report: dict) -> str:
+    lines = [
+        "# Cold compile of the default training step",
+        "",
+        f"`sb3` preset, one seed, one device; median of {report['repeats']} fresh processes, "
+        "persistent cache off. Seconds (wall / CPU).",
+        "",
+        "| variant | XLA flags | trace | lower | XLA compile | total wall | HLO instructions "
+        "| run ms / iteration |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in report["rows"]:
+        total = r["trace_wall"] + r["lower_wall"] + r["compile_wall"]
+        run = r.get("run_seconds_per_iteration")
+        lines.append(
+            f"| {r['variant']} | `{r['xla_flags'] or '-'}` | {r['trace_wall']:.2f} / "
+            f"{r['trace_cpu']:.2f} | {r['lower_wall']:.2f} / {r['lower_cpu']:.2f} | "
+            f"{r['compile_wall']:.2f} / {r['compile_cpu']:.2f} | {total:.2f} | "
+            f"{r['hlo_instructions']:,} | {f'{run * 1e3:.1f}' if run else '-'} |"
+        )
+    lines += ["", f"Command: `{report['command']}`", ""]
+    lines += benchlib.machine_markdown(report["machine"])
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = benchlib.arg_parser(__doc__)
+    parser.add_argument("--variants", default=",".join(VARIANTS))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--run", action="store_true", help="also time a chunk's run")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    parser.add_argument("--child", action="store_true", help=argparse_hidden())
+    args = parser.parse_args(argv)
+    if args.child:
+        print(json.dumps(child(args.run)))
+        return 0
+    names = benchlib.split_list(args.variants)
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown:
+        parser.error(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
+    rows = []
+    for name in names:
+        rows.append(measure(name, args.repeats, args.run))
+        r = rows[-1]
+        print(
+            f"{name:<13} trace {r['trace_wall']:.2f}  lower {r['lower_wall']:.2f}  "
+            f"compile {r['compile_wall']:.2f} s (cpu {r['compile_cpu']:.2f})  "
+            f"{r['hlo_instructions']:,} HLO instructions",
+            flush=True,
+        )
+    report = {
+        "command": benchlib.command_line(),
+        "machine": benchlib.machine_info(),
+        "repeats": args.repeats,
+        "rows": rows,
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    benchlib.write_json(args.out / "compile_time.json", report)
+    (args.out / "compile_time.md").write_text(markdown(report))
+    print(markdown(report))
+    return 0
+
+
+def argparse_hidden() -> str:
+    import argparse
+
+    return argparse.SUPPRESS
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
