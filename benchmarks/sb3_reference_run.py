@@ -99,7 +99,11 @@ def greedy_returns(model, episodes: int) -> np.ndarray:
 def run_seed(seed: int, timesteps: int, threads: int) -> tuple[dict, np.ndarray, float]:
     """One seed end to end: SB3's training log as jaxcart metrics, greedy returns, seconds."""
     rows, model, seconds = train_one(seed, timesteps, threads)
-    return to_metrics(rows, PPOConfig().batch_size), greedy_returns(model, NUM_EVAL_EPISODES), seconds
+    return (
+        to_metrics(rows, PPOConfig().batch_size),
+        greedy_returns(model, NUM_EVAL_EPISODES),
+        seconds,
+    )
 
 
 def write_run(
