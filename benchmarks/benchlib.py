@@ -35,6 +35,7 @@ PACKAGES = (
     "torch",
     "stable-baselines3",
     "rejax",
+    "sbx-rl",
     "matplotlib",
 )
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Creates the two virtualenvs the benchmarks run in (from the repository root or anywhere):
+# Creates the three virtualenvs the benchmarks run in (from the repository root or anywhere):
 #
 #   benchmarks/.venv-bench  jaxcart + gymnax 1.x, EnvPool, Gymnasium, Stable-Baselines3 (PyTorch,
 #                           CPU build), matplotlib: runs env_throughput.py and train_speed.py.
@@ -7,14 +7,15 @@
 #                           step() to return terminated and truncated separately): train_speed.py
 #                           starts its rejax contenders with this interpreter.
 #   benchmarks/.venv-sbx    jaxcart + sbx (sbx-rl, Stable-Baselines3's JAX port, with the same
-#                           torch CPU pin because it installs Stable-Baselines3 too).
+#                           torch CPU pin because it installs Stable-Baselines3 too): train_speed.py
+#                           starts its sbx contenders with this interpreter.
 #
 # PyTorch is installed first, pinned, so that Stable-Baselines3's "torch" requirement is already
 # met: left to itself pip would fetch the newest CUDA build (several GB). Override the pin with
 # TORCH_SPEC (e.g. TORCH_SPEC="torch==2.13.0" on a machine that has that CPU wheel at hand).
 #
-# The package lists mirror the "bench" and "rejax" extras of pyproject.toml; when those extras
-# exist they are used.
+# The package lists mirror the "bench", "rejax" and "sbx" extras of pyproject.toml; when those
+# extras exist they are used.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
@@ -75,3 +76,4 @@ echo
 echo "Done. Run, from the repository root:"
 echo "  benchmarks/.venv-bench/bin/python benchmarks/env_throughput.py"
 echo "  benchmarks/.venv-bench/bin/python benchmarks/train_speed.py"
+echo "  benchmarks/.venv-bench/bin/python benchmarks/train_speed.py --time-to-solve --seeds 1"

@@ -1,4 +1,4 @@
-"""PPO training speed on CartPole-v1: jaxcart against Stable-Baselines3 and rejax.
+"""PPO training speed on CartPole-v1: jaxcart against Stable-Baselines3, sbx and rejax.
 
 Contenders, each in a fresh subprocess (clean compile caches and memory):
 
@@ -6,14 +6,25 @@ Contenders, each in a fresh subprocess (clean compile caches and memory):
   every hyperparameter at its default (PyTorch, CPU, torch's default thread count);
   ``sb3-1thread``: the same after ``torch.set_num_threads(1)`` (often faster for a small MLP;
   ratios are taken against the faster of the two).
-- ``jaxcart-sb3-xS``: jaxcart's ``sb3`` preset (the same hyperparameters), S seeds trained
-  together in one compiled program (``jaxcart.trainer.train``).
-- ``jaxcart-fast-xS``: jaxcart's ``fast`` preset.
+- ``sb3-zoo-xS``: SB3 at rl-zoo3's tuned CartPole-v1 settings (8 envs, 100k steps, n_steps
+  32, batch 256, 20 epochs, gamma 0.98, lambda 0.8, linear learning rate from 1e-3 and clip
+  range from 0.2). ``sb3-default-xS``, ``sb3-zoo-xS`` with S > 1 seeds: S one-seed trainings
+  as parallel processes, one per core (one torch thread each), inside the contender's process.
+- ``sbx-default-xS``, ``sbx-zoo-xS``: sbx (SB3's JAX port) at its defaults (80k steps) and at
+  the same rl-zoo3 settings; S > 1 as for SB3. sbx runs in its own virtualenv
+  (``--sbx-python``, default ``benchmarks/.venv-sbx/bin/python``).
+- ``jaxcart-sb3-xS``: jaxcart's ``sb3`` preset (SB3's hyperparameters), S seeds trained
+  together in one compiled program (``jaxcart.trainer.train``); ``jaxcart-fast-xS``: its
+  ``fast`` preset; ``jaxcart-purejaxrl-xS``: its ``purejaxrl`` preset, i.e. jaxcart running
+  PureJaxRL's CartPole configuration (PureJaxRL itself is a script in a GitHub repository,
+  not an installable package, so it is not run here).
 - ``rejax-sb3-xS``: rejax's PPO at SB3's hyperparameters (1 env x 2048 steps, 40 iterations,
   32 minibatches of 64, 10 epochs, lr 3e-4, gamma 0.99, lambda 0.95, clip 0.2, entropy 0,
-  value coef 0.5, grad norm 0.5, 64-64 tanh), S seeds as a ``vmap`` over ``train`` sharded
-  over the CPU devices like jaxcart's. rejax 0.1.3 needs gymnax 0.0.x, so it runs in its own
-  virtualenv (``--rejax-python``, default ``benchmarks/.venv-rejax/bin/python``).
+  value coef 0.5, grad norm 0.5, 64-64 tanh); ``rejax-cartpole-xS``: at rejax's own CartPole
+  configuration (``configs/gymnax/cartpole.yaml``: 5 envs x 100 steps, 100k steps). S seeds as
+  a ``vmap`` over ``train`` sharded over the CPU devices like jaxcart's. rejax 0.1.3 needs
+  gymnax 0.0.x, so it runs in its own virtualenv (``--rejax-python``, default
+  ``benchmarks/.venv-rejax/bin/python``).
 
 Per contender: setup (construction, initialisation and, for JAX, compilation) and training
 wall time, their sum ("including compile"), env steps/s, the whole process's wall time
@@ -23,12 +34,21 @@ greedy policy plays 20 episodes of Gymnasium's own ``CartPole-v1`` (solved = all
 500). JAX's persistent compilation cache is off, so compile times are cold; ``--warm-cache``
 adds a second run of each JAX contender reading a cache written by the first.
 
-    python benchmarks/train_speed.py                      # full run (minutes)
+``--time-to-solve`` runs every tool at its own CartPole configurations with 1 and 64 seeds
+(``--seeds``) for the report's time-to-solve table: the whole process's wall time, compile
+and evaluation included, against SB3's one-seed time. SB3 and sbx above one seed are slow
+(about 25 minutes for SB3's 64) and run only with ``--slow`` or ``--seeds-for``.
+
+    python benchmarks/train_speed.py                      # training-speed table (minutes)
     python benchmarks/train_speed.py --quick              # smoke test: few steps, 1-2 seeds
     python benchmarks/train_speed.py --only jaxcart-sb3,rejax --seeds 1,8
+    python benchmarks/train_speed.py --time-to-solve --seeds 1          # N = 1
+    python benchmarks/train_speed.py --time-to-solve --seeds 64 --slow  # N = 64
+    python benchmarks/train_speed.py --seeds-for sbx-zoo=1,8 --only sbx
 
-Writes ``train_speed.json``, ``.md`` and ``.png`` (and ``logs/``) to ``--out`` (default
-``benchmarks/results``, or ``benchmarks/results/quick`` with ``--quick``). Set up both
+Writes ``train_speed.json``, ``.md`` and ``.png`` (``time_to_solve.*`` with
+``--time-to-solve``; and ``logs/``) to ``--out`` (default ``benchmarks/results``, or
+``benchmarks/results/quick`` with ``--quick``). Set up the
 virtualenvs with ``bash benchmarks/setup_venvs.sh`` and run with
 ``benchmarks/.venv-bench/bin/python``.
 """
@@ -50,20 +70,33 @@ import benchlib
 import train_speed_jaxcart
 import train_speed_rejax
 import train_speed_sb3
-from train_speed_common import EVAL_EPISODES, ChildUnavailable, contender_names, parse_name
+import train_speed_sbx
+from train_speed_common import (
+    EVAL_EPISODES,
+    GROUPS,
+    ChildUnavailable,
+    contender_names,
+    default_groups,
+    parse_name,
+    time_to_solve_groups,
+)
 from train_speed_report import markdown, plot, row_label
 
 FULL_SEEDS = (1, 8, 64)
 QUICK_SEEDS = (1, 2)
+TIME_TO_SOLVE_SEEDS = (1, 64)
 DEFAULT_REJAX_PYTHON = benchlib.REPO_ROOT / "benchmarks" / ".venv-rejax" / "bin" / "python"
+DEFAULT_SBX_PYTHON = benchlib.REPO_ROOT / "benchmarks" / ".venv-sbx" / "bin" / "python"
 UNAVAILABLE_EXIT = 3
 STEM = "train_speed"
+TIME_TO_SOLVE_STEM = "time_to_solve"  # --time-to-solve leaves train_speed.* as they are
 
 # Each kind's run(preset_name, num_seeds, quick, cache_dir) -> (data, greedy policy).
 RUNNERS = {
     "sb3": train_speed_sb3.run,
     "jaxcart": train_speed_jaxcart.run,
     "rejax": train_speed_rejax.run,
+    "sbx": train_speed_sbx.run,
 }
 
 
@@ -184,12 +217,16 @@ def run_child(
 
 def print_row(row: dict) -> None:
     if row.get("status") == "ok":
+        compile_s = row["compile_seconds"]
         print(
-            f"{row_label(row):<34} compile {row['compile_seconds']:6.2f} s  "
+            f"{row_label(row):<34} compile "
+            + ("   n/a" if compile_s is None else f"{compile_s:6.2f}")
+            + " s  "
             f"setup {row['setup_seconds']:6.2f} s  "
             f"train {row['train_seconds']:7.2f} s  "
             f"{row['steps_per_second']:>10,.0f} steps/s  "
             f"RSS {row['peak_rss_mib']:5.0f} MiB  "
+            f"process {row['process_wall_seconds']:7.2f} s  "
             f"solved {row['solved']}/{row['num_seeds']}",
             flush=True,
         )
@@ -200,20 +237,18 @@ def print_row(row: dict) -> None:
 def run_contender(name: str, report: dict, args: argparse.Namespace, out: Path) -> None:
     """Runs ``name`` (twice with ``--warm-cache``, for JAX) and appends its rows to ``report``."""
     kind = parse_name(name)[0]
-    python = sys.executable
-    if kind == "rejax":
-        python = args.rejax_python
-        if not Path(python).exists():
-            report["results"].append(
-                {
-                    "contender": name,
-                    "warm_cache": False,
-                    "status": "unavailable",
-                    "reason": f"{python} not found; run `bash benchmarks/setup_venvs.sh`",
-                }
-            )
-            print(f"{name:<18} unavailable: {python} not found", flush=True)
-            return
+    python = {"rejax": args.rejax_python, "sbx": args.sbx_python}.get(kind, sys.executable)
+    if not Path(python).exists():
+        report["results"].append(
+            {
+                "contender": name,
+                "warm_cache": False,
+                "status": "unavailable",
+                "reason": f"{python} not found; run `bash benchmarks/setup_venvs.sh`",
+            }
+        )
+        print(f"{name:<18} unavailable: {python} not found", flush=True)
+        return
     runs = [(None, False)]
     tmp = None
     if args.warm_cache and kind != "sb3":
@@ -223,14 +258,34 @@ def run_contender(name: str, report: dict, args: argparse.Namespace, out: Path) 
     for cache_dir, warm in runs:
         row = run_child(name, python, out, args.quick, cache_dir, warm, args.timeout)
         report["results"].append(row)
-        if row.get("status") == "ok" and kind == "rejax":
-            report["rejax_version"] = row["packages"].get("rejax")
+        if row.get("status") == "ok" and kind in ("rejax", "sbx"):
+            package = {"rejax": "rejax", "sbx": "sbx-rl"}[kind]
+            report[f"{kind}_version"] = row["packages"].get(package)
         print_row(row)
     if tmp:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
 # Command line
+
+
+def parse_seeds_for(text: str) -> tuple[list[str], list[int]]:
+    """``--seeds-for`` ``GROUP=N[,N...]`` -> (the groups it names, the seed counts). GROUP is a
+    group (``sbx-zoo``) or a tool (``sbx``: all its groups but ``sb3-1thread``)."""
+    key, sep, counts = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(
+            f"expected GROUP=N[,N...] (e.g. sbx-zoo=1,64), got {text!r}"
+        )
+    groups = [g for g in GROUPS if g == key or (g.startswith(key + "-") and g != "sb3-1thread")]
+    if not groups:
+        raise argparse.ArgumentTypeError(
+            f"unknown contender group {key!r}; choose a tool or one of: {', '.join(GROUPS)}"
+        )
+    seeds = benchlib.parse_ints(counts)
+    if groups == ["sb3-1thread"] and seeds != [1]:
+        raise argparse.ArgumentTypeError("sb3-1thread trains one seed; use sb3-default=N")
+    return groups, seeds
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -240,16 +295,40 @@ def build_parser() -> argparse.ArgumentParser:
         "--only",
         default=None,
         help="comma-separated contender names or prefixes (sb3, jaxcart, jaxcart-fast, "
-        "rejax-sb3-x8, ...)",
+        "rejax-sb3-x8, sbx, ...)",
     )
     parser.add_argument(
-        "--seeds", type=benchlib.parse_ints, default=None, help="seed counts (default 1,8,64)"
+        "--time-to-solve",
+        action="store_true",
+        help="every tool at its own CartPole configurations, --seeds (default 1,64) seeds each, "
+        "for the time-to-solve table (SB3 and sbx above one seed only with --slow)",
+    )
+    parser.add_argument(
+        "--slow",
+        action="store_true",
+        help="with --time-to-solve: also SB3 and sbx above one seed (one process per seed, "
+        "one per core; about 25 minutes for SB3's 64)",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=benchlib.parse_ints,
+        default=None,
+        help="seed counts (default 1,8,64; 1,64 with --time-to-solve)",
     )
     parser.add_argument(
         "--fast-seeds",
         type=benchlib.parse_ints,
         default=None,
-        help="seed counts for the fast preset (default 1,8)",
+        help="seed counts for the fast preset (default 1,8; --seeds with --time-to-solve)",
+    )
+    parser.add_argument(
+        "--seeds-for",
+        type=parse_seeds_for,
+        action="append",
+        default=[],
+        metavar="GROUP=N[,N...]",
+        help="seed counts of one contender group or tool, replacing the defaults; repeatable "
+        f"(groups: {', '.join(GROUPS)})",
     )
     parser.add_argument(
         "--warm-cache",
@@ -259,7 +338,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--rejax-python", default=str(DEFAULT_REJAX_PYTHON), help="interpreter with rejax installed"
     )
-    parser.add_argument("--timeout", type=float, default=1800, help="seconds per contender")
+    parser.add_argument(
+        "--sbx-python", default=str(DEFAULT_SBX_PYTHON), help="interpreter with sbx installed"
+    )
+    parser.add_argument("--timeout", type=float, default=3600, help="seconds per contender")
     benchlib.add_output_options(parser)
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--child-out", default=None, help=argparse.SUPPRESS)
@@ -277,32 +359,54 @@ def selected(names: list[str], only: str | None) -> list[str]:
     return picked
 
 
+def seeds_by_group(args: argparse.Namespace) -> dict[str, list[int]]:
+    """Each contender group's seed counts: the mode's defaults, then ``--seeds-for``."""
+    if args.time_to_solve:
+        groups = time_to_solve_groups(args.seeds or list(TIME_TO_SOLVE_SEEDS), args.slow)
+        if args.fast_seeds:
+            groups["jaxcart-fast"] = args.fast_seeds
+    else:
+        seeds = args.seeds or list(QUICK_SEEDS if args.quick else FULL_SEEDS)
+        fast = args.fast_seeds or list(QUICK_SEEDS if args.quick else FULL_SEEDS[:2])
+        groups = default_groups(seeds, fast)
+    for names, counts in args.seeds_for:
+        groups.update(dict.fromkeys(names, counts))
+    if args.time_to_solve:  # SB3's one-seed row is the table's reference
+        groups["sb3-default"] = sorted({1, *groups["sb3-default"]})
+    return groups
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.child:
         return child_main(args)
     if args.from_json:
-        benchlib.rerender(args.from_json, STEM, markdown, plot)
+        benchlib.rerender(args.from_json, args.from_json.stem, markdown, plot)
         return 0
-    quick = args.quick
-    seeds = args.seeds or list(QUICK_SEEDS if quick else FULL_SEEDS)
-    fast_seeds = args.fast_seeds or list(QUICK_SEEDS if quick else FULL_SEEDS[:2])
-    names = selected(contender_names(seeds, fast_seeds), args.only)
-    out = benchlib.output_dir(args.out, quick)
+    if args.time_to_solve and args.quick and not args.seeds:
+        args.seeds = list(QUICK_SEEDS)
+    groups = seeds_by_group(args)
+    names = selected(contender_names(groups), args.only)
+    out = benchlib.output_dir(args.out, args.quick)
     out.mkdir(parents=True, exist_ok=True)
     settings = {
-        "quick": quick,
-        "seeds": seeds,
-        "fast_seeds": fast_seeds,
+        "quick": args.quick,
+        "time_to_solve": args.time_to_solve,
+        "slow": args.slow,
+        "seeds_by_group": groups,
+        "seeds": groups.get("jaxcart-sb3", []),
+        "fast_seeds": groups.get("jaxcart-fast", []),
         "warm_cache": args.warm_cache,
         "rejax_python": args.rejax_python,
+        "sbx_python": args.sbx_python,
         "eval_episodes": EVAL_EPISODES,
     }
     report = benchlib.new_report("train_speed", settings, names)
     for name in names:
         run_contender(name, report, args, out)
     print()
-    benchlib.save_report(report, out, STEM, markdown, plot)
+    stem = TIME_TO_SOLVE_STEM if args.time_to_solve else STEM
+    benchlib.save_report(report, out, stem, markdown, plot)
     return 0
 
 

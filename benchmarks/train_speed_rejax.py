@@ -1,5 +1,10 @@
-"""train_speed.py's rejax contenders (``rejax-sb3-xS``): rejax's PPO at SB3's hyperparameters,
-S seeds as a ``vmap`` over ``train`` sharded over the CPU devices like jaxcart's.
+"""train_speed.py's rejax contenders, S seeds as a ``vmap`` over ``train`` sharded over the CPU
+devices like jaxcart's:
+
+- ``rejax-sb3-xS``: rejax's PPO at SB3's hyperparameters;
+- ``rejax-cartpole-xS``: rejax's PPO at its own CartPole-v1 configuration, the ``ppo`` entry of
+  ``configs/gymnax/cartpole.yaml`` in rejax's repository (``REJAX_CARTPOLE``; the pip package
+  ships no configs).
 
 rejax 0.1.3 needs gymnax 0.0.x, so these run in their own virtualenv (``--rejax-python``).
 """
@@ -18,6 +23,37 @@ REJAX_DIFFERENCES = (
     "critic, clipped value loss, default (lecun-normal) rather than orthogonal init, and "
     "time-limit truncation treated as termination"
 )
+
+
+# keraJLi/rejax configs/gymnax/cartpole.yaml, ppo (the same values as the older
+# configs/cartpole.yaml); its eval_freq (1000) is left out: evaluation is a no-op here.
+REJAX_CARTPOLE = dict(
+    num_envs=5,
+    num_steps=100,
+    num_epochs=5,
+    num_minibatches=5,
+    learning_rate=0.00075,
+    max_grad_norm=0.5,
+    total_timesteps=100_000,
+    gamma=0.99,
+    gae_lambda=0.95,
+    clip_eps=0.2,
+    ent_coef=0.01,
+    vf_coef=0.5,
+    agent_kwargs={"activation": "tanh"},  # hidden layers: rejax's default (64, 64)
+)
+
+
+def rejax_cartpole_config(quick: bool) -> dict:
+    """rejax ``PPO.create`` arguments of rejax's own CartPole-v1 configuration."""
+    total = QUICK_TIMESTEPS["cartpole"] if quick else REJAX_CARTPOLE["total_timesteps"]
+    return dict(
+        REJAX_CARTPOLE,
+        env="CartPole-v1",
+        total_timesteps=total,
+        eval_freq=total,  # one evaluation period, and the evaluation a no-op (see below)
+        skip_initial_evaluation=True,
+    )
 
 
 def rejax_config(quick: bool) -> dict:
@@ -59,7 +95,8 @@ def greedy_policy(p: dict):
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
-    """Trains ``num_seeds`` rejax PPO agents at SB3's settings (``preset_name`` is ``sb3``).
+    """Trains ``num_seeds`` rejax PPO agents at SB3's settings (``preset_name`` ``sb3``) or at
+    rejax's own CartPole configuration (``cartpole``).
 
     Returns:
         ``(data, policy)``: the timings and settings, and the seeds' stacked greedy policy
@@ -79,7 +116,10 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
         raise ChildUnavailable(f"rejax not installed in {sys.executable} ({e})") from None
     configure_jax_cache(cache_dir)
 
-    config = rejax_config(quick)
+    configs = {"sb3": rejax_config, "cartpole": rejax_cartpole_config}
+    if preset_name not in configs:
+        raise ValueError(f"unknown rejax configuration {preset_name!r}")
+    config = configs[preset_name](quick)
     t0 = time.perf_counter()
     algo = PPO.create(**config)
     algo = algo.replace(eval_callback=lambda algo, ts, rng: jnp.zeros(()))
@@ -107,6 +147,6 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
         "jax_devices": [str(d) for d in devs],
         "devices_used": count,
         "config": {k: v for k, v in config.items() if k != "env"},
-        "differences_from_sb3": REJAX_DIFFERENCES,
+        **({"differences_from_sb3": REJAX_DIFFERENCES} if preset_name == "sb3" else {}),
     }
     return data, greedy_policy(jax.device_get(ts.actor_ts.params["params"]))

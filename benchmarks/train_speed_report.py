@@ -5,7 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import benchlib
-from train_speed_common import EVAL_EPISODES, QUICK_TIMESTEPS, SB3_TIMESTEPS, label, parse_name
+from train_speed_common import (
+    DESCRIPTIONS,
+    EVAL_EPISODES,
+    GROUPS,
+    PROCESS_KINDS,
+    QUICK_TIMESTEPS,
+    SB3_TIMESTEPS,
+    ZOO_SOURCE,
+    group_of,
+    label,
+    parse_name,
+)
 from train_speed_rejax import REJAX_DIFFERENCES
 
 HEADERS = [
@@ -36,6 +47,20 @@ RATIO_HEADERS = [
 ]
 
 
+TIME_TO_SOLVE_HEADERS = [
+    "contender",
+    "config",
+    "N",
+    "wall s (compile incl.)",
+    "compile s",
+    "of which eval s",
+    "peak RSS MiB",
+    "CPU s / wall",
+    "solved",
+    "SB3 1-seed wall / this wall",
+]
+
+
 def find(rows: list[dict], name: str, warm: bool = False) -> dict | None:
     for r in rows:
         if r["contender"] == name and r["warm_cache"] == warm and r.get("status") == "ok":
@@ -47,6 +72,13 @@ def best_sb3(rows: list[dict]) -> dict | None:
     """The faster (total wall time) of the SB3 rows."""
     candidates = [r for r in (find(rows, "sb3"), find(rows, "sb3-1thread")) if r]
     return min(candidates, key=lambda r: r["total_seconds"]) if candidates else None
+
+
+def sb3_one_seed_wall(rows: list[dict]) -> dict | None:
+    """The SB3-defaults one-seed row with the least whole-process wall time (of ``sb3`` and
+    ``sb3-1thread``): the time-to-solve table's reference."""
+    candidates = [r for r in (find(rows, "sb3"), find(rows, "sb3-1thread")) if r]
+    return min(candidates, key=lambda r: r["process_wall_seconds"]) if candidates else None
 
 
 def row_label(r: dict) -> str:
@@ -103,6 +135,91 @@ def ratio_rows(rows: list[dict], sb3: dict | None) -> list[list[str]]:
     return out
 
 
+def config_cell(r: dict) -> str:
+    """What a time-to-solve row ran: the group's configuration, and how S > 1 seeds of a
+    one-seed tool were spread over processes."""
+    text = DESCRIPTIONS[group_of(r["contender"])][1]
+    if r["contender"] == "sb3":
+        text += ", torch's default threads"
+    if r["num_seeds"] > 1 and parse_name(r["contender"])[0] in PROCESS_KINDS:
+        text += f"; {r['num_seeds']} one-seed processes, {r.get('jobs', '?')} at a time"
+    return text
+
+
+def compile_cell(r: dict) -> str:
+    if parse_name(r["contender"])[0] == "sb3":
+        return "-"  # nothing to compile
+    if r.get("compile_seconds") is None:
+        return "in training"  # sbx jits inside learn(); not timed apart
+    return fmt_s(r["compile_seconds"])
+
+
+def time_to_solve_row(r: dict, ref: dict | None) -> list:
+    """One row of the time-to-solve table; ``ref`` is SB3's one-seed row."""
+    rss = f"{r['peak_rss_mib']:,.0f}"
+    if r.get("processes_peak_rss_mib"):
+        rss = f"{r['processes_peak_rss_mib']:,.0f}†"
+    wall = r["process_wall_seconds"]
+    return [
+        DESCRIPTIONS[group_of(r["contender"])][0],
+        config_cell(r),
+        r["num_seeds"],
+        fmt_s(wall),
+        compile_cell(r),
+        fmt_s(r.get("eval_seconds")),
+        rss,
+        f"{r['process_cpu_ratio']:.2f}",
+        f"{r['solved']}/{r['num_seeds']}",
+        benchlib.format_ratio(ref["process_wall_seconds"] / wall) if ref else "-",
+    ]
+
+
+def time_to_solve_section(report: dict) -> list[str]:
+    """The time-to-solve table (cold runs, by seed count then tool) and its notes."""
+    rows = [r for r in report["results"] if r.get("status") == "ok" and not r["warm_cache"]]
+    rows.sort(key=lambda r: (r["num_seeds"], GROUPS.index(group_of(r["contender"]))))
+    ref = sb3_one_seed_wall(rows)
+    s = report["settings"]
+    out = [
+        "## Time to solve",
+        "",
+        "Wall time of each contender's whole process, from its start to its exit: Python's "
+        "start, imports, construction, compilation, training, and the evaluation of every "
+        f"seed's greedy policy for {EVAL_EPISODES} episodes of Gymnasium's `CartPole-v1` by "
+        "the harness's one evaluator (*of which eval s*); *solved* = seeds whose "
+        f"{EVAL_EPISODES} episodes all reached 500. Every contender had every core: jaxcart and "
+        "rejax train the N seeds in one program sharded over the cores; SB3 and sbx train one "
+        "seed per process, N > 1 seeds as one process per core at a time. The last column is "
+        "SB3's one-seed wall time (its defaults, the faster of its two thread settings"
+        + (f": {row_label(ref)}, {ref['process_wall_seconds']:,.1f} s" if ref else "")
+        + ") divided by the row's (higher = faster).",
+        "",
+        benchlib.markdown_table(
+            TIME_TO_SOLVE_HEADERS, [time_to_solve_row(r, ref) for r in rows], align="llr" + "r" * 7
+        ),
+        "",
+        "- *compile s*: JAX's compilation, cold (persistent cache off), inside the wall time; "
+        "SB3 compiles nothing; sbx jits inside `learn()`, not timed apart.",
+        "- *peak RSS*: max RSS of the contender's process from `wait4`. † N one-seed processes: "
+        "the sum of the contender's process's peak and each pool worker's (an upper bound of "
+        "the whole tree's peak; `wait4` reports only the largest single process). *CPU s / "
+        "wall*: user + system CPU time of the process and every worker it waited for.",
+        f"- rl-zoo3 configuration ({ZOO_SOURCE}): 8 envs (`make_vec_env`), 100,000 steps, "
+        "n_steps 32, batch_size 256, gae_lambda 0.8, gamma 0.98, n_epochs 20, ent_coef 0.0, "
+        "learning rate linear from 1e-3 and clip range linear from 0.2 (x progress remaining).",
+        "- rejax's CartPole configuration: keraJLi/rejax `configs/gymnax/cartpole.yaml`, ppo: "
+        "5 envs x 100 steps, 100,000 steps, 5 epochs, 5 minibatches, lr 7.5e-4, grad norm 0.5, "
+        "gamma 0.99, lambda 0.95, clip 0.2, entropy 0.01, value coef 0.5, 64-64 tanh.",
+        "- *jaxcart running PureJaxRL's configuration* is jaxcart's `purejaxrl` preset "
+        "(PureJaxRL's CartPole hyperparameters on jaxcart's trainer), not PureJaxRL's "
+        "`ppo.py`: PureJaxRL is a script in a GitHub repository, not a package on PyPI, and "
+        "this machine has no network access to GitHub.",
+    ]
+    if s.get("time_to_solve") and not s.get("slow"):
+        out.append("- SB3 and sbx above one seed were not run (`--slow` runs them).")
+    return out + [""]
+
+
 def notes(s: dict) -> list[str]:
     """How each contender ran (``s``: the report's settings)."""
     out = [
@@ -121,12 +238,17 @@ def notes(s: dict) -> list[str]:
         f"- rejax: SB3's hyperparameters except where rejax has no option: {REJAX_DIFFERENCES}; "
         "its periodic evaluation replaced by a no-op; S seeds as `jit(vmap(train))` sharded "
         "over the CPU devices.",
+        "- SB3 and sbx with S > 1 seeds: S one-seed trainings (seeds 0 ... S-1) in a pool of "
+        "one `spawn`-ed process per core, each limited to one torch or XLA thread, inside the "
+        "contender's process; their *setup* is 0 and *train* is the pool's wall time (worker "
+        "start-up and every seed's construction and training). sbx jit-compiles inside "
+        "`learn()`, so its compilation is inside *train* (compile shown as -).",
     ]
     if s["quick"]:
+        quick = ", ".join(f"{v:,} ({k})" for k, v in QUICK_TIMESTEPS.items())
         out.append(
-            "- **--quick**: total timesteps cut to "
-            f"{QUICK_TIMESTEPS['sb3']:,} (sb3 settings) and {QUICK_TIMESTEPS['fast']:,} (fast) "
-            "per seed, so nothing is expected to be solved."
+            f"- **--quick**: total timesteps per seed cut to {quick} settings, so nothing is "
+            "expected to be solved."
         )
     return out + [""]
 
@@ -137,8 +259,9 @@ def markdown(report: dict) -> str:
     sb3 = best_sb3(rows)
     failed = [r for r in rows if r.get("status") != "ok"]
     s = report["settings"]
+    title = "time to solve" if s.get("time_to_solve") else "training speed"
     out = [
-        "# PPO training speed on CartPole-v1",
+        f"# PPO {title} on CartPole-v1",
         "",
         "Each contender ran in a fresh subprocess. *setup* = construction + initialisation + "
         "compilation (JAX) before the first training step; *train* = the training loop; "
@@ -165,24 +288,47 @@ def markdown(report: dict) -> str:
         benchlib.markdown_table(RATIO_HEADERS, ratio_rows(rows, sb3)),
         "",
     ]
+    tts = time_to_solve_section(report)
+    if s.get("time_to_solve"):
+        out[2:2] = [*tts, "## Training speed", ""]
+    else:
+        out += tts
     if failed:
         out += ["Not measured:", ""]
         out += [f"- {r['contender']}: {r['status']}: {r.get('reason', '')}" for r in failed]
         out += [""]
     out += notes(s)
     rejax_version = f" (rejax {report['rejax_version']})" if report.get("rejax_version") else ""
-    rejax_line = f"- rejax interpreter: `{s['rejax_python']}`{rejax_version}"
-    out += benchlib.provenance_markdown(report, [rejax_line])
+    extra = [f"- rejax interpreter: `{s['rejax_python']}`{rejax_version}"]
+    if report.get("sbx_version") or s.get("sbx_python"):
+        sbx_version = f" (sbx-rl {report['sbx_version']})" if report.get("sbx_version") else ""
+        extra.append(f"- sbx interpreter: `{s['sbx_python']}`{sbx_version}")
+    out += benchlib.provenance_markdown(report, extra)
     return "\n".join(out)
 
 
+PLOT_GROUPS = [
+    ("jaxcart", "sb3", "C0"),
+    ("jaxcart", "fast", "C2"),
+    ("jaxcart", "purejaxrl", "C4"),
+    ("rejax", "sb3", "C1"),
+    ("rejax", "cartpole", "C5"),
+    ("sbx", "default", "C6"),
+    ("sbx", "zoo", "C7"),
+    ("sb3", "zoo", "C8"),
+]
+
+
 def plot(report: dict, path: Path) -> None:
+    """Wall time against seeds per contender group: setup + train with and without compile,
+    or (time-to-solve runs) the whole process's wall time."""
     rows = [r for r in report["results"] if r.get("status") == "ok" and not r["warm_cache"]]
+    tts = bool(report["settings"].get("time_to_solve"))
+    key = "process_wall_seconds" if tts else "total_seconds"
     fig, ax = benchlib.pyplot().subplots(figsize=(9.5, 4.5))
-    groups = [("jaxcart", "sb3", "C0"), ("jaxcart", "fast", "C2"), ("rejax", "sb3", "C1")]
-    for kind, preset_name, color in groups:
+    for kind, preset_name, color in PLOT_GROUPS:
         pts = sorted(
-            (r["num_seeds"], r["total_seconds"], r["train_seconds"])
+            (r["num_seeds"], r[key], r["train_seconds"])
             for r in rows
             if parse_name(r["contender"])[:2] == (kind, preset_name)
         )
@@ -190,22 +336,27 @@ def plot(report: dict, path: Path) -> None:
             continue
         xs, total, train = zip(*pts)
         name = f"{kind} {preset_name}"
-        ax.plot(xs, total, "o-", color=color, label=f"{name}, incl. compile")
-        ax.plot(xs, train, "o--", color=color, alpha=0.6, label=f"{name}, excl. compile")
-    sb3 = best_sb3(report["results"])
+        ax.plot(xs, total, "o-", color=color, label=name if tts else f"{name}, incl. compile")
+        if not tts:
+            ax.plot(xs, train, "o--", color=color, alpha=0.6, label=f"{name}, excl. compile")
+    sb3 = sb3_one_seed_wall(rows) if tts else best_sb3(report["results"])
     seeds = sorted({r["num_seeds"] for r in rows} | {1})
     if sb3:
         ax.plot(
             seeds,
-            [sb3["total_seconds"] * s for s in seeds],
+            [sb3[key] * s for s in seeds],
             ":",
             color="C3",
             label="SB3, S sequential runs (best 1-seed time x S)",
         )
     for r, marker in ((find(rows, "sb3"), "s"), (find(rows, "sb3-1thread"), "D")):
         if r:
-            ax.plot([1], [r["total_seconds"]], marker, color="C3", label=row_label(r))
-    title = "PPO on CartPole-v1: wall time vs seeds"
+            ax.plot([1], [r[key]], marker, color="C3", label=row_label(r))
+    sb3_processes = [r for r in rows if group_of(r["contender"]) == "sb3-default"]
+    for r in (r for r in sb3_processes if r["num_seeds"] > 1):
+        ax.plot([r["num_seeds"]], [r[key]], "s", color="C3", mfc="none", label=row_label(r))
+    what = "whole-process wall time (time to solve)" if tts else "wall time"
+    title = f"PPO on CartPole-v1: {what} vs seeds"
     if report["settings"]["quick"]:
         title += " (--quick: shortened runs)"
     title = benchlib.machine_title(title, report["machine"])

@@ -1,55 +1,84 @@
-"""train_speed.py's Stable-Baselines3 contenders (``sb3``, ``sb3-1thread``): PPO with every
-hyperparameter at its default, PyTorch on the CPU."""
+"""train_speed.py's Stable-Baselines3 contenders: PyTorch on the CPU.
+
+- ``sb3``: ``PPO("MlpPolicy", "CartPole-v1", seed=0)``, every hyperparameter at its default,
+  torch's default thread count; ``sb3-1thread``: the same after ``torch.set_num_threads(1)``.
+- ``sb3-zoo-xS``: rl-zoo3's tuned CartPole-v1 settings (``ZOO_CARTPOLE``), one torch thread.
+- ``sb3-default-xS``, ``sb3-zoo-xS`` with S > 1: S one-seed trainings (seeds 0 ... S-1) as
+  parallel processes, one per core, one torch thread each.
+"""
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 import time
 
-from train_speed_common import QUICK_TIMESTEPS, SB3_TIMESTEPS, ChildUnavailable
+from train_speed_common import ChildUnavailable
+from train_speed_processes import (
+    hyperparameters,
+    make_model,
+    run_seeds,
+    timed_learn,
+    worker_result,
+)
+
+# preset name -> (configuration, torch threads for one seed; None = torch's default). The
+# tuned configuration gets one thread, SB3's best setting for this MLP: with two threads a
+# core busy with anything else slows it several times (a --quick run on a loaded 2-core
+# machine took 46 s with two threads).
+CONFIGS = {"default": ("default", None), "1thread": ("default", 1), "zoo": ("zoo", 1)}
+
+
+def actor_layers(model) -> dict:
+    """The policy network of SB3's ``MlpPolicy`` (4-64-64-2, tanh) as jaxcart's actor layers:
+    ``kernel [in, out]`` (torch stores ``[out, in]``) and ``bias [out]``."""
+    import torch
+
+    policy = model.policy
+    hidden = [m for m in policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
+    layers = [*hidden, policy.action_net]
+    names = [f"hidden_{i}" for i in range(len(hidden))] + ["out"]
+    return {
+        name: {
+            "kernel": layer.weight.detach().numpy().T.copy(),
+            "bias": layer.bias.detach().numpy().copy(),
+        }
+        for name, layer in zip(names, layers)
+    }
+
+
+def train_seed(config_name: str, seed: int, quick: bool, cache_dir, threads: int | None) -> dict:
+    """One SB3 training (``threads``: torch threads, None = its default); no JAX, so
+    ``cache_dir`` is unused. Runs in the contender's process or in a pool worker."""
+    import torch
+    from stable_baselines3 import PPO
+
+    if threads is not None:  # the usual advice for small MLPs on CPU; SB3 leaves the default
+        torch.set_num_threads(threads)
+    t0 = time.perf_counter()
+    model, timesteps = make_model(PPO, config_name, seed, quick, device="cpu")
+    setup = time.perf_counter() - t0
+    train, train_cpu = timed_learn(model, timesteps)
+    info = {
+        "compile_seconds": 0.0,
+        "torch_threads": torch.get_num_threads(),
+        "hyperparameters": hyperparameters(model, config_name, timesteps),
+    }
+    return worker_result(model, actor_layers(model), (setup, train, train_cpu), info)
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
-    """Trains ``PPO("MlpPolicy", "CartPole-v1", seed=0)``; ``preset_name`` ``"1thread"`` first
-    sets torch to one thread. One seed; no JAX, so ``cache_dir`` is unused.
+    """``num_seeds`` SB3 trainings of ``preset_name`` (``default``, ``1thread``, ``zoo``).
 
     Returns:
-        ``(data, policy)``: the timings and settings, and the greedy policy (observations
-        ``[..., 4]`` -> actions) for the harness to evaluate.
+        ``(data, policy)``: the timings and settings, and the seeds' stacked greedy policy
+        (rebuilt from each model's weights) for the harness to evaluate.
     """
-    try:
-        import torch
-        from stable_baselines3 import PPO
-    except ImportError as e:
-        raise ChildUnavailable(f"stable-baselines3/torch not installed ({e})") from None
-    import numpy as np
-
-    if preset_name == "1thread":  # the usual advice for small MLPs on CPU; SB3 leaves the default
-        torch.set_num_threads(1)
-
-    timesteps = QUICK_TIMESTEPS["sb3"] if quick else SB3_TIMESTEPS
-    t0 = time.perf_counter()
-    model = PPO("MlpPolicy", "CartPole-v1", seed=0, device="cpu")
-    t1, c1 = time.perf_counter(), time.process_time()
-    model.learn(timesteps)
-    t2, c2 = time.perf_counter(), time.process_time()
-
-    def policy(obs: np.ndarray) -> np.ndarray:
-        actions, _ = model.predict(obs.reshape(-1, 4), deterministic=True)
-        return np.asarray(actions).reshape(obs.shape[:-1])
-
-    data = {
-        "num_seeds": 1,
-        "env_steps": int(model.num_timesteps),
-        "setup_seconds": t1 - t0,
-        "compile_seconds": 0.0,
-        "train_seconds": t2 - t1,
-        "train_cpu_seconds": c2 - c1,
-        "torch_threads": torch.get_num_threads(),
-        "hyperparameters": {
-            "n_steps": model.n_steps,
-            "batch_size": model.batch_size,
-            "n_epochs": model.n_epochs,
-            "learning_rate": model.learning_rate,
-        },
-    }
-    return data, policy
+    # Looked up, not imported: with S > 1 seeds this process only waits for the pool.
+    missing = [m for m in ("torch", "stable_baselines3") if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ChildUnavailable(f"{' and '.join(missing)} not installed in {sys.executable}")
+    if preset_name not in CONFIGS:
+        raise ValueError(f"unknown SB3 configuration {preset_name!r}")
+    config_name, threads = CONFIGS[preset_name]
+    return run_seeds(train_seed, config_name, num_seeds, quick, cache_dir, threads)

@@ -1,0 +1,109 @@
+"""benchmarks/train_speed.py's contender names and seed counts (``--time-to-solve``,
+``--seeds-for``) and its time-to-solve table, on made-up results: nothing is trained or timed."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def ts():
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        import train_speed
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    return train_speed
+
+
+def names(ts, argv: list[str]) -> list[str]:
+    return ts.contender_names(ts.seeds_by_group(ts.build_parser().parse_args(argv)))
+
+
+def test_default_contenders_are_unchanged(ts):
+    assert names(ts, []) == [
+        "sb3",
+        "sb3-1thread",
+        *(f"jaxcart-sb3-x{s}" for s in (1, 8, 64)),
+        *(f"jaxcart-fast-x{s}" for s in (1, 8)),
+        *(f"rejax-sb3-x{s}" for s in (1, 8, 64)),
+    ]
+
+
+def test_time_to_solve_runs_one_process_per_seed_tools_at_64_only_with_slow(ts):
+    fast = names(ts, ["--time-to-solve"])
+    assert "jaxcart-purejaxrl-x64" in fast and "rejax-cartpole-x64" in fast
+    assert "sbx-zoo-x1" in fast and "sb3-zoo-x1" in fast
+    assert not [n for n in fast if n.startswith(("sb3", "sbx")) and n.endswith("-x64")]
+    slow = names(ts, ["--time-to-solve", "--slow"])
+    assert {"sb3-default-x64", "sb3-zoo-x64", "sbx-default-x64", "sbx-zoo-x64"} <= set(slow)
+    # SB3's one-seed rows are the table's reference: there even when only N = 64 is asked for
+    only64 = names(ts, ["--time-to-solve", "--seeds", "64"])
+    assert {"sb3", "sb3-1thread", "jaxcart-fast-x64"} <= set(only64)
+    assert "jaxcart-fast-x1" not in only64
+
+
+def test_seeds_for_sets_a_group_or_a_tool(ts):
+    picked = names(ts, ["--seeds-for", "sbx=1,4", "--seeds-for", "jaxcart-fast=2"])
+    assert {"sbx-default-x4", "sbx-zoo-x1", "jaxcart-fast-x2"} <= set(picked)
+    assert "jaxcart-fast-x1" not in picked
+    for bad in ("nope=1", "sbx", "sb3-1thread=2", "sbx=0"):
+        with pytest.raises(SystemExit):
+            ts.build_parser().parse_args(["--seeds-for", bad])
+
+
+def made_up_row(ts, name: str, wall: float, seeds: int = 1, **extra) -> dict:
+    row = {
+        "contender": name,
+        "warm_cache": False,
+        "status": "ok",
+        "num_seeds": seeds,
+        "env_steps": 1000 * seeds,
+        "compile_seconds": 0.0 if name.startswith("sb3") else 2.0,
+        "setup_seconds": 2.0,
+        "train_seconds": wall - 4.0,
+        "train_cpu_seconds": wall - 4.0,
+        "process_wall_seconds": wall,
+        "peak_rss_mib": 500.0,
+        "process_cpu_seconds": wall,
+        "process_cpu_ratio": 1.0,
+        "eval_seconds": 0.5,
+        "eval_mean": [500.0] * seeds,
+        "solved": seeds,
+    }
+    row.update(extra)
+    ts.add_rates(row)
+    return row
+
+
+def test_time_to_solve_table(ts):
+    sbx = {"compile_seconds": None, "jobs": 2, "processes_peak_rss_mib": 1500.0}
+    results = [
+        made_up_row(ts, "sb3", 60.0),
+        made_up_row(ts, "sb3-1thread", 50.0),
+        made_up_row(ts, "jaxcart-fast-x64", 25.0, 64),
+        made_up_row(ts, "sbx-zoo-x64", 400.0, 64, **sbx),
+        made_up_row(ts, "jaxcart-fast-x1", 5.0),
+    ]
+    settings = {"quick": False, "time_to_solve": True, "slow": True, "warm_cache": False}
+    settings |= {"rejax_python": "r", "sbx_python": "s"}
+    report = {"settings": settings, "results": results, "command": "c", "load_average_end": None}
+    report["machine"] = ts.benchlib.machine_info()
+    text = ts.markdown(report)
+    table = text[text.index("## Time to solve") : text.index("## Training speed")]
+    lines = [line for line in table.splitlines() if line.startswith("| ")][2:]
+    assert [line.split(" | ")[2] for line in lines] == ["1", "1", "1", "64", "64"]
+    cells = [line.strip("| ").split(" | ") for line in lines]
+    ratios = {(c[1].split(",")[0], c[2]): c[-1] for c in cells}
+    # SB3's reference is its faster one-seed row, 50 s
+    assert ratios[("`fast` preset", "1")] == "10x"
+    assert ratios[("`fast` preset", "64")] == "2.0x"
+    assert sorted(c[-1] for c in cells if c[0] == "SB3 (PyTorch)") == ["0.83x", "1.0x"]
+    sbx_line = next(line for line in lines if line.startswith("| sbx"))
+    assert "| in training |" in sbx_line and "1,500†" in sbx_line and "2 at a time" in sbx_line
+    assert sbx_line.endswith("| 0.12x |")
