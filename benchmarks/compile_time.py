@@ -5,7 +5,9 @@ compiles one program, :func:`jaxcart.ppo.train_chunk`. Each variant below runs i
 process with the persistent cache off and measures, for that program:
 
 - ``trace``: Python tracing to a jaxpr, ``lower``: jaxpr to StableHLO (JAX's side);
-- ``compile``: XLA's side (HLO optimisation passes, then LLVM code generation);
+- ``compile``: XLA's side, split with XLA's own timers (``TF_CPP_VMODULE=cpu_compiler=1``)
+  into its HLO optimisation passes and the rest (IR emission, LLVM optimisation and machine
+  code for every kernel; the number of kernels is counted too);
 - the optimised HLO's size (instructions) and its ``while`` loops;
 - wall and CPU seconds of each stage, the median of ``--repeats`` fresh processes.
 
@@ -15,7 +17,9 @@ Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
 - ``O0``/``O1``: ``--xla_backend_optimization_level=0/1``: less LLVM optimisation, showing
   LLVM's share of the compile (and what it costs at run time: ``--run`` times a chunk);
 - ``no-expensive``: ``--xla_llvm_disable_expensive_passes=true``;
-- ``split-N``: ``--xla_cpu_parallel_codegen_split_count=N`` (codegen in N parallel parts).
+- ``split-N``: ``--xla_cpu_parallel_codegen_split_count=N`` (codegen in N parallel parts);
+- ``no-thunk``: ``--xla_cpu_use_thunk_runtime=false`` (XLA:CPU's older whole-program runtime);
+- ``fusion-emitters``: ``--xla_cpu_use_fusion_emitters=true`` (the MLIR fusion emitters).
 
     python benchmarks/compile_time.py                       # every variant, 3 processes each
     python benchmarks/compile_time.py --variants default,O1 --repeats 5 --run
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import statistics
 import subprocess
 import sys
@@ -43,6 +48,8 @@ VARIANTS = {
     "no-expensive": "--xla_llvm_disable_expensive_passes=true",
     "split-2": "--xla_cpu_parallel_codegen_split_count=2",
     "split-4": "--xla_cpu_parallel_codegen_split_count=4",
+    "no-thunk": "--xla_cpu_use_thunk_runtime=false",
+    "fusion-emitters": "--xla_cpu_use_fusion_emitters=true",
 }
 
 
@@ -91,20 +98,40 @@ def child(run: bool) -> dict:
     return out
 
 
+def xla_timers(log: str) -> dict:
+    """XLA:CPU's own timers for the training program (module ``jit_fn``) from its log."""
+
+    def seconds(pattern: str) -> float:
+        found = re.search(pattern + r" time: ([\d.]+) (ms|s|us)", log)
+        if not found:
+            return float("nan")
+        scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6}[found.group(2)]
+        return float(found.group(1)) * scale
+
+    kernels = re.findall(r"Running LLVM verifier time: .*#called: (\d+)\)", log)
+    return {
+        "hlo_passes_seconds": seconds(r"Running HLO passes on \[jit_fn\] for CPU"),
+        "codegen_seconds": seconds(r"Compiling \[jit_fn\] for CPU using JIT"),
+        "llvm_kernels": int(kernels[-1]) if kernels else None,
+    }
+
+
 def measure(variant: str, repeats: int, run: bool) -> dict:
     """Median stage times of ``variant`` over ``repeats`` fresh processes."""
     env = dict(os.environ)
     env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {VARIANTS[variant]}".strip()
+    env.update(TF_CPP_MIN_LOG_LEVEL="0", TF_CPP_VMODULE="cpu_compiler=1")
     command = [sys.executable, str(Path(__file__).resolve()), "--child"]
     if run:
         command.append("--run")
     samples = []
     for _ in range(repeats):
         done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
-        samples.append(json.loads(done.stdout.strip().splitlines()[-1]))
+        samples.append(json.loads(done.stdout.strip().splitlines()[-1]) | xla_timers(done.stderr))
     row = {"variant": variant, "xla_flags": VARIANTS[variant], "samples": samples}
     for key in samples[0]:
-        row[key] = statistics.median(s[key] for s in samples)
+        values = [s[key] for s in samples if s[key] is not None]
+        row[key] = statistics.median(values) if values else None
     return row
 
 
@@ -115,9 +142,9 @@ def markdown(report: dict) -> str:
         f"`sb3` preset, one seed, one device; median of {report['repeats']} fresh processes, "
         "persistent cache off. Seconds (wall / CPU).",
         "",
-        "| variant | XLA flags | trace | lower | XLA compile | total wall | HLO instructions "
-        "| run ms / iteration |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| variant | XLA flags | trace | lower | XLA compile | of which HLO passes / codegen "
+        "| total wall | HLO instructions | kernels | run ms / iteration |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in report["rows"]:
         total = r["trace_wall"] + r["lower_wall"] + r["compile_wall"]
@@ -125,8 +152,10 @@ def markdown(report: dict) -> str:
         lines.append(
             f"| {r['variant']} | `{r['xla_flags'] or '-'}` | {r['trace_wall']:.2f} / "
             f"{r['trace_cpu']:.2f} | {r['lower_wall']:.2f} / {r['lower_cpu']:.2f} | "
-            f"{r['compile_wall']:.2f} / {r['compile_cpu']:.2f} | {total:.2f} | "
-            f"{r['hlo_instructions']:,} | {f'{run * 1e3:.1f}' if run else '-'} |"
+            f"{r['compile_wall']:.2f} / {r['compile_cpu']:.2f} | "
+            f"{r['hlo_passes_seconds']:.2f} / {r['codegen_seconds']:.2f} | {total:.2f} | "
+            f"{r['hlo_instructions']:,} | {r['llvm_kernels'] or '-'} | "
+            f"{f'{run * 1e3:.1f}' if run else '-'} |"
         )
     lines += ["", f"Command: `{report['command']}`", ""]
     lines += benchlib.machine_markdown(report["machine"])
