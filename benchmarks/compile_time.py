@@ -19,7 +19,10 @@ Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
 - ``no-expensive``: ``--xla_llvm_disable_expensive_passes=true``;
 - ``split-N``: ``--xla_cpu_parallel_codegen_split_count=N`` (codegen in N parallel parts);
 - ``no-thunk``: ``--xla_cpu_use_thunk_runtime=false`` (XLA:CPU's older whole-program runtime);
-- ``fusion-emitters``: ``--xla_cpu_use_fusion_emitters=true`` (the MLIR fusion emitters).
+- ``fusion-emitters``: ``--xla_cpu_use_fusion_emitters=true`` (the MLIR fusion emitters);
+- ``stub-guard``, ``stub-update``, ``stub-episodes``: default flags, with the divergence
+  guard, the minibatch update or the episode-statistics buffer replaced by a stub, to see
+  what each part of the program costs to compile (these programs are not runnable training).
 
     python benchmarks/compile_time.py                       # every variant, 3 processes each
     python benchmarks/compile_time.py --variants default,O1 --repeats 5 --run
@@ -50,10 +53,35 @@ VARIANTS = {
     "split-4": "--xla_cpu_parallel_codegen_split_count=4",
     "no-thunk": "--xla_cpu_use_thunk_runtime=false",
     "fusion-emitters": "--xla_cpu_use_fusion_emitters=true",
+    # the same flags as default, with one part of the program stubbed out (what it costs)
+    "stub-guard": "",
+    "stub-update": "",
+    "stub-episodes": "",
 }
 
 
-def child(run: bool) -> dict:
+def stub(part: str) -> None:
+    """Replaces one part of :mod:`jaxcart.ppo` with a stub of the same signature."""
+    import jax.numpy as jnp
+
+    from jaxcart import ppo
+
+    if part == "guard":
+        ppo.guard_divergence = lambda old, new, metrics, iteration: (new, metrics)
+    elif part == "episodes":
+        ppo.update_episode_buffer = lambda buffer, rollout: buffer
+    elif part == "update":
+        names = ("approx_kl", "clip_fraction", "entropy_loss", "policy_gradient_loss")
+        names += ("value_loss", "loss")
+
+        def update(params, opt_state, batch, key, hp, learning_rate, config):
+            shape = (config.update_epochs, config.num_minibatches)
+            return params, opt_state, {n: jnp.zeros(shape) for n in names}
+
+        ppo.update_epochs = update
+
+
+def child(run: bool, part: str | None) -> dict:
     """In a fresh process: trace, lower and compile the default run's chunk; optionally run it."""
     import time
 
@@ -63,9 +91,11 @@ def child(run: bool) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
+    if part:
+        stub(part)
     from jaxcart import env as cartpole
+    from jaxcart import ppo
     from jaxcart.config import preset
-    from jaxcart.ppo import train_chunk
     from jaxcart.trainer import broadcast_hyperparams, default_chunk_size, init_runners
 
     config = preset("sb3")
@@ -75,7 +105,7 @@ def child(run: bool) -> dict:
     hps = broadcast_hyperparams(config, 1)
 
     def fn(runners, hps, start):
-        return train_chunk(runners, hps, start, config, env_params, chunk_size)
+        return ppo.train_chunk(runners, hps, start, config, env_params, chunk_size)
 
     marks = [(time.perf_counter(), time.process_time())]
     traced = jax.jit(fn).trace(runners, hps, jnp.int32(0))
@@ -122,7 +152,9 @@ def measure(variant: str, repeats: int, run: bool) -> dict:
     env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {VARIANTS[variant]}".strip()
     env.update(TF_CPP_MIN_LOG_LEVEL="0", TF_CPP_VMODULE="cpu_compiler=1")
     command = [sys.executable, str(Path(__file__).resolve()), "--child"]
-    if run:
+    if variant.startswith("stub-"):
+        command += ["--stub", variant.removeprefix("stub-")]
+    elif run:
         command.append("--run")
     samples = []
     for _ in range(repeats):
@@ -169,9 +201,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", action="store_true", help="also time a chunk's run")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     parser.add_argument("--child", action="store_true", help=argparse_hidden())
+    parser.add_argument("--stub", help=argparse_hidden())
     args = parser.parse_args(argv)
     if args.child:
-        print(json.dumps(child(args.run)))
+        print(json.dumps(child(args.run, args.stub)))
         return 0
     names = benchlib.split_list(args.variants)
     unknown = [n for n in names if n not in VARIANTS]

@@ -85,13 +85,40 @@ def _relative(path: Path) -> str:
     return str(path.relative_to(ROOT)) if ROOT in path.parents else str(path)
 
 
+def training_return_table(arms: list[Path]) -> str:
+    """The training return (``rollout/ep_rew_mean``) at half, three quarters and all of the
+    run: its IQM across seeds with a 95% bootstrap interval, and P(arm > the first arm) over
+    seed pairs with its interval (``jaxcart.stats``, the statistics of ``jaxcart.compare``)."""
+    from jaxcart import plot, stats
+
+    runs = [plot.load_run(a) for a in arms]
+    curves = [r.metrics[plot.RETURN_METRIC] for r in runs]
+    n = min(len(c) for c in curves)
+    points = [n // 2 - 1, (3 * n) // 4 - 1, n - 1]
+    steps = " / ".join(f"{runs[0].env_steps[i] / 1e3:,.0f}k" for i in points)
+    lines = [f"training return at {steps} env steps: IQM [95% CI]; P(> {arms[0].name}) [95% CI]"]
+    for arm, curve in zip(arms, curves):
+        cells = []
+        for i in points:
+            e = stats.bootstrap_ci(curve[i], stats.iqm)
+            cell = f"{e.value:.1f} [{e.ci_low:.1f}, {e.ci_high:.1f}]"
+            if arm is not arms[0]:
+                p = stats.probability_of_improvement_ci(curve[i], curves[0][i])
+                cell += f"; P {p.value:.2f} [{p.ci_low:.2f}, {p.ci_high:.2f}]"
+            cells.append(cell)
+        lines.append(f"  {arm.name}: " + " / ".join(cells))
+    return "\n".join(lines) + "\n"
+
+
 def compare(arms: list[Path], out: Path) -> str:
-    """``python -m jaxcart.compare`` on the arms (the first is the baseline); its table."""
+    """``python -m jaxcart.compare`` on the arms (the first is the baseline) and the training
+    return table; writes and returns both."""
     paths = [_relative(a) for a in arms]
     command = [sys.executable, "-m", "jaxcart.compare", *paths, "--out", _relative(out)]
     done = subprocess.run(command, check=True, cwd=ROOT, capture_output=True, text=True)
-    (out / "table.txt").write_text(done.stdout)
-    return done.stdout
+    text = done.stdout + "\n" + training_return_table(arms)
+    (out / "table.txt").write_text(text)
+    return text
 
 
 def main(argv: list[str] | None = None) -> int:

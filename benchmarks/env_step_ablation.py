@@ -1,0 +1,127 @@
+"""What one jaxcart env step costs, part by part, in env_throughput.py's fair harness.
+
+Variants of the step, each run through the harness's one JAX rollout
+(``env_throughput_contenders.jax_rollout``: same actions, every output consumed) on one pinned
+core with one JAX device, timed interleaved over ``--rounds``:
+
+- ``step_batch``: jaxcart's env as benchmarked (physics, termination, autoreset with reset
+  states from the keyed counter hash);
+- ``fixed-reset``: the same with the reset states fixed (no hashing): what drawing them costs;
+- ``physics-only``: :func:`jaxcart.env.step_env` alone (no autoreset at all; episodes run on
+  past their end, so this is not a usable env, only a floor);
+- ``gymnax``: gymnax 1.x's ``vmap(step)`` for reference (if installed).
+
+    benchmarks/.venv-bench/bin/python benchmarks/env_step_ablation.py
+    benchmarks/.venv-bench/bin/python benchmarks/env_step_ablation.py --num-envs 65536
+
+Writes ``env_step_ablation.json`` and ``.md`` to ``--out`` (default ``benchmarks/results``).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+import statistics  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import benchlib  # noqa: E402
+import env_throughput_contenders as contenders  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+
+import jaxcart.env as cartpole  # noqa: E402
+
+VARIANTS = ("step_batch", "fixed-reset", "physics-only", "gymnax")
+
+
+def rollout(variant: str, num_envs: int, num_steps: int):
+    """``(fn, carry)`` of the harness's rollout with the variant's step."""
+    if variant == "gymnax":
+        return contenders.gymnax_random_rollout(num_envs, num_steps)
+    params = cartpole.EnvParams()
+
+    def step(key, state, actions):
+        if variant == "step_batch":
+            return cartpole.step_batch(key, state, actions, params)[:5]
+        final_obs, next_state, reward, terminated, truncated = cartpole.step_env(
+            state, actions, params
+        )
+        if variant == "physics-only":
+            return final_obs, next_state, reward, terminated, truncated
+        done = terminated | truncated
+        noise = jnp.full_like(final_obs, 0.01)
+        obs, state = cartpole._autoreset(
+            done, noise, cartpole.state_from_obs(noise), final_obs, next_state
+        )
+        return obs, state, reward, terminated, truncated
+
+    def reset_state(key, n):
+        keys = jax.random.split(key, n)
+        return jax.vmap(cartpole.reset, in_axes=(0, None))(keys, params)[1]
+
+    return contenders.jax_rollout(step, reset_state, num_envs, num_steps)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = benchlib.arg_parser(__doc__)
+    parser.add_argument("--num-envs", type=int, default=4096)
+    parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    args = parser.parse_args(argv)
+    num_steps = contenders.scan_length(args.num_envs)
+    built = {}
+    for variant in VARIANTS:
+        try:
+            fn, carry = rollout(variant, args.num_envs, num_steps)
+        except contenders.Unavailable as e:
+            print(f"{variant}: {e}")
+            continue
+        compiled = fn.lower(carry).compile()
+        built[variant] = [compiled, compiled(carry)]
+        jax.block_until_ready(built[variant][1])
+    times = {v: [] for v in built}
+    for _ in range(args.rounds):
+        for v, holder in built.items():
+            start = time.perf_counter()
+            holder[1] = holder[0](holder[1])
+            jax.block_until_ready(holder[1])
+            times[v].append(time.perf_counter() - start)
+    steps = args.num_envs * num_steps
+    rows = [
+        {"variant": v, "steps_per_second": steps / statistics.median(t), "seconds": t}
+        for v, t in times.items()
+    ]
+    lines = [
+        f"# One jaxcart env step, part by part (N = {args.num_envs:,}, one core)",
+        "",
+        f"Median of {args.rounds} interleaved calls of {steps:,} env steps each.",
+        "",
+        "| variant | M steps/s | ns per env step |",
+        "| --- | ---: | ---: |",
+    ]
+    for r in rows:
+        rate = r["steps_per_second"]
+        lines.append(f"| {r['variant']} | {rate / 1e6:.1f} | {1e9 / rate:.1f} |")
+    report = {
+        "command": benchlib.command_line(),
+        "machine": benchlib.machine_info([str(d) for d in jax.devices()]),
+        "num_envs": args.num_envs,
+        "rows": rows,
+    }
+    text = "\n".join(
+        lines
+        + ["", f"Command: `{report['command']}`", ""]
+        + benchlib.machine_markdown(report["machine"])
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    benchlib.write_json(args.out / "env_step_ablation.json", report)
+    (args.out / "env_step_ablation.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
