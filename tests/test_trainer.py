@@ -11,7 +11,13 @@ from helpers import TINY, assert_same_results
 
 from jaxcart import checkpoint
 from jaxcart.env import EnvParams
-from jaxcart.trainer import broadcast_hyperparams, compiled_chunk, initial_state, train
+from jaxcart.trainer import (
+    broadcast_hyperparams,
+    compiled_chunk,
+    init_runners,
+    initial_state,
+    train,
+)
 
 
 def test_resume_from_checkpoint_is_bit_identical(tmp_path):
@@ -64,8 +70,9 @@ def test_new_hyperparameter_values_do_not_recompile():
 
 
 def test_divergence_freezes_only_that_seed(tmp_path):
-    """A seed whose update goes non-finite stops with its last finite state and is marked;
-    the other seed trains exactly as it would have, and checkpoints stay finite."""
+    """A seed whose update goes non-finite is rolled back to its state at the start of that
+    chunk and marked; the other seed trains exactly as it would have, checkpoints stay finite,
+    and the rolled-back seed is left untouched by later chunks."""
     hps = broadcast_hyperparams(TINY, 2)
     bad = hps.replace(learning_rate=hps.learning_rate.at[1].set(1e35))
     good = train(TINY, 2, seed=5, hyperparams=hps)
@@ -79,6 +86,16 @@ def test_divergence_freezes_only_that_seed(tmp_path):
         np.testing.assert_array_equal(np.asarray(x)[0], np.asarray(y)[0])
     # after the divergence seed 1 reports NaN metrics
     assert np.isnan(mixed.metrics["train/value_loss"][diverged[1] :, 1]).all()
+    # ... and holds the parameters it had at the start of the chunk it diverged in
+    chunk = mixed.state.chunk_size
+    restart = (diverged[1] - 1) // chunk * chunk  # iterations done when that chunk began
+    if restart == 0:
+        before = init_runners(TINY, 5, np.arange(2)).params
+    else:
+        shorter = dataclasses.replace(TINY, total_timesteps=int(restart) * TINY.batch_size)
+        before = train(shorter, 2, seed=5, hyperparams=bad, chunk_size=chunk).params
+    for x, y in zip(jax.tree.leaves(before), jax.tree.leaves(mixed.params)):
+        np.testing.assert_array_equal(np.asarray(x)[1], np.asarray(y)[1])
 
 
 def test_chunks_that_do_not_tile_the_run():
