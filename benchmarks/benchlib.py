@@ -176,6 +176,26 @@ def format_ratio(value: float | None) -> str:
     return f"{value:.2f}x"
 
 
+def compile_and_time(fn: Callable, args: tuple, repeats: int = 5) -> tuple[float, float]:
+    """``(compile seconds, median call seconds)`` of ``jax.jit(fn)(*args)``: compiled ahead of
+    time (timed), one warm-up call, then ``repeats`` timed calls, each waited for."""
+    import statistics
+    import time
+
+    import jax
+
+    start = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_seconds = time.perf_counter() - start
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - start)
+    return compile_seconds, statistics.median(times)
+
+
 def write_json(path: Path, data: dict) -> None:
     """Writes ``data`` as indented JSON, creating the folder."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -16,7 +16,6 @@ os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
 import functools
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -39,20 +38,6 @@ from jaxcart.ppo import (
 from jaxcart.trainer import broadcast_hyperparams, init_runners
 
 
-def timed(fn, *args, repeats: int = 5) -> tuple[float, float]:
-    """(compile seconds, median run seconds) of ``jax.jit(fn)(*args)``."""
-    start = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    compile_s = time.perf_counter() - start
-    jax.block_until_ready(compiled(*args))
-    runs = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        runs.append(time.perf_counter() - start)
-    return compile_s, sorted(runs)[len(runs) // 2]
-
-
 def profile(preset_name: str, seeds: int) -> dict:
     config = preset(preset_name)
     env_params = cartpole.EnvParams()
@@ -61,7 +46,7 @@ def profile(preset_name: str, seeds: int) -> dict:
     network = make_network(config)
 
     rollout_fn = jax.vmap(lambda r: collect_rollout(r, config, env_params))
-    _, rollout_s = timed(rollout_fn, runners)
+    _, rollout_s = benchlib.compile_and_time(rollout_fn, (runners,))
     _, rollout = jax.jit(rollout_fn)(runners)
 
     def gae(r, roll, hp):
@@ -78,7 +63,7 @@ def profile(preset_name: str, seeds: int) -> dict:
         )
 
     gae_fn = jax.vmap(gae)
-    _, gae_s = timed(gae_fn, runners, rollout, hps)
+    _, gae_s = benchlib.compile_and_time(gae_fn, (runners, rollout, hps))
     adv, ret = jax.jit(gae_fn)(runners, rollout, hps)
     flat = lambda x: x.reshape((seeds, config.batch_size) + x.shape[3:])
     batch = Batch(
@@ -88,10 +73,10 @@ def profile(preset_name: str, seeds: int) -> dict:
     update_fn = jax.vmap(
         lambda r, b, k, h: update_epochs(r.params, r.opt_state, b, k, h, h.learning_rate, config)
     )
-    _, update_s = timed(update_fn, runners, batch, keys, hps)
+    _, update_s = benchlib.compile_and_time(update_fn, (runners, batch, keys, hps))
 
     chunk = functools.partial(train_chunk, config=config, env_params=env_params, chunk_size=2)
-    compile_s, chunk_s = timed(chunk, runners, hps, jnp.int32(0), repeats=3)
+    compile_s, chunk_s = benchlib.compile_and_time(chunk, (runners, hps, jnp.int32(0)), repeats=3)
     iteration_s = chunk_s / 2
     return {
         "preset": preset_name,

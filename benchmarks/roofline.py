@@ -39,9 +39,7 @@ os.environ["XLA_FLAGS"] = (
 ).strip()
 
 import re  # noqa: E402
-import statistics  # noqa: E402
 import sys  # noqa: E402
-import time  # noqa: E402
 from collections import Counter  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -58,20 +56,6 @@ from jaxcart.ppo import Batch, collect_rollout, compute_gae, update_epochs  # no
 from jaxcart.trainer import broadcast_hyperparams, init_runners  # noqa: E402
 
 OBS, HIDDEN, ACTIONS = 4, 64, 2
-
-
-def median_seconds(fn, args: tuple, repeats: int) -> tuple[float, float]:
-    """``(compile seconds, median call seconds)`` of ``jax.jit(fn)(*args)`` after a warm-up."""
-    start = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    compile_seconds = time.perf_counter() - start
-    jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - start)
-    return compile_seconds, statistics.median(times)
 
 
 def mlp_sizes(config: PPOConfig) -> list[list[int]]:
@@ -106,7 +90,7 @@ def flops(matmuls: list[tuple[str, int, int, int]]) -> int:
 
 def gemm_rate(size: int, repeats: int) -> dict:
     a = jnp.asarray(np.random.default_rng(0).standard_normal((size, size)), jnp.float32)
-    _, seconds = median_seconds(lambda a: a @ a, (a,), repeats)
+    _, seconds = benchlib.compile_and_time(lambda a: a @ a, (a,), repeats)
     return {"name": f"gemm {size}x{size}x{size}", "flops": 2 * size**3, "seconds": seconds}
 
 
@@ -129,7 +113,7 @@ def chain(seeds: int, m: int, k: int, n: int, length: int, repeats: int) -> dict
 
         return jax.lax.scan(body, x, None, length=length)[0]
 
-    _, seconds = median_seconds(run, (x, a, b), repeats)
+    _, seconds = benchlib.compile_and_time(run, (x, a, b), repeats)
     count = 2 * seeds * m * k * n * length * (1 if square else 2)
     name = f"[S,{m},{k}]@[S,{k},{n}]" + ("" if square else f" and back @[S,{n},{k}]")
     return {"name": name, "shape": [m, k, n], "flops": count, "seconds": seconds}
@@ -245,9 +229,9 @@ def measure_seeds(config: PPOConfig, seeds: int, chains: list[dict], repeats: in
     predicted = sum(2 * m * k * n / chain_rate_for((m, k, n), chains) for _, m, k, n in matmuls)
     predicted *= steps * seeds
     update, args = update_program(config, seeds)
-    compile_update, update_seconds = median_seconds(update, args, repeats)
+    compile_update, update_seconds = benchlib.compile_and_time(update, args, repeats)
     mlp, mlp_args = mlp_step_program(config, seeds, args[0], args[2])
-    _, mlp_seconds = median_seconds(mlp, mlp_args, repeats)
+    _, mlp_seconds = benchlib.compile_and_time(mlp, mlp_args, repeats)
     return {
         "seeds": seeds,
         "gradient_steps": steps * seeds,
