@@ -27,14 +27,7 @@ import benchlib
 
 from jaxcart import env as cartpole
 from jaxcart.config import preset
-from jaxcart.ppo import (
-    Batch,
-    collect_rollout,
-    compute_gae,
-    make_network,
-    train_chunk,
-    update_epochs,
-)
+from jaxcart.ppo import collect_rollout, train_chunk, training_batch, update_epochs
 from jaxcart.trainer import broadcast_hyperparams, init_runners
 
 
@@ -43,32 +36,15 @@ def profile(preset_name: str, seeds: int) -> dict:
     env_params = cartpole.EnvParams()
     runners = jax.device_put(init_runners(config, 0, np.arange(seeds), env_params))
     hps = broadcast_hyperparams(config, seeds)
-    network = make_network(config)
 
     rollout_fn = jax.vmap(lambda r: collect_rollout(r, config, env_params))
     _, rollout_s = benchlib.compile_and_time(rollout_fn, (runners,))
     _, rollout = jax.jit(rollout_fn)(runners)
 
-    def gae(r, roll, hp):
-        next_value = network.value(r.params, roll.final_obs)
-        return compute_gae(
-            roll.reward,
-            roll.value,
-            next_value,
-            roll.terminated,
-            roll.truncated,
-            hp.gamma,
-            hp.gae_lambda,
-            config.bootstrap_truncation,
-        )
-
-    gae_fn = jax.vmap(gae)
+    # GAE (and the flattening into one batch, free): the stage between rollout and update
+    gae_fn = jax.vmap(lambda r, roll, hp: training_batch(r.params, roll, hp, config))
     _, gae_s = benchlib.compile_and_time(gae_fn, (runners, rollout, hps))
-    adv, ret = jax.jit(gae_fn)(runners, rollout, hps)
-    flat = lambda x: x.reshape((seeds, config.batch_size) + x.shape[3:])
-    batch = Batch(
-        flat(rollout.obs), flat(rollout.action), flat(rollout.log_prob), flat(adv), flat(ret)
-    )
+    batch = jax.jit(gae_fn)(runners, rollout, hps)
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     update_fn = jax.vmap(
         lambda r, b, k, h: update_epochs(r.params, r.opt_state, b, k, h, h.learning_rate, config)

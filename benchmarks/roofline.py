@@ -52,7 +52,7 @@ import benchlib  # noqa: E402
 
 from jaxcart import env as cartpole  # noqa: E402
 from jaxcart.config import PPOConfig, preset  # noqa: E402
-from jaxcart.ppo import Batch, collect_rollout, compute_gae, update_epochs  # noqa: E402
+from jaxcart.ppo import Batch, collect_rollout, training_batch, update_epochs  # noqa: E402
 from jaxcart.trainer import broadcast_hyperparams, init_runners  # noqa: E402
 
 OBS, HIDDEN, ACTIONS = 4, 64, 2
@@ -144,21 +144,12 @@ def rollout_batch(config: PPOConfig, seeds: int):
     env_params = cartpole.EnvParams()
     runners = jax.device_put(init_runners(config, 0, np.arange(seeds), env_params))
     hps = broadcast_hyperparams(config, seeds)
-    _, rollout = jax.jit(jax.vmap(lambda r: collect_rollout(r, config, env_params)))(runners)
-    adv, ret = jax.vmap(compute_gae, in_axes=(0, 0, 0, 0, 0, 0, 0, None))(
-        rollout.reward,
-        rollout.value,
-        rollout.value[:, -1],
-        rollout.terminated,
-        rollout.truncated,
-        hps.gamma,
-        hps.gae_lambda,
-        config.bootstrap_truncation,
-    )
-    flat = lambda x: x.reshape((seeds, config.batch_size) + x.shape[3:])
-    batch = Batch(
-        flat(rollout.obs), flat(rollout.action), flat(rollout.log_prob), flat(adv), flat(ret)
-    )
+
+    def batch_of(runner, hp):
+        runner, rollout = collect_rollout(runner, config, env_params)
+        return training_batch(runner.params, rollout, hp, config)
+
+    batch = jax.jit(jax.vmap(batch_of))(runners, hps)
     return runners, batch, hps
 
 

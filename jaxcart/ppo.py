@@ -456,21 +456,11 @@ def learning_rate_at(hp: Hyperparams, iteration: Array, config: PPOConfig) -> Ar
     return hp.learning_rate * (1.0 - iteration / config.num_iterations)
 
 
-def train_iteration(
-    runner: RunnerState,
-    hp: Hyperparams,
-    iteration: Array,
-    config: PPOConfig,
-    env_params: cartpole.EnvParams,
-) -> tuple[RunnerState, dict[str, Array]]:
-    """One PPO iteration for one seed: rollout, GAE, all epochs and minibatches.
-
-    Returns:
-        The next runner state and scalar metrics named as in :data:`METRIC_NAMES`.
-    """
-    runner, rollout = collect_rollout(runner, config, env_params)
-    network = make_network(config)
-    next_value = network.value(runner.params, rollout.final_obs)
+def training_batch(params: dict, rollout: Transition, hp: Hyperparams, config: PPOConfig) -> Batch:
+    """GAE over ``rollout`` (fields ``[num_steps, num_envs, ...]``), bootstrapping from the
+    values of its true next observations under ``params``, and the transitions flattened into
+    one training batch, fields ``[batch_size, ...]``."""
+    next_value = make_network(config).value(params, rollout.final_obs)
     advantages, returns = compute_gae(
         rollout.reward,
         rollout.value,
@@ -488,7 +478,23 @@ def train_iteration(
         advantage=advantages,
         returns=returns,
     )
-    batch = jax.tree.map(lambda x: x.reshape((config.batch_size,) + x.shape[2:]), batch)
+    return jax.tree.map(lambda x: x.reshape((config.batch_size,) + x.shape[2:]), batch)
+
+
+def train_iteration(
+    runner: RunnerState,
+    hp: Hyperparams,
+    iteration: Array,
+    config: PPOConfig,
+    env_params: cartpole.EnvParams,
+) -> tuple[RunnerState, dict[str, Array]]:
+    """One PPO iteration for one seed: rollout, GAE, all epochs and minibatches.
+
+    Returns:
+        The next runner state and scalar metrics named as in :data:`METRIC_NAMES`.
+    """
+    runner, rollout = collect_rollout(runner, config, env_params)
+    batch = training_batch(runner.params, rollout, hp, config)
     key, update_key = jax.random.split(runner.key)
     learning_rate = learning_rate_at(hp, iteration, config)
     params, opt_state, aux = update_epochs(
@@ -621,5 +627,6 @@ __all__ = [
     "ppo_loss",
     "train_chunk",
     "train_iteration",
+    "training_batch",
     "update_epochs",
 ]
