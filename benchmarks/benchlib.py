@@ -196,6 +196,30 @@ def compile_and_time(fn: Callable, args: tuple, repeats: int = 5) -> tuple[float
     return compile_seconds, statistics.median(times)
 
 
+def interleaved_times(calls: dict[str, Callable[[], object]], rounds: int) -> dict[str, list]:
+    """Wall seconds of every call, ``rounds`` times, interleaved (one of each per round, so a
+    machine that slows down slows them all alike); each call's JAX results are waited for."""
+    import time
+
+    import jax
+
+    times: dict[str, list] = {name: [] for name in calls}
+    for _ in range(rounds):
+        for name, call in calls.items():
+            start = time.perf_counter()
+            jax.block_until_ready(call())
+            times[name].append(time.perf_counter() - start)
+    return times
+
+
+def write_report(out: Path, stem: str, report: dict, text: str) -> None:
+    """``out/stem.json`` (the report) and ``out/stem.md`` (``text``), and prints ``text``."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / f"{stem}.json", report)
+    (out / f"{stem}.md").write_text(text)
+    print(text)
+
+
 def write_json(path: Path, data: dict) -> None:
     """Writes ``data`` as indented JSON, creating the folder."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -226,10 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         "repeats": args.repeats,
         "rows": rows,
     }
-    args.out.mkdir(parents=True, exist_ok=True)
-    benchlib.write_json(args.out / "compile_time.json", report)
-    (args.out / "compile_time.md").write_text(markdown(report))
-    print(markdown(report))
+    benchlib.write_report(args.out, "compile_time", report, markdown(report))
     return 0
 
 

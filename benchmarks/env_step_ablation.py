@@ -23,8 +23,8 @@ import os
 
 os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
+import functools  # noqa: E402
 import statistics  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import benchlib  # noqa: E402
@@ -82,13 +82,13 @@ def main(argv: list[str] | None = None) -> int:
         compiled = fn.lower(carry).compile()
         built[variant] = [compiled, compiled(carry)]
         jax.block_until_ready(built[variant][1])
-    times = {v: [] for v in built}
-    for _ in range(args.rounds):
-        for v, holder in built.items():
-            start = time.perf_counter()
-            holder[1] = holder[0](holder[1])
-            jax.block_until_ready(holder[1])
-            times[v].append(time.perf_counter() - start)
+
+    def step(holder: list):  # runs the next call on the last one's state
+        holder[1] = holder[0](holder[1])
+        return holder[1]
+
+    calls = {v: functools.partial(step, holder) for v, holder in built.items()}
+    times = benchlib.interleaved_times(calls, args.rounds)
     steps = args.num_envs * num_steps
     rows = [
         {"variant": v, "steps_per_second": steps / statistics.median(t), "seconds": t}
@@ -116,10 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         + ["", f"Command: `{report['command']}`", ""]
         + benchlib.machine_markdown(report["machine"])
     )
-    args.out.mkdir(parents=True, exist_ok=True)
-    benchlib.write_json(args.out / "env_step_ablation.json", report)
-    (args.out / "env_step_ablation.md").write_text(text)
-    print(text)
+    benchlib.write_report(args.out, "env_step_ablation", report, text)
     return 0
 
 

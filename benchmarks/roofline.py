@@ -334,10 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         "chains": chains,
         "rows": rows,
     }
-    args.out.mkdir(parents=True, exist_ok=True)
-    benchlib.write_json(args.out / "roofline.json", report)
-    (args.out / "roofline.md").write_text(markdown(report))
-    print(markdown(report))
+    benchlib.write_report(args.out, "roofline", report, markdown(report))
     return 0
 
 

@@ -19,8 +19,8 @@ Writes ``seed_width.json`` and ``seed_width.md`` to ``--out`` (default ``benchma
 
 from __future__ import annotations
 
+import functools
 import statistics
-import time
 from pathlib import Path
 
 import benchlib
@@ -75,12 +75,10 @@ def width_row(config, seeds: int, rounds: int) -> dict:
         args = inputs(config, seeds)
         compiled[scheme] = (fn.lower(*args).compile(), args)
         jax.block_until_ready(compiled[scheme][0](*args))
-    times = {scheme: [] for scheme in compiled}
-    for _ in range(rounds):
-        for scheme, (c, args) in compiled.items():
-            start = time.perf_counter()
-            jax.block_until_ready(c(*args))
-            times[scheme].append(time.perf_counter() - start)
+    calls = {
+        scheme: functools.partial(compiled[scheme][0], *compiled[scheme][1]) for scheme in compiled
+    }
+    times = benchlib.interleaved_times(calls, rounds)
     for scheme, t in times.items():
         row[f"{scheme}_seconds"] = statistics.median(t)
     row["map_over_vmap"] = row["map_seconds"] / row["vmap_seconds"]
@@ -127,10 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         "rounds": args.rounds,
         "rows": rows,
     }
-    args.out.mkdir(parents=True, exist_ok=True)
-    benchlib.write_json(args.out / "seed_width.json", report)
-    (args.out / "seed_width.md").write_text(markdown(report))
-    print(markdown(report))
+    benchlib.write_report(args.out, "seed_width", report, markdown(report))
     return 0
 
 

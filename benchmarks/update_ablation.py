@@ -27,8 +27,8 @@ Writes ``update_ablation.json`` and ``.md`` to ``--out`` (default ``benchmarks/r
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -150,13 +150,8 @@ def build(variant: str, config: PPOConfig, seeds: int):
 
 def measure(config: PPOConfig, seeds: int, variants: list[str], rounds: int) -> list[dict]:
     built = {v: build(v, config, seeds) for v in variants}
-    times: dict[str, list[float]] = {v: [] for v in variants}
-    for _ in range(rounds):
-        for v in variants:
-            compiled, args = built[v]
-            start = time.perf_counter()
-            jax.block_until_ready(compiled(*args))
-            times[v].append(time.perf_counter() - start)
+    calls = {v: functools.partial(built[v][0], *built[v][1]) for v in variants}
+    times = benchlib.interleaved_times(calls, rounds)
     base = statistics.median(times[variants[0]])
     return [
         {
@@ -205,10 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         "rounds": args.rounds,
         "rows": rows,
     }
-    args.out.mkdir(parents=True, exist_ok=True)
-    benchlib.write_json(args.out / "update_ablation.json", report)
-    (args.out / "update_ablation.md").write_text(markdown(report))
-    print(markdown(report))
+    benchlib.write_report(args.out, "update_ablation", report, markdown(report))
     return 0
 
 
