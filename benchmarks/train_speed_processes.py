@@ -100,6 +100,20 @@ def check_policy(actor: dict, predict: Callable[[np.ndarray], np.ndarray]) -> fl
     return agree
 
 
+def train_model(
+    ppo_cls, config_name: str, seed: int, quick: bool, actor_layers, info: dict
+) -> dict:
+    """One seed with ``ppo_cls`` (SB3's or sbx's PPO): builds the model (timed), trains it
+    (timed), and returns :func:`worker_result` with ``info`` and the model's settings;
+    ``actor_layers(model)`` takes the actor's weights out as jaxcart's layers."""
+    t0 = time.perf_counter()
+    model, timesteps = make_model(ppo_cls, config_name, seed, quick, device="cpu")
+    setup = time.perf_counter() - t0
+    train, train_cpu = timed_learn(model, timesteps)
+    info = {**info, "hyperparameters": hyperparameters(model, config_name, timesteps)}
+    return worker_result(model, actor_layers(model), (setup, train, train_cpu), info)
+
+
 def worker_result(model, actor: dict, seconds: tuple[float, float, float], info: dict) -> dict:
     """What one seed's training returns: its weights, steps, timings, memory and ``info``
     (settings for the report)."""

@@ -11,16 +11,9 @@ from __future__ import annotations
 
 import importlib.util
 import sys
-import time
 
 from train_speed_common import ChildUnavailable
-from train_speed_processes import (
-    hyperparameters,
-    make_model,
-    run_seeds,
-    timed_learn,
-    worker_result,
-)
+from train_speed_processes import run_seeds, train_model
 
 # preset name -> (configuration, torch threads for one seed; None = torch's default). The
 # tuned configuration gets one thread, SB3's best setting for this MLP: with two threads a
@@ -55,16 +48,8 @@ def train_seed(config_name: str, seed: int, quick: bool, cache_dir, threads: int
 
     if threads is not None:  # the usual advice for small MLPs on CPU; SB3 leaves the default
         torch.set_num_threads(threads)
-    t0 = time.perf_counter()
-    model, timesteps = make_model(PPO, config_name, seed, quick, device="cpu")
-    setup = time.perf_counter() - t0
-    train, train_cpu = timed_learn(model, timesteps)
-    info = {
-        "compile_seconds": 0.0,
-        "torch_threads": torch.get_num_threads(),
-        "hyperparameters": hyperparameters(model, config_name, timesteps),
-    }
-    return worker_result(model, actor_layers(model), (setup, train, train_cpu), info)
+    info = {"compile_seconds": 0.0, "torch_threads": torch.get_num_threads()}
+    return train_model(PPO, config_name, seed, quick, actor_layers, info)
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):

@@ -12,16 +12,9 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
-import time
 
 from train_speed_common import ChildUnavailable, configure_jax_cache
-from train_speed_processes import (
-    hyperparameters,
-    make_model,
-    run_seeds,
-    timed_learn,
-    worker_result,
-)
+from train_speed_processes import run_seeds, train_model
 
 ONE_THREAD_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
@@ -51,17 +44,12 @@ def train_seed(config_name: str, seed: int, quick: bool, cache_dir, threads: int
     from sbx import PPO
 
     configure_jax_cache(cache_dir)
-    t0 = time.perf_counter()
-    model, timesteps = make_model(PPO, config_name, seed, quick, device="cpu")
-    setup = time.perf_counter() - t0
-    train, train_cpu = timed_learn(model, timesteps)
     info = {
         "compile_seconds": None,
         "jax_devices": [str(d) for d in jax.devices()],
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
-        "hyperparameters": hyperparameters(model, config_name, timesteps),
     }
-    return worker_result(model, actor_layers(model), (setup, train, train_cpu), info)
+    return train_model(PPO, config_name, seed, quick, actor_layers, info)
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
