@@ -2,7 +2,7 @@
 
 Pairs, each at every number of envs N in ``--sizes`` where it applies:
 
-- ``single`` (N = 1): ``jaxcart.gym_adapter.JaxCartPoleEnv`` against Gymnasium's
+- ``single`` (N = 1): ``jaxcart.gym.adapter.JaxCartPoleEnv`` against Gymnasium's
   ``CartPoleEnv``, reset whenever an episode ends.
 - ``vector``: ``JaxCartPoleVectorEnv(N)`` against Gymnasium's ``CartPoleVectorEnv(N)``, both
   with their default next-step autoreset.
@@ -56,7 +56,7 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorE
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
 
-from jaxcart.gym_adapter import JaxCartPoleEnv, JaxCartPoleVectorEnv
+from jaxcart.gym.adapter import JaxCartPoleEnv, JaxCartPoleVectorEnv
 
 STEM = "adapter_speed"
 KINDS = ("single", "vector", "vector-same-step", "sync")

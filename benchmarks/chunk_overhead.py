@@ -15,8 +15,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
 
-from jaxcart.config import preset
-from jaxcart.trainer import default_chunk_size, train
+from jaxcart.core.config import preset
+from jaxcart.engine.trainer import default_chunk_size, train
 
 
 def main() -> None:

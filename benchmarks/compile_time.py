@@ -1,7 +1,7 @@
 """Where the cold compile of the default training step goes, and what XLA flags do to it.
 
 The default run (``python -m jaxcart.train``: the ``sb3`` preset, one seed, one device)
-compiles one program, :func:`jaxcart.ppo.train_chunk`. Each variant below runs in a fresh
+compiles one program, :func:`jaxcart.core.ppo.train_chunk`. Each variant below runs in a fresh
 process with the persistent cache off and measures, for that program:
 
 - ``trace``: Python tracing to a jaxpr, ``lower``: jaxpr to StableHLO (JAX's side);
@@ -61,10 +61,10 @@ VARIANTS = {
 
 
 def stub(part: str) -> None:
-    """Replaces one part of :mod:`jaxcart.ppo` with a stub of the same signature."""
+    """Replaces one part of :mod:`jaxcart.core.ppo` with a stub of the same signature."""
     import jax.numpy as jnp
 
-    from jaxcart import ppo
+    from jaxcart.core import ppo
 
     if part == "guard":
         ppo.guard_divergence = lambda old, new, metrics, iteration: (new, metrics)
@@ -93,10 +93,10 @@ def child(run: bool, part: str | None) -> dict:
 
     if part:
         stub(part)
-    from jaxcart import env as cartpole
-    from jaxcart import ppo
-    from jaxcart.config import preset
-    from jaxcart.trainer import broadcast_hyperparams, default_chunk_size, init_runners
+    from jaxcart.core import env as cartpole
+    from jaxcart.core import ppo
+    from jaxcart.core.config import preset
+    from jaxcart.engine.trainer import broadcast_hyperparams, default_chunk_size, init_runners
 
     config = preset("sb3")
     env_params = cartpole.EnvParams()

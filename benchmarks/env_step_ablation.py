@@ -7,7 +7,7 @@ core with one JAX device, timed interleaved over ``--rounds``:
 - ``step_batch``: jaxcart's env as benchmarked (physics, termination, autoreset with reset
   states from the keyed counter hash);
 - ``fixed-reset``: the same with the reset states fixed (no hashing): what drawing them costs;
-- ``physics-only``: :func:`jaxcart.env.step_env` alone (no autoreset at all; episodes run on
+- ``physics-only``: :func:`jaxcart.core.env.step_env` alone (no autoreset at all; episodes run on
   past their end, so this is not a usable env, only a floor);
 - ``gymnax``: gymnax 1.x's ``vmap(step)`` for reference (if installed).
 
@@ -32,7 +32,7 @@ import env_throughput_contenders as contenders  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-import jaxcart.env as cartpole  # noqa: E402
+import jaxcart.core.env as cartpole  # noqa: E402
 
 VARIANTS = ("step_batch", "fixed-reset", "physics-only", "gymnax")
 

@@ -2,7 +2,7 @@
 
 Contenders, each at every number of parallel environments N in ``--sizes``:
 
-- ``jaxcart``: ``jaxcart.env.step_batch`` in the harness's ``jit(shard_map(scan(...)))``.
+- ``jaxcart``: ``jaxcart.core.env.step_batch`` in the harness's ``jit(shard_map(scan(...)))``.
 - ``gymnax``: gymnax 1.x ``CartPole-v1`` (its ``step`` autoresets), ``vmap(env.step)`` in the
   same rollout code.
 - ``gymnasium-vector``: Gymnasium's NumPy ``CartPoleVectorEnv``
@@ -324,7 +324,7 @@ def worker_main(args: argparse.Namespace) -> int:
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
         cores = 1
     else:
-        from jaxcart import devices
+        from jaxcart.engine import devices
 
         devices.use_all_host_cores()
         cores = len(os.sched_getaffinity(0))

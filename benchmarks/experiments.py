@@ -18,6 +18,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from jaxcart.rundir.runs import load_run
+
 ROOT = Path(__file__).resolve().parents[1]
 BASE_SEED = 314159  # unseen: not used by tests, presets, benchmarks or the README
 # An arm trained by Stable-Baselines3 itself (benchmarks/sb3_reference_run.py, PyTorch, in the
@@ -88,10 +90,11 @@ def _relative(path: Path) -> str:
 def training_return_table(arms: list[Path]) -> str:
     """The training return (``rollout/ep_rew_mean``) at half, three quarters and all of the
     run: its IQM across seeds with a 95% bootstrap interval, and P(arm > the first arm) over
-    seed pairs with its interval (``jaxcart.stats``, the statistics of ``jaxcart.compare``)."""
-    from jaxcart import plot, stats
+    seed pairs with its interval (``jaxcart.analysis.stats``, the statistics of ``jaxcart.compare``)."""
+    from jaxcart import plot
+    from jaxcart.analysis import stats
 
-    runs = [plot.load_run(a) for a in arms]
+    runs = [load_run(a) for a in arms]
     curves = [r.metrics[plot.RETURN_METRIC] for r in runs]
     n = min(len(c) for c in curves)
     points = [n // 2 - 1, (3 * n) // 4 - 1, n - 1]

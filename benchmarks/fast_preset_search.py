@@ -14,7 +14,7 @@ Writes JSON with every candidate and a Markdown summary next to it.
 
 from __future__ import annotations
 
-from jaxcart import devices
+from jaxcart.engine import devices
 
 devices.use_all_host_cores()
 
@@ -32,10 +32,10 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib  # noqa: E402
 
-from jaxcart.config import PPOConfig  # noqa: E402
-from jaxcart.evaluate import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
-from jaxcart.policy import numpy_policy  # noqa: E402
-from jaxcart.trainer import broadcast_hyperparams, seed_keys, train  # noqa: E402
+from jaxcart.core.config import PPOConfig  # noqa: E402
+from jaxcart.engine.trainer import broadcast_hyperparams, seed_keys, train  # noqa: E402
+from jaxcart.run.evaluation import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
+from jaxcart.rundir.policy import numpy_policy  # noqa: E402
 
 SHAPES = [(4, 128), (8, 64), (16, 32), (16, 64), (32, 32), (64, 16)]
 MINIBATCHES = [2, 4]

@@ -25,10 +25,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
 
-from jaxcart import env as cartpole
-from jaxcart.config import preset
-from jaxcart.ppo import collect_rollout, train_chunk, training_batch, update_epochs
-from jaxcart.trainer import broadcast_hyperparams, init_runners
+from jaxcart.core import env as cartpole
+from jaxcart.core.config import preset
+from jaxcart.core.ppo import collect_rollout, train_chunk, training_batch, update_epochs
+from jaxcart.engine.trainer import broadcast_hyperparams, init_runners
 
 
 def profile(preset_name: str, seeds: int) -> dict:

@@ -12,7 +12,7 @@ a device holds. This script measures, in one process pinned to one core with one
    [S, 64, 2]`` (and back). Their rates are the ceiling for matmuls of these shapes.
 3. ``mlp step``: the same two MLPs' forward, backward and an SGD step on minibatches (no PPO
    loss, no Adam, no shuffling): the update's matmuls alone, as XLA compiles them.
-4. ``update``: jaxcart's real update (:func:`jaxcart.ppo.update_epochs`, vmapped over S seeds
+4. ``update``: jaxcart's real update (:func:`jaxcart.core.ppo.update_epochs`, vmapped over S seeds
    on a rollout batch), as the trainer runs it.
 
 Each program's FLOPs are counted analytically (2·m·k·n per matmul; elementwise work not
@@ -50,10 +50,10 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib  # noqa: E402
 
-from jaxcart import env as cartpole  # noqa: E402
-from jaxcart.config import PPOConfig, preset  # noqa: E402
-from jaxcart.ppo import Batch, collect_rollout, training_batch, update_epochs  # noqa: E402
-from jaxcart.trainer import broadcast_hyperparams, init_runners  # noqa: E402
+from jaxcart.core import env as cartpole  # noqa: E402
+from jaxcart.core.config import PPOConfig, preset  # noqa: E402
+from jaxcart.core.ppo import Batch, collect_rollout, training_batch, update_epochs  # noqa: E402
+from jaxcart.engine.trainer import broadcast_hyperparams, init_runners  # noqa: E402
 
 OBS, HIDDEN, ACTIONS = 4, 64, 2
 
@@ -169,7 +169,7 @@ def update_program(config: PPOConfig, seeds: int):
 def mlp_step_program(config: PPOConfig, seeds: int, params: dict, batch: Batch):
     """The update's matmuls alone: both MLPs forward and backward on the same minibatches
     (contiguous slices, no shuffle), loss ``sum(logits) + sum(value)``, plain SGD."""
-    from jaxcart.networks import ActorCritic
+    from jaxcart.core.networks import ActorCritic
 
     network = ActorCritic.from_config(config)
     steps = config.update_epochs * config.num_minibatches

@@ -27,10 +27,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
 
-from jaxcart import rundir
-from jaxcart.config import PPOConfig
-from jaxcart.evaluate import EVAL_SEED, NUM_EVAL_EPISODES
-from jaxcart.trainer import METRIC_COLUMNS
+from jaxcart.core.config import PPOConfig
+from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
+from jaxcart.engine.trainer import METRIC_COLUMNS
+from jaxcart.rundir import layout as rundir
 
 # SB3 dumps its log before each update, so train/* values appear one row after the rollout
 # they belong to; rollout/* and time/* belong to the row they are on.

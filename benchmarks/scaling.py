@@ -22,7 +22,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import benchlib
 
-from jaxcart.distributed import launch_local
+from jaxcart.engine.distributed import launch_local
 
 KINDS = ("1 device", "2 host devices", "2 processes")
 
@@ -106,7 +106,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     a = parser.parse_args()
-    from jaxcart.config import preset
+    from jaxcart.core.config import preset
 
     config = preset(a.preset)
     args = ["--preset", a.preset, "--num-seeds", str(a.seeds), "--quiet", "--no-compile-cache"]

@@ -7,7 +7,7 @@ another inside the program (``lax.map`` over seeds instead of ``vmap``) runs the
 per-seed program at every width. This script measures, on one pinned core, for each width S:
 
 - whether seed 0 comes out bit-identical at width 1 and width S under each scheme (two
-  iterations of :func:`jaxcart.ppo.train_chunk`, ``sb3`` preset);
+  iterations of :func:`jaxcart.core.ppo.train_chunk`, ``sb3`` preset);
 - the time of one chunk under each scheme, interleaved over ``--rounds``, and the slowdown
   of ``lax.map`` against ``vmap`` (a throughput cost; the issue's bar is 10%).
 
@@ -29,10 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 import roofline  # noqa: F401  (pins this process to one core with one JAX device)
 
-from jaxcart import env as cartpole
-from jaxcart.config import preset
-from jaxcart.ppo import train_iteration
-from jaxcart.trainer import broadcast_hyperparams, init_runners
+from jaxcart.core import env as cartpole
+from jaxcart.core.config import preset
+from jaxcart.core.ppo import train_iteration
+from jaxcart.engine.trainer import broadcast_hyperparams, init_runners
 
 CHUNK = 2
 

@@ -9,21 +9,21 @@ from train_speed_common import QUICK_TIMESTEPS, configure_jax_cache
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
-    """``jaxcart.trainer.train(preset(preset_name), num_seeds, seed=0)``.
+    """``jaxcart.engine.trainer.train(preset(preset_name), num_seeds, seed=0)``.
 
     Returns:
         ``(data, policy)``: the timings and settings, and the seeds' stacked greedy policy
         for the harness to evaluate.
     """
-    from jaxcart import devices
+    from jaxcart.engine import devices
 
     devices.use_all_host_cores()
     import jax
 
     configure_jax_cache(cache_dir)
-    from jaxcart.config import preset
-    from jaxcart.policy import numpy_policy
-    from jaxcart.trainer import train
+    from jaxcart.core.config import preset
+    from jaxcart.engine.trainer import train
+    from jaxcart.rundir.policy import numpy_policy
 
     overrides = {"total_timesteps": QUICK_TIMESTEPS[preset_name]} if quick else {}
     config = preset(preset_name, **overrides)

@@ -88,7 +88,7 @@ def check_policy(actor: dict, predict: Callable[[np.ndarray], np.ndarray]) -> fl
     """Checks that the weights taken out of a model act as the model does: the greedy actions
     of ``actor`` (jaxcart's NumPy forward pass) against ``predict`` (the tool's own
     deterministic ``predict``) on random CartPole states. Returns the fraction that agree."""
-    from jaxcart.policy import NumpyPolicy
+    from jaxcart.rundir.policy import NumpyPolicy
 
     scale = np.array([2.4, 3.0, 0.21, 3.0], np.float32)
     obs = np.random.default_rng(0).uniform(-1, 1, (CHECK_OBSERVATIONS, 4)).astype(np.float32)
@@ -133,8 +133,8 @@ def worker_result(model, actor: dict, seconds: tuple[float, float, float], info:
 
 
 def stacked_policy(actors: list[dict]):
-    """One stacked :class:`jaxcart.policy.NumpyPolicy` over the seeds' actors."""
-    from jaxcart.policy import NumpyPolicy
+    """One stacked :class:`jaxcart.rundir.policy.NumpyPolicy` over the seeds' actors."""
+    from jaxcart.rundir.policy import NumpyPolicy
 
     stacked = {
         name: {k: np.stack([a[name][k] for a in actors]) for k in ("kernel", "bias")}

@@ -84,7 +84,7 @@ def rejax_config(quick: bool) -> dict:
 
 def greedy_policy(p: dict):
     """jaxcart's NumPy policy over the seeds' stacked rejax actor parameters (``params``)."""
-    from jaxcart.policy import NumpyPolicy
+    from jaxcart.rundir.policy import NumpyPolicy
 
     layers = {
         "hidden_0": p["features"]["Dense_0"],

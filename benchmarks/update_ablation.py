@@ -1,6 +1,6 @@
 """What each part of the PPO update costs, and what the ideas for speeding it up measure.
 
-Variants of jaxcart's update (:func:`jaxcart.ppo.update_epochs`, ``sb3`` preset, vmapped over
+Variants of jaxcart's update (:func:`jaxcart.core.ppo.update_epochs`, ``sb3`` preset, vmapped over
 S seeds on one pinned core), each compiled in this process and then timed interleaved, round
 after round, so that a busy machine slows them all alike; the report gives each variant's
 median and its ratio to ``current``:
@@ -39,8 +39,8 @@ import optax
 import roofline
 from jax.flatten_util import ravel_pytree
 
-from jaxcart import networks, ppo
-from jaxcart.config import PPOConfig, preset
+from jaxcart.core import networks, ppo
+from jaxcart.core.config import PPOConfig, preset
 
 VARIANTS = (
     "current",

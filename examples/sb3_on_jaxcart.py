@@ -17,7 +17,7 @@ import time
 import gymnasium as gym
 import numpy as np
 
-import jaxcart.gym_adapter  # registers "jaxcart/CartPole-v1"
+import jaxcart.gym.adapter  # registers "jaxcart/CartPole-v1"
 
 
 def greedy_returns(model, env_id: str, seeds: list[int]) -> np.ndarray:
@@ -56,14 +56,14 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.torch_threads)
 
-    env = gym.make(jaxcart.gym_adapter.ENV_ID)
+    env = gym.make(jaxcart.gym.adapter.ENV_ID)
     model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", verbose=0)
     start = time.perf_counter()
     model.learn(args.timesteps)
     train_s = time.perf_counter() - start
     ep_rew_mean = np.mean([e["r"] for e in model.ep_info_buffer])
     print(
-        f"SB3 PPO on {jaxcart.gym_adapter.ENV_ID}: {model.num_timesteps:,} steps in "
+        f"SB3 PPO on {jaxcart.gym.adapter.ENV_ID}: {model.num_timesteps:,} steps in "
         f"{train_s:.1f} s ({model.num_timesteps / train_s:,.0f} steps/s), "
         f"final rollout/ep_rew_mean {ep_rew_mean:.1f}"
     )
@@ -71,14 +71,14 @@ def main(argv: list[str] | None = None) -> int:
     seeds = list(range(args.eval_seed, args.eval_seed + args.episodes))
     results = {
         env_id: greedy_returns(model, env_id, seeds)
-        for env_id in (jaxcart.gym_adapter.ENV_ID, "CartPole-v1")
+        for env_id in (jaxcart.gym.adapter.ENV_ID, "CartPole-v1")
     }
     print(f"\nGreedy evaluation, {args.episodes} seeded episodes per env:")
     print(f"{'env':<22} {'mean':>7} {'min':>5} {'solved (all 500)':>17}")
     for env_id, returns in results.items():
         solved = "yes" if np.all(returns == 500) else "no"
         print(f"{env_id:<22} {returns.mean():>7.1f} {returns.min():>5.0f} {solved:>17}")
-    same = int(np.sum(results[jaxcart.gym_adapter.ENV_ID] == results["CartPole-v1"]))
+    same = int(np.sum(results[jaxcart.gym.adapter.ENV_ID] == results["CartPole-v1"]))
     print(f"episodes with identical returns in both envs: {same}/{args.episodes}")
     return 0
 

@@ -11,8 +11,8 @@ import sys
 from collections.abc import Callable, Sequence
 
 from jaxcart import __version__
-from jaxcart.config import ConfigError
-from jaxcart.files import RunDirError
+from jaxcart.core.config import ConfigError
+from jaxcart.rundir.files import RunDirError
 
 EXIT_USAGE = 2
 VERSION_TEXT = f"jaxcart {__version__}"

@@ -2,7 +2,7 @@
 configuration B better than A, and how sure is that?
 
 Statistics of Agarwal et al. (2021), "Deep RL at the Edge of the Statistical Precipice"
-(:mod:`jaxcart.stats`), over any run directories: jaxcart's, a sweep's combinations (a sweep
+(:mod:`jaxcart.analysis.stats`), over any run directories: jaxcart's, a sweep's combinations (a sweep
 directory stands for all of them, each named by its hyperparameter values, e.g.
 ``learning_rate=0.001,clip_coef=0.2``), or ``benchmarks/sb3_reference_run.py``'s.
 
@@ -38,7 +38,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from jaxcart import cli, plot, rundir, stats
+from jaxcart import cli, plot
+from jaxcart.analysis import stats
+from jaxcart.rundir import layout as rundir
+from jaxcart.rundir.runs import Run, load_runs
 
 if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
     from matplotlib.figure import Figure
@@ -60,9 +63,9 @@ ESTIMATE_NAMES = {"iqm": "IQM", "mean": "mean", "median": "median", "optimality_
 
 @dataclass(frozen=True)
 class Entry:
-    """One compared run: its curves (:class:`jaxcart.plot.Run`) and per-seed scores."""
+    """One compared run: its curves (:class:`jaxcart.rundir.runs.Run`) and per-seed scores."""
 
-    run: plot.Run
+    run: Run
     scores: np.ndarray  # [num_seeds]
     solved: int  # seeds solved by evaluate's definition (every greedy episode scored 500)
     episodes: int | None  # greedy episodes per seed
@@ -85,7 +88,7 @@ class Entry:
         return stats.first_at_least(best, x, stats.MAX_RETURN)
 
 
-def read_scores(run: plot.Run) -> tuple[np.ndarray, int, int | None]:
+def read_scores(run: Run) -> tuple[np.ndarray, int, int | None]:
     """``(scores [num_seeds], solved seeds, episodes)`` from a run's ``evaluation.json``.
 
     Raises:
@@ -122,7 +125,7 @@ def load_entries(
         rundir.RunDirError: an unusable run directory; cli.UsageError: a run given twice, or a
             sweep as the baseline.
     """
-    runs = plot.load_runs(run_dirs)
+    runs = load_runs(run_dirs)
     index = 0
     if baseline is not None:
         if rundir.is_sweep(baseline):
@@ -134,7 +137,7 @@ def load_entries(
         if Path(baseline).resolve() in resolved:
             index = resolved.index(Path(baseline).resolve())
         else:
-            runs = plot.load_runs([baseline, *run_dirs])
+            runs = load_runs([baseline, *run_dirs])
     seen: set[Path] = set()
     for run in runs:
         if run.path.resolve() in seen:

@@ -1,7 +1,7 @@
 """What the commands print: tables, the run header and summary line, the progress bar.
 
 Nothing here trains or writes files; :class:`ConsoleReport` turns a run's lifecycle events
-(:class:`jaxcart.lifecycle.Hooks`) into terminal output.
+(:class:`jaxcart.run.lifecycle.Hooks`) into terminal output.
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from typing import IO, TYPE_CHECKING
 import numpy as np
 
 from jaxcart.cli import format_table
-from jaxcart.config import PRESETS, config_fields, preset
+from jaxcart.core.config import PRESETS, config_fields, preset
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
-    from jaxcart.lifecycle import Outcome, Run
-    from jaxcart.trainer import Progress
+    from jaxcart.engine.trainer import Progress
+    from jaxcart.run.lifecycle import Outcome, Run
 
 
 MAX_TABLE_ROWS = 100
@@ -150,8 +150,8 @@ def stopped_text(outcome: Outcome, resume_hint: str) -> str:
 
 def write_failed_text(run: Run | None, exc: OSError) -> str:
     """The one line after a write failed (ENOSPC, EROFS, EACCES, ...)."""
-    from jaxcart.checkpoint import CHECKPOINT_FILE
-    from jaxcart.lifecycle import RESUME_HINT
+    from jaxcart.run.lifecycle import RESUME_HINT
+    from jaxcart.rundir.checkpoint import CHECKPOINT_FILE
 
     what = f"error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}"
     if run is None or not (run.out / CHECKPOINT_FILE).exists():
@@ -164,7 +164,7 @@ def write_failed_text(run: Run | None, exc: OSError) -> str:
 
 def interrupted_text(run: Run | None, signum: int | None) -> str:
     """The one line after a second signal stopped the process at once."""
-    from jaxcart.lifecycle import RESUME_HINT
+    from jaxcart.run.lifecycle import RESUME_HINT
 
     if run is None or not (run.out / "config.json").exists():
         return "stopped at once; no run directory was written"
@@ -282,7 +282,7 @@ class ConsoleReport:
 
     def hooks(self):  # -> lifecycle.Hooks
         """These methods as the lifecycle's hooks."""
-        from jaxcart.lifecycle import Hooks
+        from jaxcart.run.lifecycle import Hooks
 
         return Hooks(
             on_start=self.on_start,

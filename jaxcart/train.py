@@ -1,8 +1,8 @@
 """``python -m jaxcart.train``: train PPO on CartPole-v1, evaluate in Gymnasium, save the run.
 
 Only the command line and its printing live here: the options become a frozen
-:class:`TrainOptions`, then :mod:`jaxcart.lifecycle` carries the run out and
-:mod:`jaxcart.report` prints it. Every :class:`~jaxcart.config.PPOConfig` field is an option
+:class:`TrainOptions`, then :mod:`jaxcart.run.lifecycle` carries the run out and
+:mod:`jaxcart.report` prints it. Every :class:`~jaxcart.core.config.PPOConfig` field is an option
 (its docstring is the help); ``--preset`` picks the starting values and explicit options
 override them. ``--sweep`` trains every combination of float hyperparameters x every seed in
 one compiled program; ``--resume RUN_DIR`` continues an interrupted run from its last
@@ -19,12 +19,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from jaxcart import cli, devices
-from jaxcart.config import PRESETS, config_fields, field_docs, preset
-from jaxcart.signals import StopRequest
+from jaxcart import cli
+from jaxcart.core.config import PRESETS, config_fields, field_docs, preset
+from jaxcart.engine import devices
+from jaxcart.engine.signals import StopRequest
 
 if TYPE_CHECKING:  # the modules that import JAX load in main(), once signals are handled
-    from jaxcart import lifecycle, report
+    from jaxcart import report
+    from jaxcart.run import lifecycle
 
 
 def _tuple_of_ints(text: str) -> tuple[int, ...]:
@@ -204,8 +206,8 @@ class TrainOptions:
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
-        from jaxcart import lifecycle
-        from jaxcart.sweep import parse_sweep
+        from jaxcart.run import lifecycle
+        from jaxcart.run.sweep import parse_sweep
 
         sweep = parse_sweep(list(self.sweep))
         for name in sweep:
@@ -224,7 +226,7 @@ class TrainOptions:
 
     def run_options(self) -> lifecycle.RunOptions:
         """How to carry the run out."""
-        from jaxcart import lifecycle
+        from jaxcart.run import lifecycle
 
         return lifecycle.RunOptions(
             checkpoint_every=self.checkpoint_every,
@@ -266,9 +268,11 @@ class TrainOptions:
 
 def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport) -> int:
     """Plans, trains, evaluates and reports; returns the exit code."""
-    from jaxcart import distributed, lifecycle, report
-    from jaxcart.files import RunDirError
-    from jaxcart.signals import Stopped
+    from jaxcart import report
+    from jaxcart.engine import distributed
+    from jaxcart.engine.signals import Stopped
+    from jaxcart.run import lifecycle
+    from jaxcart.rundir.files import RunDirError
 
     wall_start = time.perf_counter()
     opts.check_distributed()
@@ -304,7 +308,8 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
 
 
 def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: float) -> int:
-    from jaxcart import lifecycle, report
+    from jaxcart import report
+    from jaxcart.run import lifecycle
 
     if outcome.stopped:
         hint = lifecycle.RESUME_HINT.format(out=outcome.run.out)

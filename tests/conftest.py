@@ -3,7 +3,7 @@ and the fault-injection figures printed at the end of the session."""
 
 from collections import Counter
 
-from jaxcart import devices
+from jaxcart.engine import devices
 
 devices.use_all_host_cores(2)
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxcart import rundir
-from jaxcart.config import PPOConfig
-from jaxcart.ppo import METRIC_NAMES
+from jaxcart.core.config import PPOConfig
+from jaxcart.core.ppo import METRIC_NAMES
+from jaxcart.rundir import layout as rundir
 
 TINY = PPOConfig(  # 32 iterations of 128 transitions: a training test in seconds
     num_envs=4,

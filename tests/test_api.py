@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 import jaxcart
-from jaxcart import devices, loggers
+from jaxcart.engine import devices
+from jaxcart.run import loggers
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
@@ -34,7 +35,7 @@ def _python(code: str, **env: str) -> str:
 
 
 def test_training_function_is_not_shadowed_by_the_cli_module():
-    from jaxcart import trainer
+    from jaxcart.engine import trainer
 
     package = importlib.import_module("jaxcart")
     assert package.train_runs is trainer.train

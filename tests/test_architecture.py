@@ -1,5 +1,11 @@
-"""The package's shape, checked from its source: imports point one way (no cycle, counting
-imports inside functions), and every function fits on a screen."""
+"""The package's shape, checked from its source.
+
+- Layers as folders: a module imports only from its own layer and the layers below it
+  (:data:`LAYERS`), counting imports inside functions and under ``TYPE_CHECKING``.
+- No import cycle between modules.
+- The top level holds only the package face and the commands.
+- Every function fits on a screen, every class in a sitting, every module in a file one reads.
+"""
 
 from __future__ import annotations
 
@@ -10,13 +16,40 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxcart"
 MAX_FUNCTION_LINES = 80
+MAX_CLASS_LINES = 150
+MAX_MODULE_LINES = 500
+
+LAYERS: dict[str, int] = {
+    "core": 0,  # env, network, PPO math, config, the definition of solved: no I/O
+    "engine": 1,  # compile, devices, the chunk loop, signals
+    "analysis": 1,  # statistics over arrays: no run directories
+    "rundir": 2,  # the run directory: names, the one writer, the one reader
+    "run": 3,  # a run's lifecycle: training, evaluation, waves, sweeps, loggers
+    "gym": 3,  # the Gymnasium adapter, and GIFs (written through rundir's one writer)
+    "": 4,  # the package face and the commands (argparse -> library -> printing)
+}
+"""Layer of each subpackage (``""`` is the top level). Equal numbers may not import each other."""
+
+COMMANDS = {"train", "evaluate", "plot", "compare", "env", "sb3"}
+TOP_LEVEL = COMMANDS | {"__init__", "__main__", "cli", "report"}
 
 
 def _modules() -> dict[str, ast.Module]:
-    return {
-        f"jaxcart.{p.stem}" if p.stem != "__init__" else "jaxcart": ast.parse(p.read_text())
-        for p in sorted(PACKAGE.glob("*.py"))
-    }
+    modules = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = ["jaxcart", *path.relative_to(PACKAGE).with_suffix("").parts]
+        if parts[-1] == "__init__":
+            parts.pop()
+        modules[".".join(parts)] = ast.parse(path.read_text())
+    return modules
+
+
+def _lines(name: str) -> int:
+    rel = name.split(".")[1:]
+    path = PACKAGE.joinpath(*rel).with_suffix(".py")
+    if not path.exists():
+        path = PACKAGE.joinpath(*rel, "__init__.py")
+    return len(path.read_text().splitlines())
 
 
 def import_graph() -> dict[str, set[str]]:
@@ -29,13 +62,20 @@ def import_graph() -> dict[str, set[str]]:
             if isinstance(node, ast.Import):
                 targets = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                # "from jaxcart import rundir" imports the submodule jaxcart.rundir
+                # "from jaxcart.rundir import layout" imports the module jaxcart.rundir.layout
                 subs = [f"{node.module}.{a.name}" for a in node.names]
                 targets = [s for s in subs if s in modules] or [node.module]
             graph[name].update(t for t in targets if t in modules and t != name)
     # the package's lazy __getattr__ table is not an import of every module
     graph["jaxcart"] = set()
     return graph
+
+
+def layer_of(module: str) -> tuple[str, int]:
+    """``jaxcart.run.lifecycle`` -> ``("run", 3)``; top-level modules are layer ``""``."""
+    parts = module.split(".")
+    sub = parts[1] if len(parts) > 2 or (len(parts) == 2 and parts[1] in LAYERS) else ""
+    return sub, LAYERS[sub]
 
 
 def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
@@ -65,25 +105,57 @@ def test_cycle_finder_finds_a_cycle():
 
 def test_no_import_cycle_in_the_package():
     graph = import_graph()
-    assert "jaxcart.lifecycle" in graph["jaxcart.train"]  # the graph is really read
+    assert "jaxcart.run.lifecycle" in graph["jaxcart.train"]  # the graph is really read
     assert find_cycle(graph) is None, " -> ".join(find_cycle(graph))
 
 
-def test_core_does_not_import_the_layers_above_it():
-    graph = import_graph()
-    above = {"jaxcart.lifecycle", "jaxcart.train", "jaxcart.report", "jaxcart.cli"}
-    for core in ("jaxcart.env", "jaxcart.config", "jaxcart.networks", "jaxcart.ppo"):
-        assert not graph[core] & (above | {"jaxcart.trainer", "jaxcart.rundir"}), core
-    assert "jaxcart.report" not in graph["jaxcart.lifecycle"]  # the lifecycle never prints
+def test_every_subpackage_has_a_layer():
+    subpackages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").exists()}
+    assert subpackages == set(LAYERS) - {""}
+    assert len(subpackages) >= 5
+
+
+def test_the_top_level_holds_only_the_face_and_the_commands():
+    top = {p.stem for p in PACKAGE.glob("*.py")}
+    assert top <= TOP_LEVEL, sorted(top - TOP_LEVEL)
+
+
+def test_imports_point_down_the_layers():
+    wrong = []
+    for module, imports in import_graph().items():
+        sub, level = layer_of(module)
+        for target in imports:
+            target_sub, target_level = layer_of(target)
+            if target_sub != sub and target_level >= level:
+                wrong.append(f"{module} -> {target}")
+    assert not wrong, "imports that point up or sideways:\n" + "\n".join(sorted(wrong))
+
+
+def test_layer_rules_catch_an_upward_import():
+    assert layer_of("jaxcart.core.ppo") == ("core", 0)
+    assert layer_of("jaxcart.train") == ("", 4)
+    assert layer_of("jaxcart.run.lifecycle")[1] > layer_of("jaxcart.rundir.layout")[1]
+
+
+def test_the_lifecycle_never_prints():
+    assert "jaxcart.report" not in import_graph()["jaxcart.run.lifecycle"]
 
 
 @pytest.mark.parametrize("module", sorted(_modules()))
-def test_functions_fit_on_a_screen(module):
+def test_functions_and_classes_fit(module):
     tree = _modules()[module]
     long = [
         f"{node.name} ({node.end_lineno - node.lineno + 1} lines)"
         for node in ast.walk(tree)
-        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
-        and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
+        if (
+            isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
+            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
+        )
+        or (isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > MAX_CLASS_LINES)
     ]
     assert not long, f"{module}: {', '.join(long)}"
+
+
+@pytest.mark.parametrize("module", sorted(_modules()))
+def test_modules_fit(module):
+    assert _lines(module) <= MAX_MODULE_LINES, f"{module}: {_lines(module)} lines"

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from helpers import TINY
 
-from jaxcart import checkpoint, files, rundir
-from jaxcart.config import PPOConfig
-from jaxcart.trainer import initial_state
+from jaxcart.core.config import PPOConfig
+from jaxcart.engine.trainer import initial_state
+from jaxcart.rundir import checkpoint, files
+from jaxcart.rundir import layout as rundir
 
 
 def test_checkpoint_rejects_other_structures(tmp_path):

@@ -14,8 +14,9 @@ import pytest
 from helpers import assert_same_run_dirs, start_train, tiny_args
 
 import jaxcart
-from jaxcart import checkpoint, rundir
-from jaxcart.ppo import METRIC_NAMES
+from jaxcart.core.ppo import METRIC_NAMES
+from jaxcart.rundir import checkpoint
+from jaxcart.rundir import layout as rundir
 from jaxcart.train import build_parser, main
 
 SMALL = [*tiny_args(1024, eval_episodes=3), "--no-compile-cache"]
@@ -79,7 +80,7 @@ def test_load_policy_runs_in_gymnasium(small_run):
     batch = policy(np.zeros((5, 4), np.float32))
     assert batch.shape == (5,)
     # the NumPy policy agrees with the JAX network's argmax
-    from jaxcart.networks import ActorCritic
+    from jaxcart.core.networks import ActorCritic
 
     params = rundir.load_params(small_run)
     one = {
@@ -236,7 +237,7 @@ def test_unknown_options_without_a_near_spelling_get_no_hint(capsys):
 
 
 def test_help_shows_one_default_per_option():
-    from jaxcart.config import PPOConfig, config_fields
+    from jaxcart.core.config import PPOConfig, config_fields
 
     for parser in _parsers():
         text = parser.format_help()
@@ -275,9 +276,9 @@ def test_help_returns_zero_in_process(capsys):
 def test_header_names_what_overrides_the_preset(tmp_path):
     from types import SimpleNamespace
 
-    from jaxcart.config import preset
+    from jaxcart.core.config import preset
     from jaxcart.report import header_line
-    from jaxcart.sweep import RunGrid
+    from jaxcart.run.sweep import RunGrid
 
     def header(config, grid=None, name="sb3"):
         run = SimpleNamespace(grid=grid or RunGrid(2), config=config, preset=name, out=tmp_path)

@@ -14,10 +14,11 @@ from helpers import tiny_args
 from PIL import Image
 from scipy.stats import trim_mean
 
-from jaxcart import compare, stats
-from jaxcart.config import PPOConfig
+from jaxcart import compare
+from jaxcart.analysis import stats
+from jaxcart.core.config import PPOConfig
+from jaxcart.engine.trainer import METRIC_COLUMNS
 from jaxcart.train import main as train_main
-from jaxcart.trainer import METRIC_COLUMNS
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 

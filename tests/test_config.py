@@ -7,8 +7,8 @@ import dataclasses
 import jax
 import pytest
 
-from jaxcart.config import PRESETS, TRACED_FIELDS, ConfigError, PPOConfig, field_docs, preset
-from jaxcart.ppo import Hyperparams
+from jaxcart.core.config import PRESETS, TRACED_FIELDS, ConfigError, PPOConfig, field_docs, preset
+from jaxcart.core.ppo import Hyperparams
 
 
 def test_sb3_defaults():

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from helpers import assert_same_run_dirs, tiny_args
 
-from jaxcart.distributed import launch_local
+from jaxcart.engine.distributed import launch_local
 
 ARGS = [*tiny_args(2048, num_seeds=4), "--no-compile-cache", "--seed", "21"]
 

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from episode_parity import run_episodes
 
-from jaxcart import env as cartpole
+from jaxcart.core import env as cartpole
 
 NUM_STATES = 10_000
 X_LIM = 2.4

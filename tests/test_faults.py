@@ -23,7 +23,8 @@ import pytest
 from conftest import FAULT_FIGURES
 from helpers import TRAIN_ENV, assert_same_run_dirs, start_train, tiny_args
 
-from jaxcart import checkpoint, rundir
+from jaxcart.rundir import checkpoint
+from jaxcart.rundir import layout as rundir
 
 RUN = [*tiny_args(25600, num_seeds=2), "--seed", "11", "--checkpoint-every", "0.2"]
 
@@ -375,7 +376,7 @@ def test_a_failing_checkpoint_write_keeps_the_last_one_and_resume_finishes(
     """ENOSPC injected into the third checkpoint write: one line naming the file, exit 1,
     the previous checkpoint intact and no temporary left; --resume then finishes the run
     bit-identically once writes work again."""
-    from jaxcart import files
+    from jaxcart.rundir import files
     from jaxcart.train import main
 
     reference = tmp_path / "reference"
@@ -461,7 +462,7 @@ def test_a_read_only_filesystem(tmp_path, finished_run):
 
 
 def _rewrite_params(run: Path, change) -> None:
-    from jaxcart import files
+    from jaxcart.rundir import files
 
     arrays, _ = files.load_tree(run / "params.npz")
     change(arrays)
@@ -560,7 +561,7 @@ def test_crafted_run_directories_rejected_by_every_reader(damage, message, finis
 
 
 def _crafted_checkpoint(run: Path) -> None:
-    from jaxcart import files
+    from jaxcart.rundir import files
 
     arrays, meta = files.load_tree(run / checkpoint.CHECKPOINT_FILE)
     name = next(k for k in arrays if k.endswith("actor/out/kernel"))
@@ -658,8 +659,8 @@ def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path, monkeypatch
     uninterrupted run, trained in one batch or in waves of 16."""
     soak = [*tiny_args(51200, num_seeds=64), "--seed", "17", "--checkpoint-every", "0.3"]
     if waves > 1:
-        from jaxcart.config import preset
-        from jaxcart.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run
+        from jaxcart.core.config import preset
+        from jaxcart.run.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run
 
         config = preset(
             "sb3",

@@ -25,7 +25,7 @@ from gymnasium.utils.env_match import check_environments_match
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space
 
-from jaxcart.gym_adapter import ENV_ID, JaxCartPoleEnv, JaxCartPoleVectorEnv
+from jaxcart.gym.adapter import ENV_ID, JaxCartPoleEnv, JaxCartPoleVectorEnv
 
 try:
     import pygame  # noqa: F401  (rendering draws with Gymnasium's pygame renderer)
@@ -100,13 +100,13 @@ def test_make_and_make_vec():
 
 
 def test_make_by_module_id_in_a_fresh_interpreter():
-    """``gym.make("jaxcart.gym_adapter:jaxcart/CartPole-v1")`` imports and registers the env
+    """``gym.make("jaxcart.gym.adapter:jaxcart/CartPole-v1")`` imports and registers the env
     itself; importing the adapter does not import JAX (it loads when an env is built)."""
     code = (
         "import sys, gymnasium as gym\n"
-        "import jaxcart.gym_adapter\n"
+        "import jaxcart.gym.adapter\n"
         "assert 'jax' not in sys.modules, 'the adapter imported JAX'\n"
-        "env = gym.make('jaxcart.gym_adapter:jaxcart/CartPole-v1')\n"
+        "env = gym.make('jaxcart.gym.adapter:jaxcart/CartPole-v1')\n"
         "obs, _ = env.reset(seed=0)\n"
         "assert obs.tolist() == gym.make('CartPole-v1').reset(seed=0)[0].tolist()\n"
         "print(type(env.unwrapped).__name__)\n"
@@ -145,7 +145,7 @@ def test_import_jaxcart_registers_the_env_in_a_fresh_interpreter(first):
         [
             "import sys",
             *(imports if first == "jaxcart" else imports[::-1]),
-            "assert 'jax' not in sys.modules and 'jaxcart.gym_adapter' not in sys.modules",
+            "assert 'jax' not in sys.modules and 'jaxcart.gym.adapter' not in sys.modules",
             "loader = gym.__spec__.loader",
             "assert gym.__loader__ is loader and type(loader).__name__ == 'SourceFileLoader'",
             "assert not any('jaxcart' in type(f).__module__ for f in sys.meta_path)",

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from helpers import TINY, assert_same_run_dirs
 
-from jaxcart import lifecycle, rundir
-from jaxcart.config import ConfigError, PPOConfig
-from jaxcart.evaluate import evaluate_run_dir
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.run import lifecycle
+from jaxcart.run.evaluation import evaluate_run_dir
+from jaxcart.rundir import layout as rundir
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
 OPTIONS = lifecycle.RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)

@@ -12,8 +12,8 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from jaxcart import loggers
-from jaxcart.loggers import LoggerError, LoggerUnavailable, MetricBatch, make_logger
+from jaxcart.run import loggers
+from jaxcart.run.loggers import LoggerError, LoggerUnavailable, MetricBatch, make_logger
 
 RUNS = ["seed0", "seed1"]
 BATCH = 128  # env steps per iteration

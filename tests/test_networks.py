@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcart.networks import ActorCritic, actor_params, mlp, orthogonal
-from jaxcart.policy import NumpyPolicy
+from jaxcart.core.networks import ActorCritic, actor_params, mlp, orthogonal
+from jaxcart.rundir.policy import NumpyPolicy
 
 
 def _gram(w: np.ndarray) -> np.ndarray:

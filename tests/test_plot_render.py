@@ -11,7 +11,10 @@ import pytest
 from helpers import tiny_args
 from PIL import Image, ImageSequence
 
-from jaxcart import evaluate, plot, render
+from jaxcart import evaluate, plot
+from jaxcart.gym import render
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.runs import load_runs
 from jaxcart.train import main as train_main
 
 TINY = [*tiny_args(2048, num_seeds=2), "--no-compile-cache"]
@@ -96,7 +99,7 @@ def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path, monke
     assert plot.main([str(single_seed_run), str(tiny_run), "--dpi", "50"]) == 0
     assert_nontrivial_png(tmp_path / "comparison.png")
     assert not (single_seed_run / "comparison.png").exists()
-    runs = plot.load_runs([single_seed_run, tiny_run])
+    runs = load_runs([single_seed_run, tiny_run])
     assert "different seed counts (1, 2)" in plot.wall_time_notes(runs)[0]
     out = plot.plot_runs([tiny_run, single_seed_run], tmp_path / "both.png", ["a", "b"], dpi=50)
     assert out == tmp_path / "both.png"
@@ -123,18 +126,18 @@ def fake_sweep(tiny_run, out, rates=(0.001, 0.01)):
 
 def test_plot_expands_sweeps_into_labelled_combinations(tiny_run, tmp_path, monkeypatch):
     sweep = fake_sweep(tiny_run, tmp_path / "sweep")
-    runs = plot.load_runs([sweep])
+    runs = load_runs([sweep])
     assert [r.label for r in runs] == [
         "learning_rate=0.001,clip_coef=0.2",
         "learning_rate=0.01,clip_coef=0.2",
     ]
     assert [r.path for r in runs] == [sweep / "combo-000", sweep / "combo-001"]
     assert "share its wall time" in plot.wall_time_notes(runs)[0]
-    labelled = plot.load_runs([tiny_run, sweep], labels=["base", "lr"])
+    labelled = load_runs([tiny_run, sweep], labels=["base", "lr"])
     assert [r.label for r in labelled] == ["base", *(f"lr {r.label}" for r in runs)]
     # The same combinations from two sweeps are told apart by the sweep's name.
     other = fake_sweep(tiny_run, tmp_path / "other")
-    both = [r.label for r in plot.load_runs([sweep, other])]
+    both = [r.label for r in load_runs([sweep, other])]
     assert both[0] == "sweep/learning_rate=0.001,clip_coef=0.2"
     assert both[2] == "other/learning_rate=0.001,clip_coef=0.2"
     monkeypatch.chdir(tmp_path)
@@ -144,8 +147,8 @@ def test_plot_expands_sweeps_into_labelled_combinations(tiny_run, tmp_path, monk
     empty.mkdir()
     shutil.copy(sweep / "config.json", empty)
     shutil.copy(sweep / "sweep.json", empty)
-    with pytest.raises(plot.rundir.RunDirError, match="without combination directories"):
-        plot.load_runs([empty])
+    with pytest.raises(RunDirError, match="without combination directories"):
+        load_runs([empty])
 
 
 def one_line_error(capsys) -> str:

@@ -15,11 +15,16 @@ import pytest
 from helpers import TINY
 
 import jaxcart
-from jaxcart import evaluate, files, lifecycle, plot, rundir
-from jaxcart.checkpoint import CHECKPOINT_FILE
-from jaxcart.config import PPOConfig
-from jaxcart.networks import ActorCritic
-from jaxcart.signals import StopRequest
+from jaxcart import evaluate, plot
+from jaxcart.core.config import PPOConfig
+from jaxcart.core.networks import ActorCritic
+from jaxcart.engine.signals import StopRequest
+from jaxcart.run import lifecycle
+from jaxcart.run.evaluation import evaluate_run_dir
+from jaxcart.rundir import files
+from jaxcart.rundir import layout as rundir
+from jaxcart.rundir.checkpoint import CHECKPOINT_FILE
+from jaxcart.rundir.runs import load_runs
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
 OPTIONS = lifecycle.RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
@@ -144,7 +149,7 @@ def test_evaluate_cli_on_stopped_run_and_sweep(runs, capsys):
         f"{runs['stopped']})"
     )
     assert lines[2].split() == ["seed", "mean", "min", "solved"] and len(lines) == 7
-    returns, info = evaluate.evaluate_run_dir(runs["stopped"], episodes=2)
+    returns, info = evaluate_run_dir(runs["stopped"], episodes=2)
     assert returns.shape == (2, 2) and info["note"] == STOPPED_NOTE
 
     assert evaluate.main([str(runs["sweep"]), "--episodes", "2"]) == 0
@@ -171,7 +176,7 @@ def test_plot_stopped_run_and_sweep(runs, tmp_path, monkeypatch, capsys):
     captured = capsys.readouterr()
     assert captured.out.strip() == str(tmp_path / "run.png")
     assert f"curves drawn {STOPPED_NOTE}; no Gymnasium evaluation" in captured.err
-    (run,) = plot.load_runs([stopped])
+    (run,) = load_runs([stopped])
     arrays, _ = files.load_tree(stopped / CHECKPOINT_FILE)
     np.testing.assert_array_equal(
         run.metrics["rollout/ep_rew_mean"], arrays["metrics/rollout/ep_rew_mean"]
@@ -188,7 +193,7 @@ def test_plot_stopped_run_and_sweep(runs, tmp_path, monkeypatch, capsys):
     captured = capsys.readouterr()
     assert captured.out.strip() == "comparison.png" and (tmp_path / "comparison.png").is_file()
     assert f"a sweep: its 2 combinations drawn {STOPPED_NOTE}" in captured.err
-    combos = plot.load_runs([sweep])
+    combos = load_runs([sweep])
     assert [r.label for r in combos] == ["learning_rate=0.001", "learning_rate=0.003"]
     metrics = files.load_tree(sweep / CHECKPOINT_FILE)[0]["metrics/train/approx_kl"]
     np.testing.assert_array_equal(combos[1].metrics["train/approx_kl"], metrics[:, 2:4])

@@ -9,9 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcart.config import PPOConfig
-from jaxcart.networks import ActorCritic
-from jaxcart.ppo import (
+from jaxcart.core.config import PPOConfig
+from jaxcart.core.networks import ActorCritic
+from jaxcart.core.ppo import (
     Batch,
     EpisodeBuffer,
     Hyperparams,
@@ -208,7 +208,7 @@ def test_episode_buffer_keeps_last_100_in_order():
 def test_categorical_helpers_match_distrax():
     import distrax
 
-    from jaxcart.ppo import categorical_entropy, categorical_log_prob
+    from jaxcart.core.ppo import categorical_entropy, categorical_log_prob
 
     logits = jax.random.normal(jax.random.PRNGKey(0), (50, 2)) * 3
     action = jax.random.randint(jax.random.PRNGKey(1), (50,), 0, 2)
@@ -230,7 +230,7 @@ PROBE = PPOConfig(num_envs=8, num_steps=16, minibatch_size=32, update_epochs=4, 
 
 def _train_on_probe(reward_fn, iterations: int = 40, seed: int = 0):
     """PPO's own GAE + update on a one-step probe env; returns (params, network)."""
-    from jaxcart.ppo import categorical_log_prob, make_optimizer, update_epochs
+    from jaxcart.core.ppo import categorical_log_prob, make_optimizer, update_epochs
 
     network = ActorCritic(hidden_sizes=(16,))
     params = jax.tree.map(jnp.asarray, network.init(np.random.default_rng(seed)))

@@ -1,4 +1,4 @@
-"""jaxcart.stats on fixed samples: values worked out by hand (in the comments) or by brute
+"""jaxcart.analysis.stats on fixed samples: values worked out by hand (in the comments) or by brute
 force, against the definitions of rliable 1.2.0 (Agarwal et al. 2021)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.stats import mannwhitneyu, trim_mean
 
-from jaxcart import stats
+from jaxcart.analysis import stats
 
 SAMPLE = np.array([0.0, 10, 20, 30, 40, 50, 60, 500])
 

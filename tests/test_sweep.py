@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from helpers import tiny_args
 
-from jaxcart import rundir, stats
-from jaxcart.sweep import RunGrid, parse_sweep, rank
+from jaxcart.analysis import stats
+from jaxcart.run.sweep import RunGrid, parse_sweep, rank
+from jaxcart.rundir import layout as rundir
 from jaxcart.train import main
 
 

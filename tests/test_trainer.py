@@ -9,15 +9,15 @@ import jax
 import numpy as np
 from helpers import TINY, assert_same_results
 
-from jaxcart import checkpoint
-from jaxcart.env import EnvParams
-from jaxcart.trainer import (
+from jaxcart.core.env import EnvParams
+from jaxcart.engine.trainer import (
     broadcast_hyperparams,
     compiled_chunk,
     init_runners,
     initial_state,
     train,
 )
+from jaxcart.rundir import checkpoint
 
 
 def test_resume_from_checkpoint_is_bit_identical(tmp_path):

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from helpers import TINY, TRAIN_ENV, assert_same_run_dirs, tiny_args
 
-from jaxcart import rundir
-from jaxcart.config import ConfigError, PPOConfig, preset
-from jaxcart.env import EnvParams
-from jaxcart.trainer import compiled_chunk, initial_state, train
-from jaxcart.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run, plan_waves
+from jaxcart.core.config import ConfigError, PPOConfig, preset
+from jaxcart.core.env import EnvParams
+from jaxcart.engine.trainer import compiled_chunk, initial_state, train
+from jaxcart.run.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run, plan_waves
+from jaxcart.rundir import layout as rundir
 
 
 def memory_for(config: PPOConfig, runs: int, episodes: int = 2) -> int:

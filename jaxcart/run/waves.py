@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxcart.config import ConfigError, PPOConfig
+from jaxcart.core.config import ConfigError, PPOConfig
 
 TEMP_BYTES_PER_TRANSITION = 800
 FIXED_BYTES_PER_RUN = 300_000
@@ -41,7 +41,7 @@ def bytes_per_run(config: PPOConfig, eval_episodes: int = 20) -> int:
     """Estimated peak host memory of one run while it trains and is evaluated, in bytes."""
     import jax
 
-    from jaxcart.trainer import initial_state
+    from jaxcart.engine.trainer import initial_state
 
     state = initial_state(config, 1, 0)
     state_bytes = sum(np.asarray(x).nbytes for x in jax.tree.leaves(state.runners))

@@ -1,7 +1,7 @@
 """Checkpoints of the full training state, written atomically.
 
-A checkpoint is one tree file (:mod:`jaxcart.files`): every array of the
-:class:`~jaxcart.trainer.TrainState` under its tree path (``state/runners/params/params/actor/
+A checkpoint is one tree file (:mod:`jaxcart.rundir.files`): every array of the
+:class:`~jaxcart.engine.trainer.TrainState` under its tree path (``state/runners/params/params/actor/
 hidden_0/kernel``, ``state/hyperparams/learning_rate``, ...), the metrics so far under
 ``metrics/<name>``, and a JSON ``__meta__`` entry (iteration, elapsed time, chunk size, config,
 package versions). It is written beside the target, fsynced and renamed over the previous
@@ -18,9 +18,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxcart import files
-from jaxcart.files import RunDirError
-from jaxcart.trainer import TrainState
+from jaxcart.engine.trainer import TrainState
+from jaxcart.rundir import files
+from jaxcart.rundir.files import RunDirError
 
 CHECKPOINT_FILE = "checkpoint.npz"
 CHECKPOINT_FORMAT = 2

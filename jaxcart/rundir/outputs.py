@@ -22,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart import files, rundir
-from jaxcart.evaluate import SOLVED_DEFINITION, is_solved
+from jaxcart.core.solved import SOLVED_DEFINITION, is_solved
+from jaxcart.rundir import files
+from jaxcart.rundir import layout as rundir
 
 WAVES_DIR = "waves"
 PARAMS = "params/"

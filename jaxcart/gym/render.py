@@ -8,7 +8,7 @@ evaluation measures. Needs Pillow (``pip install pillow pygame``).
 Example::
 
     import jaxcart
-    from jaxcart.render import render_gif
+    from jaxcart.gym.render import render_gif
 
     render_gif(jaxcart.load_policy("runs/my-run"), "cartpole.gif")
 """
@@ -241,7 +241,7 @@ def render_gif(
     duration = max(10, round(100 * frame_skip / fps) * 10)
     import io
 
-    from jaxcart.files import atomic_write_bytes
+    from jaxcart.rundir.files import atomic_write_bytes
 
     buf = io.BytesIO()
     images[0].save(

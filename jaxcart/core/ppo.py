@@ -20,9 +20,9 @@ import numpy as np
 import optax
 from flax import struct
 
-from jaxcart import env as cartpole
-from jaxcart.config import TRACED_FIELDS, PPOConfig
-from jaxcart.networks import ActorCritic
+from jaxcart.core import env as cartpole
+from jaxcart.core.config import TRACED_FIELDS, PPOConfig
+from jaxcart.core.networks import ActorCritic
 
 Array = jax.Array
 
@@ -47,7 +47,7 @@ METRIC_NAMES = (
 
 @jax.tree_util.register_pytree_with_keys_class
 class Hyperparams:
-    """The traced float hyperparameters (:data:`~jaxcart.config.TRACED_FIELDS`, declared on
+    """The traced float hyperparameters (:data:`~jaxcart.core.config.TRACED_FIELDS`, declared on
     :class:`PPOConfig`) as arrays: scalars for one run, ``[S]`` for S runs.
 
     Read them as attributes (``hp.clip_coef``); a pytree whose leaves are named by field.

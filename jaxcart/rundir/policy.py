@@ -16,12 +16,14 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxcart import files, networks, rundir
-from jaxcart.config import ConfigError, PPOConfig
-from jaxcart.files import RunDirError
+from jaxcart.core import networks
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.rundir import files
+from jaxcart.rundir import layout as rundir
+from jaxcart.rundir.files import RunDirError
 
 CHECKPOINT_PARAMS = "state/runners/params/"
-"""Where a checkpoint (:mod:`jaxcart.checkpoint`) keeps the parameters, leaves ``[R, ...]``."""
+"""Where a checkpoint (:mod:`jaxcart.rundir.checkpoint`) keeps the parameters, leaves ``[R, ...]``."""
 CHECKPOINT_METRICS = "metrics/"
 """Where it keeps the metrics so far, ``metrics/<name>``, each ``[iterations, R]``."""
 
@@ -29,7 +31,7 @@ CHECKPOINT_METRICS = "metrics/"
 class NumpyPolicy:
     """Actor in plain NumPy, for one or a stack of seeds.
 
-    ``actor`` holds the actor's layers (:func:`jaxcart.networks.actor_params`), with a leading
+    ``actor`` holds the actor's layers (:func:`jaxcart.core.networks.actor_params`), with a leading
     seed axis ``[S, ...]`` on every array when ``stacked``. Calling it on float32 observations
     returns actions: ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked
     ``(S, N, 4) -> (S, N)``. Greedy (argmax) when ``deterministic``, else sampled from the
@@ -137,7 +139,7 @@ def checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> Che
     Raises:
         RunDirError: no usable checkpoint.
     """
-    from jaxcart.checkpoint import CHECKPOINT_FILE, read_checkpoint_meta
+    from jaxcart.rundir.checkpoint import CHECKPOINT_FILE, read_checkpoint_meta
 
     run_dir = Path(run_dir)
     info = info or rundir.read_run_config(run_dir)

@@ -2,7 +2,7 @@
 
 Everything about the network lives here: its parameter names, its initialisation (the one
 training uses) and its forward pass (in JAX for training, in NumPy for the policies that
-:mod:`jaxcart.policy` hands to Gymnasium loops).
+:mod:`jaxcart.rundir.policy` hands to Gymnasium loops).
 
 Parameters are a plain nested dict, ``{"params": {"actor": LAYERS, "critic": LAYERS}}`` with
 ``LAYERS = {"hidden_0": {"kernel", "bias"}, ..., "out": {"kernel", "bias"}}``; kernels are
@@ -91,7 +91,7 @@ class ActorCritic:
 
     @classmethod
     def from_config(cls, config: Any) -> ActorCritic:
-        """The network a :class:`~jaxcart.config.PPOConfig` describes."""
+        """The network a :class:`~jaxcart.core.config.PPOConfig` describes."""
         return cls(
             hidden_sizes=config.hidden_sizes,
             activation=config.activation,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from jaxcart.files import RunDirError
+from jaxcart.rundir.files import RunDirError
 
 LOCK_FILE = ".lock"
 

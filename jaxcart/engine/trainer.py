@@ -1,7 +1,7 @@
 """Host side of training: builds the batch of runs, shards it over devices, compiles the fused
 chunk once (timed on its own), and runs it chunk by chunk so progress can be reported.
 
-This is the engine under :mod:`jaxcart.lifecycle`: it knows runs (the vmapped axis), not run
+This is the engine under :mod:`jaxcart.run.lifecycle`: it knows runs (the vmapped axis), not run
 directories, combinations or printing. A run is one independent agent; without a sweep the
 runs are the seeds.
 """
@@ -19,10 +19,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxcart import distributed
-from jaxcart import env as cartpole
-from jaxcart.config import PPOConfig
-from jaxcart.ppo import (
+from jaxcart.core import env as cartpole
+from jaxcart.core.config import PPOConfig
+from jaxcart.core.ppo import (
     METRIC_NAMES,
     Hyperparams,
     RunnerState,
@@ -30,7 +29,8 @@ from jaxcart.ppo import (
     make_network,
     train_chunk,
 )
-from jaxcart.signals import wait_interruptibly
+from jaxcart.engine import distributed
+from jaxcart.engine.signals import wait_interruptibly
 
 
 def seed_keys(seed: int, num_seeds: int) -> jax.Array:
@@ -74,7 +74,7 @@ def init_runners(
     Run r draws from ``fold_in(PRNGKey(seed), seed_indices[r])``: seed index i starts the same
     whatever runs beside it, and a sweep repeats the seed indices for every combination so
     combinations share random numbers. Drawn on the host (:meth:`ActorCritic.init
-    <jaxcart.networks.ActorCritic.init>` and resets uniform in the reset bounds), so there
+    <jaxcart.core.networks.ActorCritic.init>` and resets uniform in the reset bounds), so there
     is no initialisation program to compile. ``on_progress(done, total)`` is called every
     1024 runs (it may raise to abandon the initialisation).
     """
@@ -359,7 +359,7 @@ _COMPILED: dict = {}
 def compiled_chunk(
     config: PPOConfig, env_params: cartpole.EnvParams, chunk_size: int, runners, hps
 ) -> tuple[Callable, bool]:
-    """The compiled :func:`~jaxcart.ppo.train_chunk` for these shapes and devices.
+    """The compiled :func:`~jaxcart.core.ppo.train_chunk` for these shapes and devices.
 
     Kept per process, keyed by what shapes the program: the static part of the config
     (:meth:`PPOConfig.static`), the env constants, the chunk size and the runs' array shapes

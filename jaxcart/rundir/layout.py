@@ -4,11 +4,11 @@ Layout of ``RUN_DIR``:
 
 - ``config.json``: the PPO config, preset, seeds, device count and package versions;
 - ``metrics.csv``: one row per seed and iteration, SB3 metric names as columns;
-- ``params.npz``: every seed's network parameters, a tree file (:mod:`jaxcart.files`) with
+- ``params.npz``: every seed's network parameters, a tree file (:mod:`jaxcart.rundir.files`) with
   arrays ``[num_seeds, ...]`` keyed by path (``params/actor/hidden_0/kernel``, ...);
 - ``evaluation.json``: per-seed greedy evaluation in Gymnasium's CartPole-v1 (and in jaxcart);
 - ``checkpoint.npz``: the full training state while a run is unfinished
-  (:mod:`jaxcart.checkpoint`);
+  (:mod:`jaxcart.rundir.checkpoint`);
 - a sweep's directory holds ``config.json``, ``sweep.json`` and one run directory per
   combination, ``combo-000``, ``combo-001``, ...
 """
@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart import files
-from jaxcart.config import ConfigError, PPOConfig
-from jaxcart.files import RunDirError, atomic_write_bytes, write_json
-from jaxcart.networks import ActorCritic
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.networks import ActorCritic
+from jaxcart.rundir import files
+from jaxcart.rundir.files import RunDirError, atomic_write_bytes, write_json
 
 FORMAT_VERSION = 1
 CONFIG_FILE = "config.json"

@@ -14,7 +14,7 @@ imported, before or after jaxcart; see ``jaxcart/__init__.py``)::
 them), the same reward, ``terminated`` and ``{}`` info, ``truncated`` always ``False`` (the
 ``TimeLimit`` from registration truncates at 500 steps, as for ``CartPole-v1``), the same
 ``AssertionError`` for an invalid action, and a ``state`` attribute to read or inject the
-physical state. The physics step is jaxcart's :func:`jaxcart.env.step_env`.
+physical state. The physics step is jaxcart's :func:`jaxcart.core.env.step_env`.
 
 :class:`JaxCartPoleVectorEnv` is a drop-in for Gymnasium's ``CartPoleVectorEnv``, with a choice
 of autoreset mode (``autoreset_mode=``: ``NEXT_STEP`` by default, as Gymnasium's; ``SAME_STEP``
@@ -47,20 +47,10 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from jaxcart import _GYMNASIUM_ENV_ID, _register_gymnasium_envs
+from jaxcart.gym import ENV_ID
 
 if TYPE_CHECKING:
-    from jaxcart.env import EnvParams
-
-ENV_ID = _GYMNASIUM_ENV_ID
-
-
-def register_envs() -> None:
-    """Registers ``jaxcart/CartPole-v1`` (single and vector entry points); idempotent.
-
-    ``import jaxcart`` already does this once Gymnasium is imported.
-    """
-    _register_gymnasium_envs()
+    from jaxcart.core.env import EnvParams
 
 
 def _precision(x64: bool):
@@ -85,7 +75,7 @@ def _make_params(
     leaf a Python scalar, so that :func:`_compile_key` can key the cache of compiled programs."""
     import jax
 
-    from jaxcart import env as cartpole
+    from jaxcart.core import env as cartpole
 
     params = cartpole.EnvParams() if params is None else params
     if sutton_barto_reward is not None:
@@ -165,7 +155,7 @@ def _single_step(packed, action, floats, params: EnvParams):
     parameters (see :func:`_float_values`)."""
     import jax.numpy as jnp
 
-    from jaxcart import env as cartpole
+    from jaxcart.core import env as cartpole
 
     state = cartpole.state_from_obs(packed[:4])
     params = _with_floats(params, floats)
@@ -194,13 +184,13 @@ def _num_rows(mode: AutoresetMode) -> int:
 def _start_states(key, floats, num_envs: int, dtype):
     """Fresh start states ``[4, num_envs]``, uniform in ``[low, high)`` (the last two floats).
 
-    Drawn with jaxcart's counter hash (:func:`jaxcart.env.hash_uniform`) in float32 (one hash
+    Drawn with jaxcart's counter hash (:func:`jaxcart.core.env.hash_uniform`) in float32 (one hash
     per number; the values are then exact in float64 too); Threefry would cost more than the
     physics.
     """
     import jax.numpy as jnp
 
-    from jaxcart import env as cartpole
+    from jaxcart.core import env as cartpole
 
     low, high = floats[-2:].astype(jnp.float32)
     return cartpole.hash_uniform(key, (4, num_envs), jnp.float32, low, high).astype(dtype)
@@ -232,7 +222,7 @@ def _vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
     """
     import jax.numpy as jnp
 
-    from jaxcart import env as cartpole
+    from jaxcart.core import env as cartpole
 
     actions, key = inputs[:-2], inputs[-2:]
     ended = rows[_ENDED] != 0  # on the previous step
@@ -399,7 +389,7 @@ class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
         render_mode: ``None`` or ``"rgb_array"``.
         sutton_barto_reward: Gymnasium's option (0 per step, -1 on failure); overrides
             ``params.sutton_barto_reward`` when given.
-        params: jaxcart :class:`~jaxcart.env.EnvParams` (physics, thresholds, reset bounds,
+        params: jaxcart :class:`~jaxcart.core.env.EnvParams` (physics, thresholds, reset bounds,
             integrator); default CartPole-v1's. ``params.max_episode_steps`` is not used: as
             with Gymnasium's ``CartPoleEnv``, the episode limit is the ``TimeLimit`` wrapper's.
         float64: step the physics in float64 (JAX x64 enabled for this env's calls only), as
@@ -425,7 +415,7 @@ class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
     ) -> None:
         import jax.numpy as jnp
 
-        from jaxcart import env as cartpole
+        from jaxcart.core import env as cartpole
 
         _check_render_mode(render_mode, self.metadata)
         self.params = _make_params(params, sutton_barto_reward, None)
@@ -555,7 +545,7 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             ``params.max_episode_steps`` when given.
         render_mode: ``None`` or ``"rgb_array"`` (a list of ``num_envs`` frames).
         sutton_barto_reward: as for :class:`JaxCartPoleEnv`.
-        params: jaxcart :class:`~jaxcart.env.EnvParams`; default CartPole-v1's.
+        params: jaxcart :class:`~jaxcart.core.env.EnvParams`; default CartPole-v1's.
         float64: as for :class:`JaxCartPoleEnv` (the batch state stays on the JAX device in
             that precision).
         autoreset_mode: a ``gymnasium.vector.AutoresetMode`` or its value (``"NextStep"``,
@@ -583,7 +573,7 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         float64: bool = True,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
     ) -> None:
-        from jaxcart import env as cartpole
+        from jaxcart.core import env as cartpole
 
         if num_envs < 1:
             raise ValueError(f"num_envs must be at least 1, got {num_envs}")

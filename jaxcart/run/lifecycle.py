@@ -3,7 +3,7 @@ chunks with callbacks, gather, evaluate and write the run directory. Nothing her
 
 The command line (:mod:`jaxcart.train`), notebooks and benchmarks all go through it::
 
-    from jaxcart.lifecycle import RunSpec, run_new, resume_run
+    from jaxcart.run.lifecycle import RunSpec, run_new, resume_run
     outcome = run_new(RunSpec(config=preset("fast"), num_seeds=8), out="runs/fast8")
     outcome.evaluation.solved            # [8] bool, Gymnasium greedy evaluation
     outcome = resume_run("runs/fast8")   # after an interruption
@@ -24,17 +24,20 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxcart import checkpoint, devices, distributed, files, outputs, rundir
-from jaxcart import sweep as sweeps
-from jaxcart.config import ConfigError, PPOConfig
-from jaxcart.evaluate import NUM_EVAL_EPISODES, evaluate_runs, is_solved
-from jaxcart.files import RunDirError
-from jaxcart.loggers import Logger, LoggerUnavailable, check_available, make_logger
-from jaxcart.ppo import Hyperparams
-from jaxcart.runlock import RunLock
-from jaxcart.signals import Stopped, StopRequest
-from jaxcart.trainer import Progress, TrainResult, TrainState, initial_state, train
-from jaxcart.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.ppo import Hyperparams
+from jaxcart.core.solved import NUM_EVAL_EPISODES, is_solved
+from jaxcart.engine import devices, distributed
+from jaxcart.engine.signals import Stopped, StopRequest
+from jaxcart.engine.trainer import Progress, TrainResult, TrainState, initial_state, train
+from jaxcart.run import sweep as sweeps
+from jaxcart.run.evaluation import evaluate_runs
+from jaxcart.run.loggers import Logger, LoggerUnavailable, check_available, make_logger
+from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
+from jaxcart.rundir import checkpoint, files, outputs
+from jaxcart.rundir import layout as rundir
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.lock import RunLock
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 
@@ -402,7 +405,7 @@ class Run:
         stop: StopRequest | None = None,
     ) -> Evaluation:
         """Greedy returns of ``runs`` (default all) in Gymnasium's CartPole-v1 and in jaxcart
-        (raises :class:`~jaxcart.signals.Stopped` when ``stop`` is requested meanwhile)."""
+        (raises :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile)."""
         runs = runs if runs is not None else range(self.grid.num_runs)
         start = time.perf_counter()
         gym_returns, jax_returns = evaluate_runs(
@@ -630,7 +633,7 @@ def run_new(
 ) -> Outcome:
     """Creates a run directory for ``spec`` and carries the run out (see :func:`carry_out`).
 
-    The runs train in waves when they do not all fit in memory (:mod:`jaxcart.waves`);
+    The runs train in waves when they do not all fit in memory (:mod:`jaxcart.run.waves`);
     ``command`` (the command line, when there is one) is recorded in ``config.json``.
     """
     options = options or RunOptions()

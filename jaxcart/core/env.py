@@ -1,0 +1,286 @@
+"""CartPole-v1 as pure JAX functions, numerically matching Gymnasium's classic-control CartPole.
+
+The ground truth is ``gymnasium/envs/classic_control/cartpole.py`` wrapped in ``TimeLimit``
+(what ``gymnasium.make("CartPole-v1")`` returns):
+
+- reward +1 on every step, the terminating one included (Sutton-Barto mode: 0, and -1 on the
+  terminating step);
+- ``terminated`` when ``|x| > x_threshold`` or ``|theta| > theta_threshold_radians`` after
+  the step;
+- ``truncated`` when the episode's step count reaches ``max_episode_steps``; both flags are
+  true when the pole falls on that last step.
+
+:func:`step` resets finished episodes on the same step (the convention of vectorised
+training loops): the returned observation is the first of the next episode and the last
+observation of the finished one is kept in ``info["final_obs"]``. :func:`step_env` is the
+transition alone, without the reset.
+
+Everything is float32 unless JAX's x64 mode is on, in which case it is float64.
+
+Actions: ``1`` pushes right, anything else pushes left. The functional env does not check
+actions (a check inside a compiled program could not raise); the Gymnasium adapter does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+Array = jax.Array
+
+
+@struct.dataclass
+class EnvParams:
+    """Constants of CartPole-v1, named and valued as in Gymnasium's ``CartPoleEnv``.
+
+    Derived quantities (total mass, pole mass times length) are computed in :func:`step_env`
+    from these, so changing ``masspole`` or ``length`` changes the dynamics consistently.
+    """
+
+    gravity: float = 9.8
+    masscart: float = 1.0
+    masspole: float = 0.1
+    length: float = 0.5  # half the pole's length, as in Gymnasium
+    force_mag: float = 10.0
+    tau: float = 0.02  # seconds between state updates
+    x_threshold: float = 2.4
+    theta_threshold_radians: float = 12 * 2 * math.pi / 360
+    max_episode_steps: int = 500
+    sutton_barto_reward: bool = False
+    reset_low: float = -0.05
+    reset_high: float = 0.05
+    # A string selects code, so it is static: changing it recompiles.
+    kinematics_integrator: str = struct.field(pytree_node=False, default="euler")
+
+    def __post_init__(self) -> None:
+        if self.kinematics_integrator not in ("euler", "semi-implicit"):
+            raise ValueError(
+                f"kinematics_integrator must be 'euler' or 'semi-implicit', "
+                f"got {self.kinematics_integrator!r}"
+            )
+
+
+@struct.dataclass
+class EnvState:
+    """Physical state of one cart-pole plus the number of steps taken in this episode.
+
+    All fields are scalars for one env; ``jax.vmap`` adds leading batch axes.
+    """
+
+    x: Array
+    x_dot: Array
+    theta: Array
+    theta_dot: Array
+    step_count: Array  # int32
+
+
+def default_params() -> EnvParams:
+    """The parameters of ``gymnasium.make("CartPole-v1")``."""
+    return EnvParams()
+
+
+def float_dtype() -> jnp.dtype:
+    """float64 when JAX's x64 mode is on, float32 otherwise."""
+    return jnp.zeros(()).dtype
+
+
+def get_obs(state: EnvState) -> Array:
+    """Observation ``[x, x_dot, theta, theta_dot]``, shape ``(4,)`` (plus batch axes)."""
+    return jnp.stack([state.x, state.x_dot, state.theta, state.theta_dot], axis=-1)
+
+
+def state_from_obs(obs: Any, step_count: Any = 0) -> EnvState:
+    """Builds an :class:`EnvState` from an array ``(..., 4)``, e.g. Gymnasium's ``env.state``."""
+    obs = jnp.asarray(obs, dtype=float_dtype())
+    return EnvState(
+        x=obs[..., 0],
+        x_dot=obs[..., 1],
+        theta=obs[..., 2],
+        theta_dot=obs[..., 3],
+        step_count=jnp.broadcast_to(jnp.asarray(step_count, jnp.int32), obs.shape[:-1]),
+    )
+
+
+def reset(key: Array, params: EnvParams) -> tuple[Array, EnvState]:
+    """Starts an episode: each state variable uniform in ``[reset_low, reset_high)``.
+
+    Returns:
+        ``(obs, state)`` with ``obs`` of shape ``(4,)``.
+    """
+    dtype = float_dtype()
+    s = jax.random.uniform(
+        key, (4,), dtype=dtype, minval=params.reset_low, maxval=params.reset_high
+    )
+    state = EnvState(
+        x=s[0], x_dot=s[1], theta=s[2], theta_dot=s[3], step_count=jnp.zeros((), jnp.int32)
+    )
+    return get_obs(state), state
+
+
+def step_env(
+    state: EnvState, action: Array, params: EnvParams
+) -> tuple[Array, EnvState, Array, Array, Array]:
+    """One physics step without autoreset, in Gymnasium's order of operations.
+
+    Args:
+        state: current state (scalar fields).
+        action: int scalar; ``1`` pushes right, anything else left.
+        params: environment constants.
+
+    Returns:
+        ``(obs, state, reward, terminated, truncated)``; obs ``(4,)``, the rest scalars.
+    """
+    total_mass = params.masspole + params.masscart
+    polemass_length = params.masspole * params.length
+    force = jnp.where(action == 1, params.force_mag, -params.force_mag)
+    costheta = jnp.cos(state.theta)
+    sintheta = jnp.sin(state.theta)
+
+    temp = (force + polemass_length * jnp.square(state.theta_dot) * sintheta) / total_mass
+    thetaacc = (params.gravity * sintheta - costheta * temp) / (
+        params.length * (4.0 / 3.0 - params.masspole * jnp.square(costheta) / total_mass)
+    )
+    xacc = temp - polemass_length * thetaacc * costheta / total_mass
+
+    tau = params.tau
+    if params.kinematics_integrator == "euler":
+        x = state.x + tau * state.x_dot
+        x_dot = state.x_dot + tau * xacc
+        theta = state.theta + tau * state.theta_dot
+        theta_dot = state.theta_dot + tau * thetaacc
+    else:  # semi-implicit Euler: velocities first, then positions from the new velocities
+        x_dot = state.x_dot + tau * xacc
+        x = state.x + tau * x_dot
+        theta_dot = state.theta_dot + tau * thetaacc
+        theta = state.theta + tau * theta_dot
+
+    step_count = state.step_count + 1
+    new_state = EnvState(x=x, x_dot=x_dot, theta=theta, theta_dot=theta_dot, step_count=step_count)
+
+    terminated = (
+        (x < -params.x_threshold)
+        | (x > params.x_threshold)
+        | (theta < -params.theta_threshold_radians)
+        | (theta > params.theta_threshold_radians)
+    )
+    # TimeLimit truncates on the step that reaches the limit, whether or not the pole fell.
+    truncated = step_count >= params.max_episode_steps
+    dtype = x.dtype
+    # Gymnasium pays +1 on every step, the terminating one included; Sutton-Barto pays 0 and
+    # -1 on the terminating step.
+    reward = jnp.where(
+        params.sutton_barto_reward,
+        jnp.where(terminated, -1.0, 0.0),
+        1.0,
+    ).astype(dtype)
+    return get_obs(new_state), new_state, reward, terminated, truncated
+
+
+def step(
+    key: Array, state: EnvState, action: Array, params: EnvParams
+) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
+    """One step with same-step autoreset.
+
+    When the episode ends (terminated or truncated), the returned ``obs``/``state`` are those of
+    a fresh episode drawn with ``key``, and the episode's last observation is in
+    ``info["final_obs"]``. When it does not end, ``info["final_obs"]`` equals ``obs``.
+
+    Returns:
+        ``(obs, state, reward, terminated, truncated, info)``; obs and ``final_obs`` ``(4,)``.
+    """
+    final_obs, next_state, reward, terminated, truncated = step_env(state, action, params)
+    reset_obs, reset_state = reset(key, params)
+    done = terminated | truncated
+    obs, state_out = _autoreset(done, reset_obs, reset_state, final_obs, next_state)
+    return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
+
+
+def _autoreset(
+    done: Array, reset_obs: Array, reset_state: EnvState, final_obs: Array, next_state: EnvState
+) -> tuple[Array, EnvState]:
+    """Where ``done``, the fresh episode's observation and state, else the stepped ones."""
+    state = jax.tree.map(lambda r, n: jnp.where(done, r, n), reset_state, next_state)
+    return jnp.where(done[..., None], reset_obs, final_obs), state
+
+
+def _fmix32(x: Array) -> Array:
+    """MurmurHash3's 32-bit finaliser: a bijection with full avalanche."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x85EBCA6B)
+    x = x ^ (x >> 13)
+    x = x * jnp.uint32(0xC2B2AE35)
+    return x ^ (x >> 16)
+
+
+def hash_uniform(
+    key: Array, shape: tuple[int, ...], dtype=None, minval: float = 0.0, maxval: float = 1.0
+) -> Array:
+    """Uniform numbers in ``[minval, maxval)`` from a keyed counter hash.
+
+    Element ``i`` is ``fmix32(fmix32(i * golden + k0) ^ k1)`` for the key's two words
+    ``(k0, k1)``: a counter-based generator like Threefry, with far fewer rounds (about 12
+    integer operations per number instead of ~80). That is plenty for CartPole's reset noise
+    (``tests/test_env_parity.py`` checks uniformity and independence) and it keeps the
+    vectorised env physics-bound. float32 gets 24 random bits, float64 53 (two hashes).
+    """
+    dtype = dtype or float_dtype()
+    words = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    words = words.astype(jnp.uint32)
+    size = math.prod(shape)
+    counter = jnp.arange(size, dtype=jnp.uint32)
+
+    def bits(c: Array) -> Array:
+        return _fmix32(_fmix32(c * jnp.uint32(0x9E3779B9) + words[0]) ^ words[1])
+
+    if jnp.dtype(dtype) == jnp.float64:
+        hi = (bits(2 * counter) >> 6).astype(dtype)  # 26 bits
+        lo = (bits(2 * counter + 1) >> 5).astype(dtype)  # 27 bits
+        unit = (hi * 2.0**27 + lo) * 2.0**-53
+    else:
+        unit = (bits(counter) >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype)
+    return (minval + (maxval - minval) * unit).reshape(shape).astype(dtype)
+
+
+def step_batch(
+    key: Array, state: EnvState, action: Array, params: EnvParams
+) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
+    """:func:`step` for a batch of envs (state fields ``[N]``, actions ``[N]``) with one key.
+
+    Same semantics as ``jax.vmap(step)`` with per-env keys, but the reset states of the whole
+    batch come from :func:`hash_uniform` keyed by ``key``: on CPU, drawing 4 Threefry uniforms
+    per env and step costs about three times the physics, which made the env RNG-bound. The
+    physics is elementwise, so no vmap is needed.
+
+    Returns:
+        ``(obs [N, 4], state, reward [N], terminated [N], truncated [N], {"final_obs": [N, 4]})``.
+    """
+    final_obs, next_state, reward, terminated, truncated = step_env(state, action, params)
+    done = terminated | truncated
+    noise = hash_uniform(
+        key, (done.shape[0], 4), final_obs.dtype, params.reset_low, params.reset_high
+    )
+    obs, state_out = _autoreset(done, noise, state_from_obs(noise), final_obs, next_state)
+    return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
+
+
+def observation_space(params: EnvParams | None = None):
+    """Gymnasium's ``Box`` for CartPole observations (twice the termination thresholds)."""
+    import numpy as np
+    from gymnasium import spaces
+
+    p = params or EnvParams()
+    high = np.array(
+        [p.x_threshold * 2, np.inf, p.theta_threshold_radians * 2, np.inf], dtype=np.float32
+    )
+    return spaces.Box(-high, high, dtype=np.float32)
+
+
+def action_space(params: EnvParams | None = None):
+    """Gymnasium's ``Discrete(2)``: 0 pushes the cart left, 1 pushes it right."""
+    from gymnasium import spaces
+
+    return spaces.Discrete(2)
