@@ -259,7 +259,9 @@ def test_invalid_integrator_rejected():
 
 
 def test_describe_lists_bounds_and_limits(capsys):
-    assert cartpole.main([]) == 0
+    from jaxcart import env as env_command
+
+    assert env_command.main([]) == 0
     out = capsys.readouterr().out
     for text in ("Discrete(2)", "2.4", "0.209440", "500", "-0.05"):
         assert text in out
