@@ -74,6 +74,6 @@ fi
 
 echo
 echo "Done. Run, from the repository root:"
-echo "  benchmarks/.venv-bench/bin/python benchmarks/env_throughput.py"
-echo "  benchmarks/.venv-bench/bin/python benchmarks/train_speed.py"
-echo "  benchmarks/.venv-bench/bin/python benchmarks/train_speed.py --time-to-solve --seeds 1"
+echo "  benchmarks/.venv-bench/bin/python -m benchmarks.env.throughput"
+echo "  benchmarks/.venv-bench/bin/python -m benchmarks.train_speed"
+echo "  benchmarks/.venv-bench/bin/python -m benchmarks.train_speed --time-to-solve --seeds 1"

@@ -18,7 +18,8 @@ from concurrent.futures import ProcessPoolExecutor
 from itertools import repeat
 
 import numpy as np
-from train_speed_common import QUICK_TIMESTEPS, SB3_TIMESTEPS, ZOO_CARTPOLE
+
+from benchmarks.train_speed.common import QUICK_TIMESTEPS, SB3_TIMESTEPS, ZOO_CARTPOLE
 
 # Arguments of PPO(...) taken from the rl-zoo3 entry as they are; the schedules and the env
 # count are translated in zoo_kwargs.

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 
-from train_speed_common import QUICK_TIMESTEPS, configure_jax_cache
+from benchmarks.train_speed.common import QUICK_TIMESTEPS, configure_jax_cache
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):

@@ -15,7 +15,12 @@ import os
 import sys
 import time
 
-from train_speed_common import QUICK_TIMESTEPS, SB3_TIMESTEPS, ChildUnavailable, configure_jax_cache
+from benchmarks.train_speed.common import (
+    QUICK_TIMESTEPS,
+    SB3_TIMESTEPS,
+    ChildUnavailable,
+    configure_jax_cache,
+)
 
 # Where rejax's PPO differs from SB3's at these settings (it has no options for them).
 REJAX_DIFFERENCES = (

@@ -12,8 +12,8 @@ from __future__ import annotations
 import importlib.util
 import sys
 
-from train_speed_common import ChildUnavailable
-from train_speed_processes import run_seeds, train_model
+from benchmarks.train_speed.common import ChildUnavailable
+from benchmarks.train_speed.processes import run_seeds, train_model
 
 # preset name -> (configuration, torch threads for one seed; None = torch's default). The
 # tuned configuration gets one thread, SB3's best setting for this MLP: with two threads a
