@@ -1,7 +1,7 @@
-"""What one jaxcart env step costs, part by part, in env_throughput.py's fair harness.
+"""What one jaxcart env step costs, part by part, in the throughput benchmark's harness.
 
 Variants of the step, each run through the harness's one JAX rollout
-(``env_throughput_contenders.jax_rollout``: same actions, every output consumed) on one pinned
+(``contenders.jax_rollout``: same actions, every output consumed) on one pinned
 core with one JAX device, timed interleaved over ``--rounds``:
 
 - ``step_batch``: jaxcart's env as benchmarked (physics, termination, autoreset with reset

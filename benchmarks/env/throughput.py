@@ -11,7 +11,7 @@ Contenders, each at every number of parallel environments N in ``--sizes``:
   N envs); skipped above ``--sync-max-envs``.
 - ``envpool``: ``envpool.make("CartPole-v1", env_type="gymnasium", num_envs=N)`` (C++ threads).
 
-Fair by construction (``env_throughput_contenders.py``): every contender gets the same random
+Fair by construction (``contenders.py``): every contender gets the same random
 actions (one random bit per env and step, generated inside the timed region) and has every
 output consumed (a checksum of observations, rewards, terminations and truncations); the two
 JAX envs run through one rollout function and differ only in their ``step``. Each setting of
@@ -48,7 +48,7 @@ from pathlib import Path
 
 from benchmarks import lib
 
-# (env_throughput_contenders imports JAX, so only the worker process imports it.)
+# (contenders imports JAX, so only the worker process imports it.)
 CONTENDERS = ("jaxcart", "gymnax", "gymnasium-vector", "gymnasium-sync", "envpool")
 LABELS = {
     "jaxcart": "jaxcart (step_batch)",

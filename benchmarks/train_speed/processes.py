@@ -1,4 +1,4 @@
-"""What train_speed.py's SB3 and sbx contenders share: the two configurations built through
+"""What train_speed's SB3 and sbx contenders share: the two configurations built through
 SB3's API (which sbx keeps), S one-seed trainings as parallel processes (one per core) inside
 the contender's own process, and the seeds' greedy policies rebuilt from their weights so the
 harness's one evaluator plays them all.

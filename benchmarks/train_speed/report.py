@@ -1,4 +1,4 @@
-"""train_speed.py's report: the Markdown tables and notes, and the plot, from the JSON report."""
+"""train_speed's report: the Markdown tables and notes, and the plot, from the JSON report."""
 
 from __future__ import annotations
 

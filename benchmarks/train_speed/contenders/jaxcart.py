@@ -1,4 +1,4 @@
-"""train_speed.py's jaxcart contenders (``jaxcart-PRESET-xS``): S seeds of a jaxcart preset
+"""train_speed's jaxcart contenders (``jaxcart-PRESET-xS``): S seeds of a jaxcart preset
 trained together in one compiled program, sharded over the CPU devices."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""train_speed.py's rejax contenders, S seeds as a ``vmap`` over ``train`` sharded over the CPU
+"""train_speed's rejax contenders, S seeds as a ``vmap`` over ``train`` sharded over the CPU
 devices like jaxcart's:
 
 - ``rejax-sb3-xS``: rejax's PPO at SB3's hyperparameters;

@@ -1,4 +1,4 @@
-"""train_speed.py's Stable-Baselines3 contenders: PyTorch on the CPU.
+"""train_speed's Stable-Baselines3 contenders: PyTorch on the CPU.
 
 - ``sb3``: ``PPO("MlpPolicy", "CartPole-v1", seed=0)``, every hyperparameter at its default,
   torch's default thread count; ``sb3-1thread``: the same after ``torch.set_num_threads(1)``.

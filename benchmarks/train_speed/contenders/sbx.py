@@ -1,4 +1,4 @@
-"""train_speed.py's sbx contenders (``sbx-default-xS``, ``sbx-zoo-xS``): sbx's PPO (``sbx-rl``,
+"""train_speed's sbx contenders (``sbx-default-xS``, ``sbx-zoo-xS``): sbx's PPO (``sbx-rl``,
 Stable-Baselines3's JAX port: SB3's API and rollout loop, flax networks and jitted updates)
 at its defaults or at rl-zoo3's tuned CartPole-v1 settings, like the SB3 contenders.
 
