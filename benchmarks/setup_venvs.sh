@@ -2,13 +2,14 @@
 # Creates the three virtualenvs the benchmarks run in (from the repository root or anywhere):
 #
 #   benchmarks/.venv-bench  jaxcart + gymnax 1.x, EnvPool, Gymnasium, Stable-Baselines3 (PyTorch,
-#                           CPU build), matplotlib: runs env_throughput.py and train_speed.py.
+#                           CPU build), matplotlib: runs benchmarks.env.throughput and
+#                           benchmarks.train_speed.
 #   benchmarks/.venv-rejax  jaxcart + rejax 0.1.3, which needs gymnax 0.0.x (gymnax 1.x changed
-#                           step() to return terminated and truncated separately): train_speed.py
-#                           starts its rejax contenders with this interpreter.
+#                           step() to return terminated and truncated separately):
+#                           benchmarks.train_speed starts its rejax contenders with it.
 #   benchmarks/.venv-sbx    jaxcart + sbx (sbx-rl, Stable-Baselines3's JAX port, with the same
-#                           torch CPU pin because it installs Stable-Baselines3 too): train_speed.py
-#                           starts its sbx contenders with this interpreter.
+#                           torch CPU pin because it installs Stable-Baselines3 too):
+#                           benchmarks.train_speed starts its sbx contenders with it.
 #
 # PyTorch is installed first, pinned, so that Stable-Baselines3's "torch" requirement is already
 # met: left to itself pip would fetch the newest CUDA build (several GB). Override the pin with
@@ -74,6 +75,6 @@ fi
 
 echo
 echo "Done. Run, from the repository root:"
-echo "  benchmarks/.venv-bench/bin/python benchmarks/env_throughput.py"
-echo "  benchmarks/.venv-bench/bin/python benchmarks/train_speed.py"
-echo "  benchmarks/.venv-bench/bin/python benchmarks/train_speed.py --time-to-solve --seeds 1"
+echo "  benchmarks/.venv-bench/bin/python -m benchmarks.env.throughput"
+echo "  benchmarks/.venv-bench/bin/python -m benchmarks.train_speed"
+echo "  benchmarks/.venv-bench/bin/python -m benchmarks.train_speed --time-to-solve --seeds 1"

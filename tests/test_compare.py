@@ -1,11 +1,10 @@
-"""``python -m jaxcart.compare`` end to end on small real runs and a sweep, a run in
-``benchmarks/sb3_reference_run.py``'s format, and bad inputs (one line, exit code 2)."""
+"""``python -m jaxcart.compare`` end to end on small real runs and a sweep, a run in the format
+of ``benchmarks/experiments/sb3_reference.py``, and bad inputs (one line, exit code 2)."""
 
 from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,13 +13,12 @@ from helpers import tiny_args
 from PIL import Image
 from scipy.stats import trim_mean
 
+from benchmarks.experiments import sb3_reference
 from jaxcart import compare
 from jaxcart.analysis import stats
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.trainer import METRIC_COLUMNS
 from jaxcart.train import main as train_main
-
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
 @pytest.fixture(scope="module")
@@ -36,13 +34,8 @@ def runs(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def sb3_run(out: Path, num_seeds: int) -> Path:
-    """A run directory written by benchmarks/sb3_reference_run.py's own writer, from made-up
-    SB3 logs (no ``rollout/ep_rew_max``: SB3 does not log it)."""
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import sb3_reference_run
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+    """A run directory written by benchmarks/experiments/sb3_reference.py's own writer, from
+    made-up SB3 logs (no ``rollout/ep_rew_max``: SB3 does not log it)."""
     iterations = 5
     per_seed = []
     for s in range(num_seeds):
@@ -53,7 +46,7 @@ def sb3_run(out: Path, num_seeds: int) -> Path:
         per_seed.append(metrics)
     evaluations = [np.full(20, 150.0 + 25 * s) for s in range(num_seeds)]
     out.mkdir()
-    sb3_reference_run.write_run(out, PPOConfig(), per_seed, evaluations, [10.0] * num_seeds)
+    sb3_reference.write_run(out, PPOConfig(), per_seed, evaluations, [10.0] * num_seeds)
     return out
 
 

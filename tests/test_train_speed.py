@@ -1,24 +1,17 @@
-"""benchmarks/train_speed.py's contender names and seed counts (``--time-to-solve``,
+"""``python -m benchmarks.train_speed``'s contender names and seed counts (``--time-to-solve``,
 ``--seeds-for``) and its time-to-solve table, on made-up results: nothing is trained or timed."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
+import importlib
 
 import pytest
-
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
 @pytest.fixture(scope="module")
 def ts():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import train_speed
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return train_speed
+    # The command's module is the package's __main__ (importing it runs nothing).
+    return importlib.import_module("benchmarks.train_speed.__main__")
 
 
 def names(ts, argv: list[str]) -> list[str]:
@@ -93,7 +86,7 @@ def test_time_to_solve_table(ts):
     settings = {"quick": False, "time_to_solve": True, "slow": True, "warm_cache": False}
     settings |= {"rejax_python": "r", "sbx_python": "s"}
     report = {"settings": settings, "results": results, "command": "c", "load_average_end": None}
-    report["machine"] = ts.benchlib.machine_info()
+    report["machine"] = ts.lib.machine_info()
     text = ts.markdown(report)
     table = text[text.index("## Time to solve") : text.index("## Training speed")]
     lines = [line for line in table.splitlines() if line.startswith("| ")][2:]

@@ -3,9 +3,10 @@
 Each phase is jitted on its own, vmapped over S seeds on one CPU device (what each core runs
 when seeds are sharded), and timed as the median of repeated calls after a warm-up:
 
-    python benchmarks/profile_step.py --preset sb3 --seeds 1,32 --out benchmarks/results
+    python -m benchmarks.ablations.profile_step --preset sb3 --seeds 1,32 --out benchmarks/results
 
-Writes ``profile_step.json`` and ``profile_step.md``.
+Writes ``profile_step.json`` and ``profile_step.md`` to ``--out`` (default
+``benchmarks/results/scratch``, not committed).
 """
 
 from __future__ import annotations
@@ -15,16 +16,12 @@ import os
 os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
 
 import functools
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
-
+from benchmarks import lib
 from jaxcart.core import env as cartpole
 from jaxcart.core.config import preset
 from jaxcart.core.ppo import collect_rollout, train_chunk, training_batch, update_epochs
@@ -38,21 +35,21 @@ def profile(preset_name: str, seeds: int) -> dict:
     hps = broadcast_hyperparams(config, seeds)
 
     rollout_fn = jax.vmap(lambda r: collect_rollout(r, config, env_params))
-    _, rollout_s = benchlib.compile_and_time(rollout_fn, (runners,))
+    _, rollout_s = lib.compile_and_time(rollout_fn, (runners,))
     _, rollout = jax.jit(rollout_fn)(runners)
 
     # GAE (and the flattening into one batch, free): the stage between rollout and update
     gae_fn = jax.vmap(lambda r, roll, hp: training_batch(r.params, roll, hp, config))
-    _, gae_s = benchlib.compile_and_time(gae_fn, (runners, rollout, hps))
+    _, gae_s = lib.compile_and_time(gae_fn, (runners, rollout, hps))
     batch = jax.jit(gae_fn)(runners, rollout, hps)
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     update_fn = jax.vmap(
         lambda r, b, k, h: update_epochs(r.params, r.opt_state, b, k, h, h.learning_rate, config)
     )
-    _, update_s = benchlib.compile_and_time(update_fn, (runners, batch, keys, hps))
+    _, update_s = lib.compile_and_time(update_fn, (runners, batch, keys, hps))
 
     chunk = functools.partial(train_chunk, config=config, env_params=env_params, chunk_size=2)
-    compile_s, chunk_s = benchlib.compile_and_time(chunk, (runners, hps, jnp.int32(0)), repeats=3)
+    compile_s, chunk_s = lib.compile_and_time(chunk, (runners, hps, jnp.int32(0)), repeats=3)
     iteration_s = chunk_s / 2
     return {
         "preset": preset_name,
@@ -88,19 +85,20 @@ def markdown_lines(report: dict, preset_name: str) -> list[str]:
             f"{r['update_us_per_gradient_step']:.0f} | {r['rollout_us_per_env_step']:.1f} |"
         )
     command = report["command"]
-    return [*lines, "", f"Command: `{command}`", "", *benchlib.machine_markdown(report["machine"])]
+    return [*lines, "", f"Command: `{command}`", "", *lib.machine_markdown(report["machine"])]
 
 
 def main() -> None:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--preset", default="sb3")
-    parser.add_argument("--seeds", type=benchlib.parse_ints, default="1,32")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    parser.add_argument("--seeds", type=lib.parse_ints, default="1,32")
+    lib.add_out_option(parser)
     args = parser.parse_args()
+    args.out = lib.output_dir(args.out)
     rows = [profile(args.preset, s) for s in args.seeds]
-    report = {"command": benchlib.command_line(), "machine": benchlib.machine_info(), "rows": rows}
-    benchlib.write_json(args.out / "profile_step.json", report)
-    benchlib.write_markdown(args.out / "profile_step.md", markdown_lines(report, args.preset))
+    report = {"command": lib.command_line(), "machine": lib.machine_info(), "rows": rows}
+    lib.write_json(args.out / "profile_step.json", report)
+    lib.write_markdown(args.out / "profile_step.md", markdown_lines(report, args.preset))
 
 
 if __name__ == "__main__":

@@ -1,11 +1,12 @@
-"""Train Stable-Baselines3's PPO with its defaults and save it as a jaxcart run directory.
+r"""Train Stable-Baselines3's PPO with its defaults and save it as a jaxcart run directory.
 
 The CartPole course comparison: SB3's ``PPO("MlpPolicy", "CartPole-v1").learn(80_000)`` and
 jaxcart's ``sb3`` preset on the same axes. SB3's own CSV log is converted to jaxcart's
 ``metrics.csv`` (same metric names), and each seed is evaluated greedily for 20 episodes in
 Gymnasium's CartPole-v1, so ``python -m jaxcart.plot`` can overlay the two:
 
-    benchmarks/.venv-bench/bin/python benchmarks/sb3_reference_run.py --num-seeds 3 --out runs/sb3-torch
+    benchmarks/.venv-bench/bin/python -m benchmarks.experiments.sb3_reference \
+        --num-seeds 3 --out runs/sb3-torch
     python -m jaxcart.train --num-seeds 3 --out runs/jaxcart-sb3
     python -m jaxcart.plot runs/sb3-torch runs/jaxcart-sb3 --out benchmarks/results/sb3_vs_jaxcart.png
 
@@ -16,7 +17,6 @@ from __future__ import annotations
 
 import csv
 import multiprocessing
-import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -24,9 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
-
+from benchmarks import lib
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.engine.trainer import METRIC_COLUMNS
@@ -156,7 +154,7 @@ def write_run(
 
 
 def main() -> None:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--num-seeds", type=int, default=3)
     parser.add_argument("--timesteps", type=int, default=80_000)
     parser.add_argument(

@@ -1,4 +1,4 @@
-"""train_speed.py's sbx contenders (``sbx-default-xS``, ``sbx-zoo-xS``): sbx's PPO (``sbx-rl``,
+"""train_speed's sbx contenders (``sbx-default-xS``, ``sbx-zoo-xS``): sbx's PPO (``sbx-rl``,
 Stable-Baselines3's JAX port: SB3's API and rollout loop, flax networks and jitted updates)
 at its defaults or at rl-zoo3's tuned CartPole-v1 settings, like the SB3 contenders.
 
@@ -13,8 +13,8 @@ import importlib.util
 import os
 import sys
 
-from train_speed_common import ChildUnavailable, configure_jax_cache
-from train_speed_processes import run_seeds, train_model
+from benchmarks.train_speed.common import ChildUnavailable, configure_jax_cache
+from benchmarks.train_speed.processes import run_seeds, train_model
 
 ONE_THREAD_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 

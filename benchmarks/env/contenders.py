@@ -1,4 +1,4 @@
-"""The contenders of env_throughput.py: how each one is built and stepped.
+"""The contenders of the env throughput benchmark: how each one is built and stepped.
 
 A contender at N envs is a :class:`Runner` whose ``call()`` runs a fixed number of env steps
 with uniformly random actions and blocks until they are done. Every contender is driven by the
@@ -6,7 +6,7 @@ same harness code: the same action generator (one random bit per env and step:
 :func:`jax_actions`, :func:`host_actions`) and the same consumed outputs (:func:`consume`, a
 checksum of observations, rewards, terminations and truncations); the JAX contenders also share
 one rollout (:func:`jax_rollout`), so they differ only in their env's ``step``. Imported by
-env_throughput.py's worker after it has set the process's cores and JAX devices.
+``throughput``'s worker after it has set the process's cores and JAX devices.
 """
 
 from __future__ import annotations

@@ -1,12 +1,13 @@
 """Seeds per second on 1 CPU device, 2 host devices (one process) and 2 processes
 (jax.distributed over 127.0.0.1, one device each): the same CLI command each time.
 
-    python benchmarks/scaling.py --seeds 16 --out benchmarks/results
+    python -m benchmarks.ablations.scaling --seeds 16 --out benchmarks/results
 
 Each configuration runs ``python -m jaxcart.train`` in fresh processes (compile cache off) and
 reads the training time (compile excluded) from the run's ``evaluation.json``; seeds/s is
 seeds x (env steps per seed / 81,920) / train seconds, i.e. SB3-sized runs per second. Writes
-``scaling.json`` and ``scaling.md``.
+``scaling.json`` and ``scaling.md`` to ``--out`` (default ``benchmarks/results/scratch``, not
+committed).
 """
 
 from __future__ import annotations
@@ -19,9 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
-
+from benchmarks import lib
 from jaxcart.engine.distributed import launch_local
 
 KINDS = ("1 device", "2 host devices", "2 processes")
@@ -96,16 +95,17 @@ def markdown_lines(report: dict, repeats: int) -> list[str]:
             f"| {kind} | {row['median_train_seconds']:.2f} | {row['seeds_per_second']:.2f} | "
             f"{row['seeds_per_second'] / base:.2f}x |"
         )
-    return [*lines, "", *benchlib.machine_markdown(report["machine"])]
+    return [*lines, "", *lib.machine_markdown(report["machine"])]
 
 
 def main() -> None:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--seeds", type=int, default=16)
     parser.add_argument("--preset", default="sb3")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    lib.add_out_option(parser)
     a = parser.parse_args()
+    a.out = lib.output_dir(a.out)
     from jaxcart.core.config import preset
 
     config = preset(a.preset)
@@ -117,14 +117,14 @@ def main() -> None:
             rows[kind] = measure(kind, args, a.repeats, Path(tmp), a.seeds, steps)
             print(kind, json.dumps(rows[kind]), flush=True)
     report = {
-        "command": "python benchmarks/scaling.py " + " ".join(sys.argv[1:]),
-        "machine": benchlib.machine_info(),
+        "command": lib.command_line(),
+        "machine": lib.machine_info(),
         "preset": a.preset,
         "seeds": a.seeds,
         "results": rows,
     }
-    benchlib.write_json(a.out / "scaling.json", report)
-    benchlib.write_markdown(a.out / "scaling.md", markdown_lines(report, a.repeats))
+    lib.write_json(a.out / "scaling.json", report)
+    lib.write_markdown(a.out / "scaling.md", markdown_lines(report, a.repeats))
 
 
 if __name__ == "__main__":

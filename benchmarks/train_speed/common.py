@@ -1,4 +1,4 @@
-"""What train_speed.py and its contender modules share: run lengths, contender names and
+"""What train_speed and its contender modules share: run lengths, contender names and
 groups, the peers' published configurations, and the child-side set-up common to the JAX
 contenders.
 

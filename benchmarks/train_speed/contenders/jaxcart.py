@@ -1,11 +1,11 @@
-"""train_speed.py's jaxcart contenders (``jaxcart-PRESET-xS``): S seeds of a jaxcart preset
+"""train_speed's jaxcart contenders (``jaxcart-PRESET-xS``): S seeds of a jaxcart preset
 trained together in one compiled program, sharded over the CPU devices."""
 
 from __future__ import annotations
 
 import time
 
-from train_speed_common import QUICK_TIMESTEPS, configure_jax_cache
+from benchmarks.train_speed.common import QUICK_TIMESTEPS, configure_jax_cache
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):

@@ -20,7 +20,11 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+# The committed figures; a run writes here only when asked (``--out benchmarks/results``).
 RESULTS_DIR = REPO_ROOT / "benchmarks" / "results"
+# Where a run writes by default, ignored by git, so that trying a benchmark cannot overwrite a
+# committed figure.
+SCRATCH_DIR = RESULTS_DIR / "scratch"
 
 PACKAGES = (
     "jaxcart",
@@ -41,13 +45,24 @@ PACKAGES = (
 
 
 def command_line() -> str:
-    """The command that is running, as it could be typed again from the repository root."""
+    """The command that is running, as it could be typed again from the repository root:
+    ``python -m benchmarks.GROUP.NAME ...`` when it was started with ``-m``."""
     exe = sys.executable
     try:
         exe = os.path.relpath(exe, Path.cwd())
     except ValueError:
         pass
-    return shlex.join([exe, *sys.argv])
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is None:  # started as a file (or interactively): argv[0] says what ran
+        return shlex.join([exe, *sys.argv])
+    return shlex.join([exe, "-m", spec.name.removesuffix(".__main__"), *sys.argv[1:]])
+
+
+def module_command(module: str, python: str | os.PathLike = sys.executable) -> list[str]:
+    """``[python, "-m", module]``: how a benchmark starts a worker or a contender in a fresh
+    process. Run it with ``cwd=REPO_ROOT``: ``benchmarks`` is not installed, so it imports only
+    from the repository root, in the peers' virtualenvs too."""
+    return [str(python), "-m", module]
 
 
 def package_versions(names: tuple[str, ...] = PACKAGES) -> dict[str, str]:
@@ -218,6 +233,7 @@ def write_report(out: Path, stem: str, report: dict, text: str) -> None:
     write_json(out / f"{stem}.json", report)
     (out / f"{stem}.md").write_text(text)
     print(text)
+    print(f"wrote {display_path(out / stem)}.json and .md")
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -251,10 +267,19 @@ def provenance_markdown(report: dict, extra: Iterable[str] = ()) -> list[str]:
 # Command line
 
 
+def program_name() -> str | None:
+    """``python -m benchmarks.GROUP.NAME`` when a benchmark module is running as the main one
+    (argparse would show ``__main__.py``), else ``None`` (argparse's default)."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is None or not spec.name.startswith("benchmarks."):
+        return None
+    return f"python -m {spec.name.removesuffix('.__main__')}"
+
+
 def arg_parser(doc: str | None) -> argparse.ArgumentParser:
     """An argument parser whose ``--help`` shows the script's docstring as written."""
     return argparse.ArgumentParser(
-        description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=program_name(), description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
     )
 
 
@@ -279,9 +304,7 @@ def parse_ints(text: str, error: str = "expected positive integers") -> list[int
 
 def add_output_options(parser: argparse.ArgumentParser) -> None:
     """``--out`` and ``--from-json``, as every plotting benchmark takes them."""
-    parser.add_argument(
-        "--out", type=Path, default=None, help="output folder (default benchmarks/results[/quick])"
-    )
+    add_out_option(parser)
     parser.add_argument(
         "--from-json",
         type=Path,
@@ -290,9 +313,31 @@ def add_output_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def output_dir(out: Path | None, quick: bool) -> Path:
-    """``--out``, or ``benchmarks/results`` (``benchmarks/results/quick`` with ``--quick``)."""
-    return out or (RESULTS_DIR / "quick" if quick else RESULTS_DIR)
+def add_out_option(parser: argparse.ArgumentParser) -> None:
+    """``--out DIR``: where the report goes (default the ignored ``benchmarks/results/scratch``;
+    ``--out benchmarks/results`` replaces the committed figures)."""
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default benchmarks/results/scratch, not committed; "
+        "--out benchmarks/results replaces the committed results)",
+    )
+
+
+def output_dir(out: Path | None) -> Path:
+    """``--out``, or the scratch folder :data:`SCRATCH_DIR`; says which on stdout."""
+    out = out or SCRATCH_DIR
+    print(f"writing results to {display_path(out)}", flush=True)
+    return out
+
+
+def display_path(path: Path) -> str:
+    """``path`` relative to the current directory when it is inside it (shorter to read)."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
 
 
 # Reports: JSON, then Markdown and a plot rendered from it
@@ -322,7 +367,7 @@ def write_outputs(report: dict, out: Path, stem: str, markdown: Render, plot: Pl
     (out / f"{stem}.md").write_text(text)
     plot(report, out / f"{stem}.png")
     print(text)
-    print(f"wrote {out / f'{stem}.json'}, .md and .png")
+    print(f"wrote {display_path(out / stem)}.json, .md and .png")
 
 
 def save_report(report: dict, out: Path, stem: str, markdown: Render, plot: Plot) -> None:

@@ -18,10 +18,12 @@ median and its ratio to ``current``:
   another (``lax.map``): a smaller working set per gradient step (parameters, Adam moments and
   activations of 8 seeds fit in the core's L2 cache where those of 32 do not).
 
-    python benchmarks/update_ablation.py                     # S = 32, 9 rounds
-    python benchmarks/update_ablation.py --seeds 1 --rounds 15
+    python -m benchmarks.ablations.update            # S = 32, 9 rounds
+    python -m benchmarks.ablations.update --seeds 1 --rounds 15
 
-Writes ``update_ablation.json`` and ``.md`` to ``--out`` (default ``benchmarks/results``).
+Writes ``update_ablation.json`` and ``.md`` to ``--out`` (default
+``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
+figures).
 """
 
 from __future__ import annotations
@@ -30,15 +32,14 @@ import argparse
 import functools
 import statistics
 from collections.abc import Callable
-from pathlib import Path
 
-import benchlib
 import jax
 import jax.numpy as jnp
 import optax
-import roofline
 from jax.flatten_util import ravel_pytree
 
+from benchmarks import lib
+from benchmarks.ablations import roofline
 from jaxcart.core import networks, ppo
 from jaxcart.core.config import PPOConfig, preset
 
@@ -151,7 +152,7 @@ def build(variant: str, config: PPOConfig, seeds: int):
 def measure(config: PPOConfig, seeds: int, variants: list[str], rounds: int) -> list[dict]:
     built = {v: build(v, config, seeds) for v in variants}
     calls = {v: functools.partial(built[v][0], *built[v][1]) for v in variants}
-    times = benchlib.interleaved_times(calls, rounds)
+    times = lib.interleaved_times(calls, rounds)
     base = statistics.median(times[variants[0]])
     return [
         {
@@ -177,30 +178,31 @@ def markdown(report: dict) -> str:
     for r in report["rows"]:
         lines.append(f"| {r['variant']} | {r['median_seconds'] * 1e3:.1f} | {r['ratio']:.3f} |")
     lines += ["", f"Command: `{report['command']}`", ""]
-    return "\n".join(lines + benchlib.machine_markdown(report["machine"]))
+    return "\n".join(lines + lib.machine_markdown(report["machine"]))
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--preset", default="sb3")
     parser.add_argument("--seeds", type=int, default=32)
     parser.add_argument("--rounds", type=int, default=9)
     parser.add_argument("--variants", default=",".join(VARIANTS))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    lib.add_out_option(parser)
     args = parser.parse_args(argv)
-    variants = benchlib.split_list(args.variants)
+    args.out = lib.output_dir(args.out)
+    variants = lib.split_list(args.variants)
     if not variants or variants[0] != "current" or set(variants) - set(VARIANTS):
         raise argparse.ArgumentTypeError(f"--variants: 'current' first, then any of {VARIANTS}")
     rows = measure(preset(args.preset), args.seeds, variants, args.rounds)
     report = {
-        "command": benchlib.command_line(),
-        "machine": benchlib.machine_info([str(d) for d in jax.devices()]),
+        "command": lib.command_line(),
+        "machine": lib.machine_info([str(d) for d in jax.devices()]),
         "preset": args.preset,
         "seeds": args.seeds,
         "rounds": args.rounds,
         "rows": rows,
     }
-    benchlib.write_report(args.out, "update_ablation", report, markdown(report))
+    lib.write_report(args.out, "update_ablation", report, markdown(report))
     return 0
 
 

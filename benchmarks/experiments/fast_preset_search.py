@@ -1,4 +1,4 @@
-"""Search for the ``fast`` preset: least wall time to a reliably solved CartPole policy.
+r"""Search for the ``fast`` preset: least wall time to a reliably solved CartPole policy.
 
 For every rollout/update shape in a small grid, one compiled program trains
 ``--seeds`` seeds x every learning rate (the learning rate is a traced hyperparameter, so the
@@ -7,9 +7,11 @@ env for screening). A single-seed run of the same shape is timed the way the CLI
 Candidates that solve every seed are ranked by single-seed wall time; the best few are then
 re-checked with more seeds in Gymnasium's own CartPole-v1.
 
-    python benchmarks/fast_preset_search.py --out benchmarks/results/fast_preset_search.json
+    python -m benchmarks.experiments.fast_preset_search \
+        --out benchmarks/results/fast_preset_search.json
 
-Writes JSON with every candidate and a Markdown summary next to it.
+Writes JSON with every candidate and the re-checked ones to ``--out`` (default
+``benchmarks/results/scratch/fast_preset_search.json``, not committed).
 """
 
 from __future__ import annotations
@@ -21,7 +23,6 @@ devices.use_all_host_cores()
 import itertools  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -29,9 +30,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib  # noqa: E402
-
+from benchmarks import lib  # noqa: E402
 from jaxcart.core.config import PPOConfig  # noqa: E402
 from jaxcart.engine.trainer import broadcast_hyperparams, seed_keys, train  # noqa: E402
 from jaxcart.run.evaluation import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
@@ -125,7 +124,7 @@ def confirm(row: dict, seeds: int) -> dict:
 
 
 def main() -> None:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument(
         "--seeds", type=int, default=16, help="seeds per learning rate in the screen"
     )
@@ -134,9 +133,13 @@ def main() -> None:
     )
     parser.add_argument("--confirm-top", type=int, default=3)
     parser.add_argument(
-        "--out", type=Path, default=Path("benchmarks/results/fast_preset_search.json")
+        "--out",
+        type=Path,
+        default=lib.SCRATCH_DIR / "fast_preset_search.json",
+        help="JSON file (default benchmarks/results/scratch/fast_preset_search.json)",
     )
     args = parser.parse_args()
+    print(f"writing results to {lib.display_path(args.out)}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
 
     results = screen(args.seeds)
@@ -149,8 +152,7 @@ def main() -> None:
         print("confirm", json.dumps(confirmed[-1]), flush=True)
 
     report = {
-        "command": "python benchmarks/fast_preset_search.py "
-        + f"--seeds {args.seeds} --confirm-seeds {args.confirm_seeds}",
+        "command": lib.command_line(),
         "machine": {
             "platform": platform.platform(),
             "processor": platform.processor(),
@@ -161,7 +163,7 @@ def main() -> None:
         "candidates": results,
         "confirmed": confirmed,
     }
-    benchlib.write_json(args.out, report)
+    lib.write_json(args.out, report)
     print("wrote", args.out)
 
 

@@ -1,11 +1,12 @@
 """The course's CartPole claims as experiments: each one trains its arms with 64 seeds (from a
 base seed used nowhere else in the project) and compares them with ``python -m
-jaxcart.compare``, writing ``docs/experiments/<name>/`` (compare.json, compare.png and the
-table). ``docs/experiments.md`` holds the conclusions.
+jaxcart.compare``, writing ``<out>/<name>/`` (compare.json, compare.png and the table).
+``--out`` defaults to the ignored ``benchmarks/results/scratch/experiments``; the committed
+figures are ``--out docs/experiments``, and ``docs/experiments.md`` holds the conclusions.
 
-    python benchmarks/experiments.py                       # every experiment available
-    python benchmarks/experiments.py --only truncation     # one of them
-    python benchmarks/experiments.py --seeds 8 --out /tmp/exp   # a quick look
+    python -m benchmarks.experiments --out docs/experiments    # every experiment available
+    python -m benchmarks.experiments --only activation         # one of them
+    python -m benchmarks.experiments --seeds 8 --runs runs/exp8  # a quick look
 
 Every arm is ``python -m jaxcart.train`` with the options below, so a figure can be redone
 by hand. Runs already present in ``--runs`` are reused (delete them to retrain).
@@ -18,13 +19,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+from benchmarks import lib
 from jaxcart.rundir.runs import load_run
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = lib.REPO_ROOT
 BASE_SEED = 314159  # unseen: not used by tests, presets, benchmarks or the README
-# An arm trained by Stable-Baselines3 itself (benchmarks/sb3_reference_run.py, PyTorch, in the
-# benchmark venv) instead of by ``python -m jaxcart.train``.
-SB3_TORCH = ["<stable-baselines3 (torch) via benchmarks/sb3_reference_run.py>"]
+# An arm trained by Stable-Baselines3 itself (benchmarks.experiments.sb3_reference, PyTorch, in
+# the benchmark venv) instead of by ``python -m jaxcart.train``.
+SB3_TORCH = ["<stable-baselines3 (torch) via python -m benchmarks.experiments.sb3_reference>"]
 SB3_PYTHON = ROOT / "benchmarks" / ".venv-bench" / "bin" / "python"
 
 EXPERIMENTS: dict[str, dict[str, list[str]]] = {
@@ -69,7 +71,8 @@ def train(name: str, options: list[str], seeds: int, runs: Path, jobs: int = 2) 
     if options is SB3_TORCH:
         if not SB3_PYTHON.exists():
             raise SystemExit(f"{name} needs {SB3_PYTHON}: run bash benchmarks/setup_venvs.sh")
-        command = [str(SB3_PYTHON), "benchmarks/sb3_reference_run.py", "--num-seeds", str(seeds)]
+        command = lib.module_command("benchmarks.experiments.sb3_reference", SB3_PYTHON)
+        command += ["--num-seeds", str(seeds)]
         command += ["--first-seed", str(BASE_SEED), "--jobs", str(jobs), "--out", str(out)]
         print(" ".join(command), flush=True)
         subprocess.run(command, check=True, cwd=ROOT)
@@ -125,15 +128,22 @@ def compare(arms: list[Path], out: Path) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog=lib.program_name(), description=__doc__.split("\n\n")[0])
     parser.add_argument("--only", default=",".join(EXPERIMENTS), help="comma-separated names")
     parser.add_argument("--seeds", type=int, default=64)
     parser.add_argument(
         "--jobs", type=int, default=2, help="Stable-Baselines3 seeds trained at once (per core)"
     )
     parser.add_argument("--runs", type=Path, default=ROOT / "runs" / "experiments")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "experiments")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=lib.SCRATCH_DIR / "experiments",
+        help="where each experiment's comparison goes (default benchmarks/results/scratch/"
+        "experiments, not committed; --out docs/experiments replaces the committed ones)",
+    )
     args = parser.parse_args(argv)
+    lib.output_dir(args.out)
     names = [n for n in args.only.split(",") if n]
     unknown = sorted(set(names) - set(EXPERIMENTS))
     if unknown:

@@ -22,10 +22,12 @@ the limit is reported two ways: against the large GEMM, and against the shape ch
 predicted / measured). Finally the update's compiled HLO is counted by op kind (dots, gathers,
 transposes, copies, fusions, loops), so what costs more than its FLOPs can be seen.
 
-    python benchmarks/roofline.py                    # about a minute
-    python benchmarks/roofline.py --seeds 1,32 --preset sb3
+    python -m benchmarks.ablations.roofline          # about a minute
+    python -m benchmarks.ablations.roofline --seeds 1,32 --preset sb3
 
-Writes ``roofline.json`` and ``roofline.md`` to ``--out`` (default ``benchmarks/results``).
+Writes ``roofline.json`` and ``roofline.md`` to ``--out`` (default
+``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
+figures).
 """
 
 from __future__ import annotations
@@ -39,17 +41,13 @@ os.environ["XLA_FLAGS"] = (
 ).strip()
 
 import re  # noqa: E402
-import sys  # noqa: E402
 from collections import Counter  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib  # noqa: E402
-
+from benchmarks import lib  # noqa: E402
 from jaxcart.core import env as cartpole  # noqa: E402
 from jaxcart.core.config import PPOConfig, preset  # noqa: E402
 from jaxcart.core.ppo import Batch, collect_rollout, training_batch, update_epochs  # noqa: E402
@@ -90,7 +88,7 @@ def flops(matmuls: list[tuple[str, int, int, int]]) -> int:
 
 def gemm_rate(size: int, repeats: int) -> dict:
     a = jnp.asarray(np.random.default_rng(0).standard_normal((size, size)), jnp.float32)
-    _, seconds = benchlib.compile_and_time(lambda a: a @ a, (a,), repeats)
+    _, seconds = lib.compile_and_time(lambda a: a @ a, (a,), repeats)
     return {"name": f"gemm {size}x{size}x{size}", "flops": 2 * size**3, "seconds": seconds}
 
 
@@ -113,7 +111,7 @@ def chain(seeds: int, m: int, k: int, n: int, length: int, repeats: int) -> dict
 
         return jax.lax.scan(body, x, None, length=length)[0]
 
-    _, seconds = benchlib.compile_and_time(run, (x, a, b), repeats)
+    _, seconds = lib.compile_and_time(run, (x, a, b), repeats)
     count = 2 * seeds * m * k * n * length * (1 if square else 2)
     name = f"[S,{m},{k}]@[S,{k},{n}]" + ("" if square else f" and back @[S,{n},{k}]")
     return {"name": name, "shape": [m, k, n], "flops": count, "seconds": seconds}
@@ -220,9 +218,9 @@ def measure_seeds(config: PPOConfig, seeds: int, chains: list[dict], repeats: in
     predicted = sum(2 * m * k * n / chain_rate_for((m, k, n), chains) for _, m, k, n in matmuls)
     predicted *= steps * seeds
     update, args = update_program(config, seeds)
-    compile_update, update_seconds = benchlib.compile_and_time(update, args, repeats)
+    compile_update, update_seconds = lib.compile_and_time(update, args, repeats)
     mlp, mlp_args = mlp_step_program(config, seeds, args[0], args[2])
-    _, mlp_seconds = benchlib.compile_and_time(mlp, mlp_args, repeats)
+    _, mlp_seconds = lib.compile_and_time(mlp, mlp_args, repeats)
     return {
         "seeds": seeds,
         "gradient_steps": steps * seeds,
@@ -292,20 +290,21 @@ def markdown(report: dict) -> str:
         "",
         f"Command: `{report['command']}`",
         "",
-        *benchlib.machine_markdown(report["machine"]),
+        *lib.machine_markdown(report["machine"]),
     ]
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--preset", default="sb3")
-    parser.add_argument("--seeds", type=benchlib.parse_ints, default="1,32")
+    parser.add_argument("--seeds", type=lib.parse_ints, default="1,32")
     parser.add_argument("--chain-seeds", type=int, default=32, help="S of the shape chains")
     parser.add_argument("--gemm-size", type=int, default=2048)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    lib.add_out_option(parser)
     args = parser.parse_args(argv)
+    args.out = lib.output_dir(args.out)
     config = preset(args.preset)
     gemm = gemm_rate(args.gemm_size, args.repeats)
     print(f"{gemm['name']}: {rate(gemm) / 1e9:.1f} GFLOP/s", flush=True)
@@ -323,8 +322,8 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     report = {
-        "command": benchlib.command_line(),
-        "machine": benchlib.machine_info([str(d) for d in jax.devices()]),
+        "command": lib.command_line(),
+        "machine": lib.machine_info([str(d) for d in jax.devices()]),
         "preset": args.preset,
         "mlp_sizes": mlp_sizes(config),
         "minibatch": config.minibatch_size,
@@ -334,7 +333,7 @@ def main(argv: list[str] | None = None) -> int:
         "chains": chains,
         "rows": rows,
     }
-    benchlib.write_report(args.out, "roofline", report, markdown(report))
+    lib.write_report(args.out, "roofline", report, markdown(report))
     return 0
 
 

@@ -1,4 +1,4 @@
-"""train_speed.py's rejax contenders, S seeds as a ``vmap`` over ``train`` sharded over the CPU
+"""train_speed's rejax contenders, S seeds as a ``vmap`` over ``train`` sharded over the CPU
 devices like jaxcart's:
 
 - ``rejax-sb3-xS``: rejax's PPO at SB3's hyperparameters;
@@ -15,7 +15,12 @@ import os
 import sys
 import time
 
-from train_speed_common import QUICK_TIMESTEPS, SB3_TIMESTEPS, ChildUnavailable, configure_jax_cache
+from benchmarks.train_speed.common import (
+    QUICK_TIMESTEPS,
+    SB3_TIMESTEPS,
+    ChildUnavailable,
+    configure_jax_cache,
+)
 
 # Where rejax's PPO differs from SB3's at these settings (it has no options for them).
 REJAX_DIFFERENCES = (

@@ -24,11 +24,12 @@ Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
   guard, the minibatch update or the episode-statistics buffer replaced by a stub, to see
   what each part of the program costs to compile (these programs are not runnable training).
 
-    python benchmarks/compile_time.py                       # every variant, 3 processes each
-    python benchmarks/compile_time.py --variants default,O1 --repeats 5 --run
+    python -m benchmarks.ablations.compile_time      # every variant, 3 processes each
+    python -m benchmarks.ablations.compile_time --variants default,O1 --repeats 5 --run
 
 Writes ``compile_time.json`` and ``compile_time.md`` to ``--out`` (default
-``benchmarks/results``).
+``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
+figures).
 """
 
 from __future__ import annotations
@@ -38,11 +39,8 @@ import os
 import re
 import statistics
 import subprocess
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
+from benchmarks import lib
 
 VARIANTS = {
     "default": "",
@@ -151,14 +149,16 @@ def measure(variant: str, repeats: int, run: bool) -> dict:
     env = dict(os.environ)
     env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {VARIANTS[variant]}".strip()
     env.update(TF_CPP_MIN_LOG_LEVEL="0", TF_CPP_VMODULE="cpu_compiler=1")
-    command = [sys.executable, str(Path(__file__).resolve()), "--child"]
+    command = [*lib.module_command("benchmarks.ablations.compile_time"), "--child"]
     if variant.startswith("stub-"):
         command += ["--stub", variant.removeprefix("stub-")]
     elif run:
         command.append("--run")
     samples = []
     for _ in range(repeats):
-        done = subprocess.run(command, env=env, check=True, capture_output=True, text=True)
+        done = subprocess.run(
+            command, env=env, check=True, capture_output=True, text=True, cwd=lib.REPO_ROOT
+        )
         samples.append(json.loads(done.stdout.strip().splitlines()[-1]) | xla_timers(done.stderr))
     row = {"variant": variant, "xla_flags": VARIANTS[variant], "samples": samples}
     for key in samples[0]:
@@ -190,23 +190,24 @@ def markdown(report: dict) -> str:
             f"{f'{run * 1e3:.1f}' if run else '-'} |"
         )
     lines += ["", f"Command: `{report['command']}`", ""]
-    lines += benchlib.machine_markdown(report["machine"])
+    lines += lib.machine_markdown(report["machine"])
     return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--run", action="store_true", help="also time a chunk's run")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    lib.add_out_option(parser)
     parser.add_argument("--child", action="store_true", help=argparse_hidden())
     parser.add_argument("--stub", help=argparse_hidden())
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(child(args.run, args.stub)))
         return 0
-    names = benchlib.split_list(args.variants)
+    args.out = lib.output_dir(args.out)
+    names = lib.split_list(args.variants)
     unknown = [n for n in names if n not in VARIANTS]
     if unknown:
         parser.error(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
@@ -221,12 +222,12 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     report = {
-        "command": benchlib.command_line(),
-        "machine": benchlib.machine_info(),
+        "command": lib.command_line(),
+        "machine": lib.machine_info(),
         "repeats": args.repeats,
         "rows": rows,
     }
-    benchlib.write_report(args.out, "compile_time", report, markdown(report))
+    lib.write_report(args.out, "compile_time", report, markdown(report))
     return 0
 
 

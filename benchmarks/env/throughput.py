@@ -11,7 +11,7 @@ Contenders, each at every number of parallel environments N in ``--sizes``:
   N envs); skipped above ``--sync-max-envs``.
 - ``envpool``: ``envpool.make("CartPole-v1", env_type="gymnasium", num_envs=N)`` (C++ threads).
 
-Fair by construction (``env_throughput_contenders.py``): every contender gets the same random
+Fair by construction (``contenders.py``): every contender gets the same random
 actions (one random bit per env and step, generated inside the timed region) and has every
 output consumed (a checksum of observations, rewards, terminations and truncations); the two
 JAX envs run through one rollout function and differ only in their ``step``. Each setting of
@@ -22,12 +22,13 @@ Gymnasium's envs are single-threaded either way. Compilation (JAX) or constructi
 (the others) is timed on its own and excluded from throughput. Each measurement runs enough
 steps to take about ``--seconds``; the figure is the median of ``--repeats`` measurements.
 
-    python benchmarks/env_throughput.py                    # the full run (several minutes)
-    python benchmarks/env_throughput.py --quick            # smoke test, seconds
-    python benchmarks/env_throughput.py --sizes 1,256 --repeats 3 --only jaxcart,gymnax
+    python -m benchmarks.env.throughput              # the full run (several minutes)
+    python -m benchmarks.env.throughput --quick      # smoke test, seconds
+    python -m benchmarks.env.throughput --sizes 1,256 --repeats 3 --only jaxcart,gymnax
 
 Writes ``env_throughput.json``, ``.md`` and ``.png`` to ``--out`` (default
-``benchmarks/results``, or ``benchmarks/results/quick`` with ``--quick``). Install the
+``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
+figures). Install the
 peers with ``bash benchmarks/setup_venvs.sh`` and run with ``benchmarks/.venv-bench/bin/python``;
 a contender that is not installed is reported as unavailable.
 """
@@ -45,10 +46,9 @@ import time
 import traceback
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
+from benchmarks import lib
 
-# (env_throughput_contenders imports JAX, so only the worker process imports it.)
+# (contenders imports JAX, so only the worker process imports it.)
 CONTENDERS = ("jaxcart", "gymnax", "gymnasium-vector", "gymnasium-sync", "envpool")
 LABELS = {
     "jaxcart": "jaxcart (step_batch)",
@@ -92,7 +92,7 @@ def measure(runner, repeats: int, seconds: float) -> dict:
 
 
 def run_one(name: str, num_envs: int, args, cores: int) -> dict:
-    from env_throughput_contenders import Unavailable, make_runner
+    from benchmarks.env.contenders import Unavailable, make_runner
 
     row = {"contender": name, "num_envs": num_envs}
     if name == "gymnasium-sync" and num_envs > args.sync_max_envs:
@@ -132,7 +132,7 @@ def cell(rows: list[dict], name: str, n: int, cores: str) -> str:
     if r is None:
         return "-"
     if r["status"] == "ok":
-        return benchlib.format_rate(r["median_steps_per_second"])
+        return lib.format_rate(r["median_steps_per_second"])
     return r["status"]
 
 
@@ -149,7 +149,7 @@ def throughput_tables(report: dict, cores: str) -> tuple[list[str], list, list, 
         line = [f"jaxcart / {c}"]
         for n in sizes:
             a, b = rate(rows, "jaxcart", n, cores), rate(rows, c, n, cores)
-            line.append(benchlib.format_ratio(a / b if a and b else None))
+            line.append(lib.format_ratio(a / b if a and b else None))
         ratio_rows.append(line)
     setup_rows = []
     for c in names:
@@ -166,8 +166,7 @@ def how_each_runs(report: dict) -> list[str]:
     """The Markdown notes on how the contenders run."""
     s = report["settings"]
     return [
-        "How each contender runs (the same harness code for all, "
-        "`benchmarks/env_throughput_contenders.py`):",
+        "How each contender runs (the same harness code for all, `benchmarks/env/contenders.py`):",
         "",
         "- Actions: one random bit per env and step, generated inside the timed loop "
         "(JAX: one `jax.random.bits` word per 32 envs, unpacked; host: `rng.integers` bytes, "
@@ -212,28 +211,28 @@ def markdown(report: dict) -> str:
         out += [
             f"## {title}",
             "",
-            benchlib.markdown_table(headers, throughput),
+            lib.markdown_table(headers, throughput),
             "",
             "Speed-up of jaxcart over each peer (higher = jaxcart faster):",
             "",
-            benchlib.markdown_table(["ratio"] + headers[1:], ratio_rows),
+            lib.markdown_table(["ratio"] + headers[1:], ratio_rows),
             "",
             "Compile time (JAX contenders) or construction + reset time (others), seconds, "
             "excluded from the throughput above:",
             "",
-            benchlib.markdown_table(["contender"] + headers[1:], setup_rows),
+            lib.markdown_table(["contender"] + headers[1:], setup_rows),
             "",
         ]
     if notes:
         out += ["Not measured:", "", *sorted(set(notes)), ""]
     out += how_each_runs(report)
-    out += benchlib.provenance_markdown(report)
+    out += lib.provenance_markdown(report)
     return "\n".join(out)
 
 
 def plot(report: dict, path: Path) -> None:
     rows = report["results"]
-    fig, ax = benchlib.pyplot().subplots(figsize=(7, 4.5))
+    fig, ax = lib.pyplot().subplots(figsize=(7, 4.5))
     for cores in report["settings"]["cores"]:
         style = "-" if cores == "1" else "--"
         for i, c in enumerate(report["contenders"]):
@@ -255,17 +254,17 @@ def plot(report: dict, path: Path) -> None:
                     lw=width,
                     label=f"{LABELS[c]}, {where}",
                 )
-    title = benchlib.machine_title("CartPole-v1 random-action throughput", report["machine"])
+    title = lib.machine_title("CartPole-v1 random-action throughput", report["machine"])
     labels = ("parallel environments N", "env steps / s (median)", title)
-    benchlib.finish_loglog(fig, ax, path, labels, legend={"fontsize": 7})
+    lib.finish_loglog(fig, ax, path, labels, legend={"fontsize": 7})
 
 
 def parse_sizes(text: str) -> list[int]:
-    return benchlib.parse_ints(text, "sizes must be positive")
+    return lib.parse_ints(text, "sizes must be positive")
 
 
 def parse_names(text: str) -> list[str]:
-    names = benchlib.split_list(text)
+    names = lib.split_list(text)
     unknown = [n for n in names if n not in CONTENDERS]
     if unknown:
         raise argparse.ArgumentTypeError(
@@ -275,7 +274,7 @@ def parse_names(text: str) -> list[str]:
 
 
 def parse_cores(text: str) -> list[str]:
-    settings = benchlib.split_list(text)
+    settings = lib.split_list(text)
     unknown = [c for c in settings if c not in CORE_SETTINGS]
     if unknown or not settings:
         raise argparse.ArgumentTypeError("--cores takes a comma-separated list of 1 and all")
@@ -283,7 +282,7 @@ def parse_cores(text: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument(
         "--sizes",
         type=parse_sizes,
@@ -313,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--worker", choices=CORE_SETTINGS, help=argparse.SUPPRESS)
     parser.add_argument("--worker-out", type=Path, help=argparse.SUPPRESS)
-    benchlib.add_output_options(parser)
+    lib.add_output_options(parser)
     return parser
 
 
@@ -360,9 +359,9 @@ def run_worker(cores: str, args: argparse.Namespace, argv: list[str]) -> dict:
     """Runs :func:`worker_main` for ``cores`` in a fresh process (its own devices and pinning)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "rows.json"
-        command = [sys.executable, str(Path(__file__).resolve()), *argv]
+        command = [*lib.module_command("benchmarks.env.throughput"), *argv]
         command += ["--worker", cores, "--worker-out", str(out)]
-        subprocess.run(command, check=True)
+        subprocess.run(command, check=True, cwd=lib.REPO_ROOT)
         return json.loads(out.read_text())
 
 
@@ -370,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser().parse_args(argv)
     if args.from_json:
-        benchlib.rerender(args.from_json, STEM, markdown, plot)
+        lib.rerender(args.from_json, STEM, markdown, plot)
         return 0
     quick = args.quick
     args.sizes = args.sizes or list(QUICK_SIZES if quick else DEFAULT_SIZES)
@@ -379,9 +378,9 @@ def main(argv: list[str] | None = None) -> int:
     args.only = [c for c in CONTENDERS if c in args.only]
     if args.worker:
         return worker_main(args)
-    from env_throughput_contenders import MAX_SCAN_LENGTH, STEPS_PER_CALL
+    from benchmarks.env.contenders import MAX_SCAN_LENGTH, STEPS_PER_CALL
 
-    out = benchlib.output_dir(args.out, quick)
+    out = lib.output_dir(args.out)
     settings = {
         "sizes": args.sizes,
         "repeats": args.repeats,
@@ -394,10 +393,10 @@ def main(argv: list[str] | None = None) -> int:
     }
     workers = {cores: run_worker(cores, args, argv) for cores in args.cores}
     jax_devices = workers[args.cores[-1]]["jax_devices"]
-    report = benchlib.new_report("env_throughput", settings, args.only, jax_devices)
+    report = lib.new_report("env_throughput", settings, args.only, jax_devices)
     report["worker_cpus"] = {cores: w["cpus"] for cores, w in workers.items()}
     report["results"] = [row for w in workers.values() for row in w["rows"]]
-    benchlib.save_report(report, out, STEM, markdown, plot)
+    lib.save_report(report, out, STEM, markdown, plot)
     return 0
 
 

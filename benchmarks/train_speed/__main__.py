@@ -39,16 +39,16 @@ adds a second run of each JAX contender reading a cache written by the first.
 and evaluation included, against SB3's one-seed time. SB3 and sbx above one seed are slow
 (about 25 minutes for SB3's 64) and run only with ``--slow`` or ``--seeds-for``.
 
-    python benchmarks/train_speed.py                      # training-speed table (minutes)
-    python benchmarks/train_speed.py --quick              # smoke test: few steps, 1-2 seeds
-    python benchmarks/train_speed.py --only jaxcart-sb3,rejax --seeds 1,8
-    python benchmarks/train_speed.py --time-to-solve --seeds 1          # N = 1
-    python benchmarks/train_speed.py --time-to-solve --seeds 64 --slow  # N = 64
-    python benchmarks/train_speed.py --seeds-for sbx-zoo=1,8 --only sbx
+    python -m benchmarks.train_speed                      # training-speed table (minutes)
+    python -m benchmarks.train_speed --quick              # smoke test: few steps, 1-2 seeds
+    python -m benchmarks.train_speed --only jaxcart-sb3,rejax --seeds 1,8
+    python -m benchmarks.train_speed --time-to-solve --seeds 1          # N = 1
+    python -m benchmarks.train_speed --time-to-solve --seeds 64 --slow  # N = 64
+    python -m benchmarks.train_speed --seeds-for sbx-zoo=1,8 --only sbx
 
 Writes ``train_speed.json``, ``.md`` and ``.png`` (``time_to_solve.*`` with
-``--time-to-solve``; and ``logs/``) to ``--out`` (default ``benchmarks/results``, or
-``benchmarks/results/quick`` with ``--quick``). Set up the
+``--time-to-solve``; and ``logs/``) to ``--out`` (default ``benchmarks/results/scratch``, not
+committed; ``--out benchmarks/results`` replaces the committed figures). Set up the
 virtualenvs with ``bash benchmarks/setup_venvs.sh`` and run with
 ``benchmarks/.venv-bench/bin/python``.
 """
@@ -65,13 +65,8 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
-import train_speed_jaxcart
-import train_speed_rejax
-import train_speed_sb3
-import train_speed_sbx
-from train_speed_common import (
+from benchmarks import lib
+from benchmarks.train_speed.common import (
     EVAL_EPISODES,
     GROUPS,
     ChildUnavailable,
@@ -80,23 +75,27 @@ from train_speed_common import (
     parse_name,
     time_to_solve_groups,
 )
-from train_speed_report import markdown, plot, row_label
+from benchmarks.train_speed.contenders import jaxcart as jaxcart_contender
+from benchmarks.train_speed.contenders import rejax as rejax_contender
+from benchmarks.train_speed.contenders import sb3 as sb3_contender
+from benchmarks.train_speed.contenders import sbx as sbx_contender
+from benchmarks.train_speed.report import markdown, plot, row_label
 
 FULL_SEEDS = (1, 8, 64)
 QUICK_SEEDS = (1, 2)
 TIME_TO_SOLVE_SEEDS = (1, 64)
-DEFAULT_REJAX_PYTHON = benchlib.REPO_ROOT / "benchmarks" / ".venv-rejax" / "bin" / "python"
-DEFAULT_SBX_PYTHON = benchlib.REPO_ROOT / "benchmarks" / ".venv-sbx" / "bin" / "python"
+DEFAULT_REJAX_PYTHON = lib.REPO_ROOT / "benchmarks" / ".venv-rejax" / "bin" / "python"
+DEFAULT_SBX_PYTHON = lib.REPO_ROOT / "benchmarks" / ".venv-sbx" / "bin" / "python"
 UNAVAILABLE_EXIT = 3
 STEM = "train_speed"
 TIME_TO_SOLVE_STEM = "time_to_solve"  # --time-to-solve leaves train_speed.* as they are
 
 # Each kind's run(preset_name, num_seeds, quick, cache_dir) -> (data, greedy policy).
 RUNNERS = {
-    "sb3": train_speed_sb3.run,
-    "jaxcart": train_speed_jaxcart.run,
-    "rejax": train_speed_rejax.run,
-    "sbx": train_speed_sbx.run,
+    "sb3": sb3_contender.run,
+    "jaxcart": jaxcart_contender.run,
+    "rejax": rejax_contender.run,
+    "sbx": sbx_contender.run,
 }
 
 
@@ -131,8 +130,8 @@ def child_main(args: argparse.Namespace) -> int:
     except ChildUnavailable as e:
         data, code = {"status": "unavailable", "reason": str(e)}, UNAVAILABLE_EXIT
     data["python"] = sys.executable
-    data["packages"] = benchlib.package_versions()
-    benchlib.write_json(Path(args.child_out), data)
+    data["packages"] = lib.package_versions()
+    lib.write_json(Path(args.child_out), data)
     return code
 
 
@@ -182,7 +181,8 @@ def run_child(
     log_path.parent.mkdir(parents=True, exist_ok=True)
     result_path = out_dir / "logs" / f"{name}{suffix}.json"
     result_path.unlink(missing_ok=True)
-    cmd = [python, str(Path(__file__).resolve()), "--child", name, "--child-out", str(result_path)]
+    cmd = [*lib.module_command("benchmarks.train_speed", python), "--child", name]
+    cmd += ["--child-out", str(result_path.resolve())]
     if quick:
         cmd.append("--quick")
     if cache_dir:
@@ -191,7 +191,9 @@ def run_child(
     env.setdefault("PYTHONUNBUFFERED", "1")
     with open(log_path, "w") as log:
         start = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, cwd=Path.cwd())
+        proc = subprocess.Popen(
+            cmd, stdout=log, stderr=subprocess.STDOUT, env=env, cwd=lib.REPO_ROOT
+        )
         status, usage, timed_out = wait_with_timeout(proc, timeout)
         wall = time.perf_counter() - start
         proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here, not by Popen
@@ -282,14 +284,14 @@ def parse_seeds_for(text: str) -> tuple[list[str], list[int]]:
         raise argparse.ArgumentTypeError(
             f"unknown contender group {key!r}; choose a tool or one of: {', '.join(GROUPS)}"
         )
-    seeds = benchlib.parse_ints(counts)
+    seeds = lib.parse_ints(counts)
     if groups == ["sb3-1thread"] and seeds != [1]:
         raise argparse.ArgumentTypeError("sb3-1thread trains one seed; use sb3-default=N")
     return groups, seeds
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="smoke test: short runs, seeds 1,2")
     parser.add_argument(
         "--only",
@@ -311,13 +313,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--seeds",
-        type=benchlib.parse_ints,
+        type=lib.parse_ints,
         default=None,
         help="seed counts (default 1,8,64; 1,64 with --time-to-solve)",
     )
     parser.add_argument(
         "--fast-seeds",
-        type=benchlib.parse_ints,
+        type=lib.parse_ints,
         default=None,
         help="seed counts for the fast preset (default 1,8; --seeds with --time-to-solve)",
     )
@@ -342,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--sbx-python", default=str(DEFAULT_SBX_PYTHON), help="interpreter with sbx installed"
     )
     parser.add_argument("--timeout", type=float, default=3600, help="seconds per contender")
-    benchlib.add_output_options(parser)
+    lib.add_output_options(parser)
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--child-out", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--cache-dir", default=None, help=argparse.SUPPRESS)
@@ -352,7 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
 def selected(names: list[str], only: str | None) -> list[str]:
     if not only:
         return names
-    wanted = benchlib.split_list(only)
+    wanted = lib.split_list(only)
     picked = [n for n in names if any(n == w or n.startswith(w + "-") for w in wanted)]
     if not picked:
         raise SystemExit(f"--only {only!r} matches none of: {', '.join(names)}")
@@ -381,13 +383,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.child:
         return child_main(args)
     if args.from_json:
-        benchlib.rerender(args.from_json, args.from_json.stem, markdown, plot)
+        lib.rerender(args.from_json, args.from_json.stem, markdown, plot)
         return 0
     if args.time_to_solve and args.quick and not args.seeds:
         args.seeds = list(QUICK_SEEDS)
     groups = seeds_by_group(args)
     names = selected(contender_names(groups), args.only)
-    out = benchlib.output_dir(args.out, args.quick)
+    out = lib.output_dir(args.out)
     out.mkdir(parents=True, exist_ok=True)
     settings = {
         "quick": args.quick,
@@ -401,12 +403,12 @@ def main(argv: list[str] | None = None) -> int:
         "sbx_python": args.sbx_python,
         "eval_episodes": EVAL_EPISODES,
     }
-    report = benchlib.new_report("train_speed", settings, names)
+    report = lib.new_report("train_speed", settings, names)
     for name in names:
         run_contender(name, report, args, out)
     print()
     stem = TIME_TO_SOLVE_STEM if args.time_to_solve else STEM
-    benchlib.save_report(report, out, stem, markdown, plot)
+    lib.save_report(report, out, stem, markdown, plot)
     return 0
 
 

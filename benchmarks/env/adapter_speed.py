@@ -27,12 +27,12 @@ jaxcart step's time goes (the action check, the compiled call, the transfer, the
 and, in a subprocess, the single and vector pairs again with JAX's CPU computations run on the
 calling thread (``jax_cpu_enable_async_dispatch=False``, a process-wide JAX setting).
 
-    python benchmarks/adapter_speed.py              # about a minute and a half
-    python benchmarks/adapter_speed.py --quick      # smoke test, seconds
-    python benchmarks/adapter_speed.py --sizes 1,64 --repeats 9 --kinds vector
+    python -m benchmarks.env.adapter_speed            # about a minute and a half
+    python -m benchmarks.env.adapter_speed --quick    # smoke test, seconds
+    python -m benchmarks.env.adapter_speed --sizes 1,64 --repeats 9 --kinds vector
 
-Writes ``adapter_speed.json`` and ``.md`` to ``--out`` (default ``benchmarks/results``, or
-``benchmarks/results/quick`` with ``--quick``).
+Writes ``adapter_speed.json`` and ``.md`` to ``--out`` (default ``benchmarks/results/scratch``, not
+committed; ``--out benchmarks/results`` replaces the committed figures).
 """
 
 from __future__ import annotations
@@ -53,9 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorEnv
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
-
+from benchmarks import lib
 from jaxcart.gym.adapter import JaxCartPoleEnv, JaxCartPoleVectorEnv
 
 STEM = "adapter_speed"
@@ -299,14 +297,14 @@ def results_table(results: list[dict]) -> str:
             [
                 LABELS[r["kind"]],
                 f"{r['num_envs']:,}",
-                benchlib.format_rate(med["jaxcart"]),
-                benchlib.format_rate(med["gymnasium"]),
-                benchlib.format_ratio(med["jaxcart"] / med["gymnasium"]),
-                f"{benchlib.format_ratio(min(ratios))} - {benchlib.format_ratio(max(ratios))}",
+                lib.format_rate(med["jaxcart"]),
+                lib.format_rate(med["gymnasium"]),
+                lib.format_ratio(med["jaxcart"] / med["gymnasium"]),
+                f"{lib.format_ratio(min(ratios))} - {lib.format_ratio(max(ratios))}",
             ]
         )
     headers = ["pair", "N", "jaxcart steps/s", "Gymnasium steps/s", "ratio", "paired range"]
-    return benchlib.markdown_table(headers, rows, "lrrrrr")
+    return lib.markdown_table(headers, rows, "lrrrrr")
 
 
 def profile_tables(report: dict) -> list[str]:
@@ -315,7 +313,7 @@ def profile_tables(report: dict) -> list[str]:
         rows = [[k, f"{v:,.1f}"] for k, v in prof["microseconds_per_step"].items()]
         env = "vector env" if "step_fusions" in prof else "single env"
         title = f"{env}, N = {prof['num_envs']:,}:"
-        out += [title, "", benchlib.markdown_table(["", "µs"], rows), ""]
+        out += [title, "", lib.markdown_table(["", "µs"], rows), ""]
     return out
 
 
@@ -383,22 +381,22 @@ def markdown(report: dict) -> str:
         "",
         *profile_tables(report),
     ]
-    lines += benchlib.provenance_markdown(report)
+    lines += lib.provenance_markdown(report)
     return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument(
         "--sizes",
-        type=lambda t: benchlib.parse_ints(t, "sizes must be positive"),
+        type=lambda t: lib.parse_ints(t, "sizes must be positive"),
         default=list(DEFAULT_SIZES),
         help="numbers of envs N (default 1,64,4096)",
     )
     parser.add_argument("--repeats", type=int, default=None, help="default 7 (--quick: 3)")
     parser.add_argument(
         "--kinds",
-        type=benchlib.split_list,
+        type=lib.split_list,
         default=list(KINDS),
         help=f"comma-separated pairs to run (default all: {','.join(KINDS)})",
     )
@@ -442,11 +440,12 @@ def sync_dispatch_run(args, repeats: int) -> dict:
     on the calling thread (the setting must precede JAX's first use, hence the subprocess)."""
     kinds = ",".join(k for k in ("single", "vector") if k in args.kinds)
     with tempfile.TemporaryDirectory() as tmp:
-        command = [sys.executable, __file__, "--jax-sync-dispatch", "--no-profile"]
+        command = [*lib.module_command("benchmarks.env.adapter_speed"), "--jax-sync-dispatch"]
+        command.append("--no-profile")
         command += ["--kinds", kinds, "--sizes", ",".join(map(str, args.sizes))]
         command += ["--repeats", str(repeats), "--out", tmp] + ["--quick"] * args.quick
         print("with jax_cpu_enable_async_dispatch=False:", flush=True)
-        subprocess.run(command, check=True, stdout=sys.stderr)
+        subprocess.run(command, check=True, stdout=sys.stderr, cwd=lib.REPO_ROOT)
         sub = json.loads((Path(tmp) / f"{STEM}.json").read_text())
     return {"results": sub["results"], "dispatch": sub["dispatch"]}
 
@@ -458,17 +457,17 @@ def main(argv: list[str] | None = None) -> int:
         jax.config.update("jax_cpu_enable_async_dispatch", False)
     if args.from_json:
         report = json.loads(args.from_json.read_text())
-        benchlib.write_markdown(args.from_json.with_suffix(".md"), markdown(report).splitlines())
+        lib.write_markdown(args.from_json.with_suffix(".md"), markdown(report).splitlines())
         return 0
     unknown = set(args.kinds) - set(KINDS)
     if unknown:
         raise SystemExit(f"unknown --kinds {sorted(unknown)}; choose from {', '.join(KINDS)}")
     repeats = args.repeats or (3 if args.quick else 7)
-    out = benchlib.output_dir(args.out, args.quick)
+    out = lib.output_dir(args.out)
     settings = {"sizes": args.sizes, "repeats": repeats, "kinds": args.kinds, "seed": SEED}
     settings.update(quick=args.quick, env_steps_per_measurement=ENV_STEPS)
     settings.update(jax_cpu_enable_async_dispatch=not args.jax_sync_dispatch)
-    report = benchlib.new_report(
+    report = lib.new_report(
         STEM, settings, ["jaxcart", "gymnasium"], [str(d) for d in jax.devices()]
     )
     report["results"] = measure_all(args, repeats)
@@ -479,11 +478,11 @@ def main(argv: list[str] | None = None) -> int:
         ]
     if not (args.jax_sync_dispatch or args.no_profile):
         report["sync_dispatch"] = sync_dispatch_run(args, repeats)
-    report["load_average_end"] = benchlib.load_average()
+    report["load_average_end"] = lib.load_average()
     out.mkdir(parents=True, exist_ok=True)
-    benchlib.write_json(out / f"{STEM}.json", report)
+    lib.write_json(out / f"{STEM}.json", report)
     if not args.no_profile:
-        benchlib.write_markdown(out / f"{STEM}.md", markdown(report).splitlines())
+        lib.write_markdown(out / f"{STEM}.md", markdown(report).splitlines())
     return 0
 
 

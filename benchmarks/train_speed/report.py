@@ -1,11 +1,11 @@
-"""train_speed.py's report: the Markdown tables and notes, and the plot, from the JSON report."""
+"""train_speed's report: the Markdown tables and notes, and the plot, from the JSON report."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import benchlib
-from train_speed_common import (
+from benchmarks import lib
+from benchmarks.train_speed.common import (
     DESCRIPTIONS,
     EVAL_EPISODES,
     GROUPS,
@@ -17,7 +17,7 @@ from train_speed_common import (
     label,
     parse_name,
 )
-from train_speed_rejax import REJAX_DIFFERENCES
+from benchmarks.train_speed.contenders.rejax import REJAX_DIFFERENCES
 
 HEADERS = [
     "contender",
@@ -96,9 +96,9 @@ def ratio_cells(r: dict, ref: dict | None) -> list[str]:
         return ["-", "-", "-"]
     per_agent = lambda row, key: row[key] / row["num_seeds"]
     return [
-        benchlib.format_ratio(per_agent(ref, "total_seconds") / per_agent(r, "total_seconds")),
-        benchlib.format_ratio(per_agent(ref, "train_seconds") / per_agent(r, "train_seconds")),
-        benchlib.format_ratio(r["steps_per_second"] / ref["steps_per_second"]),
+        lib.format_ratio(per_agent(ref, "total_seconds") / per_agent(r, "total_seconds")),
+        lib.format_ratio(per_agent(ref, "train_seconds") / per_agent(r, "train_seconds")),
+        lib.format_ratio(r["steps_per_second"] / ref["steps_per_second"]),
     ]
 
 
@@ -113,8 +113,8 @@ def table_row(r: dict) -> list:
         fmt_s(r["train_seconds"]),
         fmt_s(r["total_seconds"]),
         fmt_s(r["process_wall_seconds"]),
-        benchlib.format_rate(r["steps_per_second"]),
-        benchlib.format_rate(r["steps_per_second_incl_setup"]),
+        lib.format_rate(r["steps_per_second"]),
+        lib.format_rate(r["steps_per_second_incl_setup"]),
         f"{r['peak_rss_mib']:,.0f}",
         f"{r['train_cpu_ratio']:.2f}",
         f"{r['process_cpu_ratio']:.2f}",
@@ -170,7 +170,7 @@ def time_to_solve_row(r: dict, ref: dict | None) -> list:
         rss,
         f"{r['process_cpu_ratio']:.2f}",
         f"{r['solved']}/{r['num_seeds']}",
-        benchlib.format_ratio(ref["process_wall_seconds"] / wall) if ref else "-",
+        lib.format_ratio(ref["process_wall_seconds"] / wall) if ref else "-",
     ]
 
 
@@ -194,7 +194,7 @@ def time_to_solve_section(report: dict) -> list[str]:
         + (f": {row_label(ref)}, {ref['process_wall_seconds']:,.1f} s" if ref else "")
         + ") divided by the row's (higher = faster).",
         "",
-        benchlib.markdown_table(
+        lib.markdown_table(
             TIME_TO_SOLVE_HEADERS, [time_to_solve_row(r, ref) for r in rows], align="llr" + "r" * 7
         ),
         "",
@@ -277,7 +277,7 @@ def markdown(report: dict) -> str:
             else "."
         ),
         "",
-        benchlib.markdown_table(HEADERS, [table_row(r) for r in ok]),
+        lib.markdown_table(HEADERS, [table_row(r) for r in ok]),
         "",
         "Speed-ups (higher = that row is faster). Wall time is compared per trained agent "
         "(SB3 trains one agent per process; S seeds count as S agents), steps/s as measured. "
@@ -285,7 +285,7 @@ def markdown(report: dict) -> str:
         + (f" ({row_label(sb3)})" if sb3 else "")
         + "; rejax = the rejax row with the same number of seeds:",
         "",
-        benchlib.markdown_table(RATIO_HEADERS, ratio_rows(rows, sb3)),
+        lib.markdown_table(RATIO_HEADERS, ratio_rows(rows, sb3)),
         "",
     ]
     tts = time_to_solve_section(report)
@@ -303,7 +303,7 @@ def markdown(report: dict) -> str:
     if report.get("sbx_version") or s.get("sbx_python"):
         sbx_version = f" (sbx-rl {report['sbx_version']})" if report.get("sbx_version") else ""
         extra.append(f"- sbx interpreter: `{s['sbx_python']}`{sbx_version}")
-    out += benchlib.provenance_markdown(report, extra)
+    out += lib.provenance_markdown(report, extra)
     return "\n".join(out)
 
 
@@ -325,7 +325,7 @@ def plot(report: dict, path: Path) -> None:
     rows = [r for r in report["results"] if r.get("status") == "ok" and not r["warm_cache"]]
     tts = bool(report["settings"].get("time_to_solve"))
     key = "process_wall_seconds" if tts else "total_seconds"
-    fig, ax = benchlib.pyplot().subplots(figsize=(9.5, 4.5))
+    fig, ax = lib.pyplot().subplots(figsize=(9.5, 4.5))
     for kind, preset_name, color in PLOT_GROUPS:
         pts = sorted(
             (r["num_seeds"], r[key], r["train_seconds"])
@@ -359,7 +359,7 @@ def plot(report: dict, path: Path) -> None:
     title = f"PPO on CartPole-v1: {what} vs seeds"
     if report["settings"]["quick"]:
         title += " (--quick: shortened runs)"
-    title = benchlib.machine_title(title, report["machine"])
+    title = lib.machine_title(title, report["machine"])
     labels = ("seeds trained (independent agents)", "wall time, s", title)
     legend = {"fontsize": 7, "loc": "center left", "bbox_to_anchor": (1.01, 0.5)}
-    benchlib.finish_loglog(fig, ax, path, labels, xticks=seeds, legend=legend)
+    lib.finish_loglog(fig, ax, path, labels, xticks=seeds, legend=legend)

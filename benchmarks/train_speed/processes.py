@@ -1,4 +1,4 @@
-"""What train_speed.py's SB3 and sbx contenders share: the two configurations built through
+"""What train_speed's SB3 and sbx contenders share: the two configurations built through
 SB3's API (which sbx keeps), S one-seed trainings as parallel processes (one per core) inside
 the contender's own process, and the seeds' greedy policies rebuilt from their weights so the
 harness's one evaluator plays them all.
@@ -18,7 +18,8 @@ from concurrent.futures import ProcessPoolExecutor
 from itertools import repeat
 
 import numpy as np
-from train_speed_common import QUICK_TIMESTEPS, SB3_TIMESTEPS, ZOO_CARTPOLE
+
+from benchmarks.train_speed.common import QUICK_TIMESTEPS, SB3_TIMESTEPS, ZOO_CARTPOLE
 
 # Arguments of PPO(...) taken from the rl-zoo3 entry as they are; the schedules and the env
 # count are translated in zoo_kwargs.

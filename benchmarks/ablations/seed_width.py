@@ -11,24 +11,27 @@ per-seed program at every width. This script measures, on one pinned core, for e
 - the time of one chunk under each scheme, interleaved over ``--rounds``, and the slowdown
   of ``lax.map`` against ``vmap`` (a throughput cost; the issue's bar is 10%).
 
-    python benchmarks/seed_width.py                      # S = 4, 8, 32
-    python benchmarks/seed_width.py --seeds 32 --rounds 9
+    python -m benchmarks.ablations.seed_width        # S = 4, 8, 32
+    python -m benchmarks.ablations.seed_width --seeds 32 --rounds 9
 
-Writes ``seed_width.json`` and ``seed_width.md`` to ``--out`` (default ``benchmarks/results``).
+Writes ``seed_width.json`` and ``seed_width.md`` to ``--out`` (default
+``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
+figures).
 """
 
 from __future__ import annotations
 
 import functools
 import statistics
-from pathlib import Path
 
-import benchlib
 import jax
 import jax.numpy as jnp
 import numpy as np
-import roofline  # noqa: F401  (pins this process to one core with one JAX device)
 
+from benchmarks import lib
+
+# Imported for its side effect: it pins this process to one core with one JAX device.
+from benchmarks.ablations import roofline  # noqa: F401
 from jaxcart.core import env as cartpole
 from jaxcart.core.config import preset
 from jaxcart.core.ppo import train_iteration
@@ -78,7 +81,7 @@ def width_row(config, seeds: int, rounds: int) -> dict:
     calls = {
         scheme: functools.partial(compiled[scheme][0], *compiled[scheme][1]) for scheme in compiled
     }
-    times = benchlib.interleaved_times(calls, rounds)
+    times = lib.interleaved_times(calls, rounds)
     for scheme, t in times.items():
         row[f"{scheme}_seconds"] = statistics.median(t)
     row["map_over_vmap"] = row["map_seconds"] / row["vmap_seconds"]
@@ -103,29 +106,30 @@ def markdown(report: dict) -> str:
             f"{'yes' if r['map_identical'] else 'no'} |"
         )
     lines += ["", f"Command: `{report['command']}`", ""]
-    return "\n".join(lines + benchlib.machine_markdown(report["machine"]))
+    return "\n".join(lines + lib.machine_markdown(report["machine"]))
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--preset", default="sb3")
-    parser.add_argument("--seeds", type=benchlib.parse_ints, default="4,8,32")
+    parser.add_argument("--seeds", type=lib.parse_ints, default="4,8,32")
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    lib.add_out_option(parser)
     args = parser.parse_args(argv)
+    args.out = lib.output_dir(args.out)
     config = preset(args.preset)
     rows = []
     for seeds in args.seeds:
         rows.append(width_row(config, seeds, args.rounds))
         print(rows[-1], flush=True)
     report = {
-        "command": benchlib.command_line(),
-        "machine": benchlib.machine_info([str(d) for d in jax.devices()]),
+        "command": lib.command_line(),
+        "machine": lib.machine_info([str(d) for d in jax.devices()]),
         "preset": args.preset,
         "rounds": args.rounds,
         "rows": rows,
     }
-    benchlib.write_report(args.out, "seed_width", report, markdown(report))
+    lib.write_report(args.out, "seed_width", report, markdown(report))
     return 0
 
 

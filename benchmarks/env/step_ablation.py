@@ -1,7 +1,7 @@
-"""What one jaxcart env step costs, part by part, in env_throughput.py's fair harness.
+"""What one jaxcart env step costs, part by part, in the throughput benchmark's harness.
 
 Variants of the step, each run through the harness's one JAX rollout
-(``env_throughput_contenders.jax_rollout``: same actions, every output consumed) on one pinned
+(``contenders.jax_rollout``: same actions, every output consumed) on one pinned
 core with one JAX device, timed interleaved over ``--rounds``:
 
 - ``step_batch``: jaxcart's env as benchmarked (physics, termination, autoreset with reset
@@ -11,10 +11,12 @@ core with one JAX device, timed interleaved over ``--rounds``:
   past their end, so this is not a usable env, only a floor);
 - ``gymnax``: gymnax 1.x's ``vmap(step)`` for reference (if installed).
 
-    benchmarks/.venv-bench/bin/python benchmarks/env_step_ablation.py
-    benchmarks/.venv-bench/bin/python benchmarks/env_step_ablation.py --num-envs 65536
+    benchmarks/.venv-bench/bin/python -m benchmarks.env.step_ablation
+    benchmarks/.venv-bench/bin/python -m benchmarks.env.step_ablation --num-envs 65536
 
-Writes ``env_step_ablation.json`` and ``.md`` to ``--out`` (default ``benchmarks/results``).
+Writes ``env_step_ablation.json`` and ``.md`` to ``--out`` (default
+``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
+figures).
 """
 
 from __future__ import annotations
@@ -25,14 +27,13 @@ os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 import functools  # noqa: E402
 import statistics  # noqa: E402
-from pathlib import Path  # noqa: E402
 
-import benchlib  # noqa: E402
-import env_throughput_contenders as contenders  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import jaxcart.core.env as cartpole  # noqa: E402
+from benchmarks import lib  # noqa: E402
+from benchmarks.env import contenders  # noqa: E402
 
 VARIANTS = ("step_batch", "fixed-reset", "physics-only", "gymnax")
 
@@ -66,11 +67,12 @@ def rollout(variant: str, num_envs: int, num_steps: int):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--num-envs", type=int, default=4096)
     parser.add_argument("--rounds", type=int, default=7)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    lib.add_out_option(parser)
     args = parser.parse_args(argv)
+    args.out = lib.output_dir(args.out)
     num_steps = contenders.scan_length(args.num_envs)
     built = {}
     for variant in VARIANTS:
@@ -88,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         return holder[1]
 
     calls = {v: functools.partial(step, holder) for v, holder in built.items()}
-    times = benchlib.interleaved_times(calls, args.rounds)
+    times = lib.interleaved_times(calls, args.rounds)
     steps = args.num_envs * num_steps
     rows = [
         {"variant": v, "steps_per_second": steps / statistics.median(t), "seconds": t}
@@ -106,17 +108,17 @@ def main(argv: list[str] | None = None) -> int:
         rate = r["steps_per_second"]
         lines.append(f"| {r['variant']} | {rate / 1e6:.1f} | {1e9 / rate:.1f} |")
     report = {
-        "command": benchlib.command_line(),
-        "machine": benchlib.machine_info([str(d) for d in jax.devices()]),
+        "command": lib.command_line(),
+        "machine": lib.machine_info([str(d) for d in jax.devices()]),
         "num_envs": args.num_envs,
         "rows": rows,
     }
     text = "\n".join(
         lines
         + ["", f"Command: `{report['command']}`", ""]
-        + benchlib.machine_markdown(report["machine"])
+        + lib.machine_markdown(report["machine"])
     )
-    benchlib.write_report(args.out, "env_step_ablation", report, text)
+    lib.write_report(args.out, "env_step_ablation", report, text)
     return 0
 
 

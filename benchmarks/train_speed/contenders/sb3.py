@@ -1,4 +1,4 @@
-"""train_speed.py's Stable-Baselines3 contenders: PyTorch on the CPU.
+"""train_speed's Stable-Baselines3 contenders: PyTorch on the CPU.
 
 - ``sb3``: ``PPO("MlpPolicy", "CartPole-v1", seed=0)``, every hyperparameter at its default,
   torch's default thread count; ``sb3-1thread``: the same after ``torch.set_num_threads(1)``.
@@ -12,8 +12,8 @@ from __future__ import annotations
 import importlib.util
 import sys
 
-from train_speed_common import ChildUnavailable
-from train_speed_processes import run_seeds, train_model
+from benchmarks.train_speed.common import ChildUnavailable
+from benchmarks.train_speed.processes import run_seeds, train_model
 
 # preset name -> (configuration, torch threads for one seed; None = torch's default). The
 # tuned configuration gets one thread, SB3's best setting for this MLP: with two threads a

@@ -1,7 +1,7 @@
 """Does reporting progress between chunks slow training? Train time of the same run compiled as
 one chunk (no host round trips) and with the CLI's default chunking (about 20 reports).
 
-    python benchmarks/chunk_overhead.py --preset sb3 --seeds 1 --repeats 5
+    python -m benchmarks.ablations.chunk_overhead --preset sb3 --seeds 1 --repeats 5
 
 Prints the median training time (compile excluded) of each and their ratio.
 """
@@ -9,18 +9,14 @@ Prints the median training time (compile excluded) of each and their ratio.
 from __future__ import annotations
 
 import statistics
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import benchlib
-
+from benchmarks import lib
 from jaxcart.core.config import preset
 from jaxcart.engine.trainer import default_chunk_size, train
 
 
 def main() -> None:
-    parser = benchlib.arg_parser(__doc__)
+    parser = lib.arg_parser(__doc__)
     parser.add_argument("--preset", default="sb3")
     parser.add_argument("--seeds", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=5)
