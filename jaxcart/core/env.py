@@ -78,11 +78,6 @@ class EnvState:
     step_count: Array  # int32
 
 
-def default_params() -> EnvParams:
-    """The parameters of ``gymnasium.make("CartPole-v1")``."""
-    return EnvParams()
-
-
 def float_dtype() -> jnp.dtype:
     """float64 when JAX's x64 mode is on, float32 otherwise."""
     return jnp.zeros(()).dtype

@@ -1,5 +1,6 @@
-"""jaxcart's Gymnasium front-ends (:mod:`jaxcart.gym.adapter`) and GIF rendering
-(:mod:`jaxcart.gym.render`).
+"""jaxcart's Gymnasium front-ends (:mod:`jaxcart.gym.adapter`, which re-exports them from
+:mod:`jaxcart.gym.single_env` and :mod:`jaxcart.gym.vector_env`, over the compiled programs of
+:mod:`jaxcart.gym.kernels`) and GIF rendering (:mod:`jaxcart.gym.render`).
 
 This ``__init__`` only registers ``jaxcart/CartPole-v1`` with Gymnasium, with string entry
 points, so ``import jaxcart`` stays cheap: it imports neither Gymnasium nor JAX. Registration
@@ -24,8 +25,8 @@ def register() -> None:
         return
     gymnasium.register(
         id=ENV_ID,
-        entry_point="jaxcart.gym.adapter:JaxCartPoleEnv",
-        vector_entry_point="jaxcart.gym.adapter:JaxCartPoleVectorEnv",
+        entry_point="jaxcart.gym.single_env:JaxCartPoleEnv",
+        vector_entry_point="jaxcart.gym.vector_env:JaxCartPoleVectorEnv",
         max_episode_steps=500,
         reward_threshold=475.0,
     )

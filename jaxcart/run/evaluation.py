@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import jax
@@ -20,6 +21,105 @@ from jaxcart.rundir import layout as rundir
 from jaxcart.rundir.policy import RunParams, numpy_policy, run_params
 
 
+@dataclass(frozen=True)
+class _GymnasiumCartPole:
+    """The constants of one ``gymnasium.make(env_id)`` CartPole (Gymnasium's ``CartPoleEnv``
+    under its ``TimeLimit``), and its step for a whole batch of states at once."""
+
+    gravity: float
+    masspole: float
+    total_mass: float
+    length: float
+    polemass_length: float
+    force_mag: float
+    tau: float
+    x_threshold: float
+    theta_threshold_radians: float
+    euler: bool
+    sutton_barto_reward: bool
+    max_episode_steps: int | None  # the TimeLimit's; None: no truncation
+
+    @classmethod
+    def of(cls, env) -> _GymnasiumCartPole:
+        """The constants of ``env`` (a ``gymnasium.make`` result) as its step reads them."""
+        from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+
+        cartpole = env.unwrapped
+        if not isinstance(cartpole, CartPoleEnv):
+            name = env.spec.id if env.spec is not None else repr(env)
+            raise ValueError(
+                f"{name} is not Gymnasium's CartPoleEnv "
+                f"({type(cartpole).__name__}): the batched evaluation steps CartPoleEnv's physics"
+            )
+        return cls(
+            gravity=cartpole.gravity,
+            masspole=cartpole.masspole,
+            total_mass=cartpole.total_mass,
+            length=cartpole.length,
+            polemass_length=cartpole.polemass_length,
+            force_mag=cartpole.force_mag,
+            tau=cartpole.tau,
+            x_threshold=cartpole.x_threshold,
+            theta_threshold_radians=cartpole.theta_threshold_radians,
+            euler=cartpole.kinematics_integrator == "euler",
+            sutton_barto_reward=bool(getattr(cartpole, "_sutton_barto_reward", False)),
+            max_episode_steps=env.spec.max_episode_steps if env.spec else None,
+        )
+
+    def step(self, state: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``CartPoleEnv.step`` for every state at once: float64 ``state [4, ...]`` (rows x,
+        x_dot, theta, theta_dot) and actions ``[...]`` -> ``(next state [4, ...], terminated
+        [...])``.
+
+        Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
+        element-wise float64 arithmetic rounds each operation as on the single env's scalars,
+        so each next state is bit-identical to the single env's.
+        """
+        x, x_dot, theta, theta_dot = state
+        force = np.where(actions == 1, self.force_mag, -self.force_mag)
+        costheta = np.cos(theta)
+        sintheta = np.sin(theta)
+        temp = (force + self.polemass_length * np.square(theta_dot) * sintheta) / self.total_mass
+        thetaacc = (self.gravity * sintheta - costheta * temp) / (
+            self.length * (4.0 / 3.0 - self.masspole * np.square(costheta) / self.total_mass)
+        )
+        xacc = temp - self.polemass_length * thetaacc * costheta / self.total_mass
+        if self.euler:
+            x = x + self.tau * x_dot
+            x_dot = x_dot + self.tau * xacc
+            theta = theta + self.tau * theta_dot
+            theta_dot = theta_dot + self.tau * thetaacc
+        else:  # semi-implicit Euler
+            x_dot = x_dot + self.tau * xacc
+            x = x + self.tau * x_dot
+            theta_dot = theta_dot + self.tau * thetaacc
+            theta = theta + self.tau * theta_dot
+        terminated = (
+            (x < -self.x_threshold)
+            | (x > self.x_threshold)
+            | (theta < -self.theta_threshold_radians)
+            | (theta > self.theta_threshold_radians)
+        )
+        return np.stack([x, x_dot, theta, theta_dot]), terminated
+
+    def reward(self, terminated: np.ndarray) -> np.ndarray:
+        """``CartPoleEnv``'s reward of a step that ended ``terminated`` (the first time)."""
+        if self.sutton_barto_reward:
+            return np.where(terminated, -1.0, 0.0)
+        return np.ones(terminated.shape)
+
+
+def _start_states(env, seed: int, num_episodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Episode ``e``'s start from ``env.reset(seed=seed + e)``: ``(states [4, num_episodes]
+    float64, observations [num_episodes, 4] float32)``, drawn by Gymnasium itself."""
+    states, observations = [], []
+    for e in range(num_episodes):
+        obs, _ = env.reset(seed=seed + e)
+        states.append(np.array(env.unwrapped.state, dtype=np.float64))
+        observations.append(obs)
+    return np.stack(states, axis=1), np.stack(observations)
+
+
 def evaluate_gymnasium(
     policy: Callable[[np.ndarray], np.ndarray],
     num_policies: int,
@@ -30,36 +130,57 @@ def evaluate_gymnasium(
 ) -> np.ndarray:
     """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``.
 
+    Episode ``e`` of every policy starts where ``gymnasium.make(env_id).reset(seed=seed + e)``
+    starts. All policies and episodes then advance in lockstep, with one batched policy call
+    and one batched float64 NumPy physics step per time step (:class:`_GymnasiumCartPole`,
+    Gymnasium's ``CartPoleEnv.step`` on arrays), until every episode has terminated or reached
+    the env's time limit. Each return is bit-identical to stepping one ``gymnasium.make(env_id)``
+    per episode: the same start states, float64 dynamics and float32 observations, and the
+    same policy calls (finished episodes keep showing their last observation).
+
     Args:
-        policy: maps observations ``[num_policies, num_episodes, 4]`` to actions of shape
-            ``[num_policies, num_episodes]`` (a stacked :class:`NumpyPolicy`), so all policies
-            and episodes advance in lockstep with one batched forward pass per step.
+        policy: maps observations ``[num_policies, num_episodes, 4]`` float32 to actions
+            ``[num_policies, num_episodes]`` in ``{0, 1}`` (a stacked :class:`NumpyPolicy`).
+        env_id: a registered Gymnasium ``CartPoleEnv`` (``CartPole-v1``, ``CartPole-v0``, ...).
+        should_stop: polled before every step.
 
     Returns:
         Episode returns, ``[num_policies, num_episodes]`` float64.
+
+    Raises:
+        ValueError: ``env_id`` is not Gymnasium's ``CartPoleEnv``, or an action not 0 or 1.
+        Stopped: ``should_stop()`` turned true.
     """
     import gymnasium as gym
 
-    envs = [[gym.make(env_id) for _ in range(num_episodes)] for _ in range(num_policies)]
-    obs = np.zeros((num_policies, num_episodes, 4), np.float32)
-    for p, row in enumerate(envs):
-        for e, env_ in enumerate(row):
-            obs[p, e], _ = env_.reset(seed=seed + e)
-    returns = np.zeros((num_policies, num_episodes))
-    alive = np.ones((num_policies, num_episodes), bool)
+    env = gym.make(env_id)
+    try:
+        cartpole = _GymnasiumCartPole.of(env)
+        states, first_obs = _start_states(env, seed, num_episodes)
+    finally:
+        env.close()
+    shape = (num_policies, num_episodes)
+    state = np.broadcast_to(states[:, None, :], (4, *shape)).copy()  # rows contiguous
+    obs = np.broadcast_to(first_obs, (*shape, 4)).copy()
+    returns = np.zeros(shape)
+    alive = np.ones(shape, bool)
+    steps = 0
     while alive.any():
         if should_stop is not None and should_stop():
             raise Stopped("evaluation interrupted")
         actions = np.asarray(policy(obs))
-        for p, e in zip(*np.nonzero(alive)):
-            o, r, terminated, truncated, _ = envs[p][e].step(int(actions[p, e]))
-            obs[p, e] = o
-            returns[p, e] += r
-            if terminated or truncated:
-                alive[p, e] = False
-    for row in envs:
-        for env_ in row:
-            env_.close()
+        invalid = alive & (actions != 0) & (actions != 1)
+        if invalid.any():
+            raise ValueError(f"actions must be 0 or 1, got {np.unique(actions[invalid])}")
+        stepped, terminated = cartpole.step(state, actions)
+        steps += 1
+        # Only the running episodes move on; the finished keep their state and observation.
+        np.add(returns, cartpole.reward(terminated), out=returns, where=alive)
+        np.copyto(state, stepped, where=alive)
+        np.copyto(obs, np.moveaxis(stepped, 0, -1), casting="same_kind", where=alive[..., None])
+        alive &= ~terminated
+        if cartpole.max_episode_steps is not None and steps >= cartpole.max_episode_steps:
+            alive[:] = False  # TimeLimit: every episode still running is truncated here
     return returns
 
 

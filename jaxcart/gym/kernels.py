@@ -1,0 +1,275 @@
+"""The compiled programs behind jaxcart's Gymnasium front-ends, and the vector env's packed rows.
+
+Each ``step`` of :class:`~jaxcart.gym.single_env.JaxCartPoleEnv` and
+:class:`~jaxcart.gym.vector_env.JaxCartPoleVectorEnv` is one call of a program compiled ahead of
+time: the state stays on the JAX device as one array, donated to the call (XLA writes the new
+state over the old), and comes back to NumPy in one copy. A program is compiled once per (size,
+autoreset mode, precision, non-float parameters) and shared by every env instance; the float
+parameters are an argument.
+
+Only NumPy is imported with this module; JAX loads when a program is first compiled.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+if TYPE_CHECKING:
+    from jaxcart.core.env import EnvParams
+
+
+def precision(x64: bool):
+    """JAX's x64 mode set to ``x64`` for the adapter's own calls (the global setting is kept)."""
+    import jax
+
+    return jax.enable_x64(x64)
+
+
+def uses_x64(float64: bool) -> bool:
+    """Whether an env built with ``float64`` computes in float64: always when asked, otherwise
+    as JAX's global setting says."""
+    import jax
+
+    return bool(float64) or bool(jax.config.jax_enable_x64)
+
+
+def make_params(
+    params: EnvParams | None, sutton_barto_reward: bool | None, max_episode_steps: int | None
+) -> EnvParams:
+    """``params`` (default: CartPole-v1's) with the explicitly given options applied, and every
+    leaf a Python scalar, so that :func:`compile_key` can key the cache of compiled programs."""
+    import jax
+
+    from jaxcart.core import env as cartpole
+
+    params = cartpole.EnvParams() if params is None else params
+    if sutton_barto_reward is not None:
+        params = params.replace(sutton_barto_reward=bool(sutton_barto_reward))
+    if max_episode_steps is not None:
+        params = params.replace(max_episode_steps=int(max_episode_steps))
+    return jax.tree.map(lambda v: v.item() if hasattr(v, "item") else v, params)
+
+
+# The float parameters go to the compiled programs as one runtime array, (low, high) of the
+# reset draws last, rather than as constants: XLA would fold constants, e.g. turn
+# ``x / total_mass`` into ``x * (1 / total_mass)``, which rounds differently from Gymnasium's
+# division. The programs are compiled and cached for the rest of the parameters only.
+FLOAT_PARAMS = (
+    "gravity",
+    "masscart",
+    "masspole",
+    "length",
+    "force_mag",
+    "tau",
+    "x_threshold",
+    "theta_threshold_radians",
+    "reset_low",
+    "reset_high",
+)
+
+
+def float_values(params: EnvParams, low: float, high: float) -> np.ndarray:
+    """The float parameters as an array ``[len(FLOAT_PARAMS)]``, reset bounds ``(low, high)``."""
+    values = [getattr(params, name) for name in FLOAT_PARAMS[:-2]]
+    return np.array([*values, low, high], dtype=np.float64)
+
+
+def compile_key(params: EnvParams) -> EnvParams:
+    """``params`` without its float values (they travel at run time): the compilation key."""
+    return params.replace(**{name: 0.0 for name in FLOAT_PARAMS})
+
+
+def with_floats(params: EnvParams, values) -> EnvParams:
+    """``params`` with the float parameters taken from ``values`` (traced)."""
+    return params.replace(**{name: values[i] for i, name in enumerate(FLOAT_PARAMS)})
+
+
+# The compiled programs. Their state argument is donated: XLA writes the new state into the
+# old one's buffer.
+
+
+def single_step(packed, action, floats, params: EnvParams):
+    """One physics step of one env: ``packed`` is ``[x, x_dot, theta, theta_dot, terminated]``
+    (``(5,)``; the flag is ignored on input) and so is the result; ``floats``: the float
+    parameters (see :func:`float_values`)."""
+    import jax.numpy as jnp
+
+    from jaxcart.core import env as cartpole
+
+    state = cartpole.state_from_obs(packed[:4])
+    params = with_floats(params, floats)
+    obs, _, _, terminated, _ = cartpole.step_env(state, action, params)
+    return jnp.append(obs, terminated.astype(obs.dtype))
+
+
+# The vector env's device state is one array ``[rows, num_envs]`` in the env's float dtype,
+# which each step donates and gets back whole, and which comes to the host in one copy: one
+# buffer in, one buffer out, one transfer. Its rows:
+STATE_ROWS = slice(0, 4)  # x, x_dot, theta, theta_dot after the last step (and its reset,
+# except in SAME_STEP, where an env that ended restarts from its START_ROWS on the next step)
+STEP_COUNT = 4  # steps taken in the current episode (exact in float32 up to 2**24)
+REWARD = 5  # of the last step
+ENDED = 6  # how the last step ended the episode: terminated + 2 * truncated (0: it did not)
+START_ROWS = slice(7, 11)  # SAME_STEP only: a fresh start state, used where the episode ended
+# Few rows on purpose: XLA:CPU fuses a concatenation of at most 8 operands only, and the
+# step's output is one (4 state rows, step count, reward, ended, start rows).
+
+
+def num_rows(mode: AutoresetMode) -> int:
+    return 11 if mode is AutoresetMode.SAME_STEP else 7
+
+
+def start_states(key, floats, num_envs: int, dtype):
+    """Fresh start states ``[4, num_envs]``, uniform in ``[low, high)`` (the last two floats).
+
+    Drawn with jaxcart's counter hash (:func:`jaxcart.core.env.hash_uniform`) in float32 (one hash
+    per number; the values are then exact in float64 too); Threefry would cost more than the
+    physics.
+    """
+    import jax.numpy as jnp
+
+    from jaxcart.core import env as cartpole
+
+    low, high = floats[-2:].astype(jnp.float32)
+    return cartpole.hash_uniform(key, (4, num_envs), jnp.float32, low, high).astype(dtype)
+
+
+def vector_reset(rows, key, floats, mask):
+    """Starts new episodes where ``mask`` (bool ``[num_envs]``): fresh states, every other row
+    of those envs zero."""
+    import jax.numpy as jnp
+
+    fresh = start_states(key, floats, rows.shape[1], rows.dtype)
+    fresh = jnp.concatenate([fresh, jnp.zeros((rows.shape[0] - 4, rows.shape[1]), rows.dtype)])
+    return jnp.where(mask, fresh, rows)
+
+
+def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
+    """Steps every env, resetting as ``mode`` says; ``rows`` in, ``rows`` out (see the layout above).
+    ``inputs``: uint32 ``[num_envs + 2]``, the actions then this step's key (one transfer).
+
+    NEXT_STEP: the envs whose episode ended on the previous step start a new one instead of
+    stepping (reward 0, not terminated or truncated), as Gymnasium's ``CartPoleVectorEnv``.
+    SAME_STEP: the envs whose episode ended on the previous step step from the start state
+    drawn then (the host returned it as their observation), and every env gets a fresh start
+    state in case its episode ends now; the state rows keep the stepped state, the host's
+    ``final_obs``. DISABLED: no reset.
+
+    The stepped state is used once: XLA:CPU would compute it again (its sin and cos included)
+    for a second use.
+    """
+    import jax.numpy as jnp
+
+    from jaxcart.core import env as cartpole
+
+    actions, key = inputs[:-2], inputs[-2:]
+    ended = rows[ENDED] != 0  # on the previous step
+    start, steps = rows[STATE_ROWS], rows[STEP_COUNT].astype(jnp.int32)
+    if mode is AutoresetMode.SAME_STEP:
+        start = jnp.where(ended, rows[START_ROWS], start)
+        steps = jnp.where(ended, 0, steps)
+    state = cartpole.EnvState(start[0], start[1], start[2], start[3], step_count=steps)
+    params = with_floats(params, floats)
+    _, state, reward, terminated, truncated = cartpole.step_env(state, actions, params)
+    new = jnp.stack([state.x, state.x_dot, state.theta, state.theta_dot])
+    steps = state.step_count
+    fresh = start_states(key, floats, rows.shape[1], rows.dtype)
+    if mode is AutoresetMode.NEXT_STEP:
+        new = jnp.where(ended, fresh, new)
+        steps = jnp.where(ended, 0, steps)
+        reward = jnp.where(ended, jnp.zeros_like(reward), reward)
+        terminated, truncated = terminated & ~ended, truncated & ~ended
+    code = terminated.astype(rows.dtype) + 2 * truncated.astype(rows.dtype)
+    out = [new, steps[None], reward[None], code[None]]
+    if mode is AutoresetMode.SAME_STEP:
+        out.append(fresh)
+    return jnp.concatenate([r.astype(rows.dtype) for r in out])
+
+
+def float_spec(x64: bool):
+    import jax
+    import jax.numpy as jnp
+
+    return jax.ShapeDtypeStruct((len(FLOAT_PARAMS),), jnp.float64 if x64 else jnp.float32)
+
+
+@functools.cache
+def compiled_single_step(params: EnvParams, x64: bool):
+    """:func:`single_step` for ``params`` (a :func:`compile_key`), compiled ahead of time in
+    that precision (the state donated)."""
+    import jax
+    import jax.numpy as jnp
+
+    with precision(x64):
+        packed = jax.ShapeDtypeStruct((5,), jnp.float64 if x64 else jnp.float32)
+        action = jax.ShapeDtypeStruct((), jnp.int32)
+        fn = jax.jit(functools.partial(single_step, params=params), donate_argnums=0)
+        return fn.lower(packed, action, float_spec(x64)).compile()
+
+
+def rows_spec(num_envs: int, mode: AutoresetMode, x64: bool):
+    import jax
+    import jax.numpy as jnp
+
+    dtype = jnp.float64 if x64 else jnp.float32
+    return jax.ShapeDtypeStruct((num_rows(mode), num_envs), dtype)
+
+
+@functools.cache
+def compiled_vector_reset(num_envs: int, mode: AutoresetMode, x64: bool):
+    """:func:`vector_reset` compiled ahead of time (the rows donated)."""
+    import jax
+    import jax.numpy as jnp
+
+    with precision(x64):
+        key = jax.ShapeDtypeStruct((2,), jnp.uint32)
+        mask = jax.ShapeDtypeStruct((num_envs,), jnp.bool_)
+        fn = jax.jit(vector_reset, donate_argnums=0)
+        return fn.lower(rows_spec(num_envs, mode, x64), key, float_spec(x64), mask).compile()
+
+
+@functools.cache
+def compiled_vector_step(params: EnvParams, num_envs: int, mode: AutoresetMode, x64: bool):
+    """:func:`vector_step` for ``params`` (a :func:`compile_key`) and ``mode``, compiled ahead
+    of time (the rows donated)."""
+    import jax
+    import jax.numpy as jnp
+
+    with precision(x64):
+        rows = rows_spec(num_envs, mode, x64)
+        inputs = jax.ShapeDtypeStruct((num_envs + 2,), jnp.uint32)
+        fn = jax.jit(functools.partial(vector_step, params=params, mode=mode), donate_argnums=0)
+        return fn.lower(rows, inputs, float_spec(x64)).compile()
+
+
+def step_inputs(actions: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """:func:`vector_step`'s ``inputs``: uint32 ``[num_envs + 2]``, the actions ``[num_envs]``
+    then the step's key ``[2]``."""
+    inputs = np.empty(len(actions) + 2, dtype=np.uint32)
+    inputs[:-2] = actions
+    inputs[-2:] = key
+    return inputs
+
+
+def with_states(rows, states: Any, mode: AutoresetMode):
+    """The device ``rows`` with the physical states set to ``states`` ``[4, num_envs]`` (read
+    as float64); in ``SAME_STEP`` the start rows too, as they are the state where an episode
+    has just ended. Call it in the rows' precision (:func:`precision`)."""
+    states = np.asarray(states, dtype=np.float64)
+    if states.shape != (4, rows.shape[1]):
+        raise ValueError(f"state must have shape (4, {rows.shape[1]}), got {states.shape}")
+    rows = rows.at[STATE_ROWS].set(states)
+    if mode is AutoresetMode.SAME_STEP:
+        rows = rows.at[START_ROWS].set(states)
+    return rows
+
+
+def observations(rows: np.ndarray) -> np.ndarray:
+    """float32 ``[num_envs, 4]`` from the host copy of the rows: the transposed state rows, in
+    Fortran order like the ``state.T.astype(np.float32)`` of Gymnasium's ``CartPoleVectorEnv``
+    (a straight cast, several times cheaper than a transposing one)."""
+    return rows[STATE_ROWS].T.astype(np.float32)
