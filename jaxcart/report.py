@@ -220,7 +220,7 @@ def next_steps_text(outcome: Outcome) -> str:
         pick = f" --seed-index {seed}" if seed else ""
         gif = out / f"seed{seed}.gif"
         commands = [
-            (f"python -m jaxcart.plot {q(str(out))}", f"learning curves into {out / 'curves.png'}"),
+            (f"python -m jaxcart.plot {q(str(out))}", "learning curves, into its curves.png"),
             (
                 f"python -m jaxcart.evaluate {q(str(out))}{pick} --gif {q(str(gif))}",
                 f"watch seed {seed}'s policy",
