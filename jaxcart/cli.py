@@ -5,6 +5,7 @@ code 2, no abbreviations, "did you mean" hints, ``--version``, one default per o
 from __future__ import annotations
 
 import argparse
+import decimal
 import difflib
 import re
 import sys
@@ -52,9 +53,65 @@ class HelpFormatter(argparse.HelpFormatter):
         return super()._format_text(text)
 
 
+# Other libraries' names for jaxcart's options (Stable-Baselines3, CleanRL, PureJaxRL, rl-zoo):
+# a hint by meaning comes before one by spelling, so that ``--lr`` suggests ``--learning-rate``
+# rather than ``--anneal-lr``. Each name lists candidates in order; the first that the command
+# has is suggested (``--episodes`` is ``--eval-episodes`` in train, ``--episodes`` in evaluate).
+ALIASES: dict[str, tuple[str, ...]] = {
+    **dict.fromkeys(("lr", "step-size"), ("--learning-rate",)),
+    **dict.fromkeys(("lr-schedule", "lr-decay", "linear-lr", "anneal"), ("--anneal-lr",)),
+    **dict.fromkeys(("discount", "discount-factor"), ("--gamma",)),
+    **dict.fromkeys(("lambda", "lam", "gae", "lmbda", "gae-lam"), ("--gae-lambda",)),
+    **dict.fromkeys(("n-steps", "nsteps", "rollout-length", "horizon", "n-step"), ("--num-steps",)),
+    **dict.fromkeys(("n-envs", "nenvs", "envs", "num-env", "num-workers"), ("--num-envs",)),
+    **dict.fromkeys(("seeds", "n-seeds", "nseeds", "num-seed"), ("--num-seeds",)),
+    **dict.fromkeys(("ent", "entropy", "entropy-coef", "ent-coeff"), ("--ent-coef",)),
+    **dict.fromkeys(("vf", "value-coef", "vf-coeff", "value-loss-coef"), ("--vf-coef",)),
+    **dict.fromkeys(
+        ("batch-size", "minibatch", "mini-batch-size", "num-minibatches", "nminibatches"),
+        ("--minibatch-size",),
+    ),
+    **dict.fromkeys(
+        ("epochs", "n-epochs", "num-epochs", "ppo-epochs", "noptepochs"), ("--update-epochs",)
+    ),
+    **dict.fromkeys(
+        ("total-steps", "timesteps", "n-timesteps", "num-timesteps", "total-env-steps"),
+        ("--total-timesteps",),
+    ),
+    **dict.fromkeys(
+        ("clip-range", "clip", "clip-param", "clip-eps", "cliprange"), ("--clip-coef",)
+    ),
+    **dict.fromkeys(("grad-clip", "max-norm", "clip-grad-norm", "grad-norm"), ("--max-grad-norm",)),
+    **dict.fromkeys(("eps", "epsilon", "adam-epsilon"), ("--adam-eps",)),
+    **dict.fromkeys(
+        ("normalize-advantage", "normalize-advantages", "norm-advantage"), ("--norm-adv",)
+    ),
+    **dict.fromkeys(("net-arch", "hidden", "hidden-size", "layers"), ("--hidden-sizes",)),
+    **dict.fromkeys(("activation-fn", "act"), ("--activation",)),
+    **dict.fromkeys(
+        ("output", "output-dir", "outdir", "log-dir", "logdir", "save-dir", "save-path", "run-dir"),
+        ("--out",),
+    ),
+    **dict.fromkeys(
+        ("n-eval-episodes", "num-episodes", "n-episodes", "eval-episodes", "episodes"),
+        ("--eval-episodes", "--episodes"),
+    ),
+    **dict.fromkeys(("continue", "restore", "resume-from", "load"), ("--resume",)),
+    **dict.fromkeys(
+        ("save-freq", "checkpoint-freq", "checkpoint-interval", "save-every"),
+        ("--checkpoint-every",),
+    ),
+    **dict.fromkeys(("algo", "config", "hyperparams"), ("--preset",)),
+    **dict.fromkeys(("track", "wandb", "tensorboard", "tensorboard-log"), ("--logger",)),
+    **dict.fromkeys(("video", "render", "save-gif", "gif-path"), ("--gif",)),
+}
+
+
 def suggestion(token: str, options: Sequence[str]) -> str | None:
-    """The option an unknown ``token`` probably meant: ``--num_seeds`` -> ``--num-seeds``,
-    ``--learn`` -> ``--learning-rate``, ``--lerning-rate`` -> ``--learning-rate``."""
+    """The option an unknown ``token`` probably meant: by meaning (:data:`ALIASES`: ``--lr``
+    -> ``--learning-rate``, ``--n-envs`` -> ``--num-envs``), else by spelling
+    (``--num_seeds`` -> ``--num-seeds``, ``--learn`` -> ``--learning-rate``,
+    ``--lerning-rate`` -> ``--learning-rate``)."""
     name = token.split("=", 1)[0]
     if not name.startswith("-") or name == "-":
         return None
@@ -62,6 +119,9 @@ def suggestion(token: str, options: Sequence[str]) -> str | None:
     wanted = "--" + name.lstrip("-").replace("_", "-").lower()
     if wanted in longs:
         return wanted
+    meant = [o for o in ALIASES.get(wanted[2:], ()) if o in longs]
+    if meant:
+        return meant[0]
     # a prefix (--learn), a last part (--epochs: --update-epochs), else a near spelling
     bare = wanted[2:]
     for found in (
@@ -72,6 +132,33 @@ def suggestion(token: str, options: Sequence[str]) -> str | None:
         if found:
             return found[0] if len(found) == 1 else f"one of {', '.join(found[:5])}"
     return None
+
+
+MAX_COUNT = 2**63 - 1
+"""The largest count :func:`count` accepts (a 64-bit integer)."""
+
+
+def count(text: str) -> int:
+    """A positive integer as a user writes one: ``100000``, ``100_000``, ``1e5`` or ``1.5e5``
+    (an argparse ``type``).
+
+    Raises:
+        argparse.ArgumentTypeError: not a number, not whole (``1.5e0``), not positive, or
+            over :data:`MAX_COUNT`.
+    """
+    try:
+        value = decimal.Decimal(text.strip())
+    except decimal.InvalidOperation:
+        value = None
+    if value is None or not value.is_finite() or value != value.to_integral_value():
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number (such as 4, 100_000 or 1e5), got {text!r}"
+        )
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    if value > MAX_COUNT:  # int() of 1e999999999 would take the memory of a billion digits
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.3g}, got {text}")
+    return int(value)
 
 
 class Parser(argparse.ArgumentParser):
@@ -89,6 +176,10 @@ class Parser(argparse.ArgumentParser):
         )
 
     def error(self, message: str):
+        # "argument --num-seeds: must be ..." reads as the other checks do: "--num-seeds must be"
+        named = re.fullmatch(r"argument (--[\w-]+): (must .*)", message, re.DOTALL)
+        if named:
+            message = f"{named[1]} {named[2]}"
         raise UsageError(f"{message} (see {self.prog} --help)")
 
     def exit(self, status: int = 0, message: str | None = None):

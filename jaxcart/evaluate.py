@@ -30,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         "run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run (or sweep) directory"
     )
     parser.add_argument(
-        "--episodes", type=int, default=NUM_EVAL_EPISODES, help="greedy episodes per seed"
+        "--episodes", type=cli.count, default=NUM_EVAL_EPISODES, help="greedy episodes per seed"
     )
     parser.add_argument(
         "--combination",
@@ -82,8 +82,6 @@ def _combo_label(c: int, combos: list) -> str:
 
 def _evaluate_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
-    if args.episodes <= 0:
-        raise cli.UsageError(f"--episodes must be a positive integer, got {args.episodes}")
     info = rundir.read_run_config(args.run_dir)
     num_seeds = int(info.get("num_seeds", 1))
     sweep = bool(combinations(info))

@@ -6,6 +6,7 @@ Nothing here trains or writes files; :class:`ConsoleReport` turns a run's lifecy
 
 from __future__ import annotations
 
+import shlex
 import signal
 import sys
 from typing import IO, TYPE_CHECKING
@@ -14,8 +15,11 @@ import numpy as np
 
 from jaxcart.cli import format_table
 from jaxcart.core.config import PRESETS, config_fields, preset
+from jaxcart.core.solved import EVAL_SEED
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
+    from pathlib import Path
+
     from jaxcart.engine.trainer import Progress
     from jaxcart.run.lifecycle import Outcome, Run
 
@@ -76,12 +80,14 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
             return "-"
         return f"{e['value']:.{digits}f} [{e['ci_low']:.{digits}f}, {e['ci_high']:.{digits}f}]"
 
-    names, n = list(outcome.run.sweep), outcome.run.grid.num_seeds
+    names, grid = list(outcome.run.sweep), outcome.run.grid
+    n, scores = grid.num_seeds, outcome.evaluation.gym_returns.mean(axis=-1)
     rows = [
         [
             r["combination"],
             *[f"{r[name]:g}" for name in names],
             interval(r["iqm"], 1),
+            f"{scores[grid.runs_of(r['combination'])].mean():.1f}",
             interval(r["probability_of_improvement"], 2),
             f"{r['solve_rate']:.0%}",
             f"{r['final_return']:.1f}",
@@ -97,6 +103,7 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
         "combo",
         *names,
         "IQM gym return [95% CI]",
+        "gym mean",
         "P(> combo 0) [95% CI]",
         "solved",
         "final ep_rew_mean",
@@ -107,6 +114,15 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
     return rows, header
 
 
+SWEEP_COLUMNS = (
+    "IQM: interquartile mean (middle 50%) of the seeds' mean greedy Gymnasium returns, which "
+    "ranks the combinations; gym mean: their plain mean (the plot's 'mean return'); "
+    "final ep_rew_mean: the last 100 training episodes, mean over seeds"
+)
+"""The line under the sweep table: the IQM and the plain mean are different statistics of
+the same per-seed scores, so they differ whenever the seeds do."""
+
+
 def results_text(outcome: Outcome) -> str:
     """The evaluation table (or the sweep ranking) after a finished run."""
     episodes, grid = outcome.evaluation.episodes, outcome.run.grid
@@ -115,25 +131,107 @@ def results_text(outcome: Outcome) -> str:
         return (
             f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = all {episodes} greedy "
             f"Gymnasium episodes score 500):\n{format_table(rows, header)}\n"
+            f"{SWEEP_COLUMNS}\n"
             f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
         )
     rows, header = evaluation_rows(outcome)
     return (
         f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('CartPole-v1'):\n"
         + format_table(rows, header)
+        + "\n"
+        + evaluation_columns_text(episodes)
+    )
+
+
+def evaluation_columns_text(episodes: int) -> str:
+    """The one line under the evaluation table that says what each column is over: the two
+    greedy means start from different states, so they differ for a policy that does not
+    solve every start (which is not a parity bug)."""
+    last = EVAL_SEED + episodes - 1
+    return (
+        f"gym: {episodes} greedy episodes in Gymnasium (reset seeds {EVAL_SEED}..{last}); "
+        f"jaxcart mean: {episodes} greedy episodes in jaxcart's JAX env from other start "
+        "states, so it differs unless the policy solves every start; train ep_rew_mean: the "
+        "last 100 training episodes (sampled actions)"
     )
 
 
 def summary_line(outcome: Outcome, wall_seconds: float) -> str:
-    """``solved 2/2 run(s) | wall ... | N env steps at M steps/s ... on D device(s)``."""
+    """``solved 2/2 run(s) | wall ... | N env steps at M steps/s ... on D device(s)``; after a
+    resume, the times and steps are this session's, and say so, with the training time in
+    all added where the run records it."""
     ev = outcome.evaluation
     steps, run_s, compile_s = outcome.env_steps, outcome.train_seconds, outcome.compile_seconds
+    train, session = f"train {run_s:.1f} s", ""
+    if outcome.run.resumed_from is not None:
+        session = " this session"
+        total = total_train_seconds(outcome)
+        train += session + (f" and {total:.1f} s in all" if total is not None else "")
+    rate = ""  # none when this session trained nothing (a resume that only evaluated)
+    if run_s > 0:
+        rate = (
+            f" at {steps / run_s:,.0f} steps/s ({steps / (run_s + compile_s):,.0f} incl. compile)"
+        )
     return (
         f"\nsolved {int(ev.solved.sum())}/{len(ev.solved)} run(s) | wall {wall_seconds:.1f} s "
-        f"(compile {compile_s:.1f} s, train {run_s:.1f} s, eval {ev.seconds:.1f} s) | "
-        f"{steps:,} env steps at {steps / run_s:,.0f} steps/s "
-        f"({steps / (run_s + compile_s):,.0f} incl. compile) on {outcome.num_devices} device(s)"
+        f"(compile {compile_s:.1f} s, {train}, eval {ev.seconds:.1f} s) | "
+        f"{steps:,} env steps{session}{rate} on {outcome.num_devices} device(s)"
     )
+
+
+def total_train_seconds(outcome: Outcome) -> float | None:
+    """Seconds of training over every session of a run trained in one wave (its state's
+    ``elapsed``, which the checkpoint carries across resumes); None for a run in waves,
+    whose earlier waves' times only its output files record."""
+    result = outcome.result
+    if result is None or outcome.run.plan.num_waves > 1:
+        return None
+    return float(result.state.elapsed)
+
+
+def next_steps_text(outcome: Outcome) -> str:
+    """The commands a user runs next on a finished run: its learning curves, a GIF of a
+    policy (the first solved seed, else seed 0; a sweep's best-ranked combination) and a
+    comparison (with another run; a sweep's combinations with each other). Paths are quoted
+    for the shell."""
+    out = outcome.run.out
+    q = shlex.quote
+    if outcome.run.grid.is_sweep:
+        best = outcome.ranking[0]["combination"] if outcome.ranking else 0
+        solved = np.flatnonzero(outcome.evaluation.solved[outcome.run.grid.runs_of(best)])
+        seed = int(solved[0]) if len(solved) else 0
+        pick = f" --seed-index {seed}" if seed else ""
+        gif = out / f"combo-{best:03d}" / f"seed{seed}.gif"
+        commands = [
+            (
+                f"python -m jaxcart.plot {q(str(out))} --out {q(str(out / 'curves.png'))}",
+                "learning curves of every combination",
+            ),
+            (
+                f"python -m jaxcart.evaluate {q(str(out))} --combination {best}{pick} "
+                f"--gif {q(str(gif))}",
+                f"watch seed {seed} of the best-ranked combination",
+            ),
+            (f"python -m jaxcart.compare {q(str(out))}", "the combinations' statistics"),
+        ]
+    else:
+        solved = np.flatnonzero(outcome.evaluation.solved)
+        seed = int(solved[0]) if len(solved) else 0
+        pick = f" --seed-index {seed}" if seed else ""
+        gif = out / f"seed{seed}.gif"
+        commands = [
+            (f"python -m jaxcart.plot {q(str(out))}", "learning curves, into its curves.png"),
+            (
+                f"python -m jaxcart.evaluate {q(str(out))}{pick} --gif {q(str(gif))}",
+                f"watch seed {seed}'s policy",
+            ),
+            (
+                f"python -m jaxcart.compare {q(str(out))} OTHER_RUN",
+                "statistics against another run",
+            ),
+        ]
+    width = max(len(c) for c, _ in commands)
+    return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
 
 
 def stopped_text(outcome: Outcome, resume_hint: str) -> str:
@@ -148,29 +246,53 @@ def stopped_text(outcome: Outcome, resume_hint: str) -> str:
     return f"stopped {where}; checkpoint saved in {run.out}\nresume with: {resume_hint}"
 
 
+def resume_command(out: Path) -> str:
+    """``python -m jaxcart.train --resume RUN`` with the path quoted for the shell."""
+    from jaxcart.run.lifecycle import RESUME_HINT
+
+    return RESUME_HINT.format(out=shlex.quote(str(out)))
+
+
+def checkpoint_text(run: Run) -> str:
+    """Which iteration the checkpoint on disk holds, as the run knows it (``iteration
+    12/40``, ``iteration 3/40 of wave 2/5``); "" when none was saved yet."""
+    meta = run.checkpoint_meta
+    if meta is None:
+        return ""
+    where = f"iteration {int(meta['iteration'])}/{run.config.num_iterations}"
+    if run.plan.num_waves > 1:
+        where += f" of wave {int(meta.get('wave', 0)) + 1}/{run.plan.num_waves}"
+    return where
+
+
 def write_failed_text(run: Run | None, exc: OSError) -> str:
     """The one line after a write failed (ENOSPC, EROFS, EACCES, ...)."""
-    from jaxcart.run.lifecycle import RESUME_HINT
     from jaxcart.rundir.checkpoint import CHECKPOINT_FILE
 
     what = f"error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}"
     if run is None or not (run.out / CHECKPOINT_FILE).exists():
         return what
+    at = checkpoint_text(run)
     return (
-        f"{what}; the last checkpoint is intact: once the disk has room, resume with: "
-        + RESUME_HINT.format(out=run.out)
+        f"{what}; the last checkpoint{f' (at {at})' if at else ''} is intact: once the disk "
+        f"has room, resume with: {resume_command(run.out)}"
     )
 
 
 def interrupted_text(run: Run | None, signum: int | None) -> str:
-    """The one line after a second signal stopped the process at once."""
-    from jaxcart.run.lifecycle import RESUME_HINT
-
+    """The one line after a second signal stopped the process at once: which iteration the
+    checkpoint on disk holds, and how to resume."""
     if run is None or not (run.out / "config.json").exists():
         return "stopped at once; no run directory was written"
+    at = checkpoint_text(run)
+    if not at:
+        return (
+            f"stopped at once before the first checkpoint; resuming {run.out} starts from "
+            f"iteration 0: {resume_command(run.out)}"
+        )
     return (
-        f"stopped at once; the last checkpoint in {run.out} is intact: resume with: "
-        + RESUME_HINT.format(out=run.out)
+        f"stopped at once; the checkpoint in {run.out} (at {at}) is intact: resume with: "
+        + resume_command(run.out)
     )
 
 

@@ -66,7 +66,7 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
     )
     run.add_argument(
         "--num-seeds",
-        type=int,
+        type=cli.count,
         default=None,
         help="independent agents trained together (default: 1)",
     )
@@ -98,7 +98,7 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
     )
     run.add_argument(
         "--eval-episodes",
-        type=int,
+        type=cli.count,
         default=None,
         help="greedy evaluation episodes per seed (default 20; a resumed run keeps its own)",
     )
@@ -126,7 +126,7 @@ def _add_distributed_options(dist: argparse._ArgumentGroup) -> None:
         "JAX_NUM_PROCESSES, JAX_PROCESS_ID or the cluster (SLURM, ...)",
     )
     dist.add_argument("--coordinator-address", default=None, metavar="HOST:PORT")
-    dist.add_argument("--num-processes", type=int, default=None)
+    dist.add_argument("--num-processes", type=cli.count, default=None)
     dist.add_argument("--process-id", type=int, default=None)
 
 
@@ -153,9 +153,10 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
         elif f.name == "hidden_sizes":
             group.add_argument(flag, type=_tuple_of_ints, metavar="N,N", **kwargs)
         else:
-            group.add_argument(
-                flag, type={"int": int, "float": float, "str": str}[str(f.type)], **kwargs
-            )
+            # every integer field is a count (validate() wants them positive): 1e5 and
+            # 100_000 are read as 100000
+            kind = {"int": cli.count, "float": float, "str": str}[str(f.type)]
+            group.add_argument(flag, type=kind, **kwargs)
 
 
 @dataclass(frozen=True)
@@ -291,7 +292,8 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
                 extend_to = opts.overrides.get("total_timesteps")
                 outcome = lifecycle.resume_run(opts.resume, run_options, hooks, stop, extend_to)
             except RunDirError as exc:
-                raise cli.UsageError(f"cannot resume: {exc}") from None
+                hint = "" if extend_to is not None else _extend_hint(opts.resume)
+                raise cli.UsageError(f"cannot resume: {exc}{hint}") from None
         else:
             command = ["python -m jaxcart.train", *opts.argv]
             outcome = lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
@@ -307,19 +309,55 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
     return _report(outcome, console, time.perf_counter() - wall_start)
 
 
+def _extend_hint(out: Path) -> str:
+    """For a run that finished: how to train it further (``--total-timesteps`` above its
+    current total), or why it cannot be; "" for any other run."""
+    import shlex
+
+    from jaxcart.rundir import checkpoint
+    from jaxcart.rundir import layout as rundir
+
+    try:
+        info = rundir.read_run_config(out)
+        config = info["config"]
+        path = out / checkpoint.CHECKPOINT_FILE
+        iteration = checkpoint.read_checkpoint_meta(path)["iteration"]
+    except (rundir.RunDirError, OSError, KeyError, ValueError):
+        return ""
+    written = rundir.SWEEP_FILE if rundir.is_sweep(out) else rundir.EVALUATION_FILE
+    if iteration < config.num_iterations or not (out / written).exists():
+        return ""
+    total = config.env_steps_per_seed
+    runs = int(info.get("num_seeds", 1)) * max(1, len(info.get("combinations", [])))
+    if (info.get("wave_size") or runs) < runs:  # as lifecycle's _extend decides
+        return (
+            ". It trained in waves, which keep no final state, so it cannot be extended: start "
+            f"a new run with a --total-timesteps above its {total:,}"
+        )
+    if config.anneal_lr:
+        return (
+            f". Its learning rate anneals to 0 (anneal_lr), so it cannot be extended: start a "
+            f"new run with a --total-timesteps above its {total:,}"
+        )
+    return (
+        f". To train it further, give a larger total: python -m jaxcart.train --resume "
+        f"{shlex.quote(str(out))} --total-timesteps N, with N above its current {total:,} "
+        "env steps per seed"
+    )
+
+
 def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: float) -> int:
     from jaxcart import report
-    from jaxcart.run import lifecycle
 
     if outcome.stopped:
-        hint = lifecycle.RESUME_HINT.format(out=outcome.run.out)
-        console.print(report.stopped_text(outcome, hint))
+        console.print(report.stopped_text(outcome, report.resume_command(outcome.run.out)))
         return 128 + outcome.signum
     if outcome.evaluation is None:  # not process 0: it evaluates and reports
         return 0
     console.print(report.results_text(outcome))
     console.print(report.summary_line(outcome, wall))
     console.print(f"run directory: {outcome.run.out}")
+    console.print(report.next_steps_text(outcome))
     return 128 + outcome.signum if outcome.signum else 0
 
 

@@ -128,7 +128,11 @@ def test_same_seed_same_metrics(small_run, tmp_path):
         (["--num-seeds", "0"], "--num-seeds must be a positive integer"),
         (["--preset", "nope"], "unknown preset"),
         (["--bogus-option", "1"], "unrecognized arguments"),
-        (["--num-envs", "two"], "invalid int value"),
+        (["--num-envs", "two"], "--num-envs: expected a whole number"),
+        (["--total-timesteps", "1.5e0"], "--total-timesteps: expected a whole number"),
+        (["--total-timesteps", "-5"], "--total-timesteps must be a positive integer, got -5"),
+        (["--update-epochs", "0"], "--update-epochs must be a positive integer, got 0"),
+        (["--lr", "1e-3"], "unrecognized arguments: --lr 1e-3 (did you mean --learning-rate?)"),
         (["--hidden-sizes", "64,x"], "comma-separated integers"),
     ],
 )
@@ -217,6 +221,16 @@ def _parsers():
         ("train", ["--num_seeds", "2"], "did you mean --num-seeds?"),
         ("train", ["--lerning-rate", "1e-3"], "did you mean --learning-rate?"),
         ("train", ["--epochs", "3"], "did you mean --update-epochs?"),
+        ("train", ["--lr", "1e-3"], "did you mean --learning-rate?"),
+        ("train", ["--n-envs", "8"], "did you mean --num-envs?"),
+        ("train", ["--n_steps", "128"], "did you mean --num-steps?"),
+        ("train", ["--batch-size", "64"], "did you mean --minibatch-size?"),
+        ("train", ["--clip-range", "0.2"], "did you mean --clip-coef?"),
+        ("train", ["--timesteps", "1e5"], "did you mean --total-timesteps?"),
+        ("train", ["--seeds", "4"], "did you mean --num-seeds?"),
+        ("train", ["--n-eval-episodes", "5"], "did you mean --eval-episodes?"),
+        ("evaluate", ["RUN", "--n-eval-episodes", "5"], "did you mean --episodes?"),
+        ("plot", ["RUN", "--output-dir", "x"], "did you mean --out?"),
         ("evaluate", ["RUN", "--episode", "3"], "did you mean --episodes?"),
         ("plot", ["RUN", "--lab", "x"], "did you mean --label?"),
         ("compare", ["RUN", "--base", "RUN"], "did you mean --baseline?"),
@@ -228,6 +242,65 @@ def test_abbreviations_refused_with_a_suggestion(command, argv, hint, tmp_path, 
     assert code == 2 and "unrecognized arguments" in err and hint in err, err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert not (tmp_path / "never").exists()
+
+
+def test_every_alias_names_an_option_of_a_command():
+    """Each name of :data:`cli.ALIASES` suggests an option that a command really has, and a
+    command suggests the first of its candidates that it has."""
+    from jaxcart import cli
+
+    options = {p.prog: list(p._option_string_actions) for p in _parsers()}
+    for alias, candidates in cli.ALIASES.items():
+        held = {prog: [c for c in candidates if c in opts] for prog, opts in options.items()}
+        assert any(held.values()), (alias, candidates)
+        for prog, found in held.items():
+            if found and f"--{alias}" not in options[prog]:  # else spelled right there
+                assert cli.suggestion(f"--{alias}", options[prog]) == found[0], (prog, alias)
+    train = options["python -m jaxcart.train"]
+    assert cli.suggestion("--lr", train) == "--learning-rate"  # not --anneal-lr by spelling
+    assert cli.suggestion("--LR=3e-4", train) == "--learning-rate"
+
+
+@pytest.mark.parametrize(
+    "text, value",
+    [("2048", 2048), ("100_000", 100_000), ("1e5", 100_000), ("1.5E5", 150_000), (" 8 ", 8)],
+)
+def test_counts_read_as_users_write_them(text, value):
+    from jaxcart import cli
+
+    assert cli.count(text) == value and type(cli.count(text)) is int
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("1.5e0", "expected a whole number"),
+        ("2.5", "expected a whole number"),
+        ("four", "expected a whole number"),
+        ("nan", "expected a whole number"),
+        ("inf", "expected a whole number"),
+        ("0", "must be a positive integer, got 0"),
+        ("-1e3", "must be a positive integer, got -1e3"),
+        ("1e999999999", "must be at most"),
+    ],
+)
+def test_counts_refused(text, message):
+    import argparse
+
+    from jaxcart import cli
+
+    with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
+        cli.count(text)
+
+
+def test_evaluate_episodes_is_a_count(small_run, capsys):
+    from jaxcart import evaluate
+
+    assert evaluate.main([str(small_run), "--episodes", "2.5"]) == 2
+    err = capsys.readouterr().err
+    assert "--episodes: expected a whole number" in err and len(err.splitlines()) == 1
+    assert evaluate.main([str(small_run), "--episodes", "2e0"]) == 0
+    assert "reset seeds 1000000...1000001" in capsys.readouterr().out
 
 
 def test_unknown_options_without_a_near_spelling_get_no_hint(capsys):
@@ -301,3 +374,123 @@ def test_run_header_shows_the_overrides(tmp_path, capsys):
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith("jaxcart PPO | preset sb3 + num_envs=4, num_steps=32, ")
     assert "learning_rate=0.001 |" in first
+
+
+# --- what a new user reads after training ------------------------------------------------
+
+
+def _next_steps(out: str) -> list[list[str]]:
+    """The commands of the "next:" block, split as a shell would (comments dropped)."""
+    import shlex
+
+    block = out.split("\nnext:\n", 1)[1].splitlines()
+    return [shlex.split(line, comments=True) for line in block if line.startswith("  python")]
+
+
+def _run_printed(command: list[str]) -> int:
+    """Runs ``python -m jaxcart.X ARGS`` as printed, in-process through X's ``main``."""
+    import importlib
+
+    assert command[:2] == ["python", "-m"], command
+    return importlib.import_module(command[2]).main(command[3:])
+
+
+def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
+    """Counts in scientific notation, the evaluation table's columns explained, the next
+    steps (quoted paths) runnable as printed; resuming the finished run says how to extend
+    it, and the extension's summary says which training time is whose."""
+    import shlex
+
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "my run"  # a space: the printed paths must be quoted
+    argv = [*tiny_args(1024, eval_episodes=3), "--total-timesteps", "5.12e2", "--num-steps"]
+    assert main([*argv, "3.2e1", "--no-compile-cache", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    info = json.loads((out / "config.json").read_text())
+    assert info["config"]["total_timesteps"] == 512 and info["config"]["num_steps"] == 32
+    columns = text.split("train ep_rew_mean\n", 1)[1].splitlines()[2]  # under the one seed
+    assert columns.startswith("gym: 3 greedy episodes in Gymnasium (reset seeds 1000000..1000002)")
+    assert "jaxcart mean: 3 greedy episodes in jaxcart's JAX env from other start" in columns
+    commands = _next_steps(text)
+    assert [c[2] for c in commands] == ["jaxcart.plot", "jaxcart.evaluate", "jaxcart.compare"]
+    assert f"python -m jaxcart.plot {shlex.quote(str(out))}" in text
+    assert commands[1][3:] == [str(out), "--gif", str(out / "seed0.gif")]
+    assert commands[2][3:] == [str(out), "OTHER_RUN"]
+    for command in commands[:2]:
+        assert _run_printed(command) == 0, command
+    assert (out / "curves.png").exists() and (out / "seed0.gif").exists()
+
+    capsys.readouterr()
+    assert main(["--resume", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "already finished" in err and len(err.splitlines()) == 1
+    assert (
+        f"python -m jaxcart.train --resume {shlex.quote(str(out))} --total-timesteps N, "
+        "with N above its current 512 env steps per seed" in err
+    )
+
+    assert main(["--resume", str(out), "--total-timesteps", "1_024", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    elapsed = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)["elapsed"]
+    found = re.search(r"train ([\d.]+) s this session and ([\d.]+) s in all, eval", text)
+    assert found and found[2] == f"{elapsed:.1f}", text
+    assert float(found[1]) <= float(found[2])
+    assert "512 env steps this session at" in text
+
+    info = json.loads((out / "config.json").read_text())
+    info["config"]["anneal_lr"] = True  # as the fast and purejaxrl presets have it
+    (out / "config.json").write_text(json.dumps(info))
+    assert main(["--resume", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "anneals to 0 (anneal_lr), so it cannot be extended: start a new run" in err
+    assert "--total-timesteps above its 1,024" in err and len(err.splitlines()) == 1
+
+
+def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, capsys):
+    """The sweep table's plain gym mean is the plot's "mean return" (the IQM beside it is
+    another statistic, and the line under the table says so); the next steps run as printed."""
+    from jaxcart import plot
+    from jaxcart.rundir.runs import load_runs
+
+    out = tmp_path / "sweep"
+    sweep = ["--sweep", "learning_rate=1e-3,3e-4", "--num-seeds", "2", "--no-compile-cache"]
+    assert main([*tiny_args(256, eval_episodes=2), *sweep, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "IQM: interquartile mean (middle 50%) of the seeds' mean greedy Gymnasium" in text
+    table = text.split("Sweep ranking", 1)[1].splitlines()
+    header = re.split(r"\s{2,}", table[1].strip())
+    column = header.index("gym mean")
+    for row in table[3:5]:
+        cells = re.split(r"\s{2,}", row.strip())
+        run = load_runs([out / f"combo-{int(cells[0]):03d}"])[0]
+        summary = " ".join(plot._summary_lines(run))
+        assert f"mean return {cells[column]}\n" in summary, (cells, summary)
+    best = int(table[3].split()[0])
+    commands = _next_steps(text)
+    assert commands[0][3:] == [str(out), "--out", str(out / "curves.png")]
+    assert commands[1][3:5] == [str(out), "--combination"] and commands[1][5] == str(best)
+    assert commands[2][3:] == [str(out)]
+    assert _run_printed(commands[0]) == 0 and (out / "curves.png").exists()
+
+
+def test_the_second_signal_line_names_the_checkpoints_iteration(tmp_path):
+    from types import SimpleNamespace
+
+    from jaxcart.core.config import PPOConfig
+    from jaxcart.report import interrupted_text
+
+    (tmp_path / "config.json").write_text("{}")
+    config = PPOConfig(total_timesteps=8 * 2048)
+
+    def run(meta, waves=1):
+        plan = SimpleNamespace(num_waves=waves)
+        return SimpleNamespace(out=tmp_path, checkpoint_meta=meta, config=config, plan=plan)
+
+    text = interrupted_text(run({"iteration": 0}), 2)
+    assert f"the checkpoint in {tmp_path} (at iteration 0/8) is intact" in text
+    assert text.endswith(f"resume with: python -m jaxcart.train --resume {tmp_path}")
+    assert "(at iteration 3/8 of wave 2/5)" in interrupted_text(
+        run({"iteration": 3, "wave": 1}, waves=5), 2
+    )
+    assert "before the first checkpoint" in interrupted_text(run(None), 2)
+    assert "no run directory" in interrupted_text(None, 2)

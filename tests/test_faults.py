@@ -149,8 +149,9 @@ BAD_OPTIONS = [
     (["--minibatch-size", "100"], "does not divide"),
     (["--learning-rate", "0"], "learning_rate must be > 0"),
     (["--learning-rate", "-3e-4"], "learning_rate must be > 0"),
-    (["--total-timesteps", "0"], "total_timesteps must be a positive integer"),
-    (["--num-steps", "-5"], "num_steps must be a positive integer"),
+    (["--total-timesteps", "0"], "--total-timesteps must be a positive integer"),
+    (["--total-timesteps", "1.5e0"], "--total-timesteps: expected a whole number"),
+    (["--num-steps", "-5"], "--num-steps must be a positive integer"),
     (["--gamma", "0"], "gamma must be in (0, 1]"),
     (["--gamma", "1.01"], "gamma must be in (0, 1]"),
     (["--gae-lambda", "2"], "gae_lambda must be in (0, 1]"),
@@ -163,7 +164,7 @@ BAD_OPTIONS = [
     (["--num-seeds", "-4"], "--num-seeds must be a positive integer"),
     (["--preset", "ppo2"], "unknown preset"),
     (["--not-an-option"], "unrecognized arguments"),
-    (["--num-envs", "four"], "invalid int value"),
+    (["--num-envs", "four"], "--num-envs: expected a whole number"),
     (["--activation", "gelu"], "activation must be 'tanh' or 'relu'"),
     (["--hidden-sizes", "64,,x"], "comma-separated integers"),
     (["--sweep", "learning_rate"], "malformed --sweep"),
@@ -239,7 +240,7 @@ def test_other_bad_paths(finished_run, tmp_path):
     else:
         cases.append((["--out", str(locked / "sub")], "cannot write"))
     cases.append((["--resume", str(tmp_path / "missing")], "cannot resume"))
-    cases.append((["--resume", str(finished_run)], "nothing to resume"))
+    cases.append((["--resume", str(finished_run)], "nothing to resume. To train it further"))
     cases.append((["--resume", str(finished_run), "--seed", "3"], "drop --seed"))
     for argv, message in cases:
         FAULT_FIGURES["bad inputs tried"] += 1
@@ -359,8 +360,9 @@ def test_second_sigint_stops_at_once_and_leaves_the_checkpoint_valid(tmp_path):
     proc.send_signal(signal.SIGINT)
     text, _ = proc.communicate(timeout=60)
     _clean_stop(text, 128 + signal.SIGINT, proc, signal.SIGINT)
-    assert "stopped at once; the last checkpoint" in text and f"--resume {out}" in text
-    checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)  # readable
+    meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)  # readable
+    assert f"stopped at once; the checkpoint in {out} (at iteration {meta['iteration']}/" in text
+    assert f"--resume {out}" in text
     resumed = _run("--resume", str(out), "--quiet")
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
 
@@ -404,7 +406,7 @@ def test_a_failing_checkpoint_write_keeps_the_last_one_and_resume_finishes(
     assert f"cannot write {out / 'checkpoint.npz'}: No space left on device" in err
     assert "resume with" in err and len(err.strip().splitlines()) == 1
     meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
-    assert meta["iteration"] > 0
+    assert meta["iteration"] > 0 and f"(at iteration {meta['iteration']}/" in err
     assert not list(out.glob(".*.tmp"))
     monkeypatch.undo()
     assert main(["--resume", str(out), "--quiet"]) == 0
