@@ -11,7 +11,7 @@ import jax
 import numpy as np
 
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.ppo import METRIC_NAMES
+from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.rundir import layout as rundir
 
 TINY = PPOConfig(  # 32 iterations of 128 transitions: a training test in seconds

@@ -14,7 +14,7 @@ import pytest
 from helpers import assert_same_run_dirs, start_train, tiny_args
 
 import jaxcart
-from jaxcart.core.ppo import METRIC_NAMES
+from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.rundir import checkpoint
 from jaxcart.rundir import layout as rundir
 from jaxcart.train import build_parser, main

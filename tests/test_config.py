@@ -8,7 +8,7 @@ import jax
 import pytest
 
 from jaxcart.core.config import PRESETS, TRACED_FIELDS, ConfigError, PPOConfig, field_docs, preset
-from jaxcart.core.ppo import Hyperparams
+from jaxcart.core.tricks import Hyperparams
 
 
 def test_sb3_defaults():

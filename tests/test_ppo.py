@@ -10,18 +10,15 @@ import numpy as np
 import pytest
 
 from jaxcart.core.config import PPOConfig
+from jaxcart.core.metrics import EpisodeBuffer, explained_variance, update_episode_buffer
 from jaxcart.core.networks import ActorCritic
-from jaxcart.core.ppo import (
-    Batch,
-    EpisodeBuffer,
+from jaxcart.core.ppo import Batch, compute_gae, make_optimizer, ppo_loss, update_epochs
+from jaxcart.core.tricks import (
     Hyperparams,
-    Transition,
-    compute_gae,
-    explained_variance,
+    categorical_entropy,
+    categorical_log_prob,
     pack_batch,
-    ppo_loss,
     unpack_batch,
-    update_episode_buffer,
 )
 
 
@@ -179,25 +176,14 @@ def test_episode_buffer_keeps_last_100_in_order():
     done = np.zeros((T, E), bool)
     done[::2, :] = True  # 30 x 3 = 90 episodes per rollout
     returns = np.arange(T * E, dtype=np.float32).reshape(T, E)
-    rollout = Transition(
-        obs=None,
-        action=None,
-        log_prob=None,
-        value=None,
-        reward=None,
-        terminated=jnp.asarray(done),
-        truncated=jnp.zeros((T, E), bool),
-        final_obs=None,
-        episode_return=jnp.asarray(returns),
-        episode_length=jnp.asarray(returns),
-    )
     empty = EpisodeBuffer(jnp.zeros(100), jnp.zeros(100), jnp.zeros(100, bool))
-    buf = update_episode_buffer(empty, rollout)
+    done_j, returns_j = jnp.asarray(done), jnp.asarray(returns)
+    buf = update_episode_buffer(empty, done_j, returns_j, returns_j)
     assert int(buf.valid.sum()) == 90
     np.testing.assert_allclose(
         np.sort(np.asarray(buf.returns)[np.asarray(buf.valid)]), np.sort(returns[done])
     )
-    buf = update_episode_buffer(buf, rollout._replace(episode_return=jnp.asarray(returns + 1000)))
+    buf = update_episode_buffer(buf, done_j, returns_j + 1000, returns_j)
     kept = np.sort(np.asarray(buf.returns)[np.asarray(buf.valid)])
     assert len(kept) == 100
     # the newest 90 plus the 10 most recent of the first rollout
@@ -207,8 +193,6 @@ def test_episode_buffer_keeps_last_100_in_order():
 
 def test_categorical_helpers_match_distrax():
     import distrax
-
-    from jaxcart.core.ppo import categorical_entropy, categorical_log_prob
 
     logits = jax.random.normal(jax.random.PRNGKey(0), (50, 2)) * 3
     action = jax.random.randint(jax.random.PRNGKey(1), (50,), 0, 2)
@@ -230,8 +214,6 @@ PROBE = PPOConfig(num_envs=8, num_steps=16, minibatch_size=32, update_epochs=4, 
 
 def _train_on_probe(reward_fn, iterations: int = 40, seed: int = 0):
     """PPO's own GAE + update on a one-step probe env; returns (params, network)."""
-    from jaxcart.core.ppo import categorical_log_prob, make_optimizer, update_epochs
-
     network = ActorCritic(hidden_sizes=(16,))
     params = jax.tree.map(jnp.asarray, network.init(np.random.default_rng(seed)))
     hp = Hyperparams.from_config(PROBE)

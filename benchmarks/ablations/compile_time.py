@@ -1,7 +1,7 @@
 """Where the cold compile of the default training step goes, and what XLA flags do to it.
 
 The default run (``python -m jaxcart.train``: the ``sb3`` preset, one seed, one device)
-compiles one program, :func:`jaxcart.core.ppo.train_chunk`. Each variant below runs in a fresh
+compiles one program, :func:`jaxcart.engine.chunk.train_chunk`. Each variant below runs in a fresh
 process with the persistent cache off and measures, for that program:
 
 - ``trace``: Python tracing to a jaxpr, ``lower``: jaxpr to StableHLO (JAX's side);
@@ -59,15 +59,17 @@ VARIANTS = {
 
 
 def stub(part: str) -> None:
-    """Replaces one part of :mod:`jaxcart.core.ppo` with a stub of the same signature."""
+    """Replaces one part of the training program (:mod:`jaxcart.core.ppo`,
+    :mod:`jaxcart.engine.chunk`) with a stub of the same signature."""
     import jax.numpy as jnp
 
     from jaxcart.core import ppo
+    from jaxcart.engine import chunk
 
     if part == "guard":
-        ppo.guard_divergence = lambda old, new, metrics, iteration: (new, metrics)
+        chunk.guard_divergence = lambda old, new, metrics, iteration: (new, metrics)
     elif part == "episodes":
-        ppo.update_episode_buffer = lambda buffer, rollout: buffer
+        ppo.update_episode_buffer = lambda buffer, done, episode_return, episode_length: buffer
     elif part == "update":
         names = ("approx_kl", "clip_fraction", "entropy_loss", "policy_gradient_loss")
         names += ("value_loss", "loss")
@@ -92,8 +94,8 @@ def child(run: bool, part: str | None) -> dict:
     if part:
         stub(part)
     from jaxcart.core import env as cartpole
-    from jaxcart.core import ppo
     from jaxcart.core.config import preset
+    from jaxcart.engine import chunk
     from jaxcart.engine.trainer import broadcast_hyperparams, default_chunk_size, init_runners
 
     config = preset("sb3")
@@ -103,7 +105,7 @@ def child(run: bool, part: str | None) -> dict:
     hps = broadcast_hyperparams(config, 1)
 
     def fn(runners, hps, start):
-        return ppo.train_chunk(runners, hps, start, config, env_params, chunk_size)
+        return chunk.train_chunk(runners, hps, start, config, env_params, chunk_size)
 
     marks = [(time.perf_counter(), time.process_time())]
     traced = jax.jit(fn).trace(runners, hps, jnp.int32(0))

@@ -24,7 +24,8 @@ import numpy as np
 from benchmarks import lib
 from jaxcart.core import env as cartpole
 from jaxcart.core.config import preset
-from jaxcart.core.ppo import collect_rollout, train_chunk, training_batch, update_epochs
+from jaxcart.core.ppo import collect_rollout, training_batch, update_epochs
+from jaxcart.engine.chunk import train_chunk
 from jaxcart.engine.trainer import broadcast_hyperparams, init_runners
 
 

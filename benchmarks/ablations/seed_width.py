@@ -7,7 +7,7 @@ another inside the program (``lax.map`` over seeds instead of ``vmap``) runs the
 per-seed program at every width. This script measures, on one pinned core, for each width S:
 
 - whether seed 0 comes out bit-identical at width 1 and width S under each scheme (two
-  iterations of :func:`jaxcart.core.ppo.train_chunk`, ``sb3`` preset);
+  iterations of :func:`jaxcart.engine.chunk.train_chunk`, ``sb3`` preset);
 - the time of one chunk under each scheme, interleaved over ``--rounds``, and the slowdown
   of ``lax.map`` against ``vmap`` (a throughput cost; the issue's bar is 10%).
 
@@ -34,7 +34,7 @@ from benchmarks import lib
 from benchmarks.ablations import roofline  # noqa: F401
 from jaxcart.core import env as cartpole
 from jaxcart.core.config import preset
-from jaxcart.core.ppo import train_iteration
+from jaxcart.engine.chunk import guarded_iteration
 from jaxcart.engine.trainer import broadcast_hyperparams, init_runners
 
 CHUNK = 2
@@ -45,7 +45,7 @@ def chunk_program(config, scheme: str):
     env_params = cartpole.EnvParams()
 
     def one(runner, hp, iteration):
-        return train_iteration(runner, hp, iteration, config, env_params)
+        return guarded_iteration(runner, hp, iteration, config, env_params)
 
     def program(runners, hps):
         def body(runners, iteration):

@@ -33,11 +33,11 @@ class PPOConfig:
     """Hyperparameters of one PPO run on CartPole-v1. Defaults are Stable-Baselines3's."""
 
     num_envs: int = 1
-    """Parallel environments per seed (SB3: n_envs)."""
+    """Parallel environments per run (SB3: n_envs)."""
     num_steps: int = 2048
     """Steps collected per environment per iteration (SB3: n_steps)."""
     total_timesteps: int = 80_000
-    """Environment steps per seed, rounded up to whole iterations of num_envs x num_steps."""
+    """Environment steps per run, rounded up to whole iterations of num_envs x num_steps."""
     minibatch_size: int = 64
     """Transitions per gradient step (SB3: batch_size); must divide num_envs x num_steps."""
     update_epochs: int = 10
@@ -91,12 +91,12 @@ class PPOConfig:
 
     @property
     def num_iterations(self) -> int:
-        """Iterations per seed: total_timesteps rounded up to whole rollouts."""
+        """Iterations per run: total_timesteps rounded up to whole rollouts."""
         return math.ceil(self.total_timesteps / self.batch_size)
 
     @property
     def env_steps_per_seed(self) -> int:
-        """Environment steps actually taken per seed (total_timesteps rounded up)."""
+        """Environment steps actually taken per run (total_timesteps rounded up)."""
         return self.num_iterations * self.batch_size
 
     def static(self) -> PPOConfig:

@@ -56,8 +56,8 @@ def activate(x: Any, activation: str, xp: ModuleType) -> Any:
 def mlp(layers: dict, x: Any, activation: str, xp: ModuleType = jnp) -> Any:
     """One MLP's forward pass: ``x [..., in] -> [..., out]``.
 
-    With a leading seed axis on every kernel ``[S, in, out]`` and bias ``[S, 1, out]``, ``x
-    [S, N, in]`` maps to ``[S, N, out]`` (one policy per seed, batched).
+    With a leading run axis on every kernel ``[R, in, out]`` and bias ``[R, 1, out]``, ``x
+    [R, N, in]`` maps to ``[R, N, out]`` (one policy per run, batched).
     """
     names = layer_names(len(layers) - 1)
     for name in names:

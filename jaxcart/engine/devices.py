@@ -13,7 +13,7 @@ DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
 def use_all_host_cores(count: int | None = None) -> None:
     """Exposes the host's cores to JAX as ``count`` CPU devices (default: all cores).
 
-    XLA on CPU runs one program on one core; with several host devices the seed axis is
+    XLA on CPU runs one program on one core; with several host devices the run axis is
     sharded over them and each core trains its share. The command line calls it; from
     Python, call ``jaxcart.use_all_host_cores()`` before any JAX work to train the same way
     (otherwise JAX gives one CPU device). Only effective before JAX creates its CPU backend

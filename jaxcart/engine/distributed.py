@@ -1,6 +1,6 @@
 """Several processes (hosts) training one run with JAX's own distributed runtime.
 
-One code path for one device, many devices and many processes: the seed axis is sharded over
+One code path for one device, many devices and many processes: the run axis is sharded over
 ``jax.devices()`` (every process's devices), each process computes its own shard, and the
 host-side pieces here move data between the global arrays and NumPy:
 

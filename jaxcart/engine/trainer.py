@@ -21,15 +21,11 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxcart.core import env as cartpole
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.ppo import (
-    METRIC_NAMES,
-    Hyperparams,
-    RunnerState,
-    initial_runners,
-    make_network,
-    train_chunk,
-)
+from jaxcart.core.metrics import METRIC_NAMES
+from jaxcart.core.ppo import RunnerState, make_network
+from jaxcart.core.tricks import Hyperparams
 from jaxcart.engine import distributed
+from jaxcart.engine.chunk import initial_runners, train_chunk
 from jaxcart.engine.signals import wait_interruptibly
 
 
@@ -48,7 +44,7 @@ def padded_runs(num_runs: int, num_devices: int) -> int:
 
 def run_sharding(devices: list) -> NamedSharding:
     """Shards a leading run axis over ``devices`` (every device of every process)."""
-    return NamedSharding(Mesh(np.array(devices), ("seed",)), PartitionSpec("seed"))
+    return NamedSharding(Mesh(np.array(devices), ("runs",)), PartitionSpec("runs"))
 
 
 def pad_runs(tree: Any, num_runs: int) -> Any:
@@ -359,7 +355,7 @@ _COMPILED: dict = {}
 def compiled_chunk(
     config: PPOConfig, env_params: cartpole.EnvParams, chunk_size: int, runners, hps
 ) -> tuple[Callable, bool]:
-    """The compiled :func:`~jaxcart.core.ppo.train_chunk` for these shapes and devices.
+    """The compiled :func:`~jaxcart.engine.chunk.train_chunk` for these shapes and devices.
 
     Kept per process, keyed by what shapes the program: the static part of the config
     (:meth:`PPOConfig.static`), the env constants, the chunk size and the runs' array shapes

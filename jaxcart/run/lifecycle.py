@@ -25,8 +25,8 @@ import jax
 import numpy as np
 
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.core.ppo import Hyperparams
 from jaxcart.core.solved import NUM_EVAL_EPISODES, is_solved
+from jaxcart.core.tricks import Hyperparams
 from jaxcart.engine import devices, distributed
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.engine.trainer import Progress, TrainResult, TrainState, initial_state, train

@@ -1,10 +1,10 @@
 """Hyperparameter sweeps as one compiled program, and the order of runs on the seed axis.
 
 Every combination x seed is one run on the vmapped axis; the swept float hyperparameters
-travel as arrays (:class:`~jaxcart.core.ppo.Hyperparams`), so the program compiles once whatever
-the values. :class:`RunGrid` is the one definition of the run order: run ``r`` is combination
-``r // num_seeds`` with seed index ``r % num_seeds``; all combinations share the seeds'
-random streams. "Seeds" are per combination, "runs" are all of them.
+travel as arrays (:class:`~jaxcart.core.tricks.Hyperparams`), so the program compiles once
+whatever the values. :class:`RunGrid` is the one definition of the run order: run ``r`` is
+combination ``r // num_seeds`` with seed index ``r % num_seeds``; all combinations share the
+seeds' random streams. "Seeds" are per combination, "runs" are all of them.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxcart.analysis import stats
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
-from jaxcart.core.ppo import Hyperparams
+from jaxcart.core.tricks import Hyperparams
 
 
 @dataclass(frozen=True)
