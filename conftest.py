@@ -1,0 +1,159 @@
+"""Every code block of README.md and docs/*.md runs in the test suite (with Sybil).
+
+- ``python`` blocks run in this process, each document's blocks in one namespace, in order.
+- ``bash`` blocks run through :func:`run_shell_block`: each block in one ``bash`` process,
+  with two CPU devices as the tests' training subprocesses have (tests/helpers.py
+  ``TRAIN_ENV``) and a timeout. Only ``python -m jaxcart...`` commands are run, so a block
+  that installs, downloads, benchmarks or trains for minutes must be marked skipped in the
+  Markdown, with its reason: ``<!-- skip: next "needs Stable-Baselines3" -->``.
+- ``text`` blocks (sample output, trees) are not code. A fence with another language, or
+  none, fails, so that no block is silently left untested.
+
+Each document gets a fresh temporary directory as the working directory of its blocks
+(``runs/...`` written by one block is read by the next), removed afterwards.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+from sybil import Document, Example, Region, Sybil
+from sybil.parsers.markdown import PythonCodeBlockParser, SkipParser
+from sybil.parsers.markdown.lexers import RawFencedCodeBlockLexer
+
+import jaxcart
+
+# Two CPU devices for the Python blocks too, as tests/conftest.py sets for the tests (the flag
+# must be in place before JAX starts; a later call is then a no-op).
+jaxcart.use_all_host_cores(2)
+
+REPO = Path(__file__).resolve().parent
+SHELL_TIMEOUT_S = 300
+"""One bash block's limit: a block that needs longer belongs behind a skip directive."""
+
+RUNNABLE_COMMAND = re.compile(r"^python -m jaxcart(\.\w+)?( |$)")
+"""The commands a bash block may hold: jaxcart's own, which leave files in the temp dir only."""
+
+TESTED_LANGUAGES = ("python", "bash")
+UNTESTED_LANGUAGES = ("text",)  # sample output and diagrams, not code
+
+
+def shell_commands(source: str) -> list[str]:
+    """The commands of a bash block: comments and blank lines dropped, ``\\`` lines joined."""
+    commands, pending = [], ""
+    for line in source.splitlines():
+        line = pending + line.strip()
+        if line.endswith("\\"):
+            pending = line[:-1]
+            continue
+        pending = ""
+        words = shlex.split(line, comments=True)
+        if words:
+            commands.append(shlex.join(words))
+    return commands
+
+
+def shell_env() -> dict[str, str]:
+    """The environment of a bash block: this interpreter first on PATH (so ``python`` is the
+    one running the tests), this checkout importable, two CPU devices."""
+    python_path = os.pathsep.join(p for p in (str(REPO), os.environ.get("PYTHONPATH")) if p)
+    return {
+        **os.environ,
+        "PATH": os.pathsep.join((str(Path(sys.executable).parent), os.environ.get("PATH", ""))),
+        "PYTHONPATH": python_path,
+        "XLA_FLAGS": "--xla_force_host_platform_device_count=2",
+    }
+
+
+def run_shell_block(example: Example) -> None:
+    """Runs a bash block's commands in the document's temporary directory; each must succeed."""
+    source = example.parsed
+    for command in shell_commands(source):
+        if not RUNNABLE_COMMAND.match(command):
+            raise AssertionError(
+                f"refusing to run {command!r}: doc tests run only `python -m jaxcart...` "
+                'commands; mark the block with <!-- skip: next "why" --> above it'
+            )
+    try:
+        done = subprocess.run(
+            ["bash", "-e", "-o", "pipefail", "-c", source],
+            cwd=example.namespace["workdir"],
+            env=shell_env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            timeout=SHELL_TIMEOUT_S,
+        )
+    except subprocess.TimeoutExpired as e:
+        raise AssertionError(f"bash block still running after {SHELL_TIMEOUT_S} s") from e
+    if done.returncode != 0:
+        raise AssertionError(f"bash block exited {done.returncode}:\n{done.stdout[-4000:]}")
+
+
+def refuse_block(example: Example) -> None:
+    """The evaluator of a fence in a language the doc tests do not run."""
+    language = example.parsed or "(none)"
+    raise AssertionError(
+        f"code block with language {language}: use ```python or ```bash (both run in the "
+        "tests) or ```text (output, diagrams)"
+    )
+
+
+class UntestedFenceParser:
+    """Yields every fenced block whose language is neither tested nor declared as text."""
+
+    def __init__(self) -> None:
+        self.lexer = RawFencedCodeBlockLexer(
+            info_pattern=re.compile(r"(?P<language>[^\n]*)$\n", re.MULTILINE),
+            mapping={"language": "language"},
+        )
+
+    def __call__(self, document: Document) -> Iterable[Region]:
+        for region in self.lexer(document):
+            language = region.lexemes["language"].strip()
+            if language not in TESTED_LANGUAGES + UNTESTED_LANGUAGES:
+                yield Region(region.start, region.end, language, refuse_block)
+
+
+class BashBlockParser:
+    """Yields the ``bash`` fenced blocks, evaluated by :func:`run_shell_block`."""
+
+    def __init__(self) -> None:
+        self.lexer = RawFencedCodeBlockLexer(
+            info_pattern=re.compile(r"(?P<language>bash)$\n", re.MULTILINE),
+            mapping={"source": "source"},
+        )
+
+    def __call__(self, document: Document) -> Iterable[Region]:
+        for region in self.lexer(document):
+            yield Region(region.start, region.end, region.lexemes["source"], run_shell_block)
+
+
+def enter_workdir(namespace: dict) -> None:
+    """Before a document: a fresh temporary working directory for its blocks."""
+    namespace["workdir"] = tempfile.mkdtemp(prefix="jaxcart-docs-")
+    namespace["previous_cwd"] = os.getcwd()
+    os.chdir(namespace["workdir"])
+
+
+def leave_workdir(namespace: dict) -> None:
+    """After a document: back to where pytest was, and the temporary directory removed."""
+    os.chdir(namespace["previous_cwd"])
+    shutil.rmtree(namespace["workdir"], ignore_errors=True)
+
+
+pytest_collect_file = Sybil(
+    parsers=[SkipParser(), PythonCodeBlockParser(), BashBlockParser(), UntestedFenceParser()],
+    patterns=["README.md", "docs/*.md"],
+    excludes=["*/README.md"],  # benchmarks/README.md and others: only the top-level README
+    setup=enter_workdir,
+    teardown=leave_workdir,
+).pytest()

@@ -1,0 +1,77 @@
+"""The documentation's shape: a short README with its set-up commands first, the same test
+command as CI, links that resolve, and a reason on every skipped code block. (The code blocks
+themselves run through the repository's conftest.py.)"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+README = REPO / "README.md"
+DOCS = sorted([README, *(REPO / "docs").glob("*.md")])
+
+INSTALL_AND_TRAIN = "pip install -e . && python -m jaxcart.train"
+TEST_COMMAND = (
+    "pip install -e '.[test]' && ruff check . && ruff format --check . && python -m pytest -q"
+)
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+SKIP = re.compile(r"<!--\s*skip:\s*(\w+)(.*?)-->")
+
+
+def github_anchor(heading: str) -> str:
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation dropped, spaces
+    to hyphens (``## 5. SB3 (PyTorch)`` -> ``5-sb3-pytorch``)."""
+    text = heading.strip().lower().replace("`", "")
+    return re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+
+
+def anchors(path: Path) -> set[str]:
+    """The anchors of every heading in a Markdown file, outside code blocks."""
+    found, in_code = set(), False
+    for line in path.read_text().splitlines():
+        if line.startswith("```"):
+            in_code = not in_code
+        elif not in_code and line.startswith("#"):
+            found.add(github_anchor(line.lstrip("#")))
+    return found
+
+
+def test_readme_is_a_short_front_door_with_the_two_commands_first():
+    lines = README.read_text().splitlines()
+    assert len(lines) <= 150, f"README.md has {len(lines)} lines; move depth to docs/"
+    first = lines[:40]
+    assert INSTALL_AND_TRAIN in first, "the install-and-train command must be in lines 1-40"
+    assert TEST_COMMAND in first, "the test command must be in lines 1-40"
+
+
+def test_ci_runs_the_readme_test_command():
+    ci = (REPO / ".ci" / "run").read_text().splitlines()
+    assert TEST_COMMAND in ci, ".ci/run must run exactly the README's test command"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(REPO)))
+def test_relative_links_resolve(doc: Path):
+    text = re.sub(r"```.*?```", "", doc.read_text(), flags=re.DOTALL)
+    broken = []
+    for target in LINK.findall(text):
+        if re.match(r"[a-z]+:", target):
+            continue  # http(s), mailto: not checked offline
+        file_part, _, anchor = target.partition("#")
+        path = (doc.parent / file_part).resolve() if file_part else doc
+        if not path.exists():
+            broken.append(target)
+        elif anchor and path.suffix == ".md" and anchor not in anchors(path):
+            broken.append(target)
+    assert not broken, f"{doc.name}: links to nothing: {broken}"
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(REPO)))
+def test_every_skipped_block_says_why(doc: Path):
+    for action, reason in SKIP.findall(doc.read_text()):
+        assert action == "next", f"{doc.name}: use `skip: next` before each long block"
+        assert re.fullmatch(r'\s*"[^"]{10,}"\s*', reason), (
+            f"{doc.name}: a skip needs a reason in quotes, got {reason.strip()!r}"
+        )
