@@ -105,7 +105,7 @@ def test_bootstrap_ci_deterministic_and_covers():
 def test_single_seed_interval_is_degenerate():
     e = stats.bootstrap_ci(np.array([321.0]), stats.iqm)
     assert (e.value, e.ci_low, e.ci_high) == (321.0, 321.0, 321.0)
-    with pytest.raises(ValueError, match="non-empty"):
+    with pytest.raises(ValueError, match="scores is empty"):
         stats.bootstrap_ci(np.array([]), np.mean)
 
 
