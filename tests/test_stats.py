@@ -1,5 +1,6 @@
-"""jaxcart.analysis.stats on fixed samples: values worked out by hand (in the comments) or by brute
-force, against the definitions of rliable 1.2.0 (Agarwal et al. 2021)."""
+"""jaxcart.analysis (stats, tasks, curves, comparisons) on fixed samples: values worked out by hand
+(in the comments), by brute force (one resample at a time) or by SciPy, against the definitions
+of rliable 1.2.0 (Agarwal et al. 2021)."""
 
 from __future__ import annotations
 
