@@ -1,5 +1,6 @@
-"""jaxcart.analysis.stats on fixed samples: values worked out by hand (in the comments) or by brute
-force, against the definitions of rliable 1.2.0 (Agarwal et al. 2021)."""
+"""jaxcart.analysis (stats, tasks, curves, comparisons) on fixed samples: values worked out by hand
+(in the comments), by brute force (one resample at a time) or by SciPy, against the definitions
+of rliable 1.2.0 (Agarwal et al. 2021)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.stats import mannwhitneyu, trim_mean
 
-from jaxcart.analysis import stats
+from jaxcart.analysis import comparisons, stats, tasks
+from jaxcart.analysis import curves as curves_lib
 
 SAMPLE = np.array([0.0, 10, 20, 30, 40, 50, 60, 500])
 
@@ -105,7 +107,7 @@ def test_bootstrap_ci_deterministic_and_covers():
 def test_single_seed_interval_is_degenerate():
     e = stats.bootstrap_ci(np.array([321.0]), stats.iqm)
     assert (e.value, e.ci_low, e.ci_high) == (321.0, 321.0, 321.0)
-    with pytest.raises(ValueError, match="non-empty"):
+    with pytest.raises(ValueError, match="scores is empty"):
         stats.bootstrap_ci(np.array([]), np.mean)
 
 
@@ -187,3 +189,313 @@ def test_first_reach_and_fraction():
     np.testing.assert_allclose(
         stats.fraction_reached(first, [0, 100, 250, 1e9]), [0, 1 / 3, 2 / 3, 2 / 3]
     )
+
+
+# --- refusals: scores with NaN, infinity or no entries ---------------------------------------
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda x: stats.iqm(x),
+        lambda x: stats.mean(x),
+        lambda x: stats.median(x),
+        lambda x: stats.optimality_gap(x),
+        lambda x: stats.bootstrap_ci(x, stats.iqm, reps=10),
+        lambda x: stats.bootstrap_cis(x, stats.ESTIMATORS, reps=10),
+        lambda x: stats.performance_profile(x, [0.0, 500]),
+        lambda x: stats.performance_profile_band(x, [0.0, 500], reps=10),
+    ],
+)
+def test_scores_with_nan_or_nothing_are_refused(call):
+    # Before: iqm gave a finite wrong value (NaN sorted last, then trimmed away), bootstrap_ci a
+    # NaN estimate with a finite interval, and empty input NaN; SciPy's answer is NaN.
+    with_nan = np.array([500.0, np.nan, 420, 480, np.nan, 500, 300, 500])
+    assert np.isnan(trim_mean(with_nan, 0.25))
+    with pytest.raises(ValueError, match=r"scores holds 2 NaN and 0 infinite values among 8"):
+        call(with_nan)
+    with pytest.raises(ValueError, match=r"scores holds 0 NaN and 1 infinite"):
+        call(np.array([1.0, np.inf]))
+    with pytest.raises(ValueError, match="scores is empty"):
+        call(np.array([]))
+
+
+def test_pairs_name_the_refused_run():
+    good, bad = np.array([1.0, 2]), np.array([1.0, np.nan])
+    for call in (
+        stats.probability_of_improvement,
+        stats.probability_of_improvement_ci,
+        stats.difference_ci,
+    ):
+        with pytest.raises(ValueError, match=r"^x holds 1 NaN"):
+            call(bad, good)
+        with pytest.raises(ValueError, match=r"^y holds 1 NaN"):
+            call(good, bad)
+        with pytest.raises(ValueError, match=r"^y is empty"):
+            call(good, [])
+        with pytest.raises(ValueError, match="1-D array"):
+            call(good[None], good)
+
+
+def test_median_is_over_seeds_not_rliables_median_of_task_means():
+    scores = np.array([500.0] * 5 + [339.0])
+    # rliable's aggregate_median of a [runs, tasks] matrix: the median over tasks of each
+    # task's mean; with one task that is the mean, 2839 / 6.
+    rliable_median = np.median(np.mean(scores[:, None], axis=0))
+    assert stats.median(scores) == 500.0 != rliable_median
+    assert stats.ESTIMATORS["median"] is stats.median
+
+
+# --- difference_ci ----------------------------------------------------------------------------
+
+
+def test_difference_ci_resamples_each_run_within_itself():
+    x, y = SAMPLE, np.array([5.0, 15, 25, 35, 400])
+    reps = 300
+    for statistic in (stats.iqm, stats.mean, stats.median):
+        e = stats.difference_ci(x, y, statistic, reps=reps, seed=11)
+        assert e.value == pytest.approx(float(statistic(x) - statistic(y)))
+        rng = np.random.default_rng(11)
+        ix = rng.integers(0, len(x), size=(reps, len(x)))  # X's seeds first, then Y's
+        iy = rng.integers(0, len(y), size=(reps, len(y)))
+        boot = [float(statistic(x[i]) - statistic(y[j])) for i, j in zip(ix, iy)]
+        assert (e.ci_low, e.ci_high) == pytest.approx(brute_force_interval(boot))
+        assert e == stats.difference_ci(x, y, statistic, reps=reps, seed=11)  # deterministic
+        assert e != stats.difference_ci(x, y, statistic, reps=reps, seed=12)
+    # Two saturated runs: every resample differs by 0.
+    assert stats.difference_ci([500.0] * 4, [500.0] * 6) == stats.Estimate(0, 0, 0)
+
+
+# --- wilson_interval --------------------------------------------------------------------------
+
+
+def test_wilson_interval_by_hand_and_against_scipy():
+    from scipy.stats import binomtest
+
+    # 64/64 at 95%: z = 1.959964, z^2 = 3.841459; centre (1 + z^2/128) / (1 + z^2/64) =
+    # 1.0300114 / 1.0600228 = 0.971688; half-width z sqrt(z^2 / (4 * 64^2)) / 1.0600228 =
+    # 1.959964 * 0.0153122 / 1.0600228 = 0.028312 -> [0.943376, 1].
+    e = stats.wilson_interval(64, 64)
+    assert e.value == 1.0 and e.ci_high == 1.0
+    assert e.ci_low == pytest.approx(0.943376, abs=1e-6)
+    # 0/10: p = 0, the mirror image: [0, z^2/10 / (1 + z^2/10)] = [0, 0.277533].
+    assert stats.wilson_interval(0, 10).to_dict() == pytest.approx(
+        {"value": 0.0, "ci_low": 0.0, "ci_high": 0.2775328}, abs=1e-6
+    )
+    for k, n in [(0, 1), (1, 1), (3, 7), (50, 64), (63, 64), (1, 1000), (500, 1000)]:
+        for confidence in (0.9, 0.95, 0.99, 0.9875):
+            e = stats.wilson_interval(k, n, confidence)
+            ci = binomtest(k, n).proportion_ci(confidence, method="wilson")
+            assert e.value == k / n
+            assert (e.ci_low, e.ci_high) == pytest.approx((ci.low, ci.high), abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "args, match",
+    [((1, 0), "n must be"), ((5, 4), "successes must"), ((-1, 4), "successes must"),
+     ((1.5, 4), "successes must"), ((1, 4, 1.0), "confidence")],
+)  # fmt: skip
+def test_wilson_interval_refuses(args, match):
+    with pytest.raises(ValueError, match=match):
+        stats.wilson_interval(*args)
+
+
+# --- performance profiles at least tau --------------------------------------------------------
+
+
+def test_performance_profile_at_least_shows_the_solved_fraction():
+    scores, taus = np.array([0.0, 100, 500, 500]), np.array([0.0, 100, 499, 500])
+    # at least tau: all four; {100, 500, 500}; {500, 500}; {500, 500}
+    np.testing.assert_allclose(
+        stats.performance_profile(scores, taus, at_least=True), [1, 3 / 4, 1 / 2, 1 / 2]
+    )
+    assert stats.performance_profile(scores, taus)[-1] == 0  # strictly above 500: never
+    profile, low, high = stats.performance_profile_band(scores, taus, reps=300, at_least=True)
+    idx = np.random.default_rng(stats.DEFAULT_SEED).integers(0, 4, size=(300, 4))
+    boot = np.array([stats.performance_profile(scores[i], taus, at_least=True) for i in idx])
+    np.testing.assert_allclose(profile, [1, 3 / 4, 1 / 2, 1 / 2])
+    np.testing.assert_allclose(low, np.percentile(boot, 2.5, axis=0))
+    np.testing.assert_allclose(high, np.percentile(boot, 97.5, axis=0))
+
+
+# --- several tasks: the stratified bootstrap --------------------------------------------------
+
+TASKS_X = [np.array([0.0, 10, 20, 30]), np.array([100.0, 300, 500]), np.array([50.0, 60])]
+TASKS_Y = [np.array([5.0, 10, 10]), np.array([500.0, 200]), np.array([40.0, 60, 70, 80])]
+
+
+def brute_force_pooled(tasks, reps, rng):
+    """One resample at a time: each task's seeds drawn within the task, tasks in order."""
+    draws = [rng.integers(0, len(t), size=(reps, len(t))) for t in tasks]
+    return [np.concatenate([t[d[r]] for t, d in zip(tasks, draws)]) for r in range(reps)]
+
+
+def test_stratified_bootstrap_ci_resamples_within_tasks():
+    reps = 300
+    for statistic in (stats.iqm, stats.mean, stats.optimality_gap):
+        e = tasks.stratified_bootstrap_ci(TASKS_X, statistic, reps=reps, seed=4)
+        assert e.value == pytest.approx(float(statistic(np.concatenate(TASKS_X))))
+        pooled = brute_force_pooled(TASKS_X, reps, np.random.default_rng(4))
+        boot = [float(statistic(p)) for p in pooled]
+        assert (e.ci_low, e.ci_high) == pytest.approx(brute_force_interval(boot))
+        assert e == tasks.stratified_bootstrap_ci(TASKS_X, statistic, reps=reps, seed=4)
+    assert tasks.stratified_bootstrap_ci(TASKS_X, stats.mean) != tasks.stratified_bootstrap_ci(
+        TASKS_X, stats.mean, seed=5
+    )
+    # Seeds never move between tasks: every resample keeps three 0s and three 100s.
+    assert tasks.stratified_bootstrap_ci([[0.0] * 3, [100.0] * 3], stats.mean) == stats.Estimate(
+        50, 50, 50
+    )
+    assert stats.bootstrap_ci([0.0] * 3 + [100.0] * 3, stats.mean).ci_low < 50  # pooled: moves
+
+
+def test_stratified_statistics_match_rliables_aggregates():
+    # rliable: aggregate_iqm = trim_mean(scores [runs, tasks], 0.25, axis=None); its
+    # probability_of_improvement = mean over tasks of Mann-Whitney U / (n m).
+    rng = np.random.default_rng(8)
+    x, y = rng.integers(0, 6, size=(5, 3)) * 100.0, rng.integers(0, 6, size=(7, 3)) * 100.0
+    e = tasks.stratified_bootstrap_ci(list(x.T), stats.iqm, reps=50)
+    assert e.value == pytest.approx(trim_mean(x, 0.25, axis=None))
+    expected = np.mean(
+        [
+            0.5
+            if np.array_equal(x[:, m], y[:, m])
+            else mannwhitneyu(x[:, m], y[:, m], alternative="greater").statistic / (5 * 7)
+            for m in range(3)
+        ]
+    )
+    assert tasks.stratified_probability_of_improvement(list(x.T), list(y.T)) == pytest.approx(
+        expected
+    )
+
+
+def test_one_task_is_the_single_run_statistic_on_the_same_resamples():
+    x, y = TASKS_X[0], TASKS_Y[0]
+    assert tasks.stratified_bootstrap_ci([x], stats.iqm, reps=200) == stats.bootstrap_ci(
+        x, stats.iqm, reps=200
+    )
+    assert tasks.stratified_difference_ci([x], [y], reps=200) == stats.difference_ci(x, y, reps=200)
+    assert tasks.stratified_probability_of_improvement_ci(
+        [x], [y], reps=200
+    ) == stats.probability_of_improvement_ci(x, y, reps=200)
+
+
+def test_stratified_difference_and_improvement_by_brute_force():
+    reps = 200
+    e = tasks.stratified_difference_ci(TASKS_X, TASKS_Y, stats.mean, reps=reps, seed=6)
+    assert e.value == pytest.approx(np.concatenate(TASKS_X).mean() - np.concatenate(TASKS_Y).mean())
+    rng = np.random.default_rng(6)
+    px, py = brute_force_pooled(TASKS_X, reps, rng), brute_force_pooled(TASKS_Y, reps, rng)
+    boot = [a.mean() - b.mean() for a, b in zip(px, py)]
+    assert (e.ci_low, e.ci_high) == pytest.approx(brute_force_interval(boot))
+
+    p = tasks.stratified_probability_of_improvement_ci(TASKS_X, TASKS_Y, reps=reps, seed=6)
+    # Pairs X wins per task (ties half), by X's seed: task 0, X 0/10/20/30 against Y 5, 10, 10:
+    # 0 + 2 + 3 + 3 = 8 of 12; task 1, X 100/300/500 against 500, 200: 0 + 1 + 1.5 = 2.5 of 6;
+    # task 2, X 50/60 against 40, 60, 70, 80: 1 + 1.5 = 2.5 of 8.
+    by_hand = np.mean([8 / 12, 2.5 / 6, 2.5 / 8])
+    assert p.value == pytest.approx(by_hand)
+    assert tasks.stratified_probability_of_improvement(TASKS_X, TASKS_Y) == pytest.approx(by_hand)
+    rng = np.random.default_rng(6)
+    dx = [rng.integers(0, len(t), size=(reps, len(t))) for t in TASKS_X]  # all X draws first
+    dy = [rng.integers(0, len(t), size=(reps, len(t))) for t in TASKS_Y]
+    boot = [
+        np.mean(
+            [
+                stats.probability_of_improvement(tx[ix[r]], ty[iy[r]])
+                for tx, ty, ix, iy in zip(TASKS_X, TASKS_Y, dx, dy)
+            ]
+        )
+        for r in range(reps)
+    ]
+    assert (p.ci_low, p.ci_high) == pytest.approx(brute_force_interval(boot))
+    assert p == tasks.stratified_probability_of_improvement_ci(TASKS_X, TASKS_Y, reps=reps, seed=6)
+
+
+def test_stratified_refusals():
+    with pytest.raises(ValueError, match="tasks holds no task"):
+        tasks.stratified_bootstrap_ci([], stats.iqm)
+    with pytest.raises(ValueError, match=r"tasks_x\[1\] holds 1 NaN"):
+        tasks.stratified_difference_ci([[1.0], [np.nan, 2]], [[1.0]])
+    with pytest.raises(ValueError, match=r"tasks_y\[0\] is empty"):
+        tasks.stratified_probability_of_improvement([[1.0]], [[]])
+    with pytest.raises(ValueError, match="tasks_x has 2 tasks and tasks_y 1"):
+        tasks.stratified_probability_of_improvement_ci([[1.0], [2.0]], [[1.0]])
+
+
+# --- curve scores -----------------------------------------------------------------------------
+
+
+def test_auc_counts_nan_iterations_as_zero():
+    # seed 0: no episode finished in iteration 1 -> (0 + 20 + 40) / 3 = 20;
+    # seed 1: diverged after iteration 2 -> (10 + 30 + 0) / 3 = 40 / 3.
+    curves = np.array([[np.nan, 10], [20.0, 30], [40.0, np.nan]])
+    np.testing.assert_allclose(curves_lib.auc(curves), [20.0, 40 / 3])
+    with pytest.raises(ValueError, match="1 infinite"):
+        curves_lib.auc(np.array([[np.inf, 1.0]]))
+    with pytest.raises(ValueError, match="non-empty"):
+        curves_lib.auc(np.zeros((0, 3)))
+
+
+def test_auc_is_recomputable_from_metrics_csv(tmp_path):
+    import csv
+
+    from jaxcart.rundir.layout import write_metrics_csv
+
+    rng = np.random.default_rng(1)
+    returns = rng.uniform(0, 500, size=(7, 3))
+    returns[:2, 1] = np.nan  # seed 1's first episode ends in iteration 3
+    write_metrics_csv(tmp_path / "metrics.csv", {"rollout/ep_rew_mean": returns}, batch_size=64)
+    per_seed: dict[int, list[float]] = {}
+    with open(tmp_path / "metrics.csv") as f:
+        for row in csv.DictReader(f):
+            value = float(row["rollout/ep_rew_mean"])  # "nan" reads as NaN
+            per_seed.setdefault(int(row["seed_index"]), []).append(
+                0.0 if np.isnan(value) else value
+            )
+    expected = [np.mean(per_seed[s]) for s in range(3)]
+    np.testing.assert_allclose(curves_lib.auc(returns), expected, rtol=1e-6)  # csv: float32
+
+
+def test_return_at_first_iteration_at_or_past_the_budget():
+    curves = np.array([[np.nan, 10], [20.0, 30], [40.0, 50]])
+    env_steps = np.array([100.0, 200, 300])
+    np.testing.assert_array_equal(curves_lib.return_at(curves, env_steps, 50), [0, 10])
+    np.testing.assert_array_equal(curves_lib.return_at(curves, env_steps, 200), [20, 30])
+    np.testing.assert_array_equal(curves_lib.return_at(curves, env_steps, 201), [40, 50])
+    with pytest.raises(ValueError, match="never reaches 301 env steps: it ends at 300"):
+        curves_lib.return_at(curves, env_steps, 301)
+    with pytest.raises(ValueError, match="iterations"):
+        curves_lib.return_at(curves, env_steps[:2], 100)
+
+
+# --- what comparisons can still say -----------------------------------------------------------
+
+
+def test_saturated():
+    assert comparisons.saturated([[500.0] * 64, [500.0] * 10])
+    assert not comparisons.saturated([[500.0] * 64, [500.0] * 9 + [499.0]])
+    assert comparisons.saturated([[3.0]])
+    with pytest.raises(ValueError, match=r"runs\[1\] holds 1 NaN"):
+        comparisons.saturated([[500.0], [np.nan]])
+
+
+def test_number_of_comparisons_and_bonferroni():
+    from itertools import combinations
+
+    for k in range(1, 8):
+        assert comparisons.num_comparisons(k) == k - 1  # each against the baseline
+        assert comparisons.num_comparisons(k, all_pairs=True) == len(
+            list(combinations(range(k), 2))
+        )
+    # 4 comparisons at 95%: each at 1 - 0.05/4 = 0.9875; up to 4 x 5% = 20% miss at least once.
+    assert comparisons.bonferroni_confidence(4) == pytest.approx(0.9875)
+    assert comparisons.familywise_miss_bound(4) == pytest.approx(0.20)
+    assert comparisons.familywise_miss_bound(40) == 1.0
+    # The bound holds for independent intervals: 1 - 0.95^N <= N x 5%.
+    for n in range(1, 30):
+        assert 1 - 0.95**n <= comparisons.familywise_miss_bound(n) + 1e-12
+    with pytest.raises(ValueError, match="comparisons"):
+        comparisons.bonferroni_confidence(0)
+    with pytest.raises(ValueError, match="num_runs"):
+        comparisons.num_comparisons(0)

@@ -4,23 +4,41 @@ Learning at the Edge of the Statistical Precipice" (the ``rliable`` library), in
 A run's *scores* are one number per seed (``[num_seeds]``; :mod:`jaxcart.compare` uses each
 seed's mean greedy Gymnasium return). Over them:
 
-- point estimates: :func:`iqm` (the interquartile mean, 25% trimmed mean), mean, median,
-  :func:`optimality_gap` (how far below CartPole-v1's maximum of 500, on average);
-- :func:`bootstrap_ci`: a 95% percentile bootstrap confidence interval of any of them;
+- point estimates: :func:`iqm` (the interquartile mean, 25% trimmed mean), :func:`mean`,
+  :func:`median` (the median over seeds), :func:`optimality_gap` (how far below CartPole-v1's
+  maximum of 500, on average);
+- :func:`bootstrap_ci`: a percentile bootstrap confidence interval of any of them, and
+  :func:`difference_ci` of the difference between two runs;
 - :func:`probability_of_improvement` of run X over run Y, ``P(X > Y) + 0.5 P(X = Y)`` over
-  all seed pairs, and :func:`probability_of_improvement_ci` (both runs' seeds resampled
-  independently);
-- :func:`performance_profile` (fraction of seeds scoring above tau) and
+  all seed pairs, and :func:`probability_of_improvement_ci`: the effect size to print (see
+  there why not Cohen's d);
+- :func:`wilson_interval`: a success rate (seeds solved out of n) with its Wilson interval;
+- :func:`performance_profile` (fraction of seeds scoring above tau, or at least tau) and
   :func:`performance_profile_band`;
 - :func:`curve_band`: a statistic across seeds of a learning curve ``[iterations, seeds]``
   with a bootstrap band per iteration (whole curves are resampled, as rliable does).
+
+Beside this module: :mod:`jaxcart.analysis.tasks` aggregates several configurations
+(rliable's *tasks*, the stratified bootstrap), :mod:`jaxcart.analysis.curves` turns learning
+curves into per-seed scores (area under the curve, return at a budget), and
+:mod:`jaxcart.analysis.comparisons` says what a set of comparisons can still tell (saturation,
+many intervals at once).
+
+**NaN.** Scores are refused when they hold NaN (or infinity) or are empty: every function
+over scores raises ``ValueError`` naming the argument and counting the NaN, because a NaN
+score has no meaning (it would be trimmed, sorted last or compared as a loss, and give a
+finite wrong answer). Learning curves are different: ``rollout/ep_rew_mean`` is NaN until a
+seed's first episode ends (and after a seed diverges), so :func:`nan_iqm`, :func:`curve_band`
+and :func:`first_at_least` keep their NaN semantics, each stated in its docstring.
 
 Definitions follow rliable 1.2.0 (``rliable/metrics.py`` and ``library.py``): IQM is
 ``scipy.stats.trim_mean(x, 0.25)``; the optimality gap ``gamma - mean(min(x, gamma))`` equals
 ``mean(max(gamma - x, 0))``; the probability of improvement is the Mann-Whitney U statistic
 over ``n * m``; profiles count scores strictly above tau; intervals are the 2.5th and 97.5th
 percentiles of the bootstrap distribution (NumPy's linear interpolation). With one task
-(CartPole) rliable's stratified bootstrap is the ordinary bootstrap over seeds.
+(CartPole) rliable's stratified bootstrap is the ordinary bootstrap over seeds. One name
+differs: :func:`median` is the median over seeds, where rliable's ``aggregate_median`` is the
+median over tasks of each task's mean score (on one task: the mean, e.g. 467.8 against 500).
 
 **Why not rliable itself.** ``rliable`` 1.2.0 resolves beside jaxcart's pins without a
 conflict, but brings eight packages (``arch``, ``statsmodels``, ``pandas``, ``seaborn``,
@@ -30,7 +48,7 @@ conflict, but brings eight packages (``arch``, ``statsmodels``, ``pandas``, ``se
 estimator, tau and curve point). Here every bootstrap is a few array operations over all
 resamples at once (10 runs x 64 seeds take well under a second), and jaxcart's dependencies
 stay as they are. ``tests/test_stats.py`` checks each definition on fixed
-samples against values worked out by hand or by brute force.
+samples against values worked out by hand, by brute force or by SciPy.
 
 Everything is deterministic: resamples come from ``np.random.default_rng(seed)``.
 """
@@ -41,6 +59,7 @@ import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from statistics import NormalDist
 
 import numpy as np
 
@@ -72,32 +91,82 @@ class Estimate:
         return f"{self.value:.{digits}f} [{self.ci_low:.{digits}f}, {self.ci_high:.{digits}f}]"
 
 
+def check_scores(values: np.ndarray, name: str = "scores") -> np.ndarray:
+    """``values`` as a float array, refused if it is empty or holds NaN or infinity.
+
+    Args:
+        values: ``[...]`` scores (any shape, at least one entry).
+        name: the argument's name, for the error message.
+
+    Raises:
+        ValueError: naming ``name`` and counting its NaN and infinite entries.
+    """
+    values = np.asarray(values, float)
+    if values.size == 0:
+        raise ValueError(f"{name} is empty (shape {values.shape}): no score to summarise")
+    finite = np.isfinite(values)
+    if not finite.all():
+        nan = int(np.isnan(values).sum())
+        raise ValueError(
+            f"{name} holds {nan} NaN and {int((~finite).sum()) - nan} infinite values among "
+            f"{values.size}: scores must be finite (a NaN score would be sorted, trimmed or "
+            "compared as a number)"
+        )
+    return values
+
+
+def check_seeds(values: np.ndarray, name: str = "scores") -> np.ndarray:
+    """One run's scores: :func:`check_scores`, and 1-D.
+
+    Args:
+        values: ``[n]`` per-seed scores; name: the argument's name, for the error message.
+    """
+    values = np.asarray(values, float)
+    if values.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D array of per-seed scores, got shape {values.shape}")
+    return check_scores(values, name)
+
+
 def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
     """Interquartile mean: the mean of the middle 50% (``int(0.25 n)`` cut from each end),
     ``scipy.stats.trim_mean(scores, 0.25, axis)`` as rliable computes it, in NumPy alone
     (importing ``scipy.stats`` takes about two seconds).
 
     Args:
-        scores: ``[..., n]`` (reduced along ``axis``).
+        scores: ``[..., n]`` (reduced along ``axis``), finite (:func:`check_scores`).
     """
-    ordered = np.sort(np.moveaxis(np.asarray(scores, float), axis, -1), axis=-1)
+    ordered = np.sort(np.moveaxis(check_scores(scores), axis, -1), axis=-1)
     n = ordered.shape[-1]
     cut = int(0.25 * n)
     return ordered[..., cut : n - cut].mean(-1)
 
 
+def mean(scores: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The mean over seeds, ``[..., n] -> [...]`` along ``axis`` (finite scores only)."""
+    return np.mean(check_scores(scores), axis=axis)
+
+
+def median(scores: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The median over seeds, ``[..., n] -> [...]`` along ``axis`` (finite scores only).
+
+    Not rliable's ``aggregate_median``, the median over tasks of each task's mean score.
+    """
+    return np.median(check_scores(scores), axis=axis)
+
+
 def optimality_gap(scores: np.ndarray, axis: int = -1, target: float = MAX_RETURN) -> np.ndarray:
     """Mean shortfall from ``target``: ``mean(max(target - x, 0))`` along ``axis``."""
-    return np.mean(np.maximum(target - np.asarray(scores, float), 0.0), axis=axis)
+    return np.mean(np.maximum(target - check_scores(scores), 0.0), axis=axis)
 
 
 ESTIMATORS: dict[str, Statistic] = {
-    "mean": np.mean,
-    "median": np.median,
+    "mean": mean,
+    "median": median,
     "iqm": iqm,
     "optimality_gap": optimality_gap,
 }
-"""The aggregate estimates of a run, by name (each reduces ``axis``)."""
+"""The aggregate estimates of a run, by name (each reduces ``axis``; ``"median"`` is the median
+over seeds)."""
 
 
 def resample_indices(num: int, reps: int, rng: np.random.Generator) -> np.ndarray:
@@ -149,10 +218,9 @@ def bootstrap_cis(
     confidence: float = CONFIDENCE,
     seed: int = DEFAULT_SEED,
 ) -> dict[str, Estimate]:
-    """Several statistics of ``scores`` ``[n]`` over one shared set of resamples."""
-    scores = np.asarray(scores, float)
-    if scores.ndim != 1 or scores.size == 0:
-        raise ValueError(f"scores must be a non-empty 1-D array, got shape {scores.shape}")
+    """Several statistics of ``scores`` ``[n]`` (finite, non-empty) over one shared set of
+    resamples."""
+    scores = check_seeds(scores, "scores")
     resampled = scores[resample_indices(scores.size, reps, np.random.default_rng(seed))]
     out = {}
     for name, statistic in statistics.items():
@@ -161,9 +229,65 @@ def bootstrap_cis(
     return out
 
 
-def _pair_wins(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def difference_ci(
+    x: np.ndarray,
+    y: np.ndarray,
+    statistic: Statistic = iqm,
+    reps: int = DEFAULT_REPS,
+    confidence: float = CONFIDENCE,
+    seed: int = DEFAULT_SEED,
+) -> Estimate:
+    """``statistic(x) - statistic(y)`` with a percentile bootstrap interval.
+
+    Each resample draws X's seeds with replacement from X and, independently, Y's from Y (X's
+    indices first, then Y's, from one generator), as :func:`probability_of_improvement_ci`
+    does; all resamples are reduced at once (``statistic`` reduces ``[reps, n]`` along -1).
+    An interval that excludes 0 says the difference is larger than seed-to-seed noise.
+
+    Args:
+        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y (finite, non-empty).
+
+    Returns:
+        The difference (positive: X higher) and its interval.
+    """
+    x, y = check_seeds(x, "x"), check_seeds(y, "y")
+    rng = np.random.default_rng(seed)
+    ix, iy = resample_indices(x.size, reps, rng), resample_indices(y.size, reps, rng)
+    boot = statistic(x[ix], axis=-1) - statistic(y[iy], axis=-1)  # [reps]
+    low, high = percentile_interval(boot, confidence)
+    value = statistic(x, axis=-1) - statistic(y, axis=-1)
+    return Estimate(float(value), float(low), float(high))
+
+
+def wilson_interval(successes: int, n: int, confidence: float = CONFIDENCE) -> Estimate:
+    """A success rate ``successes / n`` (e.g. seeds solved) and its Wilson score interval.
+
+    With ``p = successes / n`` and ``z`` the normal quantile at ``1 - (1 - confidence) / 2``
+    (1.960 at 95%): ``(p + z²/2n ∓ z sqrt(p(1-p)/n + z²/4n²)) / (1 + z²/n)`` (Wilson 1927;
+    SciPy's ``binomtest(k, n).proportion_ci(method="wilson")``). Unlike the normal
+    approximation it stays inside [0, 1] and does not collapse at 0 or n successes: 64 of 64
+    gives [0.9434, 1], a failure rate of up to 5.7% that 64 seeds cannot rule out.
+
+    Args:
+        successes: ``0 <= successes <= n``; n: trials, ``>= 1``.
+        confidence: in (0, 1).
+    """
+    if int(n) != n or n < 1:
+        raise ValueError(f"n must be a positive whole number of trials, got {n}")
+    if int(successes) != successes or not 0 <= successes <= n:
+        raise ValueError(f"successes must be a whole number in [0, n={n}], got {successes}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    z = NormalDist().inv_cdf(1 - (1 - confidence) / 2)
+    p, z2 = successes / n, z * z
+    center = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = z * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
+    return Estimate(p, max(0.0, center - half), min(1.0, center + half))
+
+
+def pair_wins(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """``[n, m]``: 1 where ``x_i > y_j``, 0.5 where equal, 0 where less."""
-    x, y = np.asarray(x, float)[:, None], np.asarray(y, float)[None, :]
+    x, y = check_seeds(x, "x")[:, None], check_seeds(y, "y")[None, :]
     return (x > y) + 0.5 * (x == y)
 
 
@@ -171,10 +295,16 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
     """``P(X > Y) + 0.5 P(X = Y)`` for a random seed of X and a random seed of Y: the share of
     the ``n * m`` seed pairs that X wins, ties counting half (Mann-Whitney ``U / (n m)``).
 
+    This is the effect size the comparison should print (0.5: no difference), beside
+    :func:`difference_ci` for the size in returns. A standardised mean difference (Cohen's d)
+    is not offered: its scale, the pooled SD, collapses on bounded, tied scores (every seed at
+    500 against every seed at 499 divides by 0, where this gives 1), and one seed at 20 or at
+    499 among 63 at 500, against 64 at 500, gives the same d = -0.18, so it adds nothing here.
+
     Args:
-        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y.
+        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y (finite, non-empty).
     """
-    return float(_pair_wins(x, y).mean())
+    return float(pair_wins(x, y).mean())
 
 
 def probability_of_improvement_ci(
@@ -190,7 +320,7 @@ def probability_of_improvement_ci(
     Args:
         x: ``[n]``; y: ``[m]``.
     """
-    wins = _pair_wins(x, y)  # [n, m]
+    wins = pair_wins(x, y)  # [n, m]
     n, m = wins.shape
     rng = np.random.default_rng(seed)
     cx, cy = resample_counts(n, reps, rng), resample_counts(m, reps, rng)  # [reps, n], [reps, m]
@@ -200,17 +330,27 @@ def probability_of_improvement_ci(
     return Estimate(float(wins.mean()), float(low), float(high))
 
 
-def performance_profile(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
-    """Fraction of seeds scoring strictly above each tau (rliable's score distribution).
+def _above(scores: np.ndarray, taus: np.ndarray, at_least: bool) -> np.ndarray:
+    """``[..., n, T]``: whether each score is above (or at least) each tau."""
+    scores, taus = check_scores(scores)[..., :, None], np.asarray(taus, float)
+    return scores >= taus if at_least else scores > taus
+
+
+def performance_profile(scores: np.ndarray, taus: np.ndarray, at_least: bool = False) -> np.ndarray:
+    """Fraction of seeds scoring strictly above each tau (rliable's score distribution), or at
+    least tau with ``at_least=True``.
+
+    rliable's strict ``>`` is 0 at tau = 500 on CartPole whatever the run, hiding the fraction
+    of seeds at the maximum; the comparison should plot ``at_least=True`` (the curve then ends
+    at the share of seeds scoring 500, and starts at 1 for tau = 0).
 
     Args:
-        scores: ``[..., n]``; taus: ``[T]``.
+        scores: ``[..., n]`` (finite, non-empty); taus: ``[T]``.
 
     Returns:
         ``[..., T]``.
     """
-    scores, taus = np.asarray(scores, float), np.asarray(taus, float)
-    return (scores[..., :, None] > taus).mean(axis=-2)
+    return _above(scores, taus, at_least).mean(axis=-2)
 
 
 def performance_profile_band(
@@ -219,13 +359,15 @@ def performance_profile_band(
     reps: int = DEFAULT_REPS,
     confidence: float = CONFIDENCE,
     seed: int = DEFAULT_SEED,
+    at_least: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The profile of ``scores`` ``[n]`` at ``taus`` ``[T]`` and its bootstrap band.
+    """The profile of ``scores`` ``[n]`` at ``taus`` ``[T]`` and its bootstrap band
+    (``at_least`` as in :func:`performance_profile`).
 
     Returns:
         ``(profile, low, high)``, each ``[T]``.
     """
-    above = (np.asarray(scores, float)[:, None] > np.asarray(taus, float)).astype(float)
+    above = _above(check_seeds(scores, "scores"), taus, at_least).astype(float)
     n = above.shape[0]
     counts = resample_counts(n, reps, np.random.default_rng(seed))  # [reps, n]
     low, high = percentile_interval(counts @ above / n, confidence)  # [reps, T] -> [T]
