@@ -1,7 +1,7 @@
 """What the commands print: tables, the run header and summary line, the progress bar.
 
 Nothing here trains or writes files; :class:`ConsoleReport` turns a run's lifecycle events
-(:class:`jaxcart.run.lifecycle.Hooks`) into terminal output.
+(:class:`jaxcart.run.spec.Hooks`) into terminal output.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from jaxcart.core.config import PRESETS, config_fields, preset
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from jaxcart.engine.trainer import Progress
-    from jaxcart.run.lifecycle import Outcome, Run
+    from jaxcart.run.spec import Outcome, Run
 
 
 MAX_TABLE_ROWS = 100
@@ -151,7 +151,7 @@ def stopped_text(outcome: Outcome, resume_hint: str) -> str:
 def write_failed_text(run: Run | None, exc: OSError) -> str:
     """The one line after a write failed (ENOSPC, EROFS, EACCES, ...)."""
     from jaxcart.run.lifecycle import RESUME_HINT
-    from jaxcart.rundir.checkpoint import CHECKPOINT_FILE
+    from jaxcart.rundir.layout import CHECKPOINT_FILE
 
     what = f"error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}"
     if run is None or not (run.out / CHECKPOINT_FILE).exists():
@@ -165,8 +165,9 @@ def write_failed_text(run: Run | None, exc: OSError) -> str:
 def interrupted_text(run: Run | None, signum: int | None) -> str:
     """The one line after a second signal stopped the process at once."""
     from jaxcart.run.lifecycle import RESUME_HINT
+    from jaxcart.rundir.layout import CONFIG_FILE
 
-    if run is None or not (run.out / "config.json").exists():
+    if run is None or not (run.out / CONFIG_FILE).exists():
         return "stopped at once; no run directory was written"
     return (
         f"stopped at once; the last checkpoint in {run.out} is intact: resume with: "
@@ -282,7 +283,7 @@ class ConsoleReport:
 
     def hooks(self):  # -> lifecycle.Hooks
         """These methods as the lifecycle's hooks."""
-        from jaxcart.run.lifecycle import Hooks
+        from jaxcart.run.spec import Hooks
 
         return Hooks(
             on_start=self.on_start,
