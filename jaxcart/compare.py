@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import io
 import os
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,14 +39,13 @@ import numpy as np
 
 from jaxcart import cli, plot
 from jaxcart.analysis import stats
-from jaxcart.rundir import layout as rundir
-from jaxcart.rundir.runs import Run, load_runs
+from jaxcart.rundir import files, layout, reader
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.runs import RunCurves, load_runs
 
 if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
     from matplotlib.figure import Figure
 
-COMPARE_FILE = "compare.json"
-FIGURE_FILE = "compare.png"
 SCORE_DEFINITION = (
     "each seed's mean greedy return in gymnasium.make('CartPole-v1') (evaluation.json)"
 )
@@ -63,9 +61,9 @@ ESTIMATE_NAMES = {"iqm": "IQM", "mean": "mean", "median": "median", "optimality_
 
 @dataclass(frozen=True)
 class Entry:
-    """One compared run: its curves (:class:`jaxcart.rundir.runs.Run`) and per-seed scores."""
+    """One compared run: its curves (:class:`jaxcart.rundir.runs.RunCurves`) and per-seed scores."""
 
-    run: Run
+    run: RunCurves
     scores: np.ndarray  # [num_seeds]
     solved: int  # seeds solved by evaluate's definition (every greedy episode scored 500)
     episodes: int | None  # greedy episodes per seed
@@ -88,27 +86,27 @@ class Entry:
         return stats.first_at_least(best, x, stats.MAX_RETURN)
 
 
-def read_scores(run: Run) -> tuple[np.ndarray, int, int | None]:
+def read_scores(run: RunCurves) -> tuple[np.ndarray, int, int | None]:
     """``(scores [num_seeds], solved seeds, episodes)`` from a run's ``evaluation.json``.
 
     Raises:
-        rundir.RunDirError: missing, unreadable or without per-seed Gymnasium means.
+        RunDirError: missing, unreadable or without per-seed Gymnasium means.
     """
-    path = run.path / rundir.EVALUATION_FILE
+    path = run.path / layout.EVALUATION_FILE
     if not path.is_file():
-        raise rundir.RunDirError(
-            f"{run.path} has no {rundir.EVALUATION_FILE}: compare needs each seed's greedy "
+        raise RunDirError(
+            f"{run.path} has no {layout.EVALUATION_FILE}: compare needs each seed's greedy "
             "evaluation, which training writes when it finishes"
         )
     try:
-        seeds = rundir.read_json(run.path, rundir.EVALUATION_FILE)["seeds"]
+        seeds = reader.read_evaluation(run.path)["seeds"]
         scores = np.array([float(s["gymnasium_mean"]) for s in seeds])
         solved = sum(bool(s.get("solved")) for s in seeds)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         detail = f"no {exc} entry" if isinstance(exc, KeyError) else str(exc)
-        raise rundir.RunDirError(f"{path} is corrupted: {detail}") from None
+        raise RunDirError(f"{path} is corrupted: {detail}") from None
     if scores.size == 0 or not np.isfinite(scores).all():
-        raise rundir.RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
+        raise RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
     episodes = (run.evaluation or {}).get("episodes")
     return scores, solved, int(episodes) if isinstance(episodes, int) else None
 
@@ -122,16 +120,16 @@ def load_entries(
     among ``run_dirs`` is added in front).
 
     Raises:
-        rundir.RunDirError: an unusable run directory; cli.UsageError: a run given twice, or a
+        RunDirError: an unusable run directory; cli.UsageError: a run given twice, or a
             sweep as the baseline.
     """
     runs = load_runs(run_dirs)
     index = 0
     if baseline is not None:
-        if rundir.is_sweep(baseline):
+        if layout.is_sweep(baseline):
             raise cli.UsageError(
                 f"--baseline {baseline} is a sweep; name one of its combinations, "
-                f"e.g. {rundir.combo_dir(Path(baseline), 0)}"
+                f"e.g. {layout.combo_dir(baseline, 0)}"
             )
         resolved = [r.path.resolve() for r in runs]
         if Path(baseline).resolve() in resolved:
@@ -197,7 +195,7 @@ class Comparison:
         }
 
 
-def summarise(
+def build_comparison(
     entries: list[Entry],
     baseline: int = 0,
     reps: int = stats.DEFAULT_REPS,
@@ -453,19 +451,9 @@ def draw_comparison(comparison: Comparison) -> Figure:
     return fig
 
 
-def default_out_dir() -> Path:
-    """``compare-<YYYYmmdd-HHMMSS>`` in the current directory, suffixed when it exists."""
-    base = Path(f"compare-{time.strftime('%Y%m%d-%H%M%S')}")
-    out, k = base, 1
-    while out.exists():
-        k += 1
-        out = Path(f"{base}-{k}")
-    return out
-
-
 def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
     """Creates the output directory; refuses one inside a compared run (or its sweep)."""
-    out = default_out_dir() if out is None else Path(out)
+    out = layout.default_compare_dir() if out is None else Path(out)
     target = out.resolve()
     for entry in entries:
         owner = entry.run.path.resolve()
@@ -505,16 +493,16 @@ def compare_runs(
         reps, seed: bootstrap resamples and their random seed.
 
     Raises:
-        rundir.RunDirError: an unusable run directory; cli.UsageError: bad arguments.
+        RunDirError: an unusable run directory; cli.UsageError: bad arguments.
     """
     entries, index = load_entries(run_dirs, baseline)
     out = prepare_out(None if out is None else Path(out), entries)
-    comparison = summarise(entries, index, reps, seed)
-    json_path, figure_path = out / COMPARE_FILE, out / FIGURE_FILE
+    comparison = build_comparison(entries, index, reps, seed)
+    json_path, figure_path = out / layout.COMPARE_FILE, out / layout.COMPARE_FIGURE_FILE
     buf = io.BytesIO()
     draw_comparison(comparison).savefig(buf, format="png", dpi=dpi)
-    rundir.atomic_write_bytes(figure_path, buf.getvalue())
-    rundir.write_json(json_path, comparison.to_dict())
+    files.atomic_write_bytes(figure_path, buf.getvalue())
+    files.write_json(json_path, comparison.to_dict())
     return CompareResult(comparison, json_path, figure_path)
 
 

@@ -13,8 +13,8 @@ import jax
 from jaxcart import cli
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.run.evaluation import evaluate_params, summarize
-from jaxcart.rundir import layout as rundir
-from jaxcart.rundir.policy import RunParams, combinations, numpy_policy, run_params
+from jaxcart.rundir.policy import RunParams, numpy_policy, run_params
+from jaxcart.rundir.reader import read_run_config, recorded_combinations
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,7 +68,7 @@ def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) ->
 def _sources(run_dir: Path, combination: int | None) -> list[tuple[str | None, RunParams]]:
     """What to evaluate: the run, one combination, or every combination of a sweep, each
     with its label (``0 learning_rate=0.001``) in a sweep."""
-    combos = combinations(rundir.read_run_config(run_dir))
+    combos = recorded_combinations(read_run_config(run_dir))
     if not combos:
         return [(None, run_params(run_dir, combination))]
     chosen = range(len(combos)) if combination is None else [combination]
@@ -82,9 +82,9 @@ def _combo_label(c: int, combos: list) -> str:
 
 def _evaluate_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
-    info = rundir.read_run_config(args.run_dir)
+    info = read_run_config(args.run_dir)
     num_seeds = int(info.get("num_seeds", 1))
-    sweep = bool(combinations(info))
+    sweep = bool(recorded_combinations(info))
     if args.gif is not None:
         _check_gif_options(args, num_seeds, sweep)
     sources = _sources(args.run_dir, args.combination)

@@ -38,10 +38,10 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import stats
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import files, layout
 from jaxcart.rundir.runs import (
     ELAPSED_METRIC,
-    Run,
+    RunCurves,
     load_runs,
 )
 
@@ -102,7 +102,7 @@ def _no_data(ax, text: str) -> None:
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
-def _summary_lines(run: Run) -> list[str]:
+def _summary_lines(run: RunCurves) -> list[str]:
     """One or two lines per run for the summary panel."""
     ret = run.metrics.get(RETURN_METRIC)
     final = ""
@@ -148,7 +148,7 @@ def plot_runs(
         The path written.
 
     Raises:
-        rundir.RunDirError: a path is not a usable run directory.
+        files.RunDirError: a path is not a usable run directory.
         ValueError: bad ``labels``/``out``.
     """
 
@@ -160,10 +160,14 @@ def plot_runs(
     return draw_runs(load_runs(run_dirs, labels), out, dpi)
 
 
-def draw_runs(runs: list[Run], out: str | os.PathLike | None = None, dpi: int = 100) -> Path:
+def draw_runs(runs: list[RunCurves], out: str | os.PathLike | None = None, dpi: int = 100) -> Path:
     """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`)."""
     if out is None:
-        out = runs[0].path / "curves.png" if len(runs) == 1 else Path("comparison.png")
+        out = (
+            runs[0].path / layout.CURVES_FILE
+            if len(runs) == 1
+            else Path(layout.PLOT_COMPARISON_FILE)
+        )
     out = Path(out)
     fmt = out.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
@@ -175,11 +179,11 @@ def draw_runs(runs: list[Run], out: str | os.PathLike | None = None, dpi: int = 
 
     buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=dpi)
-    rundir.atomic_write_bytes(out, buf.getvalue())
+    files.atomic_write_bytes(out, buf.getvalue())
     return out
 
 
-def draw_figure(runs: list[Run]) -> Figure:
+def draw_figure(runs: list[RunCurves]) -> Figure:
     """The whole figure: return vs steps and vs wall time, the key metrics, the summary."""
     from matplotlib.figure import Figure
 
@@ -202,7 +206,7 @@ def draw_figure(runs: list[Run]) -> Figure:
     return fig
 
 
-def _draw_curves(runs: list[Run], colours: list[str], ax_steps, ax_time, metric_axes) -> None:
+def _draw_curves(runs: list[RunCurves], colours: list[str], ax_steps, ax_time, metric_axes) -> None:
 
     for run, colour in zip(runs, colours):
         seeds = f"{run.num_seeds} seeds" if run.num_seeds > 1 else "1 seed, no band"
@@ -244,7 +248,7 @@ def _draw_curves(runs: list[Run], colours: list[str], ax_steps, ax_time, metric_
     ax_steps.legend(loc="lower right", fontsize=9)
 
 
-def wall_time_notes(runs: list[Run]) -> list[str]:
+def wall_time_notes(runs: list[RunCurves]) -> list[str]:
     """What the wall-time axis does not say: a run's seeds (and a sweep's combinations)
     train together in one program, so its wall time covers all of them."""
     notes = []
@@ -273,7 +277,7 @@ def draw_notes(ax, notes: list[str], fontsize: float = 8.5, width: int = 60) -> 
         )
 
 
-def _draw_summary(ax_summary, runs: list[Run], colours: list[str]) -> None:
+def _draw_summary(ax_summary, runs: list[RunCurves], colours: list[str]) -> None:
     ax_summary.axis("off")
     offset = 0.0  # points below the panel's top, so each run's block sits under the last
     for run, colour in zip(runs, colours):
@@ -342,7 +346,7 @@ def _plot_command(argv: list[str] | None) -> int:
     return 0
 
 
-def unfinished_notes(runs: list[Run]) -> list[str]:
+def unfinished_notes(runs: list[RunCurves]) -> list[str]:
     """One line per unfinished run or sweep: what was drawn, and what is missing."""
     lines = []
     for path in dict.fromkeys(run.path for run in runs if run.note):

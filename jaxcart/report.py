@@ -1,7 +1,7 @@
 """What the commands print: tables, the run header and summary line, the progress bar.
 
 Nothing here trains or writes files; :class:`ConsoleReport` turns a run's lifecycle events
-(:class:`jaxcart.run.lifecycle.Hooks`) into terminal output.
+(:class:`jaxcart.run.spec.Hooks`) into terminal output.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
 
     from jaxcart.engine.trainer import Progress
-    from jaxcart.run.lifecycle import Outcome, Run
+    from jaxcart.run.spec import Outcome, Run
 
 
 MAX_TABLE_ROWS = 100
@@ -256,7 +256,7 @@ def resume_command(out: Path) -> str:
 def checkpoint_text(run: Run) -> str:
     """Which iteration the checkpoint on disk holds, as the run knows it (``iteration
     12/40``, ``iteration 3/40 of wave 2/5``); "" when none was saved yet."""
-    meta = run.checkpoint_meta
+    meta = run.directory.checkpoint_meta
     if meta is None:
         return ""
     where = f"iteration {int(meta['iteration'])}/{run.config.num_iterations}"
@@ -267,7 +267,7 @@ def checkpoint_text(run: Run) -> str:
 
 def write_failed_text(run: Run | None, exc: OSError) -> str:
     """The one line after a write failed (ENOSPC, EROFS, EACCES, ...)."""
-    from jaxcart.rundir.checkpoint import CHECKPOINT_FILE
+    from jaxcart.rundir.layout import CHECKPOINT_FILE
 
     what = f"error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}"
     if run is None or not (run.out / CHECKPOINT_FILE).exists():
@@ -282,7 +282,9 @@ def write_failed_text(run: Run | None, exc: OSError) -> str:
 def interrupted_text(run: Run | None, signum: int | None) -> str:
     """The one line after a second signal stopped the process at once: which iteration the
     checkpoint on disk holds, and how to resume."""
-    if run is None or not (run.out / "config.json").exists():
+    from jaxcart.rundir.layout import CONFIG_FILE
+
+    if run is None or not (run.out / CONFIG_FILE).exists():
         return "stopped at once; no run directory was written"
     at = checkpoint_text(run)
     if not at:
@@ -404,7 +406,7 @@ class ConsoleReport:
 
     def hooks(self):  # -> lifecycle.Hooks
         """These methods as the lifecycle's hooks."""
-        from jaxcart.run.lifecycle import Hooks
+        from jaxcart.run.spec import Hooks
 
         return Hooks(
             on_start=self.on_start,

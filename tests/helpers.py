@@ -12,7 +12,7 @@ import numpy as np
 
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import METRIC_NAMES
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import layout, reader
 
 TINY = PPOConfig(  # 32 iterations of 128 transitions: a training test in seconds
     num_envs=4,
@@ -59,10 +59,10 @@ def assert_same_results(a_metrics: dict, b_metrics: dict, a_params, b_params) ->
 def assert_same_run_dirs(a: Path, b: Path) -> None:
     """Two run directories hold bit-identical metrics and parameters."""
     assert_same_results(
-        rundir.read_metrics_csv(a / rundir.METRICS_FILE),
-        rundir.read_metrics_csv(b / rundir.METRICS_FILE),
-        rundir.load_params(a),
-        rundir.load_params(b),
+        reader.read_metrics_csv(a / layout.METRICS_FILE),
+        reader.read_metrics_csv(b / layout.METRICS_FILE),
+        reader.load_params(a),
+        reader.load_params(b),
     )
 
 

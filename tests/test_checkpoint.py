@@ -10,8 +10,8 @@ from helpers import TINY
 
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.trainer import initial_state
-from jaxcart.rundir import checkpoint, files
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import checkpoint, files, reader
+from jaxcart.rundir.files import RunDirError
 
 
 def test_checkpoint_rejects_other_structures(tmp_path):
@@ -19,14 +19,14 @@ def test_checkpoint_rejects_other_structures(tmp_path):
     path = tmp_path / "c.npz"
     checkpoint.save_checkpoint(path, state, {})
     other = initial_state(PPOConfig(**{**TINY.to_dict(), "hidden_sizes": (32, 32)}), 2, 0)
-    with pytest.raises(rundir.RunDirError, match="shape"):
-        checkpoint.load_checkpoint(path, other)
+    with pytest.raises(RunDirError, match="shape"):
+        reader.load_checkpoint(path, other)
     deeper = initial_state(PPOConfig(**{**TINY.to_dict(), "hidden_sizes": (64, 64, 64)}), 2, 0)
-    with pytest.raises(rundir.RunDirError, match="different structure"):
-        checkpoint.load_checkpoint(path, deeper)
+    with pytest.raises(RunDirError, match="different structure"):
+        reader.load_checkpoint(path, deeper)
     path.write_bytes(path.read_bytes()[:1000])  # torn file
-    with pytest.raises(rundir.RunDirError, match="corrupted"):
-        checkpoint.read_checkpoint_meta(path)
+    with pytest.raises(RunDirError, match="corrupted"):
+        reader.read_checkpoint_meta(path)
 
 
 def test_leaves_are_stored_under_their_tree_paths(tmp_path):
@@ -43,7 +43,7 @@ def test_leaves_are_stored_under_their_tree_paths(tmp_path):
     )
     assert "state/hyperparams/learning_rate" in arrays
     assert "metrics/rollout/ep_rew_mean" in arrays
-    rundir.save_params(tmp_path / "params.npz", state.runners.params)
+    files.save_tree(tmp_path / "params.npz", files.flatten(state.runners.params))
     params, _ = files.load_tree(tmp_path / "params.npz")
     np.testing.assert_array_equal(params["params/actor/hidden_0/kernel"], kernel)
 
@@ -52,7 +52,7 @@ def test_round_trip_restores_every_leaf(tmp_path):
     state = initial_state(TINY, 3, 4)
     path = tmp_path / "c.npz"
     checkpoint.save_checkpoint(path, state, {})
-    loaded = checkpoint.load_checkpoint(path, initial_state(TINY, 3, 99))
+    loaded = reader.load_checkpoint(path, initial_state(TINY, 3, 99))
     for x, y in zip(jax.tree.leaves(state.runners), jax.tree.leaves(loaded.runners), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert set(loaded.metrics) == set(state.metrics)
@@ -61,5 +61,5 @@ def test_round_trip_restores_every_leaf(tmp_path):
 def test_old_format_refused_with_a_clear_message(tmp_path):
     path = tmp_path / "c.npz"
     files.save_tree(path, {"leaf0": np.zeros(3)}, {"checkpoint_format": 1})
-    with pytest.raises(rundir.RunDirError, match="format 1"):
-        checkpoint.read_checkpoint_meta(path)
+    with pytest.raises(RunDirError, match="format 1"):
+        reader.read_checkpoint_meta(path)

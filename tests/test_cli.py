@@ -15,8 +15,8 @@ from helpers import assert_same_run_dirs, start_train, tiny_args
 
 import jaxcart
 from jaxcart.core.metrics import METRIC_NAMES
-from jaxcart.rundir import checkpoint
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import layout, reader
+from jaxcart.rundir.files import RunDirError
 from jaxcart.train import build_parser, main
 
 SMALL = [*tiny_args(1024, eval_episodes=3), "--no-compile-cache"]
@@ -49,7 +49,7 @@ def test_run_directory_contents(small_run, capsys):
     assert all(np.isfinite(float(r["train/value_loss"])) for r in rows)
     assert all(float(r["time/fps"]) > 0 for r in rows)
 
-    params = rundir.load_params(small_run)
+    params = reader.load_params(small_run)
     assert params["params"]["actor"]["hidden_0"]["kernel"].shape == (2, 4, 64)
     assert not np.allclose(
         params["params"]["actor"]["out"]["kernel"][0], params["params"]["actor"]["out"]["kernel"][1]
@@ -82,7 +82,7 @@ def test_load_policy_runs_in_gymnasium(small_run):
     # the NumPy policy agrees with the JAX network's argmax
     from jaxcart.core.networks import ActorCritic
 
-    params = rundir.load_params(small_run)
+    params = reader.load_params(small_run)
     one = {
         "params": {
             k: {n: {p: v[1] for p, v in layer.items()} for n, layer in sub.items()}
@@ -95,11 +95,11 @@ def test_load_policy_runs_in_gymnasium(small_run):
 
 
 def test_load_policy_rejects_non_runs(tmp_path, small_run):
-    with pytest.raises(rundir.RunDirError, match="not a jaxcart run"):
+    with pytest.raises(RunDirError, match="not a jaxcart run"):
         jaxcart.load_policy(tmp_path)
-    with pytest.raises(rundir.RunDirError, match="not a directory"):
+    with pytest.raises(RunDirError, match="not a directory"):
         jaxcart.load_policy(tmp_path / "missing")
-    with pytest.raises(rundir.RunDirError, match="seed_index"):
+    with pytest.raises(RunDirError, match="seed_index"):
         jaxcart.load_policy(small_run, seed_index=5)
 
 
@@ -108,12 +108,12 @@ def test_same_seed_same_metrics(small_run, tmp_path):
     again = tmp_path / "again"
     assert main([*SMALL, "--num-seeds", "2", "--seed", "7", "--out", str(again)]) == 0
     a, b = (
-        rundir.read_metrics_csv(small_run / "metrics.csv"),
-        rundir.read_metrics_csv(again / "metrics.csv"),
+        reader.read_metrics_csv(small_run / "metrics.csv"),
+        reader.read_metrics_csv(again / "metrics.csv"),
     )
     for name in METRIC_NAMES:
         np.testing.assert_array_equal(a[name], b[name])
-    pa, pb = rundir.load_params(small_run), rundir.load_params(again)
+    pa, pb = reader.load_params(small_run), reader.load_params(again)
     np.testing.assert_array_equal(
         pa["params"]["critic"]["out"]["kernel"], pb["params"]["critic"]["out"]["kernel"]
     )
@@ -182,7 +182,7 @@ def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
         pytest.skip("the run finished before SIGTERM arrived")
     assert proc.returncode == 128 + signal.SIGTERM, text
     assert "resume with: python -m jaxcart.train --resume" in text
-    stopped_at = checkpoint.read_checkpoint_meta(out / "checkpoint.npz")["iteration"]
+    stopped_at = reader.read_checkpoint_meta(out / "checkpoint.npz")["iteration"]
     assert 0 <= stopped_at < 100
 
     proc = start_train("--resume", str(out), "--quiet")
@@ -431,7 +431,7 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
 
     assert main(["--resume", str(out), "--total-timesteps", "1_024", "--quiet"]) == 0
     text = capsys.readouterr().out
-    elapsed = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)["elapsed"]
+    elapsed = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["elapsed"]
     found = re.search(r"train ([\d.]+) s this session and ([\d.]+) s in all, eval", text)
     assert found and found[2] == f"{elapsed:.1f}", text
     assert float(found[1]) <= float(found[2])

@@ -23,8 +23,8 @@ import pytest
 from conftest import FAULT_FIGURES
 from helpers import TRAIN_ENV, assert_same_run_dirs, start_train, tiny_args
 
-from jaxcart.rundir import checkpoint
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import layout, reader
+from jaxcart.rundir.files import RunDirError
 
 RUN = [*tiny_args(25600, num_seeds=2), "--seed", "11", "--checkpoint-every", "0.2"]
 
@@ -66,8 +66,8 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
                     proc = start_train(*RUN, "--out", str(out))
                     continue
                 # whatever moment it died, a checkpoint on disk is complete and readable
-                if (out / checkpoint.CHECKPOINT_FILE).exists():
-                    meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
+                if (out / layout.CHECKPOINT_FILE).exists():
+                    meta = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
                     assert 0 <= meta["iteration"] <= 200
                 if (out / "evaluation.json").exists():
                     break  # killed after its last write: the run is complete
@@ -88,8 +88,8 @@ def test_sigint_checkpoints_and_prints_resume_command(tmp_path):
     deadline = time.monotonic() + 60
     text = ""
     while time.monotonic() < deadline:
-        if (out / checkpoint.CHECKPOINT_FILE).exists() and checkpoint.read_checkpoint_meta(
-            out / checkpoint.CHECKPOINT_FILE
+        if (out / layout.CHECKPOINT_FILE).exists() and reader.read_checkpoint_meta(
+            out / layout.CHECKPOINT_FILE
         )["iteration"] > 0:
             break
         time.sleep(0.05)
@@ -103,12 +103,12 @@ def test_sigint_checkpoints_and_prints_resume_command(tmp_path):
 
 
 def _corrupt_checkpoint(run: Path) -> None:
-    path = run / checkpoint.CHECKPOINT_FILE
+    path = run / layout.CHECKPOINT_FILE
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
 def _old_version_checkpoint(run: Path) -> None:
-    path = run / checkpoint.CHECKPOINT_FILE
+    path = run / layout.CHECKPOINT_FILE
     with np.load(path) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(bytes(arrays["__meta__"]).decode())
@@ -252,7 +252,7 @@ def test_other_bad_paths(finished_run, tmp_path):
 
     for path in (tmp_path, tmp_path / "missing", tmp_path / "file"):
         FAULT_FIGURES["bad inputs tried"] += 1
-        with pytest.raises(rundir.RunDirError):
+        with pytest.raises(RunDirError):
             jaxcart.load_policy(path)
         FAULT_FIGURES["bad inputs rejected cleanly"] += 1
 
@@ -272,7 +272,7 @@ def _wait_for(predicate, timeout: float = 120.0) -> None:
 def test_concurrent_use_of_a_run_is_refused_and_a_killed_holder_never_blocks(tmp_path):
     out = tmp_path / "busy"
     holder = start_train(*RUN, "--out", str(out))
-    _wait_for(lambda: (out / checkpoint.CHECKPOINT_FILE).exists())
+    _wait_for(lambda: (out / layout.CHECKPOINT_FILE).exists())
     second = _run("--resume", str(out), "--quiet", timeout=120)
     FAULT_FIGURES["concurrent starts tried"] += 1
     assert second.returncode == 2, second.stdout + second.stderr
@@ -308,12 +308,12 @@ def test_sigint_during_compilation_is_acknowledged_at_once(tmp_path):
     out = tmp_path / "compiling"
     proc = start_train(*RUN, "--out", str(out), "--no-compile-cache")
     # the iteration-0 checkpoint is written just before compiling starts
-    text = _signal_when(proc, lambda: (out / checkpoint.CHECKPOINT_FILE).exists(), signal.SIGINT)
+    text = _signal_when(proc, lambda: (out / layout.CHECKPOINT_FILE).exists(), signal.SIGINT)
     _clean_stop(text, 128 + signal.SIGINT, proc, signal.SIGINT)
     # the message came before compilation ended, not after it
     assert text.index("SIGINT received") < text.index("compiled the fused training step")
     assert "stopped at iteration 0/200" in text and f"--resume {out}" in text
-    assert checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)["iteration"] == 0
+    assert reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"] == 0
 
 
 @pytest.mark.slow
@@ -343,10 +343,10 @@ def test_sigint_during_evaluation_then_resume_evaluates(tmp_path):
 
 
 def _trained(out: Path) -> bool:
-    path = out / checkpoint.CHECKPOINT_FILE
+    path = out / layout.CHECKPOINT_FILE
     try:
-        return path.exists() and checkpoint.read_checkpoint_meta(path)["iteration"] == 4
-    except rundir.RunDirError:
+        return path.exists() and reader.read_checkpoint_meta(path)["iteration"] == 4
+    except RunDirError:
         return False
 
 
@@ -354,13 +354,13 @@ def _trained(out: Path) -> bool:
 def test_second_sigint_stops_at_once_and_leaves_the_checkpoint_valid(tmp_path):
     out = tmp_path / "twice"
     proc = start_train(*RUN, "--out", str(out), "--no-compile-cache")
-    _wait_for(lambda: (out / checkpoint.CHECKPOINT_FILE).exists())
+    _wait_for(lambda: (out / layout.CHECKPOINT_FILE).exists())
     proc.send_signal(signal.SIGINT)
     time.sleep(0.3)
     proc.send_signal(signal.SIGINT)
     text, _ = proc.communicate(timeout=60)
     _clean_stop(text, 128 + signal.SIGINT, proc, signal.SIGINT)
-    meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)  # readable
+    meta = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)  # readable
     assert f"stopped at once; the checkpoint in {out} (at iteration {meta['iteration']}/" in text
     assert f"--resume {out}" in text
     resumed = _run("--resume", str(out), "--quiet")
@@ -405,7 +405,7 @@ def test_a_failing_checkpoint_write_keeps_the_last_one_and_resume_finishes(
     assert code == 1, err
     assert f"cannot write {out / 'checkpoint.npz'}: No space left on device" in err
     assert "resume with" in err and len(err.strip().splitlines()) == 1
-    meta = checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
+    meta = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
     assert meta["iteration"] > 0 and f"(at iteration {meta['iteration']}/" in err
     assert not list(out.glob(".*.tmp"))
     monkeypatch.undo()
@@ -429,7 +429,7 @@ def test_a_full_small_filesystem(tmp_path):
         assert done.returncode == 1, done.stdout + done.stderr
         assert "No space left on device" in done.stderr and "Traceback" not in done.stderr
         assert len(done.stderr.strip().splitlines()) == 1
-        checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)
+        reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
         moved = tmp_path / "moved"  # "space freed": the run continues elsewhere
         shutil.copytree(out, moved)
         resumed = _run("--resume", str(moved), "--quiet")
@@ -552,7 +552,7 @@ def test_crafted_run_directories_rejected_by_every_reader(damage, message, finis
     damage(run)
     FAULT_FIGURES["crafted files tried"] += 1
     start, peak = time.monotonic(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    with pytest.raises(rundir.RunDirError, match=message):
+    with pytest.raises(RunDirError, match=message):
         jaxcart.load_policy(run)
     code, err = _capture(lambda: evaluate.main([str(run), "--episodes", "1"]))
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
@@ -565,10 +565,10 @@ def test_crafted_run_directories_rejected_by_every_reader(damage, message, finis
 def _crafted_checkpoint(run: Path) -> None:
     from jaxcart.rundir import files
 
-    arrays, meta = files.load_tree(run / checkpoint.CHECKPOINT_FILE)
+    arrays, meta = files.load_tree(run / layout.CHECKPOINT_FILE)
     name = next(k for k in arrays if k.endswith("actor/out/kernel"))
     arrays[name] = np.full_like(arrays[name], np.inf)
-    files.save_tree(run / checkpoint.CHECKPOINT_FILE, arrays, meta)
+    files.save_tree(run / layout.CHECKPOINT_FILE, arrays, meta)
 
 
 def _huge_checkpoint_config(run: Path) -> None:
@@ -607,7 +607,7 @@ def test_nothing_is_ever_unpickled(finished_run, tmp_path, monkeypatch):
     import jaxcart
 
     jaxcart.load_policy(finished_run)
-    checkpoint.read_checkpoint_meta(finished_run / checkpoint.CHECKPOINT_FILE)
+    reader.read_checkpoint_meta(finished_run / layout.CHECKPOINT_FILE)
     assert calls and all(c is False for c in calls)
 
 
@@ -648,8 +648,8 @@ def test_crafted_outputs_rejected_by_plot_and_compare(damage, message, finished_
 
 def _checkpoint_iteration(out: Path) -> int:
     try:
-        return checkpoint.read_checkpoint_meta(out / checkpoint.CHECKPOINT_FILE)["iteration"]
-    except rundir.RunDirError:
+        return reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
+    except RunDirError:
         return -1
 
 

@@ -10,22 +10,24 @@ import pytest
 from helpers import TINY, assert_same_run_dirs
 
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.run import lifecycle
+from jaxcart.run import lifecycle, training
 from jaxcart.run.evaluation import evaluate_run_dir
-from jaxcart.rundir import layout as rundir
+from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+from jaxcart.rundir import layout, reader
+from jaxcart.rundir.files import RunDirError
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
-OPTIONS = lifecycle.RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
+OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
 
 
 def test_run_new_writes_a_run_directory_and_prints_nothing(tmp_path, capsys):
     events: dict[str, list] = {"start": [], "compiled": [], "chunk": []}
-    hooks = lifecycle.Hooks(
+    hooks = Hooks(
         on_start=lambda run, n, backend: events["start"].append((run.out, n, backend)),
         on_compiled=events["compiled"].append,
         on_chunk=lambda p: events["chunk"].append(p.iteration),
     )
-    spec = lifecycle.RunSpec(SMALL, preset="custom", num_seeds=2, seed=4)
+    spec = RunSpec(SMALL, preset="custom", num_seeds=2, seed=4)
     outcome = lifecycle.run_new(spec, tmp_path / "run", OPTIONS, hooks)
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err == ""
@@ -42,34 +44,34 @@ def test_run_new_writes_a_run_directory_and_prints_nothing(tmp_path, capsys):
 
 
 def test_stop_then_resume_run_matches_an_uninterrupted_run(tmp_path):
-    spec = lifecycle.RunSpec(SMALL, num_seeds=2, seed=6)
+    spec = RunSpec(SMALL, num_seeds=2, seed=6)
     lifecycle.run_new(spec, tmp_path / "whole", OPTIONS)
 
     # A run stopped after its second chunk (as Ctrl-C in a notebook would)...
-    run = lifecycle.Run.create(spec, tmp_path / "part")
+    run = lifecycle.create_run(spec, tmp_path / "part")
     chunks: list[int] = []
-    hooks = lifecycle.Hooks(on_chunk=lambda p: chunks.append(p.iteration))
-    result = run.train(OPTIONS, hooks, should_stop=lambda: len(chunks) == 2)
+    hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
+    result = training.train_wave(run, OPTIONS, hooks, should_stop=lambda: len(chunks) == 2)
     assert result.stopped and result.state.iteration == 4
-    run.save_checkpoint(result.state)
-    with pytest.raises(rundir.RunDirError, match="in use by another jaxcart process"):
+    training.save_state(run, result.state)
+    with pytest.raises(RunDirError, match="in use by another jaxcart process"):
         lifecycle.resume_run(tmp_path / "part", OPTIONS)  # this process still holds it
     run.close()
     # ...resumes from its checkpoint and ends bit-identical.
     resumed = lifecycle.resume_run(tmp_path / "part", OPTIONS)
     assert resumed.run.resumed_from == 4 and not resumed.stopped
     assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
-    with pytest.raises(rundir.RunDirError, match="nothing to resume"):
+    with pytest.raises(RunDirError, match="nothing to resume"):
         lifecycle.resume_run(tmp_path / "part", OPTIONS)
 
 
 def test_sweep_through_the_library(tmp_path):
-    spec = lifecycle.RunSpec(SMALL, num_seeds=2, sweep={"learning_rate": [1e-3, 3e-3]})
+    spec = RunSpec(SMALL, num_seeds=2, sweep={"learning_rate": [1e-3, 3e-3]})
     outcome = lifecycle.run_new(spec, tmp_path / "sweep", OPTIONS)
     assert outcome.run.grid.num_runs == 4 and len(outcome.ranking) == 2
-    assert rundir.is_sweep(tmp_path / "sweep")
+    assert layout.is_sweep(tmp_path / "sweep")
     for c in range(2):
-        combo = json.loads((rundir.combo_dir(tmp_path / "sweep", c) / "config.json").read_text())
+        combo = json.loads((layout.combo_dir(tmp_path / "sweep", c) / "config.json").read_text())
         assert combo["config"]["learning_rate"] == [1e-3, 3e-3][c]
 
 
@@ -83,19 +85,19 @@ def test_sweep_through_the_library(tmp_path):
 )
 def test_bad_specs_fail_before_anything_is_created(kwargs, message):
     with pytest.raises(ConfigError, match=message):
-        lifecycle.RunSpec(SMALL, **kwargs)
+        RunSpec(SMALL, **kwargs)
 
 
 def test_bad_options_and_directories(tmp_path):
     with pytest.raises(ConfigError, match="eval_episodes"):
-        lifecycle.RunOptions(eval_episodes=0)
+        RunOptions(eval_episodes=0)
     with pytest.raises(ConfigError, match="checkpoint_every"):
-        lifecycle.RunOptions(checkpoint_every=0)
+        RunOptions(checkpoint_every=0)
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("")
     with pytest.raises(ConfigError, match="not empty"):
-        lifecycle.Run.create(lifecycle.RunSpec(SMALL), tmp_path / "full")
-    with pytest.raises(rundir.RunDirError, match="not a directory"):
+        lifecycle.create_run(RunSpec(SMALL), tmp_path / "full")
+    with pytest.raises(RunDirError, match="not a directory"):
         lifecycle.resume_run(tmp_path / "missing")
 
 
@@ -106,8 +108,8 @@ def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
 
     longer = PPOConfig(**{**SMALL.to_dict(), "anneal_lr": False, "total_timesteps": 2048})
     shorter = PPOConfig(**{**longer.to_dict(), "total_timesteps": 1024})
-    lifecycle.run_new(lifecycle.RunSpec(longer, num_seeds=2), tmp_path / "long", OPTIONS)
-    lifecycle.run_new(lifecycle.RunSpec(shorter, num_seeds=2), tmp_path / "ext", OPTIONS)
+    lifecycle.run_new(RunSpec(longer, num_seeds=2), tmp_path / "long", OPTIONS)
+    lifecycle.run_new(RunSpec(shorter, num_seeds=2), tmp_path / "ext", OPTIONS)
     outcome = lifecycle.resume_run(tmp_path / "ext", OPTIONS, total_timesteps=2048)
     assert not outcome.stopped and outcome.run.resumed_from == 8
     assert_same_run_dirs(tmp_path / "long", tmp_path / "ext")
@@ -119,7 +121,7 @@ def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
     assert main(["--resume", str(tmp_path / "ext"), "--total-timesteps", "1024"]) == 2
     assert "does not extend" in capsys.readouterr().err
     annealed = PPOConfig(**{**SMALL.to_dict(), "anneal_lr": True})
-    lifecycle.run_new(lifecycle.RunSpec(annealed), tmp_path / "annealed", OPTIONS)
+    lifecycle.run_new(RunSpec(annealed), tmp_path / "annealed", OPTIONS)
     assert main(["--resume", str(tmp_path / "annealed"), "--total-timesteps", "4096"]) == 2
     err = capsys.readouterr().err
     assert "anneals to 0" in err and len(err.strip().splitlines()) == 1
@@ -128,14 +130,14 @@ def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
 def test_replay_one_seed_alone_bit_identical_to_its_batch(tmp_path):
     """Seed 2 of a 5-seed run (3 per device on 2 devices), trained again alone: padded to
     its width it matches bit for bit; at its own width of 1 it does not have to."""
-    spec = lifecycle.RunSpec(SMALL, num_seeds=5, seed=9)
+    spec = RunSpec(SMALL, num_seeds=5, seed=9)
     lifecycle.run_new(spec, tmp_path / "five", OPTIONS)
     replayed = lifecycle.replay_seed(tmp_path / "five", 2)
-    metrics = rundir.read_metrics_csv(tmp_path / "five" / "metrics.csv")
+    metrics = reader.read_metrics_csv(tmp_path / "five" / "metrics.csv")
     np.testing.assert_array_equal(
         replayed.metrics["train/value_loss"][:, 0], metrics["train/value_loss"][:, 2]
     )
-    params = rundir.load_params(tmp_path / "five")
+    params = reader.load_params(tmp_path / "five")
     np.testing.assert_array_equal(
         np.asarray(replayed.params["params"]["actor"]["out"]["kernel"])[0],
         params["params"]["actor"]["out"]["kernel"][2],
@@ -146,8 +148,8 @@ def test_replay_one_seed_alone_bit_identical_to_its_batch(tmp_path):
 
 def test_replay_of_a_one_seed_run(tmp_path):
     """One seed on a 2-device machine trains on one device; its replay does the same."""
-    lifecycle.run_new(lifecycle.RunSpec(SMALL, seed=2), tmp_path / "one", OPTIONS)
+    lifecycle.run_new(RunSpec(SMALL, seed=2), tmp_path / "one", OPTIONS)
     replayed = lifecycle.replay_seed(tmp_path / "one", 0)
     assert replayed.num_devices == 1
-    metrics = rundir.read_metrics_csv(tmp_path / "one" / "metrics.csv")
+    metrics = reader.read_metrics_csv(tmp_path / "one" / "metrics.csv")
     np.testing.assert_array_equal(replayed.metrics["train/value_loss"], metrics["train/value_loss"])

@@ -21,13 +21,14 @@ from jaxcart.core.networks import ActorCritic
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
 from jaxcart.run.evaluation import evaluate_run_dir
-from jaxcart.rundir import files
-from jaxcart.rundir import layout as rundir
-from jaxcart.rundir.checkpoint import CHECKPOINT_FILE
+from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+from jaxcart.rundir import files, layout
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.layout import CHECKPOINT_FILE
 from jaxcart.rundir.runs import load_runs
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
-OPTIONS = lifecycle.RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
+OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
 SWEEP = {"learning_rate": [1e-3, 3e-3]}
 ACTOR = "state/runners/params/params/actor/"
 STOPPED_NOTE = "from the checkpoint at iteration 4/8: the run did not finish"
@@ -41,8 +42,8 @@ def _train(out, sweep=None, stop_at=None):
         if stop_at is not None and progress.iteration >= stop_at and not stop():
             stop.request(signal.SIGINT)
 
-    spec = lifecycle.RunSpec(SMALL, preset="custom", num_seeds=2, seed=5, sweep=sweep or {})
-    outcome = lifecycle.run_new(spec, out, OPTIONS, lifecycle.Hooks(on_chunk=on_chunk), stop)
+    spec = RunSpec(SMALL, preset="custom", num_seeds=2, seed=5, sweep=sweep or {})
+    outcome = lifecycle.run_new(spec, out, OPTIONS, Hooks(on_chunk=on_chunk), stop)
     assert outcome.stopped == (stop_at is not None)
     return out
 
@@ -78,7 +79,7 @@ def test_all_seeds_stacked(runs):
         np.testing.assert_array_equal(actions[s], one(obs[s]))
     with pytest.raises(ValueError, match=r"\[2, N, 4\]"):
         policy(OBS)  # [N, 4] would broadcast wrongly against 2 stacked seeds
-    with pytest.raises(rundir.RunDirError, match="'all'"):
+    with pytest.raises(RunDirError, match="'all'"):
         jaxcart.load_policy(runs["finished"], seed_index="every")
 
 
@@ -115,27 +116,27 @@ def test_load_policy_of_a_stopped_run_uses_its_checkpoint(runs):
 def test_load_policy_of_a_stopped_sweep_takes_a_combination(runs):
     sweep = runs["sweep"]
     assert not (sweep / "sweep.json").exists() and not (sweep / "combo-000").exists()
-    with pytest.raises(rundir.RunDirError, match="is a sweep of 2 combinations"):
+    with pytest.raises(RunDirError, match="is a sweep of 2 combinations"):
         jaxcart.load_policy(sweep)
-    with pytest.raises(rundir.RunDirError, match="combination"):
+    with pytest.raises(RunDirError, match="combination"):
         jaxcart.load_policy(sweep, combination=2)
     with pytest.warns(UserWarning, match=STOPPED_NOTE):
         policy = jaxcart.load_policy(sweep, seed_index=0, combination=1)
     # run r of the sweep's checkpoint is combination r // num_seeds, seed r % num_seeds
     np.testing.assert_array_equal(policy(OBS), _checkpoint_actions(sweep, 2, OBS))
-    with pytest.raises(rundir.RunDirError, match="not a sweep"):
+    with pytest.raises(RunDirError, match="not a sweep"):
         jaxcart.load_policy(runs["finished"], combination=0)
 
 
 def test_finished_sweep_combination_is_its_directory(runs, tmp_path):
     sweep = tmp_path / "sweep"
     for c in range(2):
-        shutil.copytree(runs["finished"], rundir.combo_dir(sweep, c))
+        shutil.copytree(runs["finished"], layout.combo_dir(sweep, c))
     info = json.loads((runs["finished"] / "config.json").read_text())
     info.update(sweep=SWEEP, combinations=[{"learning_rate": v} for v in SWEEP["learning_rate"]])
     (sweep / "config.json").write_text(json.dumps(info))
     (sweep / "sweep.json").write_text("{}")
-    with pytest.raises(rundir.RunDirError, match="is a sweep"):
+    with pytest.raises(RunDirError, match="is a sweep"):
         jaxcart.load_policy(sweep)
     policy = jaxcart.load_policy(sweep, seed_index=1, combination=1)
     np.testing.assert_array_equal(policy(OBS), jaxcart.load_policy(runs["finished"], 1)(OBS))
@@ -284,7 +285,7 @@ def test_crafted_checkpoints_refused_by_every_reader(damage, message, runs, tmp_
     run = tmp_path / "crafted"
     shutil.copytree(runs["stopped"], run)
     damage(run)
-    with pytest.raises(rundir.RunDirError, match=message):
+    with pytest.raises(RunDirError, match=message):
         jaxcart.load_policy(run)
     for command in (evaluate.main, plot.main):
         assert command([str(run), "--episodes" if command is evaluate.main else "--dpi", "1"]) == 2

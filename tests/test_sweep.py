@@ -10,7 +10,8 @@ from helpers import tiny_args
 
 from jaxcart.analysis import stats
 from jaxcart.run.sweep import RunGrid, parse_sweep, rank
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import reader
+from jaxcart.rundir.files import RunDirError
 from jaxcart.train import main
 
 
@@ -74,14 +75,14 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
         assert (
             len(json.loads((out / f"combo-{c:03d}" / "evaluation.json").read_text())["seeds"]) == 2
         )
-    m0 = rundir.read_metrics_csv(out / "combo-000" / "metrics.csv")
-    m4 = rundir.read_metrics_csv(out / "combo-004" / "metrics.csv")
+    m0 = reader.read_metrics_csv(out / "combo-000" / "metrics.csv")
+    m4 = reader.read_metrics_csv(out / "combo-004" / "metrics.csv")
     np.testing.assert_allclose(m0["train/learning_rate"][0], [1e-4, 1e-4])
     np.testing.assert_allclose(m4["train/learning_rate"][0], [1e-2, 1e-2])
     assert not np.allclose(m0["train/value_loss"], m4["train/value_loss"])
     import jaxcart
 
-    with pytest.raises(rundir.RunDirError, match="is a sweep"):
+    with pytest.raises(RunDirError, match="is a sweep"):
         jaxcart.load_policy(out)
     assert jaxcart.load_policy(out / "combo-001", seed_index=1)(np.zeros(4, np.float32)) in (0, 1)
 

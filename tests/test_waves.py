@@ -18,7 +18,7 @@ from jaxcart.core.config import ConfigError, PPOConfig, preset
 from jaxcart.core.env import EnvParams
 from jaxcart.engine.trainer import compiled_chunk, initial_state, train
 from jaxcart.run.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run, plan_waves
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import reader
 
 
 def memory_for(config: PPOConfig, runs: int, episodes: int = 2) -> int:
@@ -89,20 +89,20 @@ def test_waves_make_one_run_directory(waved_run):
     evaluation = json.loads((waved_run / "evaluation.json").read_text())
     assert [s["seed_index"] for s in evaluation["seeds"]] == [0, 1, 2, 3, 4]
     assert evaluation["waves"] == 3
-    metrics = rundir.read_metrics_csv(waved_run / "metrics.csv")
+    metrics = reader.read_metrics_csv(waved_run / "metrics.csv")
     assert metrics["train/value_loss"].shape == (8, 5)
-    assert rundir.load_params(waved_run)["params"]["actor"]["out"]["kernel"].shape == (5, 64, 2)
+    assert reader.load_params(waved_run)["params"]["actor"]["out"]["kernel"].shape == (5, 64, 2)
 
 
 def test_each_wave_trains_as_a_batch_of_its_width(waved_run):
     """Seeds 2 and 3 (wave 1) match those seeds trained together alone, bit for bit."""
-    config = rundir.read_run_config(waved_run)["config"]
+    config = reader.read_run_config(waved_run)["config"]
     alone = train(config, 2, seed=3, seed_indices=np.array([2, 3]))
-    metrics = rundir.read_metrics_csv(waved_run / "metrics.csv")
+    metrics = reader.read_metrics_csv(waved_run / "metrics.csv")
     np.testing.assert_array_equal(
         metrics["train/value_loss"][:, 2:4], alone.metrics["train/value_loss"]
     )
-    params = rundir.load_params(waved_run)
+    params = reader.load_params(waved_run)
     np.testing.assert_array_equal(
         params["params"]["critic"]["out"]["kernel"][2:4],
         np.asarray(alone.params["params"]["critic"]["out"]["kernel"]),

@@ -17,7 +17,8 @@ from jaxcart.core.networks import ActorCritic
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.signals import Stopped
 from jaxcart.engine.trainer import seed_keys
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import reader
+from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, numpy_policy, run_params
 
 
@@ -269,9 +270,9 @@ def evaluate_run_dir(
         finish (``from the checkpoint at iteration 12/40: the run did not finish``).
 
     Raises:
-        rundir.RunDirError: not a usable run (or a sweep without ``combination``).
+        RunDirError: not a usable run (or a sweep without ``combination``).
     """
-    info = rundir.read_run_config(run_dir)
+    info = reader.read_run_config(run_dir)
     trained = run_params(run_dir, combination)
     return evaluate_params(run_dir, trained, episodes), {**info, "note": trained.note}
 
@@ -280,5 +281,5 @@ def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> n
     try:
         policy = numpy_policy(trained.params, trained.config.activation, stacked=True)
     except (KeyError, TypeError, ValueError) as exc:
-        raise rundir.RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
+        raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
     return evaluate_gymnasium(policy, trained.num_seeds, episodes)

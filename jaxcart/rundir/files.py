@@ -8,6 +8,7 @@ and optionally a JSON metadata entry ``__meta__``. Nothing is ever unpickled.
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import json
 import math
@@ -16,9 +17,11 @@ import tempfile
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
+
+from jaxcart.rundir import layout
 
 META_KEY = "__meta__"
 
@@ -27,23 +30,63 @@ class RunDirError(ValueError):
     """A file or directory is not a usable jaxcart run (directory); the message says why."""
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Writes ``data`` to a temporary file beside ``path``, fsyncs it and renames it into
-    place, so a crash mid-write leaves either the old file or the new one.
+def _read_umask() -> int:
+    """The process's umask, read without changing it when the kernel reports it
+    (``os.umask`` can only read it by setting it, and a file another thread creates meanwhile
+    would get the wrong mode)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
+
+
+@functools.cache
+def file_mode() -> int:
+    """The permissions ``open()`` would give a new file: ``0o666 & ~umask`` (0644 under the
+    usual umask 022), read once. ``mkstemp`` creates 0600 files, which colleagues sharing a
+    machine could not read."""
+    return 0o666 & ~_read_umask()
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike, mode: str = "w") -> Iterator[IO]:
+    """A file to write ``path`` through: a temporary beside it (``.<name>.<random>.tmp``),
+    fsynced and renamed into place when the block ends without an exception, so a crash
+    mid-write leaves either the old file or the new one. The one writer of every file jaxcart
+    writes.
+
+    Args:
+        path: the file to (re)place.
+        mode: ``"w"`` (UTF-8 text, ``newline=""``: what is written is what lands) or
+            ``"wb"``.
 
     Raises:
         OSError: the write failed (a full or read-only disk, no permission); ``filename`` is
             ``path`` and the previous file, if any, is untouched.
     """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_file writes with mode 'w' or 'wb', got {mode!r}")
     path = Path(path)
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+        fd, tmp = tempfile.mkstemp(
+            dir=path.parent, prefix=layout.temporary_prefix(path), suffix=layout.TEMPORARY_SUFFIX
+        )
+        try:
+            os.fchmod(fd, file_mode())
+            text = {"encoding": "utf-8", "newline": ""} if mode == "w" else {}
+            f = os.fdopen(fd, mode, **text)
+        except BaseException:
+            os.close(fd)
+            raise
+        with f:
+            yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
@@ -53,6 +96,12 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
         if isinstance(exc, OSError):
             raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
         raise
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Writes ``data`` to ``path`` through :func:`atomic_file`."""
+    with atomic_file(path, "wb") as f:
+        f.write(data)
 
 
 def fsync_directory(path: str | os.PathLike) -> None:

@@ -11,8 +11,7 @@ import os
 from pathlib import Path
 
 from jaxcart.rundir.files import RunDirError
-
-LOCK_FILE = ".lock"
+from jaxcart.rundir.layout import LOCK_FILE
 
 
 class RunInUse(RunDirError):
@@ -36,7 +35,8 @@ class RunLock:
 
         if self._fd is not None:
             return self
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        # 0o666 less the umask, as every file of a run directory (jaxcart.rundir.files)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

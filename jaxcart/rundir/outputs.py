@@ -11,10 +11,7 @@ the whole run or for one combination of a sweep.
 from __future__ import annotations
 
 import csv
-import io
 import json
-import os
-import tempfile
 import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -23,12 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.core.solved import SOLVED_DEFINITION, is_solved
-from jaxcart.rundir import files
-from jaxcart.rundir import layout as rundir
-
-WAVES_DIR = "waves"
-PARAMS = "params/"
-METRICS = "metrics/"
+from jaxcart.rundir import files, layout
+from jaxcart.rundir.layout import BLOCK_METRICS, BLOCK_PARAMS
 
 
 @dataclass
@@ -46,8 +39,8 @@ class Block:
     timing: dict[str, float]
 
     def save(self, path: Path) -> None:
-        arrays = {PARAMS + k: v for k, v in self.params.items()}
-        arrays |= {METRICS + k: np.asarray(v) for k, v in self.metrics.items()}
+        arrays = {BLOCK_PARAMS + k: v for k, v in self.params.items()}
+        arrays |= {BLOCK_METRICS + k: np.asarray(v) for k, v in self.metrics.items()}
         arrays |= {
             "diverged_at": self.diverged_at,
             "gym_returns": self.gym_returns,
@@ -65,17 +58,13 @@ class Block:
         return cls(
             int(meta["start"]),
             int(meta["stop"]),
-            take(PARAMS),
-            take(METRICS),
+            take(BLOCK_PARAMS),
+            take(BLOCK_METRICS),
             arrays["diverged_at"],
             arrays["gym_returns"],
             arrays["jax_returns"],
             timing,
         )
-
-
-def block_path(run_dir: Path, wave: int) -> Path:
-    return Path(run_dir) / WAVES_DIR / f"wave-{wave:05d}.npz"
 
 
 def _overlap(start: int, stop: int, runs: range) -> slice | None:
@@ -84,7 +73,7 @@ def _overlap(start: int, stop: int, runs: range) -> slice | None:
     return slice(lo - start, hi - start) if lo < hi else None
 
 
-def _overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
+def overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
     """Each block that holds some of ``runs`` (loaded when it is a path), with the slice of
     its axis that does."""
     for item in blocks:
@@ -107,62 +96,77 @@ def _param_slices(blocks: list, runs: range, name: str) -> Iterator[np.ndarray]:
         take = _overlap(int(meta["start"]), int(meta["stop"]), runs)
         if take is not None:
             with np.load(item, allow_pickle=False) as data:
-                yield data[PARAMS + name][take]
+                yield data[BLOCK_PARAMS + name][take]
 
 
-def write_metrics_csv(path: Path, blocks: list, runs: range, batch_size: int) -> None:
+def metrics_csv_header(names: list[str]) -> list[str]:
+    """The columns of ``metrics.csv``."""
+    return [*layout.METRICS_INDEX_COLUMNS, *names]
+
+
+def metrics_csv_rows(
+    metrics: dict[str, np.ndarray], batch_size: int, first_seed: int = 0, runs: slice = slice(None)
+) -> Iterator[list]:
+    """The rows of ``metrics.csv`` for the runs ``runs`` of metrics ``[iterations, R]``,
+    numbered from ``first_seed``: seed by seed, iteration by iteration."""
+    names = list(metrics)
+    columns = [np.asarray(metrics[n])[:, runs] for n in names]
+    iterations, num_seeds = columns[0].shape
+    for s in range(num_seeds):
+        for i in range(iterations):
+            row = [float(c[i, s]) for c in columns]
+            yield [first_seed + s, i + 1, (i + 1) * batch_size, *row]
+
+
+def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], batch_size: int) -> None:
+    """Rows ``seed_index, iteration, env_steps, <metrics...>`` from leaves ``[iterations, S]``
+    (a run's metrics in memory: a stopped run's so far, or another library's log)."""
+    with files.atomic_file(path) as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(metrics_csv_header(list(metrics)))
+        writer.writerows(metrics_csv_rows(metrics, batch_size))
+
+
+def write_blocks_metrics_csv(path: Path, blocks: list, runs: range, batch_size: int) -> None:
     """Rows ``seed_index, iteration, env_steps, <metrics...>`` for ``runs`` (seed index
     counted from ``runs.start``), streamed block by block and renamed into place."""
-    with atomic_text(path) as f:
+    with files.atomic_file(path) as f:
         writer, header = csv.writer(f, lineterminator="\n"), None
-        for block, take in _overlapping(blocks, runs):
+        for block, take in overlapping(blocks, runs):
             if header is None:
-                header = rundir.metrics_csv_header(list(block.metrics))
+                header = metrics_csv_header(list(block.metrics))
                 writer.writerow(header)
             first = block.start + take.start - runs.start
-            writer.writerows(rundir.metrics_csv_rows(block.metrics, batch_size, first, take))
+            writer.writerows(metrics_csv_rows(block.metrics, batch_size, first, take))
 
 
 def write_params(path: Path, blocks: list, runs: range) -> None:
     """``params.npz`` for ``runs``: each array's header for the whole run, then its blocks'
-    bytes in order (a leading-axis concatenation), written to a temporary and renamed."""
-    first, _ = next(_overlapping(blocks, runs))
-    names = list(first.params)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        with zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
-            for name in names:
-                a = first.params[name]
-                shape = (len(runs), *a.shape[1:])
-                with zf.open(name + ".npy", "w", force_zip64=True) as f:
-                    header = {
-                        "descr": np.lib.format.dtype_to_descr(a.dtype),
-                        "fortran_order": False,
-                        "shape": shape,
-                    }
-                    np.lib.format.write_array_header_1_0(f, header)
-                    for part in _param_slices(blocks, runs, name):
-                        f.write(np.ascontiguousarray(part).tobytes())
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        Path(tmp).unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
-        raise
+    bytes in order (a leading-axis concatenation), streamed into place."""
+    first, _ = next(overlapping(blocks, runs))
+    with files.atomic_file(path, "wb") as out, zipfile.ZipFile(out, "w", allowZip64=True) as zf:
+        for name, a in first.params.items():
+            shape = (len(runs), *a.shape[1:])
+            with zf.open(name + ".npy", "w", force_zip64=True) as f:
+                header = {
+                    "descr": np.lib.format.dtype_to_descr(a.dtype),
+                    "fortran_order": False,
+                    "shape": shape,
+                }
+                np.lib.format.write_array_header_1_0(f, header)
+                for part in _param_slices(blocks, runs, name):
+                    f.write(np.ascontiguousarray(part).tobytes())
 
 
 def write_evaluation(path: Path, blocks: list, runs: range, episodes: int, extra: dict) -> None:
     """``evaluation.json`` for ``runs``: per-seed returns and solved flags, streamed."""
     solved_total = 0
-    with atomic_text(path) as f:
+    with files.atomic_file(path) as f:
         definition = json.dumps(SOLVED_DEFINITION.format(episodes=episodes))
         head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
         f.write(head + '  "seeds": [')
         sep = "\n"
-        for block, take in _overlapping(blocks, runs):
+        for block, take in overlapping(blocks, runs):
             final = block.metrics["rollout/ep_rew_mean"][-1, take]
             g, j, d = block.gym_returns[take], block.jax_returns[take], block.diverged_at[take]
             solved = is_solved(g)
@@ -184,33 +188,3 @@ def write_evaluation(path: Path, blocks: list, runs: range, episodes: int, extra
                 sep = ",\n"
         tail = {"solved_seeds": solved_total, **extra}
         f.write("\n  ],\n" + json.dumps(tail, indent=2)[2:] + "\n")
-
-
-class atomic_text:
-    """A text file written beside ``path`` and renamed into place on success."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = Path(path)
-
-    def __enter__(self) -> io.TextIOWrapper:
-        fd, self.tmp = tempfile.mkstemp(
-            dir=self.path.parent, prefix=f".{self.path.name}.", suffix=".tmp"
-        )
-        self.file = os.fdopen(fd, "w", newline="")
-        return self.file
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        try:
-            if exc_type is None:
-                self.file.flush()
-                os.fsync(self.file.fileno())
-            self.file.close()
-            if exc_type is None:
-                os.replace(self.tmp, self.path)
-        except OSError as err:
-            Path(self.tmp).unlink(missing_ok=True)
-            raise OSError(err.errno, err.strerror or str(err), str(self.path)) from None
-        if exc_type is not None:
-            Path(self.tmp).unlink(missing_ok=True)
-            if isinstance(exc, OSError):
-                raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None

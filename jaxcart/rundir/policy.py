@@ -7,7 +7,6 @@ Parameters come from ``params.npz`` of a finished run, or, for a run that did no
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
 from dataclasses import dataclass
@@ -18,14 +17,8 @@ import numpy as np
 
 from jaxcart.core import networks
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.rundir import files
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
-
-CHECKPOINT_PARAMS = "state/runners/params/"
-"""Where a checkpoint (:mod:`jaxcart.rundir.checkpoint`) keeps the parameters, leaves ``[R, ...]``."""
-CHECKPOINT_METRICS = "metrics/"
-"""Where it keeps the metrics so far, ``metrics/<name>``, each ``[iterations, R]``."""
 
 
 class NumpyPolicy:
@@ -109,82 +102,6 @@ class RunParams:
     are not a finished run's; None for ``params.npz``."""
 
 
-@dataclass(frozen=True)
-class CheckpointRuns:
-    """What a run's checkpoint holds for reading: every run's parameters and metrics so far.
-
-    A sweep's checkpoint (in the sweep directory) holds all combinations x seeds: run ``r``
-    is combination ``r // num_seeds``, seed index ``r % num_seeds``.
-    """
-
-    params: dict  # leaves [R, ...]
-    metrics: dict[str, np.ndarray]  # name -> [iteration, R]
-    iteration: int
-    num_iterations: int
-
-    @property
-    def note(self) -> str:
-        where = f"from the checkpoint at iteration {self.iteration}/{self.num_iterations}"
-        if self.iteration >= self.num_iterations:
-            return f"{where}: training finished but the run stopped before writing its outputs"
-        return f"{where}: the run did not finish"
-
-
-def checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> CheckpointRuns:
-    """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
-    optimizer or env state is restored), refusing crafted files: the metadata must match the
-    run's ``config.json``, every array header is checked before anything is read, the whole
-    file is bounded by what this config's checkpoint can hold, and parameters must be finite.
-
-    Raises:
-        RunDirError: no usable checkpoint.
-    """
-    from jaxcart.rundir.checkpoint import CHECKPOINT_FILE, read_checkpoint_meta
-
-    run_dir = Path(run_dir)
-    info = info or rundir.read_run_config(run_dir)
-    config = info["config"]
-    if not (run_dir / CHECKPOINT_FILE).exists():
-        raise RunDirError(f"{run_dir} has no {rundir.PARAMS_FILE} and no {CHECKPOINT_FILE}")
-    path = files.inside(run_dir, CHECKPOINT_FILE)
-    meta = read_checkpoint_meta(path)
-    runs = int(info.get("num_seeds", 1)) * max(1, len(combinations(info)))
-    iteration = meta.get("iteration")
-    if (
-        meta.get("num_runs") != runs
-        or not isinstance(iteration, int)
-        or not 0 <= iteration <= config.num_iterations
-    ):
-        raise RunDirError(f"{path} does not belong to this run's config.json")
-    expected = {
-        CHECKPOINT_PARAMS + name: header
-        for name, header in rundir.params_headers(config, runs).items()
-    }
-    limit = _checkpoint_bytes(config, runs, iteration)
-    found = files.read_headers(path, max_bytes=limit)
-    if any(found.get(name) != header for name, header in expected.items()):
-        raise RunDirError(f"{path} does not hold this run's network")
-    metric_names = [n for n in found if n.startswith(CHECKPOINT_METRICS)]
-    if any(found[n][0] != (iteration, runs) or found[n][1].kind != "f" for n in metric_names):
-        raise RunDirError(f"{path} holds metrics other than floats [{iteration}, {runs}]")
-    arrays, _ = files.load_tree(path, max_bytes=limit)
-    params = {name[len(CHECKPOINT_PARAMS) :]: arrays[name] for name in expected}
-    files.check_finite(params, path)
-    metrics = {n[len(CHECKPOINT_METRICS) :]: arrays[n].astype(float) for n in metric_names}
-    return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
-
-
-def _checkpoint_bytes(config: PPOConfig, runs: int, iterations: int) -> int:
-    """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
-    two moments, per-env state, episode statistics, and metrics so far."""
-    params = sum(
-        math.prod(shape) * dtype.itemsize
-        for shape, dtype in rundir.params_headers(config, runs).values()
-    )
-    per_run = config.num_envs * 256 + (1 << 14)
-    return 4 * params + runs * per_run + (iterations + 1) * runs * 64 * 8 + (1 << 20)
-
-
 def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> RunParams:
     """Every seed's parameters of a run directory: ``params.npz`` when the run finished,
     else its checkpoint (:attr:`RunParams.note` says so). A sweep needs ``combination``
@@ -194,9 +111,9 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
         RunDirError: not a run directory, nothing usable in it, or a bad ``combination``.
     """
     run_dir = Path(run_dir)
-    info = rundir.read_run_config(run_dir)
-    combos = combinations(info)
-    if combos or rundir.is_sweep(run_dir):
+    info = reader.read_run_config(run_dir)
+    combos = reader.recorded_combinations(info)
+    if combos or layout.is_sweep(run_dir):
         if (
             isinstance(combination, bool)
             or not isinstance(combination, (int, np.integer))
@@ -207,14 +124,14 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
                 f"{run_dir} is a sweep{count if combos else ''}: choose a combination with "
                 f"combination=C (--combination C){bounds if combos else ''}, got {combination!r}"
             )
-        if rundir.is_sweep(run_dir):  # finished: each combination is a run directory
-            return run_params(rundir.combo_dir(run_dir, int(combination)))
+        if layout.is_sweep(run_dir):  # finished: each combination is a run directory
+            return run_params(layout.combo_dir(run_dir, int(combination)))
     elif combination is not None:
         raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
     num_seeds = int(info.get("num_seeds", 1))
-    if not combos and (run_dir / rundir.PARAMS_FILE).exists():
-        return RunParams(rundir.load_params(run_dir), info["config"], num_seeds)
-    saved = checkpoint_runs(run_dir, info)  # unfinished
+    if not combos and (run_dir / layout.PARAMS_FILE).exists():
+        return RunParams(reader.load_params(run_dir), info["config"], num_seeds)
+    saved = reader.read_checkpoint_runs(run_dir, info)  # unfinished
     first = (combination or 0) * num_seeds
     params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
     return RunParams(params, _combo_config(info, combination), num_seeds, saved.note)
@@ -224,27 +141,11 @@ def _combo_config(info: dict, combination: int | None) -> PPOConfig:
     """The config of one combination of an unfinished sweep (the run's config otherwise)."""
     if combination is None:
         return info["config"]
-    values = combinations(info)[combination]
+    values = reader.recorded_combinations(info)[combination]
     try:
         return PPOConfig.from_dict({**info["config"].to_dict(), **values})
     except (ConfigError, TypeError, ValueError) as exc:
         raise RunDirError(f"config.json: combination {combination} is unusable: {exc}") from None
-
-
-def combinations(info: dict) -> list[dict[str, float]]:
-    """A run's ``config.json`` ``combinations`` (``[]`` without a sweep), checked: a list of
-    ``{name: number}``."""
-    combos = info.get("combinations") or []
-    if not isinstance(combos, list) or not all(
-        isinstance(c, dict)
-        and all(
-            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-            for k, v in c.items()
-        )
-        for c in combos
-    ):
-        raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
-    return combos
 
 
 def load_policy(

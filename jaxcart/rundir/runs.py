@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.rundir import files
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import layout, reader
+from jaxcart.rundir.files import RunDirError
 
 ELAPSED_METRIC = "time/elapsed"
 
 
 @dataclass(frozen=True)
-class Run:
+class RunCurves:
     """One run directory's curves: metric leaves ``[iterations, num_seeds]``."""
 
     path: Path
@@ -35,50 +35,40 @@ class Run:
 
 def unfinished(path: Path) -> bool:
     """A run (or sweep) that did not write its outputs but has a checkpoint to plot from."""
-    from jaxcart.rundir.checkpoint import CHECKPOINT_FILE
-
-    done = rundir.PARAMS_FILE if not rundir.is_sweep(path) else rundir.SWEEP_FILE
-    return not (path / done).exists() and (path / CHECKPOINT_FILE).exists()
+    done = layout.PARAMS_FILE if not layout.is_sweep(path) else layout.SWEEP_FILE
+    return not (path / done).exists() and (path / layout.CHECKPOINT_FILE).exists()
 
 
-def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
+def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     """Reads a run directory's config, metrics and evaluation; a run that did not finish,
-    its metrics so far from its checkpoint (:attr:`Run.note` says so).
+    its metrics so far from its checkpoint (:attr:`RunCurves.note` says so).
 
     Raises:
-        rundir.RunDirError: ``run_dir`` is not a jaxcart run directory, or its
+        RunDirError: ``run_dir`` is not a jaxcart run directory, or its
             ``metrics.csv`` is missing or unreadable.
     """
     path = Path(run_dir)
-    info = rundir.read_run_config(path)
+    info = reader.read_run_config(path)
     if unfinished(path):
-        return checkpoint_runs(path, info, [label] if label is not None else None)[0]
-    if not (path / rundir.METRICS_FILE).exists():
-        raise rundir.RunDirError(
-            f"{path} has no {rundir.METRICS_FILE} and no checkpoint.npz: the run never "
-            "started training"
+        return checkpoint_curves(path, info, [label] if label is not None else None)[0]
+    if not (path / layout.METRICS_FILE).exists():
+        raise RunDirError(
+            f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
+            "never started training"
         )
-    metrics_path = files.inside(path, rundir.METRICS_FILE)
-    max_rows = int(info.get("num_seeds", 1)) * info["config"].num_iterations
-    metrics = rundir.read_metrics_csv(metrics_path, max_rows=max_rows)
+    metrics = reader.read_run_metrics(path, info)
     if "env_steps" not in metrics:
-        raise rundir.RunDirError(f"{metrics_path} has no env_steps column")
+        raise RunDirError(f"{path / layout.METRICS_FILE} has no env_steps column")
     env_steps = _first_finite(metrics["env_steps"])
-    if ELAPSED_METRIC in metrics:
-        elapsed = _first_finite(metrics[ELAPSED_METRIC])
-    elif "time/fps" in metrics:
-        # Older runs: SB3's fps is env steps per seed / seconds since the start.
-        elapsed = env_steps / _first_finite(metrics["time/fps"])
-    else:
-        elapsed = None
+    elapsed = _first_finite(metrics[ELAPSED_METRIC]) if ELAPSED_METRIC in metrics else None
     evaluation = None
-    if (path / rundir.EVALUATION_FILE).exists():
-        evaluation = rundir.read_json(path, rundir.EVALUATION_FILE)
+    if (path / layout.EVALUATION_FILE).exists():
+        evaluation = reader.read_evaluation(path)
     num_seeds = next(iter(metrics.values())).shape[1]
     combination = info.get("combination") or None
     if label is None:
         label = combination_label(combination) if combination else default_label(path)
-    return Run(
+    return RunCurves(
         path=path,
         label=label,
         metrics=metrics,
@@ -90,23 +80,22 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> Run:
     )
 
 
-def checkpoint_runs(path: Path, info: dict, labels: Sequence[str] | None = None) -> list[Run]:
+def checkpoint_curves(
+    path: Path, info: dict, labels: Sequence[str] | None = None
+) -> list[RunCurves]:
     """The curves so far of an unfinished run, or of each combination of an unfinished sweep
     (whose checkpoint holds every combination x seed), from ``checkpoint.npz``.
 
     Raises:
-        rundir.RunDirError: no usable checkpoint, or no iteration finished yet.
+        RunDirError: no usable checkpoint, or no iteration finished yet.
     """
-    from jaxcart.rundir.policy import checkpoint_runs as read_checkpoint
-    from jaxcart.rundir.policy import combinations
-
-    saved = read_checkpoint(path, info)
+    saved = reader.read_checkpoint_runs(path, info)
     if saved.iteration == 0:
-        raise rundir.RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
+        raise RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
     config, num_seeds = info["config"], int(info.get("num_seeds", 1))
     env_steps = np.arange(1, saved.iteration + 1) * config.batch_size
     elapsed = saved.metrics.get(ELAPSED_METRIC)
-    combos = combinations(info) or [None]
+    combos = reader.recorded_combinations(info) or [None]
     runs = []
     for c, combination in enumerate(combos):
         metrics = {k: v[:, c * num_seeds : (c + 1) * num_seeds] for k, v in saved.metrics.items()}
@@ -114,7 +103,7 @@ def checkpoint_runs(path: Path, info: dict, labels: Sequence[str] | None = None)
         if label is None:
             label = combination_label(combination) if combination else default_label(path)
         runs.append(
-            Run(
+            RunCurves(
                 path=path,
                 label=label,
                 metrics=metrics,
@@ -139,23 +128,9 @@ def combination_label(combination: dict[str, float]) -> str:
     return ",".join(f"{name}={value:g}" for name, value in combination.items())
 
 
-def sweep_combinations(sweep_dir: Path) -> list[Path]:
-    """The run directories of a sweep's combinations, in combination order.
-
-    Raises:
-        rundir.RunDirError: the sweep holds none.
-    """
-    combos = sorted(p for p in Path(sweep_dir).glob("combo-[0-9][0-9][0-9]*") if p.is_dir())
-    if not combos:
-        raise rundir.RunDirError(
-            f"{sweep_dir} is a sweep without combination directories (combo-000/, ...)"
-        )
-    return combos
-
-
 def load_runs(
     run_dirs: Sequence[str | os.PathLike], labels: Sequence[str] | None = None
-) -> list[Run]:
+) -> list[RunCurves]:
     """Loads run directories, a sweep directory standing for its combinations.
 
     Args:
@@ -164,18 +139,18 @@ def load_runs(
             hyperparameter values); a sweep's label prefixes its combinations' labels.
 
     Raises:
-        rundir.RunDirError: a path is not a usable run directory.
+        RunDirError: a path is not a usable run directory.
     """
-    runs: list[Run] = []
+    runs: list[RunCurves] = []
     for i, path in enumerate(Path(p) for p in run_dirs):
         label = labels[i] if labels is not None else None
-        if rundir.is_sweep(path):
-            rundir.read_run_config(path)  # a clear error for a broken sweep
-            for combo in sweep_combinations(path):
+        if layout.is_sweep(path):
+            reader.read_run_config(path)  # a clear error for a broken sweep
+            for combo in reader.combo_dirs(path):
                 run = load_run(combo)
                 runs.append(run if label is None else _prefixed(run, label))
-        elif (info := rundir.read_run_config(path)).get("combinations") and unfinished(path):
-            combos = checkpoint_runs(path, info)  # an unfinished sweep: no combo-NNN/ yet
+        elif (info := reader.read_run_config(path)).get("combinations") and unfinished(path):
+            combos = checkpoint_curves(path, info)  # an unfinished sweep: no combo-NNN/ yet
             runs += combos if label is None else [_prefixed(run, label) for run in combos]
         else:
             runs.append(load_run(path, label))
@@ -184,7 +159,7 @@ def load_runs(
     return runs
 
 
-def _prefixed(run: Run, prefix: str) -> Run:
+def _prefixed(run: RunCurves, prefix: str) -> RunCurves:
     return dataclasses.replace(run, label=f"{prefix} {run.label}")
 
 
@@ -198,7 +173,7 @@ def _first_finite(values: np.ndarray) -> np.ndarray:
     return np.where(finite.any(axis=1), out, np.nan)
 
 
-def _disambiguate(runs: list[Run]) -> None:
+def _disambiguate(runs: list[RunCurves]) -> None:
     """Runs that share a label are labelled ``parent/label`` instead: ``parent/name`` for
     run directories, ``sweep/values`` for sweeps' combinations."""
     names = [r.label for r in runs]

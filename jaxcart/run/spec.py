@@ -1,0 +1,198 @@
+"""What a run is, as values: what it trains (:class:`RunSpec`), how it is carried out
+(:class:`RunOptions`), the events it reports (:class:`Hooks`), the run being carried out
+(:class:`Run`) and what a call did (:class:`Outcome`, :class:`Evaluation`).
+
+Nothing here trains or touches files: :mod:`jaxcart.run.lifecycle` does, through
+:mod:`jaxcart.run.training` and the run's :class:`~jaxcart.rundir.directory.RunDir`.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.solved import is_solved
+from jaxcart.engine.trainer import Progress, TrainResult
+from jaxcart.run import sweep as sweeps
+from jaxcart.run.loggers import LoggerUnavailable, check_available
+from jaxcart.run.waves import WavePlan
+from jaxcart.rundir.directory import RunDir
+
+
+def check_option(ok: bool, option: str, problem: str) -> None:
+    """Raises a ConfigError naming ``option`` unless ``ok``."""
+    if not ok:
+        raise ConfigError(f"{option} {problem}", option=option)
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What a new run trains; ``config.json`` records all of it."""
+
+    config: PPOConfig = field(default_factory=PPOConfig)
+    preset: str = "custom"
+    """The preset the config started from (a label in config.json and the header)."""
+    num_seeds: int = 1
+    """Independent seeds (per combination in a sweep)."""
+    seed: int = 0
+    """Base seed: seed index i uses ``fold_in(PRNGKey(seed), i)``."""
+    sweep: dict[str, list[float]] = field(default_factory=dict)
+    """Traced float hyperparameter -> values; every combination x seed trains in one program."""
+
+    def __post_init__(self) -> None:
+        check_option(
+            _is_int(self.num_seeds) and self.num_seeds > 0,
+            "num_seeds",
+            f"must be a positive integer, got {self.num_seeds}",
+        )
+        check_option(
+            _is_int(self.seed) and 0 <= self.seed < 2**32,
+            "seed",
+            f"must be in [0, 2**32), got {self.seed}",
+        )
+        self.combo_configs()  # every combination valid before anything is created
+
+    @classmethod
+    def from_record(cls, info: dict) -> RunSpec:
+        """The spec a run's ``config.json`` records (``config`` already a PPOConfig)."""
+        sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
+        return cls(info["config"], info["preset"], int(info["num_seeds"]), int(info["seed"]), sweep)
+
+    @property
+    def grid(self) -> sweeps.RunGrid:
+        combos = sweeps.combinations(self.sweep) if self.sweep else []
+        return sweeps.RunGrid(self.num_seeds, tuple(combos))
+
+    def combo_configs(self) -> list[PPOConfig]:
+        """One config per combination (the config alone without a sweep)."""
+        if not self.sweep:
+            return [self.config]
+        return sweeps.validate_combinations(self.config, list(self.grid.combos))
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run is carried out (a resume may choose them anew)."""
+
+    checkpoint_every: float = 30.0
+    """Seconds between checkpoints."""
+    eval_episodes: int | None = None
+    """Greedy Gymnasium evaluation episodes per seed (None: 20, or a resumed run's own)."""
+    loggers: tuple[str, ...] = ()
+    """Metric backends besides metrics.csv: ``tensorboard``, ``swanlab``."""
+    compile_cache: bool = True
+    """Use JAX's persistent compilation cache."""
+    chunk_size: int | None = None
+    """Iterations per compiled call between progress reports (default: about 20 reports)."""
+
+    def __post_init__(self) -> None:
+        check_option(
+            self.eval_episodes is None or (_is_int(self.eval_episodes) and self.eval_episodes > 0),
+            "eval_episodes",
+            f"must be a positive integer, got {self.eval_episodes}",
+        )
+        check_option(
+            self.checkpoint_every > 0,
+            "checkpoint_every",
+            f"must be > 0 seconds, got {self.checkpoint_every}",
+        )
+        check_option(
+            self.chunk_size is None or (_is_int(self.chunk_size) and self.chunk_size > 0),
+            "chunk_size",
+            f"must be a positive integer, got {self.chunk_size}",
+        )
+        if self.loggers:
+            try:
+                check_available(self.loggers)
+            except LoggerUnavailable as exc:
+                raise ConfigError(str(exc)) from None
+
+
+@dataclass
+class Hooks:
+    """Callbacks for a run's events; every one is optional."""
+
+    on_start: Callable[[Run, int, str], None] | None = None  # run, device count, backend
+    on_compiled: Callable[[float], None] | None = None  # compile seconds
+    on_chunk: Callable[[Progress], None] | None = None
+    on_diverged: Callable[[str, int], None] | None = None  # run name, iteration
+    on_signal: Callable[[int], None] | None = None  # first SIGINT/SIGTERM
+    on_init: Callable[[int, int], None] | None = None  # runs initialised so far, of all
+    on_wave: Callable[[int, int, range], None] | None = None  # wave, of how many, its runs
+
+
+@dataclass
+class Evaluation:
+    """Greedy evaluation of every run, returns ``[R, episodes]``."""
+
+    episodes: int
+    gym_returns: np.ndarray  # in gymnasium.make("CartPole-v1")
+    jax_returns: np.ndarray  # in jaxcart's env
+    seconds: float
+
+    @property
+    def solved(self) -> np.ndarray:
+        return is_solved(self.gym_returns)
+
+
+@dataclass
+class Outcome:
+    """What a call of :func:`run_new` / :func:`resume_run` did."""
+
+    run: Run
+    result: TrainResult | None  # the last wave's training; None if stopped before training
+    diverged_at: np.ndarray | None = None  # [R]: -1, or the iteration that went non-finite
+    final_return: np.ndarray | None = None  # [R]: rollout/ep_rew_mean at the last iteration
+    evaluation: Evaluation | None = None  # None when stopped before the outputs were written
+    ranking: list[dict] | None = None  # sweeps: the combinations, best first
+    signum: int | None = None  # the signal that stopped it (or arrived while writing)
+    stopped: bool = False  # stopped before the run directory was complete (resumable)
+    compile_seconds: float = 0.0  # this session's, every wave
+    train_seconds: float = 0.0  # this session's training, compile excluded
+    env_steps: int = 0  # this session's, all runs
+    num_devices: int = 1
+    stopped_at: tuple[int, int] | None = None  # (wave, iteration) of the checkpoint on disk
+
+
+@dataclass
+class Run:
+    """A run being carried out: what it trains, its directory, its ``config.json`` record
+    (``info``, without the config itself) and the waves it trains in."""
+
+    directory: RunDir
+    spec: RunSpec
+    info: dict
+    plan: WavePlan
+    resumed_from: int | None = None
+    """The iteration of the checkpoint a resume continues from (None for a new run)."""
+    resume_wave: int = 0
+    """The wave a resume continues with."""
+
+    @property
+    def out(self) -> Path:
+        return self.directory.path
+
+    @property
+    def main_process(self) -> bool:
+        return self.directory.main_process
+
+    @functools.cached_property
+    def grid(self) -> sweeps.RunGrid:
+        return self.spec.grid
+
+    config = property(lambda self: self.spec.config)
+    preset = property(lambda self: self.spec.preset)
+    sweep = property(lambda self: self.spec.sweep)
+
+    def close(self) -> None:
+        """Releases the run directory for other processes."""
+        self.directory.close()

@@ -1,0 +1,193 @@
+"""A run directory as the run that owns it sees it: created or opened under its lock, then
+written as training goes (``config.json``, checkpoints, finished waves, outputs).
+
+:class:`RunDir` is the run's persistence and nothing else: what to train and when to save
+is decided by :mod:`jaxcart.run.lifecycle`. Every file goes through
+:func:`jaxcart.rundir.files.atomic_file` and is read back through :mod:`jaxcart.rundir.reader`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.engine.trainer import TrainState
+from jaxcart.rundir import checkpoint, files, layout, outputs, reader
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.lock import RunLock
+
+VERSIONED_PACKAGES = ("jaxcart", "jax", "jaxlib", "flax", "optax", "distrax", "gymnasium", "numpy")
+"""The packages that determine a run's numbers, recorded in config.json and checkpoints."""
+RESUME_PACKAGES = ("jaxcart", "jax", "jaxlib")
+"""Those a run must be continued with to continue bit-identically."""
+
+
+@functools.cache
+def _installed_versions() -> tuple[tuple[str, str], ...]:
+    versions = []
+    for name in VERSIONED_PACKAGES:
+        try:
+            versions.append((name, metadata.version(name)))
+        except metadata.PackageNotFoundError:
+            versions.append((name, "not installed"))
+    return tuple(versions)
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of the packages that determine a run's numbers (looked up once per process:
+    every checkpoint records them)."""
+    return dict(_installed_versions())
+
+
+def check_versions(run_dir: str | os.PathLike, saved: dict) -> None:
+    """Refuses to continue a run whose checkpoint (or config) was written by other versions
+    of the packages in :data:`RESUME_PACKAGES`."""
+    now = package_versions()
+    for name in RESUME_PACKAGES:
+        if saved.get(name) != now[name]:
+            raise RunDirError(
+                f"{run_dir} was trained with {name} {saved.get(name)}, this is {now[name]}; "
+                f"reinstall {name}=={saved.get(name)} to continue it bit-identically"
+            )
+
+
+def prepare_out_dir(out: Path) -> Path:
+    """Creates ``out``; refuses a non-empty or unwritable one with a clear message."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out} exists and is not a directory; choose another path")
+    # leftovers of a run killed while writing its first file do not count
+    if out.is_dir() and any(not layout.is_temporary(p) for p in out.iterdir()):
+        raise ConfigError(
+            f"--out {out} is not empty; choose a new directory so no earlier run is "
+            f"overwritten (or continue it with --resume {out})"
+        )
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / layout.WRITE_PROBE
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
+    return out
+
+
+class RunDir:
+    """One run directory, locked by the main process from :meth:`create`/:meth:`open` to
+    :meth:`close`. Only the main process writes; the others hold no lock."""
+
+    def __init__(self, path: str | os.PathLike, main_process: bool = True) -> None:
+        self.path, self.main_process = Path(path), main_process
+        self.lock = RunLock(self.path)
+        self.checkpoint_meta: dict | None = None  # of the checkpoint on disk, when there is one
+
+    @classmethod
+    def create(
+        cls, path: str | os.PathLike, info: dict, config: PPOConfig, main_process: bool = True
+    ) -> RunDir:
+        """A new run directory (refusing a non-empty one), locked, with its ``config.json``
+        (``info`` and ``config``)."""
+        directory = cls(path, main_process)
+        if main_process:
+            prepare_out_dir(directory.path)
+            directory.lock.acquire()
+            try:
+                directory.write_config(info, config)
+            except BaseException:
+                directory.close()
+                raise
+        return directory
+
+    @classmethod
+    def open(cls, path: str | os.PathLike, main_process: bool = True) -> RunDir:
+        """An existing run directory, locked (before its checkpoint is read: another process
+        may be writing it).
+
+        Raises:
+            RunInUse: another process holds it.
+        """
+        directory = cls(path, main_process)
+        if main_process:
+            directory.lock.acquire()
+        return directory
+
+    def read_checkpoint_meta(self) -> dict | None:
+        """:attr:`checkpoint_meta` read from the checkpoint on disk; None when there is none
+        (stopped while starting up: nothing was trained)."""
+        path = self.checkpoint_path
+        self.checkpoint_meta = reader.read_checkpoint_meta(path) if path.exists() else None
+        return self.checkpoint_meta
+
+    def close(self) -> None:
+        """Releases the run directory for other processes."""
+        self.lock.release()
+
+    def write_config(self, info: dict, config: PPOConfig, directory: Path | None = None) -> None:
+        """``config.json``: ``info`` with ``config`` as a dict (in a combination's
+        ``directory`` when given)."""
+        path = (directory or self.path) / layout.CONFIG_FILE
+        files.write_json(path, {**info, "config": config.to_dict()})
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.path / layout.CHECKPOINT_FILE
+
+    def save_checkpoint(self, state: TrainState, meta: dict) -> None:
+        """Writes a (gathered) training state and its ``meta`` over the last checkpoint."""
+        checkpoint.save_checkpoint(self.checkpoint_path, state, meta)
+        self.checkpoint_meta = {**meta, "iteration": state.iteration}
+
+    def load_checkpoint(self, template: TrainState, num_runs: int) -> TrainState:
+        """The checkpoint's state of ``num_runs`` runs, in the structure of ``template``."""
+        return reader.load_checkpoint(self.checkpoint_path, template, num_runs=num_runs)
+
+    def finished(self) -> bool:
+        """Whether the run wrote its evaluation (its last output)."""
+        return (self.path / layout.EVALUATION_FILE).exists()
+
+    def wave_file(self, wave: int) -> Path:
+        return layout.wave_file(self.path, wave)
+
+    def has_wave(self, wave: int) -> bool:
+        """Whether wave ``wave`` finished (its block file is saved)."""
+        return self.wave_file(wave).exists()
+
+    def save_wave(self, block: outputs.Block, wave: int) -> Path:
+        """Keeps a finished wave's block until the outputs are written; returns its file."""
+        path = self.wave_file(wave)
+        path.parent.mkdir(exist_ok=True)
+        block.save(path)
+        return path
+
+    def write_metrics(self, metrics: dict[str, np.ndarray], batch_size: int) -> None:
+        """``metrics.csv`` from metrics ``[iterations, R]`` in memory (a stopped run's)."""
+        outputs.write_metrics_csv(self.path / layout.METRICS_FILE, metrics, batch_size)
+
+    def write_outputs(
+        self,
+        combo: int | None,
+        blocks: list,
+        runs: range,
+        episodes: int,
+        timing: dict,
+        batch_size: int,
+        record: tuple[dict, PPOConfig] | None = None,
+    ) -> None:
+        """metrics.csv, params.npz and evaluation.json of ``runs`` from the blocks: in the run
+        directory, or in combination ``combo``'s, with its own config.json ``record``."""
+        directory = layout.combo_dir(self.path, combo) if combo is not None else self.path
+        directory.mkdir(parents=True, exist_ok=True)
+        if record is not None:
+            self.write_config(*record, directory=directory)
+        outputs.write_blocks_metrics_csv(directory / layout.METRICS_FILE, blocks, runs, batch_size)
+        outputs.write_params(directory / layout.PARAMS_FILE, blocks, runs)
+        path = directory / layout.EVALUATION_FILE
+        outputs.write_evaluation(path, blocks, runs, episodes, timing)
+
+    def write_ranking(self, data: dict) -> None:
+        """``sweep.json``: a sweep's combinations, ranked."""
+        files.write_json(self.path / layout.SWEEP_FILE, data)

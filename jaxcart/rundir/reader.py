@@ -1,0 +1,349 @@
+"""The one reader of run directories: every command and the library read a run's files
+through here (plot, compare, evaluate, ``load_policy`` and resume), so that what is checked
+before anything is trusted is checked in one place.
+
+A run directory may come from anyone: every reader refuses links out of the directory,
+bounds what it reads by what the run's ``config.json`` says it can hold, checks headers
+before reading arrays, and turns every way a file can be broken into one
+:class:`~jaxcart.rundir.files.RunDirError` that says which file and why.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.networks import ActorCritic
+from jaxcart.rundir import files, layout
+from jaxcart.rundir.files import RunDirError
+
+if TYPE_CHECKING:  # the trainer (and JAX) load when a checkpoint is restored
+    from jaxcart.engine.trainer import TrainState
+
+MAX_JSON_BYTES = 16 << 20
+MAX_CSV_BYTES_PER_ROW = 4096
+
+
+def read_json(run_dir: str | os.PathLike, name: str) -> dict:
+    """A JSON object from a run directory, refusing links out of it, oversized files and
+    anything but an object."""
+    path = files.inside(run_dir, name)
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise RunDirError(f"{path} is larger than any {name} jaxcart writes")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
+    if not isinstance(data, dict):
+        raise RunDirError(f"{path} is corrupted: not a JSON object")
+    return data
+
+
+def read_run_config(run_dir: str | os.PathLike) -> dict:
+    """The run's ``config.json`` as a dict (``config`` a :class:`PPOConfig`), with a clear
+    error when it is not a run or does not hold what a run's config holds."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise RunDirError(
+            f"{run_dir} is not a directory; pass the --out directory of a jaxcart run"
+        )
+    if not (run_dir / layout.CONFIG_FILE).exists():
+        raise RunDirError(
+            f"{run_dir} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory"
+        )
+    data = read_json(run_dir, layout.CONFIG_FILE)
+    path = run_dir / layout.CONFIG_FILE
+    try:
+        data["config"] = PPOConfig.from_dict(data["config"])
+        _check_run_fields(data)
+    except (KeyError, TypeError, ValueError, ConfigError) as exc:
+        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
+    return data
+
+
+def _check_run_fields(data: dict) -> None:
+    num_seeds, seed = data.get("num_seeds", 1), data.get("seed", 0)
+    if not isinstance(num_seeds, int) or isinstance(num_seeds, bool) or num_seeds < 1:
+        raise ValueError(f"num_seeds {num_seeds!r}")
+    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
+        raise ValueError(f"seed {seed!r}")
+    wave_size = data.get("wave_size", num_seeds)
+    if not isinstance(wave_size, int) or isinstance(wave_size, bool) or wave_size < 1:
+        raise ValueError(f"wave_size {wave_size!r}")
+    sweep = data.get("sweep", {})
+    if not isinstance(sweep, dict) or not all(
+        isinstance(v, list) and all(isinstance(x, (int, float)) for x in v) for v in sweep.values()
+    ):
+        raise ValueError(f"sweep {sweep!r}")
+
+
+def recorded_combinations(info: dict) -> list[dict[str, float]]:
+    """A run's ``config.json`` ``combinations`` (``[]`` without a sweep), checked: a list of
+    ``{name: number}``."""
+    combos = info.get("combinations") or []
+    if not isinstance(combos, list) or not all(
+        isinstance(c, dict)
+        and all(
+            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
+            for k, v in c.items()
+        )
+        for c in combos
+    ):
+        raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
+    return combos
+
+
+def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
+    """The run directories of a sweep's combinations, in combination order.
+
+    Raises:
+        RunDirError: the sweep holds none.
+    """
+    combos = sorted(p for p in Path(sweep_dir).glob(layout.COMBO_GLOB) if p.is_dir())
+    if not combos:
+        raise RunDirError(
+            f"{sweep_dir} is a sweep without combination directories (combo-000/, ...)"
+        )
+    return combos
+
+
+def read_metrics_csv(path: str | os.PathLike, max_rows: int | None = None) -> dict[str, np.ndarray]:
+    """Reads ``metrics.csv`` (:mod:`jaxcart.rundir.outputs`) back into leaves
+    ``[iterations, S]``.
+
+    ``max_rows`` (seeds x iterations, from the run's config) bounds what is read.
+    """
+    path = Path(path)
+    if max_rows is not None and path.stat().st_size > (max_rows + 1) * MAX_CSV_BYTES_PER_ROW:
+        raise RunDirError(f"{path} is larger than {max_rows} rows can be")
+    seed_column, iteration_column, _ = layout.METRICS_INDEX_COLUMNS
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        if not rows:
+            raise RunDirError(f"{path} has no rows")
+        seeds = np.array([int(r[seed_column]) for r in rows])
+        iterations = np.array([int(r[iteration_column]) for r in rows])
+        if seeds.min() < 0 or iterations.min() < 1 or len(rows) > (max_rows or len(rows)):
+            raise RunDirError(f"{path} has rows out of range")
+        out: dict[str, np.ndarray] = {}
+        for name in rows[0]:
+            if name in (seed_column, iteration_column):
+                continue
+            arr = np.full((iterations.max(), seeds.max() + 1), np.nan)
+            arr[iterations - 1, seeds] = [float(r[name]) for r in rows]
+            out[name] = arr
+    except (KeyError, ValueError, TypeError, csv.Error, UnicodeDecodeError) as exc:
+        raise RunDirError(f"{path} is corrupted: {exc}") from None
+    return out
+
+
+def read_run_metrics(run_dir: str | os.PathLike, info: dict) -> dict[str, np.ndarray]:
+    """A run's ``metrics.csv``, bounded by the seeds x iterations its ``info`` (its
+    ``config.json``) trains; leaves ``[iterations, S]``."""
+    path = files.inside(run_dir, layout.METRICS_FILE)
+    max_rows = int(info.get("num_seeds", 1)) * info["config"].num_iterations
+    return read_metrics_csv(path, max_rows=max_rows)
+
+
+def read_evaluation(run_dir: str | os.PathLike) -> dict:
+    """A run's ``evaluation.json`` (per-seed returns and solved flags)."""
+    return read_json(run_dir, layout.EVALUATION_FILE)
+
+
+def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
+    """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes."""
+    network = ActorCritic.from_config(config)
+    shapes = files.flatten(network.shapes(), is_leaf=lambda x: isinstance(x, tuple))
+    return {name: ((num_seeds, *shape), np.dtype(np.float32)) for name, shape in shapes.items()}
+
+
+def load_params(run_dir: str | os.PathLike) -> dict:
+    """Every seed's parameters from ``params.npz``, leaves ``[num_seeds, ...]``."""
+    path = Path(run_dir) / layout.PARAMS_FILE
+    if layout.is_sweep(run_dir):
+        raise RunDirError(
+            f"{run_dir} is a sweep: each combination is a run directory of its own, "
+            f"e.g. {layout.combo_dir(run_dir, 0)}"
+        )
+    if not path.exists():
+        raise RunDirError(
+            f"{run_dir} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
+        )
+    info = read_run_config(run_dir)
+    expected = params_headers(info["config"], int(info.get("num_seeds", 1)))
+    path = files.inside(run_dir, layout.PARAMS_FILE)
+    found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
+    if found != expected:
+        raise RunDirError(
+            f"{path} does not hold this run's network: {_difference(found, expected)}"
+        )
+    arrays, _ = files.load_tree(path)
+    files.check_finite(arrays, path)
+    return files.unflatten(arrays)
+
+
+def _difference(found: dict[str, files.Header], expected: dict[str, files.Header]) -> str:
+    missing, extra = sorted(set(expected) - set(found)), sorted(set(found) - set(expected))
+    if missing or extra:
+        return f"missing {missing[:3]}, unexpected {extra[:3]}"
+    name = next(n for n in expected if found[n] != expected[n])
+    (shape, dtype), (want_shape, want_dtype) = found[name], expected[name]
+    return f"{name} is {shape} {dtype}, expected {want_shape} {want_dtype}"
+
+
+def _bytes(headers: dict[str, files.Header]) -> int:
+    return sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in headers.values())
+
+
+def read_checkpoint_meta(path: str | os.PathLike) -> dict:
+    """The metadata of a checkpoint, with a :class:`RunDirError` if it is unreadable or of
+    another format."""
+    meta = files.read_meta(path)
+    if not isinstance(meta, dict) or meta.get("checkpoint_format") != layout.CHECKPOINT_FORMAT:
+        found = meta.get("checkpoint_format") if isinstance(meta, dict) else None
+        raise RunDirError(
+            f"checkpoint {path} has format {found}, this version reads {layout.CHECKPOINT_FORMAT}"
+        )
+    return meta
+
+
+def load_checkpoint(
+    path: str | os.PathLike, template: TrainState, num_runs: int | None = None
+) -> TrainState:
+    """Restores a checkpoint (:mod:`jaxcart.rundir.checkpoint`) into the structure of
+    ``template`` (NumPy leaves), to resume training.
+
+    ``template`` gives the names, dtypes and per-run shapes; its leading run axis may be
+    shorter than the checkpoint's ``num_runs`` (a one-run template is enough). Every header
+    is checked before anything is read, and the state must be finite.
+
+    Raises:
+        RunDirError: missing, corrupted, crafted, or saved from a different structure/shape.
+    """
+    import jax
+
+    from jaxcart.engine.trainer import TrainState
+
+    meta = read_checkpoint_meta(path)
+    expected = _expected_headers(template, num_runs, int(meta["iteration"]))
+    limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
+    found = files.read_headers(path, max_bytes=limit + (1 << 20))
+    found.pop(files.META_KEY, None)
+    if set(found) != set(expected):
+        raise RunDirError(
+            f"checkpoint {path} does not match this version's training state (different structure)"
+        )
+    for name, (shape, dtype) in expected.items():
+        if found[name] != (shape, dtype):
+            raise RunDirError(
+                f"checkpoint {path}: {name} has shape/dtype {found[name][0]}/{found[name][1]}, "
+                f"expected {shape}/{dtype}"
+            )
+    arrays, _ = files.load_tree(path, max_bytes=limit + (1 << 20))
+    state_names = [n for n in expected if n.startswith(layout.CHECKPOINT_STATE)]
+    files.check_finite({n: arrays[n] for n in state_names}, path)
+    tree = {"runners": template.runners, "hyperparams": template.hyperparams}
+    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
+    prefix = layout.CHECKPOINT_METRICS
+    metrics = {n[len(prefix) :]: a for n, a in arrays.items() if n.startswith(prefix)}
+    return TrainState(
+        runners=restored["runners"],
+        hyperparams=restored["hyperparams"],
+        iteration=int(meta["iteration"]),
+        elapsed=float(meta["elapsed"]),
+        metrics=metrics,
+        chunk_size=int(meta["chunk_size"]),
+    )
+
+
+def _expected_headers(template: TrainState, num_runs: int | None, iterations: int) -> dict:
+    """Names, shapes and dtypes a checkpoint of ``num_runs`` runs at ``iterations`` holds."""
+    from jaxcart.rundir.checkpoint import state_arrays
+
+    runs = num_runs if num_runs is not None else len(template.runners.diverged_at)
+    expected = {name: ((runs, *a.shape[1:]), a.dtype) for name, a in state_arrays(template).items()}
+    for name, a in template.metrics.items():
+        expected[layout.CHECKPOINT_METRICS + name] = ((iterations, runs), np.asarray(a).dtype)
+    return expected
+
+
+@dataclass(frozen=True)
+class CheckpointRuns:
+    """What a run's checkpoint holds for reading: every run's parameters and metrics so far.
+
+    A sweep's checkpoint (in the sweep directory) holds all combinations x seeds: run ``r``
+    is combination ``r // num_seeds``, seed index ``r % num_seeds``.
+    """
+
+    params: dict  # leaves [R, ...]
+    metrics: dict[str, np.ndarray]  # name -> [iteration, R]
+    iteration: int
+    num_iterations: int
+
+    @property
+    def note(self) -> str:
+        where = f"from the checkpoint at iteration {self.iteration}/{self.num_iterations}"
+        if self.iteration >= self.num_iterations:
+            return f"{where}: training finished but the run stopped before writing its outputs"
+        return f"{where}: the run did not finish"
+
+
+def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> CheckpointRuns:
+    """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
+    optimizer or env state is restored), refusing crafted files: the metadata must match the
+    run's ``config.json``, every array header is checked before anything is read, the whole
+    file is bounded by what this config's checkpoint can hold, and parameters must be finite.
+
+    Raises:
+        RunDirError: no usable checkpoint.
+    """
+    run_dir = Path(run_dir)
+    info = info or read_run_config(run_dir)
+    config = info["config"]
+    if not (run_dir / layout.CHECKPOINT_FILE).exists():
+        raise RunDirError(f"{run_dir} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}")
+    path = files.inside(run_dir, layout.CHECKPOINT_FILE)
+    meta = read_checkpoint_meta(path)
+    runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
+    iteration = meta.get("iteration")
+    if (
+        meta.get("num_runs") != runs
+        or not isinstance(iteration, int)
+        or not 0 <= iteration <= config.num_iterations
+    ):
+        raise RunDirError(f"{path} does not belong to this run's config.json")
+    params_prefix, metrics_prefix = layout.CHECKPOINT_PARAMS, layout.CHECKPOINT_METRICS
+    expected = {
+        params_prefix + name: header for name, header in params_headers(config, runs).items()
+    }
+    limit = _checkpoint_bytes(config, runs, iteration)
+    found = files.read_headers(path, max_bytes=limit)
+    if any(found.get(name) != header for name, header in expected.items()):
+        raise RunDirError(f"{path} does not hold this run's network")
+    metric_names = [n for n in found if n.startswith(metrics_prefix)]
+    if any(found[n][0] != (iteration, runs) or found[n][1].kind != "f" for n in metric_names):
+        raise RunDirError(f"{path} holds metrics other than floats [{iteration}, {runs}]")
+    arrays, _ = files.load_tree(path, max_bytes=limit)
+    params = {name[len(params_prefix) :]: arrays[name] for name in expected}
+    files.check_finite(params, path)
+    metrics = {n[len(metrics_prefix) :]: arrays[n].astype(float) for n in metric_names}
+    return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
+
+
+def _checkpoint_bytes(config: PPOConfig, runs: int, iterations: int) -> int:
+    """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
+    two moments, per-env state, episode statistics, and metrics so far."""
+    params = sum(
+        math.prod(shape) * dtype.itemsize for shape, dtype in params_headers(config, runs).values()
+    )
+    per_run = config.num_envs * 256 + (1 << 14)
+    return 4 * params + runs * per_run + (iterations + 1) * runs * 64 * 8 + (1 << 20)
