@@ -28,7 +28,8 @@ from benchmarks import lib
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.engine.trainer import METRIC_COLUMNS
-from jaxcart.rundir import layout as rundir
+from jaxcart.rundir import files, layout, outputs
+from jaxcart.rundir.directory import package_versions
 
 # SB3 dumps its log before each update, so train/* values appear one row after the rollout
 # they belong to; rollout/* and time/* belong to the row they are on.
@@ -118,10 +119,10 @@ def write_run(
     num_seeds = len(per_seed)
     iterations = min(len(m["time/fps"]) for m in per_seed)
     metrics = {k: np.stack([m[k][:iterations] for m in per_seed], axis=1) for k in METRIC_COLUMNS}
-    rundir.write_json(
-        out / rundir.CONFIG_FILE,
+    files.write_json(
+        out / layout.CONFIG_FILE,
         {
-            "format_version": rundir.FORMAT_VERSION,
+            "format_version": layout.FORMAT_VERSION,
             "preset": "sb3",
             "framework": "stable-baselines3 (torch)",
             "num_seeds": num_seeds,
@@ -129,12 +130,12 @@ def write_run(
             "jobs": jobs,
             "wall_seconds": wall_seconds,
             "config": config.to_dict(),
-            "versions": rundir.package_versions(),
+            "versions": package_versions(),
         },
     )
-    rundir.write_metrics_csv(out / rundir.METRICS_FILE, metrics, config.batch_size)
-    rundir.write_json(
-        out / rundir.EVALUATION_FILE,
+    outputs.write_metrics_csv(out / layout.METRICS_FILE, metrics, config.batch_size)
+    files.write_json(
+        out / layout.EVALUATION_FILE,
         {
             "episodes": NUM_EVAL_EPISODES,
             "seeds": [
