@@ -14,10 +14,16 @@ NaN entries (``ep_rew_mean`` is NaN until a seed's first episode ends) are left 
 curve starts when the first seed has a value and the band when two seeds do; a single-seed
 run has no band.
 
-Several run directories overlay in one figure, with a legend. A sweep directory (``sweep.json``
-and ``combo-000/``, ``combo-001/``, ...) stands for its combinations, each labelled by its
-hyperparameter values (``learning_rate=0.001,clip_coef=0.2``). One run is drawn into
-``RUN_DIR/curves.png`` by default, several into ``comparison.png`` in the current directory.
+The y axes fit the mean curves (with a margin), not the bands, which run past the axes where
+they are wider; step axes are labelled ``250k``, ``1.25M``.
+
+Several run directories overlay in one figure, with a legend below the panels. Each run has
+its own colour (colour-blind safe) and line style, later runs drawn over earlier ones, thinner
+or broken, so that equal curves (the same settings run twice) both stay visible. A sweep
+directory (``sweep.json`` and ``combo-000/``, ``combo-001/``, ...) stands for its combinations,
+each labelled by its hyperparameter values (``learning_rate=0.001,clip_coef=0.2``). One run is
+drawn into ``RUN_DIR/curves.png`` by default, several into ``comparison.png`` in the current
+directory, or ``comparison-2.png``, ... when that exists (never overwritten).
 
 Uses matplotlib's object API (no pyplot), so it never changes the caller's backend.
 """
@@ -176,7 +182,7 @@ def default_out(runs: list[Run]) -> Path:
         return runs[0].path / "curves.png"
     out, number = Path(COMPARISON), 2
     while out.exists():
-        out, number = Path(f"{out.stem.split('-')[0]}-{number}.png"), number + 1
+        out, number = Path(f"{Path(COMPARISON).stem}-{number}.png"), number + 1
     return out
 
 
