@@ -14,10 +14,16 @@ NaN entries (``ep_rew_mean`` is NaN until a seed's first episode ends) are left 
 curve starts when the first seed has a value and the band when two seeds do; a single-seed
 run has no band.
 
-Several run directories overlay in one figure, with a legend. A sweep directory (``sweep.json``
-and ``combo-000/``, ``combo-001/``, ...) stands for its combinations, each labelled by its
-hyperparameter values (``learning_rate=0.001,clip_coef=0.2``). One run is drawn into
-``RUN_DIR/curves.png`` by default, several into ``comparison.png`` in the current directory.
+The y axes fit the mean curves (with a margin), not the bands, which run past the axes where
+they are wider; step axes are labelled ``250k``, ``1.25M``.
+
+Several run directories overlay in one figure, with a legend below the panels. Each run has
+its own colour (colour-blind safe) and line style, later runs drawn over earlier ones, thinner
+or broken, so that equal curves (the same settings run twice) both stay visible. A sweep
+directory (``sweep.json`` and ``combo-000/``, ``combo-001/``, ...) stands for its combinations,
+each labelled by its hyperparameter values (``learning_rate=0.001,clip_coef=0.2``). One run is
+drawn into ``RUN_DIR/curves.png`` by default, several into ``comparison.png`` in the current
+directory, or ``comparison-2.png``, ... when that exists (never overwritten).
 
 Uses matplotlib's object API (no pyplot), so it never changes the caller's backend.
 """
@@ -37,7 +43,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart import cli
-from jaxcart.analysis import stats
+from jaxcart.analysis import figures, stats
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.runs import (
     ELAPSED_METRIC,
@@ -69,6 +75,10 @@ METRIC_BOUNDS: dict[str, tuple[float, float]] = {
 """Each metric's range; confidence bands are clipped to it."""
 FORMATS = ("png", "svg", "pdf")
 CONFIDENCE = stats.CONFIDENCE
+COMPARISON = layout.PLOT_COMPARISON_FILE
+"""Where several runs are drawn by default (or comparison-2.png, ... if it exists)."""
+SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
+"""The summary panel's font sizes, tried largest first until every run's block fits."""
 
 
 def mean_and_band(
@@ -90,12 +100,14 @@ def mean_and_band(
 
 
 def _plot_metric(
-    ax, x: np.ndarray, values: np.ndarray, colour, label: str | None, name: str
-) -> None:
+    ax, x: np.ndarray, values: np.ndarray, style: figures.Style, name: str
+) -> np.ndarray:
+    """Draws the mean curve and its band; returns the mean ``[iterations]``."""
     mean, low, high = mean_and_band(values, METRIC_BOUNDS.get(name, (-math.inf, math.inf)))
-    ax.plot(x, mean, color=colour, lw=1.6, label=label)
+    ax.plot(x, mean, **style.line())
     if np.isfinite(low).any():
-        ax.fill_between(x, low, high, color=colour, alpha=0.2, lw=0)
+        ax.fill_between(x, low, high, color=style.color, alpha=0.18, lw=0)
+    return mean
 
 
 def _no_data(ax, text: str) -> None:
@@ -103,7 +115,8 @@ def _no_data(ax, text: str) -> None:
 
 
 def _summary_lines(run: RunCurves) -> list[str]:
-    """One or two lines per run for the summary panel."""
+    """Three lines per run for the summary panel (which wraps them to its width): the label,
+    seeds, steps and final return, and the Gymnasium evaluation."""
     ret = run.metrics.get(RETURN_METRIC)
     final = ""
     if ret is not None and np.isfinite(ret[-1]).any():
@@ -118,8 +131,8 @@ def _summary_lines(run: RunCurves) -> list[str]:
         solved = sum(bool(s.get("solved")) for s in seeds)
         mean = np.mean([s.get("gymnasium_mean", np.nan) for s in seeds])
         eval_line = (
-            f"Gymnasium: solved {solved}/{len(seeds)}, mean return {mean:.1f}\n"
-            f"  ({ev.get('episodes', '?')} greedy episodes per seed)"
+            f"Gymnasium: solved {solved}/{len(seeds)}, mean return {mean:.1f} "
+            f"({ev.get('episodes', '?')} greedy episodes per seed)"
         )
     else:
         eval_line = "no evaluation.json"
@@ -137,9 +150,10 @@ def plot_runs(
     Args:
         run_dirs: jaxcart run directories (what ``python -m jaxcart.train --out`` wrote); a
             sweep directory stands for its combinations.
-        out: the image to write (``.png``, ``.svg`` or ``.pdf``); default
-            ``<run_dirs[0]>/curves.png`` for one run, ``comparison.png`` in the current
-            directory for several (a sweep is several).
+        out: the image to write (``.png``, ``.svg`` or ``.pdf``), replaced if it exists;
+            default ``<run_dirs[0]>/curves.png`` for one run, and for several (a sweep is
+            several) ``comparison.png`` in the current directory, or ``comparison-2.png``, ...
+            if it exists (:func:`default_out`).
         labels: legend labels, one per entry of ``run_dirs`` (default: each run directory's
             name, or a combination's hyperparameter values; a sweep's label prefixes them).
         dpi: resolution of a PNG (the figure is 15 x 11 inches).
@@ -160,15 +174,22 @@ def plot_runs(
     return draw_runs(load_runs(run_dirs, labels), out, dpi)
 
 
+def default_out(runs: list[RunCurves]) -> Path:
+    """Where a plot goes without ``--out``: one run's own ``RUN_DIR/curves.png`` (redrawn in
+    place), otherwise the first of ``comparison.png``, ``comparison-2.png``, ... in the current
+    directory that does not exist yet, so that an earlier comparison is never overwritten."""
+    if len(runs) == 1:
+        return runs[0].path / layout.CURVES_FILE
+    out, number = Path(COMPARISON), 2
+    while out.exists():
+        out, number = Path(f"{Path(COMPARISON).stem}-{number}.png"), number + 1
+    return out
+
+
 def draw_runs(runs: list[RunCurves], out: str | os.PathLike | None = None, dpi: int = 100) -> Path:
-    """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`)."""
-    if out is None:
-        out = (
-            runs[0].path / layout.CURVES_FILE
-            if len(runs) == 1
-            else Path(layout.PLOT_COMPARISON_FILE)
-        )
-    out = Path(out)
+    """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`; default
+    :func:`default_out`)."""
+    out = default_out(runs) if out is None else Path(out)
     fmt = out.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
         raise ValueError(f"output {out} must end in one of .{', .'.join(FORMATS)}")
@@ -184,41 +205,54 @@ def draw_runs(runs: list[RunCurves], out: str | os.PathLike | None = None, dpi: 
 
 
 def draw_figure(runs: list[RunCurves]) -> Figure:
-    """The whole figure: return vs steps and vs wall time, the key metrics, the summary."""
+    """The whole figure, laid out: return vs steps and vs wall time, the key metrics, the
+    summary, and the legend below the panels."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(15, 11), layout="constrained")
+    FigureCanvasAgg(fig)  # a renderer to measure text with, before the figure is saved
     grid = fig.add_gridspec(3, 6)
     ax_steps = fig.add_subplot(grid[0, 0:3])
     ax_time = fig.add_subplot(grid[0, 3:6])
     metric_axes = [
         fig.add_subplot(grid[1 + k // 3, 2 * (k % 3) : 2 * (k % 3) + 2]) for k in range(5)
     ]
-    colours = [f"C{i % 10}" for i in range(len(runs))]
-    _draw_curves(runs, colours, ax_steps, ax_time, metric_axes)
-    _draw_summary(fig.add_subplot(grid[2, 4:6]), runs, colours)
+    ax_summary = fig.add_subplot(grid[2, 4:6])
+    ax_summary.axis("off")
+    styles = figures.run_styles(len(runs))
+    _draw_curves(runs, styles, ax_steps, ax_time, metric_axes)
+    _draw_legend(fig, runs, styles)
     num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
     fig.suptitle(
-        f"jaxcart PPO on CartPole-v1, {num}: mean across seeds, "
-        f"shaded {CONFIDENCE:.0%} bootstrap confidence interval",
+        f"jaxcart PPO on CartPole-v1, {num}: mean across seeds, shaded {CONFIDENCE:.0%} "
+        "bootstrap confidence interval (the axes fit the means; a band may run past them)",
         fontsize=13,
     )
+    caption = _caption(ax_time, wall_time_notes(runs)) if ax_time.lines else None
+    fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
+    if caption is not None:
+        figures.wrap_to_axes(caption, ax_time)
+        caption.set_in_layout(True)
+        fig.draw_without_rendering()  # again, with room for the wrapped caption
+    _draw_summary(ax_summary, runs, styles)
     return fig
 
 
-def _draw_curves(runs: list[RunCurves], colours: list[str], ax_steps, ax_time, metric_axes) -> None:
-
-    for run, colour in zip(runs, colours):
-        seeds = f"{run.num_seeds} seeds" if run.num_seeds > 1 else "1 seed, no band"
-        label = f"{run.label} ({seeds})"
+def _draw_curves(
+    runs: list[RunCurves], styles: list[figures.Style], ax_steps, ax_time, metric_axes
+) -> None:
+    means: dict[str, list[np.ndarray]] = {name: [] for name, _ in KEY_METRICS}
+    for run, style in zip(runs, styles):
         ret = run.metrics.get(RETURN_METRIC)
         if ret is not None:
-            _plot_metric(ax_steps, run.env_steps, ret, colour, label, RETURN_METRIC)
+            _plot_metric(ax_steps, run.env_steps, ret, style, RETURN_METRIC)
             if run.elapsed is not None:
-                _plot_metric(ax_time, run.elapsed, ret, colour, label, RETURN_METRIC)
+                _plot_metric(ax_time, run.elapsed, ret, style, RETURN_METRIC)
         for ax, (name, _) in zip(metric_axes, KEY_METRICS):
             if name in run.metrics:
-                _plot_metric(ax, run.env_steps, run.metrics[name], colour, label, name)
+                mean = _plot_metric(ax, run.env_steps, run.metrics[name], style, name)
+                means[name].append(mean)
 
     ax_steps.set(
         title="episode return vs env steps",
@@ -234,18 +268,45 @@ def _draw_curves(runs: list[RunCurves], colours: list[str], ax_steps, ax_time, m
         _no_data(ax_steps, f"{RETURN_METRIC} not recorded")
     if not ax_time.lines:
         _no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
-    else:
-        draw_notes(ax_time, wall_time_notes(runs))
     for ax in (ax_steps, ax_time):
         ax.axhline(500, color="0.6", lw=0.8, ls="--")  # CartPole-v1's maximum return
-        ax.set_ylim(0, 520)
+        ax.set_ylim(0, 520)  # the whole range of returns: panels of different runs compare
         ax.grid(alpha=0.3)
+    figures.step_axis(ax_steps.xaxis)
+    from matplotlib.ticker import MaxNLocator
+
+    ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
     for ax, (name, title) in zip(metric_axes, KEY_METRICS):
         ax.set(title=title, xlabel="env steps per seed", ylabel=name)
         ax.grid(alpha=0.3)
-        if not ax.lines:
+        figures.step_axis(ax.xaxis)
+        limits = figures.curve_limits(means[name], METRIC_BOUNDS.get(name, (-math.inf, math.inf)))
+        if limits is None:
             _no_data(ax, f"{name} not recorded")
-    ax_steps.legend(loc="lower right", fontsize=9)
+        else:
+            ax.set_ylim(limits)  # the bands are clipped to these axes, not the axes to them
+
+
+def _draw_legend(fig, runs: list[RunCurves], styles: list[figures.Style]) -> None:
+    """One entry per run below the panels, outside the data, in as many columns as fit."""
+    from matplotlib.lines import Line2D
+
+    labels = [
+        f"{run.label} ({f'{run.num_seeds} seeds' if run.num_seeds > 1 else '1 seed, no band'})"
+        for run in runs
+    ]
+    handles = [Line2D([], [], **style.line()) for style in styles]
+    # About 0.6 em a character at 9 pt, plus the handle and gaps: the columns that fit 14 in.
+    columns = int(14 * 72 / (max(map(len, labels)) * 9 * 0.6 + 60))
+    fig.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        ncols=max(1, min(len(labels), columns, 4)),
+        fontsize=9,
+        handlelength=4,
+        frameon=False,
+    )
 
 
 def wall_time_notes(runs: list[RunCurves]) -> list[str]:
@@ -277,24 +338,71 @@ def draw_notes(ax, notes: list[str], fontsize: float = 8.5, width: int = 60) -> 
         )
 
 
-def _draw_summary(ax_summary, runs: list[RunCurves], colours: list[str]) -> None:
-    ax_summary.axis("off")
-    offset = 0.0  # points below the panel's top, so each run's block sits under the last
-    for run, colour in zip(runs, colours):
-        text = "\n".join(_summary_lines(run))
-        ax_summary.annotate(
-            text,
-            xy=(0.0, 1.0),
-            xycoords="axes fraction",
-            xytext=(0.0, -offset),
-            textcoords="offset points",
-            va="top",
-            ha="left",
-            family="monospace",
-            fontsize=8.5,
-            color=colour,
-        )
-        offset += 8.5 * 1.25 * (text.count("\n") + 1) + 4
+def _caption(ax, notes: list[str]):
+    """Notes under a panel's x label, off the data; None without notes. Left out of the layout
+    until :func:`_wrap_to_axes` has wrapped them (unwrapped, they would squeeze the panel)."""
+    if not notes:
+        return None
+    text = ax.annotate(
+        "\n".join(f"note: {note}" for note in notes),
+        xy=(0.0, 0.0),
+        xycoords=("axes fraction", ax.xaxis.label),
+        xytext=(0.0, -4.0),
+        textcoords="offset points",
+        va="top",
+        ha="left",
+        fontsize=8.5,
+        color="0.3",
+    )
+    text.set_in_layout(False)
+    return text
+
+
+def _draw_summary(ax, runs: list[RunCurves], styles: list[figures.Style]) -> None:
+    """Each run's block (:func:`_summary_lines`) in its colour, wrapped to the laid-out
+    panel; smaller type for many runs, and at the smallest the runs that still do not fit
+    are counted instead."""
+    renderer = ax.figure.canvas.get_renderer()
+    to_points = 72 / ax.figure.dpi
+    height = ax.get_window_extent(renderer).height * to_points
+    blocks = ["\n".join(_summary_lines(run)) for run in runs]
+    for size in SUMMARY_FONTSIZES:
+        texts, tops, top = [], [], 0.0
+        for block, style in zip(blocks, styles):
+            texts.append(_summary_text(ax, block, style.color, size, top))
+            tops.append(top)
+            top += texts[-1].get_window_extent(renderer).height * to_points + size / 2
+        if top <= height or size == SUMMARY_FONTSIZES[-1]:
+            break
+        for text in texts:
+            text.remove()
+    if top > height:  # even the smallest type overflows: drop the last runs, say how many
+        keep = len(texts) - 1
+        while keep > 0 and tops[keep] + 2 * size > height:
+            keep -= 1
+        for text in texts[keep:]:
+            text.remove()
+        more = f"... and {len(texts) - keep} more run(s): see the legend"
+        _summary_text(ax, more, "0.3", size, tops[keep])
+
+
+def _summary_text(ax, block: str, colour: str, size: float, top: float):
+    """One block of the summary, ``top`` points below the panel's top, wrapped to its width."""
+    text = ax.annotate(
+        block,
+        xy=(0.0, 1.0),
+        xycoords="axes fraction",
+        xytext=(0.0, -top),
+        textcoords="offset points",
+        va="top",
+        ha="left",
+        family="monospace",
+        fontsize=size,
+        color=colour,
+    )
+    text.set_in_layout(False)  # the panel is laid out already: the text fits it, not it the text
+    figures.wrap_to_axes(text, ax)
+    return text
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -312,8 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         type=Path,
         default=None,
-        help="image to write (.png, .svg, .pdf); default RUN_DIR/curves.png for one run, "
-        "comparison.png in the current directory for several (or a sweep)",
+        help="image to write (.png, .svg, .pdf), replaced if it exists; default "
+        "RUN_DIR/curves.png for one run (redrawn in place), and for several (or a sweep) "
+        "comparison.png in the current directory, or comparison-2.png, comparison-3.png, ... "
+        "if that exists: an earlier comparison is never overwritten",
     )
     parser.add_argument(
         "--label",
@@ -342,6 +452,11 @@ def _plot_command(argv: list[str] | None) -> int:
         raise cli.UsageError(f"cannot write the plot: {exc.strerror or exc}") from None
     for line in unfinished_notes(runs):
         print(f"note: {line}", file=sys.stderr)
+    if args.out is None and out.parent == Path() and out.name != COMPARISON:
+        print(
+            f"note: {COMPARISON} exists and is kept: drew into {out} (--out FILE to choose)",
+            file=sys.stderr,
+        )
     print(out)
     return 0
 

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,9 +14,10 @@ from helpers import tiny_args
 from PIL import Image, ImageSequence
 
 from jaxcart import evaluate, plot
+from jaxcart.analysis import figures
 from jaxcart.gym import render
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.runs import load_runs
+from jaxcart.rundir.runs import RunCurves, load_runs
 from jaxcart.train import main as train_main
 
 TINY = [*tiny_args(2048, num_seeds=2), "--no-compile-cache"]
@@ -58,8 +61,8 @@ def assert_nontrivial_png(path, min_size=(600, 400)):
         pixels = np.asarray(image.convert("RGB"), float)
     assert pixels.std() > 10  # not blank
     assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 20  # curves, bands, text
-    # Curves in matplotlib's first colours (C0 blue) are drawn.
-    blue = (np.abs(pixels - [31, 119, 180]).sum(-1) < 30).sum()
+    # Curves in the first run's colour (Okabe and Ito's blue) are drawn.
+    blue = (np.abs(pixels - [0, 114, 178]).sum(-1) < 30).sum()
     assert blue > 100
 
 
@@ -106,8 +109,170 @@ def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path, monke
     assert_nontrivial_png(out)
     with Image.open(out) as image:
         pixels = np.asarray(image.convert("RGB"), float)
-    orange = (np.abs(pixels - [255, 127, 14]).sum(-1) < 30).sum()  # the second run (C1)
+    orange = (np.abs(pixels - [230, 159, 0]).sum(-1) < 30).sum()  # the second run's colour
     assert orange > 100
+
+
+def synthetic_run(name: str, iterations: int = 200, seeds: int = 4, **fields) -> RunCurves:
+    """A run in memory: returns rising to 500; an approx KL whose mean stays under 0.02
+    while one seed's spikes stretch its bootstrap band far above that."""
+    rng = np.random.default_rng(len(name))
+    steps = np.arange(1, iterations + 1) * 2048.0
+    rise = np.minimum(500.0, 20 + steps / 100)[:, None] + rng.uniform(-5, 0, (iterations, seeds))
+    kl = rng.uniform(0.004, 0.012, (iterations, seeds))
+    kl[::20, 0] = 0.06
+    metrics = {
+        plot.RETURN_METRIC: np.clip(rise, 0, 500),
+        "train/approx_kl": kl,
+        "train/clip_fraction": rng.uniform(0.0, 0.2, (iterations, seeds)),
+        "train/entropy_loss": -rng.uniform(0.5, 0.6, (iterations, seeds)),
+        "train/value_loss": rng.uniform(0, 50, (iterations, seeds)),
+        "train/explained_variance": rng.uniform(-1, 1, (iterations, seeds)),
+    }
+    run = RunCurves(Path(name), name, metrics, steps, steps / 5000, seeds, None)
+    return dataclasses.replace(run, **fields)
+
+
+def panel(fig, title: str):
+    (ax,) = [ax for ax in fig.axes if ax.get_title() == title]
+    return ax
+
+
+def test_curve_limits_fit_the_means_within_the_metric_range():
+    curves = [np.array([np.nan, 0.001, 0.03]), np.array([0.02, 0.025])]
+    low, high = figures.curve_limits(curves, (0.0, np.inf))
+    assert low == 0.0  # 0.001 - 8% of 0.029 would be below zero: KL's range stops it
+    assert high == pytest.approx(0.03 + 0.08 * 0.029)
+    low, high = figures.curve_limits([np.array([0.01, 0.03])], (0.0, np.inf))
+    assert (low, high) == pytest.approx((0.01 - 0.0016, 0.03 + 0.0016))
+    low, high = figures.curve_limits([np.array([0.5, 1.0])], (-np.inf, 1.0))
+    assert low == pytest.approx(0.46) and high == pytest.approx(1.04)  # at the edge: still room
+    low, high = figures.curve_limits([np.zeros(5)])  # flat: a margin all the same
+    assert low < 0 < high
+    low, high = figures.curve_limits([np.full(3, -0.6)])
+    assert low < -0.6 < high and high - low < 0.2
+    assert figures.curve_limits([np.full(3, np.nan)]) is None
+    assert figures.curve_limits([]) is None
+
+
+def test_step_ticks_are_few_and_short():
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(4.3, 3))
+    ax = fig.add_subplot()
+    figures.step_axis(ax.xaxis)
+    for right, expected in [
+        (409_600, ["0", "100k", "200k", "300k", "400k"]),
+        (2_000_896, ["0", "500k", "1M", "1.5M", "2M"]),
+        (20_480, ["0", "5k", "10k", "15k", "20k"]),
+    ]:
+        ax.set_xlim(0, right)
+        fig.draw_without_rendering()
+        shown = [t for t in ax.get_xticklabels() if 0 <= t.get_position()[0] <= right]
+        assert [t.get_text() for t in shown] == expected
+    assert ax.xaxis.get_offset_text().get_text() == ""  # no "1e6" in the corner
+
+
+def test_wrap_to_width_keeps_indentation_and_cuts_long_words():
+    assert figures.wrap_to_width("ab cd ef", 5, len) == "ab cd\n  ef"
+    assert figures.wrap_to_width("  one two three", 9, len) == "  one two\n    three"
+    assert figures.wrap_to_width("abcdefghij", 4, len) == "abcd\n  ef\n  gh\n  ij"
+    assert figures.wrap_to_width("short\n\n  x", 20, len) == "short\n\n  x"
+
+
+def test_run_styles_differ_and_later_runs_draw_on_top():
+    styles = figures.run_styles(30)
+    pairs = [(s.color, str(s.linestyle)) for s in styles]
+    assert len(set(pairs[:28])) == 28 and pairs[28] == pairs[0]
+    assert all(
+        a.color != b.color and a.linestyle != b.linestyle for a, b in zip(styles, styles[1:])
+    )
+    assert all(a.zorder < b.zorder for a, b in zip(styles, styles[1:]))
+    # Two equal curves (the same settings run twice): the second is broken and drawn later.
+    fig = plot.draw_figure([synthetic_run("x"), synthetic_run("x")])
+    first, second = panel(fig, "approx KL").lines
+    np.testing.assert_array_equal(first.get_ydata(), second.get_ydata())
+    assert first.get_linestyle() == "-" and second.get_linestyle() != "-"
+    assert second.get_zorder() > first.get_zorder()
+    assert second.get_linewidth() < first.get_linewidth()
+
+
+def test_axes_fit_the_curves_and_bands_run_past_them():
+    run = synthetic_run("spiky")
+    fig = plot.draw_figure([run])
+    ax = panel(fig, "approx KL")
+    mean, _, high = plot.mean_and_band(run.metrics["train/approx_kl"], (0.0, np.inf))
+    assert np.nanmax(high) > 2 * np.nanmax(mean)  # the band reaches far above the curve
+    pad = 0.08 * np.ptp(mean)
+    assert ax.get_ylim() == pytest.approx((mean.min() - pad, mean.max() + pad))
+    (band,) = ax.collections  # drawn whole, past the top, and clipped there by the axes
+    assert band.get_clip_on() and band.get_paths()[0].vertices[:, 1].max() > ax.get_ylim()[1]
+    assert panel(fig, "episode return vs env steps").get_ylim() == (0, 520)
+
+
+def test_notes_legend_and_ticks_stay_readable(tmp_path):
+    note = "from the checkpoint at iteration 245/977: the run did not finish"
+    runs = [synthetic_run("stopped-" + "x" * 80, note=note, iterations=245)]
+    runs += [synthetic_run(f"run-{i}", seeds=1 + i % 3) for i in range(11)]
+    fig = plot.draw_figure(runs)
+    renderer = fig.canvas.get_renderer()
+    figure_box = fig.bbox
+    summary = fig.axes[-1]
+    box = summary.get_window_extent(renderer)
+    texts = summary.texts
+    for text in texts:  # wrapped to the panel, none cut off by the panel or the figure
+        extent = text.get_window_extent(renderer)
+        assert box.x0 - 1 <= extent.x0 and extent.x1 <= box.x1 + 1, text.get_text()
+        assert box.y0 - 1 <= extent.y0 and extent.y1 <= box.y1 + 1, text.get_text()
+    first = "".join(texts[0].get_text().split())
+    assert "".join(f"notevaluated:{note}".split()) in first and "x" * 80 in first
+    assert "more run(s): see the legend" in texts[-1].get_text()  # 12 runs do not all fit
+    # The wall-time notes sit under their panel, inside the figure, off the data.
+    time_panel = panel(fig, "episode return vs wall time")
+    (caption,) = [t for t in time_panel.texts if t.get_text().startswith("note:")]
+    extent = caption.get_window_extent(renderer)
+    panel_box = time_panel.get_window_extent(renderer)
+    assert extent.y1 < panel_box.y0 and figure_box.y0 <= extent.y0
+    assert panel_box.x0 - 1 <= extent.x0 and extent.x1 <= panel_box.x1 + 1
+    # The legend is below every panel, inside the figure.
+    (legend,) = fig.legends
+    assert len(legend.get_texts()) == 12
+    legend_box = legend.get_window_extent(renderer)
+    assert legend_box.y1 < min(ax.get_window_extent(renderer).y0 for ax in fig.axes)
+    assert figure_box.x0 <= legend_box.x0 and legend_box.x1 <= figure_box.x1
+    assert figure_box.y0 <= legend_box.y0
+    # Tick labels of the step axes do not run into each other.
+    for ax in fig.axes[:-1]:
+        labels = [t.get_window_extent(renderer) for t in ax.get_xticklabels() if t.get_text()]
+        labels = [b for b in labels if box_inside(b, ax.get_window_extent(renderer))]
+        assert all(a.x1 + 2 < b.x0 for a, b in zip(labels, labels[1:])), ax.get_title()
+
+
+def box_inside(label, axes_box) -> bool:
+    """A tick label under the axes (matplotlib keeps labels of ticks outside the limits)."""
+    centre = (label.x0 + label.x1) / 2
+    return axes_box.x0 - 1 <= centre <= axes_box.x1 + 1
+
+
+def test_a_comparison_never_overwrites_an_earlier_one(
+    tiny_run, single_seed_run, tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "comparison.png").write_bytes(b"an earlier comparison")
+    for expected in ("comparison-2.png", "comparison-3.png"):
+        assert plot.main([str(tiny_run), str(single_seed_run), "--dpi", "50"]) == 0
+        captured = capsys.readouterr()
+        assert captured.out.strip() == expected
+        assert f"comparison.png exists and is kept: drew into {expected}" in captured.err
+        assert_nontrivial_png(tmp_path / expected, min_size=(400, 300))
+    assert (tmp_path / "comparison.png").read_bytes() == b"an earlier comparison"
+    help_text = " ".join(plot.build_parser().format_help().split())
+    assert "comparison-2.png" in help_text and "never overwritten" in help_text
+    # --out names the file, and replaces it.
+    out = tmp_path / "comparison.png"
+    assert plot.main([str(tiny_run), str(single_seed_run), "--dpi", "50", "--out", str(out)]) == 0
+    assert capsys.readouterr().err == ""
+    assert_nontrivial_png(out, min_size=(400, 300))
 
 
 def fake_sweep(tiny_run, out, rates=(0.001, 0.01)):
