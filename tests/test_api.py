@@ -1,6 +1,6 @@
 """The package's surface: the training function keeps its name whatever is imported, Python
 can train on every host core as the command line does, ``python -m jaxcart`` lists the
-commands, the version and install hints agree with the package and the README."""
+commands, the version and install hints agree with the package and the docs."""
 
 from __future__ import annotations
 
@@ -20,7 +20,8 @@ from jaxcart.engine import devices
 from jaxcart.run import loggers
 
 ROOT = Path(__file__).resolve().parents[1]
-README = (ROOT / "README.md").read_text()
+TRAINING_DOC = (ROOT / "docs" / "training.md").read_text()
+"""The depth of the README: the options, presets and loggers."""
 
 
 def _python(code: str, **env: str) -> str:
@@ -127,7 +128,7 @@ def test_version_and_scripts_agree_with_pyproject():
         module, attr = target.split(":")
         assert callable(getattr(importlib.import_module(module), attr)), name
     assert project["scripts"]["jaxcart-train"] == "jaxcart.train:cli_main"
-    assert "jaxcart-train" in README and "python -m jaxcart " in README
+    assert "jaxcart-train" in TRAINING_DOC and "python -m jaxcart " in TRAINING_DOC
 
 
 def test_missing_logger_hint_names_both_install_forms(monkeypatch):
@@ -136,10 +137,10 @@ def test_missing_logger_hint_names_both_install_forms(monkeypatch):
         loggers.check_available(["tensorboard"])
     for form in ("pip install 'jaxcart[tensorboard]'", "pip install -e '.[tensorboard]'"):
         assert form in str(exc.value)
-    assert "pip install 'jaxcart[tensorboard]'" in README
-    assert "pip install -e '.[tensorboard]'" in README
+    assert "pip install 'jaxcart[tensorboard]'" in TRAINING_DOC
+    assert "pip install -e '.[tensorboard]'" in TRAINING_DOC
 
 
-def test_readme_states_the_purejaxrl_caveat():
-    assert "`purejaxrl` reproduces PureJaxRL's configuration faithfully" in README
-    assert "not tuned to solve" in README
+def test_the_docs_state_the_purejaxrl_caveat():
+    assert "`purejaxrl` reproduces PureJaxRL's configuration faithfully" in TRAINING_DOC
+    assert "not tuned to solve" in TRAINING_DOC

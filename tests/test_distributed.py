@@ -101,8 +101,8 @@ def test_launch_local_forwards_sigterm_to_its_processes(tmp_path):
     assert not (out / "params.npz").exists() and (out / "checkpoint.npz").exists()
 
 
-def test_readme_two_process_recipe_leaves_no_xla_flags_behind():
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+def test_the_two_process_recipe_leaves_no_xla_flags_behind():
+    readme = (Path(__file__).resolve().parents[1] / "docs" / "scaling.md").read_text()
     assert "export XLA_FLAGS" not in readme
     recipe = readme[readme.index("Two processes on one machine") :]
     recipe = recipe[: recipe.index("From Python")]
