@@ -4,7 +4,7 @@ configuration B better than A, and how sure is that?
 Statistics of Agarwal et al. (2021), "Deep RL at the Edge of the Statistical Precipice"
 (:mod:`jaxcart.analysis.stats`), over any run directories: jaxcart's, a sweep's combinations (a sweep
 directory stands for all of them, each named by its hyperparameter values, e.g.
-``learning_rate=0.001,clip_coef=0.2``), or ``benchmarks/sb3_reference_run.py``'s.
+``learning_rate=0.001,clip_coef=0.2``), or ``python -m benchmarks.experiments.sb3_reference``'s.
 
 - A seed's **score** is its mean greedy Gymnasium return (``evaluation.json``).
 - Per run, across seeds: mean, median, IQM (25% trimmed mean) and optimality gap (mean of

@@ -207,7 +207,7 @@ PRESETS: dict[str, dict] = {
         ent_coef=0.01,
     ),
     # Least wall time to a reliably solved policy on a 2-core CPU; the evidence (a multi-seed
-    # search with jaxcart's own runs) is in benchmarks/fast_preset.md.
+    # search with jaxcart's own runs) is in benchmarks/experiments/fast_preset.md.
     "fast": dict(
         num_envs=4,
         num_steps=128,
