@@ -218,5 +218,5 @@ def draw_comparison(comparison: Comparison) -> Figure:
             f"\nSATURATED: every seed of every run scores {comparison.entries[0].scores[0]:g}, "
             "so this score cannot tell the runs apart (try --score auc)"
         )
-    fig.suptitle(textwrap.fill(title, 160), fontsize=12)
+    fig.suptitle("\n".join(textwrap.fill(line, 160) for line in title.splitlines()), fontsize=12)
     return fig
