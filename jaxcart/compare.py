@@ -1,28 +1,28 @@
-"""``python -m jaxcart.compare RUN_DIR [RUN_DIR ...] [--baseline RUN_DIR] [--out DIR]``: is
-configuration B better than A, and how sure is that?
+"""``python -m jaxcart.compare RUN_DIR [RUN_DIR ...] [--baseline RUN_DIR] [--score S] [--out DIR]``:
+is configuration B better than A, and how sure is that?
 
 Statistics of Agarwal et al. (2021), "Deep RL at the Edge of the Statistical Precipice"
-(:mod:`jaxcart.analysis.stats`), over any run directories: jaxcart's, a sweep's combinations (a sweep
-directory stands for all of them, each named by its hyperparameter values, e.g.
-``learning_rate=0.001,clip_coef=0.2``), or ``python -m benchmarks.experiments.sb3_reference``'s.
+(:mod:`jaxcart.analysis.stats`), over any run directories: jaxcart's, a sweep's combinations (a
+sweep directory stands for all of them), or ``benchmarks/experiments/sb3_reference.py``'s.
+The command reads its options, calls :func:`compare_runs` and prints; the runs are read and
+scored in :mod:`jaxcart.run.comparison`, the statistics are :mod:`jaxcart.analysis.summary`'s
+and the figure :mod:`jaxcart.run.comparison_figure`'s.
 
-- A seed's **score** is its mean greedy Gymnasium return (``evaluation.json``).
-- Per run, across seeds: mean, median, IQM (25% trimmed mean) and optimality gap (mean of
-  ``max(500 - score, 0)``), each with a 95% percentile bootstrap confidence interval.
-- Against the baseline (``--baseline``, default the first run): the probability of
-  improvement ``P(X > Y) + 0.5 P(X = Y)`` over all seed pairs, with its interval.
-- Performance profile: the fraction of seeds scoring above tau, tau in [0, 500].
-- Sample efficiency: IQM across seeds of ``rollout/ep_rew_mean`` (the mean return of the last
-  100 training episodes) against env steps; and when each seed's training first reached 500
-  (the first iteration in which a training episode scored 500, ``rollout/ep_rew_max``, as in
-  the sweep table), in env steps and in wall time, as the fraction of seeds there by then.
-  ``ep_rew_mean`` itself rarely reaches 500 within a short run (its 100-episode window still
-  holds earlier episodes); Stable-Baselines3's log has no ``ep_rew_max``, so its runs are left
-  out of the steps-to-500 panels (a note says so) rather than held to another definition.
+- ``--score``: the number that stands for a seed: ``eval`` (its mean greedy Gymnasium return,
+  the default), ``auc`` (the mean of its ``rollout/ep_rew_mean`` over the run) or
+  ``return-at:STEPS`` (its ``rollout/ep_rew_mean`` at STEPS env steps). When every seed of
+  every run scores the same (all 500), the output says the score cannot tell them apart.
+- Per run: IQM, median over seeds, mean and optimality gap with 95% percentile bootstrap
+  intervals; the solve rate with its Wilson interval.
+- Against the baseline: the IQM difference and ``P(X > Y)``, each with its interval; with
+  more than two runs, the all-pairs ``P(X > Y)`` matrix; the number of comparisons read at
+  once (``--adjust bonferroni`` widens the intervals to hold together).
+- ``--arm NAME=DIR,DIR`` (repeated): the same arms on several configurations, aggregated with
+  rliable's stratified bootstrap.
 
-Writes ``compare.json`` and ``compare.png`` into ``--out`` (default a new ``compare-<time>``
-directory here; never into a run directory) and prints a table. Bootstrap resamples come
-from a fixed seed (``--seed``), so the same runs give the same output.
+Writes ``compare.json``, ``compare.png`` and ``curves.csv`` into ``--out`` (default a new
+``compare-<time>`` directory here; never into a run directory) and prints a table. Bootstrap
+resamples come from a fixed seed (``--seed``), so the same runs give the same output.
 """
 
 from __future__ import annotations
@@ -30,236 +30,25 @@ from __future__ import annotations
 import argparse
 import io
 import os
+import textwrap
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from jaxcart import cli, plot
-from jaxcart.analysis import stats
-from jaxcart.rundir import files, layout, reader
-from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.runs import RunCurves, load_runs
+from jaxcart import cli
+from jaxcart.analysis import stats, summary
+from jaxcart.analysis.summary import Score
+from jaxcart.run import comparison as runs
+from jaxcart.run.comparison import CompareError, Comparison
 
-if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
-    from matplotlib.figure import Figure
-
-SCORE_DEFINITION = (
-    "each seed's mean greedy return in gymnasium.make('CartPole-v1') (evaluation.json)"
-)
-REACHED_METRIC = "rollout/ep_rew_max"
-REACHED_DEFINITION = "first iteration in which a training episode scored 500 (rollout/ep_rew_max)"
-TAUS = np.linspace(0.0, stats.MAX_RETURN, 101)
-CURVE_POINTS = 100
-"""Sample-efficiency curves are drawn at most at this many iterations (evenly spaced)."""
-CURVE_REPS = 1000
-"""Resamples per point of a drawn band (the reported numbers use ``--reps``)."""
-ESTIMATE_NAMES = {"iqm": "IQM", "mean": "mean", "median": "median", "optimality_gap": "opt. gap"}
-
-
-@dataclass(frozen=True)
-class Entry:
-    """One compared run: its curves (:class:`jaxcart.rundir.runs.RunCurves`) and per-seed scores."""
-
-    run: RunCurves
-    scores: np.ndarray  # [num_seeds]
-    solved: int  # seeds solved by evaluate's definition (every greedy episode scored 500)
-    episodes: int | None  # greedy episodes per seed
-
-    @property
-    def name(self) -> str:
-        return self.run.label
-
-    @property
-    def train_return(self) -> np.ndarray | None:
-        """``rollout/ep_rew_mean`` ``[iterations, num_seeds]``, None if not recorded."""
-        return self.run.metrics.get(plot.RETURN_METRIC)
-
-    def first_reached(self, x: np.ndarray | None) -> np.ndarray | None:
-        """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each
-        seed first scored 500, ``[num_seeds]`` (``inf``: never); None without the data."""
-        best = self.run.metrics.get(REACHED_METRIC)
-        if x is None or best is None or not np.isfinite(best).any():
-            return None
-        return stats.first_at_least(best, x, stats.MAX_RETURN)
-
-
-def read_scores(run: RunCurves) -> tuple[np.ndarray, int, int | None]:
-    """``(scores [num_seeds], solved seeds, episodes)`` from a run's ``evaluation.json``.
-
-    Raises:
-        RunDirError: missing, unreadable or without per-seed Gymnasium means.
-    """
-    path = run.path / layout.EVALUATION_FILE
-    if not path.is_file():
-        raise RunDirError(
-            f"{run.path} has no {layout.EVALUATION_FILE}: compare needs each seed's greedy "
-            "evaluation, which training writes when it finishes"
-        )
-    try:
-        seeds = reader.read_evaluation(run.path)["seeds"]
-        scores = np.array([float(s["gymnasium_mean"]) for s in seeds])
-        solved = sum(bool(s.get("solved")) for s in seeds)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        detail = f"no {exc} entry" if isinstance(exc, KeyError) else str(exc)
-        raise RunDirError(f"{path} is corrupted: {detail}") from None
-    if scores.size == 0 or not np.isfinite(scores).all():
-        raise RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
-    episodes = (run.evaluation or {}).get("episodes")
-    return scores, solved, int(episodes) if isinstance(episodes, int) else None
-
-
-def load_entries(
-    run_dirs: Sequence[str | os.PathLike], baseline: str | os.PathLike | None = None
-) -> tuple[list[Entry], int]:
-    """The runs to compare (sweeps expanded) and the baseline's index among them.
-
-    The baseline is the first run unless ``baseline`` names one (a run directory that is not
-    among ``run_dirs`` is added in front).
-
-    Raises:
-        RunDirError: an unusable run directory; cli.UsageError: a run given twice, or a
-            sweep as the baseline.
-    """
-    runs = load_runs(run_dirs)
-    index = 0
-    if baseline is not None:
-        if layout.is_sweep(baseline):
-            raise cli.UsageError(
-                f"--baseline {baseline} is a sweep; name one of its combinations, "
-                f"e.g. {layout.combo_dir(baseline, 0)}"
-            )
-        resolved = [r.path.resolve() for r in runs]
-        if Path(baseline).resolve() in resolved:
-            index = resolved.index(Path(baseline).resolve())
-        else:
-            runs = load_runs([baseline, *run_dirs])
-    seen: set[Path] = set()
-    for run in runs:
-        if run.path.resolve() in seen:
-            raise cli.UsageError(f"{run.path} is given twice")
-        seen.add(run.path.resolve())
-    return [Entry(run, *read_scores(run)) for run in runs], index
-
-
-@dataclass
-class RunSummary:
-    """One run's estimates (``compare.json``'s ``runs`` entries)."""
-
-    entry: Entry
-    estimates: dict[str, stats.Estimate]  # ESTIMATE_NAMES -> estimate
-    improvement: stats.Estimate | None  # P(this run > baseline); None for the baseline
-    steps_to_500: np.ndarray | None  # [num_seeds] env steps, inf never
-    seconds_to_500: np.ndarray | None  # [num_seeds] training wall time, inf never
-
-    def to_dict(self) -> dict:
-        def seeds(x: np.ndarray | None) -> list | None:
-            return None if x is None else [float(v) if np.isfinite(v) else None for v in x]
-
-        entry = self.entry
-        return {
-            "name": entry.name,
-            "path": str(entry.run.path),
-            "num_seeds": len(entry.scores),
-            "scores": entry.scores.tolist(),
-            **{name: self.estimates[name].to_dict() for name in stats.ESTIMATORS},
-            "probability_of_improvement": self.improvement and self.improvement.to_dict(),
-            "solved_seeds": entry.solved,
-            "evaluation_episodes": entry.episodes,
-            "steps_to_500": seeds(self.steps_to_500),
-            "seconds_to_500": seeds(self.seconds_to_500),
-        }
-
-
-@dataclass
-class Comparison:
-    """Every run's summary, the baseline and what the reader should know."""
-
-    runs: list[RunSummary]
-    baseline: int
-    reps: int
-    seed: int
-    notes: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict:
-        return {
-            "baseline": self.runs[self.baseline].entry.name,
-            "score": SCORE_DEFINITION,
-            "reached_500": REACHED_DEFINITION,
-            "confidence": stats.CONFIDENCE,
-            "bootstrap": {"method": "percentile", "reps": self.reps, "seed": self.seed},
-            "notes": self.notes,
-            "runs": [r.to_dict() for r in self.runs],
-        }
-
-
-def build_comparison(
-    entries: list[Entry],
-    baseline: int = 0,
-    reps: int = stats.DEFAULT_REPS,
-    seed: int = stats.DEFAULT_SEED,
-) -> Comparison:
-    """Estimates with bootstrap intervals for every run, and each run against ``baseline``."""
-    base = entries[baseline].scores
-    runs = []
-    for i, entry in enumerate(entries):
-        improvement = None
-        if i != baseline:
-            improvement = stats.probability_of_improvement_ci(entry.scores, base, reps, seed=seed)
-        runs.append(
-            RunSummary(
-                entry,
-                stats.bootstrap_cis(entry.scores, stats.ESTIMATORS, reps, seed=seed),
-                improvement,
-                entry.first_reached(entry.run.env_steps),
-                entry.first_reached(entry.run.elapsed),
-            )
-        )
-    return Comparison(runs, baseline, reps, seed, comparison_notes(entries))
-
-
-def comparison_notes(entries: list[Entry]) -> list[str]:
-    """What the numbers do not say by themselves: unequal or single seeds, and the rest."""
-    notes = []
-    counts = {e.name: len(e.scores) for e in entries}
-    groups: dict[int, list[str]] = {}
-    for name, count in counts.items():
-        groups.setdefault(count, []).append(name)
-    if len(groups) > 1:
-        listed = "; ".join(
-            f"{count} for {names[0] if len(names) == 1 else f'{len(names)} runs'}"
-            for count, names in sorted(groups.items(), reverse=True)
-        )
-        notes.append(
-            f"seed counts differ ({listed}): each run's estimates use its own seeds, and fewer "
-            "seeds give wider intervals"
-        )
-    for name, count in counts.items():
-        if count == 1:
-            notes.append(
-                f"{name} has a single seed: its confidence intervals are degenerate (one value) "
-                "and say nothing about seed-to-seed variation; train more seeds (--num-seeds)"
-            )
-    episodes = sorted({e.episodes for e in entries if e.episodes is not None})
-    if len(episodes) > 1:
-        notes.append(
-            f"greedy evaluation episodes per seed differ ({', '.join(map(str, episodes))}); "
-            "scores from fewer episodes are noisier"
-        )
-    if len(entries) == 1:
-        notes.append("one run only: nothing to compare it with (no probability of improvement)")
-    for e in entries:
-        if e.train_return is None or not np.isfinite(e.train_return).any():
-            notes.append(f"{e.name} has no {plot.RETURN_METRIC}: no sample-efficiency curve")
-        if e.first_reached(e.run.env_steps) is None:
-            notes.append(
-                f"{e.name} did not record {REACHED_METRIC} (Stable-Baselines3 logs none): "
-                "left out of steps to 500"
-            )
-    notes += [f"wall time: {n}" for n in plot.wall_time_notes([e.run for e in entries])]
-    return notes
+ESTIMATE_NAMES = {
+    "iqm": "IQM",
+    "median": "median over seeds",
+    "mean": "mean",
+    "optimality_gap": "opt. gap",
+}
 
 
 def _median_steps(steps: np.ndarray | None) -> str:
@@ -269,204 +58,122 @@ def _median_steps(steps: np.ndarray | None) -> str:
     return f"{median:,.0f}" if np.isfinite(median) else "never"
 
 
+def _solved(e: stats.Estimate | None, n: int) -> str:
+    if e is None:
+        return "n/a"
+    return f"{round(e.value * n)}/{n} [{e.ci_low:.1%}, {e.ci_high:.1%}]"
+
+
 def table(comparison: Comparison) -> str:
     """The terminal table: one row per run."""
+    reference = "baseline"
+    if comparison.arms:
+        reference = f"{comparison.arms.names[0]} same config"
+    ci = f"{100 * comparison.stats.confidence:.3g}% CI"  # wider with --adjust bonferroni
     header = [
         "run",
+        "score",
         "seeds",
         *(f"{label} [95% CI]" for label in ESTIMATE_NAMES.values()),
-        "P(> baseline) [95% CI]",
-        "eval solved",
+        "solved [95% CI]",
+        f"IQM - {reference} [{ci}]",
+        f"P(> {reference}) [{ci}]",
         "reached 500",
         "median steps to a 500 episode",
     ]
     rows = []
-    for summary in comparison.runs:
-        entry, n = summary.entry, len(summary.entry.scores)
-        reached = "n/a"
-        if summary.steps_to_500 is not None:
-            reached = f"{int(np.isfinite(summary.steps_to_500).sum())}/{n}"
+    for entry, st in zip(comparison.entries, comparison.stats.runs):
+        n = len(entry.scores)
+        steps = entry.first_reached(entry.run.env_steps)
         rows.append(
             [
                 entry.name,
+                comparison.score.label,
                 n,
-                *(summary.estimates[name].format(1) for name in ESTIMATE_NAMES),
-                summary.improvement.format(2) if summary.improvement else "baseline",
-                f"{entry.solved}/{n}",
-                reached,
-                _median_steps(summary.steps_to_500),
+                *(st.estimates[name].format(1) for name in ESTIMATE_NAMES),
+                _solved(st.solved, n),
+                st.difference.format(1) if st.difference else "baseline",
+                st.improvement.format(2) if st.improvement else "baseline",
+                "n/a" if steps is None else f"{int(np.isfinite(steps).sum())}/{n}",
+                _median_steps(steps),
             ]
         )
     return cli.format_table(rows, header)
 
 
+def matrix_text(comparison: Comparison) -> str | None:
+    """``P(row > column)`` for every pair of runs, None with two runs or fewer."""
+    matrix = comparison.stats.matrix
+    if matrix is None:
+        return None
+    names = [e.name for e in comparison.entries]
+    rows = [[name, *(f"{v:.2f}" for v in row)] for name, row in zip(names, matrix)]
+    return (
+        "P(row > column) over seed pairs (point values):\n"
+        + cli.format_table(rows, ["", *(f"[{i}]" for i in range(len(names)))])
+        + "\ncolumns: "
+        + ", ".join(f"[{i}] {name}" for i, name in enumerate(names))
+    )
+
+
+def arms_text(comparison: Comparison) -> str | None:
+    """The arms aggregated over their configurations, None without ``--arm``."""
+    arms, arm_stats = comparison.arms, comparison.arm_stats
+    if arms is None or arm_stats is None:
+        return None
+    rows = []
+    for name, st in zip(arms.names, arm_stats):
+        rows.append(
+            [
+                name,
+                len(arms.runs[0]),
+                st.iqm.format(1),
+                st.difference.format(1) if st.difference else "baseline",
+                st.improvement.format(2) if st.improvement else "baseline",
+            ]
+        )
+    ci = f"{100 * comparison.stats.confidence:.3g}% CI"
+    header = ["arm", "configs", "IQM [95% CI]", f"IQM - {arms.names[0]} [{ci}]", f"P(>) [{ci}]"]
+    return (
+        f"Arms over {len(arms.runs[0])} configuration(s) (stratified bootstrap: seeds "
+        "resampled within each configuration; P(>) is the mean over configurations):\n"
+        + cli.format_table(rows, header)
+    )
+
+
+def saturation_text(comparison: Comparison) -> str:
+    """One line: whether the score can tell the runs apart at all."""
+    if not comparison.stats.saturated:
+        return "saturated: no (the scores differ between seeds or runs)"
+    value = comparison.entries[0].scores[0]
+    hint = "compare with --score auc (or return-at:STEPS)"
+    if comparison.score.name != "eval":
+        hint = "try another --score"
+    return (
+        f"saturated: every seed of every run scores {value:g} by {comparison.score.label}: "
+        f"the score cannot tell the runs apart; {hint}"
+    )
+
+
 def report_text(comparison: Comparison) -> str:
-    """Heading, table and notes, as printed."""
-    reps, seed = comparison.reps, comparison.seed
+    """Heading, table, matrix, arms and notes, as printed."""
+    reps, seed, score = comparison.reps, comparison.seed, comparison.score
+    baseline = comparison.entries[comparison.baseline].name
+    if comparison.arms:
+        baseline = f"arm {comparison.arms.names[0]} (each run against its configuration's run)"
     lines = [
-        f"Comparing {len(comparison.runs)} run(s); score = {SCORE_DEFINITION}; "
+        f"Comparing {len(comparison.entries)} run(s); score = {score.label}: {score.definition}; "
         f"{stats.CONFIDENCE:.0%} percentile bootstrap CIs ({reps} resamples, seed {seed}); "
-        f"baseline {comparison.runs[comparison.baseline].entry.name}",
+        f"baseline {baseline}",
         table(comparison),
-        f"eval solved: every greedy episode scored 500; reached 500: {REACHED_DEFINITION}",
+        "solved: every greedy episode scored 500 (Wilson interval); "
+        f"reached 500: {runs.REACHED_DEFINITION}",
+        saturation_text(comparison),
+        comparison.stats.reading_note(),
     ]
+    lines += [text for text in (matrix_text(comparison), arms_text(comparison)) if text]
     lines += [f"note: {note}" for note in comparison.notes]
     return "\n".join(lines)
-
-
-def _interval_panel(ax, comparison: Comparison, name: str, title: str) -> None:
-    """One estimate of every run as a point with its interval, runs top to bottom."""
-    n = len(comparison.runs)
-    for i, summary in enumerate(comparison.runs):
-        e = summary.estimates[name]
-        y = n - 1 - i
-        ax.plot([e.ci_low, e.ci_high], [y, y], color=f"C{i % 10}", lw=6, alpha=0.45)
-        ax.plot([e.value], [y], "|", color=f"C{i % 10}", ms=16, mew=2)
-    ax.set(title=title, ylim=(-0.7, n - 0.3))
-    ax.set_yticks([])
-    ax.grid(axis="x", alpha=0.3)
-
-
-def _improvement_panel(ax, comparison: Comparison) -> None:
-    others = [(i, s) for i, s in enumerate(comparison.runs) if s.improvement is not None]
-    base = comparison.runs[comparison.baseline].entry.name
-    ax.set(title=f"probability of improvement over {base}", xlim=(-0.02, 1.02))
-    if not others:
-        _no_data(ax, "one run: nothing to compare")
-        return
-    for k, (i, summary) in enumerate(others):
-        e, y = summary.improvement, len(others) - 1 - k
-        ax.plot([e.ci_low, e.ci_high], [y, y], color=f"C{i % 10}", lw=6, alpha=0.45)
-        ax.plot([e.value], [y], "|", color=f"C{i % 10}", ms=16, mew=2)
-    ax.axvline(0.5, color="0.5", ls="--", lw=0.8)
-    ax.set_yticks(range(len(others)), [s.entry.name for _, s in reversed(others)], fontsize=8)
-    ax.set_ylim(-0.7, len(others) - 0.3)
-    ax.set_xlabel("P(run > baseline) + 0.5 P(run = baseline), over seed pairs")
-    ax.grid(axis="x", alpha=0.3)
-
-
-def _profile_panel(ax, comparison: Comparison) -> None:
-    for i, summary in enumerate(comparison.runs):
-        profile, low, high = stats.performance_profile_band(
-            summary.entry.scores, TAUS, comparison.reps, seed=comparison.seed
-        )
-        ax.plot(TAUS, profile, color=f"C{i % 10}", lw=1.6, label=summary.entry.name)
-        ax.fill_between(TAUS, low, high, color=f"C{i % 10}", alpha=0.2, lw=0)
-    ax.set(
-        title="performance profile",
-        xlabel="greedy Gymnasium return tau",
-        ylabel="fraction of seeds scoring > tau",
-        xlim=(0, stats.MAX_RETURN),
-        ylim=(-0.02, 1.02),
-    )
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower left")
-
-
-def _no_data(ax, text: str) -> None:
-    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
-
-
-def _sample_efficiency_panel(ax, entries: list[Entry], seed: int) -> None:
-    drawn = False
-    for i, entry in enumerate(entries):
-        values = entry.train_return
-        if values is None or not np.isfinite(values).any():
-            continue
-        drawn = True
-        points = np.unique(np.linspace(0, len(values) - 1, CURVE_POINTS).round().astype(int))
-        iqm, low, high = stats.curve_band(
-            values[points], "iqm", CURVE_REPS, seed=seed, bounds=(0.0, stats.MAX_RETURN)
-        )
-        x = entry.run.env_steps[points]
-        ax.plot(x, iqm, color=f"C{i % 10}", lw=1.6)
-        ax.fill_between(x, low, high, color=f"C{i % 10}", alpha=0.2, lw=0)
-    ax.set(
-        title="sample efficiency: IQM across seeds of the training return",
-        xlabel="env steps per seed",
-        ylabel=plot.RETURN_METRIC,
-        ylim=(0, 520),
-    )
-    ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
-    ax.grid(alpha=0.3)
-    if not drawn:
-        _no_data(ax, f"{plot.RETURN_METRIC} not recorded")
-
-
-def _solved_panel(ax, comparison: Comparison, wall_time: bool) -> None:
-    """Fraction of seeds in which a training episode had scored 500, by env step or second."""
-    for i, summary in enumerate(comparison.runs):
-        run = summary.entry.run
-        x = run.elapsed if wall_time else run.env_steps
-        first = summary.seconds_to_500 if wall_time else summary.steps_to_500
-        if x is None or first is None:
-            continue
-        ok = np.isfinite(x)
-        x = np.r_[0.0, x[ok]]
-        ax.step(x, stats.fraction_reached(first, x), where="post", color=f"C{i % 10}", lw=1.6)
-    what = "training wall time [s] (compile excluded)" if wall_time else "env steps per seed"
-    ax.set(
-        title=f"a training episode at 500, by {'wall time' if wall_time else 'env steps'}",
-        xlabel=what,
-        ylabel="fraction of seeds",
-        ylim=(-0.02, 1.02),
-    )
-    ax.grid(alpha=0.3)
-    if not ax.lines:
-        _no_data(ax, "not recorded")
-        return
-    notes = plot.wall_time_notes([s.entry.run for s in comparison.runs]) if wall_time else []
-    if not any(
-        np.isfinite(s.steps_to_500).any() for s in comparison.runs if s.steps_to_500 is not None
-    ):
-        notes.append("no seed's training reached 500")
-    plot.draw_notes(ax, notes, fontsize=7.5, width=45)
-
-
-def draw_comparison(comparison: Comparison) -> Figure:
-    """The figure: aggregate intervals, probability of improvement, performance profile,
-    sample efficiency and the fraction of seeds solved by env steps and by wall time."""
-    from matplotlib.figure import Figure
-
-    n = len(comparison.runs)
-    fig = Figure(figsize=(18, 13 + 0.25 * n), layout="constrained")
-    grid = fig.add_gridspec(3, 4, height_ratios=[0.6 + 0.12 * n, 1, 1])
-    for k, (name, label) in enumerate(ESTIMATE_NAMES.items()):
-        ax = fig.add_subplot(grid[0, k])
-        _interval_panel(ax, comparison, name, label)
-        if k == 0:
-            names = [s.entry.name for s in reversed(comparison.runs)]
-            ax.set_yticks(range(n), names, fontsize=8)
-    _improvement_panel(fig.add_subplot(grid[1, 0:2]), comparison)
-    _profile_panel(fig.add_subplot(grid[1, 2:4]), comparison)
-    entries = [s.entry for s in comparison.runs]
-    _sample_efficiency_panel(fig.add_subplot(grid[2, 0:2]), entries, comparison.seed)
-    _solved_panel(fig.add_subplot(grid[2, 2]), comparison, wall_time=False)
-    _solved_panel(fig.add_subplot(grid[2, 3]), comparison, wall_time=True)
-    fig.suptitle(
-        f"CartPole-v1, {n} run(s): per-seed score = mean greedy Gymnasium return; "
-        f"{stats.CONFIDENCE:.0%} percentile bootstrap intervals",
-        fontsize=13,
-    )
-    return fig
-
-
-def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
-    """Creates the output directory; refuses one inside a compared run (or its sweep)."""
-    out = layout.default_compare_dir() if out is None else Path(out)
-    target = out.resolve()
-    for entry in entries:
-        owner = entry.run.path.resolve()
-        if entry.run.combination:  # a combination's sweep directory is a run directory too
-            owner = owner.parent
-        if target == owner or owner in target.parents:
-            raise cli.UsageError(
-                f"--out {out} is inside the run directory {owner}; write the comparison elsewhere"
-            )
-    if out.exists() and not out.is_dir():
-        raise cli.UsageError(f"--out {out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
-    return out
 
 
 @dataclass(frozen=True)
@@ -474,62 +181,140 @@ class CompareResult:
     comparison: Comparison
     json_path: Path
     figure_path: Path
+    curves_path: Path
 
 
 def compare_runs(
-    run_dirs: Sequence[str | os.PathLike],
+    run_dirs: Sequence[str | os.PathLike] = (),
     baseline: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     reps: int = stats.DEFAULT_REPS,
     seed: int = stats.DEFAULT_SEED,
     dpi: int = 100,
+    score: Score | str = "eval",
+    adjust: str = "none",
+    arms: Sequence[tuple[str, Sequence[str | os.PathLike]]] | None = None,
 ) -> CompareResult:
-    """Compares run directories and writes ``compare.json`` and ``compare.png`` into ``out``.
+    """Compares run directories; writes ``compare.json``, ``compare.png`` and ``curves.csv``.
 
     Args:
         run_dirs: run or sweep directories (a sweep stands for its combinations).
-        baseline: the run the others are compared with (default the first).
+        baseline: the run the others are compared with (default the first); with ``arms``,
+            the name of the baseline arm.
         out: output directory (default ``compare-<time>`` in the current directory).
         reps, seed: bootstrap resamples and their random seed.
+        score: ``"eval"``, ``"auc"``, ``"return-at:STEPS"`` or a :class:`Score`.
+        adjust: ``"none"`` or ``"bonferroni"``.
+        arms: ``[(name, [run_dir per configuration]), ...]`` instead of ``run_dirs``.
 
     Raises:
-        RunDirError: an unusable run directory; cli.UsageError: bad arguments.
+        RunDirError: an unusable run directory; CompareError: a comparison that cannot be made.
     """
-    entries, index = load_entries(run_dirs, baseline)
-    out = prepare_out(None if out is None else Path(out), entries)
-    comparison = build_comparison(entries, index, reps, seed)
-    json_path, figure_path = out / layout.COMPARE_FILE, out / layout.COMPARE_FIGURE_FILE
+    if isinstance(score, str):
+        try:
+            score = Score.parse(score, _steps)
+        except ValueError as exc:
+            raise CompareError(f"score {score!r}: {exc}") from None
+    if arms:
+        if run_dirs:
+            raise CompareError("give either RUN_DIRs or --arm, not both")
+        entries, grouped = runs.load_arms(arms, None if baseline is None else str(baseline), score)
+        index = 0
+    else:
+        if not run_dirs:
+            raise CompareError("nothing to compare: give RUN_DIRs or --arm NAME=DIR,DIR")
+        entries, index = runs.load_entries(run_dirs, baseline, score)
+        grouped = None
+    out = runs.prepare_out(None if out is None else Path(out), entries)
+    comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, grouped)
+    from jaxcart.run.comparison_figure import draw_comparison  # matplotlib: only when drawn
+
     buf = io.BytesIO()
     draw_comparison(comparison).savefig(buf, format="png", dpi=dpi)
-    files.atomic_write_bytes(figure_path, buf.getvalue())
-    files.write_json(json_path, comparison.to_dict())
-    return CompareResult(comparison, json_path, figure_path)
+    return CompareResult(comparison, *runs.write_outputs(comparison, out, buf.getvalue()))
+
+
+def _steps(text: str) -> int:
+    """STEPS of ``return-at:STEPS``: ``100000``, ``100_000`` or ``1e5``."""
+    try:
+        return cli.count(text)
+    except argparse.ArgumentTypeError as exc:
+        raise ValueError(f"return-at:{text}: STEPS {exc}") from None
+
+
+def _score(text: str) -> Score:
+    """``--score``'s type: an unknown or malformed score is argparse's one-line error."""
+    try:
+        return Score.parse(text, _steps)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+class _Formatter(cli.HelpFormatter):
+    """Keeps the epilog's lines (one definition each), wrapping each on its own."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return "\n".join(
+            textwrap.fill(line, width, initial_indent=indent, subsequent_indent=indent + "    ")
+            for line in text.splitlines()
+        )
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The CLI."""
+    epilog = "definitions:\n" + "\n".join(f"{k}: {v}" for k, v in summary.DEFINITIONS.items())
     parser = cli.Parser(
         prog="python -m jaxcart.compare",
+        formatter_class=_Formatter,
         description="Compare runs over their seeds with the statistics of Agarwal et al. "
-        "(2021): IQM, mean, median and optimality gap of each seed's greedy Gymnasium return "
-        "with 95%% percentile bootstrap intervals, the probability of improvement over a "
-        "baseline, performance profiles and sample-efficiency curves. A sweep directory "
-        "stands for its combinations.",
+        "(2021): IQM, median over seeds, mean and optimality gap of a per-seed score with "
+        "95%% percentile bootstrap intervals, the solve rate with its Wilson interval, the IQM "
+        "difference and the probability of improvement over a baseline, performance profiles "
+        "and sample-efficiency curves. A sweep directory stands for its combinations. "
+        "Example: python -m jaxcart.compare runs/a runs/b --score auc --out cmp",
+        epilog=epilog,
     )
-    parser.add_argument("run_dirs", nargs="+", type=Path, metavar="RUN_DIR")
+    parser.add_argument("run_dirs", nargs="*", type=Path, metavar="RUN_DIR")
+    parser.add_argument(
+        "--score",
+        type=_score,
+        default=summary.EVAL,
+        metavar="SCORE",
+        help="each seed's score: eval (mean greedy Gymnasium return), auc (mean of "
+        "rollout/ep_rew_mean over the run) or return-at:STEPS (rollout/ep_rew_mean at STEPS "
+        "env steps, e.g. return-at:1e5) (default: eval)",
+    )
     parser.add_argument(
         "--baseline",
-        type=Path,
         default=None,
         metavar="RUN_DIR",
-        help="the run the others are compared with (default: the first RUN_DIR)",
+        help="the run the others are compared with (default: the first RUN_DIR); with --arm, "
+        "the baseline arm's NAME (default: the first arm)",
+    )
+    parser.add_argument(
+        "--arm",
+        action="append",
+        default=[],
+        metavar="NAME=DIR,DIR",
+        help="an arm's runs on several configurations, in the same order for every arm "
+        "(repeat for each arm, instead of RUN_DIRs): e.g. --arm bootstrap=runs/sb3,runs/pjx "
+        "--arm no-bootstrap=runs/sb3-nb,runs/pjx-nb aggregates the two arms over both "
+        "settings with a stratified bootstrap",
+    )
+    parser.add_argument(
+        "--adjust",
+        choices=summary.ADJUSTMENTS,
+        default="none",
+        help="bonferroni: widen each difference and P(X > Y) interval so that all of them "
+        "hold together at 95%%",
     )
     parser.add_argument(
         "--out",
         type=Path,
         default=None,
         metavar="DIR",
-        help="directory for compare.json and compare.png (default: a new compare-<time> here)",
+        help="directory for compare.json, compare.png and curves.csv "
+        "(default: a new compare-<time> here)",
     )
     parser.add_argument(
         "--reps", type=int, default=stats.DEFAULT_REPS, help="bootstrap resamples (default 2000)"
@@ -540,22 +325,37 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _compare_command(argv: list[str] | None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not args.run_dirs and not args.arm:
+        parser.error("give at least one RUN_DIR (or --arm NAME=DIR,DIR twice or more)")
     if args.reps < 100:
         raise cli.UsageError(f"--reps must be at least 100, got {args.reps}")
     if not 0 <= args.seed < 2**32:
         raise cli.UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
     if args.dpi <= 0:
         raise cli.UsageError(f"--dpi must be positive, got {args.dpi}")
-    result = compare_runs(args.run_dirs, args.baseline, args.out, args.reps, args.seed, args.dpi)
+    arms = [runs.parse_arm(text) for text in args.arm]
+    result = compare_runs(
+        args.run_dirs,
+        args.baseline,
+        args.out,
+        args.reps,
+        args.seed,
+        args.dpi,
+        args.score,
+        args.adjust,
+        arms,
+    )
     print(report_text(result.comparison))
-    print(f"wrote {result.json_path} and {result.figure_path}", flush=True)
+    paths = (result.json_path, result.figure_path, result.curves_path)
+    print(f"wrote {', '.join(map(str, paths))}", flush=True)
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input)."""
-    return cli.run_command(lambda: _compare_command(argv))
+    return cli.run_command(lambda: _compare_command(argv), also=(CompareError,))
 
 
 if __name__ == "__main__":

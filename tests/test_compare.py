@@ -1,8 +1,10 @@
-"""``python -m jaxcart.compare`` end to end on small real runs and a sweep, a run in the format
-of ``benchmarks/experiments/sb3_reference.py``, and bad inputs (one line, exit code 2)."""
+"""``python -m jaxcart.compare`` end to end on small real runs and a sweep, runs in the format
+of ``benchmarks/experiments/sb3_reference.py``, every ``--score``, saturation, arms over
+configurations, and bad inputs (one line, exit code 2)."""
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 from pathlib import Path
@@ -15,7 +17,7 @@ from scipy.stats import trim_mean
 
 from benchmarks.experiments import sb3_reference
 from jaxcart import compare
-from jaxcart.analysis import stats
+from jaxcart.analysis import stats, summary, tasks
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.trainer import METRIC_COLUMNS
 from jaxcart.train import main as train_main
@@ -33,9 +35,10 @@ def runs(tmp_path_factory) -> tuple[Path, Path]:
     return a, sweep
 
 
-def sb3_run(out: Path, num_seeds: int) -> Path:
+def sb3_run(out: Path, num_seeds: int, score: float | None = None) -> Path:
     """A run directory written by benchmarks/experiments/sb3_reference.py's own writer, from
-    made-up SB3 logs (no ``rollout/ep_rew_max``: SB3 does not log it)."""
+    made-up SB3 logs (no ``rollout/ep_rew_max``: SB3 does not log it); every greedy episode
+    scores ``score`` when given."""
     iterations = 5
     per_seed = []
     for s in range(num_seeds):
@@ -44,7 +47,9 @@ def sb3_run(out: Path, num_seeds: int) -> Path:
         metrics["time/fps"] = np.full(iterations, 1000.0)
         metrics["time/elapsed"] = np.arange(1.0, iterations + 1) * 2
         per_seed.append(metrics)
-    evaluations = [np.full(20, 150.0 + 25 * s) for s in range(num_seeds)]
+    evaluations = [
+        np.full(20, 150.0 + 25 * s if score is None else score) for s in range(num_seeds)
+    ]
     out.mkdir()
     sb3_reference.write_run(out, PPOConfig(), per_seed, evaluations, [10.0] * num_seeds)
     return out
@@ -74,10 +79,15 @@ def test_compare_runs_and_a_sweep(runs, tmp_path, capsys):
     assert names == ["a", "learning_rate=0.001", "learning_rate=0.01"]
     assert "baseline" in lines[3]
     assert "note: seed counts differ (4 for a; 2 for 2 runs)" in text
-    assert f"wrote {out / 'compare.json'} and {out / 'compare.png'}" in text
+    assert f"wrote {out / 'compare.json'}, {out / 'compare.png'}, {out / 'curves.csv'}" in text
+    assert "saturated: no" in text and "2 comparison(s) against a baseline" in text
+    assert "up to 10% chance that at least one misses" in text
+    assert "P(row > column)" in text  # three runs: the all-pairs matrix
 
     data = json.loads((out / "compare.json").read_text())
     assert data["baseline"] == "a" and data["bootstrap"]["reps"] == 2000
+    assert data["score"] == "eval" and data["saturated"] is False
+    assert len(data["probability_of_improvement_matrix"]["values"]) == 3
     assert [r["name"] for r in data["runs"]] == names
     for r, path in zip(data["runs"], [a, sweep / "combo-000", sweep / "combo-001"]):
         scores = read_scores(path)
@@ -89,11 +99,19 @@ def test_compare_runs_and_a_sweep(runs, tmp_path, capsys):
         assert r["optimality_gap"]["value"] == pytest.approx(gap)
         for key in ("mean", "median", "iqm", "optimality_gap"):
             assert r[key]["ci_low"] <= r[key]["value"] <= r[key]["ci_high"]
-        assert len(r["steps_to_500"]) == len(scores)
+        assert len(r["steps_to_500"]) == len(scores) and r["score"] == "eval"
+        solved = sum(
+            s["solved"] for s in json.loads((path / "evaluation.json").read_text())["seeds"]
+        )
+        assert r["solved"] == stats.wilson_interval(solved, len(scores)).to_dict()
     assert data["runs"][0]["probability_of_improvement"] is None
+    assert data["runs"][0]["difference_iqm"] is None
     for r in data["runs"][1:]:
         poi = stats.probability_of_improvement(r["scores"], data["runs"][0]["scores"])
         assert r["probability_of_improvement"]["value"] == pytest.approx(poi)
+        gap = stats.iqm(r["scores"]) - stats.iqm(data["runs"][0]["scores"])
+        assert r["difference_iqm"]["value"] == pytest.approx(gap)
+        assert r["difference_iqm"]["ci_low"] <= gap <= r["difference_iqm"]["ci_high"]
     assert_png(out / "compare.png")
     assert not (a / "compare.json").exists()
 
@@ -190,9 +208,129 @@ def test_bad_inputs_exit_2_with_one_line(runs, tmp_path, capsys):
         ([str(a), "--baseline", str(sweep), *out], "is a sweep"),
         ([str(a), str(a), *out], "given twice"),
         ([str(a), "--reps", "10", *out], "--reps"),
+        ([str(a), "--score", "mean", *out], "unknown score"),
+        ([str(a), "--score", "return-at:x", *out], "STEPS expected a whole number"),
         ([], "RUN_DIR"),
     ]
     for argv, message in cases:
         assert compare.main(argv) == 2, argv
         assert message in one_line_error(capsys), argv
     assert not (a / "cmp").exists() and not (tmp_path / "out").exists()
+
+
+def metrics_auc(run_dir: Path) -> list[float]:
+    """Each seed's AUC from metrics.csv with csv and NumPy alone: the mean over its rows of
+    rollout/ep_rew_mean, an empty or nan value counting as 0."""
+    per_seed: dict[int, list[float]] = {}
+    with open(run_dir / "metrics.csv", newline="") as f:
+        for row in csv.DictReader(f):
+            value = float(row["rollout/ep_rew_mean"] or "nan")
+            per_seed.setdefault(int(row["seed_index"]), []).append(
+                0.0 if np.isnan(value) else value
+            )
+    return [float(np.mean(per_seed[s])) for s in sorted(per_seed)]
+
+
+def test_auc_score_is_recomputable_from_metrics_csv(runs, tmp_path, capsys):
+    a, sweep = runs
+    out = tmp_path / "auc"
+    assert (
+        compare.main(
+            [str(a), str(sweep), "--baseline", str(a), "--score", "auc", "--out", str(out)]
+        )
+        == 0
+    )
+    text = capsys.readouterr().out
+    assert "score = auc" in text
+    data = json.loads((out / "compare.json").read_text())
+    assert data["score"] == "auc" and data["runs"][0]["name"] == "a"
+    for r, path in zip(data["runs"], [a, sweep / "combo-000", sweep / "combo-001"]):
+        aucs = metrics_auc(path)
+        assert r["score"] == "auc" and r["scores"] == pytest.approx(aucs)
+        assert r["iqm"]["value"] == pytest.approx(trim_mean(aucs, 0.25))
+        assert set(r["solved"]) == {"value", "ci_low", "ci_high"}
+        assert r["solved"]["ci_low"] <= r["solved"]["value"] <= r["solved"]["ci_high"]
+    for r in data["runs"][1:]:
+        assert set(r["difference_iqm"]) == {"value", "ci_low", "ci_high"}
+    # curves.csv: every seed's learning curve, the same numbers as the runs' metrics.csv.
+    with open(out / "curves.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    a_rows = [r for r in rows if r["run"] == "a"]
+    assert len(a_rows) == 4 * (1024 // 128)  # 4 seeds x 8 iterations
+    seed1 = [float(r["ep_rew_mean"]) for r in a_rows if r["seed"] == "1"]
+    assert np.mean(np.nan_to_num(seed1)) == pytest.approx(metrics_auc(a)[1])
+
+
+def test_return_at_score(runs, tmp_path, capsys):
+    a, _ = runs
+    run = compare.runs.load_entries([a], score=summary.Score("return-at", 500))[0][0]
+    returns = run.run.metrics["rollout/ep_rew_mean"]
+    assert run.scores.tolist() == np.nan_to_num(returns[3]).tolist()  # 512 steps: iteration 4
+    assert compare.main([str(a), "--score", "return-at:1_000", "--out", str(tmp_path / "r")]) == 0
+    data = json.loads((tmp_path / "r" / "compare.json").read_text())
+    assert data["score"] == "return-at:1000" and data["runs"][0]["score"] == "return-at:1000"
+    assert data["runs"][0]["scores"] == np.nan_to_num(returns[7]).tolist()
+    capsys.readouterr()
+    assert compare.main([str(a), "--score", "return-at:1e5", "--out", str(tmp_path / "x")]) == 2
+    assert "never reaches 100000 env steps" in one_line_error(capsys)
+
+
+def test_saturated_scores_are_said_out_loud(tmp_path, capsys):
+    x, y = sb3_run(tmp_path / "x", 3, score=500.0), sb3_run(tmp_path / "y", 3, score=500.0)
+    assert compare.main([str(x), str(y), "--out", str(tmp_path / "eval")]) == 0
+    text = capsys.readouterr().out
+    assert (
+        "every seed of every run scores 500 by eval: the score cannot tell the runs apart" in text
+    )
+    assert "--score auc" in text
+    data = json.loads((tmp_path / "eval" / "compare.json").read_text())
+    assert data["saturated"] is True
+    assert data["runs"][0]["solved"]["value"] == 1.0 and data["runs"][0]["solved"]["ci_low"] < 1
+    assert data["runs"][1]["probability_of_improvement"]["value"] == 0.5
+    assert_png(tmp_path / "eval" / "compare.png")
+    # The learning curves still differ between seeds: the AUC can tell them apart.
+    assert compare.main([str(x), str(y), "--score", "auc", "--out", str(tmp_path / "auc")]) == 0
+    assert "saturated: no" in capsys.readouterr().out
+    assert json.loads((tmp_path / "auc" / "compare.json").read_text())["saturated"] is False
+
+
+def test_arms_over_configurations(tmp_path, capsys):
+    runs = {f"{arm}{k}": sb3_run(tmp_path / f"{arm}{k}", 2 + k) for arm in "pq" for k in (0, 1)}
+    argv = ["--arm", f"p={runs['p0']},{runs['p1']}", "--arm", f"q={runs['q0']},{runs['q1']}"]
+    out = tmp_path / "arms"
+    assert (
+        compare.main([*argv, "--baseline", "q", "--adjust", "bonferroni", "--out", str(out)]) == 0
+    )
+    text = capsys.readouterr().out
+    assert "Arms over 2 configuration(s)" in text and "baseline arm q" in text
+    data = json.loads((out / "compare.json").read_text())
+    assert data["baseline"] == "q" and [a["name"] for a in data["arms"]] == ["q", "p"]
+    scores = {r["name"]: r["scores"] for r in data["runs"]}
+    p_tasks, q_tasks = [scores["p0"], scores["p1"]], [scores["q0"], scores["q1"]]
+    assert data["arms"][1]["iqm"] == tasks.stratified_bootstrap_ci(p_tasks).to_dict()
+    # 2 runs against their configuration's q run + 1 arm against arm q: 3 comparisons.
+    assert data["comparisons"]["count"] == 3
+    assert data["comparisons"]["confidence_each"] == pytest.approx(1 - 0.05 / 3)
+    confidence = data["comparisons"]["confidence_each"]
+    expected = tasks.stratified_difference_ci(p_tasks, q_tasks, confidence=confidence)
+    assert data["arms"][1]["difference_iqm"] == pytest.approx(expected.to_dict())
+    assert {r["name"]: r["reference"] for r in data["runs"]}["p1"] == "q1"
+    assert data["probability_of_improvement_matrix"] is None
+    bad = [
+        ([*argv, "--arm", f"r={runs['p0']}"], "one run per configuration"),
+        (["--arm", f"p={runs['p0']}"], "at least two arms"),
+        (["--arm", "p"], "expected NAME=RUN_DIR"),
+        ([*argv, "--baseline", "z"], "is not an arm"),
+        ([*argv, str(runs["p0"])], "not both"),
+    ]
+    for args, message in bad:
+        assert compare.main([*args, "--out", str(tmp_path / "bad")]) == 2, args
+        assert message in one_line_error(capsys), args
+
+
+def test_help_defines_every_statistic(capsys):
+    assert compare.main(["--help"]) == 0
+    text = capsys.readouterr().out
+    for name in summary.DEFINITIONS:
+        assert f"\n{name}: " in text, name
+    assert "median over seeds" in text and "--score" in text and "--arm" in text

@@ -440,7 +440,7 @@ def test_auc_counts_nan_iterations_as_zero():
 def test_auc_is_recomputable_from_metrics_csv(tmp_path):
     import csv
 
-    from jaxcart.rundir.layout import write_metrics_csv
+    from jaxcart.rundir.outputs import write_metrics_csv
 
     rng = np.random.default_rng(1)
     returns = rng.uniform(0, 500, size=(7, 3))

@@ -49,7 +49,10 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
         and "6 combinations x 2 seed(s)" in text
     )
     assert "IQM gym return [95% CI]" in text and "P(> combo 0) [95% CI]" in text
-    ranking = json.loads((out / "sweep.json").read_text())["ranking"]
+    data = json.loads((out / "sweep.json").read_text())
+    assert data["score"] == "eval" and "greedy return" in data["score_definition"]
+    ranking = data["ranking"]
+    assert {r["score"] for r in ranking} == {"eval"}
     assert len(ranking) == 6 and {r["learning_rate"] for r in ranking} == {1e-4, 1e-3, 1e-2}
     iqms = [r["iqm"]["value"] for r in ranking]
     assert iqms == sorted(iqms, reverse=True)
@@ -104,6 +107,25 @@ def test_rank_by_iqm_with_probability_of_improvement():
     assert poi[2]["value"] == 0.5625
     assert poi[2]["ci_low"] <= 0.5625 <= poi[2]["ci_high"]
     assert ranking == rank(grid, scores, solved, scores, np.full(12, np.inf))  # deterministic
+
+
+def test_rank_by_another_score():
+    grid = RunGrid(2, ({"learning_rate": 1e-3}, {"learning_rate": 1e-2}))
+    returns = np.array([[10, 20, np.nan, 30], [100, 200, 300, 400]], float)  # [2 its, 4 runs]
+    steps, scores = np.array([128.0, 256.0]), np.full(4, 500.0)
+    solved = np.ones(4, bool)
+    args = (grid, scores, solved, scores, np.full(4, np.inf))
+    by_auc = rank(*args, score="auc", returns=returns, env_steps=steps)
+    # AUC per run (NaN as 0): 55, 110, 150, 215 -> IQM of two seeds is their mean.
+    assert [(r["combination"], r["iqm"]["value"]) for r in by_auc] == [(1, 182.5), (0, 82.5)]
+    assert {r["score"] for r in by_auc} == {"auc"}
+    first = rank(*args, score="return-at:100", returns=returns, env_steps=steps)
+    assert [r["iqm"]["value"] for r in first] == [15.0, 15.0]  # iteration 1; NaN counts as 0
+    later = rank(*args, score="return-at:200", returns=returns, env_steps=steps)
+    assert [(r["combination"], r["iqm"]["value"]) for r in later] == [(1, 350.0), (0, 150.0)]
+    assert rank(*args)[0]["iqm"]["value"] == 500.0  # eval: the greedy scores
+    with pytest.raises(ValueError, match="never reaches"):
+        rank(*args, score="return-at:1000", returns=returns, env_steps=steps)
 
 
 @pytest.mark.parametrize(

@@ -92,35 +92,43 @@ def _relative(path: Path) -> str:
 
 def training_return_table(arms: list[Path]) -> str:
     """The training return (``rollout/ep_rew_mean``) at half, three quarters and all of the
-    run: its IQM across seeds with a 95% bootstrap interval, and P(arm > the first arm) over
-    seed pairs with its interval (``jaxcart.analysis.stats``, the statistics of ``jaxcart.compare``)."""
+    shortest run's env steps: its IQM across seeds with a 95% bootstrap interval, and P(arm >
+    the first arm) over seed pairs with its interval (``jaxcart.analysis``, the statistics of
+    ``jaxcart.compare``). Each seed's value is read with ``curves.return_at``: at the first
+    iteration at or past those steps, a seed with no value there (not yet, or diverged)
+    counting as 0."""
     from jaxcart import plot
-    from jaxcart.analysis import stats
+    from jaxcart.analysis import curves, stats
 
     runs = [load_run(a) for a in arms]
-    curves = [r.metrics[plot.RETURN_METRIC] for r in runs]
-    n = min(len(c) for c in curves)
-    points = [n // 2 - 1, (3 * n) // 4 - 1, n - 1]
-    steps = " / ".join(f"{runs[0].env_steps[i] / 1e3:,.0f}k" for i in points)
+    shortest = min(runs, key=lambda r: r.env_steps[-1])
+    n = len(shortest.env_steps)
+    budgets = [float(shortest.env_steps[i]) for i in (n // 2 - 1, (3 * n) // 4 - 1, n - 1)]
+    values = [
+        [curves.return_at(r.metrics[plot.RETURN_METRIC], r.env_steps, b) for b in budgets]
+        for r in runs
+    ]
+    steps = " / ".join(f"{b / 1e3:,.0f}k" for b in budgets)
     lines = [f"training return at {steps} env steps: IQM [95% CI]; P(> {arms[0].name}) [95% CI]"]
-    for arm, curve in zip(arms, curves):
+    for k, arm in enumerate(arms):
         cells = []
-        for i in points:
-            e = stats.bootstrap_ci(curve[i], stats.iqm)
+        for i in range(len(budgets)):
+            e = stats.bootstrap_ci(values[k][i], stats.iqm)
             cell = f"{e.value:.1f} [{e.ci_low:.1f}, {e.ci_high:.1f}]"
-            if arm is not arms[0]:
-                p = stats.probability_of_improvement_ci(curve[i], curves[0][i])
+            if k:
+                p = stats.probability_of_improvement_ci(values[k][i], values[0][i])
                 cell += f"; P {p.value:.2f} [{p.ci_low:.2f}, {p.ci_high:.2f}]"
             cells.append(cell)
         lines.append(f"  {arm.name}: " + " / ".join(cells))
     return "\n".join(lines) + "\n"
 
 
-def compare(arms: list[Path], out: Path) -> str:
-    """``python -m jaxcart.compare`` on the arms (the first is the baseline) and the training
-    return table; writes and returns both."""
+def compare(arms: list[Path], out: Path, score: str = "eval") -> str:
+    """``python -m jaxcart.compare --score SCORE`` on the arms (the first is the baseline) and
+    the training return table; writes and returns both."""
     paths = [_relative(a) for a in arms]
-    command = [sys.executable, "-m", "jaxcart.compare", *paths, "--out", _relative(out)]
+    command = [sys.executable, "-m", "jaxcart.compare", *paths, "--score", score]
+    command += ["--out", _relative(out)]
     done = subprocess.run(command, check=True, cwd=ROOT, capture_output=True, text=True)
     text = done.stdout + "\n" + training_return_table(arms)
     (out / "table.txt").write_text(text)
@@ -142,6 +150,12 @@ def main(argv: list[str] | None = None) -> int:
         help="where each experiment's comparison goes (default benchmarks/results/scratch/"
         "experiments, not committed; --out docs/experiments replaces the committed ones)",
     )
+    parser.add_argument(
+        "--score",
+        default="eval",
+        help="each seed's score in the comparison: eval, auc or return-at:STEPS "
+        "(python -m jaxcart.compare --score; default eval)",
+    )
     args = parser.parse_args(argv)
     lib.output_dir(args.out)
     names = [n for n in args.only.split(",") if n]
@@ -156,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         ]
         out = args.out / name
         out.mkdir(parents=True, exist_ok=True)
-        print(compare(arms, out), flush=True)
+        print(compare(arms, out, args.score), flush=True)
     return 0
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from jaxcart.analysis.summary import Score
 from jaxcart.core.config import ConfigError
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed
@@ -389,8 +390,17 @@ def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
     )
     if run.grid.is_sweep:
         score, solved = outcome.evaluation.gym_returns.mean(-1), outcome.evaluation.solved
-        outcome.ranking = sweeps.rank(run.grid, score, solved, final, reach, div)
-        data = {"sweep": run.sweep, "num_seeds": run.grid.num_seeds, "ranking": outcome.ranking}
+        ranked_by = Score()  # each seed's mean greedy return (compare's --score eval)
+        outcome.ranking = sweeps.rank(
+            run.grid, score, solved, final, reach, div, score=ranked_by.label
+        )
+        data = {
+            "sweep": run.sweep,
+            "num_seeds": run.grid.num_seeds,
+            "score": ranked_by.label,
+            "score_definition": ranked_by.definition,
+            "ranking": outcome.ranking,
+        }
         run.directory.write_ranking(data)
 
 

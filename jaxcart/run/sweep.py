@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.analysis import stats
+from jaxcart.analysis import stats, summary
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.core.tricks import Hyperparams
 
@@ -153,19 +153,30 @@ def rank(
     diverged_at: np.ndarray | None = None,
     reps: int = stats.DEFAULT_REPS,
     seed: int = stats.DEFAULT_SEED,
+    score: str = "eval",
+    returns: np.ndarray | None = None,
+    env_steps: np.ndarray | None = None,
 ) -> list[dict]:
     """Per-combination summary, best first: by the IQM of the per-seed scores (then solve
     rate, final return, steps to 500), with the statistics of :mod:`jaxcart.compare`.
 
-    Each row holds ``iqm`` and ``probability_of_improvement`` over combination 0 (None for
-    combination 0 itself) as ``{value, ci_low, ci_high}`` with 95% percentile bootstrap
-    intervals (``reps`` resamples from ``seed``: deterministic).
+    Each row holds ``score`` (the score's name, as ``compare --score`` takes it), ``iqm`` and
+    ``probability_of_improvement`` over combination 0 (None for combination 0 itself) as
+    ``{value, ci_low, ci_high}`` with 95% percentile bootstrap intervals (``reps`` resamples
+    from ``seed``: deterministic).
 
     Args:
         scores: per run, ``[num_runs]``: each seed's mean greedy Gymnasium return.
         solved, final_return, steps_to_500, diverged_at: per run, ``[num_runs]``.
+        score: what ranks: ``"eval"`` (``scores``), ``"auc"`` or ``"return-at:STEPS"``
+            (:class:`jaxcart.analysis.summary.Score`, from ``returns`` and ``env_steps``).
+        returns: ``rollout/ep_rew_mean`` ``[iterations, num_runs]``; env_steps: ``[iterations]``.
+
+    Raises:
+        ValueError: an unknown score, or one without the curves it needs.
     """
-    scores = np.asarray(scores, float)
+    ranked_by = summary.Score.parse(score)
+    scores = ranked_by.compute(np.asarray(scores, float), returns, env_steps)
     first = scores[grid.runs_of(0)]
     rows = []
     for c, combo in enumerate(grid.combos):
@@ -178,6 +189,7 @@ def rank(
             {
                 "combination": c,
                 **combo,
+                "score": ranked_by.label,
                 "iqm": stats.bootstrap_ci(scores[runs], stats.iqm, reps, seed=seed).to_dict(),
                 "probability_of_improvement": improvement and improvement.to_dict(),
                 "solve_rate": float(np.mean(solved[runs])),

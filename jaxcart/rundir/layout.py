@@ -63,7 +63,9 @@ PLOT_COMPARISON_FILE = "comparison.png"
 """...and several into ``comparison.png`` in the current directory."""
 COMPARE_FILE = "compare.json"
 COMPARE_FIGURE_FILE = "compare.png"
-"""``python -m jaxcart.compare`` writes both into its ``--out`` directory."""
+COMPARE_CURVES_FILE = "curves.csv"
+"""``python -m jaxcart.compare`` writes all three into its ``--out`` directory (the CSV: every
+compared seed's learning curve, ``run,seed,env_steps,ep_rew_mean``)."""
 
 
 def combo_dir(sweep_dir: str | os.PathLike, combo: int) -> Path:

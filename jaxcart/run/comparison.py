@@ -1,0 +1,398 @@
+"""Runs read for a comparison: each run's per-seed scores by the chosen
+:class:`~jaxcart.analysis.summary.Score`, their statistics
+(:func:`jaxcart.analysis.summary.summarise`), arms over several configurations, and what
+``python -m jaxcart.compare`` writes (``compare.json`` and the per-seed ``curves.csv``).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from jaxcart.analysis import stats, summary
+from jaxcart.analysis.summary import Score
+from jaxcart.rundir import files, layout, reader
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.runs import RunCurves, load_runs
+
+RETURN_METRIC = "rollout/ep_rew_mean"
+REACHED_METRIC = "rollout/ep_rew_max"
+REACHED_DEFINITION = "first iteration in which a training episode scored 500 (rollout/ep_rew_max)"
+
+
+class CompareError(ValueError):
+    """A comparison that cannot be made as asked (one line for the user)."""
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One compared run: its curves and per-seed scores."""
+
+    run: RunCurves
+    scores: np.ndarray  # [num_seeds] by the comparison's score
+    solved: int | None  # seeds solved by evaluate's definition; None without evaluation.json
+    episodes: int | None  # greedy episodes per seed
+
+    @property
+    def name(self) -> str:
+        return self.run.label
+
+    @property
+    def train_return(self) -> np.ndarray | None:
+        """``rollout/ep_rew_mean`` ``[iterations, num_seeds]``, None if not recorded."""
+        return self.run.metrics.get(RETURN_METRIC)
+
+    def first_reached(self, x: np.ndarray | None) -> np.ndarray | None:
+        """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each
+        seed first scored 500, ``[num_seeds]`` (``inf``: never); None without the data."""
+        best = self.run.metrics.get(REACHED_METRIC)
+        if x is None or best is None or not np.isfinite(best).any():
+            return None
+        return stats.first_at_least(best, x, stats.MAX_RETURN)
+
+
+def read_evaluation(run: RunCurves, required: bool) -> tuple[np.ndarray | None, int | None]:
+    """``(mean greedy return per seed [num_seeds], solved seeds)`` from ``evaluation.json``;
+    ``(None, None)`` when it is missing and not ``required``.
+
+    Raises:
+        RunDirError: missing (when required), unreadable or without per-seed Gymnasium means.
+    """
+    path = run.path / layout.EVALUATION_FILE
+    if not path.is_file() or run.note is not None:
+        if not required:
+            return None, None
+        raise RunDirError(
+            f"{run.path} has no {layout.EVALUATION_FILE}: --score eval needs each seed's "
+            "greedy evaluation, which training writes when it finishes (--score auc does not)"
+        )
+    try:
+        seeds = reader.read_evaluation(run.path)["seeds"]
+        means = np.array([float(s["gymnasium_mean"]) for s in seeds])
+        solved = sum(bool(s.get("solved")) for s in seeds)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        detail = f"no {exc} entry" if isinstance(exc, KeyError) else str(exc)
+        raise RunDirError(f"{path} is corrupted: {detail}") from None
+    if means.size == 0 or not np.isfinite(means).all():
+        raise RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
+    return means, solved
+
+
+def make_entry(run: RunCurves, score: Score) -> Entry:
+    """A run scored by ``score``.
+
+    Raises:
+        RunDirError: an unusable ``evaluation.json``; CompareError: the run lacks what the
+            score needs (e.g. it ends before ``return-at``'s steps).
+    """
+    means, solved = read_evaluation(run, required=score.name == "eval")
+    try:
+        scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps)
+    except ValueError as exc:
+        raise CompareError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    episodes = (run.evaluation or {}).get("episodes")
+    return Entry(run, scores, solved, int(episodes) if isinstance(episodes, int) else None)
+
+
+def load_entries(
+    run_dirs: Sequence[str | os.PathLike],
+    baseline: str | os.PathLike | None = None,
+    score: Score = summary.EVAL,
+) -> tuple[list[Entry], int]:
+    """The runs to compare (sweeps expanded) and the baseline's index among them.
+
+    The baseline is the first run unless ``baseline`` names one (a run directory that is not
+    among ``run_dirs`` is added in front).
+
+    Raises:
+        RunDirError: an unusable run directory; CompareError: a run given twice, a sweep as
+            the baseline, or a run without what the score needs.
+    """
+    runs = load_runs(run_dirs)
+    index = 0
+    if baseline is not None:
+        if layout.is_sweep(baseline):
+            raise CompareError(
+                f"--baseline {baseline} is a sweep; name one of its combinations, "
+                f"e.g. {layout.combo_dir(baseline, 0)}"
+            )
+        resolved = [r.path.resolve() for r in runs]
+        if Path(baseline).resolve() in resolved:
+            index = resolved.index(Path(baseline).resolve())
+        else:
+            runs = load_runs([baseline, *run_dirs])
+    _refuse_repeats(runs)
+    return [make_entry(run, score) for run in runs], index
+
+
+def _refuse_repeats(runs: list[RunCurves]) -> None:
+    seen: set[tuple[Path, str]] = set()
+    for run in runs:
+        key = (run.path.resolve(), run.label if run.combination else "")
+        if key in seen:
+            raise CompareError(f"{run.path} is given twice")
+        seen.add(key)
+
+
+def parse_arm(text: str) -> tuple[str, list[str]]:
+    """``"NAME=DIR,DIR"`` -> ``(NAME, [DIR, DIR])``.
+
+    Raises:
+        CompareError: no ``=``, an empty name or no directory.
+    """
+    name, sep, dirs = text.partition("=")
+    paths = [d.strip() for d in dirs.split(",") if d.strip()]
+    if not sep or not name.strip() or not paths:
+        raise CompareError(f"--arm {text!r}: expected NAME=RUN_DIR[,RUN_DIR...]")
+    return name.strip(), paths
+
+
+@dataclass(frozen=True)
+class Arms:
+    """Arms across configurations: ``names[a]``'s run on configuration ``k`` is entry
+    ``runs[a][k]``; arm 0 is the baseline."""
+
+    names: list[str]
+    runs: list[list[int]]
+
+
+def load_arms(
+    arms: Sequence[tuple[str, Sequence[str | os.PathLike]]],
+    baseline: str | None = None,
+    score: Score = summary.EVAL,
+) -> tuple[list[Entry], Arms]:
+    """The runs of every arm (arm-major), baseline arm first.
+
+    Raises:
+        CompareError: fewer than two arms, repeated names, unequal configuration counts, a
+            sweep as an arm's run, or an unknown ``baseline``; RunDirError: unusable runs.
+    """
+    names = [name for name, _ in arms]
+    if len(arms) < 2 or len(set(names)) != len(names):
+        raise CompareError("--arm needs at least two arms with distinct names")
+    if baseline is not None:
+        if baseline not in names:
+            raise CompareError(f"--baseline {baseline} is not an arm ({', '.join(names)})")
+        arms = sorted(arms, key=lambda arm: arm[0] != baseline)  # stable: baseline first
+    counts = {len(dirs) for _, dirs in arms}
+    if len(counts) != 1:
+        raise CompareError(
+            "every --arm needs one run per configuration, in the same order; got "
+            + ", ".join(f"{name}: {len(dirs)}" for name, dirs in arms)
+        )
+    dirs = [Path(d) for _, ds in arms for d in ds]
+    for d in dirs:
+        if layout.is_sweep(d):
+            raise CompareError(f"--arm run {d} is a sweep; name one of its combinations")
+    runs = load_runs(dirs)
+    _refuse_repeats(runs)
+    entries = [make_entry(run, score) for run in runs]
+    k = counts.pop()
+    index = [[a * k + t for t in range(k)] for a in range(len(arms))]
+    return entries, Arms([name for name, _ in arms], index)
+
+
+@dataclass
+class Comparison:
+    """Every run's statistics, the score, the baseline and what the reader should know."""
+
+    entries: list[Entry]
+    score: Score
+    stats: summary.Summary
+    baseline: int
+    reps: int
+    seed: int
+    arms: Arms | None = None
+    arm_stats: list[summary.ArmStats] | None = None
+    notes: list[str] = field(default_factory=list)
+
+    def run_dict(self, i: int) -> dict:
+        """``compare.json``'s entry of run ``i``."""
+
+        def seeds(x: np.ndarray | None) -> list | None:
+            return None if x is None else [float(v) if np.isfinite(v) else None for v in x]
+
+        entry, run = self.entries[i], self.stats.runs[i]
+        return {
+            "name": entry.name,
+            "path": str(entry.run.path),
+            "score": self.score.label,
+            "num_seeds": len(entry.scores),
+            "scores": entry.scores.tolist(),
+            **{name: run.estimates[name].to_dict() for name in stats.ESTIMATORS},
+            "solved": run.solved and run.solved.to_dict(),
+            "solved_seeds": entry.solved,
+            "reference": self.entries[self.stats.references[i]].name,
+            "difference_iqm": run.difference and run.difference.to_dict(),
+            "probability_of_improvement": run.improvement and run.improvement.to_dict(),
+            "evaluation_episodes": entry.episodes,
+            "steps_to_500": seeds(entry.first_reached(entry.run.env_steps)),
+            "seconds_to_500": seeds(entry.first_reached(entry.run.elapsed)),
+        }
+
+    def to_dict(self) -> dict:
+        s, names = self.stats, [e.name for e in self.entries]
+        matrix = None
+        if s.matrix is not None:
+            matrix = {"runs": names, "values": s.matrix.tolist()}
+        arms = None
+        if self.arms is not None and self.arm_stats is not None:
+            arms = [
+                {"name": name, "runs": [names[i] for i in runs], **st.to_dict()}
+                for name, runs, st in zip(self.arms.names, self.arms.runs, self.arm_stats)
+            ]
+        return {
+            "score": self.score.label,
+            "score_definition": self.score.definition,
+            "saturated": s.saturated,
+            "baseline": self.arms.names[0] if self.arms else names[self.baseline],
+            "definitions": summary.DEFINITIONS,
+            "reached_500": REACHED_DEFINITION,
+            "confidence": stats.CONFIDENCE,
+            "comparisons": {
+                "count": s.comparisons,
+                "adjust": s.adjust,
+                "confidence_each": s.confidence,
+                "note": s.reading_note(),
+            },
+            "bootstrap": {"method": "percentile", "reps": self.reps, "seed": self.seed},
+            "curves_file": layout.COMPARE_CURVES_FILE,
+            "notes": self.notes,
+            "runs": [self.run_dict(i) for i in range(len(self.entries))],
+            "probability_of_improvement_matrix": matrix,
+            "arms": arms,
+        }
+
+
+def build_comparison(
+    entries: list[Entry],
+    baseline: int = 0,
+    score: Score = summary.EVAL,
+    reps: int = stats.DEFAULT_REPS,
+    seed: int = stats.DEFAULT_SEED,
+    adjust: str = "none",
+    arms: Arms | None = None,
+) -> Comparison:
+    """Statistics of every run, each against the baseline (with ``arms``: against the
+    baseline arm's run on the same configuration), and the arms aggregated."""
+    references = [baseline] * len(entries)
+    references[baseline] = baseline
+    if arms is not None:
+        references = list(range(len(entries)))
+        for runs in arms.runs[1:]:
+            for task, i in enumerate(runs):
+                references[i] = arms.runs[0][task]
+    scores = [e.scores for e in entries]
+    extra = 0 if arms is None else len(arms.names) - 1
+    result = summary.summarise(
+        scores,
+        [e.solved for e in entries],
+        references,
+        reps,
+        seed,
+        adjust,
+        extra_comparisons=extra,
+        matrix=arms is None,  # across configurations, pairs of runs compare unlike things
+    )
+    arm_stats = None
+    if arms is not None:
+        per_arm = [[scores[i] for i in runs] for runs in arms.runs]
+        arm_stats = summary.summarise_arms(per_arm, 0, reps, seed, result.confidence)
+    notes = comparison_notes(entries)
+    return Comparison(entries, score, result, baseline, reps, seed, arms, arm_stats, notes)
+
+
+def comparison_notes(entries: list[Entry]) -> list[str]:
+    """What the numbers do not say by themselves: unequal or single seeds, and the rest."""
+    notes = []
+    groups: dict[int, list[str]] = {}
+    for e in entries:
+        groups.setdefault(len(e.scores), []).append(e.name)
+    if len(groups) > 1:
+        listed = "; ".join(
+            f"{count} for {names[0] if len(names) == 1 else f'{len(names)} runs'}"
+            for count, names in sorted(groups.items(), reverse=True)
+        )
+        notes.append(
+            f"seed counts differ ({listed}): each run's estimates use its own seeds, and fewer "
+            "seeds give wider intervals"
+        )
+    for e in entries:
+        if len(e.scores) == 1:
+            notes.append(
+                f"{e.name} has a single seed: its confidence intervals are degenerate (one value) "
+                "and say nothing about seed-to-seed variation; train more seeds (--num-seeds)"
+            )
+    episodes = sorted({e.episodes for e in entries if e.episodes is not None})
+    if len(episodes) > 1:
+        notes.append(
+            f"greedy evaluation episodes per seed differ ({', '.join(map(str, episodes))}); "
+            "scores from fewer episodes are noisier"
+        )
+    if len(entries) == 1:
+        notes.append("one run only: nothing to compare it with (no probability of improvement)")
+    for e in entries:
+        if e.solved is None:
+            notes.append(f"{e.name} has no {layout.EVALUATION_FILE}: its solve rate is unknown")
+        if e.train_return is None or not np.isfinite(e.train_return).any():
+            notes.append(f"{e.name} has no {RETURN_METRIC}: no sample-efficiency curve")
+        if e.first_reached(e.run.env_steps) is None:
+            notes.append(
+                f"{e.name} did not record {REACHED_METRIC} (Stable-Baselines3 logs none): "
+                "left out of steps to 500"
+            )
+        if e.run.note:
+            notes.append(f"{e.name}: {e.run.note}")
+    return notes
+
+
+def curves_csv(entries: list[Entry]) -> bytes:
+    """Every seed's learning curve, ``run,seed,env_steps,ep_rew_mean`` (``nan``: no value)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["run", "seed", "env_steps", "ep_rew_mean"])
+    for e in entries:
+        values = e.train_return
+        if values is None:
+            continue
+        for s in range(values.shape[1]):
+            for steps, v in zip(e.run.env_steps, values[:, s]):
+                writer.writerow([e.name, s, f"{steps:.0f}", repr(float(v))])
+    return buf.getvalue().encode()
+
+
+def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
+    """Creates the output directory; refuses one inside a compared run (or its sweep)."""
+    out = layout.default_compare_dir() if out is None else Path(out)
+    target = out.resolve()
+    for entry in entries:
+        owner = entry.run.path.resolve()
+        if entry.run.combination:  # a combination's sweep directory is a run directory too
+            owner = owner.parent
+        if target == owner or owner in target.parents:
+            raise CompareError(
+                f"--out {out} is inside the run directory {owner}; write the comparison elsewhere"
+            )
+    if out.exists() and not out.is_dir():
+        raise CompareError(f"--out {out} exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def write_outputs(comparison: Comparison, out: Path, figure_png: bytes) -> tuple[Path, Path, Path]:
+    """``compare.json``, ``compare.png`` and ``curves.csv`` into ``out``; returns their paths."""
+    paths = (
+        out / layout.COMPARE_FILE,
+        out / layout.COMPARE_FIGURE_FILE,
+        out / layout.COMPARE_CURVES_FILE,
+    )
+    files.atomic_write_bytes(paths[1], figure_png)
+    files.atomic_write_bytes(paths[2], curves_csv(comparison.entries))
+    files.write_json(paths[0], comparison.to_dict())
+    return paths

@@ -1,0 +1,222 @@
+"""``compare.png``: the figure of a :class:`~jaxcart.run.comparison.Comparison`.
+
+Top row: each run's IQM, median over seeds, mean and optimality gap with their intervals.
+Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the performance profile
+(fraction of seeds scoring at least tau, the solved fraction marked at 500). Bottom: sample
+efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction of seeds whose training
+had produced a 500 episode by env steps, and the all-pairs ``P(X > Y)`` matrix. Wall time is
+left out: it depends on the machine and its load (``python -m jaxcart.plot`` draws it).
+"""
+
+from __future__ import annotations
+
+import textwrap
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from jaxcart.analysis import stats
+from jaxcart.run.comparison import RETURN_METRIC, Comparison
+
+if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
+    from matplotlib.figure import Figure
+
+TAUS = np.linspace(0.0, stats.MAX_RETURN, 101)
+CURVE_POINTS = 100
+"""Sample-efficiency curves are drawn at most at this many iterations (evenly spaced)."""
+CURVE_REPS = 1000
+"""Resamples per point of a drawn band (the reported numbers use ``--reps``)."""
+ESTIMATE_TITLES = {
+    "iqm": "IQM over seeds",
+    "median": "median over seeds",
+    "mean": "mean over seeds",
+    "optimality_gap": "optimality gap (mean of max(500 - score, 0))",
+}
+
+
+def _colour(i: int) -> str:
+    return f"C{i % 10}"
+
+
+def _no_data(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
+
+
+def _note(ax, text: str) -> None:
+    ax.text(
+        0.02,
+        0.98,
+        textwrap.fill(text, 50),
+        transform=ax.transAxes,
+        va="top",
+        fontsize=7.5,
+        bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
+    )
+
+
+def _intervals(ax, rows: list[tuple[int, str, stats.Estimate]], title: str, xlabel: str) -> None:
+    """One point with its interval per ``(colour index, name, estimate)``, top to bottom; the
+    run names are the y labels (the panel's legend)."""
+    n = len(rows)
+    for k, (i, _, e) in enumerate(rows):
+        y = n - 1 - k
+        ax.plot([e.ci_low, e.ci_high], [y, y], color=_colour(i), lw=6, alpha=0.45)
+        ax.plot([e.value], [y], "|", color=_colour(i), ms=16, mew=2)
+    ax.set_yticks(range(n), [name for _, name, _ in reversed(rows)], fontsize=8)
+    ax.set(title=title, xlabel=xlabel, ylim=(-0.7, n - 0.3))
+    ax.grid(axis="x", alpha=0.3)
+
+
+def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
+    runs = comparison.stats.runs
+    rows = [
+        (i, e.name, getattr(runs[i], kind))
+        for i, e in enumerate(comparison.entries)
+        if getattr(runs[i], kind) is not None
+    ]
+    base = (
+        "its baseline arm's run"
+        if comparison.arms
+        else comparison.entries[comparison.baseline].name
+    )
+    if kind == "difference":
+        title, xlabel, zero = f"IQM difference from {base}", "IQM(run) - IQM(baseline)", 0.0
+    else:
+        title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
+    if not rows:
+        ax.set(title=title)
+        _no_data(ax, "one run: nothing to compare")
+        return
+    _intervals(ax, rows, title, xlabel)
+    ax.axvline(zero, color="0.5", ls="--", lw=0.8, label="no difference")
+    ax.legend(fontsize=7, loc="lower right")
+    if kind == "improvement":
+        ax.set_xlim(-0.02, 1.02)
+
+
+def _profile_panel(ax, comparison: Comparison) -> None:
+    score = comparison.score.label
+    for i, entry in enumerate(comparison.entries):
+        profile, low, high = stats.performance_profile_band(
+            entry.scores, TAUS, comparison.reps, seed=comparison.seed, at_least=True
+        )
+        ax.plot(TAUS, profile, color=_colour(i), lw=1.6, label=entry.name)
+        ax.fill_between(TAUS, low, high, color=_colour(i), alpha=0.2, lw=0)
+        ax.plot([TAUS[-1]], [profile[-1]], "o", color=_colour(i), ms=6)
+    ax.set(
+        title=f"performance profile ({score}); dot: fraction at 500",
+        xlabel=f"score ({score}) tau",
+        ylabel="fraction of seeds scoring >= tau",
+        xlim=(0, stats.MAX_RETURN * 1.02),
+        ylim=(-0.02, 1.02),
+    )
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower left")
+
+
+def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
+    drawn = False
+    for i, entry in enumerate(comparison.entries):
+        values = entry.train_return
+        if values is None or not np.isfinite(values).any():
+            continue
+        points = np.unique(np.linspace(0, len(values) - 1, CURVE_POINTS).round().astype(int))
+        iqm, low, high = stats.curve_band(
+            values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=(0.0, 500.0)
+        )
+        x = entry.run.env_steps[points]
+        drawn = True
+        ax.plot(x, iqm, color=_colour(i), lw=1.6, label=entry.name)
+        ax.fill_between(x, low, high, color=_colour(i), alpha=0.2, lw=0)
+    ax.set(
+        title="sample efficiency: IQM over seeds of the training return",
+        xlabel="env steps per seed",
+        ylabel=RETURN_METRIC,
+        ylim=(0, 520),
+    )
+    ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
+    ax.grid(alpha=0.3)
+    if drawn:
+        ax.legend(fontsize=7, loc="lower right")
+    else:
+        _no_data(ax, f"{RETURN_METRIC} not recorded")
+
+
+def _reached_panel(ax, comparison: Comparison) -> None:
+    """Fraction of seeds in which a training episode had scored 500, by env steps."""
+    reached_any = False
+    for i, entry in enumerate(comparison.entries):
+        x = entry.run.env_steps
+        first = entry.first_reached(x)
+        if first is None:
+            continue
+        reached_any |= bool(np.isfinite(first).any())
+        x = np.r_[0.0, x[np.isfinite(x)]]
+        ax.step(
+            x, stats.fraction_reached(first, x), where="post", color=_colour(i), label=entry.name
+        )
+    ax.set(
+        title="a training episode at 500 (rollout/ep_rew_max)",
+        xlabel="env steps per seed",
+        ylabel="fraction of seeds",
+        ylim=(-0.02, 1.02),
+    )
+    ax.grid(alpha=0.3)
+    if not ax.lines:
+        _no_data(ax, "not recorded")
+        return
+    ax.legend(fontsize=7, loc="lower right")
+    if not reached_any:
+        _note(ax, "no seed's training reached 500")
+
+
+def _matrix_panel(ax, comparison: Comparison) -> None:
+    matrix = comparison.stats.matrix
+    ax.set_title("P(row > column) over seed pairs")
+    if matrix is None:
+        ax.set_axis_off()
+        why = "arms: see the table" if comparison.arms else "two runs: see the panel on the left"
+        _no_data(ax, why)
+        return
+    names = [e.name for e in comparison.entries]
+    image = ax.imshow(matrix, vmin=0, vmax=1, cmap="RdBu")
+    for (r, c), v in np.ndenumerate(matrix):
+        colour = "white" if abs(v - 0.5) > 0.3 else "black"  # readable on the dark ends
+        ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=7, color=colour)
+    ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=7)
+    ax.set_yticks(range(len(names)), names, fontsize=7)
+    ax.figure.colorbar(image, ax=ax, label="P(row > column); 0.5: no difference")
+
+
+def draw_comparison(comparison: Comparison) -> Figure:
+    """The figure described in the module docstring."""
+    from matplotlib.figure import Figure
+
+    n = len(comparison.entries)
+    fig = Figure(figsize=(18, 13 + 0.25 * n), layout="constrained")
+    grid = fig.add_gridspec(3, 12, height_ratios=[0.6 + 0.12 * n, 1, 1])
+    score = comparison.score
+    for k, (name, title) in enumerate(ESTIMATE_TITLES.items()):
+        ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
+        rows = [
+            (i, e.name, comparison.stats.runs[i].estimates[name])
+            for i, e in enumerate(comparison.entries)
+        ]
+        _intervals(ax, rows, title, f"score ({score.label})")
+    _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference")
+    _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "improvement")
+    _profile_panel(fig.add_subplot(grid[1, 8:12]), comparison)
+    _sample_efficiency_panel(fig.add_subplot(grid[2, 0:4]), comparison)
+    _reached_panel(fig.add_subplot(grid[2, 4:8]), comparison)
+    _matrix_panel(fig.add_subplot(grid[2, 8:12]), comparison)
+    title = (
+        f"CartPole-v1, {n} run(s); score = {score.label}: {score.definition}; "
+        f"{stats.CONFIDENCE:.0%} percentile bootstrap intervals over seeds"
+    )
+    if comparison.stats.saturated:
+        title += (
+            f"\nSATURATED: every seed of every run scores {comparison.entries[0].scores[0]:g}, "
+            "so this score cannot tell the runs apart (try --score auc)"
+        )
+    fig.suptitle("\n".join(textwrap.fill(line, 160) for line in title.splitlines()), fontsize=12)
+    return fig
