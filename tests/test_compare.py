@@ -1,5 +1,5 @@
 """``python -m jaxcart.compare`` end to end on small real runs and a sweep, a run in the format
-of ``benchmarks/experiments/sb3_reference.py``, and bad inputs (one line, exit code 2)."""
+of ``python -m jaxcart.sb3``, and bad inputs (one line, exit code 2)."""
 
 from __future__ import annotations
 
@@ -13,11 +13,12 @@ from helpers import tiny_args
 from PIL import Image
 from scipy.stats import trim_mean
 
-from benchmarks.experiments import sb3_reference
 from jaxcart import compare
 from jaxcart.analysis import stats
 from jaxcart.core.config import PPOConfig
+from jaxcart.core.networks import ActorCritic
 from jaxcart.engine.trainer import METRIC_COLUMNS
+from jaxcart.run import sb3
 from jaxcart.train import main as train_main
 
 
@@ -34,8 +35,8 @@ def runs(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def sb3_run(out: Path, num_seeds: int) -> Path:
-    """A run directory written by benchmarks/experiments/sb3_reference.py's own writer, from
-    made-up SB3 logs (no ``rollout/ep_rew_max``: SB3 does not log it)."""
+    """A run directory written by ``python -m jaxcart.sb3``'s own writer, from made-up SB3
+    logs (no ``rollout/ep_rew_max``: SB3 does not log it) and freshly initialised networks."""
     iterations = 5
     per_seed = []
     for s in range(num_seeds):
@@ -45,8 +46,13 @@ def sb3_run(out: Path, num_seeds: int) -> Path:
         metrics["time/elapsed"] = np.arange(1.0, iterations + 1) * 2
         per_seed.append(metrics)
     evaluations = [np.full(20, 150.0 + 25 * s) for s in range(num_seeds)]
+    network = ActorCritic.from_config(PPOConfig())
+    results = [
+        sb3.SeedResult(m, network.init(np.random.default_rng(s)), r, 10.0)
+        for s, (m, r) in enumerate(zip(per_seed, evaluations))
+    ]
     out.mkdir()
-    sb3_reference.write_run(out, PPOConfig(), per_seed, evaluations, [10.0] * num_seeds)
+    sb3.write_run(out, PPOConfig(), results)
     return out
 
 
