@@ -442,8 +442,8 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
     (out / "config.json").write_text(json.dumps(info))
     assert main(["--resume", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "anneals to 0 (anneal_lr), so it cannot be extended: start a new run" in err
-    assert "--total-timesteps above its 1,024" in err and len(err.splitlines()) == 1
+    assert "with N above its current 1,024 env steps per seed; its annealed learning rate" in err
+    assert "anneals over N from here on" in err and len(err.splitlines()) == 1
 
 
 def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, capsys):
