@@ -322,17 +322,16 @@ def _extend_hint(out: Path) -> str:
     current total), or why it cannot be; "" for any other run."""
     import shlex
 
-    from jaxcart.rundir import checkpoint
-    from jaxcart.rundir import layout as rundir
+    from jaxcart.rundir import layout, reader
+    from jaxcart.rundir.files import RunDirError
 
     try:
-        info = rundir.read_run_config(out)
+        info = reader.read_run_config(out)
         config = info["config"]
-        path = out / checkpoint.CHECKPOINT_FILE
-        iteration = checkpoint.read_checkpoint_meta(path)["iteration"]
-    except (rundir.RunDirError, OSError, KeyError, ValueError):
+        iteration = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
+    except (RunDirError, OSError, KeyError, ValueError):
         return ""
-    written = rundir.SWEEP_FILE if rundir.is_sweep(out) else rundir.EVALUATION_FILE
+    written = layout.SWEEP_FILE if layout.is_sweep(out) else layout.EVALUATION_FILE
     if iteration < config.num_iterations or not (out / written).exists():
         return ""
     total = config.env_steps_per_seed
