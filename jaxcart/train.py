@@ -114,8 +114,10 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         "--logger",
         action="append",
         default=[],
-        choices=["tensorboard", "swanlab"],
-        help="also log metrics to TensorBoard event files or SwanLab (offline); repeatable",
+        choices=["tensorboard", "swanlab", "wandb"],
+        help="also log metrics to TensorBoard event files, SwanLab (offline) or Weights & Biases "
+        "(offline unless WANDB_MODE is set; one W&B run per seed, grouped by the run "
+        "directory); repeatable",
     )
     run.add_argument(
         "--no-compile-cache",
