@@ -11,16 +11,19 @@
 #                           torch CPU pin because it installs Stable-Baselines3 too):
 #                           benchmarks.train_speed starts its sbx contenders with it.
 #
-# PyTorch is installed first, pinned, so that Stable-Baselines3's "torch" requirement is already
-# met: left to itself pip would fetch the newest CUDA build (several GB). Override the pin with
-# TORCH_SPEC (e.g. TORCH_SPEC="torch==2.13.0" on a machine that has that CPU wheel at hand).
+# PyTorch's CPU build is installed first, as PyTorch's instructions say
+# (pip install torch --index-url https://download.pytorch.org/whl/cpu), so that
+# Stable-Baselines3's "torch" requirement is already met: left to itself pip would fetch the
+# newest CUDA build (several GB). Override with TORCH_SPEC and TORCH_PIP_ARGS (e.g.
+# TORCH_SPEC="torch==2.13.0" TORCH_PIP_ARGS="" on a machine that has that CPU wheel at hand).
 #
 # The package lists mirror the "bench", "rejax" and "sbx" extras of pyproject.toml; when those
 # extras exist they are used.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
-TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
+TORCH_SPEC=${TORCH_SPEC:-torch}
+TORCH_PIP_ARGS=${TORCH_PIP_ARGS---index-url https://download.pytorch.org/whl/cpu}
 
 BENCH_PKGS=(
   "gymnax>=1.0.1,<2"
@@ -49,7 +52,7 @@ make_venv() {
 
 echo "== benchmarks/.venv-bench"
 make_venv benchmarks/.venv-bench
-benchmarks/.venv-bench/bin/pip install "$TORCH_SPEC"
+benchmarks/.venv-bench/bin/pip install "$TORCH_SPEC" $TORCH_PIP_ARGS
 if has_extra bench; then
   benchmarks/.venv-bench/bin/pip install -e '.[bench]'
 else
@@ -66,7 +69,7 @@ fi
 
 echo "== benchmarks/.venv-sbx"
 make_venv benchmarks/.venv-sbx
-benchmarks/.venv-sbx/bin/pip install "$TORCH_SPEC"
+benchmarks/.venv-sbx/bin/pip install "$TORCH_SPEC" $TORCH_PIP_ARGS
 if has_extra sbx; then
   benchmarks/.venv-sbx/bin/pip install -e '.[sbx]'
 else

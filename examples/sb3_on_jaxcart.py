@@ -4,7 +4,8 @@ Trains ``PPO("MlpPolicy", gym.make("jaxcart/CartPole-v1"))`` with SB3's defaults
 evaluates the greedy policy on the same seeded episodes in jaxcart's env and in Gymnasium's own
 ``CartPole-v1`` (a seed starts the same episode in both)::
 
-    pip install torch stable-baselines3
+    pip install torch --index-url https://download.pytorch.org/whl/cpu
+    pip install stable-baselines3
     python examples/sb3_on_jaxcart.py                 # 80,000 steps, 20 evaluation episodes
     python examples/sb3_on_jaxcart.py --timesteps 20000 --seed 1
 """

@@ -3,7 +3,7 @@ is configuration B better than A, and how sure is that?
 
 Statistics of Agarwal et al. (2021), "Deep RL at the Edge of the Statistical Precipice"
 (:mod:`jaxcart.analysis.stats`), over any run directories: jaxcart's, a sweep's combinations (a
-sweep directory stands for all of them), or ``benchmarks/experiments/sb3_reference.py``'s.
+sweep directory stands for all of them), or ``python -m jaxcart.sb3``'s.
 The command reads its options, calls :func:`compare_runs` and prints; the runs are read and
 scored in :mod:`jaxcart.run.comparison`, the statistics are :mod:`jaxcart.analysis.summary`'s
 and the figure :mod:`jaxcart.run.comparison_figure`'s.

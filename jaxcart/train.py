@@ -61,9 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _add_run_options(run: argparse._ArgumentGroup) -> None:
     """What to train, where to write it, how to carry it out."""
-    run.add_argument(
-        "--preset", default=None, help=f"starting config: {', '.join(PRESETS)} (default: sb3)"
+    presets = ", ".join(
+        f"{n} (annealed lr)" if p.get("anneal_lr") else n for n, p in PRESETS.items()
     )
+    run.add_argument("--preset", default=None, help=f"starting config: {presets} (default: sb3)")
     run.add_argument(
         "--num-seeds",
         type=cli.count,
@@ -87,7 +88,14 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         help="sweep a float hyperparameter (repeatable); every combination x seed trains in one program",
     )
     run.add_argument(
-        "--resume", type=Path, default=None, metavar="RUN_DIR", help="continue an interrupted run"
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="continue an interrupted run; with --total-timesteps N, train an interrupted or "
+        "finished run on to N env steps per seed (an annealed learning rate then anneals over "
+        "N from the resume on, as SB3's learn(reset_num_timesteps=False): recorded as "
+        "lr_schedule in config.json)",
     )
     run.add_argument(
         "--checkpoint-every",
@@ -106,8 +114,10 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         "--logger",
         action="append",
         default=[],
-        choices=["tensorboard", "swanlab"],
-        help="also log metrics to TensorBoard event files or SwanLab (offline); repeatable",
+        choices=["tensorboard", "swanlab", "wandb"],
+        help="also log metrics to TensorBoard event files, SwanLab (offline) or Weights & Biases "
+        "(offline unless WANDB_MODE is set; one W&B run per seed, grouped by the run "
+        "directory); repeatable",
     )
     run.add_argument(
         "--no-compile-cache",
@@ -314,17 +324,16 @@ def _extend_hint(out: Path) -> str:
     current total), or why it cannot be; "" for any other run."""
     import shlex
 
-    from jaxcart.rundir import checkpoint
-    from jaxcart.rundir import layout as rundir
+    from jaxcart.rundir import layout, reader
+    from jaxcart.rundir.files import RunDirError
 
     try:
-        info = rundir.read_run_config(out)
+        info = reader.read_run_config(out)
         config = info["config"]
-        path = out / checkpoint.CHECKPOINT_FILE
-        iteration = checkpoint.read_checkpoint_meta(path)["iteration"]
-    except (rundir.RunDirError, OSError, KeyError, ValueError):
+        iteration = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
+    except (RunDirError, OSError, KeyError, ValueError):
         return ""
-    written = rundir.SWEEP_FILE if rundir.is_sweep(out) else rundir.EVALUATION_FILE
+    written = layout.SWEEP_FILE if layout.is_sweep(out) else layout.EVALUATION_FILE
     if iteration < config.num_iterations or not (out / written).exists():
         return ""
     total = config.env_steps_per_seed
@@ -334,15 +343,16 @@ def _extend_hint(out: Path) -> str:
             ". It trained in waves, which keep no final state, so it cannot be extended: start "
             f"a new run with a --total-timesteps above its {total:,}"
         )
-    if config.anneal_lr:
-        return (
-            f". Its learning rate anneals to 0 (anneal_lr), so it cannot be extended: start a "
-            f"new run with a --total-timesteps above its {total:,}"
-        )
+    annealed = (
+        "; its annealed learning rate then anneals over N from here on, as SB3's "
+        "learn(reset_num_timesteps=False) does"
+        if config.anneal_lr
+        else ""
+    )
     return (
         f". To train it further, give a larger total: python -m jaxcart.train --resume "
         f"{shlex.quote(str(out))} --total-timesteps N, with N above its current {total:,} "
-        "env steps per seed"
+        f"env steps per seed{annealed}"
     )
 
 

@@ -157,10 +157,11 @@ def test_help_lists_every_config_field_with_its_docstring():
     for flag, doc in (
         ("--minibatch-size", "Transitions per gradient step"),
         ("--bootstrap-truncation", "V(final_obs)"),
-        ("--preset", "sb3, purejaxrl, fast"),
+        ("--preset", "sb3, purejaxrl (annealed lr), fast (annealed lr)"),
         ("--num-seeds", "independent"),
+        ("--resume", "anneals over N from the resume on"),
     ):
-        assert flag in text and doc in text
+        assert flag in text and doc in " ".join(text.split())  # help wraps lines
 
 
 CLI_SMALL = [*tiny_args(12800, num_seeds=2), "--no-compile-cache"]
@@ -442,8 +443,8 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
     (out / "config.json").write_text(json.dumps(info))
     assert main(["--resume", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "anneals to 0 (anneal_lr), so it cannot be extended: start a new run" in err
-    assert "--total-timesteps above its 1,024" in err and len(err.splitlines()) == 1
+    assert "with N above its current 1,024 env steps per seed; its annealed learning rate" in err
+    assert "anneals over N from here on" in err and len(err.splitlines()) == 1
 
 
 def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, capsys):

@@ -1,6 +1,6 @@
 """``python -m jaxcart.compare`` end to end on small real runs and a sweep, runs in the format
-of ``benchmarks/experiments/sb3_reference.py``, every ``--score``, saturation, arms over
-configurations, and bad inputs (one line, exit code 2)."""
+of ``python -m jaxcart.sb3``, every ``--score``, saturation, arms over configurations, and bad
+inputs (one line, exit code 2)."""
 
 from __future__ import annotations
 
@@ -15,11 +15,12 @@ from helpers import tiny_args
 from PIL import Image
 from scipy.stats import trim_mean
 
-from benchmarks.experiments import sb3_reference
 from jaxcart import compare
 from jaxcart.analysis import stats, summary, tasks
 from jaxcart.core.config import PPOConfig
+from jaxcart.core.networks import ActorCritic
 from jaxcart.engine.trainer import METRIC_COLUMNS
+from jaxcart.run import sb3
 from jaxcart.train import main as train_main
 
 
@@ -36,9 +37,9 @@ def runs(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def sb3_run(out: Path, num_seeds: int, score: float | None = None) -> Path:
-    """A run directory written by benchmarks/experiments/sb3_reference.py's own writer, from
-    made-up SB3 logs (no ``rollout/ep_rew_max``: SB3 does not log it); every greedy episode
-    scores ``score`` when given."""
+    """A run directory written by ``python -m jaxcart.sb3``'s own writer, from made-up SB3
+    logs (no ``rollout/ep_rew_max``: SB3 does not log it) and freshly initialised networks;
+    every greedy episode scores ``score`` when given."""
     iterations = 5
     per_seed = []
     for s in range(num_seeds):
@@ -50,8 +51,13 @@ def sb3_run(out: Path, num_seeds: int, score: float | None = None) -> Path:
     evaluations = [
         np.full(20, 150.0 + 25 * s if score is None else score) for s in range(num_seeds)
     ]
+    network = ActorCritic.from_config(PPOConfig())
+    results = [
+        sb3.SeedResult(m, network.init(np.random.default_rng(s)), r, 10.0)
+        for s, (m, r) in enumerate(zip(per_seed, evaluations))
+    ]
     out.mkdir()
-    sb3_reference.write_run(out, PPOConfig(), per_seed, evaluations, [10.0] * num_seeds)
+    sb3.write_run(out, PPOConfig(), results)
     return out
 
 

@@ -120,11 +120,26 @@ def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
     assert "resuming from iteration 16/32" in capsys.readouterr().out
     assert main(["--resume", str(tmp_path / "ext"), "--total-timesteps", "1024"]) == 2
     assert "does not extend" in capsys.readouterr().err
+
+
+def test_an_annealed_run_extends_against_the_new_total(tmp_path):
+    """An annealed learning rate, extended from 8 to 16 iterations: iterations 0-7 trained
+    at lr * (1 - i/8), the extension at lr * (1 - i/16) (SB3's progress against the new
+    total), and config.json records both pieces of the schedule."""
     annealed = PPOConfig(**{**SMALL.to_dict(), "anneal_lr": True})
     lifecycle.run_new(RunSpec(annealed), tmp_path / "annealed", OPTIONS)
-    assert main(["--resume", str(tmp_path / "annealed"), "--total-timesteps", "4096"]) == 2
-    err = capsys.readouterr().err
-    assert "anneals to 0" in err and len(err.strip().splitlines()) == 1
+    outcome = lifecycle.resume_run(tmp_path / "annealed", OPTIONS, total_timesteps=2048)
+    assert not outcome.stopped and outcome.run.resumed_from == 8
+    info = json.loads((tmp_path / "annealed" / "config.json").read_text())
+    assert info["config"]["total_timesteps"] == 2048 and info["extended_from"] == [1024]
+    assert info["lr_schedule"] == [
+        {"from_iteration": 0, "num_iterations": 8},
+        {"from_iteration": 8, "num_iterations": 16},
+    ]
+    rates = reader.read_metrics_csv(tmp_path / "annealed" / "metrics.csv")["train/learning_rate"]
+    i = np.arange(16)
+    expected = annealed.learning_rate * np.where(i < 8, 1 - i / 8, 1 - i / 16)
+    np.testing.assert_allclose(rates[:, 0], expected, rtol=1e-6)
 
 
 def test_replay_one_seed_alone_bit_identical_to_its_batch(tmp_path):

@@ -1,5 +1,5 @@
-"""Metric loggers: what TensorBoard and SwanLab files hold after a run, and the queue around them
-(log() never waits for a writer; writer errors are reported, not raised into training)."""
+"""Metric loggers: what TensorBoard, SwanLab and W&B files hold after a run, and the queue around
+them (log() never waits for a writer; writer errors are reported, not raised into training)."""
 
 import socket
 import struct
@@ -187,6 +187,81 @@ class RecordingBackend:
         self._call("close")
 
 
+def read_wandb_records(path: Path) -> list[bytes]:
+    """Payloads of a W&B ``.wandb`` file: a 7-byte header, then LevelDB-log records (crc u32,
+    length u16, type u8: 1 full, 2 first, 3 middle, 4 last) in 32 KiB blocks, whose last < 7
+    bytes are padding."""
+    data, block, pos = path.read_bytes(), 32768, 7
+    assert data[:4] == b":W&B"
+    payloads, pending = [], b""
+    while pos + 7 <= len(data):
+        left = block - pos % block
+        if left < 7:
+            pos += left
+            continue
+        _, length, kind = struct.unpack("<IHB", data[pos : pos + 7])
+        chunk, pos = data[pos + 7 : pos + 7 + length], pos + 7 + length
+        if kind == 1:
+            payloads.append(chunk)
+        elif kind in (2, 3):
+            pending += chunk
+        elif kind == 4:
+            payloads.append(pending + chunk)
+            pending = b""
+    return payloads
+
+
+def test_wandb_offline_one_run_per_seed_grouped_by_run_dir(tmp_path, monkeypatch):
+    pytest.importorskip("wandb")
+    from wandb.proto import wandb_internal_pb2
+
+    monkeypatch.delenv("WANDB_MODE", raising=False)  # offline is jaxcart's default
+    monkeypatch.chdir(tmp_path)
+    chunks = synthetic_chunks()
+    with make_logger(["wandb"], tmp_path / "out", RUNS, {"learning_rate": 2.5e-4}) as logger:
+        for chunk in chunks:
+            logger.log(*chunk)
+
+    files = sorted((tmp_path / "out" / "wandb").glob("offline-run-*/run-*.wandb"))
+    assert len(files) == 2  # one offline run per seed
+    seen = set()
+    for path in files:
+        logged: dict[str, list[tuple[int, float]]] = {}
+        run = None
+        for payload in read_wandb_records(path):
+            record = wandb_internal_pb2.Record.FromString(payload)
+            if record.HasField("run"):
+                run = record.run
+            if record.HasField("history"):
+                for item in record.history.item:
+                    key = item.key or "/".join(item.nested_key)
+                    if not key.startswith("_"):
+                        value = float(item.value_json)
+                        logged.setdefault(key, []).append((record.history.step.num, value))
+        assert run is not None and run.project == "jaxcart" and run.run_group == "out"
+        config = {item.key: item.value_json for item in run.config.update}
+        name = config["run_name"].strip('"')
+        assert run.display_name == f"out-{name}" and config["learning_rate"] == "0.00025"
+        seen.add(name)
+        expected = expected_points(chunks, RUNS.index(name))
+        assert set(logged) == set(expected)
+        for key, points in expected.items():
+            assert [step for step, _ in logged[key]] == [step for step, _ in points], key
+            np.testing.assert_allclose(
+                [v for _, v in logged[key]], [v for _, v in points], rtol=1e-6
+            )
+    assert seen == set(RUNS)
+
+
+def test_wandb_mode_from_the_environment_is_respected(tmp_path, monkeypatch):
+    pytest.importorskip("wandb")
+    monkeypatch.setenv("WANDB_MODE", "disabled")
+    monkeypatch.chdir(tmp_path)
+    with make_logger(["wandb"], tmp_path / "out", RUNS) as logger:
+        logger.log(*synthetic_chunks(1)[0])
+    assert not list((tmp_path / "out").glob("wandb/offline-run-*"))
+
+
 @pytest.fixture
 def recording(monkeypatch):
     monkeypatch.setitem(loggers.BACKENDS, "recording", RecordingBackend)
@@ -268,7 +343,8 @@ def test_no_loggers_is_a_no_op(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("name", "module"), [("tensorboard", "tensorboardX"), ("swanlab", "swanlab")]
+    ("name", "module"),
+    [("tensorboard", "tensorboardX"), ("swanlab", "swanlab"), ("wandb", "wandb")],
 )
 def test_missing_package_names_the_extra(tmp_path, monkeypatch, name, module):
     monkeypatch.setitem(sys.modules, module, None)  # makes the import fail
@@ -280,13 +356,13 @@ def test_missing_package_names_the_extra(tmp_path, monkeypatch, name, module):
 
 def test_bad_names_are_rejected(tmp_path):
     with pytest.raises(ValueError, match="unknown logger") as info:
-        make_logger(["wandb"], tmp_path, RUNS)
+        make_logger(["neptune"], tmp_path, RUNS)
     assert not isinstance(info.value, LoggerUnavailable)
     with pytest.raises(ValueError, match="unique"):
         make_logger([], tmp_path, ["seed0", "seed0"])
     with pytest.raises(ValueError, match="directory names"):
         make_logger([], tmp_path, ["../escape"])
-    assert loggers.LOGGER_NAMES == ("tensorboard", "swanlab")
+    assert loggers.LOGGER_NAMES == ("tensorboard", "swanlab", "wandb")
 
 
 @pytest.mark.parametrize(

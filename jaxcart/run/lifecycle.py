@@ -86,15 +86,16 @@ def open_run(out: str | Path, main_process: bool = True, extend_to: int | None =
 
     Raises:
         RunDirError: not a run, unreadable, another package version, or already finished.
-        ConfigError: an extension that cannot be done (annealed learning rate, fewer
-            steps, a run trained in waves).
+        ConfigError: an extension that cannot be done (fewer steps, a run trained in
+            waves).
     """
     out = Path(out)
     info = reader.read_run_config(out)
     directory = RunDir.open(out, main_process)
     try:
         if extend_to is not None:
-            info = _extend(out, info, extend_to)
+            meta = directory.read_checkpoint_meta()
+            info = _extend(out, info, extend_to, int(meta["iteration"]) if meta else 0)
         run = _resumable(directory, dict(info))
         if extend_to is not None and main_process:
             directory.write_config(info, run.config)
@@ -133,15 +134,17 @@ def _first_unfinished_wave(directory: RunDir, plan: WavePlan) -> int:
     return next((w for w in range(plan.num_waves) if not directory.has_wave(w)), plan.num_waves)
 
 
-def _extend(out: Path, info: dict, total_timesteps: int) -> dict:
-    """``config.json``'s contents for a run extended to ``total_timesteps`` env steps per
-    seed."""
+def _extend(out: Path, info: dict, total_timesteps: int, from_iteration: int) -> dict:
+    """``config.json``'s contents for a run extended, from its checkpoint at
+    ``from_iteration``, to ``total_timesteps`` env steps per seed.
+
+    An annealed learning rate (``anneal_lr``) measures its progress against the new total
+    from then on, as SB3's ``learn(reset_num_timesteps=False)`` does: iteration ``i`` (from 0)
+    trains at ``learning_rate * (1 - i / new_iterations)``, a step back up from the near-0
+    rate the run ended at. ``lr_schedule`` records each piece of the schedule, ``{"from_iteration",
+    "num_iterations"}``: from that iteration on, the rate anneals over that many iterations.
+    """
     config = info["config"]
-    if config.anneal_lr:
-        raise ConfigError(
-            f"cannot extend {out}: its learning rate anneals to 0 at its last iteration "
-            "(anneal_lr), so there is no schedule to continue; start a new run instead"
-        )
     if (info.get("wave_size") or info.get("num_seeds")) < info.get("num_seeds", 1) * max(
         1, len(info.get("combinations", []))
     ):
@@ -153,7 +156,16 @@ def _extend(out: Path, info: dict, total_timesteps: int) -> dict:
             f"{config.env_steps_per_seed:,} env steps per seed"
         )
     history = [*info.get("extended_from", []), config.total_timesteps]
-    return {**info, "config": extended, "extended_from": history}
+    info = {**info, "config": extended, "extended_from": history}
+    if config.anneal_lr:
+        pieces = info.get("lr_schedule") or [
+            {"from_iteration": 0, "num_iterations": config.num_iterations}
+        ]
+        # a piece that no iteration trained under is replaced, not kept
+        pieces = [p for p in pieces if p["from_iteration"] < from_iteration]
+        piece = {"from_iteration": from_iteration, "num_iterations": extended.num_iterations}
+        info["lr_schedule"] = [*pieces, piece]
+    return info
 
 
 def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> TrainResult:
@@ -247,7 +259,9 @@ def resume_run(
 ) -> Outcome:
     """Continues an interrupted run from its last checkpoint, bit-identically; with
     ``total_timesteps``, extends an interrupted or finished run to that many env steps per
-    seed (constant learning rates only), as SB3's ``learn(more, reset_num_timesteps=False)``.
+    seed, as SB3's ``learn(more, reset_num_timesteps=False)``: an annealed learning rate then
+    anneals over the new total from the checkpoint on (recorded as ``lr_schedule`` in
+    ``config.json``).
     """
     options = options or RunOptions()
     if options.compile_cache:

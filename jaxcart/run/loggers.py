@@ -1,4 +1,4 @@
-"""Metric logging to TensorBoard and SwanLab, off the training hot path.
+"""Metric logging to TensorBoard, SwanLab and Weights & Biases, off the training hot path.
 
 The host gets metrics after every compiled chunk of iterations. :meth:`Logger.log` only
 validates, copies the arrays and puts them on a queue; one daemon thread per backend does the
@@ -22,6 +22,12 @@ Backends (each imported lazily, in its own thread):
   ``swanlab sync out_dir/swanlog/run-...`` (uploads; needs an account or a self-hosted
   server). With ``pip install 'swanlab[dashboard]'`` the mode is ``local`` instead, which also
   fills the database that ``swanlab watch out_dir/swanlog`` serves on localhost.
+
+- ``wandb``: Weights & Biases, one W&B run per training run (named after it), grouped by the
+  run directory's name, in project ``jaxcart``, under ``out_dir/wandb/``; scalars under the
+  SB3 names plus ``time/iterations``, at step = env steps. Offline by default (nothing leaves
+  the machine; ``wandb sync out_dir/wandb/offline-run-*`` uploads later); ``WANDB_MODE``
+  (``online``, ``offline``, ``disabled``) is respected when set.
 
 NaN values (``rollout/ep_rew_mean`` before the first episode ends) are skipped, not logged.
 """
@@ -224,9 +230,74 @@ class SwanLabBackend:
             self.run = None
 
 
+class WandbBackend:
+    """One W&B run per training run, grouped by the run directory; offline unless
+    ``WANDB_MODE`` says otherwise."""
+
+    name = "wandb"
+    module = "wandb"
+    extra = "wandb"
+
+    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None:
+        self.out_dir = out_dir
+        self.group = out_dir.resolve().name or "jaxcart"
+        self.run_names = run_names
+        self.config = config
+        self.runs: list[Any] = []
+
+    def open(self) -> None:
+        import wandb
+
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        # offline unless the user chose otherwise; no console capture (it would wrap the
+        # progress bar's stream), no system-metrics sampling thread
+        settings = wandb.Settings(
+            mode=os.environ.get("WANDB_MODE") or "offline",
+            console="off",
+            x_disable_stats=True,
+            silent=True,
+        )
+        for run in self.run_names:
+            self.runs.append(
+                wandb.init(
+                    project="jaxcart",
+                    group=self.group,
+                    name=f"{self.group}-{run}",
+                    job_type="train",
+                    dir=str(self.out_dir),
+                    config={**_json_safe(self.config), "run_name": run},
+                    settings=settings,
+                    reinit="create_new",  # every seed's run open at once
+                )
+            )
+
+    def write(self, batch: MetricBatch) -> None:
+        iterations = batch.iterations
+        for r, run in enumerate(self.runs):
+            for i, step in enumerate(batch.env_steps):
+                data: dict[str, float] = {"time/iterations": int(iterations[i])}
+                for name, values in batch.metrics.items():
+                    if not np.isnan(values[i, r]):
+                        data[name] = float(values[i, r])
+                run.log(data, step=int(step))
+
+    def close(self) -> None:
+        import wandb
+
+        for run in self.runs:
+            run.finish()
+        if self.runs:
+            # finish() can return before W&B's service process has written a run's last
+            # records (seen with 0.31: the second of two offline runs still empty); stopping
+            # the service waits for it, so the files are complete when training returns
+            wandb.teardown()
+        self.runs = []
+
+
 BACKENDS: dict[str, type[Backend]] = {
     TensorBoardBackend.name: TensorBoardBackend,
     SwanLabBackend.name: SwanLabBackend,
+    WandbBackend.name: WandbBackend,
 }
 """Logger name -> backend class (tests may register more)."""
 
@@ -395,7 +466,8 @@ def make_logger(
     """A :class:`Logger` writing to each named backend (``[]``: a logger that does nothing).
 
     Args:
-        names: backends, a subset of :data:`LOGGER_NAMES` (``"tensorboard"``, ``"swanlab"``).
+        names: backends, a subset of :data:`LOGGER_NAMES` (``"tensorboard"``, ``"swanlab"``,
+            ``"wandb"``).
         out_dir: the run directory; each backend writes in its own subdirectory.
         run_names: one name per run (the ``R`` axis of the metrics), used as directory names.
         config: JSON-able settings stored with the logs.

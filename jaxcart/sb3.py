@@ -1,0 +1,82 @@
+"""``python -m jaxcart.sb3``: train Stable-Baselines3's own PPO (PyTorch) into a jaxcart run
+directory, so that ``plot``, ``compare`` and ``evaluate`` put SB3 beside jaxcart.
+
+Each seed is ``PPO("MlpPolicy", "CartPole-v1", seed=s).learn(80_000)``; the library side is
+:mod:`jaxcart.run.sb3`. Needs the ``sb3`` extra and PyTorch's CPU build:
+``pip install torch --index-url https://download.pytorch.org/whl/cpu && pip install 'jaxcart[sb3]'``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from jaxcart import cli
+from jaxcart.core.solved import is_solved
+from jaxcart.run import sb3
+from jaxcart.rundir import layout
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``python -m jaxcart.sb3`` command line."""
+    parser = cli.Parser(
+        prog="python -m jaxcart.sb3",
+        description="Train Stable-Baselines3's PPO('MlpPolicy', 'CartPole-v1', seed=s) with its "
+        "defaults for each seed s and save the seeds as a jaxcart run directory (SB3's logged "
+        "metrics, its networks under jaxcart's parameter names, 20 greedy episodes per seed in "
+        f"Gymnasium). Needs PyTorch and SB3: {sb3.INSTALL_HINT}",
+    )
+    parser.add_argument("--num-seeds", type=cli.count, default=1, help="seeds to train")
+    parser.add_argument(
+        "--first-seed", type=int, default=0, help="seeds are first-seed ... first-seed+num-seeds-1"
+    )
+    parser.add_argument(
+        "--total-timesteps",
+        type=cli.count,
+        default=sb3.DEFAULT_TIMESTEPS,
+        help="PPO.learn(total_timesteps); SB3 finishes the 2048-step rollout it is in",
+    )
+    parser.add_argument(
+        "--jobs", type=cli.count, default=1, help="seeds trained at once, one process each"
+    )
+    parser.add_argument("--threads", type=cli.count, default=1, help="PyTorch threads per process")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="run directory (default: runs/sb3-torch-<time>)"
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Runs the command; returns the exit code (2 with one line for a user's mistake)."""
+    return cli.run_command(lambda: _main(argv), also=(sb3.SB3Unavailable,))
+
+
+def _main(argv: list[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.first_seed < 0:
+        raise cli.UsageError(f"--first-seed must be >= 0, got {args.first_seed}")
+    out = args.out or layout.default_run_dir("sb3-torch")
+    if out.exists():
+        raise cli.UsageError(f"--out {out} exists; choose a new run directory")
+    sb3.check_available()
+    print(
+        f"Stable-Baselines3 PPO | {args.num_seeds} seed(s) x learn({args.total_timesteps:,}) | "
+        f"{args.jobs} process(es) | out {out}",
+        flush=True,
+    )
+
+    def on_seed(seed: int, result: sb3.SeedResult) -> None:
+        solved = " (solved)" if is_solved(result.returns) else ""
+        mean = result.returns.mean()
+        print(f"seed {seed}: {result.seconds:.1f} s, greedy mean {mean:.1f}{solved}", flush=True)
+
+    results = sb3.train_run(
+        out, args.num_seeds, args.total_timesteps, args.first_seed, args.jobs, args.threads, on_seed
+    )
+    solved = sum(int(is_solved(r.returns)) for r in results)
+    print(f"solved {solved}/{len(results)} seed(s) | run directory: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,145 @@
+"""``python -m jaxcart.sb3``: SB3's log and weights as a jaxcart run directory.
+
+The writer and the parameter mapping are checked without SB3 (made-up SB3 logs and weights in
+SB3's layout); the command itself trains SB3 only where SB3 and PyTorch are installed.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxcart import evaluate, load_policy
+from jaxcart import sb3 as sb3_command
+from jaxcart.core.config import PPOConfig
+from jaxcart.engine.trainer import METRIC_COLUMNS
+from jaxcart.run import sb3
+from jaxcart.run.evaluation import evaluate_params
+from jaxcart.rundir import layout, reader
+from jaxcart.rundir.policy import run_params
+
+
+def fake_state_dict(rng: np.random.Generator, hidden=(64, 64)) -> dict[str, np.ndarray]:
+    """Random weights under SB3 MlpPolicy's names and PyTorch's ``weight [out, in]``."""
+    state = {}
+    for body, head, out in (
+        ("mlp_extractor.policy_net", "action_net", 2),
+        ("mlp_extractor.value_net", "value_net", 1),
+    ):
+        sizes = (4, *hidden)
+        for i in range(len(hidden)):
+            state[f"{body}.{2 * i}.weight"] = rng.normal(0, 0.5, (sizes[i + 1], sizes[i]))
+            state[f"{body}.{2 * i}.bias"] = rng.normal(0, 0.1, sizes[i + 1])
+        state[f"{head}.weight"] = rng.normal(0, 0.5, (out, hidden[-1]))
+        state[f"{head}.bias"] = rng.normal(0, 0.1, out)
+    return {k: v.astype(np.float32) for k, v in state.items()}
+
+
+def sb3_forward(state: dict[str, np.ndarray], obs: np.ndarray) -> int:
+    """SB3's greedy action as PyTorch computes it: ``x @ weight.T + bias``, tanh between."""
+    x = obs.astype(np.float32)
+    for i in range(2):
+        layer = f"mlp_extractor.policy_net.{2 * i}"
+        x = np.tanh(x @ state[f"{layer}.weight"].T + state[f"{layer}.bias"])
+    return int(np.argmax(x @ state["action_net.weight"].T + state["action_net.bias"]))
+
+
+def fake_rows(iterations: int) -> list[dict]:
+    """SB3's progress.csv: one row per rollout (train/* of the previous update), then the
+    final dump with the last update's train/* only."""
+    rows = []
+    for i in range(iterations):
+        row = {
+            "time/total_timesteps": str(2048 * (i + 1)),
+            "time/iterations": str(i + 1),
+            "time/fps": "1000",
+            "time/time_elapsed": str(2 * (i + 1)),
+            "rollout/ep_rew_mean": str(20.0 + 10 * i),
+            "rollout/ep_len_mean": str(20.0 + 10 * i),
+        }
+        if i > 0:
+            row["train/approx_kl"] = str(0.01 * i)  # the update of iteration i - 1
+        rows.append(row)
+    rows.append({"train/approx_kl": str(0.01 * iterations)})
+    return rows
+
+
+def test_to_metrics_puts_each_update_on_its_own_iteration():
+    metrics = sb3.to_metrics(fake_rows(3))
+    assert set(metrics) == set(METRIC_COLUMNS)
+    np.testing.assert_allclose(metrics["train/approx_kl"], [0.01, 0.02, 0.03])
+    np.testing.assert_allclose(metrics["rollout/ep_rew_mean"], [20, 30, 40])
+    np.testing.assert_allclose(metrics["time/elapsed"], [2, 4, 6])
+    assert np.isnan(metrics["train/clip_fraction"]).all()  # SB3 logged none here
+
+
+def test_writer_and_mapping_without_sb3(tmp_path, capsys):
+    """A run directory from made-up SB3 results: jaxcart reads it, and the mapped actor acts
+    as SB3's forward pass does, observation by observation and episode by episode."""
+    rng = np.random.default_rng(0)
+    states = [fake_state_dict(rng) for _ in range(2)]
+    config = PPOConfig(total_timesteps=3 * 2048)
+    results = [
+        sb3.SeedResult(
+            sb3.to_metrics(fake_rows(3)),
+            sb3.sb3_params(state, config),
+            sb3.greedy_returns(lambda obs, s=state: sb3_forward(s, obs), 3),
+            12.5,
+        )
+        for state in states
+    ]
+    out = tmp_path / "sb3-run"
+    out.mkdir()
+    sb3.write_run(out, config, results, first_seed=7)
+
+    info = reader.read_run_config(out)
+    assert info["framework"] == sb3.FRAMEWORK and info["num_seeds"] == 2 and info["seed"] == 7
+    params = reader.load_params(out)  # checks names, shapes and dtypes against the config
+    kernel = params["params"]["critic"]["out"]["kernel"]
+    assert kernel.shape == (2, 64, 1)
+    np.testing.assert_array_equal(kernel[1], states[1]["value_net.weight"].T)
+    metrics = reader.read_metrics_csv(out / layout.METRICS_FILE)
+    np.testing.assert_allclose(metrics["train/approx_kl"][:, 1], [0.01, 0.02, 0.03])
+
+    observations = rng.normal(0, 1, (200, 4)).astype(np.float32)
+    for s, state in enumerate(states):
+        policy = load_policy(out, seed_index=s)
+        assert [policy(o) for o in observations] == [sb3_forward(state, o) for o in observations]
+
+    # jaxcart's evaluation of the mapped weights scores what SB3's forward pass scored
+    evaluation = json.loads((out / layout.EVALUATION_FILE).read_text())
+    assert [s["gymnasium_returns"] for s in evaluation["seeds"]] == [
+        r.returns.tolist() for r in results
+    ]
+    np.testing.assert_array_equal(
+        evaluate_params(out, run_params(out), 3), np.stack([r.returns for r in results])
+    )
+    assert evaluate.main([str(out), "--episodes", "3"]) == 0
+    assert "solved 0/2 seed(s)" in capsys.readouterr().out
+
+
+def test_without_sb3_one_line_names_the_install(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(sb3.importlib.util, "find_spec", lambda name: None)
+    assert sb3_command.main(["--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and sb3.TORCH_CPU_INSTALL in err and "jaxcart[sb3]" in err
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.slow
+def test_sb3_trains_into_a_run_directory(tmp_path, capsys):
+    pytest.importorskip("torch")
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "sb3"
+    assert sb3_command.main(["--total-timesteps", "2048", "--out", str(out)]) == 0
+    assert "run directory" in capsys.readouterr().out
+    assert reader.read_run_config(out)["framework"] == sb3.FRAMEWORK
+    metrics = reader.read_metrics_csv(out / layout.METRICS_FILE)
+    assert metrics["train/approx_kl"].shape == (1, 1)  # one rollout of 2048 steps, one seed
+    assert np.isfinite(metrics["train/approx_kl"]).all()
+    evaluation = json.loads((out / layout.EVALUATION_FILE).read_text())
+    # the mapped weights act as SB3's model did: jaxcart's evaluation scores the same
+    again = evaluate_params(out, run_params(out), 20)
+    assert again[0].tolist() == evaluation["seeds"][0]["gymnasium_returns"]
