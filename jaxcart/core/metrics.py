@@ -54,24 +54,16 @@ def update_episode_buffer(
             and length (read only where ``done``).
     """
     valid = jnp.concatenate([buffer.valid, done.reshape(-1)])
-    values = jnp.stack(
-        [
-            jnp.concatenate([buffer.returns, episode_return.reshape(-1).astype(jnp.float32)]),
-            jnp.concatenate([buffer.lengths, episode_length.reshape(-1).astype(jnp.float32)]),
-        ],
-        axis=-1,
-    )  # [EPISODE_WINDOW + num_steps * num_envs, 2]
+    returns = jnp.concatenate([buffer.returns, episode_return.reshape(-1).astype(jnp.float32)])
+    lengths = jnp.concatenate([buffer.lengths, episode_length.reshape(-1).astype(jnp.float32)])
     # rank 1 = the most recently finished episode (time-major, then env order, as SB3 fills).
     rank = jnp.cumsum(valid[::-1])[::-1]
     slot = jnp.where(valid & (rank <= EPISODE_WINDOW), EPISODE_WINDOW - rank, EPISODE_WINDOW)
-    # One scatter of (return, length) pairs; the filled slots are the last min(count, window)
-    # (fewer kernels to compile than a scatter per field, the same values).
-    window = jnp.zeros((EPISODE_WINDOW, 2), jnp.float32).at[slot].set(values, mode="drop")
-    filled = jnp.minimum(valid.sum(), EPISODE_WINDOW)
+    empty = jnp.zeros((EPISODE_WINDOW,), jnp.float32)
     return EpisodeBuffer(
-        returns=window[:, 0],
-        lengths=window[:, 1],
-        valid=jnp.arange(EPISODE_WINDOW) >= EPISODE_WINDOW - filled,
+        returns=empty.at[slot].set(returns, mode="drop"),
+        lengths=empty.at[slot].set(lengths, mode="drop"),
+        valid=jnp.zeros((EPISODE_WINDOW,), bool).at[slot].set(True, mode="drop"),
     )
 
 
