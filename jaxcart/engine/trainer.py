@@ -234,8 +234,7 @@ def train(
             with ``TrainResult.stopped`` set and a resumable state.
         seed_indices: per-run seed index (default ``arange(num_runs)``).
         runs_per_device: pad the run axis to at least this many runs per device. A run's
-            numbers depend on the per-device batch width (XLA compiles a different program
-            for another width; on CPU above :data:`~jaxcart.engine.chunk.UPDATE_GROUP` runs
+            numbers depend on the per-device batch width (another width, another program;
             the update's group width follows from it), not on its position or neighbours:
             padding one seed to the width it trained at replays it bit for bit.
     """
