@@ -36,8 +36,8 @@ Array = jax.Array
 UPDATE_GROUP = 8
 """Most runs whose update is vmapped together on a CPU device. Why: the update of 8 runs
 (parameters, Adam moments, activations) fits in a core's L2 cache where that of 32 does not;
-with 32 runs on a core the update in groups of 8 took 0.89x as long as vmapped over all 32
-(``benchmarks/RESULTS.md``, "Seed groups"; ``benchmarks/results/update_ablation_groups.md``)."""
+with 32 runs on a core the update in groups of 8 took 0.89x, and on a later day 0.96x, as long
+as vmapped over all 32 (``benchmarks/RESULTS.md``, "Seed groups and compile levers")."""
 
 
 def initial_runners(
