@@ -168,3 +168,22 @@ def test_replay_of_a_one_seed_run(tmp_path):
     assert replayed.num_devices == 1
     metrics = reader.read_metrics_csv(tmp_path / "one" / "metrics.csv")
     np.testing.assert_array_equal(replayed.metrics["train/value_loss"], metrics["train/value_loss"])
+
+
+def test_replay_above_the_update_group_width_is_bit_identical(tmp_path):
+    """17 seeds on 2 devices: 9 per device, so the update runs in groups (2 of width 5, the
+    second padded in the program by a copy). Seeds from a first group, a padded group and
+    the other device replay alone bit for bit: a run's numbers depend on the width only."""
+    spec = lifecycle.RunSpec(SMALL, num_seeds=17, seed=3)
+    lifecycle.run_new(spec, tmp_path / "many", OPTIONS)
+    metrics = rundir.read_metrics_csv(tmp_path / "many" / "metrics.csv")
+    params = rundir.load_params(tmp_path / "many")
+    for seed_index in (1, 7, 12):
+        replayed = lifecycle.replay_seed(tmp_path / "many", seed_index)
+        np.testing.assert_array_equal(
+            replayed.metrics["train/value_loss"][:, 0], metrics["train/value_loss"][:, seed_index]
+        )
+        np.testing.assert_array_equal(
+            np.asarray(replayed.params["params"]["critic"]["out"]["kernel"])[0],
+            params["params"]["critic"]["out"]["kernel"][seed_index],
+        )

@@ -22,7 +22,13 @@ Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
 - ``fusion-emitters``: ``--xla_cpu_use_fusion_emitters=true`` (the MLIR fusion emitters);
 - ``stub-guard``, ``stub-update``, ``stub-episodes``: default flags, with the divergence
   guard, the minibatch update or the episode-statistics buffer replaced by a stub, to see
-  what each part of the program costs to compile (these programs are not runnable training).
+  what each part of the program costs to compile (these programs are not runnable training);
+- ``swap-fused-adam``: gradient clipping and Adam as one update over the concatenated
+  parameters (:func:`fused_clip_adam`) instead of optax's leaf-by-leaf chain: fewer kernels,
+  but not bit-identical (XLA rounds the flat element-wise kernel differently), so not adopted;
+- ``swap-one-scatter``: the episode window filled by one scatter of (return, length) pairs
+  (the valid mask derived from the count) instead of a scatter each for returns, lengths and
+  the valid mask: the same values, not fewer instructions, so not adopted.
 
     python -m benchmarks.ablations.compile_time      # every variant, 3 processes each
     python -m benchmarks.ablations.compile_time --variants default,O1 --repeats 5 --run
@@ -55,7 +61,74 @@ VARIANTS = {
     "stub-guard": "",
     "stub-update": "",
     "stub-episodes": "",
+    # the same flags, with one part of the program computed another way
+    "swap-fused-adam": "",
+    "swap-one-scatter": "",
 }
+
+
+def fused_clip_adam(max_grad_norm, eps):
+    """optax's clip-by-global-norm then Adam (b1 0.9, b2 0.999), with the element-wise work
+    done once on all leaves concatenated: the same formulas in the same order, same state."""
+    import functools
+    import itertools
+    import operator
+
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    plain = optax.chain(optax.clip_by_global_norm(max_grad_norm), optax.scale_by_adam(eps=eps))
+
+    def update(grads, state, params=None):
+        clip_state, adam = state
+        leaves, treedef = jax.tree.flatten(grads)
+        sqnorm = functools.reduce(operator.add, [jnp.sum(jnp.square(g)) for g in leaves], 0)
+        g_norm = jnp.sqrt(sqnorm)
+        flat = lambda xs: jnp.concatenate([x.reshape(-1) for x in xs])
+        g = flat(leaves)
+        g = jax.lax.select(g_norm < max_grad_norm, g, (g / g_norm) * max_grad_norm)
+        mu = (1 - 0.9) * g + 0.9 * flat(jax.tree.leaves(adam.mu))
+        nu = (1 - 0.999) * g**2 + 0.999 * flat(jax.tree.leaves(adam.nu))
+        count = optax.safe_increment(adam.count)
+        mu_hat = optax.tree.bias_correction(mu, 0.9, count)
+        nu_hat = optax.tree.bias_correction(nu, 0.999, count)
+        cuts = list(itertools.accumulate(leaf.size for leaf in leaves))[:-1]
+
+        def unflat(x):
+            parts = jnp.split(x, cuts)
+            return treedef.unflatten([p.reshape(leaf.shape) for p, leaf in zip(parts, leaves)])
+
+        scaled = mu_hat / (jnp.sqrt(nu_hat + 0.0) + eps)
+        adam = adam._replace(count=count, mu=unflat(mu), nu=unflat(nu))
+        return unflat(scaled), (clip_state, adam)
+
+    return optax.GradientTransformation(plain.init, update)
+
+
+def one_scatter(buffer, done, episode_return, episode_length):
+    """The episode window filled with one scatter of (return, length) pairs."""
+    import jax.numpy as jnp
+
+    from jaxcart.core.metrics import EPISODE_WINDOW, EpisodeBuffer
+
+    valid = jnp.concatenate([buffer.valid, done.reshape(-1)])
+    values = jnp.stack(
+        [
+            jnp.concatenate([buffer.returns, episode_return.reshape(-1).astype(jnp.float32)]),
+            jnp.concatenate([buffer.lengths, episode_length.reshape(-1).astype(jnp.float32)]),
+        ],
+        axis=-1,
+    )
+    rank = jnp.cumsum(valid[::-1])[::-1]
+    slot = jnp.where(valid & (rank <= EPISODE_WINDOW), EPISODE_WINDOW - rank, EPISODE_WINDOW)
+    window = jnp.zeros((EPISODE_WINDOW, 2), jnp.float32).at[slot].set(values, mode="drop")
+    filled = jnp.minimum(valid.sum(), EPISODE_WINDOW)
+    return EpisodeBuffer(
+        returns=window[:, 0],
+        lengths=window[:, 1],
+        valid=jnp.arange(EPISODE_WINDOW) >= EPISODE_WINDOW - filled,
+    )
 
 
 def stub(part: str) -> None:
@@ -79,6 +152,11 @@ def stub(part: str) -> None:
             return params, opt_state, {n: jnp.zeros(shape) for n in names}
 
         ppo.update_epochs = update
+    elif part == "fused-adam":
+        ppo.make_optimizer = lambda hp: fused_clip_adam(hp.max_grad_norm, hp.adam_eps)
+        chunk.make_optimizer = ppo.make_optimizer
+    elif part == "one-scatter":
+        ppo.update_episode_buffer = one_scatter
 
 
 def child(run: bool, part: str | None) -> dict:
@@ -152,9 +230,9 @@ def measure(variant: str, repeats: int, run: bool) -> dict:
     env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {VARIANTS[variant]}".strip()
     env.update(TF_CPP_MIN_LOG_LEVEL="0", TF_CPP_VMODULE="cpu_compiler=1")
     command = [*lib.module_command("benchmarks.ablations.compile_time"), "--child"]
-    if variant.startswith("stub-"):
-        command += ["--stub", variant.removeprefix("stub-")]
-    elif run:
+    if variant.startswith(("stub-", "swap-")):
+        command += ["--stub", variant.split("-", 1)[1]]
+    if run and not variant.startswith("stub-"):  # stubbed programs are not training
         command.append("--run")
     samples = []
     for _ in range(repeats):

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import re
 import statistics
 from collections.abc import Callable
 
@@ -53,7 +54,7 @@ VARIANTS = (
     "seed-map",
     "seed-groups-8",
 )
-GROUP = 8
+"""``seed-groups-N`` with any other N (dividing the seed count) is accepted too."""
 
 
 def flat_adam(make_optimizer: Callable) -> Callable:
@@ -132,11 +133,11 @@ def build(variant: str, config: PPOConfig, seeds: int):
             one = lambda a: ppo.update_epochs(*a[:4], a[4], a[4].learning_rate, config)
             return jax.lax.map(one, (params, opt_state, batch, keys, hps))
 
-    elif variant == "seed-groups-8":
-        vmapped = update
+    elif variant.startswith("seed-groups-"):
+        vmapped, group = update, int(variant.removeprefix("seed-groups-"))
 
         def update(*args):
-            groups = jax.tree.map(lambda x: x.reshape((-1, GROUP) + x.shape[1:]), args)
+            groups = jax.tree.map(lambda x: x.reshape((-1, group) + x.shape[1:]), args)
             out = jax.lax.map(lambda g: vmapped(*g), groups)
             return jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), out)
 
@@ -191,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.out = lib.output_dir(args.out)
     variants = lib.split_list(args.variants)
-    if not variants or variants[0] != "current" or set(variants) - set(VARIANTS):
+    known = lambda v: v in VARIANTS or re.fullmatch(r"seed-groups-[1-9][0-9]*", v)
+    if not variants or variants[0] != "current" or not all(map(known, variants)):
         raise argparse.ArgumentTypeError(f"--variants: 'current' first, then any of {VARIANTS}")
     rows = measure(preset(args.preset), args.seeds, variants, args.rounds)
     report = {

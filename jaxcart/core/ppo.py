@@ -6,13 +6,15 @@
 4. The loss (:func:`ppo_loss`) on one minibatch.
 5. The update: one gradient step per minibatch (:func:`update_minibatch`), minibatches per
    epoch (:func:`update_epoch`), ``update_epochs`` shuffled epochs (:func:`update_epochs`).
-6. One training iteration (:func:`train_iteration`): 2 to 5, and the iteration's metrics.
+6. One training iteration (:func:`train_iteration`): 2 to 5, and the iteration's metrics
+   (:func:`prepare_update`, the update, :func:`finish_iteration`).
 
 Arrays inside an iteration are time-major, ``[num_steps, num_envs, ...]``, and the training
 batch is flat, ``[batch_size, ...]`` with ``batch_size = num_steps * num_envs``. The engine
 (:mod:`jaxcart.engine.chunk`) vmaps :func:`train_iteration` over runs and scans it over
-iterations. How some steps are made fast lives in :mod:`jaxcart.core.tricks`; the logged
-metrics and their episode window in :mod:`jaxcart.core.metrics`.
+iterations (with many runs on a CPU device, the update in groups of runs). How some steps
+are made fast lives in :mod:`jaxcart.core.tricks`; the logged metrics and their episode
+window in :mod:`jaxcart.core.metrics`.
 
 The update follows Stable-Baselines3's PPO so that its default run can be compared curve for
 curve: per-minibatch advantage normalisation (unbiased std), clipped surrogate, unclipped
@@ -331,6 +333,56 @@ def learning_rate_at(hp: Hyperparams, iteration: Array, config: PPOConfig) -> Ar
 
 
 # 6. One training iteration -------------------------------------------------------------------
+def prepare_update(
+    runner: RunnerState,
+    hp: Hyperparams,
+    iteration: Array,
+    config: PPOConfig,
+    env_params: cartpole.EnvParams,
+) -> tuple[RunnerState, Transition, Batch, Array, Array]:
+    """The iteration up to the update: rollout (2) and GAE (3) for one run.
+
+    Returns:
+        The runner after the rollout (its key advanced past the update's), the rollout
+        (fields ``[num_steps, num_envs, ...]``), the training batch (fields ``[batch_size,
+        ...]``), the update's PRNG key and the learning rate (scalar).
+    """
+    runner, rollout = collect_rollout(runner, config, env_params)
+    batch = training_batch(runner.params, rollout, hp, config)
+    key, update_key = jax.random.split(runner.key)
+    learning_rate = learning_rate_at(hp, iteration, config)
+    return runner.replace(key=key), rollout, batch, update_key, learning_rate
+
+
+def finish_iteration(
+    runner: RunnerState,
+    rollout: Transition,
+    batch: Batch,
+    learning_rate: Array,
+    params: dict,
+    opt_state: optax.OptState,
+    losses: dict[str, Array],
+) -> tuple[RunnerState, dict[str, Array]]:
+    """The iteration after the update: the runner with the updated ``params`` and
+    ``opt_state`` and its episode window, and the iteration's metrics (``losses``: the
+    update's loss terms, ``[update_epochs, num_minibatches]`` each)."""
+    done = rollout.terminated | rollout.truncated
+    episodes = update_episode_buffer(
+        runner.episodes, done, rollout.episode_return, rollout.episode_length
+    )
+    metrics = iteration_metrics(
+        episodes,
+        done,
+        rollout.episode_return,
+        losses,
+        batch.returns - batch.advantage,
+        batch.returns,
+        learning_rate,
+    )
+    runner = runner.replace(params=params, opt_state=opt_state, episodes=episodes)
+    return runner, metrics
+
+
 def train_iteration(
     runner: RunnerState,
     hp: Hyperparams,
@@ -338,7 +390,10 @@ def train_iteration(
     config: PPOConfig,
     env_params: cartpole.EnvParams,
 ) -> tuple[RunnerState, dict[str, Array]]:
-    """One PPO iteration for one run: rollout, GAE, all epochs and minibatches.
+    """One PPO iteration for one run: rollout, GAE, all epochs and minibatches, metrics.
+
+    Three phases (:func:`prepare_update`, :func:`update_epochs`, :func:`finish_iteration`)
+    so that the engine can vmap the update over runs differently from the rest.
 
     Args:
         runner: the run's state (no run axis); hp: its hyperparameters, scalars.
@@ -348,25 +403,10 @@ def train_iteration(
         The next runner state and scalar metrics named as in
         :data:`~jaxcart.core.metrics.METRIC_NAMES`.
     """
-    runner, rollout = collect_rollout(runner, config, env_params)
-    batch = training_batch(runner.params, rollout, hp, config)
-    key, update_key = jax.random.split(runner.key)
-    learning_rate = learning_rate_at(hp, iteration, config)
-    params, opt_state, aux = update_epochs(
+    runner, rollout, batch, update_key, learning_rate = prepare_update(
+        runner, hp, iteration, config, env_params
+    )
+    params, opt_state, losses = update_epochs(
         runner.params, runner.opt_state, batch, update_key, hp, learning_rate, config
     )
-    done = rollout.terminated | rollout.truncated
-    episodes = update_episode_buffer(
-        runner.episodes, done, rollout.episode_return, rollout.episode_length
-    )
-    metrics = iteration_metrics(
-        episodes,
-        done,
-        rollout.episode_return,
-        aux,
-        batch.returns - batch.advantage,
-        batch.returns,
-        learning_rate,
-    )
-    runner = runner.replace(params=params, opt_state=opt_state, episodes=episodes, key=key)
-    return runner, metrics
+    return finish_iteration(runner, rollout, batch, learning_rate, params, opt_state, losses)

@@ -3,9 +3,16 @@ and scanned over iterations, with the divergence guard around it.
 
 A run is one independent agent (without a sweep the runs are the seeds; with one, every
 combination x seed). Every array here has a leading run axis ``[R, ...]``.
+
+With more than :data:`UPDATE_GROUP` runs on a CPU device, the update (the epochs of minibatch
+steps, most of an iteration's time) is computed in groups of runs, vmapped within a group and
+one group after another (:func:`grouped_iteration`); the rollout stays vmapped over all runs.
 """
 
 from __future__ import annotations
+
+import functools
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -14,10 +21,23 @@ import numpy as np
 from jaxcart.core import env as cartpole
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import EPISODE_WINDOW, METRIC_NAMES, EpisodeBuffer
-from jaxcart.core.ppo import RunnerState, make_optimizer, train_iteration
+from jaxcart.core.ppo import (
+    RunnerState,
+    finish_iteration,
+    make_optimizer,
+    prepare_update,
+    train_iteration,
+    update_epochs,
+)
 from jaxcart.core.tricks import Hyperparams
 
 Array = jax.Array
+
+UPDATE_GROUP = 8
+"""Most runs whose update is vmapped together on a CPU device. Why: the update of 8 runs
+(parameters, Adam moments, activations) fits in a core's L2 cache where that of 32 does not;
+with 32 runs on a core the update in groups of 8 took 0.89x, and on a later day 0.96x, as long
+as vmapped over all 32 (``benchmarks/RESULTS.md``, "Seed groups and compile levers")."""
 
 
 def initial_runners(
@@ -92,6 +112,60 @@ def guarded_iteration(
     return guard_divergence(runner, new, metrics, iteration)
 
 
+def group_layout(num_runs: int, group: int) -> tuple[int, int]:
+    """``(groups, width)``: the fewest groups of at most ``group`` runs, all of one width
+    (``groups * width >= num_runs``; the last group is padded by at most ``groups - 1`` runs)."""
+    groups = -(-num_runs // group)
+    return groups, -(-num_runs // groups)
+
+
+def in_groups(fn: Callable, num_runs: int, group: int) -> Callable:
+    """``jax.vmap(fn)`` over a leading run axis ``[num_runs]``, computed as groups of runs
+    (:func:`group_layout`) vmapped within a group, one group after another (``lax.map``).
+
+    The run axis is padded by repeating the last run (the padding is computed and dropped).
+    A run's numbers depend only on the group width, so only on ``num_runs``: not on its
+    position or its neighbours (as with a plain vmap).
+    """
+    groups, width = group_layout(num_runs, group)
+
+    def pad_and_split(x: Array) -> Array:
+        extra = groups * width - num_runs
+        if extra:
+            x = jnp.concatenate([x, jnp.repeat(x[-1:], extra, axis=0)])
+        return x.reshape((groups, width) + x.shape[1:])
+
+    def grouped(*args):
+        out = jax.lax.map(lambda g: jax.vmap(fn)(*g), jax.tree.map(pad_and_split, args))
+        return jax.tree.map(lambda x: x.reshape((groups * width,) + x.shape[2:])[:num_runs], out)
+
+    return grouped
+
+
+def grouped_iteration(
+    runners: RunnerState,
+    hps: Hyperparams,
+    iteration: Array,
+    config: PPOConfig,
+    env_params: cartpole.EnvParams,
+    group: int,
+) -> tuple[RunnerState, dict[str, Array]]:
+    """``vmap(guarded_iteration)`` over runs ``[R]`` with the update in groups of at most
+    ``group`` runs (:func:`in_groups`): the same arithmetic per run, but XLA compiles the update
+    for the group width, so above ``group`` runs the last bits differ from a plain vmap."""
+    before, rollout, batch, update_key, learning_rate = jax.vmap(
+        prepare_update, in_axes=(0, 0, None, None, None)
+    )(runners, hps, iteration, config, env_params)
+    update = in_groups(functools.partial(update_epochs, config=config), len(runners.key), group)
+    params, opt_state, losses = update(
+        before.params, before.opt_state, batch, update_key, hps, learning_rate
+    )
+    new, metrics = jax.vmap(finish_iteration)(
+        before, rollout, batch, learning_rate, params, opt_state, losses
+    )
+    return jax.vmap(guard_divergence, in_axes=(0, 0, 0, None))(runners, new, metrics, iteration)
+
+
 def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
     """``end``, except that every run marked diverged (``diverged_at >= 0``, leaves ``[R]``)
     gets its ``start`` state back, with its ``diverged_at`` kept."""
@@ -110,6 +184,7 @@ def train_chunk(
     config: PPOConfig,
     env_params: cartpole.EnvParams,
     chunk_size: int,
+    update_group: int | None = None,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """Scans ``chunk_size`` iterations of every run; jit this (config, env_params static-ish).
 
@@ -121,18 +196,22 @@ def train_chunk(
             ``config.num_iterations`` are skipped (state unchanged, metrics NaN) by a
             ``lax.cond``, so one compiled chunk serves any number of iterations; when it does,
             the guard is left out (a smaller program that compiles faster).
+        update_group: with more runs than this, the update runs in groups of at most this
+            many (:func:`grouped_iteration`); None vmaps everything over all runs.
 
     Returns:
         Runners after the chunk (a run that diverged during it rolled back to its state at the
         chunk's start, see :func:`guard_divergence`) and metrics with leaves
         ``[chunk_size, R]``.
     """
-    runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, None, None))
+    num_runs = runners.key.shape[0]
+    if update_group is not None and num_runs > update_group:
+        runs_iteration = functools.partial(grouped_iteration, group=update_group)
+    else:  # exactly the program of a plain vmap (the grouped one differs in the last bits)
+        runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, None, None))
 
     def run(runners: RunnerState, iteration: Array):
         return runs_iteration(runners, hps, iteration, config, env_params)
-
-    num_runs = runners.key.shape[0]
 
     def skip(runners: RunnerState, iteration: Array):
         return runners, {name: jnp.full((num_runs,), jnp.nan, jnp.float32) for name in METRIC_NAMES}
@@ -148,8 +227,12 @@ def train_chunk(
 
 
 __all__ = [
+    "UPDATE_GROUP",
+    "group_layout",
+    "grouped_iteration",
     "guard_divergence",
     "guarded_iteration",
+    "in_groups",
     "initial_runners",
     "roll_back_diverged",
     "train_chunk",

@@ -25,7 +25,7 @@ from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
 from jaxcart.core.tricks import Hyperparams
 from jaxcart.engine import distributed
-from jaxcart.engine.chunk import initial_runners, train_chunk
+from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, train_chunk
 from jaxcart.engine.signals import wait_interruptibly
 
 
@@ -234,9 +234,9 @@ def train(
             with ``TrainResult.stopped`` set and a resumable state.
         seed_indices: per-run seed index (default ``arange(num_runs)``).
         runs_per_device: pad the run axis to at least this many runs per device. A run's
-            numbers depend on the per-device batch width (XLA compiles a different program
-            for another width), not on its position or neighbours: padding one seed to the
-            width it trained at replays it bit for bit.
+            numbers depend on the per-device batch width (another width, another program;
+            the update's group width follows from it), not on its position or neighbours:
+            padding one seed to the width it trained at replays it bit for bit.
     """
     env_params = env_params or cartpole.EnvParams()
     state = resume or initial_state(
@@ -373,10 +373,16 @@ def compiled_chunk(
     key = (config, env_params, chunk_size, signature)
     if key in _COMPILED:
         return _COMPILED[key], False
-    local = functools.partial(
-        train_chunk, config=config, env_params=env_params, chunk_size=chunk_size
-    )
     sharding = jax.tree.leaves(runners)[0].sharding
+    # Groups keep a CPU core's working set in its cache; a GPU wants the widest vmap instead.
+    on_cpu = all(d.platform == "cpu" for d in sharding.device_set)
+    local = functools.partial(
+        train_chunk,
+        config=config,
+        env_params=env_params,
+        chunk_size=chunk_size,
+        update_group=UPDATE_GROUP if on_cpu else None,
+    )
     if isinstance(sharding, NamedSharding) and sharding.mesh.size > 1:
         # Every device runs the same program on its own runs with no communication: say so
         # with shard_map rather than leaving it to the SPMD partitioner (faster to compile).
