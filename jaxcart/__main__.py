@@ -3,10 +3,16 @@ COMMAND [ARGS]`` runs one (the same as ``python -m jaxcart.COMMAND [ARGS]``)."""
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
+    from jaxcart.engine.signals import exit_quietly_on_signal
+
+    exit_quietly_on_signal("starting")
+
 import difflib
 import importlib
 import sys
 
+from jaxcart import cli
 from jaxcart.cli import EXIT_USAGE, VERSION_TEXT
 
 COMMANDS = {
@@ -63,4 +69,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

@@ -27,6 +27,11 @@ from a fixed seed (``--seed``), so the same runs give the same output.
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
+    from jaxcart.engine.signals import exit_quietly_on_signal
+
+    exit_quietly_on_signal("starting")
+
 import argparse
 import io
 import os
@@ -541,12 +546,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _compare_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
-    if args.reps < 100:
-        raise cli.UsageError(f"--reps must be at least 100, got {args.reps}")
+    if not 100 <= args.reps <= cli.MAX_REPS:
+        raise cli.UsageError(f"--reps must be in [100, {cli.MAX_REPS:,}], got {args.reps}")
     if not 0 <= args.seed < 2**32:
         raise cli.UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
-    if args.dpi <= 0:
-        raise cli.UsageError(f"--dpi must be positive, got {args.dpi}")
+    cli.check_dpi(args.dpi)
     result = compare_runs(args.run_dirs, args.baseline, args.out, args.reps, args.seed, args.dpi)
     print(report_text(result.comparison))
     print(f"wrote {result.json_path} and {result.figure_path}", flush=True)
@@ -559,4 +563,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

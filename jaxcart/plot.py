@@ -24,6 +24,11 @@ Uses matplotlib's object API (no pyplot), so it never changes the caller's backe
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
+    from jaxcart.engine.signals import exit_quietly_on_signal
+
+    exit_quietly_on_signal("starting")
+
 import argparse
 import io
 import math
@@ -333,8 +338,7 @@ def _plot_command(argv: list[str] | None) -> int:
             f"got {len(args.label)} --label(s) for {len(args.run_dirs)} RUN_DIR(s); "
             "give one per run directory or none"
         )
-    if args.dpi <= 0:
-        raise cli.UsageError(f"--dpi must be positive, got {args.dpi}")
+    cli.check_dpi(args.dpi)
     runs = load_runs(args.run_dirs, args.label)
     try:
         out = draw_runs(runs, args.out, dpi=args.dpi)
@@ -369,4 +373,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

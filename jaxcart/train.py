@@ -11,6 +11,11 @@ checkpoint.
 
 from __future__ import annotations
 
+if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
+    from jaxcart.engine.signals import exit_quietly_on_signal
+
+    exit_quietly_on_signal("starting")
+
 import argparse
 import os
 import sys
@@ -90,6 +95,12 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         "--resume", type=Path, default=None, metavar="RUN_DIR", help="continue an interrupted run"
     )
     run.add_argument(
+        "--allow-device-change",
+        action="store_true",
+        help="with --resume: continue on another device count than the run trained on "
+        "(the numbers then differ from an uninterrupted run; config.json records it)",
+    )
+    run.add_argument(
         "--checkpoint-every",
         type=float,
         default=30.0,
@@ -98,7 +109,7 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
     )
     run.add_argument(
         "--eval-episodes",
-        type=cli.count,
+        type=cli.bounded_count(cli.MAX_EPISODES),
         default=None,
         help="greedy evaluation episodes per seed (default 20; a resumed run keeps its own)",
     )
@@ -170,6 +181,7 @@ class TrainOptions:
     out: Path | None = None
     sweep: tuple[str, ...] = ()
     resume: Path | None = None
+    allow_device_change: bool = False
     checkpoint_every: float = 30.0
     eval_episodes: int | None = None
     loggers: tuple[str, ...] = ()
@@ -193,6 +205,7 @@ class TrainOptions:
             out=args.out,
             sweep=tuple(args.sweep),
             resume=args.resume,
+            allow_device_change=args.allow_device_change,
             checkpoint_every=args.checkpoint_every,
             eval_episodes=args.eval_episodes,
             loggers=tuple(args.logger),
@@ -277,6 +290,8 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
 
     wall_start = time.perf_counter()
     opts.check_distributed()
+    if opts.allow_device_change and opts.resume is None:
+        raise cli.UsageError("--allow-device-change goes with --resume RUN_DIR")
     if opts.resume is not None:
         opts.check_resume()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
@@ -290,7 +305,9 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
         if spec is None:
             try:
                 extend_to = opts.overrides.get("total_timesteps")
-                outcome = lifecycle.resume_run(opts.resume, run_options, hooks, stop, extend_to)
+                outcome = lifecycle.resume_run(
+                    opts.resume, run_options, hooks, stop, extend_to, opts.allow_device_change
+                )
             except RunDirError as exc:
                 hint = "" if extend_to is not None else _extend_hint(opts.resume)
                 raise cli.UsageError(f"cannot resume: {exc}{hint}") from None
@@ -314,17 +331,16 @@ def _extend_hint(out: Path) -> str:
     current total), or why it cannot be; "" for any other run."""
     import shlex
 
-    from jaxcart.rundir import checkpoint
-    from jaxcart.rundir import layout as rundir
+    from jaxcart.rundir import layout, reader
+    from jaxcart.rundir.files import RunDirError
 
     try:
-        info = rundir.read_run_config(out)
+        info = reader.read_run_config(out)
         config = info["config"]
-        path = out / checkpoint.CHECKPOINT_FILE
-        iteration = checkpoint.read_checkpoint_meta(path)["iteration"]
-    except (rundir.RunDirError, OSError, KeyError, ValueError):
+        iteration = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
+    except (RunDirError, OSError):
         return ""
-    written = rundir.SWEEP_FILE if rundir.is_sweep(out) else rundir.EVALUATION_FILE
+    written = layout.SWEEP_FILE if layout.is_sweep(out) else layout.EVALUATION_FILE
     if iteration < config.num_iterations or not (out / written).exists():
         return ""
     total = config.env_steps_per_seed
@@ -400,8 +416,12 @@ which must not be torn down with the interpreter (see the ``__main__`` block).""
 def cli_main(argv: list[str] | None = None) -> None:
     """The process entry point (``python -m jaxcart.train``, ``jaxcart-train``,
     ``python -m jaxcart train``): one CPU device per core, :func:`main`, and the exit code."""
+    from jaxcart.engine.signals import exit_quietly_on_signal
+
+    exit_quietly_on_signal("starting")  # the jaxcart-train script arrives here first
     devices.use_all_host_cores()
     code = main(argv)
+    exit_quietly_on_signal("exiting")  # interpreter teardown and atexit: no traceback
     if _stopped_at_once:  # leave at once: no interpreter teardown under a running XLA call
         sys.stdout.flush()
         sys.stderr.flush()
