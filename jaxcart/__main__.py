@@ -3,11 +3,6 @@ COMMAND [ARGS]`` runs one (the same as ``python -m jaxcart.COMMAND [ARGS]``)."""
 
 from __future__ import annotations
 
-if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
-    from jaxcart.engine.signals import exit_quietly_on_signal
-
-    exit_quietly_on_signal("starting")
-
 import difflib
 import importlib
 import sys

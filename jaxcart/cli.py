@@ -266,12 +266,18 @@ def command_main(main: Callable[[], int]) -> NoReturn:
     """The process entry of a command that writes nothing it cannot lose (evaluate, plot,
     compare, env): Ctrl-C while it runs is one line and exit 130, never a traceback, and
     after it returns (interpreter teardown, ``atexit``) a signal ends it quietly."""
-    from jaxcart.engine import signals
+    import os
+
+    from jaxcart.engine import devices, signals
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signals.raise_interrupt)
     try:
+        devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
         code = main()
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        code = EXIT_USAGE
     except KeyboardInterrupt:
         signals.exit_quietly_on_signal("exiting")
         print("error: interrupted; nothing more was written", file=sys.stderr, flush=True)

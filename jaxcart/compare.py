@@ -27,11 +27,6 @@ from a fixed seed (``--seed``), so the same runs give the same output.
 
 from __future__ import annotations
 
-if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
-    from jaxcart.engine.signals import exit_quietly_on_signal
-
-    exit_quietly_on_signal("starting")
-
 import argparse
 import io
 import os
@@ -98,13 +93,13 @@ def read_scores(run: RunCurves) -> tuple[np.ndarray, int, int | None]:
         RunDirError: missing, unreadable or without per-seed Gymnasium means.
     """
     path = run.path / layout.EVALUATION_FILE
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise RunDirError(
             f"{run.path} has no {layout.EVALUATION_FILE}: compare needs each seed's greedy "
             "evaluation, which training writes when it finishes"
         )
     try:
-        seeds = reader.read_evaluation(run.path)["seeds"]
+        seeds = reader.read_evaluation(run.path, run.num_seeds)["seeds"]
         scores = np.array([float(s["gymnasium_mean"]) for s in seeds])
         solved = sum(bool(s.get("solved")) for s in seeds)
     except (OSError, ValueError, KeyError, TypeError) as exc:

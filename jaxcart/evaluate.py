@@ -5,11 +5,6 @@
 
 from __future__ import annotations
 
-if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
-    from jaxcart.engine.signals import exit_quietly_on_signal
-
-    exit_quietly_on_signal("starting")
-
 import argparse
 from pathlib import Path
 

@@ -24,11 +24,6 @@ Uses matplotlib's object API (no pyplot), so it never changes the caller's backe
 
 from __future__ import annotations
 
-if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
-    from jaxcart.engine.signals import exit_quietly_on_signal
-
-    exit_quietly_on_signal("starting")
-
 import argparse
 import io
 import math

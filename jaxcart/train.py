@@ -11,11 +11,6 @@ checkpoint.
 
 from __future__ import annotations
 
-if __name__ == "__main__":  # Ctrl-C from the first line on: the imports below take a while
-    from jaxcart.engine.signals import exit_quietly_on_signal
-
-    exit_quietly_on_signal("starting")
-
 import argparse
 import os
 import sys
@@ -25,7 +20,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 from jaxcart import cli
-from jaxcart.core.config import PRESETS, config_fields, field_docs, preset
+from jaxcart.core.config import PRESETS, ConfigError, config_fields, field_docs, preset
 from jaxcart.engine import devices
 from jaxcart.engine.signals import StopRequest
 
@@ -419,7 +414,11 @@ def cli_main(argv: list[str] | None = None) -> None:
     from jaxcart.engine.signals import exit_quietly_on_signal
 
     exit_quietly_on_signal("starting")  # the jaxcart-train script arrives here first
-    devices.use_all_host_cores()
+    try:
+        devices.use_all_host_cores()
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(cli.EXIT_USAGE) from None
     code = main(argv)
     exit_quietly_on_signal("exiting")  # interpreter teardown and atexit: no traceback
     if _stopped_at_once:  # leave at once: no interpreter teardown under a running XLA call

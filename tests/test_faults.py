@@ -572,9 +572,14 @@ def _crafted_checkpoint(run: Path) -> None:
 
 
 def _huge_checkpoint_config(run: Path) -> None:
+    from jaxcart.rundir import files
+
     info = json.loads((run / "config.json").read_text())
-    info["num_seeds"] = info["wave_size"] = 10**9  # the checkpoint holds 1 seed: refused
-    # from the headers, before anything of that size is allocated
+    info["num_seeds"] = info["wave_size"] = 10**5  # the checkpoint holds 1 seed: refused
+    # from the headers, before anything of that size is allocated (a config.json written so,
+    # digest included: a hand edit alone is refused for its digest)
+    info.pop(layout.DIGEST_KEY)
+    info[layout.DIGEST_KEY] = files.json_digest(info)
     (run / "config.json").write_text(json.dumps(info))
 
 

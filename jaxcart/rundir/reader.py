@@ -87,10 +87,12 @@ def read_run_config(run_dir: str | os.PathLike, verify: bool = False) -> dict:
 
 
 def _check_digest(path: Path, data: dict) -> None:
-    """Refuses a ``config.json`` whose digest does not match (one written before digests
-    were recorded has none and is read as it is)."""
+    """Refuses a ``config.json`` whose digest is missing or does not match its contents."""
     if layout.DIGEST_KEY not in data:
-        return
+        raise RunDirError(
+            f"{path} has no digest: it was not written by this version of jaxcart, or was "
+            "rewritten by hand; a run continues only with the settings it started with"
+        )
     body = {k: v for k, v in data.items() if k != layout.DIGEST_KEY}
     if data[layout.DIGEST_KEY] != files.json_digest(body):
         raise RunDirError(
