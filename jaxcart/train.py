@@ -304,7 +304,8 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
                     opts.resume, run_options, hooks, stop, extend_to, opts.allow_device_change
                 )
             except RunDirError as exc:
-                hint = "" if extend_to is not None else _extend_hint(opts.resume)
+                finished = isinstance(exc, lifecycle.RunFinished) and extend_to is None
+                hint = _extend_hint(opts.resume) if finished else ""
                 raise cli.UsageError(f"cannot resume: {exc}{hint}") from None
         else:
             command = ["python -m jaxcart.train", *opts.argv]

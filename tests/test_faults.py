@@ -531,7 +531,7 @@ CRAFTED = [
     (_huge_declared_entry, "params.npz"),
     (_zip_bomb_entry, "params.npz"),
     (_pickled_params, "params.npz"),
-    (_symlink_out, "link out of"),
+    (_symlink_out, "symbolic link"),
     (lambda r: (r / "config.json").write_text("[1, 2, 3]"), "not a JSON object"),
     (lambda r: (r / "config.json").write_text('{"config": {"num_envs": "many"}}'), "corrupted"),
     (lambda r: (r / "config.json").write_text("{" * 100000), "corrupted"),
@@ -629,7 +629,7 @@ CRAFTED_OUTPUTS = [
         "larger than",
     ),
     (lambda r: (r / "metrics.csv").write_text("seed_index,iteration,x\n-5,1,2\n"), "out of range"),
-    (_symlink_metrics_out, "link out of"),
+    (_symlink_metrics_out, "symbolic link"),
     (lambda r: (r / "config.json").write_text('{"config": {}, "num_seeds": -3}'), "corrupted"),
 ]
 

@@ -49,6 +49,10 @@ from jaxcart.rundir.files import RunDirError
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 
 
+class RunFinished(RunDirError):
+    """``--resume`` of a run (or sweep) that finished: nothing to resume."""
+
+
 def create_run(
     spec: RunSpec,
     out: str | Path | None = None,
@@ -142,7 +146,7 @@ def _resumable(directory: RunDir, info: dict) -> Run:
     check_versions(directory.path, (meta or info).get("versions", {}))
     config = info.pop("config")
     if meta and meta["iteration"] >= config.num_iterations and directory.finished():
-        raise RunDirError(
+        raise RunFinished(
             f"{directory.path} already finished all {config.num_iterations} iterations; "
             "nothing to resume"
         )

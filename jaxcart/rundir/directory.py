@@ -66,9 +66,10 @@ def prepare_out_dir(out: Path) -> Path:
     """Creates ``out``; refuses a non-empty or unwritable one with a clear message. A
     directory holding only what a failed start leaves (its ``.lock``, temporaries) is taken
     over (:meth:`RunDir.create` then takes its lock, so a live start is never taken over)."""
-    files.refuse_link(out / layout.LOCK_FILE)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory; choose another path")
+    if out.is_dir():
+        files.refuse_link(out / layout.LOCK_FILE)
     if out.is_dir() and any(not _leftover(p) for p in out.iterdir()):
         raise ConfigError(
             f"--out {out} is not empty; choose a new directory so no earlier run is "
