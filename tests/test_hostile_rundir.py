@@ -621,6 +621,8 @@ def test_two_resumes_of_one_run_one_is_refused(bases, tmp_path):
         ({"JAXCART_MEMORY_BYTES": "inf"}, [], "JAXCART_MEMORY_BYTES"),
         ({"JAXCART_MEMORY_BYTES": "nan"}, [], "JAXCART_MEMORY_BYTES"),
         ({}, ["--eval-episodes", "1e8"], "at most"),
+        ({}, ["--checkpoint-every", "inf"], "--checkpoint-every"),
+        ({}, ["--checkpoint-every", "nan"], "--checkpoint-every"),
     ],
 )
 def test_options_and_environment_variables_are_bounded(
