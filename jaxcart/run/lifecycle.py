@@ -110,10 +110,10 @@ def open_run(
         if extend_to is not None:
             info = _extend(out, info, extend_to)
         run = _resumable(directory, dict(info))
-        if (extend_to is not None or changed) and main_process:
-            directory.write_config(info, run.config)
         if extend_to is not None and main_process:
             directory.mark_unfinished()  # until the extension finishes, readers say so
+        if (extend_to is not None or changed) and main_process:
+            directory.write_config(info, run.config)
     except BaseException:
         directory.close()
         raise
