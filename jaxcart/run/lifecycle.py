@@ -19,6 +19,7 @@ steps in :mod:`jaxcart.run.training`, the files in :class:`~jaxcart.rundir.direc
 from __future__ import annotations
 
 import dataclasses
+import shlex
 import signal
 from pathlib import Path
 
@@ -131,7 +132,8 @@ def _device_change(out: Path, info: dict, allowed: bool) -> bool:
             f"{out} trained on {recorded} {info.get('backend', '')} device(s), this process has "
             f"{now}: continuing would give other numbers. Resume with the layout it had: "
             f"XLA_FLAGS=--xla_force_host_platform_device_count={recorded} "
-            f"python -m jaxcart.train --resume {out} (on CPU), or pass --allow-device-change "
+            f"python -m jaxcart.train --resume {shlex.quote(str(out))} (on CPU), or pass "
+            "--allow-device-change "
             "to continue on this one (config.json records it)"
         )
     info["device_changes"] = [*info.get("device_changes", []), {"from": recorded, "to": now}]
