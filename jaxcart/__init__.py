@@ -28,6 +28,32 @@ statistics in :mod:`jaxcart.analysis.stats` (:func:`iqm`, :func:`bootstrap_ci`,
 from __future__ import annotations
 
 import importlib
+import os
+import signal
+import sys
+
+
+def _started_as_a_command() -> bool:
+    """Whether this process is ``python -m jaxcart[.COMMAND]`` or a ``jaxcart`` script."""
+    argv = getattr(sys, "orig_argv", [])
+    if "-m" in argv[:-1]:
+        return argv[argv.index("-m") + 1].split(".")[0] == "jaxcart"
+    return os.path.basename(sys.argv[0] if sys.argv else "") in ("jaxcart", "jaxcart-train")
+
+
+def _exit_while_starting(signum: int, frame: object) -> None:
+    os.write(
+        2,
+        f"\ninterrupted ({signal.Signals(signum).name}) while starting; nothing was written\n".encode(),
+    )
+    os._exit(128 + signum)
+
+
+if _started_as_a_command():
+    # The command's imports take most of a second: a Ctrl-C meanwhile ends the process with one
+    # line, never a traceback from inside an import (the command installs its own handling).
+    for _sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(_sig, _exit_while_starting)
 
 __version__ = "0.1.0"
 

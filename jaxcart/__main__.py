@@ -7,6 +7,7 @@ import difflib
 import importlib
 import sys
 
+from jaxcart import cli
 from jaxcart.cli import EXIT_USAGE, VERSION_TEXT
 
 COMMANDS = {
@@ -64,4 +65,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

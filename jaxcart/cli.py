@@ -8,8 +8,10 @@ import argparse
 import decimal
 import difflib
 import re
+import signal
 import sys
 from collections.abc import Callable, Sequence
+from typing import NoReturn
 
 from jaxcart import __version__
 from jaxcart.core.config import ConfigError
@@ -161,6 +163,34 @@ def count(text: str) -> int:
     return int(value)
 
 
+MAX_EPISODES = 100_000
+"""The most evaluation episodes per seed (a run directory declaring more is refused too)."""
+
+
+MAX_REPS = 100_000
+"""The most bootstrap resamples ``compare --reps`` takes."""
+MAX_DPI = 1000
+"""The highest PNG resolution plot and compare draw at (a 15 x 11 inch figure: 165 MP)."""
+
+
+def check_dpi(dpi: int) -> None:
+    """Refuses a ``--dpi`` out of ``[1, MAX_DPI]``."""
+    if not 1 <= dpi <= MAX_DPI:
+        raise UsageError(f"--dpi must be in [1, {MAX_DPI}], got {dpi}")
+
+
+def bounded_count(maximum: int) -> Callable[[str], int]:
+    """An argparse ``type``: :func:`count`, at most ``maximum``."""
+
+    def parse(text: str) -> int:
+        value = count(text)
+        if value > maximum:
+            raise argparse.ArgumentTypeError(f"must be at most {maximum:,}, got {text}")
+        return value
+
+    return parse
+
+
 class Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` for every jaxcart command: errors raise :class:`UsageError` (one
     line, no usage dump) instead of exiting, so ``main(argv)`` can be called in-process;
@@ -230,6 +260,30 @@ def format_table(rows: list[list], header: list[str]) -> str:
     lines.append("  ".join("-" * w for w in widths))
     lines += ["  ".join(str(c).rjust(w) for c, w in zip(r, widths)) for r in rows]
     return "\n".join(lines)
+
+
+def command_main(main: Callable[[], int]) -> NoReturn:
+    """The process entry of a command that writes nothing it cannot lose (evaluate, plot,
+    compare, env): Ctrl-C while it runs is one line and exit 130, never a traceback, and
+    after it returns (interpreter teardown, ``atexit``) a signal ends it quietly."""
+    import os
+
+    from jaxcart.engine import devices, signals
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signals.raise_interrupt)
+    try:
+        devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
+        code = main()
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        code = EXIT_USAGE
+    except KeyboardInterrupt:
+        signals.exit_quietly_on_signal("exiting")
+        print("error: interrupted; nothing more was written", file=sys.stderr, flush=True)
+        code = 130
+    signals.exit_quietly_on_signal("exiting")
+    raise SystemExit(code)
 
 
 def run_command(body: Callable[[], int], also: tuple[type[Exception], ...] = ()) -> int:

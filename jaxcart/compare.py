@@ -329,12 +329,11 @@ def _compare_command(argv: list[str] | None) -> int:
     args = parser.parse_args(argv)
     if not args.run_dirs and not args.arm:
         parser.error("give at least one RUN_DIR (or --arm NAME=DIR,DIR twice or more)")
-    if args.reps < 100:
-        raise cli.UsageError(f"--reps must be at least 100, got {args.reps}")
+    if not 100 <= args.reps <= cli.MAX_REPS:
+        raise cli.UsageError(f"--reps must be in [100, {cli.MAX_REPS:,}], got {args.reps}")
     if not 0 <= args.seed < 2**32:
         raise cli.UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
-    if args.dpi <= 0:
-        raise cli.UsageError(f"--dpi must be positive, got {args.dpi}")
+    cli.check_dpi(args.dpi)
     arms = [runs.parse_arm(text) for text in args.arm]
     result = compare_runs(
         args.run_dirs,
@@ -359,4 +358,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

@@ -30,7 +30,10 @@ def build_parser() -> argparse.ArgumentParser:
         "run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run (or sweep) directory"
     )
     parser.add_argument(
-        "--episodes", type=cli.count, default=NUM_EVAL_EPISODES, help="greedy episodes per seed"
+        "--episodes",
+        type=cli.bounded_count(cli.MAX_EPISODES),
+        default=NUM_EVAL_EPISODES,
+        help="greedy episodes per seed",
     )
     parser.add_argument(
         "--combination",
@@ -135,4 +138,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

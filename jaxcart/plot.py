@@ -443,8 +443,7 @@ def _plot_command(argv: list[str] | None) -> int:
             f"got {len(args.label)} --label(s) for {len(args.run_dirs)} RUN_DIR(s); "
             "give one per run directory or none"
         )
-    if args.dpi <= 0:
-        raise cli.UsageError(f"--dpi must be positive, got {args.dpi}")
+    cli.check_dpi(args.dpi)
     runs = load_runs(args.run_dirs, args.label)
     try:
         out = draw_runs(runs, args.out, dpi=args.dpi)
@@ -484,4 +483,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

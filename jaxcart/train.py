@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
 from jaxcart import cli
-from jaxcart.core.config import PRESETS, config_fields, field_docs, preset
+from jaxcart.core.config import PRESETS, ConfigError, config_fields, field_docs, preset
 from jaxcart.engine import devices
 from jaxcart.engine.signals import StopRequest
 
@@ -98,6 +98,12 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         "lr_schedule in config.json)",
     )
     run.add_argument(
+        "--allow-device-change",
+        action="store_true",
+        help="with --resume: continue on another device count than the run trained on "
+        "(the numbers then differ from an uninterrupted run; config.json records it)",
+    )
+    run.add_argument(
         "--checkpoint-every",
         type=float,
         default=30.0,
@@ -106,7 +112,7 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
     )
     run.add_argument(
         "--eval-episodes",
-        type=cli.count,
+        type=cli.bounded_count(cli.MAX_EPISODES),
         default=None,
         help="greedy evaluation episodes per seed (default 20; a resumed run keeps its own)",
     )
@@ -180,6 +186,7 @@ class TrainOptions:
     out: Path | None = None
     sweep: tuple[str, ...] = ()
     resume: Path | None = None
+    allow_device_change: bool = False
     checkpoint_every: float = 30.0
     eval_episodes: int | None = None
     loggers: tuple[str, ...] = ()
@@ -203,6 +210,7 @@ class TrainOptions:
             out=args.out,
             sweep=tuple(args.sweep),
             resume=args.resume,
+            allow_device_change=args.allow_device_change,
             checkpoint_every=args.checkpoint_every,
             eval_episodes=args.eval_episodes,
             loggers=tuple(args.logger),
@@ -287,6 +295,8 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
 
     wall_start = time.perf_counter()
     opts.check_distributed()
+    if opts.allow_device_change and opts.resume is None:
+        raise cli.UsageError("--allow-device-change goes with --resume RUN_DIR")
     if opts.resume is not None:
         opts.check_resume()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
@@ -300,9 +310,12 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
         if spec is None:
             try:
                 extend_to = opts.overrides.get("total_timesteps")
-                outcome = lifecycle.resume_run(opts.resume, run_options, hooks, stop, extend_to)
+                outcome = lifecycle.resume_run(
+                    opts.resume, run_options, hooks, stop, extend_to, opts.allow_device_change
+                )
             except RunDirError as exc:
-                hint = "" if extend_to is not None else _extend_hint(opts.resume)
+                finished = isinstance(exc, lifecycle.RunFinished) and extend_to is None
+                hint = _extend_hint(opts.resume) if finished else ""
                 raise cli.UsageError(f"cannot resume: {exc}{hint}") from None
         else:
             command = ["python -m jaxcart.train", *opts.argv]
@@ -410,8 +423,16 @@ which must not be torn down with the interpreter (see the ``__main__`` block).""
 def cli_main(argv: list[str] | None = None) -> None:
     """The process entry point (``python -m jaxcart.train``, ``jaxcart-train``,
     ``python -m jaxcart train``): one CPU device per core, :func:`main`, and the exit code."""
-    devices.use_all_host_cores()
+    from jaxcart.engine.signals import exit_quietly_on_signal
+
+    exit_quietly_on_signal("starting")  # the jaxcart-train script arrives here first
+    try:
+        devices.use_all_host_cores()
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        raise SystemExit(cli.EXIT_USAGE) from None
     code = main(argv)
+    exit_quietly_on_signal("exiting")  # interpreter teardown and atexit: no traceback
     if _stopped_at_once:  # leave at once: no interpreter teardown under a running XLA call
         sys.stdout.flush()
         sys.stderr.flush()

@@ -531,7 +531,7 @@ CRAFTED = [
     (_huge_declared_entry, "params.npz"),
     (_zip_bomb_entry, "params.npz"),
     (_pickled_params, "params.npz"),
-    (_symlink_out, "link out of"),
+    (_symlink_out, "symbolic link"),
     (lambda r: (r / "config.json").write_text("[1, 2, 3]"), "not a JSON object"),
     (lambda r: (r / "config.json").write_text('{"config": {"num_envs": "many"}}'), "corrupted"),
     (lambda r: (r / "config.json").write_text("{" * 100000), "corrupted"),
@@ -572,9 +572,14 @@ def _crafted_checkpoint(run: Path) -> None:
 
 
 def _huge_checkpoint_config(run: Path) -> None:
+    from jaxcart.rundir import files
+
     info = json.loads((run / "config.json").read_text())
-    info["num_seeds"] = info["wave_size"] = 10**9  # the checkpoint holds 1 seed: refused
-    # from the headers, before anything of that size is allocated
+    info["num_seeds"] = info["wave_size"] = 10**5  # the checkpoint holds 1 seed: refused
+    # from the headers, before anything of that size is allocated (a config.json written so,
+    # digest included: a hand edit alone is refused for its digest)
+    info.pop(layout.DIGEST_KEY)
+    info[layout.DIGEST_KEY] = files.json_digest(info)
     (run / "config.json").write_text(json.dumps(info))
 
 
@@ -624,7 +629,7 @@ CRAFTED_OUTPUTS = [
         "larger than",
     ),
     (lambda r: (r / "metrics.csv").write_text("seed_index,iteration,x\n-5,1,2\n"), "out of range"),
-    (_symlink_metrics_out, "link out of"),
+    (_symlink_metrics_out, "symbolic link"),
     (lambda r: (r / "config.json").write_text('{"config": {}, "num_seeds": -3}'), "corrupted"),
 ]
 

@@ -176,8 +176,8 @@ def test_replay_above_the_update_group_width_is_bit_identical(tmp_path):
     the other device replay alone bit for bit: a run's numbers depend on the width only."""
     spec = lifecycle.RunSpec(SMALL, num_seeds=17, seed=3)
     lifecycle.run_new(spec, tmp_path / "many", OPTIONS)
-    metrics = rundir.read_metrics_csv(tmp_path / "many" / "metrics.csv")
-    params = rundir.load_params(tmp_path / "many")
+    metrics = reader.read_metrics_csv(tmp_path / "many" / "metrics.csv")
+    params = reader.load_params(tmp_path / "many")
     for seed_index in (1, 7, 12):
         replayed = lifecycle.replay_seed(tmp_path / "many", seed_index)
         np.testing.assert_array_equal(

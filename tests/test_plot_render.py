@@ -43,6 +43,9 @@ def single_seed_run(tiny_run, tmp_path_factory):
     info = json.loads((out / "config.json").read_text())
     info["num_seeds"] = 1
     (out / "config.json").write_text(json.dumps(info))
+    evaluation = json.loads((out / "evaluation.json").read_text())
+    evaluation["seeds"] = evaluation["seeds"][:1]  # one entry per seed, as plot checks
+    (out / "evaluation.json").write_text(json.dumps(evaluation))
     with open(tiny_run / "metrics.csv", newline="") as f:
         rows = [r for r in csv.DictReader(f) if r["seed_index"] == "0"]
     for r in rows[:3]:

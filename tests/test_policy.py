@@ -260,7 +260,7 @@ CRAFTED = [
     ),
     (
         lambda r: _rewrite_checkpoint(r, change_meta=lambda m: {**m, "num_runs": 10**9}),
-        "does not belong",
+        "num_runs out of range",
     ),
     (
         lambda r: _rewrite_checkpoint(r, change_meta=lambda m: {**m, "iteration": 10**6}),
@@ -268,7 +268,7 @@ CRAFTED = [
     ),
     (_big_entry, "declares"),
     (_lying_entry, "does not match its header"),
-    (_link_out, "link out of"),
+    (_link_out, "symbolic link"),
     (lambda r: (r / CHECKPOINT_FILE).write_bytes(b"PK\x03\x04 torn"), "corrupted"),
     (lambda r: _edit_config(r, combinations="combo"), "combinations is not a list"),
     (lambda r: _edit_config(r, combinations=[{"learning_rate": "x"}]), "combinations is not"),

@@ -23,6 +23,7 @@ def use_all_host_cores(count: int | None = None) -> None:
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if DEVICE_COUNT_FLAG in flags:
+        check_device_count_flag(flags)
         return
     bridge = sys.modules.get("jax._src.xla_bridge")
     if bridge is not None and getattr(bridge, "_backends", None):
@@ -36,6 +37,27 @@ def use_all_host_cores(count: int | None = None) -> None:
     if count is None:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     os.environ["XLA_FLAGS"] = f"{flags} {DEVICE_COUNT_FLAG}={count or 1}".strip()
+
+
+MAX_HOST_DEVICES = 4096
+
+
+def check_device_count_flag(flags: str) -> None:
+    """Refuses an ``XLA_FLAGS`` device count XLA cannot start with (0, negative, not a
+    number, over :data:`MAX_HOST_DEVICES`): JAX would fail later with a long traceback.
+
+    Raises:
+        ConfigError: the flag's value, and what it must be.
+    """
+    from jaxcart.core.config import ConfigError
+
+    for token in flags.split():
+        if token.startswith(DEVICE_COUNT_FLAG):
+            value = token[len(DEVICE_COUNT_FLAG) :].lstrip("=")
+            if not value.isdigit() or not 1 <= int(value[:6]) <= MAX_HOST_DEVICES:
+                raise ConfigError(
+                    f"XLA_FLAGS {token} must give a device count in [1, {MAX_HOST_DEVICES}]"
+                )
 
 
 def compilation_cache_dir() -> Path:

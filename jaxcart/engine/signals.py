@@ -10,6 +10,7 @@ handled (and its message printed) when it arrives, not when the call returns.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -17,6 +18,40 @@ from typing import TypeVar
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 T = TypeVar("T")
+
+
+_phase = "starting"
+
+
+def exit_quietly_on_signal(phase: str) -> None:
+    """Until a command handles signals itself (and again once it has returned): SIGINT or
+    SIGTERM writes one line and ends the process at once with ``128 + signal``. Installed by
+    a command's first line, before the imports that take most of a second, and after it
+    returns, so that neither an import nor an ``atexit`` callback ends in a traceback.
+
+    Args:
+        phase: what the process is doing, for the line: ``"starting"`` (nothing was written
+            yet) or ``"exiting"`` (the command has finished).
+    """
+    global _phase
+    _phase = phase
+    try:
+        for sig in SIGNALS:
+            signal.signal(sig, _exit_now)
+    except ValueError:  # not the main thread: the caller's handlers stay
+        pass
+
+
+def _exit_now(signum: int, frame: object) -> None:
+    done = "nothing was written" if _phase == "starting" else "the command had finished"
+    line = f"\ninterrupted ({signal.Signals(signum).name}) while {_phase}; {done}\n"
+    os.write(2, line.encode())
+    os._exit(128 + signum)
+
+
+def raise_interrupt(signum: int, frame: object) -> None:
+    """A handler that treats SIGTERM as Ctrl-C (:class:`KeyboardInterrupt`)."""
+    raise KeyboardInterrupt
 
 
 class Stopped(Exception):

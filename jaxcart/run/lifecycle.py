@@ -19,6 +19,7 @@ steps in :mod:`jaxcart.run.training`, the files in :class:`~jaxcart.rundir.direc
 from __future__ import annotations
 
 import dataclasses
+import shlex
 import signal
 from pathlib import Path
 
@@ -48,6 +49,10 @@ from jaxcart.rundir.directory import RunDir, check_versions, package_versions
 from jaxcart.rundir.files import RunDirError
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
+
+
+class RunFinished(RunDirError):
+    """``--resume`` of a run (or sweep) that finished: nothing to resume."""
 
 
 def create_run(
@@ -80,29 +85,62 @@ def create_run(
     return Run(RunDir.create(out, info, spec.config, main_process), spec, info, plan)
 
 
-def open_run(out: str | Path, main_process: bool = True, extend_to: int | None = None) -> Run:
+def open_run(
+    out: str | Path,
+    main_process: bool = True,
+    extend_to: int | None = None,
+    allow_device_change: bool = False,
+) -> Run:
     """An existing, unfinished run directory, to resume; or, with ``extend_to`` env steps
     per seed, an interrupted or finished one to train further.
 
+    A run continues on the device layout it trained on (a different one gives other
+    numbers): another device count is refused unless ``allow_device_change``, which
+    config.json then records under ``device_changes``.
+
     Raises:
-        RunDirError: not a run, unreadable, another package version, or already finished.
+        RunDirError: not a run, unreadable, edited (digest), another package version or
+            device count, or already finished.
         ConfigError: an extension that cannot be done (fewer steps, a run trained in
             waves).
     """
     out = Path(out)
-    info = reader.read_run_config(out)
+    info = reader.read_run_config(out, verify=True)
     directory = RunDir.open(out, main_process)
     try:
+        changed = _device_change(out, info, allow_device_change)
         if extend_to is not None:
             meta = directory.read_checkpoint_meta()
             info = _extend(out, info, extend_to, int(meta["iteration"]) if meta else 0)
         run = _resumable(directory, dict(info))
         if extend_to is not None and main_process:
+            directory.mark_unfinished()  # until the extension finishes, readers say so
+        if (extend_to is not None or changed) and main_process:
             directory.write_config(info, run.config)
     except BaseException:
         directory.close()
         raise
     return run
+
+
+def _device_change(out: Path, info: dict, allowed: bool) -> bool:
+    """Whether this process has another device count than the run trained on (recorded in
+    ``info`` when ``allowed``); refused otherwise, with the command that matches."""
+    recorded, now = int(info.get("device_count", jax.device_count())), jax.device_count()
+    if recorded == now:
+        return False
+    if not allowed:
+        raise RunDirError(
+            f"{out} trained on {recorded} {info.get('backend', '')} device(s), this process has "
+            f"{now}: continuing would give other numbers. Resume with the layout it had: "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={recorded} "
+            f"python -m jaxcart.train --resume {shlex.quote(str(out))} (on CPU), or pass "
+            "--allow-device-change "
+            "to continue on this one (config.json records it)"
+        )
+    info["device_changes"] = [*info.get("device_changes", []), {"from": recorded, "to": now}]
+    info["device_count"] = now
+    return True
 
 
 def _resumable(directory: RunDir, info: dict) -> Run:
@@ -112,7 +150,7 @@ def _resumable(directory: RunDir, info: dict) -> Run:
     check_versions(directory.path, (meta or info).get("versions", {}))
     config = info.pop("config")
     if meta and meta["iteration"] >= config.num_iterations and directory.finished():
-        raise RunDirError(
+        raise RunFinished(
             f"{directory.path} already finished all {config.num_iterations} iterations; "
             "nothing to resume"
         )
@@ -256,19 +294,21 @@ def resume_run(
     hooks: Hooks | None = None,
     stop: StopRequest | None = None,
     total_timesteps: int | None = None,
+    allow_device_change: bool = False,
 ) -> Outcome:
     """Continues an interrupted run from its last checkpoint, bit-identically; with
     ``total_timesteps``, extends an interrupted or finished run to that many env steps per
     seed, as SB3's ``learn(more, reset_num_timesteps=False)``: an annealed learning rate then
     anneals over the new total from the checkpoint on (recorded as ``lr_schedule`` in
     ``config.json``).
+    ``allow_device_change`` continues on another device count (see :func:`open_run`).
     """
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
     if stop is not None:
         stop.check()
-    run = open_run(out, main_process=distributed.is_main_process(), extend_to=total_timesteps)
+    run = open_run(out, distributed.is_main_process(), total_timesteps, allow_device_change)
     recorded = run.info.get("eval_episodes")
     if recorded and options.eval_episodes and options.eval_episodes != recorded:
         run.close()
@@ -308,7 +348,10 @@ def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -
     num_waves = run.plan.num_waves
     for wave, runs in enumerate(run.plan.waves()):
         if num_waves > 1 and run.directory.has_wave(wave):
-            blocks.append(run.directory.wave_file(wave))  # finished before an interruption
+            # finished before an interruption: checked before the outputs are built from it
+            blocks.append(
+                run.directory.finished_wave(wave, runs, options.eval_episodes, run.config)
+            )
             continue
         if hooks.on_wave:
             hooks.on_wave(wave, num_waves, runs)

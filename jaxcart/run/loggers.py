@@ -49,6 +49,8 @@ from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from jaxcart.rundir import files
+
 
 class LoggerUnavailable(ValueError):
     """A requested logger's package is not installed (the message says which extra to add)."""
@@ -110,6 +112,7 @@ class TensorBoardBackend:
     extra = "tensorboard"
 
     def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None:
+        self.out_dir = out_dir
         self.run_dirs = [out_dir / "tensorboard" / run for run in run_names]
         self.config = config
         self.writers: list[Any] = []
@@ -120,8 +123,9 @@ class TensorBoardBackend:
 
         # Markdown: indenting by four spaces shows the JSON as a code block in the Text tab.
         config_text = textwrap.indent(json.dumps(self.config, indent=2, default=str), "    ")
+        base = files.subdir(self.out_dir, "tensorboard", create=True)  # never through a link
         for run_dir in self.run_dirs:
-            run_dir.mkdir(parents=True, exist_ok=True)
+            files.subdir(base, run_dir.name, create=True)
             writer = FileWriter(str(run_dir), max_queue=1024, flush_secs=30)
             self.writers.append(writer)
             writer.add_summary(text("config", config_text), global_step=0)

@@ -101,9 +101,9 @@ class RunOptions:
             f"must be a positive integer, got {self.eval_episodes}",
         )
         check_option(
-            self.checkpoint_every > 0,
+            0 < self.checkpoint_every <= 86_400 * 365,  # NaN fails too
             "checkpoint_every",
-            f"must be > 0 seconds, got {self.checkpoint_every}",
+            f"must be in (0, 31536000] seconds, got {self.checkpoint_every}",
         )
         check_option(
             self.chunk_size is None or (_is_int(self.chunk_size) and self.chunk_size > 0),

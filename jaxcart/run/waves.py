@@ -60,7 +60,14 @@ def available_bytes() -> int:
     """Memory this process may use: ``$JAXCART_MEMORY_BYTES``, else the smaller of the
     kernel's MemAvailable and the cgroup's remaining limit."""
     if os.environ.get(MEMORY_ENV):
-        return int(float(os.environ[MEMORY_ENV]))
+        value = os.environ[MEMORY_ENV].strip()
+        try:
+            memory = float(value)
+        except ValueError:
+            memory = math.nan
+        if not 1 <= memory <= 2**60:  # NaN fails too
+            raise ConfigError(f"{MEMORY_ENV}={value[:40]} must be a number of bytes in [1, 2**60]")
+        return int(memory)
     candidates = []
     try:
         with open("/proc/meminfo") as f:

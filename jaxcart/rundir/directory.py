@@ -8,6 +8,7 @@ is decided by :mod:`jaxcart.run.lifecycle`. Every file goes through
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 from importlib import metadata
@@ -56,12 +57,20 @@ def check_versions(run_dir: str | os.PathLike, saved: dict) -> None:
             )
 
 
+def _leftover(path: Path) -> bool:
+    """Left by a start that failed before writing anything: a temporary or the lock."""
+    return layout.is_temporary(path) or path.name == layout.LOCK_FILE
+
+
 def prepare_out_dir(out: Path) -> Path:
-    """Creates ``out``; refuses a non-empty or unwritable one with a clear message."""
+    """Creates ``out``; refuses a non-empty or unwritable one with a clear message. A
+    directory holding only what a failed start leaves (its ``.lock``, temporaries) is taken
+    over (:meth:`RunDir.create` then takes its lock, so a live start is never taken over)."""
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory; choose another path")
-    # leftovers of a run killed while writing its first file do not count
-    if out.is_dir() and any(not layout.is_temporary(p) for p in out.iterdir()):
+    if out.is_dir():
+        files.refuse_link(out / layout.LOCK_FILE)
+    if out.is_dir() and any(not _leftover(p) for p in out.iterdir()):
         raise ConfigError(
             f"--out {out} is not empty; choose a new directory so no earlier run is "
             f"overwritten (or continue it with --resume {out})"
@@ -69,11 +78,22 @@ def prepare_out_dir(out: Path) -> Path:
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / layout.WRITE_PROBE
+        files.refuse_link(probe)
         probe.write_text("")
         probe.unlink()
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
     return out
+
+
+def _remove_failed_start(out: Path, created: bool) -> None:
+    """Removes what a start that failed before its ``config.json`` left: the lock, and the
+    directory when this start created it (a rerun then starts afresh)."""
+    with contextlib.suppress(OSError):
+        if not (out / layout.CONFIG_FILE).exists():
+            (out / layout.LOCK_FILE).unlink(missing_ok=True)
+            if created:
+                out.rmdir()
 
 
 class RunDir:
@@ -93,11 +113,13 @@ class RunDir:
         (``info`` and ``config``)."""
         directory = cls(path, main_process)
         if main_process:
+            created = not directory.path.exists()
             prepare_out_dir(directory.path)
             directory.lock.acquire()
             try:
                 directory.write_config(info, config)
             except BaseException:
+                _remove_failed_start(directory.path, created)  # while holding the lock
                 directory.close()
                 raise
         return directory
@@ -130,7 +152,9 @@ class RunDir:
         """``config.json``: ``info`` with ``config`` as a dict (in a combination's
         ``directory`` when given)."""
         path = (directory or self.path) / layout.CONFIG_FILE
-        files.write_json(path, {**info, "config": config.to_dict()})
+        data = {k: v for k, v in info.items() if k != layout.DIGEST_KEY}
+        data["config"] = config.to_dict()
+        files.write_json(path, {**data, layout.DIGEST_KEY: files.json_digest(data)})
 
     @property
     def checkpoint_path(self) -> Path:
@@ -146,21 +170,39 @@ class RunDir:
         return reader.load_checkpoint(self.checkpoint_path, template, num_runs=num_runs)
 
     def finished(self) -> bool:
-        """Whether the run wrote its evaluation (its last output)."""
-        return (self.path / layout.EVALUATION_FILE).exists()
+        """Whether the run wrote its last output: its evaluation, or a sweep's ranking."""
+        return any(
+            files.refuse_link(self.path / name) is not None
+            for name in (layout.EVALUATION_FILE, layout.SWEEP_FILE)
+        )
+
+    def mark_unfinished(self) -> None:
+        """Removes a finished run's top-level outputs before it is trained further, so that
+        until the extension finishes every reader says the run is unfinished (and reads its
+        checkpoint) instead of presenting the old outputs as the run's."""
+        for name in (layout.SWEEP_FILE, layout.EVALUATION_FILE, layout.PARAMS_FILE):
+            (self.path / name).unlink(missing_ok=True)
+        files.fsync_directory(self.path)
 
     def wave_file(self, wave: int) -> Path:
-        return layout.wave_file(self.path, wave)
+        return files.subdir(self.path, layout.WAVES_DIR) / layout.wave_file(".", wave).name
 
     def has_wave(self, wave: int) -> bool:
-        """Whether wave ``wave`` finished (its block file is saved)."""
-        return self.wave_file(wave).exists()
+        """Whether wave ``wave`` finished (its block file is saved; a link is refused)."""
+        return files.refuse_link(self.wave_file(wave)) is not None
 
     def save_wave(self, block: outputs.Block, wave: int) -> Path:
         """Keeps a finished wave's block until the outputs are written; returns its file."""
+        files.subdir(self.path, layout.WAVES_DIR, create=True)
         path = self.wave_file(wave)
-        path.parent.mkdir(exist_ok=True)
         block.save(path)
+        return path
+
+    def finished_wave(self, wave: int, runs: range, episodes: int, config: PPOConfig) -> Path:
+        """The file of a wave finished before an interruption, checked (headers, digest,
+        finite values) before the outputs are built from it."""
+        path = self.wave_file(wave)
+        reader.check_block(path, config, runs, episodes)
         return path
 
     def write_metrics(self, metrics: dict[str, np.ndarray], batch_size: int) -> None:
@@ -179,8 +221,9 @@ class RunDir:
     ) -> None:
         """metrics.csv, params.npz and evaluation.json of ``runs`` from the blocks: in the run
         directory, or in combination ``combo``'s, with its own config.json ``record``."""
-        directory = layout.combo_dir(self.path, combo) if combo is not None else self.path
-        directory.mkdir(parents=True, exist_ok=True)
+        directory = self.path  # never recreated: a deleted run directory fails the write
+        if combo is not None:
+            directory = files.subdir(self.path, layout.combo_dir(".", combo).name, create=True)
         if record is not None:
             self.write_config(*record, directory=directory)
         outputs.write_blocks_metrics_csv(directory / layout.METRICS_FILE, blocks, runs, batch_size)

@@ -8,11 +8,14 @@ and optionally a JSON metadata entry ``__meta__``. Nothing is ever unpickled.
 from __future__ import annotations
 
 import contextlib
+import errno
 import functools
+import hashlib
 import io
 import json
 import math
 import os
+import stat
 import tempfile
 import zipfile
 from collections.abc import Iterator
@@ -118,6 +121,23 @@ def write_json(path: str | os.PathLike, data: dict) -> None:
     atomic_write_bytes(path, (json.dumps(data, indent=2) + "\n").encode())
 
 
+def json_digest(data: dict) -> str:
+    """``sha256:<hex>`` of a JSON object's canonical text (sorted keys, no spaces), so
+    that any change to a value shows while formatting does not matter."""
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()
+
+
+def arrays_digest(arrays: dict[str, np.ndarray]) -> str:
+    """``sha256:<hex>`` of named arrays: each name, dtype, shape and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return "sha256:" + h.hexdigest()
+
+
 def path_name(path: tuple) -> str:
     """A JAX key path as ``a/b/0/c`` (dict keys, attribute names and sequence indices)."""
     parts = []
@@ -174,8 +194,16 @@ def _reading(path: str | os.PathLike) -> Iterator[None]:
         raise RunDirError(f"{path} does not exist") from None
     except RunDirError:
         raise
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
-        raise RunDirError(f"{path} is corrupted: {exc}") from None
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        EOFError,
+        RecursionError,
+        zipfile.BadZipFile,
+        UnicodeDecodeError,
+    ) as exc:
+        raise RunDirError(f"{path} is corrupted: {str(exc)[:200]}") from None
 
 
 Header = tuple[tuple[int, ...], np.dtype]
@@ -183,19 +211,122 @@ Header = tuple[tuple[int, ...], np.dtype]
 MAX_META_BYTES = 1 << 20
 
 
-def inside(directory: str | os.PathLike, name: str) -> Path:
-    """``directory / name`` after checking that it is a regular file there, not a link out of
-    the directory (a run directory someone else made may hold anything).
+def refuse_link(path: str | os.PathLike) -> os.stat_result | None:
+    """``lstat(path)``, refusing a symbolic link (a run directory someone else made may hold
+    anything: a link would make jaxcart read or write outside the directory). None when
+    ``path`` does not exist.
 
     Raises:
-        RunDirError: missing, not a regular file, or resolving outside ``directory``.
+        RunDirError: ``path`` is a symbolic link.
+    """
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise RunDirError(f"{path} cannot be read: {exc.strerror or exc}") from None
+    if stat.S_ISLNK(st.st_mode):
+        raise RunDirError(
+            f"{path} is a symbolic link; jaxcart never follows links in a run directory"
+        )
+    return st
+
+
+def open_regular(path: str | os.PathLike, flags: int = os.O_RDONLY, mode: int = 0o666) -> int:
+    """A descriptor of ``path`` opened without following a link, checked to be a regular
+    file (never a FIFO, device or directory: ``O_NONBLOCK`` keeps a FIFO from blocking the
+    open, and it is cleared once the file is known to be regular).
+
+    Raises:
+        RunDirError: ``path`` is a link or not a regular file.
+        FileNotFoundError: it does not exist (and ``flags`` do not create it).
+    """
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise RunDirError(
+                f"{path} is a symbolic link; jaxcart never follows links in a run directory"
+            ) from None
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise RunDirError(f"{path} cannot be opened: {exc.strerror or exc}") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise RunDirError(f"{path} is not a regular file; refusing it")
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def read_bytes(path: str | os.PathLike, max_bytes: int) -> bytes:
+    """A regular file's bytes (no link followed), refusing one larger than ``max_bytes``.
+
+    Raises:
+        RunDirError: missing, a link, not a regular file, or too large.
+    """
+    try:
+        fd = open_regular(path)
+    except FileNotFoundError:
+        raise RunDirError(f"{path} does not exist") from None
+    with os.fdopen(fd, "rb") as f:
+        if os.fstat(f.fileno()).st_size > max_bytes:
+            raise RunDirError(f"{path} is larger than any such file jaxcart writes")
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise RunDirError(f"{path} is larger than any such file jaxcart writes")
+    return data
+
+
+def subdir(directory: str | os.PathLike, name: str, create: bool = False) -> Path:
+    """``directory / name`` checked to be a real directory (not a link) when it exists;
+    created (its parent must exist: a deleted run directory is never recreated) when
+    ``create``.
+
+    Raises:
+        RunDirError: a link or something other than a directory.
+        OSError: it could not be created.
     """
     path = Path(directory) / name
-    if not path.is_file():
-        raise RunDirError(f"{path} does not exist")
-    if Path(directory).resolve() not in path.resolve().parents:
-        raise RunDirError(f"{path} is a link out of {directory}; refusing to read it")
+    st = refuse_link(path)
+    if st is None and create:
+        try:
+            path.mkdir()
+        except FileExistsError:
+            pass
+        st = refuse_link(path)
+    if st is not None and not stat.S_ISDIR(st.st_mode):
+        raise RunDirError(f"{path} is not a directory; refusing it")
     return path
+
+
+def inside(directory: str | os.PathLike, name: str) -> Path:
+    """``directory / name`` after checking that it is a regular file there, not a link (a
+    run directory someone else made may hold anything).
+
+    Raises:
+        RunDirError: missing, a link, or not a regular file.
+    """
+    path = Path(directory) / name
+    st = refuse_link(path)
+    if st is None:
+        raise RunDirError(f"{path} does not exist")
+    if not stat.S_ISREG(st.st_mode):
+        raise RunDirError(f"{path} is not a regular file; refusing it")
+    return path
+
+
+@contextlib.contextmanager
+def open_tree(path: str | os.PathLike) -> Iterator[IO[bytes]]:
+    """A tree file opened for reading without following a link (see :func:`open_regular`)."""
+    try:
+        fd = open_regular(path)
+    except FileNotFoundError:
+        raise RunDirError(f"{path} does not exist") from None
+    with os.fdopen(fd, "rb") as f:
+        yield f
 
 
 def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
@@ -208,7 +339,7 @@ def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
             their headers, or more than ``max_bytes`` in all.
     """
     headers: dict[str, Header] = {}
-    with _reading(path), zipfile.ZipFile(path) as zf:
+    with _reading(path), open_tree(path) as raw, zipfile.ZipFile(raw) as zf:
         infos = zf.infolist()
         total = sum(i.file_size for i in infos)
         if total > max_bytes:
@@ -216,6 +347,8 @@ def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
                 f"{path} declares {total:,} bytes, more than the {max_bytes:,} expected"
             )
         for info in infos:
+            if info.compress_type != zipfile.ZIP_STORED:  # jaxcart never compresses: no bombs
+                raise RunDirError(f"{path}: {info.filename} is compressed; refusing it")
             if not info.filename.endswith(".npy"):
                 raise RunDirError(f"{path}: unexpected entry {info.filename!r}")
             with zf.open(info) as f:
@@ -246,7 +379,7 @@ def load_tree(
         RunDirError: the file is missing, not an ``.npz``, torn, too large or holds objects.
     """
     read_headers(path, max_bytes)
-    with _reading(path), np.load(path, allow_pickle=False) as data:
+    with _reading(path), open_tree(path) as raw, np.load(raw, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files if k != META_KEY}
         meta = _meta(data) if META_KEY in data.files else None
     return arrays, meta
@@ -267,7 +400,7 @@ def read_meta(path: str | os.PathLike) -> dict:
     headers = read_headers(path, max_bytes=1 << 40)  # sizes are checked, nothing large read
     if META_KEY not in headers:
         raise RunDirError(f"{path} has no metadata")
-    with _reading(path), np.load(path, allow_pickle=False) as data:
+    with _reading(path), open_tree(path) as raw, np.load(raw, allow_pickle=False) as data:
         return _meta(data)
 
 

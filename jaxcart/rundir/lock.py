@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.files import RunDirError, open_regular
 from jaxcart.rundir.layout import LOCK_FILE
 
 
@@ -35,8 +35,9 @@ class RunLock:
 
         if self._fd is not None:
             return self
-        # 0o666 less the umask, as every file of a run directory (jaxcart.rundir.files)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        # 0o666 less the umask, as every file of a run directory (jaxcart.rundir.files); a
+        # link is refused, not followed: truncating it would truncate whatever it points to
+        fd = open_regular(self.path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -46,7 +46,8 @@ class Block:
             "gym_returns": self.gym_returns,
             "jax_returns": self.jax_returns,
         }
-        files.save_tree(path, arrays, {"start": self.start, "stop": self.stop, **self.timing})
+        meta = {"start": self.start, "stop": self.stop, **self.timing}
+        files.save_tree(path, arrays, {**meta, layout.DIGEST_KEY: files.arrays_digest(arrays)})
 
     @classmethod
     def load(cls, path: Path) -> Block:
@@ -54,7 +55,7 @@ class Block:
         take = lambda prefix: {
             k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)
         }
-        timing = {k: v for k, v in meta.items() if k not in ("start", "stop")}
+        timing = {k: v for k, v in meta.items() if k not in ("start", "stop", layout.DIGEST_KEY)}
         return cls(
             int(meta["start"]),
             int(meta["stop"]),
@@ -95,7 +96,7 @@ def _param_slices(blocks: list, runs: range, name: str) -> Iterator[np.ndarray]:
         meta = files.read_meta(item)
         take = _overlap(int(meta["start"]), int(meta["stop"]), runs)
         if take is not None:
-            with np.load(item, allow_pickle=False) as data:
+            with files.open_tree(item) as raw, np.load(raw, allow_pickle=False) as data:
                 yield data[BLOCK_PARAMS + name][take]
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxcart.core import networks
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.rundir import layout, reader
+from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.files import RunDirError
 
 
@@ -125,7 +125,8 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
                 f"combination=C (--combination C){bounds if combos else ''}, got {combination!r}"
             )
         if layout.is_sweep(run_dir):  # finished: each combination is a run directory
-            return run_params(layout.combo_dir(run_dir, int(combination)))
+            name = layout.combo_dir(".", int(combination)).name
+            return run_params(files.subdir(run_dir, name))  # a link is refused
     elif combination is not None:
         raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
     num_seeds = int(info.get("num_seeds", 1))

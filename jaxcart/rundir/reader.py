@@ -11,6 +11,7 @@ before reading arrays, and turns every way a file can be broken into one
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -32,57 +33,116 @@ MAX_JSON_BYTES = 16 << 20
 MAX_CSV_BYTES_PER_ROW = 4096
 
 
+MAX_RUNS = 1 << 20
+"""The most runs (seeds x combinations) a ``config.json`` may declare."""
+MAX_EVAL_EPISODES = 100_000
+"""The most evaluation episodes per seed a run directory may declare."""
+
+
 def read_json(run_dir: str | os.PathLike, name: str) -> dict:
-    """A JSON object from a run directory, refusing links out of it, oversized files and
-    anything but an object."""
-    path = files.inside(run_dir, name)
-    if path.stat().st_size > MAX_JSON_BYTES:
-        raise RunDirError(f"{path} is larger than any {name} jaxcart writes")
+    """A JSON object from a run directory, refusing links, non-regular files, oversized
+    files and anything but an object."""
+    path = Path(run_dir) / name
+    data = files.read_bytes(path, MAX_JSON_BYTES)
     try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        data = json.loads(data.decode())
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
         raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
     if not isinstance(data, dict):
         raise RunDirError(f"{path} is corrupted: not a JSON object")
     return data
 
 
-def read_run_config(run_dir: str | os.PathLike) -> dict:
+def read_run_config(run_dir: str | os.PathLike, verify: bool = False) -> dict:
     """The run's ``config.json`` as a dict (``config`` a :class:`PPOConfig`), with a clear
-    error when it is not a run or does not hold what a run's config holds."""
+    error when it is not a run or does not hold what a run's config holds; with ``verify``
+    (a resume), its digest must match its contents (hand edits and corruption are refused).
+    """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise RunDirError(
             f"{run_dir} is not a directory; pass the --out directory of a jaxcart run"
         )
-    if not (run_dir / layout.CONFIG_FILE).exists():
+    path = run_dir / layout.CONFIG_FILE
+    if files.refuse_link(path) is None:
+        only_lock = [p.name for p in run_dir.iterdir()] == [layout.LOCK_FILE]
+        hint = (
+            f" (only the {layout.LOCK_FILE} of a start that failed: start it again with "
+            f"--out {run_dir}, which takes it over)"
+            if only_lock
+            else ""
+        )
         raise RunDirError(
-            f"{run_dir} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory"
+            f"{run_dir} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory{hint}"
         )
     data = read_json(run_dir, layout.CONFIG_FILE)
-    path = run_dir / layout.CONFIG_FILE
+    if verify:
+        _check_digest(path, data)
     try:
         data["config"] = PPOConfig.from_dict(data["config"])
         _check_run_fields(data)
-    except (KeyError, TypeError, ValueError, ConfigError) as exc:
+    except (KeyError, TypeError, ValueError, OverflowError, ConfigError) as exc:
         raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
     return data
 
 
+def _check_digest(path: Path, data: dict) -> None:
+    """Refuses a ``config.json`` whose digest is missing or does not match its contents."""
+    if layout.DIGEST_KEY not in data:
+        raise RunDirError(
+            f"{path} has no digest: it was not written by this version of jaxcart, or was "
+            "rewritten by hand; a run continues only with the settings it started with"
+        )
+    body = {k: v for k, v in data.items() if k != layout.DIGEST_KEY}
+    if data[layout.DIGEST_KEY] != files.json_digest(body):
+        raise RunDirError(
+            f"{path} does not match its digest: it was edited or corrupted after the run "
+            "wrote it; restore it (a run continues only with the settings it started with)"
+        )
+
+
+def _is_int(value: object, low: int, high: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+
+
 def _check_run_fields(data: dict) -> None:
     num_seeds, seed = data.get("num_seeds", 1), data.get("seed", 0)
-    if not isinstance(num_seeds, int) or isinstance(num_seeds, bool) or num_seeds < 1:
+    if not _is_int(num_seeds, 1, MAX_RUNS):
         raise ValueError(f"num_seeds {num_seeds!r}")
-    if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed < 2**32:
+    if not _is_int(seed, 0, 2**32 - 1):
         raise ValueError(f"seed {seed!r}")
     wave_size = data.get("wave_size", num_seeds)
-    if not isinstance(wave_size, int) or isinstance(wave_size, bool) or wave_size < 1:
+    if wave_size is not None and not _is_int(wave_size, 1, MAX_RUNS):
         raise ValueError(f"wave_size {wave_size!r}")
+    episodes = data.get("eval_episodes")
+    if episodes is not None and not _is_int(episodes, 1, MAX_EVAL_EPISODES):
+        raise ValueError(f"eval_episodes {episodes!r} (at most {MAX_EVAL_EPISODES:,})")
+    device_count = data.get("device_count", 1)
+    if not _is_int(device_count, 1, 1 << 16):
+        raise ValueError(f"device_count {device_count!r}")
+    preset = data.get("preset", "")
+    if not isinstance(preset, str) or len(preset) > 256:
+        raise ValueError(f"preset {preset!r}")
+    versions = data.get("versions", {})
+    if not isinstance(versions, dict) or not all(isinstance(v, str) for v in versions.values()):
+        raise ValueError("versions is not a {package: version} object")
     sweep = data.get("sweep", {})
     if not isinstance(sweep, dict) or not all(
-        isinstance(v, list) and all(isinstance(x, (int, float)) for x in v) for v in sweep.values()
+        isinstance(v, list) and all(_is_number(x) for x in v) for v in sweep.values()
     ):
         raise ValueError(f"sweep {sweep!r}")
+    combination = data.get("combination") or {}
+    if not isinstance(combination, dict) or not all(_is_number(v) for v in combination.values()):
+        raise ValueError("combination is not a {name: value} object")
+    combos = recorded_combinations(data)
+    if num_seeds * max(1, len(combos)) > MAX_RUNS:
+        raise ValueError(
+            f"{num_seeds} seeds x {len(combos)} combinations is over {MAX_RUNS:,} runs"
+        )
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def recorded_combinations(info: dict) -> list[dict[str, float]]:
@@ -90,11 +150,7 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     ``{name: number}``."""
     combos = info.get("combinations") or []
     if not isinstance(combos, list) or not all(
-        isinstance(c, dict)
-        and all(
-            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool)
-            for k, v in c.items()
-        )
+        isinstance(c, dict) and all(isinstance(k, str) and _is_number(v) for k, v in c.items())
         for c in combos
     ):
         raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
@@ -107,7 +163,8 @@ def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
     Raises:
         RunDirError: the sweep holds none.
     """
-    combos = sorted(p for p in Path(sweep_dir).glob(layout.COMBO_GLOB) if p.is_dir())
+    combos = sorted(Path(sweep_dir).glob(layout.COMBO_GLOB))
+    combos = [files.subdir(sweep_dir, p.name) for p in combos]  # a link is refused
     if not combos:
         raise RunDirError(
             f"{sweep_dir} is a sweep without combination directories (combo-000/, ...)"
@@ -115,25 +172,38 @@ def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
     return combos
 
 
-def read_metrics_csv(path: str | os.PathLike, max_rows: int | None = None) -> dict[str, np.ndarray]:
+def read_metrics_csv(
+    path: str | os.PathLike, max_rows: int | None = None, shape: tuple[int, int] | None = None
+) -> dict[str, np.ndarray]:
     """Reads ``metrics.csv`` (:mod:`jaxcart.rundir.outputs`) back into leaves
     ``[iterations, S]``.
 
-    ``max_rows`` (seeds x iterations, from the run's config) bounds what is read.
+    ``max_rows`` (seeds x iterations, from the run's config) bounds what is read, and
+    ``shape`` (iterations, seeds) the indices of its rows: nothing is allocated from a
+    number in the file itself.
     """
     path = Path(path)
-    if max_rows is not None and path.stat().st_size > (max_rows + 1) * MAX_CSV_BYTES_PER_ROW:
-        raise RunDirError(f"{path} is larger than {max_rows} rows can be")
+    limit = MAX_JSON_BYTES * 64 if max_rows is None else (max_rows + 1) * MAX_CSV_BYTES_PER_ROW
+    text = files.read_bytes(path, limit)
     seed_column, iteration_column, _ = layout.METRICS_INDEX_COLUMNS
     try:
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
+        rows = list(csv.DictReader(io.StringIO(text.decode(), newline="")))
         if not rows:
             raise RunDirError(f"{path} has no rows")
         seeds = np.array([int(r[seed_column]) for r in rows])
         iterations = np.array([int(r[iteration_column]) for r in rows])
-        if seeds.min() < 0 or iterations.min() < 1 or len(rows) > (max_rows or len(rows)):
-            raise RunDirError(f"{path} has rows out of range")
+        max_iterations, num_seeds = shape or (iterations.max(), seeds.max() + 1)
+        if (
+            seeds.min() < 0
+            or iterations.min() < 1
+            or seeds.max() >= num_seeds
+            or iterations.max() > max_iterations
+            or len(rows) > (max_rows or len(rows))
+        ):
+            raise RunDirError(
+                f"{path} has rows out of range (seed_index in [0, {num_seeds}), "
+                f"iteration in [1, {max_iterations}])"
+            )
         out: dict[str, np.ndarray] = {}
         for name in rows[0]:
             if name in (seed_column, iteration_column):
@@ -150,13 +220,33 @@ def read_run_metrics(run_dir: str | os.PathLike, info: dict) -> dict[str, np.nda
     """A run's ``metrics.csv``, bounded by the seeds x iterations its ``info`` (its
     ``config.json``) trains; leaves ``[iterations, S]``."""
     path = files.inside(run_dir, layout.METRICS_FILE)
-    max_rows = int(info.get("num_seeds", 1)) * info["config"].num_iterations
-    return read_metrics_csv(path, max_rows=max_rows)
+    num_seeds, iterations = int(info.get("num_seeds", 1)), info["config"].num_iterations
+    return read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
 
 
-def read_evaluation(run_dir: str | os.PathLike) -> dict:
-    """A run's ``evaluation.json`` (per-seed returns and solved flags)."""
-    return read_json(run_dir, layout.EVALUATION_FILE)
+def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) -> dict:
+    """A run's ``evaluation.json`` (per-seed returns and solved flags), checked: one entry
+    per seed (``num_seeds``, from its ``config.json``, when given), each with a finite
+    ``gymnasium_mean`` and a boolean ``solved``.
+    """
+    data = read_json(run_dir, layout.EVALUATION_FILE)
+    path = Path(run_dir) / layout.EVALUATION_FILE
+    seeds = data.get("seeds")
+    if not isinstance(seeds, list) or not all(
+        isinstance(s, dict)
+        and _is_number(s.get("gymnasium_mean"))
+        and isinstance(s.get("solved"), bool)
+        for s in seeds
+    ):
+        raise RunDirError(
+            f"{path} is corrupted: seeds is not a list of {{gymnasium_mean, solved, ...}}"
+        )
+    if num_seeds is not None and len(seeds) != num_seeds:
+        raise RunDirError(f"{path} holds {len(seeds)} seeds, its config.json trains {num_seeds}")
+    episodes = data.get("episodes")
+    if episodes is not None and not _is_int(episodes, 1, MAX_EVAL_EPISODES):
+        raise RunDirError(f"{path} is corrupted: episodes {episodes!r}")
+    return data
 
 
 def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
@@ -174,7 +264,7 @@ def load_params(run_dir: str | os.PathLike) -> dict:
             f"{run_dir} is a sweep: each combination is a run directory of its own, "
             f"e.g. {layout.combo_dir(run_dir, 0)}"
         )
-    if not path.exists():
+    if files.refuse_link(path) is None:
         raise RunDirError(
             f"{run_dir} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
         )
@@ -205,14 +295,26 @@ def _bytes(headers: dict[str, files.Header]) -> int:
 
 
 def read_checkpoint_meta(path: str | os.PathLike) -> dict:
-    """The metadata of a checkpoint, with a :class:`RunDirError` if it is unreadable or of
-    another format."""
+    """The metadata of a checkpoint, with a :class:`RunDirError` if it is unreadable, of
+    another format, or holds fields of the wrong type or out of range."""
     meta = files.read_meta(path)
-    if not isinstance(meta, dict) or meta.get("checkpoint_format") != layout.CHECKPOINT_FORMAT:
-        found = meta.get("checkpoint_format") if isinstance(meta, dict) else None
+    if meta.get("checkpoint_format") != layout.CHECKPOINT_FORMAT:
         raise RunDirError(
-            f"checkpoint {path} has format {found}, this version reads {layout.CHECKPOINT_FORMAT}"
+            f"checkpoint {path} has format {meta.get('checkpoint_format')!r:.40}, this version "
+            f"reads {layout.CHECKPOINT_FORMAT}"
         )
+    checks = {
+        "iteration": _is_int(meta.get("iteration"), 0, 1 << 40),
+        "chunk_size": _is_int(meta.get("chunk_size"), 1, 1 << 40),
+        "elapsed": _is_number(meta.get("elapsed")) and meta.get("elapsed") >= 0,
+        "wave": _is_int(meta.get("wave", 0), 0, MAX_RUNS),
+        "num_runs": _is_int(meta.get("num_runs", 1), 1, MAX_RUNS),
+        "versions": isinstance(meta.get("versions", {}), dict)
+        and all(isinstance(v, str) for v in meta.get("versions", {}).values()),
+    }
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        raise RunDirError(f"checkpoint {path} is corrupted: {', '.join(bad)} out of range")
     return meta
 
 
@@ -276,6 +378,50 @@ def _expected_headers(template: TrainState, num_runs: int | None, iterations: in
     return expected
 
 
+def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> None:
+    """Refuses a wave file (:class:`~jaxcart.rundir.outputs.Block`) that is not the one this
+    run wrote for ``runs``: its headers (parameters of this network, metrics
+    ``[iterations, n]``, returns ``[n, episodes]``) are checked before anything is read, then
+    its digest and finite parameters.
+
+    Raises:
+        RunDirError: a link, torn, crafted, edited or of another shape.
+    """
+    n = len(runs)
+    expected = {
+        layout.BLOCK_PARAMS + name: header for name, header in params_headers(config, n).items()
+    }
+    found = files.read_headers(path, max_bytes=_block_bytes(config, n, episodes))
+    found.pop(files.META_KEY, None)
+    iterations = config.num_iterations
+    fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
+    wrong = [name for name, header in expected.items() if found.get(name) != header]
+    wrong += [name for name, shape in fixed.items() if found.get(name, ((), None))[0] != shape]
+    wrong += [
+        name
+        for name, (shape, _) in found.items()
+        if name.startswith(layout.BLOCK_METRICS) and shape != (iterations, n)
+    ]
+    if wrong:
+        raise RunDirError(f"{path} does not hold this wave's results: {wrong[0]} has another shape")
+    arrays, meta = files.load_tree(path, max_bytes=_block_bytes(config, n, episodes))
+    if meta is None or (meta.get("start"), meta.get("stop")) != (runs.start, runs.stop):
+        raise RunDirError(f"{path} is not the file of runs [{runs.start}, {runs.stop})")
+    if meta.get(layout.DIGEST_KEY) != files.arrays_digest(arrays):
+        raise RunDirError(
+            f"{path} does not match its digest: edited or corrupted; delete it to "
+            "train that wave again"
+        )
+    files.check_finite({n: a for n, a in arrays.items() if n.startswith(layout.BLOCK_PARAMS)}, path)
+
+
+def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
+    """A generous bound on a wave file of ``n`` runs."""
+    params = _bytes(params_headers(config, n))
+    metrics = 64 * config.num_iterations * n * 8
+    return params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20)
+
+
 @dataclass(frozen=True)
 class CheckpointRuns:
     """What a run's checkpoint holds for reading: every run's parameters and metrics so far.
@@ -309,7 +455,7 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
     run_dir = Path(run_dir)
     info = info or read_run_config(run_dir)
     config = info["config"]
-    if not (run_dir / layout.CHECKPOINT_FILE).exists():
+    if files.refuse_link(run_dir / layout.CHECKPOINT_FILE) is None:
         raise RunDirError(f"{run_dir} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}")
     path = files.inside(run_dir, layout.CHECKPOINT_FILE)
     meta = read_checkpoint_meta(path)

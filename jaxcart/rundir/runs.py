@@ -63,7 +63,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     elapsed = _first_finite(metrics[ELAPSED_METRIC]) if ELAPSED_METRIC in metrics else None
     evaluation = None
     if (path / layout.EVALUATION_FILE).exists():
-        evaluation = reader.read_evaluation(path)
+        evaluation = reader.read_evaluation(path, int(info.get("num_seeds", 1)))
     num_seeds = next(iter(metrics.values())).shape[1]
     combination = info.get("combination") or None
     if label is None:

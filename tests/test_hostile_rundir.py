@@ -1,0 +1,753 @@
+"""A run directory as a trust boundary: crafted, linked, edited and half-deleted run
+directories are refused in one line (a :class:`RunDirError`, exit 2 from the command line),
+nothing outside the directory is read or written through a link, and no size or index in a
+file drives an allocation.
+
+The cases are generated: a session fixture trains a few tiny runs once (finished,
+interrupted, a sweep, a run in waves), each case copies one and breaks it in one way, then
+tries the readers (resume, load_policy, plot, compare's evaluation, evaluate's parameters).
+The counts go to the "fault injection" summary at the end of the session.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import warnings
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import FAULT_FIGURES
+from helpers import TINY, TRAIN_ENV
+
+from jaxcart import compare, train
+from jaxcart.core.config import ConfigError
+from jaxcart.run import lifecycle, training, waves
+from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+from jaxcart.rundir import files, layout, policy, reader, runs
+from jaxcart.rundir.directory import RunDir
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.lock import RunLock
+
+SMALL = dataclasses.replace(TINY, total_timesteps=256, anneal_lr=False)  # 2 iterations
+OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=1)
+PRECIOUS = b"a file outside the run directory\n"
+
+
+@pytest.fixture(scope="session")
+def bases(tmp_path_factory) -> dict[str, Path]:
+    """Tiny runs, trained once: ``finished``, ``interrupted`` (1 of 4 iterations), a finished
+    ``sweep`` of two combinations, and ``waved``, 4 seeds trained in waves of 2."""
+    root = tmp_path_factory.mktemp("hostile-bases")
+    lifecycle.run_new(RunSpec(SMALL, num_seeds=2), root / "finished", OPTIONS)
+    longer = RunSpec(dataclasses.replace(SMALL, total_timesteps=512), num_seeds=2)
+    run = lifecycle.create_run(longer, root / "interrupted")
+    chunks: list[int] = []
+    hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
+    result = training.train_wave(run, OPTIONS, hooks, should_stop=lambda: len(chunks) == 1)
+    training.save_state(run, result.state)
+    run.close()
+    sweep = RunSpec(SMALL, num_seeds=1, sweep={"learning_rate": [1e-3, 2e-3]})
+    lifecycle.run_new(sweep, root / "sweep", OPTIONS)
+    two = waves.PROCESS_RESERVE_BYTES + 2 * waves.bytes_per_run(SMALL, 2) / waves.USABLE_FRACTION
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(waves.MEMORY_ENV, str(int(two) + 10))
+        lifecycle.run_new(RunSpec(SMALL, num_seeds=4), root / "waved", OPTIONS)
+    assert (root / "waved" / layout.WAVES_DIR / "wave-00001.npz").is_file()
+    return {p.name: p for p in root.iterdir()}
+
+
+# ---- mutations --------------------------------------------------------------------------
+
+
+def edit_json(path: Path, change: Callable[[dict], object], redigest: bool = True) -> None:
+    """Changes a JSON file; ``redigest`` recomputes config.json's digest (a run made so)."""
+    data = json.loads(path.read_text())
+    change(data)
+    if redigest and layout.DIGEST_KEY in data:
+        data.pop(layout.DIGEST_KEY)
+        data[layout.DIGEST_KEY] = files.json_digest(data)
+    path.write_text(json.dumps(data))
+
+
+def raw_meta(path: Path, meta: bytes) -> None:
+    """Replaces a tree file's ``__meta__`` entry with ``meta`` (any bytes)."""
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays[files.META_KEY] = np.frombuffer(meta, np.uint8)
+    np.savez(path, **arrays)
+
+
+def edit_meta(**changes: object) -> Callable[[Path, Path], None]:
+    def mutate(run: Path, outside: Path) -> None:
+        path = run / layout.CHECKPOINT_FILE
+        meta = json.loads(bytes(np.load(path)[files.META_KEY]).decode())
+        raw_meta(path, json.dumps({**meta, **changes}).encode())
+
+    return mutate
+
+
+def edit_wave(change: Callable[[dict, dict], None], redigest: bool) -> Callable[[Path, Path], None]:
+    """Rewrites wave 0 of a run in waves after ``change(arrays, meta)``."""
+
+    def mutate(run: Path, outside: Path) -> None:
+        path = run / layout.WAVES_DIR / "wave-00000.npz"
+        arrays, meta = files.load_tree(path)
+        change(arrays, meta)
+        if redigest:
+            meta[layout.DIGEST_KEY] = files.arrays_digest(arrays)
+        files.save_tree(path, arrays, meta)
+
+    return mutate
+
+
+def link(name: str, to: str = "outside") -> Callable[[Path, Path], None]:
+    """Replaces ``name`` in the run directory with a link to ``outside``'s file or directory
+    of that name (``to="dangling"``: to a path that does not exist)."""
+
+    def mutate(run: Path, outside: Path) -> None:
+        target = run / name
+        if target.is_dir() and not target.is_symlink():
+            shutil.rmtree(target)
+        else:
+            target.unlink(missing_ok=True)
+        dest = {"outside": outside / name, "dangling": outside / "missing", "zero": "/dev/zero"}
+        os.symlink(dest[to], target)
+
+    return mutate
+
+
+def metrics_csv(text: str) -> Callable[[Path, Path], None]:
+    return lambda run, outside: (run / layout.METRICS_FILE).write_text(text)
+
+
+def config_field(redigest: bool = True, **fields: object) -> Callable[[Path, Path], None]:
+    return lambda run, outside: edit_json(
+        run / layout.CONFIG_FILE, lambda d: d.update(fields), redigest
+    )
+
+
+def config_text(text: str) -> Callable[[Path, Path], None]:
+    """config.json with one field's value replaced by raw JSON text."""
+
+    def mutate(run: Path, outside: Path) -> None:
+        data = json.loads((run / layout.CONFIG_FILE).read_text())
+        data.pop(layout.DIGEST_KEY)
+        body = json.dumps(data)
+        (run / layout.CONFIG_FILE).write_text(body[:-1] + ", " + text + "}")
+
+    return mutate
+
+
+def hidden(text: str) -> Callable[[Path, Path], None]:
+    """config.json with ``text`` as its first hidden size, digest recomputed over the value
+    it parses to (a crafted file, not a hand edit)."""
+
+    def mutate(run: Path, outside: Path) -> None:
+        data = json.loads((run / layout.CONFIG_FILE).read_text())
+        data.pop(layout.DIGEST_KEY)
+        data["config"]["hidden_sizes"] = [json.loads(text)]
+        body = json.dumps({**data, layout.DIGEST_KEY: files.json_digest(data)})
+        (run / layout.CONFIG_FILE).write_text(body.replace("Infinity", text))
+
+    return mutate
+
+
+def evaluation(change: Callable[[dict], object]) -> Callable[[Path, Path], None]:
+    return lambda run, outside: edit_json(run / layout.EVALUATION_FILE, change)
+
+
+def fifo(name: str) -> Callable[[Path, Path], None]:
+    def mutate(run: Path, outside: Path) -> None:
+        (run / name).unlink()
+        os.mkfifo(run / name)
+
+    return mutate
+
+
+def zip_bomb(run: Path, outside: Path) -> None:
+    """wave 0 as a deflated entry of 64 MB of zeros (64 KB on disk)."""
+    path = run / layout.WAVES_DIR / "wave-00000.npz"
+    buf = io.BytesIO()
+    with (
+        zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf,
+        zf.open("gym_returns.npy", "w") as f,
+    ):
+        np.lib.format.write_array_header_1_0(
+            f, {"descr": "<f8", "fortran_order": False, "shape": (8 << 20,)}
+        )
+        for _ in range(64):
+            f.write(bytes(1 << 20))
+    path.write_bytes(buf.getvalue())
+
+
+def unfinish(run: Path, outside: Path) -> None:
+    """A run in waves stopped after its waves, before its outputs: resume only builds them."""
+    for name in (layout.EVALUATION_FILE, layout.PARAMS_FILE, layout.METRICS_FILE):
+        (run / name).unlink()
+
+
+def both(*mutations: Callable[[Path, Path], None]) -> Callable[[Path, Path], None]:
+    def mutate(run: Path, outside: Path) -> None:
+        for m in mutations:
+            m(run, outside)
+
+    return mutate
+
+
+# ---- what is tried on a broken directory ------------------------------------------------
+
+
+def resume(run: Path) -> None:
+    lifecycle.resume_run(run, OPTIONS)
+
+
+def load_policy(run: Path) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # an unfinished run's note
+        policy.load_policy(run, "all")
+
+
+def plot(run: Path) -> None:
+    runs.load_runs([run])
+
+
+def compare_scores(run: Path) -> None:
+    for loaded in runs.load_runs([run]):
+        compare.read_scores(loaded)
+
+
+def evaluate_params(run: Path) -> None:
+    policy.run_params(run)
+
+
+def sweep_policy(run: Path) -> None:
+    policy.run_params(run, combination=0)
+
+
+READERS = (load_policy, plot, compare_scores, evaluate_params)
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    name: str
+    base: str
+    mutate: Callable[[Path, Path], None]
+    actions: tuple[Callable[[Path], None], ...]
+    match: str
+
+
+S_LINK = "symbolic link"
+CORRUPT = "corrupted|out of range|incompatible|has format"
+CASES = [
+    # writes outside through links
+    Case("lock-link", "interrupted", link(layout.LOCK_FILE), (resume,), S_LINK),
+    Case("lock-dangling", "interrupted", link(layout.LOCK_FILE, "dangling"), (resume,), S_LINK),
+    Case("lock-link-finished", "finished", link(layout.LOCK_FILE), (resume,), S_LINK),
+    Case("combo-link-finished-sweep", "sweep", link("combo-000"), (resume,), "already finished"),
+    Case(
+        "combo-link-unfinished-sweep",
+        "sweep",
+        both(link("combo-000"), lambda r, o: (r / layout.SWEEP_FILE).unlink()),
+        (resume,),
+        S_LINK,
+    ),
+    Case("waves-link", "waved", both(unfinish, link(layout.WAVES_DIR)), (resume,), S_LINK),
+    # reads outside through links, FIFOs and devices
+    Case("config.json-link", "finished", link(layout.CONFIG_FILE), READERS, S_LINK),
+    Case(
+        "params-link", "finished", link(layout.PARAMS_FILE), (load_policy, evaluate_params), S_LINK
+    ),
+    Case("metrics-link", "finished", link(layout.METRICS_FILE), (plot, compare_scores), S_LINK),
+    Case(
+        "evaluation-link", "finished", link(layout.EVALUATION_FILE), (plot, compare_scores), S_LINK
+    ),
+    Case(
+        "checkpoint-link", "interrupted", link(layout.CHECKPOINT_FILE), (resume, *READERS), S_LINK
+    ),
+    Case(
+        "checkpoint-dev-zero",
+        "interrupted",
+        link(layout.CHECKPOINT_FILE, "zero"),
+        (resume, *READERS),
+        S_LINK,
+    ),
+    Case(
+        "checkpoint-fifo",
+        "interrupted",
+        fifo(layout.CHECKPOINT_FILE),
+        (resume, *READERS),
+        "not a regular file",
+    ),
+    Case("config-fifo", "finished", fifo(layout.CONFIG_FILE), READERS, "not a regular file"),
+    Case("params-fifo", "finished", fifo(layout.PARAMS_FILE), (load_policy,), "not a regular file"),
+    Case("combo-link-read", "sweep", link("combo-000"), (sweep_policy, plot), S_LINK),
+    Case(
+        "wave-file-link", "waved", both(unfinish, link("waves/wave-00000.npz")), (resume,), S_LINK
+    ),
+    # sizes and indices from the files
+    Case(
+        "metrics-seed-index",
+        "finished",
+        metrics_csv("seed_index,iteration,env_steps,x\n200000,1,128,0\n"),
+        (plot,),
+        "out of range",
+    ),
+    Case(
+        "metrics-iteration",
+        "finished",
+        metrics_csv("seed_index,iteration,env_steps,x\n0,90000000,128,0\n"),
+        (plot,),
+        "out of range",
+    ),
+    Case(
+        "eval-episodes-huge",
+        "interrupted",
+        config_field(eval_episodes=10_000_000),
+        (resume,),
+        "eval_episodes",
+    ),
+    Case("wave-zip-bomb", "waved", both(unfinish, zip_bomb), (resume,), "compressed|declares"),
+    *(
+        Case(
+            f"meta-{name}", "interrupted", edit_meta(**{field: value}), (resume, *READERS), CORRUPT
+        )
+        for name, field, value in (
+            ("chunk-negative", "chunk_size", -7),
+            ("chunk-zero", "chunk_size", 0),
+            ("chunk-string", "chunk_size", "7"),
+            ("iteration-string", "iteration", "1"),
+            ("iteration-null", "iteration", None),
+            ("iteration-list", "iteration", [1]),
+            ("elapsed-string", "elapsed", "fast"),
+            ("versions-list", "versions", ["jax"]),
+            ("versions-string", "versions", "0.4"),
+            ("format-list", "checkpoint_format", [2]),
+            ("wave-negative", "wave", -1),
+        )
+    ),
+    Case(
+        "meta-deep-nesting",
+        "interrupted",
+        lambda r, o: raw_meta(r / layout.CHECKPOINT_FILE, b"[" * 200_000),
+        (resume, *READERS),
+        CORRUPT,
+    ),
+    Case(
+        "meta-not-json",
+        "interrupted",
+        lambda r, o: raw_meta(r / layout.CHECKPOINT_FILE, b"\xff{"),
+        (resume, *READERS),
+        CORRUPT,
+    ),
+    # crafted config.json
+    Case("config-hidden-1e400", "interrupted", hidden("1e400"), (resume, *READERS), CORRUPT),
+    Case("config-num-seeds-1e30", "finished", config_text('"num_seeds": 1e30'), READERS, CORRUPT),
+    Case("config-preset-list", "finished", config_field(preset=["sb3"]), READERS, CORRUPT),
+    Case("config-preset-dict", "finished", config_field(preset={"a": 1}), READERS, CORRUPT),
+    Case("config-combination-list", "finished", config_field(combination=[1, 2]), READERS, CORRUPT),
+    Case(
+        "config-combinations-dict",
+        "finished",
+        config_field(combinations={"a": 1}),
+        READERS,
+        CORRUPT,
+    ),
+    Case(
+        "config-seed-5000-digits",
+        "finished",
+        config_text('"seed": ' + "9" * 5000),
+        READERS,
+        CORRUPT,
+    ),
+    Case(
+        "config-infinity-float",
+        "finished",
+        config_text(
+            '"config": '
+            + json.dumps({**SMALL.to_dict(), "hidden_sizes": [64]}).replace(
+                '"learning_rate": 0.001', '"learning_rate": Infinity'
+            )
+        ),
+        READERS,
+        CORRUPT,
+    ),
+    Case(
+        "config-not-object",
+        "finished",
+        lambda r, o: (r / layout.CONFIG_FILE).write_text("[1]"),
+        READERS,
+        "not a JSON object",
+    ),
+    # silently wrong before
+    Case(
+        "config-hand-edited",
+        "interrupted",
+        config_field(redigest=False, seed=3),
+        (resume,),
+        "digest",
+    ),
+    Case(
+        "device-change",
+        "interrupted",
+        config_field(device_count=1),
+        (resume,),
+        "xla_force_host_platform_device_count=1",
+    ),
+    Case(
+        "wave-shape",
+        "waved",
+        both(unfinish, edit_wave(lambda a, m: a.update({"gym_returns": np.zeros((2, 3))}), True)),
+        (resume,),
+        "another shape",
+    ),
+    Case(
+        "wave-nan",
+        "waved",
+        both(
+            unfinish,
+            edit_wave(
+                lambda a, m: next(v for k, v in a.items() if k.startswith("params/")).fill(np.nan),
+                True,
+            ),
+        ),
+        (resume,),
+        "NaN",
+    ),
+    Case(
+        "wave-edited",
+        "waved",
+        both(unfinish, edit_wave(lambda a, m: a["gym_returns"].fill(500.0), False)),
+        (resume,),
+        "digest",
+    ),
+    Case(
+        "wave-other-runs",
+        "waved",
+        both(unfinish, edit_wave(lambda a, m: m.update(start=2, stop=4), True)),
+        (resume,),
+        "not the file of runs",
+    ),
+    Case(
+        "evaluation-seed-count",
+        "finished",
+        evaluation(lambda d: d["seeds"].pop()),
+        (plot, compare_scores),
+        "holds 1 seeds",
+    ),
+    Case(
+        "evaluation-seeds-string",
+        "finished",
+        evaluation(lambda d: d.update(seeds="abc")),
+        (plot, compare_scores),
+        CORRUPT,
+    ),
+    Case(
+        "evaluation-seeds-numbers",
+        "finished",
+        evaluation(lambda d: d.update(seeds=[1, 2])),
+        (plot, compare_scores),
+        CORRUPT,
+    ),
+    Case(
+        "evaluation-mean-string",
+        "finished",
+        evaluation(lambda d: d["seeds"][0].update(gymnasium_mean="x")),
+        (plot, compare_scores),
+        CORRUPT,
+    ),
+    Case(
+        "evaluation-solved-string",
+        "finished",
+        evaluation(lambda d: d["seeds"][0].update(solved="yes")),
+        (plot, compare_scores),
+        CORRUPT,
+    ),
+    Case(
+        "evaluation-episodes-huge",
+        "finished",
+        evaluation(lambda d: d.update(episodes=10**9)),
+        (plot, compare_scores),
+        CORRUPT,
+    ),
+    Case("finished-sweep-resume", "sweep", lambda r, o: None, (resume,), "already finished"),
+]
+
+
+def snapshot(root: Path) -> dict[str, tuple[bytes, int]]:
+    """Every file under ``root``: its bytes and mtime."""
+    return {
+        str(p.relative_to(root)): (p.read_bytes(), p.stat().st_mtime_ns)
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def prepare(bases: dict[str, Path], base: str, tmp_path: Path) -> tuple[Path, Path]:
+    """A copy of ``base`` to break, and ``outside``: files a link may point to (a copy of
+    another finished run, plus a plain file under each run file's name)."""
+    run, outside = tmp_path / "run", tmp_path / "outside"
+    shutil.copytree(bases[base], run, symlinks=True)
+    shutil.copytree(bases["finished"] if base != "waved" else bases["waved"], outside)
+    (outside / layout.LOCK_FILE).write_bytes(PRECIOUS)
+    (outside / "combo-000").mkdir(exist_ok=True)
+    (outside / "combo-000" / "keep.txt").write_bytes(PRECIOUS)
+    return run, outside
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_a_crafted_run_directory_is_refused_in_one_line(case, bases, tmp_path):
+    run, outside = prepare(bases, case.base, tmp_path)
+    case.mutate(run, outside)
+    before = snapshot(outside)
+    for action in case.actions:
+        with pytest.raises((RunDirError, ConfigError), match=case.match) as info:
+            action(run)
+        assert "\n" not in str(info.value), f"{action.__name__}: {info.value}"
+        FAULT_FIGURES["hostile run directories: crafted cases x readers, refused"] += 1
+    assert snapshot(outside) == before  # nothing outside was written through a link
+    assert not (outside / "missing").exists()  # a dangling link created nothing
+    FAULT_FIGURES["hostile run directories: crafted cases"] += 1
+
+
+CLI_CASES = [c for c in CASES if resume in c.actions and c.base != "waved"][:12]
+
+
+@pytest.mark.parametrize("case", CLI_CASES, ids=[c.name for c in CLI_CASES])
+def test_the_command_line_says_one_line_and_exits_2(case, bases, tmp_path, capsys):
+    run, outside = prepare(bases, case.base, tmp_path)
+    case.mutate(run, outside)
+    assert train.main(["--resume", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: cannot resume:") and "\n" not in err and "Traceback" not in err
+    FAULT_FIGURES["hostile run directories: command lines, one line + exit 2"] += 1
+
+
+def test_a_device_change_is_allowed_when_asked_and_recorded(bases, tmp_path):
+    run, outside = prepare(bases, "interrupted", tmp_path)
+    config_field(device_count=1)(run, outside)
+    outcome = lifecycle.resume_run(run, OPTIONS, allow_device_change=True)
+    assert not outcome.stopped
+    info = json.loads((run / layout.CONFIG_FILE).read_text())
+    assert info["device_changes"] == [{"from": 1, "to": 2}] and info["device_count"] == 2
+    assert reader.read_run_config(run, verify=True)["device_count"] == 2  # digest rewritten
+
+
+def test_an_interrupted_extension_reads_as_unfinished(bases, tmp_path):
+    run, _ = prepare(bases, "finished", tmp_path)
+    # the extension is opened (config.json rewritten) and then the process stops
+    lifecycle.open_run(run, extend_to=512).close()
+    assert not (run / layout.EVALUATION_FILE).exists() and not (run / layout.PARAMS_FILE).exists()
+    with pytest.warns(UserWarning, match="did not finish"):
+        policy.load_policy(run)
+    (curves,) = runs.load_runs([run])
+    assert "did not finish" in curves.note
+    with pytest.raises(RunDirError, match=r"no evaluation\.json"):
+        compare.read_scores(curves)
+    outcome = lifecycle.resume_run(run, OPTIONS)  # and the extension completes
+    assert not outcome.stopped and outcome.run.config.num_iterations == 4
+    assert (run / layout.EVALUATION_FILE).is_file()
+
+
+def test_a_run_directory_deleted_during_evaluation_is_not_recreated(bases, tmp_path, monkeypatch):
+    run, _ = prepare(bases, "interrupted", tmp_path)
+    evaluate = training.evaluate_wave
+
+    def delete_then_evaluate(r, *args, **kwargs):
+        shutil.rmtree(run)
+        return evaluate(r, *args, **kwargs)
+
+    monkeypatch.setattr(training, "evaluate_wave", delete_then_evaluate)
+    with pytest.raises(OSError):
+        lifecycle.resume_run(run, OPTIONS)
+    assert not run.exists()
+
+
+def test_a_failed_start_leaves_nothing_and_a_lock_only_directory_is_taken_over(
+    tmp_path, monkeypatch
+):
+    def fail(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(RunDir, "write_config", fail)
+    with pytest.raises(OSError):
+        lifecycle.create_run(RunSpec(SMALL), tmp_path / "new")
+    assert not (tmp_path / "new").exists()
+    monkeypatch.undo()
+    (tmp_path / "stuck").mkdir()
+    (tmp_path / "stuck" / layout.LOCK_FILE).write_text("12345\n")  # a start killed early
+    with pytest.raises(RunDirError, match="takes it over"):
+        lifecycle.resume_run(tmp_path / "stuck", OPTIONS)
+    run = lifecycle.create_run(RunSpec(SMALL), tmp_path / "stuck")
+    assert (tmp_path / "stuck" / layout.CONFIG_FILE).is_file()
+    run.close()
+    FAULT_FIGURES["hostile run directories: concurrency cases"] += 1
+
+
+def test_a_lock_only_directory_held_by_a_live_start_is_not_taken_over(tmp_path):
+    (tmp_path / "live").mkdir()
+    with RunLock(tmp_path / "live"):  # another start, before its config.json
+        with pytest.raises(RunDirError, match="in use by another jaxcart process"):
+            lifecycle.create_run(RunSpec(SMALL), tmp_path / "live")
+        assert (tmp_path / "live" / layout.LOCK_FILE).exists()  # its lock stays
+    FAULT_FIGURES["hostile run directories: concurrency cases"] += 1
+
+
+def test_two_resumes_of_one_run_one_is_refused(bases, tmp_path):
+    run, _ = prepare(bases, "interrupted", tmp_path)
+    opened = lifecycle.open_run(run)
+    try:
+        with pytest.raises(RunDirError, match="in use"):
+            lifecycle.open_run(run)
+    finally:
+        opened.close()
+    FAULT_FIGURES["hostile run directories: concurrency cases"] += 1
+
+
+@pytest.mark.parametrize(
+    ("env", "argv", "match"),
+    [
+        ({"JAXCART_MEMORY_BYTES": "abc"}, [], "JAXCART_MEMORY_BYTES"),
+        ({"JAXCART_MEMORY_BYTES": "inf"}, [], "JAXCART_MEMORY_BYTES"),
+        ({"JAXCART_MEMORY_BYTES": "nan"}, [], "JAXCART_MEMORY_BYTES"),
+        ({}, ["--eval-episodes", "1e8"], "at most"),
+        ({}, ["--checkpoint-every", "inf"], "--checkpoint-every"),
+        ({}, ["--checkpoint-every", "nan"], "--checkpoint-every"),
+    ],
+)
+def test_options_and_environment_variables_are_bounded(
+    env, argv, match, tmp_path, capsys, monkeypatch
+):
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    args = ["--num-envs", "4", "--num-steps", "32", "--total-timesteps", "256", "--quiet"]
+    assert train.main([*args, *argv, "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and "\n" not in err
+    FAULT_FIGURES["hostile run directories: bad options and variables"] += 1
+
+
+@pytest.mark.parametrize(
+    ("module", "argv", "match"),
+    [
+        ("compare", ["--reps", "1000000000"], "--reps"),
+        ("compare", ["--dpi", "100000"], "--dpi"),
+        ("plot", ["--dpi", "100000"], "--dpi"),
+        ("evaluate", ["--episodes", "1e8"], "at most"),
+    ],
+)
+def test_analysis_options_are_bounded(module, argv, match, bases, capsys):
+    main = __import__(f"jaxcart.{module}", fromlist=["main"]).main
+    assert main([str(bases["finished"]), *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and "\n" not in err
+    FAULT_FIGURES["hostile run directories: bad options and variables"] += 1
+
+
+def test_an_xla_device_count_of_zero_is_one_line(tmp_path):
+    env = {**TRAIN_ENV, "XLA_FLAGS": "--xla_force_host_platform_device_count=0"}
+    for module in ("train", "plot"):
+        proc = subprocess.run(
+            [sys.executable, "-m", f"jaxcart.{module}", str(tmp_path)],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert "device count in [1," in proc.stderr
+    FAULT_FIGURES["hostile run directories: bad options and variables"] += 2
+
+
+def interrupt_at(argv: list[str], delay: float) -> subprocess.CompletedProcess:
+    """Starts ``python -m ...argv``, sends SIGINT after ``delay`` seconds, waits."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", *argv],
+        env=TRAIN_ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    return subprocess.CompletedProcess(argv, proc.returncode, out, err)
+
+
+TRAIN_ARGV = [
+    "jaxcart.train",
+    "--num-envs",
+    "4",
+    "--num-steps",
+    "32",
+    "--total-timesteps",
+    "256",
+    "--quiet",
+]
+
+
+def check_interrupted(result: subprocess.CompletedProcess) -> None:
+    """No traceback and the exit code of a signal. A SIGINT that lands while CPython itself
+    starts (importing ``site``, before any line of jaxcart runs) ends in CPython's own
+    "init_import_site" report, which no package can handle: counted apart."""
+    if "init_import_site" in result.stderr:
+        FAULT_FIGURES["hostile run directories: signals landing in CPython's own start-up"] += 1
+        return
+    assert "Traceback" not in result.stderr and "Exception ignored" not in result.stderr, (
+        result.stderr
+    )
+    assert result.returncode in (0, 130, -signal.SIGINT), (result.returncode, result.stderr)
+
+
+@pytest.mark.parametrize("delay", [0.05, 0.15, 0.3, 0.6])
+def test_ctrl_c_while_train_starts_is_never_a_traceback(delay, tmp_path):
+    check_interrupted(interrupt_at([*TRAIN_ARGV, "--out", str(tmp_path / "r")], delay))
+    FAULT_FIGURES["hostile run directories: signal timings"] += 1
+
+
+@pytest.mark.parametrize("module", ["plot", "compare", "evaluate"])
+def test_ctrl_c_in_the_analysis_commands_is_never_a_traceback(module, bases):
+    check_interrupted(interrupt_at([f"jaxcart.{module}", str(bases["finished"])], 0.3))
+    FAULT_FIGURES["hostile run directories: signal timings"] += 1
+
+
+@pytest.mark.slow
+def test_ctrl_c_every_20_ms_over_the_first_half_second_of_train(tmp_path):
+    for step in range(26):
+        check_interrupted(
+            interrupt_at([*TRAIN_ARGV, "--out", str(tmp_path / f"r{step}")], 0.02 * step)
+        )
+        FAULT_FIGURES["hostile run directories: signal timings"] += 1
+
+
+AT_EXIT = (
+    "import atexit, os, signal, sys, time\n"
+    "from jaxcart import cli, plot, train\n"
+    "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(2)))\n"
+)
+
+
+@pytest.mark.parametrize(
+    "call", ["cli.command_main(lambda: plot.main(['--help']))", "train.cli_main(['--help'])"]
+)
+def test_ctrl_c_during_atexit_is_one_line(call):
+    proc = subprocess.run(
+        [sys.executable, "-c", AT_EXIT + call],
+        env=TRAIN_ENV,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr, proc.stderr
+    assert proc.returncode == 130 and "while exiting" in proc.stderr
+    FAULT_FIGURES["hostile run directories: signal timings"] += 1
