@@ -17,7 +17,14 @@ import numpy as np
 from jaxcart.core.ppo import Hyperparams
 from jaxcart.engine import distributed
 from jaxcart.engine.signals import Stopped, StopRequest
-from jaxcart.engine.trainer import Progress, TrainResult, TrainState, initial_state, train
+from jaxcart.engine.trainer import (
+    CHUNK_SECONDS,
+    Progress,
+    TrainResult,
+    TrainState,
+    initial_state,
+    train,
+)
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.evaluation import evaluate_runs
 from jaxcart.run.loggers import Logger, make_logger
@@ -45,7 +52,9 @@ def wave_start_state(
     if meta is not None and meta.get("wave", 0) == wave:
         # a one-run template names the arrays; the file has them all
         template = initial_state(run.config, 1, run.spec.seed, chunk_size=chunk_size)
-        return run.directory.load_checkpoint(template, num_runs=len(runs))
+        saved = run.directory.load_checkpoint(template, num_runs=len(runs))
+        # chunk lengths change no number: a resume adapts them unless told a fixed length
+        return dataclasses.replace(saved, chunk_seconds=None if chunk_size else CHUNK_SECONDS)
     hps = jax.tree.map(lambda x: x[runs.start : runs.stop], run_hyperparams(run))
     fresh = initial_state(
         run.config,
