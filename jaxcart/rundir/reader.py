@@ -29,14 +29,16 @@ if TYPE_CHECKING:  # the trainer (and JAX) load when a checkpoint is restored
     from jaxcart.engine.trainer import TrainState
 
 MAX_JSON_BYTES = 16 << 20
+EVAL_JSON_BYTES_PER_EPISODE = 64  # two returns per episode, as JSON, with room to spare
+EVAL_JSON_BYTES_PER_SEED = 1024  # a seed's entry besides its returns
 MAX_CSV_BYTES_PER_ROW = 4096
 
 
-def read_json(run_dir: str | os.PathLike, name: str) -> dict:
-    """A JSON object from a run directory, refusing links out of it, oversized files and
-    anything but an object."""
+def read_json(run_dir: str | os.PathLike, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
+    """A JSON object from a run directory, refusing links out of it, files over
+    ``max_bytes`` and anything but an object."""
     path = files.inside(run_dir, name)
-    if path.stat().st_size > MAX_JSON_BYTES:
+    if path.stat().st_size > max_bytes:
         raise RunDirError(f"{path} is larger than any {name} jaxcart writes")
     try:
         data = json.loads(path.read_text())
@@ -155,8 +157,15 @@ def read_run_metrics(run_dir: str | os.PathLike, info: dict) -> dict[str, np.nda
 
 
 def read_evaluation(run_dir: str | os.PathLike) -> dict:
-    """A run's ``evaluation.json`` (per-seed returns and solved flags)."""
-    return read_json(run_dir, layout.EVALUATION_FILE)
+    """A run's ``evaluation.json`` (per-seed returns and solved flags), bounded by the seeds
+    x episodes its ``config.json`` declares (a 100,000-seed run writes ~24 MB)."""
+    info = read_json(run_dir, layout.CONFIG_FILE)
+    try:
+        seeds, episodes = int(info.get("num_seeds", 1)), int(info.get("eval_episodes", 20))
+    except (TypeError, ValueError):
+        seeds, episodes = 0, 0
+    per_seed = EVAL_JSON_BYTES_PER_SEED + max(0, episodes) * EVAL_JSON_BYTES_PER_EPISODE
+    return read_json(run_dir, layout.EVALUATION_FILE, MAX_JSON_BYTES + max(0, seeds) * per_seed)
 
 
 def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
