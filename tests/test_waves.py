@@ -42,21 +42,21 @@ def test_estimate_is_above_xlas_own_memory_analysis(name, runs):
 
 
 def test_plan_sizes_waves_for_throughput_capped_by_memory():
-    """A million runs of TINY (4 envs each) on 2 CPU devices: waves of 64 runs per device (256
-    parallel envs each), not as many as memory holds; fewer when memory is short; balanced;
+    """A million runs of TINY on 2 CPU devices: waves of 32 runs per device, not as many as
+    memory holds; fewer when memory is short; balanced;
     --wave-size overrides; and the plan says how long it will take."""
     plan = plan_waves(TINY, 1_000_000, 2, eval_episodes=2, available=10**12)
-    assert plan.wave_size == 128 and plan.num_waves == 7813 and plan.bytes_per_run
-    assert "64 runs per cpu device" in plan.why and plan.wave_seconds > 0
+    assert plan.wave_size == 64 and plan.num_waves == 15_625 and plan.bytes_per_run
+    assert "32 runs per cpu device" in plan.why and plan.wave_seconds > 0
     waves = list(plan.waves())
-    assert waves[0] == range(0, 128) and waves[-1].stop == 1_000_000
+    assert waves[0] == range(0, 64) and waves[-1].stop == 1_000_000
     text = plan.describe("seeds")
-    assert text.startswith("1,000,000 seeds in 7,813 waves of 128 (estimated ")
+    assert text.startswith("1,000,000 seeds in 15,625 waves of 64 (estimated ")
     assert "GB per wave of" in text and "per wave," in text and "in all)" in text
     short = plan_waves(TINY, 1_000_000, 2, eval_episodes=2, available=memory_for(TINY, 51))
     assert short.wave_size == 50 and "as many as fit in memory" in short.why
-    balanced = plan_waves(TINY, 130, 2, eval_episodes=2, available=10**12)
-    assert balanced.num_waves == 2 and balanced.wave_size == 66  # not 128 + 2
+    balanced = plan_waves(TINY, 66, 2, eval_episodes=2, available=10**12)
+    assert balanced.num_waves == 2 and balanced.wave_size == 34  # not 64 + 2
     assert plan_waves(TINY, 3, 2, available=10**12).num_waves == 1
     forced = plan_waves(TINY, 256, 2, available=10**12, wave_size=64)
     assert forced.num_waves == 4 and forced.wave_size == 64 and "--wave-size" in forced.why

@@ -39,18 +39,18 @@ FIXED_BYTES_PER_RUN = 300_000
 EVAL_BYTES_PER_EPISODE = 8_000  # a Gymnasium env object and its bookkeeping, per episode
 PROCESS_RESERVE_BYTES = 1_500_000_000  # Python, JAX, XLA and the compiled program itself
 USABLE_FRACTION = 0.7
-CPU_ENVS_PER_DEVICE = 256
-"""Parallel environments (runs x num_envs) per CPU device at which a wave is wide enough.
-Measured on a 2-core machine (2 CPU devices): the fast preset (4 envs per run) cost about
-the same per run at 8 to 64 runs per device, while the sb3 preset (1 env, 32 minibatches of
-64 per epoch) cost ~95 ms per run and iteration at 32 runs per device, many times more per
-run than in waves of thousands, so the width counts environments, not runs."""
+CPU_RUNS_PER_DEVICE = 32
+"""Runs per CPU device in a wave. Measured on a 2-core machine (2 CPU devices, shared, so
++-2x): the fast preset cost 9-20 ms per run and iteration at 4 to 64 runs per device with no
+trend past 8, and the sb3 preset 95 ms at 32 runs per device but 149 ms at 256; wider waves
+only make every chunk slower (one sb3 iteration of 256 runs per device took 76 s)."""
 ACCELERATOR_ENVS_PER_DEVICE = 65_536
-"""The same for a GPU or TPU: a model (one environment per CUDA core or so), not measured."""
-CPU_SECONDS_PER_ENV_STEP = 2.5e-6
-"""Seconds per environment step and update epoch on one CPU device, for the time estimate:
-from the sb3 preset at 256 runs per device on a 2-core machine (see docs/reliability.md)."""
-ACCELERATOR_SECONDS_PER_ENV_STEP = 2.5e-8  # a guess; the first chunk's measurement replaces it
+"""Parallel environments (runs x num_envs) per GPU or TPU: a model, not measured."""
+CPU_SECONDS_PER_ENV_STEP = 8e-6
+"""Seconds per environment step and update epoch of one run on one CPU device, for the
+time estimate: 8.5 us (sb3 preset) and 7.1 us (fast) at 32 runs per device, measured as
+above."""
+ACCELERATOR_SECONDS_PER_ENV_STEP = 1e-8  # a guess; the first chunks' measurement follows
 MEMORY_ENV = "JAXCART_MEMORY_BYTES"
 """Overrides the available memory (bytes), e.g. to plan for a smaller share of a machine."""
 
@@ -102,12 +102,15 @@ def available_bytes() -> int:
 
 def throughput_runs_per_device(config: PPOConfig, backend: str) -> tuple[int, str]:
     """The runs per device that fill a device's parallel width, and why (one line)."""
-    envs = CPU_ENVS_PER_DEVICE if backend == "cpu" else ACCELERATOR_ENVS_PER_DEVICE
-    runs = max(1, envs // config.num_envs)
-    how = "measured on a 2-core CPU" if backend == "cpu" else "a model, not measured"
+    if backend == "cpu":
+        why = "wider waves cost as much per run (measured on a 2-core CPU)"
+        return CPU_RUNS_PER_DEVICE, f"{CPU_RUNS_PER_DEVICE} runs per cpu device: {why}; " + (
+            "--wave-size N overrides"
+        )
+    runs = max(1, ACCELERATOR_ENVS_PER_DEVICE // config.num_envs)
     return runs, (
-        f"{runs:,} runs per {backend} device: {envs:,} parallel environments fill one "
-        f"({how}); --wave-size N overrides"
+        f"{runs:,} runs per {backend} device: {ACCELERATOR_ENVS_PER_DEVICE:,} parallel "
+        "environments fill one (a model, not measured); --wave-size N overrides"
     )
 
 
