@@ -279,11 +279,8 @@ def train(
     start = time.perf_counter()
     compiled, fresh = None, False
     if state.iteration < config.num_iterations:  # a finished state needs no program
-        compiled, fresh = wait_interruptibly(
-            lambda: compiled_chunk(
-                config, env_params, state.chunk_size, runners, hps, state.chunk_seconds
-            )
-        )
+        sizes = (state.chunk_size, runners, hps, state.chunk_seconds)
+        compiled, fresh = wait_interruptibly(lambda: compiled_chunk(config, env_params, *sizes))
     compile_seconds = time.perf_counter() - start
     if on_compiled:
         on_compiled(compile_seconds)
