@@ -337,15 +337,15 @@ def _extend_hint(out: Path) -> str:
     current total), or why it cannot be; "" for any other run."""
     import shlex
 
-    from jaxcart.rundir import checkpoint
     from jaxcart.rundir import layout as rundir
+    from jaxcart.rundir import reader
+    from jaxcart.rundir.files import RunDirError
 
     try:
-        info = rundir.read_run_config(out)
+        info = reader.read_run_config(out)
         config = info["config"]
-        path = out / checkpoint.CHECKPOINT_FILE
-        iteration = checkpoint.read_checkpoint_meta(path)["iteration"]
-    except (rundir.RunDirError, OSError, KeyError, ValueError):
+        iteration = reader.read_checkpoint_meta(out / rundir.CHECKPOINT_FILE)["iteration"]
+    except (RunDirError, OSError, KeyError, ValueError):
         return ""
     written = rundir.SWEEP_FILE if rundir.is_sweep(out) else rundir.EVALUATION_FILE
     if iteration < config.num_iterations or not (out / written).exists():

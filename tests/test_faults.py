@@ -319,8 +319,8 @@ def test_sigint_during_compilation_is_acknowledged_at_once(tmp_path):
 @pytest.mark.slow
 def test_sigterm_during_initialisation_of_a_large_run(tmp_path):
     out = tmp_path / "init"
-    big = ["--num-seeds", "30000", "--num-envs", "1", "--num-steps", "64", "--minibatch-size"]
-    proc = start_train(*big, "64", "--total-timesteps", "64", "--out", str(out))
+    big = ["--num-seeds", "30000", "--wave-size", "30000", "--num-envs", "1", "--num-steps", "64"]
+    proc = start_train(*big, "--minibatch-size", "64", "--total-timesteps", "64", "--out", str(out))
     text = _signal_when(proc, lambda: (out / "config.json").exists(), signal.SIGTERM, 0.3)
     _clean_stop(text, 128 + signal.SIGTERM, proc, signal.SIGTERM)
     assert "stopped before training started" in text and f"--resume {out}" in text
