@@ -207,7 +207,8 @@ def plan_waves(
         if wave_size > max(fit, num_devices):
             raise ConfigError(
                 f"--wave-size {wave_size:,} needs about {wave_size * per_run / 1e9:.2g} GB; "
-                f"{fit:,} runs fit in the {available / 1e9:.2g} GB available"
+                f"{fit:,} runs fit in the share of the {available / 1e9:.2g} GB available "
+                f"that jaxcart plans for"
             )
         size, why = min(wave_size, num_runs), f"{wave_size:,} runs per wave (--wave-size)"
     else:
