@@ -21,7 +21,8 @@ if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
 
     from jaxcart.engine.trainer import Progress
-    from jaxcart.run.spec import Outcome, Run
+    from jaxcart.run.spec import Outcome, Run, RunSpec
+    from jaxcart.run.waves import WavePlan
 
 
 MAX_TABLE_ROWS = 100
@@ -246,6 +247,12 @@ def stopped_text(outcome: Outcome, resume_hint: str) -> str:
     return f"stopped {where}; checkpoint saved in {run.out}\nresume with: {resume_hint}"
 
 
+def plan_text(plan: WavePlan, spec: RunSpec) -> str:
+    """The plan: runs, waves, memory and estimated time; then how the width was chosen."""
+    text = plan.describe("runs" if spec.grid.is_sweep else "seeds")
+    return f"{text}\n{plan.why}" if plan.why else text
+
+
 def resume_command(out: Path) -> str:
     """``python -m jaxcart.train --resume RUN`` with the path quoted for the shell."""
     from jaxcart.run.lifecycle import RESUME_HINT
@@ -308,6 +315,7 @@ class ConsoleReport:
         self.init_bar = None
         self.wave_offset = 0
         self.run: Run | None = None
+        self.pace_start: tuple[float, int] | None = None  # (elapsed, iteration) at first chunk
 
     def print(self, text: str) -> None:
         print(text, file=self.out, flush=True)
@@ -329,7 +337,7 @@ class ConsoleReport:
         if run.plan.num_waves > 1:
             what = "runs" if run.grid.is_sweep else "seeds"
             self.print(
-                run.plan.describe(what)
+                plan_text(run.plan, run.spec)
                 if run.plan.bytes_per_run
                 else f"{run.plan.num_runs:,} {what} in {run.plan.num_waves:,} waves of "
                 f"{run.plan.wave_size:,}"
@@ -365,6 +373,7 @@ class ConsoleReport:
             )
 
     def on_chunk(self, progress: Progress) -> None:
+        self._measure_pace(progress)
         if self.bar is None:
             return
         ret = progress.metrics["rollout/ep_rew_mean"][-1]
@@ -373,6 +382,29 @@ class ConsoleReport:
             f"env steps/seed {progress.env_steps:,} | ep_rew_mean {mean_ret:.1f}", refresh=False
         )
         self.bar.update(self.wave_offset + progress.iteration - self.bar.n)
+
+    def _measure_pace(self, progress: Progress) -> None:
+        """Once, after 10 s of training past the first chunk (which includes warm-up): the
+        measured time per iteration and what it means for the waves left."""
+        if self.pace_start is None:
+            self.pace_start = (progress.elapsed, progress.iteration)
+            return
+        seconds, iterations = progress.elapsed - self.pace_start[0], progress.iteration
+        iterations -= self.pace_start[1]
+        if self.pace_start[1] < 0 or seconds < 10 or iterations <= 0:
+            return
+        from jaxcart.run.waves import format_duration
+
+        plan, pace = self.run.plan, seconds / iterations
+        wave_seconds = pace * self.run.config.num_iterations
+        left = pace * (progress.num_iterations - progress.iteration)
+        waves_after = plan.num_waves - 1 - self.wave_offset // max(1, progress.num_iterations)
+        left += wave_seconds * waves_after
+        text = f"measured {pace:.3g} s per iteration: {format_duration(wave_seconds)} per wave"
+        if plan.num_waves > 1:
+            text += f", about {format_duration(left)} left for {plan.num_waves:,} waves"
+        (self.bar.write if self.bar is not None else print)(text, file=sys.stderr)
+        self.pace_start = (0.0, -1)  # said once
 
     def on_diverged(self, run_name: str, iteration: int) -> None:
         message = (

@@ -130,6 +130,19 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         action="store_true",
         help="do not use JAX's persistent compilation cache (~/.cache/jaxcart/jax)",
     )
+    run.add_argument(
+        "--wave-size",
+        type=cli.count,
+        default=None,
+        metavar="N",
+        help="train N runs at a time (default: the fewest that fill the devices, fewer when "
+        "memory is short); the wave width is part of what makes a run reproducible",
+    )
+    run.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the plan (waves, memory, estimated time) and exit without training",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -192,6 +205,8 @@ class TrainOptions:
     loggers: tuple[str, ...] = ()
     compile_cache: bool = True
     quiet: bool = False
+    wave_size: int | None = None
+    dry_run: bool = False
     distributed: bool = False
     coordinator_address: str | None = None
     num_processes: int | None = None
@@ -216,6 +231,8 @@ class TrainOptions:
             loggers=tuple(args.logger),
             compile_cache=not args.no_compile_cache,
             quiet=args.quiet,
+            wave_size=args.wave_size,
+            dry_run=args.dry_run,
             distributed=args.distributed,
             coordinator_address=args.coordinator_address,
             num_processes=args.num_processes,
@@ -252,6 +269,7 @@ class TrainOptions:
             eval_episodes=self.eval_episodes,
             loggers=self.loggers,
             compile_cache=self.compile_cache,
+            wave_size=self.wave_size,
         )
 
     def check_resume(self) -> None:
@@ -263,6 +281,8 @@ class TrainOptions:
             ("--num-seeds", self.num_seeds),
             ("--seed", self.seed),
             ("--out", self.out),
+            ("--wave-size", self.wave_size),
+            ("--dry-run", self.dry_run or None),
         ):
             if value is not None:
                 given.append(flag)
@@ -305,6 +325,9 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
     if not distributed.is_main_process():
         console.out, console.progress_bar = _devnull(), False
+    if opts.dry_run:
+        console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
+        return 0
     hooks = console.hooks()
     try:
         if spec is None:

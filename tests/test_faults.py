@@ -319,8 +319,8 @@ def test_sigint_during_compilation_is_acknowledged_at_once(tmp_path):
 @pytest.mark.slow
 def test_sigterm_during_initialisation_of_a_large_run(tmp_path):
     out = tmp_path / "init"
-    big = ["--num-seeds", "30000", "--num-envs", "1", "--num-steps", "64", "--minibatch-size"]
-    proc = start_train(*big, "64", "--total-timesteps", "64", "--out", str(out))
+    big = ["--num-seeds", "30000", "--wave-size", "16384", "--num-envs", "1", "--num-steps", "64"]
+    proc = start_train(*big, "--minibatch-size", "64", "--total-timesteps", "64", "--out", str(out))
     text = _signal_when(proc, lambda: (out / "config.json").exists(), signal.SIGTERM, 0.3)
     _clean_stop(text, 128 + signal.SIGTERM, proc, signal.SIGTERM)
     assert "stopped before training started" in text and f"--resume {out}" in text
@@ -664,7 +664,8 @@ def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path, monkeypatch
     """A 64-seed run SIGKILLed again and again (each time a few seconds after its newest
     checkpoint, always resumed) until it finishes: it ends bit-identical to the
     uninterrupted run, trained in one batch or in waves of 16."""
-    soak = [*tiny_args(51200, num_seeds=64), "--seed", "17", "--checkpoint-every", "0.3"]
+    # 200 iterations: a restart keeps what it checkpointed in the 0.1-1 s before its kill
+    soak = [*tiny_args(25600, num_seeds=64), "--seed", "17", "--checkpoint-every", "0.3"]
     if waves > 1:
         from jaxcart.core.config import preset
         from jaxcart.run.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run
@@ -673,7 +674,7 @@ def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path, monkeypatch
             "sb3",
             num_envs=4,
             num_steps=32,
-            total_timesteps=51200,
+            total_timesteps=25600,
             minibatch_size=64,
             update_epochs=2,
         )

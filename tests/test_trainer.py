@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import time
 
 import jax
 import numpy as np
@@ -186,3 +187,41 @@ def test_update_in_groups_computes_what_one_vmap_computes():
         np.asarray(plain.params["params"]["actor"]["out"]["kernel"]),
         np.asarray(state.runners.params["params"]["actor"]["out"]["kernel"]),
     )
+
+
+def test_adaptive_chunks_change_no_number(monkeypatch):
+    """Chunks whose length follows the wall clock (here forced to grow 1, 3, 9, ... by a
+    stub) give metrics and parameters bit-identical to fixed chunks of 4, and to chunks
+    of 5 that do not tile the run."""
+    from jaxcart.engine import trainer
+
+    lengths = []
+
+    def grow(capacity: int, previous: int, seconds: float, target: float) -> int:
+        lengths.append(previous)
+        return min(capacity, 3 * previous)
+
+    monkeypatch.setattr(trainer, "next_chunk_length", grow)
+    adaptive = train(TINY, 2, seed=11)
+    assert adaptive.state.chunk_seconds and lengths[:3] == [1, 3, 9]
+    for fixed in (train(TINY, 2, seed=11, chunk_size=4), train(TINY, 2, seed=11, chunk_size=5)):
+        for name, values in fixed.metrics.items():
+            if not name.startswith("time/"):
+                np.testing.assert_array_equal(adaptive.metrics[name], values, err_msg=name)
+        for a, b in zip(jax.tree.leaves(adaptive.params), jax.tree.leaves(fixed.params)):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_default_chunk_size_is_constant_time():
+    """The chunk capacity of a run of 10^15 iterations is found at once (it used to scan a
+    range proportional to the run for divisors), and bounds the chunk's metrics buffer."""
+    from jaxcart.core.metrics import METRIC_NAMES
+    from jaxcart.engine.trainer import CHUNK_METRICS_BYTES, default_chunk_size
+
+    start = time.perf_counter()
+    assert default_chunk_size(10**15) == 1024
+    assert default_chunk_size(10**15, num_runs=10**6) == 1
+    assert default_chunk_size(7) == 7
+    chunk = default_chunk_size(10**6, num_runs=6652)
+    assert 100 < chunk and chunk * 6652 * len(METRIC_NAMES) * 4 <= CHUNK_METRICS_BYTES
+    assert time.perf_counter() - start < 2.0  # a hang guard: the old scan took hours

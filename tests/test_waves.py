@@ -41,17 +41,76 @@ def test_estimate_is_above_xlas_own_memory_analysis(name, runs):
     assert bytes_per_run(config) >= measured
 
 
-def test_plan_fills_memory_in_multiples_of_the_device_count():
-    per_run = bytes_per_run(TINY, 2)
-    plan = plan_waves(TINY, 1_000_000, 2, eval_episodes=2, available=memory_for(TINY, 77_825))
-    assert plan.wave_size == 77_824 and plan.num_waves == 13
-    assert plan.wave_size % 2 == 0 and plan.bytes_per_run == per_run
+def test_plan_sizes_waves_for_throughput_capped_by_memory():
+    """A million runs of TINY on 2 CPU devices: waves of 32 runs per device, not as many as
+    memory holds; fewer when memory is short; balanced;
+    --wave-size overrides; and the plan says how long it will take."""
+    plan = plan_waves(TINY, 1_000_000, 2, eval_episodes=2, available=10**12)
+    assert plan.wave_size == 64 and plan.num_waves == 15_625 and plan.bytes_per_run
+    assert "32 runs per cpu device" in plan.why and plan.wave_seconds > 0
     waves = list(plan.waves())
-    assert waves[0] == range(0, 77_824) and waves[-1].stop == 1_000_000 and len(waves) == 13
+    assert waves[0] == range(0, 64) and waves[-1].stop == 1_000_000
     text = plan.describe("seeds")
-    assert text.startswith("1,000,000 seeds in 13 waves of 77,824 (estimated ")
-    assert "GB per wave of" in text and "GB available" in text
+    assert text.startswith("1,000,000 seeds in 15,625 waves of 64 (estimated ")
+    assert "GB per wave of" in text and "per wave," in text and "in all)" in text
+    short = plan_waves(TINY, 1_000_000, 2, eval_episodes=2, available=memory_for(TINY, 51))
+    assert short.wave_size == 50 and "as many as fit in memory" in short.why
+    balanced = plan_waves(TINY, 66, 2, eval_episodes=2, available=10**12)
+    assert balanced.num_waves == 2 and balanced.wave_size == 34  # not 64 + 2
     assert plan_waves(TINY, 3, 2, available=10**12).num_waves == 1
+    forced = plan_waves(TINY, 256, 2, available=10**12, wave_size=64)
+    assert forced.num_waves == 4 and forced.wave_size == 64 and "--wave-size" in forced.why
+    with pytest.raises(ConfigError, match="--wave-size 1,000 needs about"):
+        plan_waves(TINY, 5000, 2, available=memory_for(TINY, 51), wave_size=1000)
+
+
+def test_planning_a_huge_run_is_quick_and_refused_in_one_line():
+    start = time.perf_counter()
+    with pytest.raises(ConfigError, match="not enough memory") as exc:
+        plan_waves(preset("sb3", total_timesteps=10**15), 1, 2, available=24 << 30)
+    assert "\n" not in str(exc.value) and time.perf_counter() - start < 10
+
+
+def test_a_waved_run_stopped_mid_wave_resumes_in_process(tmp_path):
+    """8 seeds in waves of 2 (--wave-size): stopped in wave 2 after a chunk, resumed from its
+    checkpoint, it ends bit-identical to the same plan run without a stop."""
+    from jaxcart.engine.signals import StopRequest
+    from jaxcart.run import lifecycle
+    from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+
+    config = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
+    options = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2, wave_size=2)
+    spec = RunSpec(config, num_seeds=8, seed=1)
+    whole = lifecycle.run_new(spec, tmp_path / "whole", options)
+    assert whole.run.plan.num_waves == 4
+    stop, waves = StopRequest(), []
+
+    def on_chunk(progress) -> None:
+        if len(waves) == 2 and progress.iteration == 4:
+            stop.request(signal.SIGINT)
+
+    hooks = Hooks(on_chunk=on_chunk, on_wave=lambda w, n, runs: waves.append(w))
+    part = lifecycle.run_new(spec, tmp_path / "part", options, hooks, stop)
+    assert part.stopped and part.stopped_at == (1, 4)
+    resumed = lifecycle.resume_run(tmp_path / "part", options)
+    assert resumed.run.resume_wave == 1 and resumed.run.resumed_from == 4
+    assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
+
+
+def test_evaluation_json_bound_scales_with_the_declared_seeds(tmp_path):
+    """A 100,000-seed evaluation.json (~24 MB, over the 16 MiB bound of other JSON) reads;
+    one larger than its config.json declares is refused."""
+    from jaxcart.rundir.files import RunDirError
+
+    (tmp_path / "config.json").write_text(json.dumps({"num_seeds": 100_000, "eval_episodes": 20}))
+    seed = {"seed_index": 0, "gym_returns": [500.0] * 20, "jax_returns": [500.0] * 20}
+    text = json.dumps({"seeds": [seed] * 100_000})
+    assert len(text) > 16 << 20
+    (tmp_path / "evaluation.json").write_text(text)
+    assert len(reader.read_evaluation(tmp_path)["seeds"]) == 100_000
+    (tmp_path / "config.json").write_text(json.dumps({"num_seeds": 10, "eval_episodes": 20}))
+    with pytest.raises(RunDirError, match="larger than any"):
+        reader.read_evaluation(tmp_path)
 
 
 def test_not_even_one_run_per_device_is_a_clear_error():

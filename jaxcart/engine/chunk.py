@@ -185,8 +185,10 @@ def train_chunk(
     env_params: cartpole.EnvParams,
     chunk_size: int,
     update_group: int | None = None,
+    count: Array | None = None,
 ) -> tuple[RunnerState, dict[str, Array]]:
-    """Scans ``chunk_size`` iterations of every run; jit this (config, env_params static-ish).
+    """Scans up to ``chunk_size`` iterations of every run; jit this (config, env_params and
+    chunk_size static).
 
     Args:
         runners: a :class:`RunnerState` with a leading run axis ``[R]``.
@@ -198,6 +200,11 @@ def train_chunk(
             the guard is left out (a smaller program that compiles faster).
         update_group: with more runs than this, the update runs in groups of at most this
             many (:func:`grouped_iteration`); None vmaps everything over all runs.
+        count: int32 scalar or None. When given, only the chunk's first ``count`` iterations
+            run (the rest are skipped like the overhang), so one compiled program runs chunks
+            of any length up to ``chunk_size``: the host picks each chunk's length from the
+            time the last one took. Skipping leaves the computed iterations bit-identical
+            (the guard selects whole iterations; ``tests/test_trainer.py`` checks it).
 
     Returns:
         Runners after the chunk (a run that diverged during it rolled back to its state at the
@@ -218,9 +225,12 @@ def train_chunk(
 
     def body(runners: RunnerState, offset: Array):
         iteration = start_iteration + offset
-        if config.num_iterations % chunk_size == 0:  # chunks tile the run: no guard needed
-            return run(runners, iteration)
-        return jax.lax.cond(iteration < config.num_iterations, run, skip, runners, iteration)
+        if count is None and config.num_iterations % chunk_size == 0:
+            return run(runners, iteration)  # chunks tile the run: no guard needed
+        active = iteration < config.num_iterations
+        if count is not None:
+            active &= offset < count
+        return jax.lax.cond(active, run, skip, runners, iteration)
 
     end, metrics = jax.lax.scan(body, runners, jnp.arange(chunk_size, dtype=jnp.int32))
     return roll_back_diverged(runners, end), metrics

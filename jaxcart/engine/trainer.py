@@ -36,6 +36,14 @@ def seed_keys(seed: int, num_seeds: int) -> jax.Array:
     return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(num_seeds, dtype=jnp.uint32))
 
 
+def seed_index_keys(seed: int, indices: np.ndarray) -> np.ndarray:
+    """``seed_keys(seed, n)[indices]`` without drawing the keys of the other indices (a wave
+    far into a million seeds draws only its own), as NumPy ``[len(indices), 2]`` uint32."""
+    base = jax.random.PRNGKey(seed)
+    fold = jax.vmap(lambda i: jax.random.fold_in(base, i))
+    return np.asarray(fold(jnp.asarray(np.asarray(indices), dtype=jnp.uint32)))
+
+
 def padded_runs(num_runs: int, num_devices: int) -> int:
     """The run axis rounded up to a multiple of the device count: every device takes an equal
     share, and the padding runs (copies of the last run) are computed and discarded."""
@@ -76,7 +84,7 @@ def init_runners(
     """
     env_params = env_params or cartpole.EnvParams()
     indices = np.asarray(seed_indices)
-    keys = np.asarray(seed_keys(seed, int(indices.max()) + 1))[indices]
+    keys = seed_index_keys(seed, indices)
     dtype = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0].dtype
     network = make_network(config)
     params, obs, run_keys = [], [], []
@@ -92,12 +100,30 @@ def init_runners(
     return initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
 
 
-def default_chunk_size(num_iterations: int, updates: int = 20) -> int:
-    """Iterations per compiled chunk so that progress is reported about ``updates`` times,
-    preferably a divisor of ``num_iterations`` (then the chunk needs no end-of-run guard)."""
-    target = max(1, -(-num_iterations // updates))
-    divisors = [d for d in range(max(1, target // 2), 2 * target + 1) if num_iterations % d == 0]
-    return min(divisors, key=lambda d: abs(d - target)) if divisors else target
+CHUNK_SECONDS = 2.0
+"""The wall time a chunk aims at when its length adapts (the default): a stop request, a
+checkpoint due and the progress bar wait at most about this long, whatever the run's size."""
+MAX_CHUNK_ITERATIONS = 1024
+CHUNK_METRICS_BYTES = 64 << 20  # the chunk's metrics buffer [chunk_size, R] stays below this
+
+
+def default_chunk_size(num_iterations: int, num_runs: int = 1) -> int:
+    """The capacity of an adaptive chunk (the most iterations one compiled call can run), in
+    constant time whatever ``num_iterations``: at most :data:`MAX_CHUNK_ITERATIONS`, and
+    small enough that its metrics ``[chunk_size, num_runs]`` stay under
+    :data:`CHUNK_METRICS_BYTES`. How many of them each call runs is set from the time the
+    previous call took (:data:`CHUNK_SECONDS`)."""
+    per_iteration = max(1, num_runs) * len(METRIC_NAMES) * 4
+    return max(1, min(num_iterations, MAX_CHUNK_ITERATIONS, CHUNK_METRICS_BYTES // per_iteration))
+
+
+def next_chunk_length(capacity: int, previous: int, seconds: float, target: float) -> int:
+    """How many iterations the next adaptive chunk runs: enough to take about ``target``
+    seconds at the pace of the previous chunk (``previous`` iterations in ``seconds``),
+    growing at most eightfold at a time, within ``[1, capacity]``."""
+    pace = seconds / max(1, previous)
+    wanted = int(target / pace) if pace > 0 else capacity
+    return max(1, min(capacity, 8 * previous, wanted))
 
 
 METRIC_COLUMNS = (*METRIC_NAMES, "time/fps", "time/elapsed")
@@ -114,7 +140,8 @@ class TrainState:
     iteration: int
     elapsed: float
     metrics: dict[str, np.ndarray]  # METRIC_COLUMNS -> [iteration, R]
-    chunk_size: int
+    chunk_size: int  # the most iterations one compiled call runs
+    chunk_seconds: float | None = None  # None: every call runs chunk_size; else adapts to this
 
 
 @dataclass
@@ -187,7 +214,9 @@ def initial_state(
     """The state before the first iteration (also the template a checkpoint is loaded into).
 
     ``seed_indices`` defaults to ``arange(num_runs)`` (every run its own seed index);
-    ``on_progress`` as in :func:`init_runners`.
+    ``on_progress`` as in :func:`init_runners`. Without ``chunk_size`` the chunks adapt
+    their length to take about :data:`CHUNK_SECONDS` each; with it, every chunk runs that
+    many iterations. Neither changes a number (only when the host looks).
     """
     indices = np.arange(num_runs) if seed_indices is None else np.asarray(seed_indices)
     hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_runs)
@@ -197,7 +226,8 @@ def initial_state(
         iteration=0,
         elapsed=0.0,
         metrics={k: np.zeros((0, num_runs), np.float32) for k in METRIC_COLUMNS},
-        chunk_size=chunk_size or default_chunk_size(config.num_iterations),
+        chunk_size=chunk_size or default_chunk_size(config.num_iterations, num_runs),
+        chunk_seconds=None if chunk_size else CHUNK_SECONDS,
     )
 
 
@@ -225,7 +255,8 @@ def train(
         seed: base seed; run r uses ``fold_in(PRNGKey(seed), seed_indices[r])``.
         hyperparams: per-run float hyperparameters with leaves ``[num_runs]`` (a sweep);
             defaults to the config's values for every run.
-        chunk_size: iterations per compiled call between progress reports.
+        chunk_size: iterations per compiled call between progress reports (default: calls
+            that adapt to take about :data:`CHUNK_SECONDS` each).
         resume: continue from this state (e.g. a loaded checkpoint) instead of starting anew;
             the result is bit-identical to a run that was never interrupted.
         on_compiled: called with the compile time in seconds.
@@ -248,9 +279,8 @@ def train(
     start = time.perf_counter()
     compiled, fresh = None, False
     if state.iteration < config.num_iterations:  # a finished state needs no program
-        compiled, fresh = wait_interruptibly(
-            lambda: compiled_chunk(config, env_params, state.chunk_size, runners, hps)
-        )
+        sizes = (state.chunk_size, runners, hps, state.chunk_seconds)
+        compiled, fresh = wait_interruptibly(lambda: compiled_chunk(config, env_params, *sizes))
     compile_seconds = time.perf_counter() - start
     if on_compiled:
         on_compiled(compile_seconds)
@@ -262,7 +292,7 @@ def train(
         if should_stop is not None and distributed.any_process(should_stop()):
             stopped = True
             break
-        runners, metrics = compiled(runners, hps, jnp.int32(loop.done))
+        runners, metrics = compiled(runners, hps, jnp.int32(loop.done), jnp.int32(loop.count))
         # waits for the chunk on a worker thread, so that signals are handled meanwhile
         progress = loop.record(
             runners, wait_interruptibly(functools.partial(distributed.gather, metrics))
@@ -309,6 +339,9 @@ class _ChunkLoop:
         self, config: PPOConfig, state: TrainState, hps: Hyperparams, num_runs: int
     ) -> None:
         self.config, self.hps, self.chunk_size = config, hps, state.chunk_size
+        self.chunk_seconds = state.chunk_seconds
+        self.count = 1 if self.chunk_seconds else self.chunk_size  # the next call's iterations
+        self.last = time.perf_counter()
         self.num_runs = num_runs  # the real runs: padding runs beyond them are dropped
         self.done, self.elapsed_before = state.iteration, state.elapsed
         self.chunks = [state.metrics]
@@ -320,7 +353,10 @@ class _ChunkLoop:
     def record(self, runners: RunnerState, metrics: dict) -> Progress:
         """Takes one chunk's metrics ``[chunk_size, R]`` and returns the progress after it."""
         config, now = self.config, self.now()
-        take, num_runs = min(self.chunk_size, config.num_iterations - self.done), self.num_runs
+        take, num_runs = min(self.count, config.num_iterations - self.done), self.num_runs
+        if self.chunk_seconds:
+            seconds, self.last = time.perf_counter() - self.last, time.perf_counter()
+            self.count = next_chunk_length(self.chunk_size, take, seconds, self.chunk_seconds)
         metrics = {k: np.asarray(v[:take, :num_runs]) for k, v in metrics.items()}
         # time/fps as SB3 logs it (steps of this run / seconds since start); inside a chunk
         # the iterations are timed by spreading the chunk's time evenly.
@@ -343,7 +379,9 @@ class _ChunkLoop:
         """The state of the real runs (device arrays with the padding sliced off)."""
         real = functools.partial(jax.tree.map, lambda x: x[: self.num_runs])
         metrics = _concat(self.chunks)
-        return TrainState(real(runners), real(self.hps), done, now, metrics, self.chunk_size)
+        return TrainState(
+            real(runners), real(self.hps), done, now, metrics, self.chunk_size, self.chunk_seconds
+        )
 
     def final_state(self, runners: RunnerState) -> TrainState:
         return self._snapshot(runners, self.done, self.now())
@@ -353,14 +391,22 @@ _COMPILED: dict = {}
 
 
 def compiled_chunk(
-    config: PPOConfig, env_params: cartpole.EnvParams, chunk_size: int, runners, hps
+    config: PPOConfig,
+    env_params: cartpole.EnvParams,
+    chunk_size: int,
+    runners,
+    hps,
+    chunk_seconds: float | None = None,
 ) -> tuple[Callable, bool]:
     """The compiled :func:`~jaxcart.engine.chunk.train_chunk` for these shapes and devices.
 
     Kept per process, keyed by what shapes the program: the static part of the config
     (:meth:`PPOConfig.static`), the env constants, the chunk size and the runs' array shapes
     and shardings. The traced float hyperparameters are not part of the key (nor of the
-    program): new learning rates, clip ranges, ... reuse the same executable.
+    program): new learning rates, clip ranges, ... reuse the same executable. The program
+    takes ``(runners, hps, start_iteration, count)``; ``count`` (how many of the chunk's
+    iterations run) is honoured when ``chunk_seconds`` is set (adaptive chunks), else every
+    call runs ``chunk_size`` iterations.
 
     Returns:
         ``(compiled, fresh)`` where ``fresh`` says whether it was compiled just now.
@@ -370,19 +416,19 @@ def compiled_chunk(
         (leaf.shape, str(leaf.dtype), str(leaf.sharding))
         for leaf in jax.tree.leaves((runners, hps))
     )
-    key = (config, env_params, chunk_size, signature)
+    adaptive = bool(chunk_seconds)
+    key = (config, env_params, chunk_size, adaptive, signature)
     if key in _COMPILED:
         return _COMPILED[key], False
     sharding = jax.tree.leaves(runners)[0].sharding
     # Groups keep a CPU core's working set in its cache; a GPU wants the widest vmap instead.
     on_cpu = all(d.platform == "cpu" for d in sharding.device_set)
-    local = functools.partial(
-        train_chunk,
-        config=config,
-        env_params=env_params,
-        chunk_size=chunk_size,
-        update_group=UPDATE_GROUP if on_cpu else None,
-    )
+    update_group = UPDATE_GROUP if on_cpu else None
+
+    def local(runners: RunnerState, hps: Hyperparams, start: jax.Array, count: jax.Array):
+        count = count if adaptive else None
+        return train_chunk(runners, hps, start, config, env_params, chunk_size, update_group, count)
+
     if isinstance(sharding, NamedSharding) and sharding.mesh.size > 1:
         # Every device runs the same program on its own runs with no communication: say so
         # with shard_map rather than leaving it to the SPMD partitioner (faster to compile).
@@ -390,12 +436,12 @@ def compiled_chunk(
         local = jax.shard_map(
             local,
             mesh=sharding.mesh,
-            in_specs=(spec, spec, PartitionSpec()),
+            in_specs=(spec, spec, PartitionSpec(), PartitionSpec()),
             out_specs=(spec, PartitionSpec(None, *spec)),
             check_vma=False,  # per-run metrics vs the skip branch's constants
         )
     chunk = jax.jit(local, donate_argnums=0)
-    _COMPILED[key] = chunk.lower(runners, hps, jnp.int32(0)).compile()
+    _COMPILED[key] = chunk.lower(runners, hps, jnp.int32(0), jnp.int32(1)).compile()
     return _COMPILED[key], True
 
 

@@ -16,7 +16,7 @@ from jaxcart.core.config import PPOConfig
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.signals import Stopped
-from jaxcart.engine.trainer import seed_keys
+from jaxcart.engine.trainer import seed_index_keys
 from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, numpy_policy, run_params
@@ -244,9 +244,7 @@ def evaluate_runs(
     policy = numpy_policy(params, config.activation, stacked=True)
     gym_returns = evaluate_gymnasium(policy, num_runs, episodes, should_stop=should_stop)
     indices = np.asarray(seed_indices)
-    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(
-        seed_keys(seed, int(indices.max()) + 1)[indices]
-    )
+    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_index_keys(seed, indices))
     evaluate = jax.jit(
         jax.vmap(
             lambda p, k: greedy_returns(p, k, config.activation, config.hidden_sizes, episodes)

@@ -67,7 +67,7 @@ def create_run(
     ``plan`` says how many runs train at once (default: as many as fit in memory);
     ``extra`` is recorded in config.json too (the command line, evaluation episodes).
     """
-    plan = plan or plan_waves(spec.config, spec.grid.num_runs, jax.device_count())
+    plan = plan or plan_run(spec)
     out = Path(out) if out is not None else layout.default_run_dir(spec.preset)
     info = {
         "format_version": layout.FORMAT_VERSION,
@@ -280,12 +280,26 @@ def run_new(
         devices.enable_compilation_cache()
     episodes = options.eval_episodes or NUM_EVAL_EPISODES
     options = dataclasses.replace(options, eval_episodes=episodes)
-    plan = plan_waves(spec.config, spec.grid.num_runs, jax.device_count(), episodes)
+    plan = plan_run(spec, options)
     if stop is not None:
         stop.check()
     extra = {"eval_episodes": episodes, **({"command": list(command)} if command else {})}
     run = create_run(spec, out, distributed.is_main_process(), plan, extra)
     return carry_out(run, options, hooks, stop)
+
+
+def plan_run(spec: RunSpec, options: RunOptions | None = None) -> WavePlan:
+    """How ``spec`` would train here (waves, memory, estimated time), without training:
+    ``--dry-run`` prints it; :func:`run_new` follows it."""
+    options = options or RunOptions()
+    return plan_waves(
+        spec.config,
+        spec.grid.num_runs,
+        jax.device_count(),
+        options.eval_episodes or NUM_EVAL_EPISODES,
+        backend=jax.default_backend(),
+        wave_size=options.wave_size,
+    )
 
 
 def resume_run(

@@ -92,7 +92,10 @@ class RunOptions:
     compile_cache: bool = True
     """Use JAX's persistent compilation cache."""
     chunk_size: int | None = None
-    """Iterations per compiled call between progress reports (default: about 20 reports)."""
+    """Iterations per compiled call between progress reports (default: as many as take about
+    2 s, measured as the run goes)."""
+    wave_size: int | None = None
+    """Runs trained at once in a new run (default: the fewest that fill the devices)."""
 
     def __post_init__(self) -> None:
         check_option(
@@ -109,6 +112,11 @@ class RunOptions:
             self.chunk_size is None or (_is_int(self.chunk_size) and self.chunk_size > 0),
             "chunk_size",
             f"must be a positive integer, got {self.chunk_size}",
+        )
+        check_option(
+            self.wave_size is None or (_is_int(self.wave_size) and self.wave_size > 0),
+            "wave_size",
+            f"must be a positive integer, got {self.wave_size}",
         )
         if self.loggers:
             try:

@@ -17,7 +17,14 @@ import numpy as np
 from jaxcart.core.ppo import Hyperparams
 from jaxcart.engine import distributed
 from jaxcart.engine.signals import Stopped, StopRequest
-from jaxcart.engine.trainer import Progress, TrainResult, TrainState, initial_state, train
+from jaxcart.engine.trainer import (
+    CHUNK_SECONDS,
+    Progress,
+    TrainResult,
+    TrainState,
+    initial_state,
+    train,
+)
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.evaluation import evaluate_runs
 from jaxcart.run.loggers import Logger, make_logger
@@ -36,16 +43,20 @@ def wave_start_state(
     wave: int = 0,
     chunk_size: int | None = None,
     on_progress: Callable[[int, int], None] | None = None,
+    chunk_seconds: float = CHUNK_SECONDS,
 ) -> TrainState:
     """The state of ``runs`` (wave ``wave``) from the checkpoint when it holds that wave;
     else a fresh state, saved at once as the wave's iteration-0 checkpoint, so that a run
     killed at any moment can be resumed. ``on_progress(done, total)`` follows the
-    initialisation of large runs."""
+    initialisation of large runs. Without ``chunk_size`` its chunks adapt to take about
+    ``chunk_seconds`` each (chunk lengths change no number)."""
+    adapt = None if chunk_size else chunk_seconds
     meta = run.directory.checkpoint_meta
     if meta is not None and meta.get("wave", 0) == wave:
         # a one-run template names the arrays; the file has them all
         template = initial_state(run.config, 1, run.spec.seed, chunk_size=chunk_size)
-        return run.directory.load_checkpoint(template, num_runs=len(runs))
+        saved = run.directory.load_checkpoint(template, num_runs=len(runs))
+        return dataclasses.replace(saved, chunk_seconds=adapt)
     hps = jax.tree.map(lambda x: x[runs.start : runs.stop], run_hyperparams(run))
     fresh = initial_state(
         run.config,
@@ -57,7 +68,7 @@ def wave_start_state(
         on_progress=on_progress,
     )
     save_state(run, fresh, wave)
-    return fresh
+    return dataclasses.replace(fresh, chunk_seconds=adapt)
 
 
 def save_state(run: Run, state: TrainState, wave: int = 0) -> None:
@@ -100,7 +111,9 @@ def train_wave(
         if hooks.on_init:
             hooks.on_init(done, total)
 
-    state = wave_start_state(run, runs, wave, options.chunk_size, on_progress)
+    # chunks no longer than the checkpoint interval, so that checkpoints come on time
+    seconds = min(CHUNK_SECONDS, options.checkpoint_every)
+    state = wave_start_state(run, runs, wave, options.chunk_size, on_progress, seconds)
     names = [run.grid.run_name(r) for r in runs]
     loggers = list(options.loggers) if run.main_process else []
     info = {**run.info, "config": run.config.to_dict()}

@@ -30,6 +30,8 @@ if TYPE_CHECKING:  # the trainer (and JAX) load when a checkpoint is restored
     from jaxcart.engine.trainer import TrainState
 
 MAX_JSON_BYTES = 16 << 20
+EVAL_JSON_BYTES_PER_EPISODE = 64  # two returns per episode, as JSON, with room to spare
+EVAL_JSON_BYTES_PER_SEED = 1024  # a seed's entry besides its returns
 MAX_CSV_BYTES_PER_ROW = 4096
 
 
@@ -39,11 +41,11 @@ MAX_EVAL_EPISODES = 100_000
 """The most evaluation episodes per seed a run directory may declare."""
 
 
-def read_json(run_dir: str | os.PathLike, name: str) -> dict:
-    """A JSON object from a run directory, refusing links, non-regular files, oversized
-    files and anything but an object."""
+def read_json(run_dir: str | os.PathLike, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
+    """A JSON object from a run directory, refusing links, non-regular files, files over
+    ``max_bytes`` and anything but an object."""
     path = Path(run_dir) / name
-    data = files.read_bytes(path, MAX_JSON_BYTES)
+    data = files.read_bytes(path, max_bytes)
     try:
         data = json.loads(data.decode())
     except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
@@ -227,9 +229,10 @@ def read_run_metrics(run_dir: str | os.PathLike, info: dict) -> dict[str, np.nda
 def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) -> dict:
     """A run's ``evaluation.json`` (per-seed returns and solved flags), checked: one entry
     per seed (``num_seeds``, from its ``config.json``, when given), each with a finite
-    ``gymnasium_mean`` and a boolean ``solved``.
+    ``gymnasium_mean`` and a boolean ``solved``. Its size is bounded by the seeds x episodes
+    the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB).
     """
-    data = read_json(run_dir, layout.EVALUATION_FILE)
+    data = read_json(run_dir, layout.EVALUATION_FILE, _evaluation_bytes(run_dir))
     path = Path(run_dir) / layout.EVALUATION_FILE
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
@@ -247,6 +250,17 @@ def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) ->
     if episodes is not None and not _is_int(episodes, 1, MAX_EVAL_EPISODES):
         raise RunDirError(f"{path} is corrupted: episodes {episodes!r}")
     return data
+
+
+def _evaluation_bytes(run_dir: str | os.PathLike) -> int:
+    """The largest ``evaluation.json`` the run's ``config.json`` allows: its declared seeds x
+    combinations x episodes (read as declared, within the reader's bounds)."""
+    info = read_json(run_dir, layout.CONFIG_FILE)
+    seeds, episodes = info.get("num_seeds", 1), info.get("eval_episodes", 20)
+    seeds = seeds if _is_int(seeds, 1, MAX_RUNS) else 1
+    episodes = episodes if _is_int(episodes, 1, MAX_EVAL_EPISODES) else 20
+    per_seed = EVAL_JSON_BYTES_PER_SEED + episodes * EVAL_JSON_BYTES_PER_EPISODE
+    return MAX_JSON_BYTES + seeds * per_seed
 
 
 def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
