@@ -88,29 +88,6 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         help="sweep a float hyperparameter (repeatable); every combination x seed trains in one program",
     )
     run.add_argument(
-        "--resume",
-        type=Path,
-        default=None,
-        metavar="RUN_DIR",
-        help="continue an interrupted run; with --total-timesteps N, train an interrupted or "
-        "finished run on to N env steps per seed (an annealed learning rate then anneals over "
-        "N from the resume on, as SB3's learn(reset_num_timesteps=False): recorded as "
-        "lr_schedule in config.json)",
-    )
-    run.add_argument(
-        "--allow-device-change",
-        action="store_true",
-        help="with --resume: continue on another device count than the run trained on "
-        "(the numbers then differ from an uninterrupted run; config.json records it)",
-    )
-    run.add_argument(
-        "--checkpoint-every",
-        type=float,
-        default=30.0,
-        metavar="SECONDS",
-        help="checkpoint interval",
-    )
-    run.add_argument(
         "--eval-episodes",
         type=cli.bounded_count(cli.MAX_EPISODES),
         default=None,
@@ -144,6 +121,34 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         help="print the plan (waves, memory, estimated time) and exit without training",
     )
     run.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_resume_options(run)
+
+
+def _add_resume_options(run: argparse._ArgumentGroup) -> None:
+    """Resuming, extending and checkpointing a run."""
+    run.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="continue an interrupted run; with --total-timesteps N, train an interrupted or "
+        "finished run on to N env steps per seed (an annealed learning rate then anneals over "
+        "N from the resume on, as SB3's learn(reset_num_timesteps=False): recorded as "
+        "lr_schedule in config.json)",
+    )
+    run.add_argument(
+        "--allow-device-change",
+        action="store_true",
+        help="with --resume: continue on another device count than the run trained on "
+        "(the numbers then differ from an uninterrupted run; config.json records it)",
+    )
+    run.add_argument(
+        "--checkpoint-every",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="checkpoint interval",
+    )
 
 
 def _add_distributed_options(dist: argparse._ArgumentGroup) -> None:
@@ -361,12 +366,13 @@ def _extend_hint(out: Path) -> str:
     import shlex
 
     from jaxcart.rundir import layout, reader
+    from jaxcart.rundir.checkpoint import read_checkpoint_meta
     from jaxcart.rundir.files import RunDirError
 
     try:
         info = reader.read_run_config(out)
         config = info["config"]
-        iteration = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
+        iteration = read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
     except (RunDirError, OSError, KeyError, ValueError):
         return ""
     written = layout.SWEEP_FILE if layout.is_sweep(out) else layout.EVALUATION_FILE

@@ -10,7 +10,8 @@ from helpers import TINY
 
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.trainer import initial_state
-from jaxcart.rundir import checkpoint, files, reader
+from jaxcart.rundir import checkpoint, files
+from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
 
 
@@ -20,13 +21,13 @@ def test_checkpoint_rejects_other_structures(tmp_path):
     checkpoint.save_checkpoint(path, state, {})
     other = initial_state(PPOConfig(**{**TINY.to_dict(), "hidden_sizes": (32, 32)}), 2, 0)
     with pytest.raises(RunDirError, match="shape"):
-        reader.load_checkpoint(path, other)
+        load_checkpoint(path, other)
     deeper = initial_state(PPOConfig(**{**TINY.to_dict(), "hidden_sizes": (64, 64, 64)}), 2, 0)
     with pytest.raises(RunDirError, match="different structure"):
-        reader.load_checkpoint(path, deeper)
+        load_checkpoint(path, deeper)
     path.write_bytes(path.read_bytes()[:1000])  # torn file
     with pytest.raises(RunDirError, match="corrupted"):
-        reader.read_checkpoint_meta(path)
+        read_checkpoint_meta(path)
 
 
 def test_leaves_are_stored_under_their_tree_paths(tmp_path):
@@ -52,7 +53,7 @@ def test_round_trip_restores_every_leaf(tmp_path):
     state = initial_state(TINY, 3, 4)
     path = tmp_path / "c.npz"
     checkpoint.save_checkpoint(path, state, {})
-    loaded = reader.load_checkpoint(path, initial_state(TINY, 3, 99))
+    loaded = load_checkpoint(path, initial_state(TINY, 3, 99))
     for x, y in zip(jax.tree.leaves(state.runners), jax.tree.leaves(loaded.runners), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert set(loaded.metrics) == set(state.metrics)
@@ -62,4 +63,4 @@ def test_old_format_refused_with_a_clear_message(tmp_path):
     path = tmp_path / "c.npz"
     files.save_tree(path, {"leaf0": np.zeros(3)}, {"checkpoint_format": 1})
     with pytest.raises(RunDirError, match="format 1"):
-        reader.read_checkpoint_meta(path)
+        read_checkpoint_meta(path)

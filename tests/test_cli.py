@@ -16,6 +16,7 @@ from helpers import assert_same_run_dirs, start_train, tiny_args
 import jaxcart
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.rundir import layout, reader
+from jaxcart.rundir.checkpoint import read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
 from jaxcart.train import build_parser, main
 
@@ -183,7 +184,7 @@ def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
         pytest.skip("the run finished before SIGTERM arrived")
     assert proc.returncode == 128 + signal.SIGTERM, text
     assert "resume with: python -m jaxcart.train --resume" in text
-    stopped_at = reader.read_checkpoint_meta(out / "checkpoint.npz")["iteration"]
+    stopped_at = read_checkpoint_meta(out / "checkpoint.npz")["iteration"]
     assert 0 <= stopped_at < 100
 
     proc = start_train("--resume", str(out), "--quiet")
@@ -432,7 +433,7 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
 
     assert main(["--resume", str(out), "--total-timesteps", "1_024", "--quiet"]) == 0
     text = capsys.readouterr().out
-    elapsed = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["elapsed"]
+    elapsed = read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["elapsed"]
     found = re.search(r"train ([\d.]+) s this session and ([\d.]+) s in all, eval", text)
     assert found and found[2] == f"{elapsed:.1f}", text
     assert float(found[1]) <= float(found[2])

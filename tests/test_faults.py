@@ -23,7 +23,8 @@ import pytest
 from conftest import FAULT_FIGURES
 from helpers import TRAIN_ENV, assert_same_run_dirs, start_train, tiny_args
 
-from jaxcart.rundir import layout, reader
+from jaxcart.rundir import layout
+from jaxcart.rundir.checkpoint import read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
 
 RUN = [*tiny_args(25600, num_seeds=2), "--seed", "11", "--checkpoint-every", "0.2"]
@@ -67,7 +68,7 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
                     continue
                 # whatever moment it died, a checkpoint on disk is complete and readable
                 if (out / layout.CHECKPOINT_FILE).exists():
-                    meta = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
+                    meta = read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
                     assert 0 <= meta["iteration"] <= 200
                 if (out / "evaluation.json").exists():
                     break  # killed after its last write: the run is complete
@@ -88,7 +89,7 @@ def test_sigint_checkpoints_and_prints_resume_command(tmp_path):
     deadline = time.monotonic() + 60
     text = ""
     while time.monotonic() < deadline:
-        if (out / layout.CHECKPOINT_FILE).exists() and reader.read_checkpoint_meta(
+        if (out / layout.CHECKPOINT_FILE).exists() and read_checkpoint_meta(
             out / layout.CHECKPOINT_FILE
         )["iteration"] > 0:
             break
@@ -313,7 +314,7 @@ def test_sigint_during_compilation_is_acknowledged_at_once(tmp_path):
     # the message came before compilation ended, not after it
     assert text.index("SIGINT received") < text.index("compiled the fused training step")
     assert "stopped at iteration 0/200" in text and f"--resume {out}" in text
-    assert reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"] == 0
+    assert read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"] == 0
 
 
 @pytest.mark.slow
@@ -345,7 +346,7 @@ def test_sigint_during_evaluation_then_resume_evaluates(tmp_path):
 def _trained(out: Path) -> bool:
     path = out / layout.CHECKPOINT_FILE
     try:
-        return path.exists() and reader.read_checkpoint_meta(path)["iteration"] == 4
+        return path.exists() and read_checkpoint_meta(path)["iteration"] == 4
     except RunDirError:
         return False
 
@@ -360,7 +361,7 @@ def test_second_sigint_stops_at_once_and_leaves_the_checkpoint_valid(tmp_path):
     proc.send_signal(signal.SIGINT)
     text, _ = proc.communicate(timeout=60)
     _clean_stop(text, 128 + signal.SIGINT, proc, signal.SIGINT)
-    meta = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)  # readable
+    meta = read_checkpoint_meta(out / layout.CHECKPOINT_FILE)  # readable
     assert f"stopped at once; the checkpoint in {out} (at iteration {meta['iteration']}/" in text
     assert f"--resume {out}" in text
     resumed = _run("--resume", str(out), "--quiet")
@@ -405,7 +406,7 @@ def test_a_failing_checkpoint_write_keeps_the_last_one_and_resume_finishes(
     assert code == 1, err
     assert f"cannot write {out / 'checkpoint.npz'}: No space left on device" in err
     assert "resume with" in err and len(err.strip().splitlines()) == 1
-    meta = reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
+    meta = read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
     assert meta["iteration"] > 0 and f"(at iteration {meta['iteration']}/" in err
     assert not list(out.glob(".*.tmp"))
     monkeypatch.undo()
@@ -429,7 +430,7 @@ def test_a_full_small_filesystem(tmp_path):
         assert done.returncode == 1, done.stdout + done.stderr
         assert "No space left on device" in done.stderr and "Traceback" not in done.stderr
         assert len(done.stderr.strip().splitlines()) == 1
-        reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
+        read_checkpoint_meta(out / layout.CHECKPOINT_FILE)
         moved = tmp_path / "moved"  # "space freed": the run continues elsewhere
         shutil.copytree(out, moved)
         resumed = _run("--resume", str(moved), "--quiet")
@@ -612,7 +613,7 @@ def test_nothing_is_ever_unpickled(finished_run, tmp_path, monkeypatch):
     import jaxcart
 
     jaxcart.load_policy(finished_run)
-    reader.read_checkpoint_meta(finished_run / layout.CHECKPOINT_FILE)
+    read_checkpoint_meta(finished_run / layout.CHECKPOINT_FILE)
     assert calls and all(c is False for c in calls)
 
 
@@ -653,7 +654,7 @@ def test_crafted_outputs_rejected_by_plot_and_compare(damage, message, finished_
 
 def _checkpoint_iteration(out: Path) -> int:
     try:
-        return reader.read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
+        return read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
     except RunDirError:
         return -1
 

@@ -20,7 +20,8 @@ from jaxcart.engine.trainer import (
     initial_state,
     train,
 )
-from jaxcart.rundir import checkpoint, reader
+from jaxcart.rundir import checkpoint
+from jaxcart.rundir.checkpoint import load_checkpoint
 
 
 def test_resume_from_checkpoint_is_bit_identical(tmp_path):
@@ -40,7 +41,7 @@ def test_resume_from_checkpoint_is_bit_identical(tmp_path):
 
     path = tmp_path / "checkpoint.npz"
     checkpoint.save_checkpoint(path, part.state, {"note": "test"})
-    resumed_state = reader.load_checkpoint(path, initial_state(TINY, 2, 3, chunk_size=2))
+    resumed_state = load_checkpoint(path, initial_state(TINY, 2, 3, chunk_size=2))
     assert resumed_state.iteration == 10 and resumed_state.chunk_size == 2
     resumed = train(TINY, num_runs=2, seed=3, resume=resumed_state)
     assert resumed.state.iteration == 32 and not resumed.stopped

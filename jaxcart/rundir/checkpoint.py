@@ -6,20 +6,32 @@ hidden_0/kernel``, ``state/hyperparams/learning_rate``, ...), the metrics so far
 ``metrics/<name>``, and a JSON ``__meta__`` entry (iteration, elapsed time, chunk size, config,
 package versions). It is written beside the target, fsynced and renamed over the previous
 checkpoint, so a crash or SIGKILL at any moment leaves the old or the new one, never a torn
-one. :func:`jaxcart.rundir.reader.load_checkpoint` restores it into a template state built
+one. :func:`load_checkpoint` restores it into a template state built
 from the run's config, checking that every name, shape and dtype matches.
 """
 
 from __future__ import annotations
 
+import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from jaxcart.core.config import PPOConfig
 from jaxcart.engine.trainer import TrainState
-from jaxcart.rundir import files
+from jaxcart.rundir import files, layout
+from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_METRICS, CHECKPOINT_STATE
+from jaxcart.rundir.reader import (
+    MAX_RUNS,
+    bounded_int,
+    finite_number,
+    params_headers,
+    read_run_config,
+    recorded_combinations,
+)
 
 
 def state_arrays(state: TrainState) -> dict[str, np.ndarray]:
@@ -41,3 +53,160 @@ def save_checkpoint(path: str | os.PathLike, state: TrainState, meta: dict) -> N
     }
     files.save_tree(path, {**arrays, **metrics}, meta)
     files.fsync_directory(Path(path).parent)
+
+
+def read_checkpoint_meta(path: str | os.PathLike) -> dict:
+    """The metadata of a checkpoint, with a :class:`RunDirError` if it is unreadable, of
+    another format, or holds fields of the wrong type or out of range."""
+    meta = files.read_meta(path)
+    if meta.get("checkpoint_format") != layout.CHECKPOINT_FORMAT:
+        raise RunDirError(
+            f"checkpoint {path} has format {meta.get('checkpoint_format')!r:.40}, this version "
+            f"reads {layout.CHECKPOINT_FORMAT}"
+        )
+    checks = {
+        "iteration": bounded_int(meta.get("iteration"), 0, 1 << 40),
+        "chunk_size": bounded_int(meta.get("chunk_size"), 1, 1 << 40),
+        "elapsed": finite_number(meta.get("elapsed")) and meta.get("elapsed") >= 0,
+        "wave": bounded_int(meta.get("wave", 0), 0, MAX_RUNS),
+        "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
+        "versions": isinstance(meta.get("versions", {}), dict)
+        and all(isinstance(v, str) for v in meta.get("versions", {}).values()),
+    }
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        raise RunDirError(f"checkpoint {path} is corrupted: {', '.join(bad)} out of range")
+    return meta
+
+
+def load_checkpoint(
+    path: str | os.PathLike, template: TrainState, num_runs: int | None = None
+) -> TrainState:
+    """Restores a checkpoint (:mod:`jaxcart.rundir.checkpoint`) into the structure of
+    ``template`` (NumPy leaves), to resume training.
+
+    ``template`` gives the names, dtypes and per-run shapes; its leading run axis may be
+    shorter than the checkpoint's ``num_runs`` (a one-run template is enough). Every header
+    is checked before anything is read, and the state must be finite.
+
+    Raises:
+        RunDirError: missing, corrupted, crafted, or saved from a different structure/shape.
+    """
+    import jax
+
+    from jaxcart.engine.trainer import TrainState
+
+    meta = read_checkpoint_meta(path)
+    expected = _expected_headers(template, num_runs, int(meta["iteration"]))
+    limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
+    found = files.read_headers(path, max_bytes=limit + (1 << 20))
+    found.pop(files.META_KEY, None)
+    if set(found) != set(expected):
+        raise RunDirError(
+            f"checkpoint {path} does not match this version's training state (different structure)"
+        )
+    for name, (shape, dtype) in expected.items():
+        if found[name] != (shape, dtype):
+            raise RunDirError(
+                f"checkpoint {path}: {name} has shape/dtype {found[name][0]}/{found[name][1]}, "
+                f"expected {shape}/{dtype}"
+            )
+    arrays, _ = files.load_tree(path, max_bytes=limit + (1 << 20))
+    state_names = [n for n in expected if n.startswith(layout.CHECKPOINT_STATE)]
+    files.check_finite({n: arrays[n] for n in state_names}, path)
+    tree = {"runners": template.runners, "hyperparams": template.hyperparams}
+    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
+    prefix = layout.CHECKPOINT_METRICS
+    metrics = {n[len(prefix) :]: a for n, a in arrays.items() if n.startswith(prefix)}
+    return TrainState(
+        runners=restored["runners"],
+        hyperparams=restored["hyperparams"],
+        iteration=int(meta["iteration"]),
+        elapsed=float(meta["elapsed"]),
+        metrics=metrics,
+        chunk_size=int(meta["chunk_size"]),
+    )
+
+
+def _expected_headers(template: TrainState, num_runs: int | None, iterations: int) -> dict:
+    """Names, shapes and dtypes a checkpoint of ``num_runs`` runs at ``iterations`` holds."""
+    from jaxcart.rundir.checkpoint import state_arrays
+
+    runs = num_runs if num_runs is not None else len(template.runners.diverged_at)
+    expected = {name: ((runs, *a.shape[1:]), a.dtype) for name, a in state_arrays(template).items()}
+    for name, a in template.metrics.items():
+        expected[layout.CHECKPOINT_METRICS + name] = ((iterations, runs), np.asarray(a).dtype)
+    return expected
+
+
+@dataclass(frozen=True)
+class CheckpointRuns:
+    """What a run's checkpoint holds for reading: every run's parameters and metrics so far.
+
+    A sweep's checkpoint (in the sweep directory) holds all combinations x seeds: run ``r``
+    is combination ``r // num_seeds``, seed index ``r % num_seeds``.
+    """
+
+    params: dict  # leaves [R, ...]
+    metrics: dict[str, np.ndarray]  # name -> [iteration, R]
+    iteration: int
+    num_iterations: int
+
+    @property
+    def note(self) -> str:
+        where = f"from the checkpoint at iteration {self.iteration}/{self.num_iterations}"
+        if self.iteration >= self.num_iterations:
+            return f"{where}: training finished but the run stopped before writing its outputs"
+        return f"{where}: the run did not finish"
+
+
+def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> CheckpointRuns:
+    """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
+    optimizer or env state is restored), refusing crafted files: the metadata must match the
+    run's ``config.json``, every array header is checked before anything is read, the whole
+    file is bounded by what this config's checkpoint can hold, and parameters must be finite.
+
+    Raises:
+        RunDirError: no usable checkpoint.
+    """
+    run_dir = Path(run_dir)
+    info = info or read_run_config(run_dir)
+    config = info["config"]
+    if files.refuse_link(run_dir / layout.CHECKPOINT_FILE) is None:
+        raise RunDirError(f"{run_dir} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}")
+    path = files.inside(run_dir, layout.CHECKPOINT_FILE)
+    meta = read_checkpoint_meta(path)
+    runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
+    iteration = meta.get("iteration")
+    if (
+        meta.get("num_runs") != runs
+        or not isinstance(iteration, int)
+        or not 0 <= iteration <= config.num_iterations
+    ):
+        raise RunDirError(f"{path} does not belong to this run's config.json")
+    params_prefix, metrics_prefix = layout.CHECKPOINT_PARAMS, layout.CHECKPOINT_METRICS
+    expected = {
+        params_prefix + name: header for name, header in params_headers(config, runs).items()
+    }
+    limit = _checkpoint_bytes(config, runs, iteration)
+    found = files.read_headers(path, max_bytes=limit)
+    if any(found.get(name) != header for name, header in expected.items()):
+        raise RunDirError(f"{path} does not hold this run's network")
+    metric_names = [n for n in found if n.startswith(metrics_prefix)]
+    if any(found[n][0] != (iteration, runs) or found[n][1].kind != "f" for n in metric_names):
+        raise RunDirError(f"{path} holds metrics other than floats [{iteration}, {runs}]")
+    arrays, _ = files.load_tree(path, max_bytes=limit)
+    params = {name[len(params_prefix) :]: arrays[name] for name in expected}
+    files.check_finite(params, path)
+    metrics = {n[len(metrics_prefix) :]: arrays[n].astype(float) for n in metric_names}
+    return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
+
+
+def _checkpoint_bytes(config: PPOConfig, runs: int, iterations: int) -> int:
+    """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
+    two moments, per-env state, episode statistics, and metrics so far."""
+    params = sum(
+        math.prod(shape) * dtype.itemsize for shape, dtype in params_headers(config, runs).values()
+    )
+    per_run = config.num_envs * 256 + (1 << 14)
+    return 4 * params + runs * per_run + (iterations + 1) * runs * 64 * 8 + (1 << 20)

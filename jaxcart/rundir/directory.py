@@ -19,6 +19,7 @@ import numpy as np
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.engine.trainer import TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
+from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.lock import RunLock
 
@@ -141,7 +142,7 @@ class RunDir:
         """:attr:`checkpoint_meta` read from the checkpoint on disk; None when there is none
         (stopped while starting up: nothing was trained)."""
         path = self.checkpoint_path
-        self.checkpoint_meta = reader.read_checkpoint_meta(path) if path.exists() else None
+        self.checkpoint_meta = read_checkpoint_meta(path) if path.exists() else None
         return self.checkpoint_meta
 
     def close(self) -> None:
@@ -167,7 +168,7 @@ class RunDir:
 
     def load_checkpoint(self, template: TrainState, num_runs: int) -> TrainState:
         """The checkpoint's state of ``num_runs`` runs, in the structure of ``template``."""
-        return reader.load_checkpoint(self.checkpoint_path, template, num_runs=num_runs)
+        return load_checkpoint(self.checkpoint_path, template, num_runs=num_runs)
 
     def finished(self) -> bool:
         """Whether the run wrote its last output: its evaluation, or a sweep's ranking."""

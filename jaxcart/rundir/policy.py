@@ -18,6 +18,7 @@ import numpy as np
 from jaxcart.core import networks
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.rundir import files, layout, reader
+from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
 
 
@@ -132,7 +133,7 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
     num_seeds = int(info.get("num_seeds", 1))
     if not combos and (run_dir / layout.PARAMS_FILE).exists():
         return RunParams(reader.load_params(run_dir), info["config"], num_seeds)
-    saved = reader.read_checkpoint_runs(run_dir, info)  # unfinished
+    saved = read_checkpoint_runs(run_dir, info)  # unfinished
     first = (combination or 0) * num_seeds
     params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
     return RunParams(params, _combo_config(info, combination), num_seeds, saved.note)

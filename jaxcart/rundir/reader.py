@@ -15,7 +15,6 @@ import io
 import json
 import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,7 +26,7 @@ from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
 
 if TYPE_CHECKING:  # the trainer (and JAX) load when a checkpoint is restored
-    from jaxcart.engine.trainer import TrainState
+    pass
 
 MAX_JSON_BYTES = 16 << 20
 EVAL_JSON_BYTES_PER_EPISODE = 64  # two returns per episode, as JSON, with room to spare
@@ -103,24 +102,24 @@ def _check_digest(path: Path, data: dict) -> None:
         )
 
 
-def _is_int(value: object, low: int, high: int) -> bool:
+def bounded_int(value: object, low: int, high: int) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
 
 
 def _check_run_fields(data: dict) -> None:
     num_seeds, seed = data.get("num_seeds", 1), data.get("seed", 0)
-    if not _is_int(num_seeds, 1, MAX_RUNS):
+    if not bounded_int(num_seeds, 1, MAX_RUNS):
         raise ValueError(f"num_seeds {num_seeds!r}")
-    if not _is_int(seed, 0, 2**32 - 1):
+    if not bounded_int(seed, 0, 2**32 - 1):
         raise ValueError(f"seed {seed!r}")
     wave_size = data.get("wave_size", num_seeds)
-    if wave_size is not None and not _is_int(wave_size, 1, MAX_RUNS):
+    if wave_size is not None and not bounded_int(wave_size, 1, MAX_RUNS):
         raise ValueError(f"wave_size {wave_size!r}")
     episodes = data.get("eval_episodes")
-    if episodes is not None and not _is_int(episodes, 1, MAX_EVAL_EPISODES):
+    if episodes is not None and not bounded_int(episodes, 1, MAX_EVAL_EPISODES):
         raise ValueError(f"eval_episodes {episodes!r} (at most {MAX_EVAL_EPISODES:,})")
     device_count = data.get("device_count", 1)
-    if not _is_int(device_count, 1, 1 << 16):
+    if not bounded_int(device_count, 1, 1 << 16):
         raise ValueError(f"device_count {device_count!r}")
     preset = data.get("preset", "")
     if not isinstance(preset, str) or len(preset) > 256:
@@ -130,11 +129,11 @@ def _check_run_fields(data: dict) -> None:
         raise ValueError("versions is not a {package: version} object")
     sweep = data.get("sweep", {})
     if not isinstance(sweep, dict) or not all(
-        isinstance(v, list) and all(_is_number(x) for x in v) for v in sweep.values()
+        isinstance(v, list) and all(finite_number(x) for x in v) for v in sweep.values()
     ):
         raise ValueError(f"sweep {sweep!r}")
     combination = data.get("combination") or {}
-    if not isinstance(combination, dict) or not all(_is_number(v) for v in combination.values()):
+    if not isinstance(combination, dict) or not all(finite_number(v) for v in combination.values()):
         raise ValueError("combination is not a {name: value} object")
     combos = recorded_combinations(data)
     if num_seeds * max(1, len(combos)) > MAX_RUNS:
@@ -143,7 +142,7 @@ def _check_run_fields(data: dict) -> None:
         )
 
 
-def _is_number(value: object) -> bool:
+def finite_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
@@ -152,7 +151,7 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     ``{name: number}``."""
     combos = info.get("combinations") or []
     if not isinstance(combos, list) or not all(
-        isinstance(c, dict) and all(isinstance(k, str) and _is_number(v) for k, v in c.items())
+        isinstance(c, dict) and all(isinstance(k, str) and finite_number(v) for k, v in c.items())
         for c in combos
     ):
         raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
@@ -237,7 +236,7 @@ def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) ->
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
         isinstance(s, dict)
-        and _is_number(s.get("gymnasium_mean"))
+        and finite_number(s.get("gymnasium_mean"))
         and isinstance(s.get("solved"), bool)
         for s in seeds
     ):
@@ -247,7 +246,7 @@ def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) ->
     if num_seeds is not None and len(seeds) != num_seeds:
         raise RunDirError(f"{path} holds {len(seeds)} seeds, its config.json trains {num_seeds}")
     episodes = data.get("episodes")
-    if episodes is not None and not _is_int(episodes, 1, MAX_EVAL_EPISODES):
+    if episodes is not None and not bounded_int(episodes, 1, MAX_EVAL_EPISODES):
         raise RunDirError(f"{path} is corrupted: episodes {episodes!r}")
     return data
 
@@ -257,8 +256,8 @@ def _evaluation_bytes(run_dir: str | os.PathLike) -> int:
     combinations x episodes (read as declared, within the reader's bounds)."""
     info = read_json(run_dir, layout.CONFIG_FILE)
     seeds, episodes = info.get("num_seeds", 1), info.get("eval_episodes", 20)
-    seeds = seeds if _is_int(seeds, 1, MAX_RUNS) else 1
-    episodes = episodes if _is_int(episodes, 1, MAX_EVAL_EPISODES) else 20
+    seeds = seeds if bounded_int(seeds, 1, MAX_RUNS) else 1
+    episodes = episodes if bounded_int(episodes, 1, MAX_EVAL_EPISODES) else 20
     per_seed = EVAL_JSON_BYTES_PER_SEED + episodes * EVAL_JSON_BYTES_PER_EPISODE
     return MAX_JSON_BYTES + seeds * per_seed
 
@@ -308,90 +307,6 @@ def _bytes(headers: dict[str, files.Header]) -> int:
     return sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in headers.values())
 
 
-def read_checkpoint_meta(path: str | os.PathLike) -> dict:
-    """The metadata of a checkpoint, with a :class:`RunDirError` if it is unreadable, of
-    another format, or holds fields of the wrong type or out of range."""
-    meta = files.read_meta(path)
-    if meta.get("checkpoint_format") != layout.CHECKPOINT_FORMAT:
-        raise RunDirError(
-            f"checkpoint {path} has format {meta.get('checkpoint_format')!r:.40}, this version "
-            f"reads {layout.CHECKPOINT_FORMAT}"
-        )
-    checks = {
-        "iteration": _is_int(meta.get("iteration"), 0, 1 << 40),
-        "chunk_size": _is_int(meta.get("chunk_size"), 1, 1 << 40),
-        "elapsed": _is_number(meta.get("elapsed")) and meta.get("elapsed") >= 0,
-        "wave": _is_int(meta.get("wave", 0), 0, MAX_RUNS),
-        "num_runs": _is_int(meta.get("num_runs", 1), 1, MAX_RUNS),
-        "versions": isinstance(meta.get("versions", {}), dict)
-        and all(isinstance(v, str) for v in meta.get("versions", {}).values()),
-    }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise RunDirError(f"checkpoint {path} is corrupted: {', '.join(bad)} out of range")
-    return meta
-
-
-def load_checkpoint(
-    path: str | os.PathLike, template: TrainState, num_runs: int | None = None
-) -> TrainState:
-    """Restores a checkpoint (:mod:`jaxcart.rundir.checkpoint`) into the structure of
-    ``template`` (NumPy leaves), to resume training.
-
-    ``template`` gives the names, dtypes and per-run shapes; its leading run axis may be
-    shorter than the checkpoint's ``num_runs`` (a one-run template is enough). Every header
-    is checked before anything is read, and the state must be finite.
-
-    Raises:
-        RunDirError: missing, corrupted, crafted, or saved from a different structure/shape.
-    """
-    import jax
-
-    from jaxcart.engine.trainer import TrainState
-
-    meta = read_checkpoint_meta(path)
-    expected = _expected_headers(template, num_runs, int(meta["iteration"]))
-    limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
-    found = files.read_headers(path, max_bytes=limit + (1 << 20))
-    found.pop(files.META_KEY, None)
-    if set(found) != set(expected):
-        raise RunDirError(
-            f"checkpoint {path} does not match this version's training state (different structure)"
-        )
-    for name, (shape, dtype) in expected.items():
-        if found[name] != (shape, dtype):
-            raise RunDirError(
-                f"checkpoint {path}: {name} has shape/dtype {found[name][0]}/{found[name][1]}, "
-                f"expected {shape}/{dtype}"
-            )
-    arrays, _ = files.load_tree(path, max_bytes=limit + (1 << 20))
-    state_names = [n for n in expected if n.startswith(layout.CHECKPOINT_STATE)]
-    files.check_finite({n: arrays[n] for n in state_names}, path)
-    tree = {"runners": template.runners, "hyperparams": template.hyperparams}
-    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
-    prefix = layout.CHECKPOINT_METRICS
-    metrics = {n[len(prefix) :]: a for n, a in arrays.items() if n.startswith(prefix)}
-    return TrainState(
-        runners=restored["runners"],
-        hyperparams=restored["hyperparams"],
-        iteration=int(meta["iteration"]),
-        elapsed=float(meta["elapsed"]),
-        metrics=metrics,
-        chunk_size=int(meta["chunk_size"]),
-    )
-
-
-def _expected_headers(template: TrainState, num_runs: int | None, iterations: int) -> dict:
-    """Names, shapes and dtypes a checkpoint of ``num_runs`` runs at ``iterations`` holds."""
-    from jaxcart.rundir.checkpoint import state_arrays
-
-    runs = num_runs if num_runs is not None else len(template.runners.diverged_at)
-    expected = {name: ((runs, *a.shape[1:]), a.dtype) for name, a in state_arrays(template).items()}
-    for name, a in template.metrics.items():
-        expected[layout.CHECKPOINT_METRICS + name] = ((iterations, runs), np.asarray(a).dtype)
-    return expected
-
-
 def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> None:
     """Refuses a wave file (:class:`~jaxcart.rundir.outputs.Block`) that is not the one this
     run wrote for ``runs``: its headers (parameters of this network, metrics
@@ -434,76 +349,3 @@ def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
     params = _bytes(params_headers(config, n))
     metrics = 64 * config.num_iterations * n * 8
     return params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20)
-
-
-@dataclass(frozen=True)
-class CheckpointRuns:
-    """What a run's checkpoint holds for reading: every run's parameters and metrics so far.
-
-    A sweep's checkpoint (in the sweep directory) holds all combinations x seeds: run ``r``
-    is combination ``r // num_seeds``, seed index ``r % num_seeds``.
-    """
-
-    params: dict  # leaves [R, ...]
-    metrics: dict[str, np.ndarray]  # name -> [iteration, R]
-    iteration: int
-    num_iterations: int
-
-    @property
-    def note(self) -> str:
-        where = f"from the checkpoint at iteration {self.iteration}/{self.num_iterations}"
-        if self.iteration >= self.num_iterations:
-            return f"{where}: training finished but the run stopped before writing its outputs"
-        return f"{where}: the run did not finish"
-
-
-def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> CheckpointRuns:
-    """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
-    optimizer or env state is restored), refusing crafted files: the metadata must match the
-    run's ``config.json``, every array header is checked before anything is read, the whole
-    file is bounded by what this config's checkpoint can hold, and parameters must be finite.
-
-    Raises:
-        RunDirError: no usable checkpoint.
-    """
-    run_dir = Path(run_dir)
-    info = info or read_run_config(run_dir)
-    config = info["config"]
-    if files.refuse_link(run_dir / layout.CHECKPOINT_FILE) is None:
-        raise RunDirError(f"{run_dir} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}")
-    path = files.inside(run_dir, layout.CHECKPOINT_FILE)
-    meta = read_checkpoint_meta(path)
-    runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
-    iteration = meta.get("iteration")
-    if (
-        meta.get("num_runs") != runs
-        or not isinstance(iteration, int)
-        or not 0 <= iteration <= config.num_iterations
-    ):
-        raise RunDirError(f"{path} does not belong to this run's config.json")
-    params_prefix, metrics_prefix = layout.CHECKPOINT_PARAMS, layout.CHECKPOINT_METRICS
-    expected = {
-        params_prefix + name: header for name, header in params_headers(config, runs).items()
-    }
-    limit = _checkpoint_bytes(config, runs, iteration)
-    found = files.read_headers(path, max_bytes=limit)
-    if any(found.get(name) != header for name, header in expected.items()):
-        raise RunDirError(f"{path} does not hold this run's network")
-    metric_names = [n for n in found if n.startswith(metrics_prefix)]
-    if any(found[n][0] != (iteration, runs) or found[n][1].kind != "f" for n in metric_names):
-        raise RunDirError(f"{path} holds metrics other than floats [{iteration}, {runs}]")
-    arrays, _ = files.load_tree(path, max_bytes=limit)
-    params = {name[len(params_prefix) :]: arrays[name] for name in expected}
-    files.check_finite(params, path)
-    metrics = {n[len(metrics_prefix) :]: arrays[n].astype(float) for n in metric_names}
-    return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
-
-
-def _checkpoint_bytes(config: PPOConfig, runs: int, iterations: int) -> int:
-    """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
-    two moments, per-env state, episode statistics, and metrics so far."""
-    params = sum(
-        math.prod(shape) * dtype.itemsize for shape, dtype in params_headers(config, runs).values()
-    )
-    per_run = config.num_envs * 256 + (1 << 14)
-    return 4 * params + runs * per_run + (iterations + 1) * runs * 64 * 8 + (1 << 20)

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.rundir import layout, reader
+from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
 
 ELAPSED_METRIC = "time/elapsed"
@@ -89,7 +90,7 @@ def checkpoint_curves(
     Raises:
         RunDirError: no usable checkpoint, or no iteration finished yet.
     """
-    saved = reader.read_checkpoint_runs(path, info)
+    saved = read_checkpoint_runs(path, info)
     if saved.iteration == 0:
         raise RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
     config, num_seeds = info["config"], int(info.get("num_seeds", 1))
