@@ -288,8 +288,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--baseline",
         default=None,
         metavar="RUN_DIR",
-        help="the run the others are compared with (default: the first RUN_DIR); with --arm, "
-        "the baseline arm's NAME (default: the first arm)",
+        help="the run the others are compared with, or with --arm the baseline arm's NAME "
+        "(default: the first RUN_DIR, or the first arm)",
     )
     parser.add_argument(
         "--arm",

@@ -173,7 +173,7 @@ BAD_OPTIONS = [
     (["--sweep", "num_envs=1,2"], "cannot sweep 'num_envs'"),
     (["--sweep", "gamma=0.9,2"], "out of range"),
     (["--eval-episodes", "0"], "--eval-episodes must be a positive integer"),
-    (["--checkpoint-every", "0"], "--checkpoint-every must be > 0"),
+    (["--checkpoint-every", "0"], "--checkpoint-every must be in (0, 31536000] seconds"),
 ]
 
 

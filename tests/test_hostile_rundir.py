@@ -30,9 +30,9 @@ import pytest
 from conftest import FAULT_FIGURES
 from helpers import TINY, TRAIN_ENV
 
-from jaxcart import compare, train
+from jaxcart import train
 from jaxcart.core.config import ConfigError
-from jaxcart.run import lifecycle, training, waves
+from jaxcart.run import comparison, lifecycle, training, waves
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import files, layout, policy, reader, runs
 from jaxcart.rundir.directory import RunDir
@@ -224,7 +224,7 @@ def plot(run: Path) -> None:
 
 def compare_scores(run: Path) -> None:
     for loaded in runs.load_runs([run]):
-        compare.read_scores(loaded)
+        comparison.read_evaluation(loaded, required=True)
 
 
 def evaluate_params(run: Path) -> None:
@@ -553,7 +553,7 @@ def test_an_interrupted_extension_reads_as_unfinished(bases, tmp_path):
     (curves,) = runs.load_runs([run])
     assert "did not finish" in curves.note
     with pytest.raises(RunDirError, match=r"no evaluation\.json"):
-        compare.read_scores(curves)
+        comparison.read_evaluation(curves, required=True)
     outcome = lifecycle.resume_run(run, OPTIONS)  # and the extension completes
     assert not outcome.stopped and outcome.run.config.num_iterations == 4
     assert (run / layout.EVALUATION_FILE).is_file()

@@ -103,7 +103,13 @@ def test_evaluation_json_bound_scales_with_the_declared_seeds(tmp_path):
     from jaxcart.rundir.files import RunDirError
 
     (tmp_path / "config.json").write_text(json.dumps({"num_seeds": 100_000, "eval_episodes": 20}))
-    seed = {"seed_index": 0, "gym_returns": [500.0] * 20, "jax_returns": [500.0] * 20}
+    seed = {
+        "seed_index": 0,
+        "gymnasium_returns": [500.0] * 20,
+        "gymnasium_mean": 500.0,
+        "solved": True,
+        "jaxcart_returns": [500.0] * 20,
+    }
     text = json.dumps({"seeds": [seed] * 100_000})
     assert len(text) > 16 << 20
     (tmp_path / "evaluation.json").write_text(text)

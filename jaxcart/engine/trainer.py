@@ -227,7 +227,8 @@ def initial_state(
         elapsed=0.0,
         metrics={k: np.zeros((0, num_runs), np.float32) for k in METRIC_COLUMNS},
         chunk_size=chunk_size or default_chunk_size(config.num_iterations, num_runs),
-        chunk_seconds=None if chunk_size else CHUNK_SECONDS,
+        # several processes must run the same chunk lengths: they keep fixed chunks
+        chunk_seconds=None if chunk_size or jax.process_count() > 1 else CHUNK_SECONDS,
     )
 
 

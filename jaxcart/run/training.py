@@ -49,8 +49,9 @@ def wave_start_state(
     else a fresh state, saved at once as the wave's iteration-0 checkpoint, so that a run
     killed at any moment can be resumed. ``on_progress(done, total)`` follows the
     initialisation of large runs. Without ``chunk_size`` its chunks adapt to take about
-    ``chunk_seconds`` each (chunk lengths change no number)."""
-    adapt = None if chunk_size else chunk_seconds
+    ``chunk_seconds`` each (chunk lengths change no number); with several processes the
+    chunks stay fixed, since every process must run the same chunk lengths."""
+    adapt = None if chunk_size or jax.process_count() > 1 else chunk_seconds
     meta = run.directory.checkpoint_meta
     if meta is not None and meta.get("wave", 0) == wave:
         # a one-run template names the arrays; the file has them all

@@ -232,6 +232,11 @@ def refuse_link(path: str | os.PathLike) -> os.stat_result | None:
     return st
 
 
+WRITE_FAILURES = (errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM)
+"""Errors of a disk or mount that refuses writes: reported as failed writes (exit 1), not as a
+bad run directory."""
+
+
 def open_regular(path: str | os.PathLike, flags: int = os.O_RDONLY, mode: int = 0o666) -> int:
     """A descriptor of ``path`` opened without following a link, checked to be a regular
     file (never a FIFO, device or directory: ``O_NONBLOCK`` keeps a FIFO from blocking the
@@ -240,6 +245,7 @@ def open_regular(path: str | os.PathLike, flags: int = os.O_RDONLY, mode: int = 
     Raises:
         RunDirError: ``path`` is a link or not a regular file.
         FileNotFoundError: it does not exist (and ``flags`` do not create it).
+        OSError: the disk refuses an open for writing (:data:`WRITE_FAILURES`).
     """
     try:
         fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode)
@@ -248,8 +254,9 @@ def open_regular(path: str | os.PathLike, flags: int = os.O_RDONLY, mode: int = 
             raise RunDirError(
                 f"{path} is a symbolic link; jaxcart never follows links in a run directory"
             ) from None
-        if isinstance(exc, FileNotFoundError):
-            raise
+        writing = flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT)
+        if isinstance(exc, FileNotFoundError) or (writing and exc.errno in WRITE_FAILURES):
+            raise  # a missing file; or a disk that refuses writes: the caller's write failure
         raise RunDirError(f"{path} cannot be opened: {exc.strerror or exc}") from None
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
