@@ -32,7 +32,7 @@ from helpers import TINY, TRAIN_ENV
 
 from jaxcart import train
 from jaxcart.core.config import ConfigError
-from jaxcart.run import comparison, lifecycle, training, waves
+from jaxcart.run import comparison, lifecycle, loggers, training, waves
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import files, layout, policy, reader, runs
 from jaxcart.rundir.directory import RunDir
@@ -238,6 +238,18 @@ def sweep_policy(run: Path) -> None:
 READERS = (load_policy, plot, compare_scores, evaluate_params)
 
 
+def logger_opens(backend: type) -> Callable[[Path], None]:
+    """Opens one logger backend on the run directory (as training would), then closes it."""
+
+    def open_backend(run: Path) -> None:
+        opened = backend(run, ["0"], {})
+        opened.open()
+        opened.close()
+
+    open_backend.__name__ = f"open_{backend.name}"
+    return open_backend
+
+
 @dataclasses.dataclass(frozen=True)
 class Case:
     name: str
@@ -292,6 +304,31 @@ CASES = [
     Case("config-fifo", "finished", fifo(layout.CONFIG_FILE), READERS, "not a regular file"),
     Case("params-fifo", "finished", fifo(layout.PARAMS_FILE), (load_policy,), "not a regular file"),
     Case("combo-link-read", "sweep", link("combo-000"), (sweep_policy, plot), S_LINK),
+    # links that would change what a directory is (a sweep, a finished or unfinished run)
+    Case("sweep-json-link", "finished", link(layout.SWEEP_FILE), (resume, *READERS), S_LINK),
+    Case(
+        "sweep-json-link-sweep",
+        "sweep",
+        link(layout.SWEEP_FILE),
+        (resume, sweep_policy, plot, compare_scores),
+        S_LINK,
+    ),
+    Case("params-link-unfinished", "interrupted", link(layout.PARAMS_FILE), READERS, S_LINK),
+    # logger directories: nothing is logged through a link
+    *(
+        Case(
+            f"{name}-dir-link",
+            "finished",
+            link(name, "dangling"),
+            (logger_opens(loggers.BACKENDS[backend]),),
+            S_LINK,
+        )
+        for name, backend in (
+            ("tensorboard", "tensorboard"),
+            ("swanlog", "swanlab"),
+            ("wandb", "wandb"),
+        )
+    ),
     Case(
         "wave-file-link", "waved", both(unfinish, link("waves/wave-00000.npz")), (resume,), S_LINK
     ),
@@ -309,6 +346,15 @@ CASES = [
         metrics_csv("seed_index,iteration,env_steps,x\n0,90000000,128,0\n"),
         (plot,),
         "out of range",
+    ),
+    Case(
+        "total-timesteps-1e18",
+        "interrupted",
+        lambda r, o: edit_json(
+            r / layout.CONFIG_FILE, lambda d: d["config"].update(total_timesteps=10**18)
+        ),
+        (resume, *READERS),
+        CORRUPT + "|iterations",
     ),
     Case(
         "eval-episodes-huge",

@@ -132,6 +132,9 @@ MAX_WEIGHTS = 1 << 26
 """Weights per MLP (64 M): far above any CartPole network, a bound for untrusted configs."""
 MAX_BATCH = 1 << 24
 """Transitions per iteration: the minibatch shuffle packs an index into 24 bits."""
+MAX_ITERATIONS = 2**31 - 1
+"""Iterations per run: the chunk loop counts them in int32 (a new run and a resumed
+``config.json`` are held to it alike)."""
 
 
 def validate(config: PPOConfig) -> None:
@@ -182,6 +185,12 @@ def validate(config: PPOConfig) -> None:
         raise ConfigError(
             f"num_envs x num_steps = {c.batch_size:,} transitions per iteration is more than "
             f"the {MAX_BATCH:,} one minibatch shuffle supports; use fewer envs or steps"
+        )
+    if c.num_iterations > MAX_ITERATIONS:
+        raise ConfigError(
+            f"total_timesteps={c.total_timesteps:,} makes {c.num_iterations:,} iterations of "
+            f"{c.batch_size:,} transitions, more than the {MAX_ITERATIONS:,} this trainer counts; "
+            "use fewer total_timesteps"
         )
     if c.activation not in ("tanh", "relu"):
         raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")

@@ -186,6 +186,7 @@ class SwanLabBackend:
         self.run: Any = None
 
     def open(self) -> None:
+        files.subdir(self.log_dir.parent, self.log_dir.name, create=True)  # never through a link
         import swanlab
 
         Settings = swanlab.Settings
@@ -253,6 +254,7 @@ class WandbBackend:
         import wandb
 
         self.out_dir.mkdir(parents=True, exist_ok=True)
+        files.subdir(self.out_dir, "wandb", create=True)  # W&B writes here; never through a link
         # offline unless the user chose otherwise; no console capture (it would wrap the
         # progress bar's stream), no system-metrics sampling thread
         settings = wandb.Settings(

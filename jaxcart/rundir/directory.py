@@ -142,7 +142,7 @@ class RunDir:
         """:attr:`checkpoint_meta` read from the checkpoint on disk; None when there is none
         (stopped while starting up: nothing was trained)."""
         path = self.checkpoint_path
-        self.checkpoint_meta = read_checkpoint_meta(path) if path.exists() else None
+        self.checkpoint_meta = read_checkpoint_meta(path) if layout.present(path) else None
         return self.checkpoint_meta
 
     def close(self) -> None:

@@ -91,9 +91,16 @@ def is_temporary(path: str | os.PathLike) -> bool:
     return name.startswith(".") and name.endswith(TEMPORARY_SUFFIX)
 
 
+def present(path: str | os.PathLike) -> bool:
+    """Whether ``path`` exists, by ``lstat``: a link counts as present whatever it points to,
+    so that what a directory is never depends on a link's target (its reader then refuses
+    the link by name)."""
+    return os.path.lexists(path)
+
+
 def is_sweep(run_dir: str | os.PathLike) -> bool:
     """Whether ``run_dir`` is a sweep (its combinations are run directories of their own)."""
-    return (Path(run_dir) / SWEEP_FILE).is_file() and not (Path(run_dir) / PARAMS_FILE).is_file()
+    return present(Path(run_dir) / SWEEP_FILE) and not present(Path(run_dir) / PARAMS_FILE)
 
 
 def fresh_dir(base: str | os.PathLike) -> Path:

@@ -131,7 +131,7 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
     elif combination is not None:
         raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
     num_seeds = int(info.get("num_seeds", 1))
-    if not combos and (run_dir / layout.PARAMS_FILE).exists():
+    if not combos and layout.present(run_dir / layout.PARAMS_FILE):
         return RunParams(reader.load_params(run_dir), info["config"], num_seeds)
     saved = read_checkpoint_runs(run_dir, info)  # unfinished
     first = (combination or 0) * num_seeds

@@ -40,6 +40,11 @@ MAX_EVAL_EPISODES = 100_000
 """The most evaluation episodes per seed a run directory may declare."""
 
 
+CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FILE)
+"""Whether these exist says whether a directory is a sweep, a finished or an unfinished run
+(:func:`~jaxcart.rundir.layout.is_sweep`): :func:`read_run_config` refuses each as a link."""
+
+
 def read_json(run_dir: str | os.PathLike, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
     """A JSON object from a run directory, refusing links, non-regular files, files over
     ``max_bytes`` and anything but an object."""
@@ -76,6 +81,8 @@ def read_run_config(run_dir: str | os.PathLike, verify: bool = False) -> dict:
         raise RunDirError(
             f"{run_dir} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory{hint}"
         )
+    for name in CLASSIFYING_FILES:  # what the directory is: never decided through a link
+        files.refuse_link(run_dir / name)
     data = read_json(run_dir, layout.CONFIG_FILE)
     if verify:
         _check_digest(path, data)

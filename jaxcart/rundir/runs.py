@@ -37,7 +37,7 @@ class RunCurves:
 def unfinished(path: Path) -> bool:
     """A run (or sweep) that did not write its outputs but has a checkpoint to plot from."""
     done = layout.PARAMS_FILE if not layout.is_sweep(path) else layout.SWEEP_FILE
-    return not (path / done).exists() and (path / layout.CHECKPOINT_FILE).exists()
+    return not layout.present(path / done) and layout.present(path / layout.CHECKPOINT_FILE)
 
 
 def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
@@ -52,7 +52,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     info = reader.read_run_config(path)
     if unfinished(path):
         return checkpoint_curves(path, info, [label] if label is not None else None)[0]
-    if not (path / layout.METRICS_FILE).exists():
+    if not layout.present(path / layout.METRICS_FILE):
         raise RunDirError(
             f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
             "never started training"
@@ -63,7 +63,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     env_steps = _first_finite(metrics["env_steps"])
     elapsed = _first_finite(metrics[ELAPSED_METRIC]) if ELAPSED_METRIC in metrics else None
     evaluation = None
-    if (path / layout.EVALUATION_FILE).exists():
+    if layout.present(path / layout.EVALUATION_FILE):
         evaluation = reader.read_evaluation(path, int(info.get("num_seeds", 1)))
     num_seeds = next(iter(metrics.values())).shape[1]
     combination = info.get("combination") or None
