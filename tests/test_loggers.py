@@ -104,6 +104,7 @@ def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypa
     monkeypatch.setattr(socket, "getaddrinfo", lambda *a, **k: network.append(a) or [])
     monkeypatch.setattr(socket.socket, "connect", lambda self, addr: network.append(addr))
     chunks = synthetic_chunks()
+    (tmp_path / "out").mkdir()  # the run directory exists before its loggers open
     with make_logger(["swanlab"], tmp_path / "out", RUNS, {"learning_rate": 2.5e-4}) as logger:
         for chunk in chunks:
             logger.log(*chunk)
