@@ -15,6 +15,7 @@ import dataclasses
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -742,17 +743,48 @@ TRAIN_ARGV = [
 ]
 
 
+def landed_before_jaxcart_ran(stderr: str) -> bool:
+    """Whether a SIGINT landed while CPython itself started, before any line of jaxcart ran:
+    CPython's "init_import_site" report, or a ``KeyboardInterrupt`` traceback whose every frame
+    is CPython's own (``<frozen runpy>`` finding the package), none in a file of jaxcart's."""
+    if "init_import_site" in stderr:
+        return True
+    frames = re.findall(r'File "([^"]+)"', stderr)
+    return (
+        "Traceback" in stderr
+        and stderr.rstrip().endswith("KeyboardInterrupt")
+        and bool(frames)
+        and all(frame.startswith("<frozen ") for frame in frames)
+    )
+
+
 def check_interrupted(result: subprocess.CompletedProcess) -> None:
     """No traceback and the exit code of a signal. A SIGINT that lands while CPython itself
-    starts (importing ``site``, before any line of jaxcart runs) ends in CPython's own
-    "init_import_site" report, which no package can handle: counted apart."""
-    if "init_import_site" in result.stderr:
+    starts (before any line of jaxcart runs, so no package can handle it) is counted apart."""
+    if landed_before_jaxcart_ran(result.stderr):
         FAULT_FIGURES["hostile run directories: signals landing in CPython's own start-up"] += 1
         return
     assert "Traceback" not in result.stderr and "Exception ignored" not in result.stderr, (
         result.stderr
     )
     assert result.returncode in (0, 130, -signal.SIGINT), (result.returncode, result.stderr)
+
+
+def test_only_tracebacks_from_cpythons_own_start_up_are_counted_apart():
+    frozen = (
+        "Traceback (most recent call last):\n"
+        '  File "<frozen runpy>", line 189, in _run_module_as_main\n'
+        '  File "<frozen runpy>", line 112, in _get_module_details\n'
+        "KeyboardInterrupt\n"
+    )
+    ours = frozen.replace(
+        "KeyboardInterrupt",
+        '  File "/x/jaxcart/__init__.py", line 3, in <module>\nKeyboardInterrupt',
+    )
+    assert landed_before_jaxcart_ran(frozen)
+    assert landed_before_jaxcart_ran("Fatal Python error: init_import_site: Failed to import")
+    assert not landed_before_jaxcart_ran(ours)
+    assert not landed_before_jaxcart_ran(frozen.replace("KeyboardInterrupt", "ValueError: x"))
 
 
 @pytest.mark.parametrize("delay", [0.05, 0.15, 0.3, 0.6])
