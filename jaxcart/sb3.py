@@ -9,6 +9,7 @@ Each seed is ``PPO("MlpPolicy", "CartPole-v1", seed=s).learn(80_000)``; the libr
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from jaxcart import cli
@@ -43,6 +44,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out", type=Path, default=None, help="run directory (default: runs/sb3-torch-<time>)"
     )
+    parser.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="RUN_DIR",
+        help="continue an interrupted run: train the seeds it has not kept yet (each seed is "
+        "kept as it finishes; --jobs and --threads may change, nothing else)",
+    )
     return parser
 
 
@@ -52,31 +61,67 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    args = build_parser().parse_args(argv)
-    if args.first_seed < 0:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.resume is not None:
+        given = [
+            o
+            for o in ("--num-seeds", "--first-seed", "--total-timesteps", "--out")
+            if any(
+                a == o or a.startswith(o + "=") for a in (sys.argv[1:] if argv is None else argv)
+            )
+        ]
+        if given:
+            raise cli.UsageError(f"--resume continues the run as it was asked for; drop {given[0]}")
+    elif args.first_seed < 0:
         raise cli.UsageError(f"--first-seed must be >= 0, got {args.first_seed}")
-    out = args.out or layout.default_run_dir("sb3-torch")
-    if out.exists():
+    out = args.resume or args.out or layout.default_run_dir("sb3-torch")
+    if args.resume is None and out.exists():
         raise cli.UsageError(f"--out {out} exists; choose a new run directory")
     sb3.check_available()
-    print(
-        f"Stable-Baselines3 PPO | {args.num_seeds} seed(s) x learn({args.total_timesteps:,}) | "
-        f"{args.jobs} process(es) | out {out}",
-        flush=True,
-    )
+    if args.resume is not None:
+        sb3.read_plan(out)  # a finished run or another directory: one line, before anything
+
+    def on_start(plan: dict, kept: int) -> None:
+        resumed = f" | {kept} already kept" if kept else ""
+        print(
+            f"Stable-Baselines3 PPO | {plan['num_seeds']} seed(s) x "
+            f"learn({plan['total_timesteps']:,}){resumed} | {args.jobs} process(es) | out {out}",
+            flush=True,
+        )
 
     def on_seed(seed: int, result: sb3.SeedResult) -> None:
         solved = " (solved)" if is_solved(result.returns) else ""
         mean = result.returns.mean()
         print(f"seed {seed}: {result.seconds:.1f} s, greedy mean {mean:.1f}{solved}", flush=True)
 
-    results = sb3.train_run(
-        out, args.num_seeds, args.total_timesteps, args.first_seed, args.jobs, args.threads, on_seed
-    )
+    try:
+        if args.resume is not None:
+            results = sb3.resume_run(out, args.jobs, args.threads, on_seed, on_start)
+        else:
+            on_start({"num_seeds": args.num_seeds, "total_timesteps": args.total_timesteps}, 0)
+            results = sb3.train_run(
+                out,
+                args.num_seeds,
+                args.total_timesteps,
+                args.first_seed,
+                args.jobs,
+                args.threads,
+                on_seed,
+            )
+    except KeyboardInterrupt:
+        kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))
+        print(
+            f"\ninterrupted: {kept} finished seed(s) kept in {out}; continue with\n"
+            f"  python -m jaxcart.sb3 --resume {out}",
+            file=sys.stderr,
+            flush=True,
+        )
+        return 130
     solved = sum(int(is_solved(r.returns)) for r in results)
     print(f"solved {solved}/{len(results)} seed(s) | run directory: {out}")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    cli.command_main(main)

@@ -143,3 +143,103 @@ def test_sb3_trains_into_a_run_directory(tmp_path, capsys):
     # the mapped weights act as SB3's model did: jaxcart's evaluation scores the same
     again = evaluate_params(out, run_params(out), 20)
     assert again[0].tolist() == evaluation["seeds"][0]["gymnasium_returns"]
+
+
+def fake_train_seed(seed: int, total_timesteps: int, threads: int = 1) -> sb3.SeedResult:
+    """A made-up SB3 seed, a function of its seed alone."""
+    rng = np.random.default_rng(seed)
+    state = fake_state_dict(rng)
+    config = PPOConfig(total_timesteps=total_timesteps)
+    return sb3.SeedResult(
+        sb3.to_metrics(fake_rows(3)),
+        sb3.sb3_params(state, config),
+        rng.integers(9, 500, sb3.NUM_EVAL_EPISODES).astype(float),
+        1.5,
+    )
+
+
+@pytest.fixture
+def fake_sb3(monkeypatch):
+    monkeypatch.setattr(sb3, "check_available", lambda: None)
+    monkeypatch.setattr(sb3, "train_seed", fake_train_seed)
+
+
+def test_an_interrupted_run_keeps_its_finished_seeds_and_resumes(
+    fake_sb3, monkeypatch, tmp_path, capsys
+):
+    """Ctrl-C after two of four seeds: one line names the resume command, the two seeds are
+    kept, and the resumed run trains only the other two and equals an uninterrupted run."""
+    argv = ["--num-seeds", "4", "--first-seed", "5", "--total-timesteps", "6144"]
+    whole = tmp_path / "whole"
+    assert sb3_command.main([*argv, "--out", str(whole)]) == 0
+    assert sorted(p.name for p in whole.iterdir()) == sorted(
+        [layout.CONFIG_FILE, layout.METRICS_FILE, layout.PARAMS_FILE, layout.EVALUATION_FILE]
+    )
+
+    trained = []
+
+    def interrupted_after_two(seed, total, threads=1):
+        if len(trained) == 2:
+            raise KeyboardInterrupt
+        trained.append(seed)
+        return fake_train_seed(seed, total, threads)
+
+    monkeypatch.setattr(sb3, "train_seed", interrupted_after_two)
+    out = tmp_path / "cut"
+    capsys.readouterr()
+    assert sb3_command.main([*argv, "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "2 finished seed(s) kept" in err and f"python -m jaxcart.sb3 --resume {out}" in err
+    assert "Traceback" not in err
+    assert not (out / layout.EVALUATION_FILE).exists()
+
+    again = []
+    monkeypatch.setattr(
+        sb3, "train_seed", lambda s, t, threads=1: again.append(s) or fake_train_seed(s, t)
+    )
+    assert sb3_command.main(["--resume", str(out)]) == 0
+    assert "2 already kept" in capsys.readouterr().out
+    assert trained == [5, 6] and again == [7, 8]
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in whole.iterdir())
+    for name in (layout.METRICS_FILE, layout.PARAMS_FILE):
+        assert (out / name).read_bytes() == (whole / name).read_bytes()
+    evaluation = [json.loads((d / layout.EVALUATION_FILE).read_text()) for d in (out, whole)]
+    for seeds in (e["seeds"] for e in evaluation):
+        for s in seeds:
+            s.pop("train_seconds")
+    assert evaluation[0] == evaluation[1]
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda out: None, "a finished run"),
+        (lambda out: (out / layout.EVALUATION_FILE).unlink() or None, "no plan"),
+    ],
+    ids=["finished", "not-sb3"],
+)
+def test_resume_refuses_what_is_not_an_unfinished_sb3_run(
+    damage, message, fake_sb3, tmp_path, capsys
+):
+    out = tmp_path / "r"
+    assert sb3_command.main(["--total-timesteps", "2048", "--out", str(out)]) == 0
+    damage(out)
+    capsys.readouterr()
+    assert sb3_command.main(["--resume", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+
+
+def test_resume_refuses_a_damaged_kept_seed_and_other_settings(
+    fake_sb3, monkeypatch, tmp_path, capsys
+):
+    out = tmp_path / "r"
+    monkeypatch.setattr(sb3, "write_run", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    assert sb3_command.main(["--num-seeds", "2", "--out", str(out)]) == 130
+    kept = layout.sb3_seed_file(out, 0)
+    kept.write_bytes(kept.read_bytes()[:100])
+    capsys.readouterr()
+    assert sb3_command.main(["--resume", str(out)]) == 2
+    assert "seed-0.npz" in capsys.readouterr().err
+    assert sb3_command.main(["--resume", str(out), "--num-seeds", "3"]) == 2
+    assert "drop --num-seeds" in capsys.readouterr().err

@@ -20,10 +20,11 @@ from __future__ import annotations
 import csv
 import importlib.util
 import multiprocessing
+import shutil
+import signal
 import tempfile
 import time
-from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +36,8 @@ from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_DEFINITION,
 from jaxcart.engine.trainer import METRIC_COLUMNS
 from jaxcart.rundir import files, layout, outputs
 from jaxcart.rundir.directory import package_versions
+from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.reader import bounded_int, finite_number, params_headers, read_json
 
 TORCH_CPU_INSTALL = "pip install torch --index-url https://download.pytorch.org/whl/cpu"
 """PyTorch's own install line for its CPU build on Linux (plain ``pip install torch`` pulls
@@ -243,6 +246,84 @@ def _stack(trees: list[dict]) -> dict:
     return np.stack(trees)
 
 
+def _ignore_sigint() -> None:
+    """Worker processes leave Ctrl-C to the parent, which saves what finished and stops them."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _train_seed_job(job: tuple[int, int, int]) -> tuple[int, SeedResult]:
+    seed, total_timesteps, threads = job
+    return seed, train_seed(seed, total_timesteps, threads)
+
+
+def save_seed(out: Path, seed: int, result: SeedResult, elapsed: float) -> None:
+    """Keeps one finished seed in ``out/sb3-seeds/`` (atomically), so an interrupted run
+    loses at most the seeds still training; ``elapsed``: wall seconds since the run began."""
+    arrays = {f"metrics/{k}": np.asarray(v, np.float64) for k, v in result.metrics.items()}
+    arrays |= {f"params/{k}": v for k, v in files.flatten(result.params).items()}
+    arrays["returns"] = np.asarray(result.returns, np.float64)
+    files.subdir(out, layout.SB3_SEEDS_DIR, create=True)
+    meta = {"seed": seed, "seconds": result.seconds, "elapsed": elapsed}
+    files.save_tree(layout.sb3_seed_file(out, seed), arrays, meta)
+
+
+def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, float] | None:
+    """A seed :func:`save_seed` kept, checked (names, shapes, finite weights and returns), with
+    the run's elapsed seconds when it was saved; None when that seed has not finished."""
+    path = layout.sb3_seed_file(out, seed)
+    files.subdir(out, layout.SB3_SEEDS_DIR)
+    if files.refuse_link(path) is None:
+        return None
+    arrays, meta = files.load_tree(files.inside(path.parent, path.name), max_bytes=1 << 24)
+    expected = {f"params/{k}": h for k, h in _seed_param_headers(config).items()}
+    expected |= {f"metrics/{k}": None for k in METRIC_COLUMNS} | {"returns": None}
+    params = {k: arrays[k] for k in arrays if k.startswith("params/")}
+    if set(arrays) != set(expected) or any(
+        (a.shape, a.dtype) != expected[k] for k, a in params.items()
+    ):
+        raise RunDirError(f"{path} does not hold one SB3 seed of this run; refusing it")
+    returns = arrays["returns"]
+    files.check_finite(params | {"returns": returns}, path)
+    lengths = {arrays[f"metrics/{k}"].shape for k in METRIC_COLUMNS}
+    if (
+        returns.shape != (NUM_EVAL_EPISODES,)
+        or len(lengths) != 1
+        or len(next(iter(lengths))) != 1
+        or not isinstance(meta, dict)
+        or meta.get("seed") != seed
+        or not all(finite_number(meta.get(k)) for k in ("seconds", "elapsed"))
+    ):
+        raise RunDirError(f"{path} does not hold SB3 seed {seed} of this run; refusing it")
+    metrics = {k: arrays[f"metrics/{k}"] for k in METRIC_COLUMNS}
+    tree = files.unflatten({k[len("params/") :]: v for k, v in params.items()})
+    return SeedResult(metrics, tree, returns, float(meta["seconds"])), float(meta["elapsed"])
+
+
+def _seed_param_headers(config: PPOConfig) -> dict[str, files.Header]:
+    return {k: (shape[1:], dtype) for k, (shape, dtype) in params_headers(config, 1).items()}
+
+
+def read_plan(out: Path) -> dict:
+    """What an unfinished ``python -m jaxcart.sb3`` run was asked to train (checked).
+
+    Raises:
+        RunDirError: ``out`` is not an unfinished SB3 run, or its plan is damaged.
+    """
+    if not Path(out).is_dir():
+        raise RunDirError(f"{out} is not a directory")
+    if files.refuse_link(Path(out) / layout.EVALUATION_FILE) is not None:
+        raise RunDirError(f"{out} is a finished run; there is nothing to resume")
+    if files.refuse_link(Path(out) / layout.SB3_PLAN_FILE) is None:
+        raise RunDirError(f"{out} is not an unfinished python -m jaxcart.sb3 run (no plan)")
+    plan = read_json(out, layout.SB3_PLAN_FILE)
+    bounds = {"first_seed": 2**31 - 1, "num_seeds": 100_000, "total_timesteps": 10**9}
+    if set(plan) != set(bounds) or not all(
+        bounded_int(plan[k], 1 if k != "first_seed" else 0, high) for k, high in bounds.items()
+    ):
+        raise RunDirError(f"{Path(out) / layout.SB3_PLAN_FILE} is damaged; refusing it")
+    return plan
+
+
 def train_run(
     out: Path,
     num_seeds: int,
@@ -253,7 +334,8 @@ def train_run(
     on_seed: Callable[[int, SeedResult], None] | None = None,
 ) -> list[SeedResult]:
     """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3, ``jobs`` processes
-    at once, and writes them as the run directory ``out`` (created; it must not exist).
+    at once, and writes them as the run directory ``out`` (created; it must not exist). Each
+    seed is kept as it finishes: an interrupted run continues with :func:`resume_run`.
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -262,16 +344,58 @@ def train_run(
     check_available()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=False)
-    config = PPOConfig(total_timesteps=total_timesteps)  # SB3's defaults: the sb3 preset
-    seeds = range(first_seed, first_seed + num_seeds)
+    plan = {"first_seed": first_seed, "num_seeds": num_seeds, "total_timesteps": total_timesteps}
+    files.write_json(out / layout.SB3_PLAN_FILE, plan)
+    return resume_run(out, jobs, threads, on_seed)
+
+
+def resume_run(
+    out: Path,
+    jobs: int = 1,
+    threads: int = 1,
+    on_seed: Callable[[int, SeedResult], None] | None = None,
+    on_start: Callable[[dict, int], None] | None = None,
+) -> list[SeedResult]:
+    """Trains the seeds of an unfinished SB3 run ``out`` that it has not kept yet, then writes
+    the run directory (and removes the plan and kept seeds). ``on_start(plan, kept)`` is
+    called before training.
+
+    Raises:
+        SB3Unavailable: SB3 or PyTorch is not installed.
+        RunDirError: ``out`` is not an unfinished SB3 run, or a kept seed is damaged.
+    """
+    check_available()
+    out = Path(out)
+    plan = read_plan(out)
+    config = PPOConfig(total_timesteps=plan["total_timesteps"])  # SB3's defaults: sb3 preset
+    seeds = range(plan["first_seed"], plan["first_seed"] + plan["num_seeds"])
+    kept = {s: found for s in seeds if (found := load_seed(out, s, config)) is not None}
+    if on_start is not None:
+        on_start(plan, len(kept))
+    offset = max((elapsed for _, elapsed in kept.values()), default=0.0)
     start = time.perf_counter()
-    # spawn: a forked child would inherit the parent's threads (JAX's) in an unknown state
-    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(train_seed, s, total_timesteps, threads) for s in seeds]
-        results = []
-        for seed, future in zip(seeds, futures):
-            results.append(future.result())
-            if on_seed is not None:
-                on_seed(seed, results[-1])
-    write_run(out, config, results, first_seed, time.perf_counter() - start, jobs)
+    jobs_left = [(s, plan["total_timesteps"], threads) for s in seeds if s not in kept]
+    for seed, result in _train(jobs_left, jobs):
+        elapsed = offset + time.perf_counter() - start
+        save_seed(out, seed, result, elapsed)
+        kept[seed] = (result, elapsed)
+        if on_seed is not None:
+            on_seed(seed, result)
+    results = [kept[s][0] for s in seeds]
+    elapsed = offset + time.perf_counter() - start
+    write_run(out, config, results, plan["first_seed"], elapsed, jobs)
+    shutil.rmtree(files.subdir(out, layout.SB3_SEEDS_DIR), ignore_errors=True)
+    (out / layout.SB3_PLAN_FILE).unlink()
     return results
+
+
+def _train(jobs_left: list[tuple[int, int, int]], jobs: int) -> Iterator[tuple[int, SeedResult]]:
+    """Each seed's result as it finishes: in this process for one job, else in ``jobs``
+    spawned processes (stopped at once when the caller stops, e.g. on Ctrl-C)."""
+    if jobs == 1:
+        yield from map(_train_seed_job, jobs_left)
+        return
+    # spawn: a forked child would inherit the parent's threads (JAX's) in an unknown state
+    context = multiprocessing.get_context("spawn")
+    with context.Pool(min(jobs, max(len(jobs_left), 1)), initializer=_ignore_sigint) as pool:
+        yield from pool.imap_unordered(_train_seed_job, jobs_left)

@@ -13,6 +13,8 @@ Layout of ``RUN_DIR``:
 - ``waves/wave-00003.npz``: one block of results per finished wave of a run trained in waves
   (:mod:`jaxcart.rundir.outputs`);
 - ``.lock``: held by the process that trains it (:mod:`jaxcart.rundir.lock`);
+- ``sb3-plan.json`` and ``sb3-seeds/seed-314159.npz``: while ``python -m jaxcart.sb3`` trains,
+  what it was asked for and each seed it has finished (removed once the run is written);
 - a sweep's directory holds ``config.json``, ``sweep.json`` and one run directory per
   combination, ``combo-000``, ``combo-001``, ...
 
@@ -38,6 +40,8 @@ SWEEP_FILE = "sweep.json"
 CHECKPOINT_FILE = "checkpoint.npz"
 LOCK_FILE = ".lock"
 WAVES_DIR = "waves"
+SB3_PLAN_FILE = "sb3-plan.json"
+SB3_SEEDS_DIR = "sb3-seeds"
 COMBO_GLOB = "combo-[0-9][0-9][0-9]*"
 """Matches the combination directories of a sweep (``combo-000``, ..., ``combo-1000``)."""
 DIGEST_KEY = "digest"
@@ -78,6 +82,11 @@ def combo_dir(sweep_dir: str | os.PathLike, combo: int) -> Path:
 def wave_file(run_dir: str | os.PathLike, wave: int) -> Path:
     """The block file of one finished wave: ``RUN_DIR/waves/wave-00003.npz``."""
     return Path(run_dir) / WAVES_DIR / f"wave-{wave:05d}.npz"
+
+
+def sb3_seed_file(run_dir: str | os.PathLike, seed: int) -> Path:
+    """Where ``python -m jaxcart.sb3`` keeps one finished seed until the run is written."""
+    return Path(run_dir) / SB3_SEEDS_DIR / f"seed-{seed}.npz"
 
 
 def temporary_prefix(path: str | os.PathLike) -> str:
