@@ -108,7 +108,12 @@ def markdown(report: dict) -> str:
         w = wilson_interval(solved, n)
         median = sorted(walls)[len(walls) // 2]
         summary.append(
-            [name, f"{solved}/{n}", f"{w.value:.3f} [{w.ci_low:.3f}, {w.ci_high:.3f}]", f"{median:.1f}"]
+            [
+                name,
+                f"{solved}/{n}",
+                f"{w.value:.3f} [{w.ci_low:.3f}, {w.ci_high:.3f}]",
+                f"{median:.1f}",
+            ]
         )
     lines = [
         f"# The fast preset: {report['settings']['stage']} stage",
