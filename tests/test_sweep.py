@@ -168,3 +168,46 @@ def test_cli_reports_divergence(tmp_path, capsys):
     assert ok[0]["diverged_at_iteration"] is None
     ranking = json.loads((out / "sweep.json").read_text())["ranking"]
     assert {r["learning_rate"]: r["seeds_diverged"] for r in ranking} == {1e-3: 0, 1e35: 1}
+
+
+def _sweep_config(tmp_path, data: dict):
+    run = tmp_path / "run"
+    run.mkdir(parents=True)
+    base = {"format_version": 1, "preset": "sb3", "num_seeds": 2, "seed": 0, "config": {}}
+    (run / "config.json").write_text(json.dumps({**base, **data}))
+    return run
+
+
+def test_config_json_records_the_sweep_and_the_reader_derives_its_combinations(tmp_path):
+    """A million-combination sweep would write 70 MB of combinations; the reader derives them
+    from the sweep in the one run order, checks an older run's recorded list against it, and
+    bounds the count before building any list."""
+    sweep = {"learning_rate": [1e-3, 2e-3], "clip_coef": [0.1, 0.2, 0.3]}
+    info = reader.read_run_config(_sweep_config(tmp_path / "a", {"sweep": sweep}))
+    assert info["combinations"] == [
+        {"learning_rate": lr, "clip_coef": c}
+        for lr in sweep["learning_rate"]
+        for c in [0.1, 0.2, 0.3]
+    ]
+    older = {"sweep": sweep, "combinations": info["combinations"]}
+    assert (
+        reader.read_run_config(_sweep_config(tmp_path / "b", older))["combinations"]
+        == older["combinations"]
+    )
+    swapped = {"sweep": sweep, "combinations": info["combinations"][::-1]}
+    with pytest.raises(RunDirError, match="do not match the sweep"):
+        reader.read_run_config(_sweep_config(tmp_path / "c", swapped))
+    huge = {f"f{i}": [float(v) for v in range(100)] for i in range(10)}  # 10^20 combinations
+    with pytest.raises(RunDirError, match="combinations is over"):
+        reader.read_run_config(_sweep_config(tmp_path / "d", {"sweep": huge}))
+
+
+def test_a_sweeps_config_json_holds_no_combinations_list(tmp_path):
+    out = tmp_path / "sweep"
+    argv = [*tiny_args(1024), "--sweep", "learning_rate=1e-4,1e-3", "--out", str(out)]
+    assert main(argv) == 0
+    recorded = json.loads((out / "config.json").read_text())
+    assert "combinations" not in recorded and recorded["sweep"] == {"learning_rate": [1e-4, 1e-3]}
+    assert json.loads((out / "combo-001" / "config.json").read_text())["combination"] == {
+        "learning_rate": 1e-3
+    }

@@ -75,7 +75,6 @@ def create_run(
         "num_seeds": spec.num_seeds,
         "seed": spec.seed,
         "sweep": spec.sweep,
-        "combinations": list(spec.grid.combos),
         "versions": package_versions(),
         "backend": jax.default_backend(),
         "device_count": jax.device_count(),
@@ -236,8 +235,8 @@ def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> T
     plan = WavePlan(grid.num_runs, int(info.get("wave_size") or grid.num_runs), 0, 0)
     wave = len(plan.wave(run // plan.wave_size))
     used = min(devices_now, wave)  # fewer runs than devices trained on that many devices
-    config = spec.combo_configs()[combination]
-    hps = sweeps.sweep_hyperparams([config], sweeps.RunGrid(1))
+    config = spec.combo_config(combination)
+    hps = sweeps.grid_hyperparams(config, sweeps.RunGrid(1))
     return train(
         config,
         1,
@@ -478,13 +477,12 @@ def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
 def _write_outputs(run: Run, blocks: list, episodes: int, timing: dict) -> None:
     """metrics.csv, params.npz and evaluation.json from the runs' blocks: per combination
     for a sweep, each with its own config.json."""
-    configs = run.spec.combo_configs()
     for c, combo in enumerate(run.grid.combos or ({},)):
         runs = run.grid.runs_of(c)
         record = None
         if combo:
             info = {**run.info, "combination": combo, "sweep": {}, "combinations": []}
-            record = (info, configs[c])
+            record = (info, run.spec.combo_config(c))
         where = c if run.grid.is_sweep else None
         batch = run.config.batch_size
         span = range(runs.start, runs.stop)

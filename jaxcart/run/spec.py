@@ -59,7 +59,7 @@ class RunSpec:
             "seed",
             f"must be in [0, 2**32), got {self.seed}",
         )
-        self.combo_configs()  # every combination valid before anything is created
+        sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
 
     @classmethod
     def from_record(cls, info: dict) -> RunSpec:
@@ -67,16 +67,17 @@ class RunSpec:
         sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
         return cls(info["config"], info["preset"], int(info["num_seeds"]), int(info["seed"]), sweep)
 
-    @property
+    @functools.cached_property
     def grid(self) -> sweeps.RunGrid:
+        """Seeds x combinations (built once: a large sweep has a million combinations)."""
         combos = sweeps.combinations(self.sweep) if self.sweep else []
         return sweeps.RunGrid(self.num_seeds, tuple(combos))
 
-    def combo_configs(self) -> list[PPOConfig]:
-        """One config per combination (the config alone without a sweep)."""
+    def combo_config(self, combination: int) -> PPOConfig:
+        """The config of one combination (the config itself without a sweep)."""
         if not self.sweep:
-            return [self.config]
-        return sweeps.validate_combinations(self.config, list(self.grid.combos))
+            return self.config
+        return sweeps.combo_config(self.config, self.grid.combos[combination])
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ seeds' random streams. "Seeds" are per combination, "runs" are all of them.
 
 from __future__ import annotations
 
-import itertools
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -19,6 +19,7 @@ import numpy as np
 from jaxcart.analysis import stats, summary
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.core.tricks import Hyperparams
+from jaxcart.rundir.reader import sweep_combinations
 
 
 @dataclass(frozen=True)
@@ -99,34 +100,37 @@ def parse_sweep(specs: list[str]) -> dict[str, list[float]]:
     return sweep
 
 
-def combinations(sweep: dict[str, list[float]]) -> list[dict[str, float]]:
-    """Every combination of the swept values, in ``itertools.product`` order."""
-    names = list(sweep)
-    return [dict(zip(names, values)) for values in itertools.product(*sweep.values())]
+combinations = sweep_combinations
+"""Every combination of the swept values, in ``itertools.product`` order."""
 
 
-def validate_combinations(config: PPOConfig, combos: list[dict[str, float]]) -> list[PPOConfig]:
-    """The config of each combination (validated: a bad value fails before compiling)."""
-    out = []
-    for combo in combos:
-        try:
-            out.append(PPOConfig(**{**config.to_dict(), **combo}))
-        except ConfigError as exc:
-            raise ConfigError(f"--sweep value out of range: {exc}") from None
-    return out
+def validate_sweep(config: PPOConfig, sweep: dict[str, list[float]]) -> None:
+    """Raises :class:`ConfigError` for a swept value that is invalid with ``config``'s other
+    fields, before anything compiles. Only traced hyperparameters are swept and each is checked
+    on its own, so checking every value once checks every combination (a million-combination
+    sweep costs its 2,000 values, not a million configs)."""
+    for name, values in sweep.items():
+        for value in values:
+            try:
+                dataclasses.replace(config, **{name: value})
+            except ConfigError as exc:
+                raise ConfigError(f"--sweep value out of range: {exc}") from None
 
 
-def sweep_hyperparams(configs: list[PPOConfig], grid: RunGrid) -> Hyperparams:
-    """Hyperparameters of every run in ``grid`` order, leaves ``[num_runs]``: one config per
-    combination (or the config alone when there is no sweep)."""
-    per_combo = [Hyperparams.from_config(c) for c in configs]
-    combo_of = np.array([grid.combo_of(r) for r in range(grid.num_runs)])
-    return Hyperparams(
-        **{
-            name: jnp.stack([getattr(h, name) for h in per_combo])[combo_of]
-            for name in TRACED_FIELDS
-        }
-    )
+def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
+    """The config of one combination."""
+    return dataclasses.replace(config, **combo)
+
+
+def grid_hyperparams(config: PPOConfig, grid: RunGrid) -> Hyperparams:
+    """Hyperparameters of every run in ``grid`` order, float32 leaves ``[num_runs]``: each
+    combination's values (``config``'s own where it sweeps nothing), once per seed."""
+    leaves = {}
+    for name in TRACED_FIELDS:
+        base = getattr(config, name)
+        per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], np.float32)
+        leaves[name] = jnp.asarray(np.repeat(per_combo, grid.num_seeds))
+    return Hyperparams(**leaves)
 
 
 def first_reach(returns: np.ndarray, env_steps: np.ndarray, target: float = 500.0) -> np.ndarray:

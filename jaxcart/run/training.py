@@ -34,7 +34,7 @@ from jaxcart.rundir.directory import package_versions
 
 def run_hyperparams(run: Run) -> Hyperparams:
     """Every run's traced hyperparameters, leaves ``[R]``."""
-    return sweeps.sweep_hyperparams(run.spec.combo_configs(), run.grid)
+    return sweeps.grid_hyperparams(run.config, run.grid)
 
 
 def wave_start_state(

@@ -151,9 +151,12 @@ class RunDir:
 
     def write_config(self, info: dict, config: PPOConfig, directory: Path | None = None) -> None:
         """``config.json``: ``info`` with ``config`` as a dict (in a combination's
-        ``directory`` when given)."""
+        ``directory`` when given); a sweep's combinations are left to the reader to derive
+        from its ``sweep`` (:func:`~jaxcart.rundir.reader.sweep_combinations`)."""
         path = (directory or self.path) / layout.CONFIG_FILE
         data = {k: v for k, v in info.items() if k != layout.DIGEST_KEY}
+        if data.get("sweep"):  # the reader derives them: a million would be 70 MB of JSON
+            data.pop("combinations", None)
         data["config"] = config.to_dict()
         files.write_json(path, {**data, layout.DIGEST_KEY: files.json_digest(data)})
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
 import math
 import os
@@ -142,11 +143,22 @@ def _check_run_fields(data: dict) -> None:
     combination = data.get("combination") or {}
     if not isinstance(combination, dict) or not all(finite_number(v) for v in combination.values()):
         raise ValueError("combination is not a {name: value} object")
-    combos = recorded_combinations(data)
-    if num_seeds * max(1, len(combos)) > MAX_RUNS:
-        raise ValueError(
-            f"{num_seeds} seeds x {len(combos)} combinations is over {MAX_RUNS:,} runs"
-        )
+    num_combos = math.prod(len(v) for v in sweep.values()) if sweep else 0
+    if num_seeds * max(1, num_combos) > MAX_RUNS:  # checked before any list is built
+        raise ValueError(f"{num_seeds} seeds x {num_combos} combinations is over {MAX_RUNS:,} runs")
+    derived = sweep_combinations(sweep)
+    if "combinations" in data and recorded_combinations(data) != derived:  # older runs
+        raise ValueError("combinations do not match the sweep")
+    data["combinations"] = derived
+
+
+def sweep_combinations(sweep: dict[str, list[float]]) -> list[dict[str, float]]:
+    """Every combination of a sweep's values, in ``itertools.product`` order: the one run
+    order (``config.json`` records the sweep, not its million combinations)."""
+    if not sweep:
+        return []
+    names = list(sweep)
+    return [dict(zip(names, values)) for values in itertools.product(*sweep.values())]
 
 
 def finite_number(value: object) -> bool:
