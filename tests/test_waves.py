@@ -73,16 +73,20 @@ def test_planning_a_huge_run_is_quick_and_refused_in_one_line():
     assert "\n" not in str(exc.value) and time.perf_counter() - start < 10
 
 
-def test_a_waved_run_stopped_mid_wave_resumes_in_process(tmp_path):
-    """8 seeds in waves of 2 (--wave-size): stopped in wave 2 after a chunk, resumed from its
-    checkpoint, it ends bit-identical to the same plan run without a stop."""
+@pytest.mark.parametrize(
+    "num_seeds, wave_size", [(8, 2), pytest.param(4096, 1024, marks=pytest.mark.slow)]
+)
+def test_a_waved_run_stopped_mid_wave_resumes_in_process(num_seeds, wave_size, tmp_path):
+    """8 seeds in waves of 2, and 4,096 in waves of 1,024 (--wave-size): stopped in wave 2
+    after a chunk, resumed from its checkpoint, it ends bit-identical to the same plan run
+    without a stop."""
     from jaxcart.engine.signals import StopRequest
     from jaxcart.run import lifecycle
     from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 
     config = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
-    options = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2, wave_size=2)
-    spec = RunSpec(config, num_seeds=8, seed=1)
+    options = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2, wave_size=wave_size)
+    spec = RunSpec(config, num_seeds=num_seeds, seed=1)
     whole = lifecycle.run_new(spec, tmp_path / "whole", options)
     assert whole.run.plan.num_waves == 4
     stop, waves = StopRequest(), []
