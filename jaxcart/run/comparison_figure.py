@@ -54,6 +54,12 @@ def _note(ax, text: str) -> None:
     )
 
 
+def _tick_label(name: str, width: int = 14) -> str:
+    """A run name as a y tick label, wrapped (at hyphens first) so that long names leave the
+    panels room: ``4x128-100k-seed271828`` -> ``4x128-100k-\\nseed271828``."""
+    return textwrap.fill(name, width, break_on_hyphens=True) or name
+
+
 def _intervals(ax, rows: list[tuple[int, str, stats.Estimate]], title: str, xlabel: str) -> None:
     """One point with its interval per ``(colour index, name, estimate)``, top to bottom; the
     run names are the y labels (the panel's legend)."""
@@ -62,7 +68,7 @@ def _intervals(ax, rows: list[tuple[int, str, stats.Estimate]], title: str, xlab
         y = n - 1 - k
         ax.plot([e.ci_low, e.ci_high], [y, y], color=_colour(i), lw=6, alpha=0.45)
         ax.plot([e.value], [y], "|", color=_colour(i), ms=16, mew=2)
-    ax.set_yticks(range(n), [name for _, name, _ in reversed(rows)], fontsize=8)
+    ax.set_yticks(range(n), [_tick_label(name) for _, name, _ in reversed(rows)], fontsize=8)
     ax.set(title=title, xlabel=xlabel, ylim=(-0.7, n - 0.3))
     ax.grid(axis="x", alpha=0.3)
 
@@ -178,7 +184,7 @@ def _matrix_panel(ax, comparison: Comparison) -> None:
         why = "arms: see the table" if comparison.arms else "two runs: see the panel on the left"
         _no_data(ax, why)
         return
-    names = [e.name for e in comparison.entries]
+    names = [_tick_label(e.name) for e in comparison.entries]
     image = ax.imshow(matrix, vmin=0, vmax=1, cmap="RdBu")
     for (r, c), v in np.ndenumerate(matrix):
         colour = "white" if abs(v - 0.5) > 0.3 else "black"  # readable on the dark ends
