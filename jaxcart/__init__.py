@@ -27,9 +27,12 @@ statistics in :mod:`jaxcart.analysis.stats` (:func:`iqm`, :func:`bootstrap_ci`,
 
 from __future__ import annotations
 
+# Only modules CPython has already loaded before this line runs (``_signal`` is the C half of
+# ``signal``, whose own import takes milliseconds): a Ctrl-C while the package starts finds the
+# handler below installed, not a half-imported module.
+import _signal
 import importlib
 import os
-import signal
 import sys
 
 
@@ -41,19 +44,20 @@ def _started_as_a_command() -> bool:
     return os.path.basename(sys.argv[0] if sys.argv else "") in ("jaxcart", "jaxcart-train")
 
 
+_SIGNAL_NAMES = {_signal.SIGINT: "SIGINT", _signal.SIGTERM: "SIGTERM"}
+
+
 def _exit_while_starting(signum: int, frame: object) -> None:
-    os.write(
-        2,
-        f"\ninterrupted ({signal.Signals(signum).name}) while starting; nothing was written\n".encode(),
-    )
+    name = _SIGNAL_NAMES.get(signum, str(signum))
+    os.write(2, f"\ninterrupted ({name}) while starting; nothing was written\n".encode())
     os._exit(128 + signum)
 
 
 if _started_as_a_command():
     # The command's imports take most of a second: a Ctrl-C meanwhile ends the process with one
     # line, never a traceback from inside an import (the command installs its own handling).
-    for _sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(_sig, _exit_while_starting)
+    for _sig in _SIGNAL_NAMES:
+        _signal.signal(_sig, _exit_while_starting)
 
 __version__ = "0.1.0"
 
