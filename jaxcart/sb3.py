@@ -79,8 +79,6 @@ def _main(argv: list[str] | None) -> int:
     if args.resume is None and out.exists():
         raise cli.UsageError(f"--out {out} exists; choose a new run directory")
     sb3.check_available()
-    if args.resume is not None:
-        sb3.read_plan(out)  # a finished run or another directory: one line, before anything
 
     def on_start(plan: dict, kept: int) -> None:
         resumed = f" | {kept} already kept" if kept else ""
@@ -99,7 +97,6 @@ def _main(argv: list[str] | None) -> int:
         if args.resume is not None:
             results = sb3.resume_run(out, args.jobs, args.threads, on_seed, on_start)
         else:
-            on_start({"num_seeds": args.num_seeds, "total_timesteps": args.total_timesteps}, 0)
             results = sb3.train_run(
                 out,
                 args.num_seeds,
@@ -108,6 +105,7 @@ def _main(argv: list[str] | None) -> int:
                 args.jobs,
                 args.threads,
                 on_seed,
+                on_start,
             )
     except KeyboardInterrupt:
         kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))

@@ -332,10 +332,12 @@ def train_run(
     jobs: int = 1,
     threads: int = 1,
     on_seed: Callable[[int, SeedResult], None] | None = None,
+    on_start: Callable[[dict, int], None] | None = None,
 ) -> list[SeedResult]:
     """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3, ``jobs`` processes
     at once, and writes them as the run directory ``out`` (created; it must not exist). Each
-    seed is kept as it finishes: an interrupted run continues with :func:`resume_run`.
+    seed is kept as it finishes: an interrupted run continues with :func:`resume_run`, which
+    also describes ``on_start``.
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -346,7 +348,7 @@ def train_run(
     out.mkdir(parents=True, exist_ok=False)
     plan = {"first_seed": first_seed, "num_seeds": num_seeds, "total_timesteps": total_timesteps}
     files.write_json(out / layout.SB3_PLAN_FILE, plan)
-    return resume_run(out, jobs, threads, on_seed)
+    return resume_run(out, jobs, threads, on_seed, on_start)
 
 
 def resume_run(

@@ -22,6 +22,7 @@ from jaxcart.run import sweep as sweeps
 from jaxcart.run.loggers import LoggerUnavailable, check_available
 from jaxcart.run.waves import WavePlan
 from jaxcart.rundir.directory import RunDir
+from jaxcart.rundir.reader import sweep_combinations
 
 
 def check_option(ok: bool, option: str, problem: str) -> None:
@@ -70,8 +71,7 @@ class RunSpec:
     @functools.cached_property
     def grid(self) -> sweeps.RunGrid:
         """Seeds x combinations (built once: a large sweep has a million combinations)."""
-        combos = sweeps.combinations(self.sweep) if self.sweep else []
-        return sweeps.RunGrid(self.num_seeds, tuple(combos))
+        return sweeps.RunGrid(self.num_seeds, tuple(sweep_combinations(self.sweep)))
 
     def combo_config(self, combination: int) -> PPOConfig:
         """The config of one combination (the config itself without a sweep)."""

@@ -19,7 +19,6 @@ import numpy as np
 from jaxcart.analysis import stats, summary
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.core.tricks import Hyperparams
-from jaxcart.rundir.reader import sweep_combinations
 
 
 @dataclass(frozen=True)
@@ -98,10 +97,6 @@ def parse_sweep(specs: list[str]) -> dict[str, list[float]]:
             raise ConfigError(f"--sweep {name}: give distinct values, got {values!r}")
         sweep[name] = parsed
     return sweep
-
-
-combinations = sweep_combinations
-"""Every combination of the swept values, in ``itertools.product`` order."""
 
 
 def validate_sweep(config: PPOConfig, sweep: dict[str, list[float]]) -> None:
