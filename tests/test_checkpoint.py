@@ -9,7 +9,7 @@ import pytest
 from helpers import TINY
 
 from jaxcart.core.config import PPOConfig
-from jaxcart.engine.trainer import initial_state
+from jaxcart.engine.trainer import METRIC_COLUMNS, initial_state
 from jaxcart.rundir import checkpoint, files
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
@@ -37,13 +37,14 @@ def test_leaves_are_stored_under_their_tree_paths(tmp_path):
     path = tmp_path / "c.npz"
     checkpoint.save_checkpoint(path, state, {"k": 1})
     arrays, meta = files.load_tree(path)
-    assert meta["k"] == 1 and meta["iteration"] == 0 and meta["checkpoint_format"] == 2
+    assert meta["k"] == 1 and meta["iteration"] == 0 and meta["checkpoint_format"] == 3
     kernel = arrays["state/runners/params/params/actor/hidden_0/kernel"]
     np.testing.assert_array_equal(
         kernel, state.runners.params["params"]["actor"]["hidden_0"]["kernel"]
     )
     assert "state/hyperparams/learning_rate" in arrays
-    assert "metrics/rollout/ep_rew_mean" in arrays
+    assert not any(name.startswith("metrics/") for name in arrays)  # in metrics.stream
+    assert meta["metrics_columns"] == list(METRIC_COLUMNS)
     files.save_tree(tmp_path / "params.npz", files.flatten(state.runners.params))
     params, _ = files.load_tree(tmp_path / "params.npz")
     np.testing.assert_array_equal(params["params/actor/hidden_0/kernel"], kernel)
@@ -56,7 +57,7 @@ def test_round_trip_restores_every_leaf(tmp_path):
     loaded = load_checkpoint(path, initial_state(TINY, 3, 99))
     for x, y in zip(jax.tree.leaves(state.runners), jax.tree.leaves(loaded.runners), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    assert set(loaded.metrics) == set(state.metrics)
+    assert loaded.metrics == {}  # the metrics so far are the stream's
 
 
 def test_old_format_refused_with_a_clear_message(tmp_path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import shutil
 import signal
 import zipfile
@@ -19,13 +20,15 @@ from jaxcart import evaluate, plot
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.networks import ActorCritic
 from jaxcart.engine.signals import StopRequest
+from jaxcart.engine.trainer import METRIC_COLUMNS
 from jaxcart.run import lifecycle
 from jaxcart.run.evaluation import evaluate_run_dir
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.layout import CHECKPOINT_FILE
+from jaxcart.rundir.layout import CHECKPOINT_FILE, METRICS_STREAM_FILE
 from jaxcart.rundir.runs import load_runs
+from jaxcart.rundir.stream import read_stream
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
 OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
@@ -178,10 +181,13 @@ def test_plot_stopped_run_and_sweep(runs, tmp_path, monkeypatch, capsys):
     assert captured.out.strip() == str(tmp_path / "run.png")
     assert f"curves drawn {STOPPED_NOTE}; no Gymnasium evaluation" in captured.err
     (run,) = load_runs([stopped])
-    arrays, _ = files.load_tree(stopped / CHECKPOINT_FILE)
+    streamed = read_stream(stopped / METRICS_STREAM_FILE, METRIC_COLUMNS, 2, 4)
     np.testing.assert_array_equal(
-        run.metrics["rollout/ep_rew_mean"], arrays["metrics/rollout/ep_rew_mean"]
+        run.metrics["rollout/ep_rew_mean"], streamed["rollout/ep_rew_mean"]
     )
+    # and the partial metrics.csv a stopped run writes holds the same rows
+    csv_rows = np.loadtxt(stopped / "metrics.csv", delimiter=",", skiprows=1)
+    assert csv_rows.shape[0] == 2 * 4
     np.testing.assert_array_equal(run.env_steps, np.arange(1, 5) * SMALL.batch_size)
     assert "not evaluated: " + STOPPED_NOTE in plot._summary_lines(run)[2]
 
@@ -196,7 +202,9 @@ def test_plot_stopped_run_and_sweep(runs, tmp_path, monkeypatch, capsys):
     assert f"a sweep: its 2 combinations drawn {STOPPED_NOTE}" in captured.err
     combos = load_runs([sweep])
     assert [r.label for r in combos] == ["learning_rate=0.001", "learning_rate=0.003"]
-    metrics = files.load_tree(sweep / CHECKPOINT_FILE)[0]["metrics/train/approx_kl"]
+    meta = files.read_meta(sweep / CHECKPOINT_FILE)
+    streamed = read_stream(sweep / METRICS_STREAM_FILE, METRIC_COLUMNS, 4, meta["iteration"])
+    metrics = streamed["train/approx_kl"]
     np.testing.assert_array_equal(combos[1].metrics["train/approx_kl"], metrics[:, 2:4])
 
 
@@ -204,7 +212,6 @@ def test_plot_of_a_run_stopped_before_its_first_iteration(runs, tmp_path, capsys
     run = tmp_path / "early"
     shutil.copytree(runs["stopped"], run)
     arrays, meta = files.load_tree(run / CHECKPOINT_FILE)
-    arrays = {k: v[:0] if k.startswith("metrics/") else v for k, v in arrays.items()}
     files.save_tree(run / CHECKPOINT_FILE, arrays, {**meta, "iteration": 0})
     assert plot.main([str(run)]) == 2
     assert "iteration 0/8" in capsys.readouterr().err
@@ -239,10 +246,15 @@ def _lying_entry(run):
     _entry(run, (10**6, 10**6), bytes(16))
 
 
-def _link_out(run):
-    outside = run.parent / "elsewhere.npz"
-    (run / CHECKPOINT_FILE).rename(outside)
-    (run / CHECKPOINT_FILE).symlink_to(outside)
+def _link_out(run, name=CHECKPOINT_FILE):
+    outside = run.parent / f"elsewhere-{name}"
+    (run / name).rename(outside)
+    (run / name).symlink_to(outside)
+
+
+def _fifo(path):
+    path.unlink()
+    os.mkfifo(path)
 
 
 CRAFTED = [
@@ -270,6 +282,14 @@ CRAFTED = [
     (_lying_entry, "does not match its header"),
     (_link_out, "symbolic link"),
     (lambda r: (r / CHECKPOINT_FILE).write_bytes(b"PK\x03\x04 torn"), "corrupted"),
+    (
+        lambda r: _rewrite_checkpoint(r, change_meta=lambda m: {**m, "metrics_columns": ["x"]}),
+        "metrics_columns out of range",
+    ),
+    (lambda r: os.truncate(r / METRICS_STREAM_FILE, 100), "fewer than the 4 iterations"),
+    (lambda r: (r / METRICS_STREAM_FILE).unlink(), "does not exist"),
+    (lambda r: _link_out(r, METRICS_STREAM_FILE), "symbolic link"),
+    (lambda r: _fifo(r / METRICS_STREAM_FILE), "not a regular file"),
     (lambda r: _edit_config(r, combinations="combo"), "combinations is not a list"),
     (lambda r: _edit_config(r, combinations=[{"learning_rate": "x"}]), "combinations is not"),
 ]

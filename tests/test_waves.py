@@ -52,7 +52,8 @@ def test_plan_sizes_waves_for_throughput_capped_by_memory():
     assert waves[0] == range(0, 64) and waves[-1].stop == 1_000_000
     text = plan.describe("seeds")
     assert text.startswith("1,000,000 seeds in 15,625 waves of 64 (estimated ")
-    assert "GB per wave of" in text and "per wave," in text and "in all)" in text
+    assert "GB per wave of" in text and "per wave," in text and "in all;" in text
+    assert text.endswith("GB of metrics on disk)")
     short = plan_waves(TINY, 1_000_000, 2, eval_episodes=2, available=memory_for(TINY, 51))
     assert short.wave_size == 50 and "as many as fit in memory" in short.why
     balanced = plan_waves(TINY, 66, 2, eval_episodes=2, available=10**12)
@@ -68,9 +69,15 @@ def test_planning_a_huge_run_is_quick_and_refused_in_one_line():
     start = time.perf_counter()
     with pytest.raises(ConfigError, match="more than the 2,147,483,647 this trainer counts") as exc:
         plan_waves(preset("sb3", total_timesteps=10**15), 1, 2, available=24 << 30)
-    with pytest.raises(ConfigError, match="not enough memory"):  # long, but countable
-        plan_waves(preset("sb3", total_timesteps=10**12), 1, 2, available=24 << 30)
     assert "\n" not in str(exc.value) and time.perf_counter() - start < 10
+    # long but countable: its metrics are streamed to disk, so its memory is a short run's,
+    # and the plan says how long it takes and how much disk its metrics need
+    long = plan_waves(preset("sb3", total_timesteps=10**12), 1, 2, available=24 << 30)
+    short = plan_waves(preset("sb3", total_timesteps=10**7), 1, 2, available=24 << 30)
+    assert long.bytes_per_run == short.bytes_per_run < 200e6
+    assert "days in all" in long.describe() and "GB of metrics on disk" in long.describe()
+    assert "on disk" not in plan_waves(preset("sb3"), 64, 2, available=24 << 30).describe()
+    assert time.perf_counter() - start < 10
 
 
 @pytest.mark.parametrize(

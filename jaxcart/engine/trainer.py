@@ -139,7 +139,7 @@ class TrainState:
     hyperparams: Hyperparams
     iteration: int
     elapsed: float
-    metrics: dict[str, np.ndarray]  # METRIC_COLUMNS -> [iteration, R]
+    metrics: dict[str, np.ndarray]  # METRIC_COLUMNS -> [iteration, R] ({}: kept elsewhere)
     chunk_size: int  # the most iterations one compiled call runs
     chunk_seconds: float | None = None  # None: every call runs chunk_size; else adapts to this
 
@@ -247,6 +247,7 @@ def train(
     should_stop: Callable[[], bool] | None = None,
     seed_indices: np.ndarray | None = None,
     runs_per_device: int | None = None,
+    keep_metrics: bool = True,
 ) -> TrainResult:
     """Trains ``num_runs`` independent PPO agents in one compiled program.
 
@@ -258,17 +259,16 @@ def train(
             defaults to the config's values for every run.
         chunk_size: iterations per compiled call between progress reports (default: calls
             that adapt to take about :data:`CHUNK_SECONDS` each).
-        resume: continue from this state (e.g. a loaded checkpoint) instead of starting anew;
-            the result is bit-identical to a run that was never interrupted.
-        on_compiled: called with the compile time in seconds.
-        on_chunk: called with a :class:`Progress` after every chunk.
+        resume: continue from this state (e.g. a loaded checkpoint), bit-identically.
+        on_compiled, on_chunk: called with the compile seconds; with a :class:`Progress`
+            after every chunk.
         should_stop: polled before every chunk; when it returns True training stops early
             with ``TrainResult.stopped`` set and a resumable state.
         seed_indices: per-run seed index (default ``arange(num_runs)``).
-        runs_per_device: pad the run axis to at least this many runs per device. A run's
-            numbers depend on the per-device batch width (another width, another program;
-            the update's group width follows from it), not on its position or neighbours:
-            padding one seed to the width it trained at replays it bit for bit.
+        runs_per_device: pad the run axis to at least this many runs per device (a run's
+            numbers depend on that width only: padding replays one seed bit for bit).
+        keep_metrics: keep every iteration's metrics (``TrainResult.metrics``); False: only
+            ``on_chunk`` sees them, so memory does not grow with the run (they are ``{}``).
     """
     env_params = env_params or cartpole.EnvParams()
     state = resume or initial_state(
@@ -286,7 +286,7 @@ def train(
     if on_compiled:
         on_compiled(compile_seconds)
 
-    loop = _ChunkLoop(config, state, hps, num_runs)
+    loop = _ChunkLoop(config, state, hps, num_runs, keep_metrics)
     stopped = False
     while loop.done < config.num_iterations:
         # every process must agree, or one would wait forever for the others' next chunk
@@ -337,7 +337,7 @@ class _ChunkLoop:
     the metrics so far (with SB3's ``time/fps`` and ``time/elapsed`` added)."""
 
     def __init__(
-        self, config: PPOConfig, state: TrainState, hps: Hyperparams, num_runs: int
+        self, config: PPOConfig, state: TrainState, hps: Hyperparams, num_runs: int, keep: bool
     ) -> None:
         self.config, self.hps, self.chunk_size = config, hps, state.chunk_size
         self.chunk_seconds = state.chunk_seconds
@@ -345,7 +345,12 @@ class _ChunkLoop:
         self.last = time.perf_counter()
         self.num_runs = num_runs  # the real runs: padding runs beyond them are dropped
         self.done, self.elapsed_before = state.iteration, state.elapsed
-        self.chunks = [state.metrics]
+        # every chunk's metrics when kept (after the state's own, if it has any: a state
+        # loaded from a checkpoint has none, they are in its run directory's stream); else
+        # none (the caller's on_chunk has them)
+        empty = {k: np.zeros((0, num_runs), np.float32) for k in METRIC_COLUMNS}
+        self.chunks = [state.metrics or empty] if keep else None
+        self.previous_elapsed = state.elapsed  # time/elapsed of the last iteration recorded
         self.start = time.perf_counter()
 
     def now(self) -> float:
@@ -361,13 +366,14 @@ class _ChunkLoop:
         metrics = {k: np.asarray(v[:take, :num_runs]) for k, v in metrics.items()}
         # time/fps as SB3 logs it (steps of this run / seconds since start); inside a chunk
         # the iterations are timed by spreading the chunk's time evenly.
-        last = self.chunks[-1]["time/elapsed"]
-        prev = float(last[-1, 0]) if len(last) else 0.0
+        prev = self.previous_elapsed
         elapsed = prev + (now - prev) * np.arange(1, take + 1) / take
+        self.previous_elapsed = float(elapsed[-1])
         steps = (self.done + np.arange(1, take + 1)) * config.batch_size
         metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_runs, 1).astype(np.float32)
         metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_runs, 1).astype(np.float32)
-        self.chunks.append(metrics)
+        if self.chunks is not None:
+            self.chunks.append(metrics)
         self.done += take
         snapshot = functools.partial(self._snapshot, runners, self.done, now)
         diverged = np.asarray(distributed.gather(runners.diverged_at))[:num_runs]
@@ -379,7 +385,7 @@ class _ChunkLoop:
     def _snapshot(self, runners: RunnerState, done: int, now: float) -> TrainState:
         """The state of the real runs (device arrays with the padding sliced off)."""
         real = functools.partial(jax.tree.map, lambda x: x[: self.num_runs])
-        metrics = _concat(self.chunks)
+        metrics = _concat(self.chunks) if self.chunks is not None else {}
         return TrainState(
             real(runners), real(self.hps), done, now, metrics, self.chunk_size, self.chunk_seconds
         )

@@ -57,6 +57,7 @@ def wave_start_state(
         # a one-run template names the arrays; the file has them all
         template = initial_state(run.config, 1, run.spec.seed, chunk_size=chunk_size)
         saved = run.directory.load_checkpoint(template, num_runs=len(runs))
+        run.directory.open_metrics(len(runs), saved.iteration)  # rows after it are cut
         return dataclasses.replace(saved, chunk_seconds=adapt)
     hps = jax.tree.map(lambda x: x[runs.start : runs.stop], run_hyperparams(run))
     fresh = initial_state(
@@ -68,6 +69,7 @@ def wave_start_state(
         seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
         on_progress=on_progress,
     )
+    run.directory.open_metrics(len(runs), 0)
     save_state(run, fresh, wave)
     return dataclasses.replace(fresh, chunk_seconds=adapt)
 
@@ -129,6 +131,7 @@ def train_wave(
             on_compiled=hooks.on_compiled,
             on_chunk=handler,
             should_stop=should_stop,
+            keep_metrics=False,  # streamed to disk by the handler, chunk by chunk
         )
     finally:
         logger.close()
@@ -157,8 +160,8 @@ def evaluate_wave(
 
 
 class ChunkHandler:
-    """What happens after every chunk: loggers, periodic checkpoints, divergence reports,
-    then the caller's ``on_chunk``."""
+    """What happens after every chunk: the metrics appended to the run directory's stream,
+    loggers, periodic checkpoints, divergence reports, then the caller's ``on_chunk``."""
 
     def __init__(
         self, run: Run, options: RunOptions, hooks: Hooks, logger: Logger, runs: range, wave: int
@@ -178,6 +181,7 @@ class ChunkHandler:
             for r in new:
                 name = run.grid.run_name(self.runs.start + r)
                 self.hooks.on_diverged(name, int(progress.diverged_at[r]))
+        run.directory.stream.append(progress.metrics)
         count = len(progress.metrics["time/fps"])
         first = progress.iteration - count
         steps = (first + 1 + np.arange(count)) * run.config.batch_size

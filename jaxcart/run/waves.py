@@ -51,6 +51,8 @@ CPU_SECONDS_PER_ENV_STEP = 8e-6
 time estimate: 8.5 us (sb3 preset) and 7.1 us (fast) at 32 runs per device, measured as
 above."""
 ACCELERATOR_SECONDS_PER_ENV_STEP = 1e-8  # a guess; the first chunks' measurement follows
+CSV_BYTES_PER_ROW = 250
+"""One (seed, iteration) row of ``metrics.csv`` (measured: 244 bytes in a fast-preset run)."""
 MEMORY_ENV = "JAXCART_MEMORY_BYTES"
 """Overrides the available memory (bytes), e.g. to plan for a smaller share of a machine."""
 
@@ -59,12 +61,14 @@ def bytes_per_run(config: PPOConfig, eval_episodes: int = 20) -> int:
     """Estimated peak host memory of one run while it trains and is evaluated, in bytes."""
     import jax
 
-    from jaxcart.engine.trainer import initial_state
+    from jaxcart.engine.trainer import MAX_CHUNK_ITERATIONS, initial_state
 
     state = initial_state(config, 1, 0)
     state_bytes = sum(np.asarray(x).nbytes for x in jax.tree.leaves(state.runners))
     transitions = config.num_envs * config.num_steps
-    metrics = config.num_iterations * len(state.metrics) * 4
+    # one chunk of metrics (its device buffer, the host copy and the rows appended to the
+    # stream): a run directory streams them to disk, so the run's length costs no memory
+    metrics = 3 * min(config.num_iterations, MAX_CHUNK_ITERATIONS) * len(state.metrics) * 4
     return (
         3 * state_bytes
         + transitions * TEMP_BYTES_PER_TRANSITION
@@ -149,6 +153,7 @@ class WavePlan:
     available: int
     wave_seconds: float = 0.0  # estimated wall time of one full wave (0: not estimated)
     why: str = ""  # one line: how the wave width was chosen
+    disk_bytes: int = 0  # estimated disk the run's metrics take (0: not estimated)
 
     @property
     def num_waves(self) -> int:
@@ -178,9 +183,13 @@ class WavePlan:
                 f"; about {format_duration(self.wave_seconds)} per wave, "
                 f"{format_duration(total)} in all"
             )
+        disk = ""
+        if self.disk_bytes >= 1e9:  # small runs' metrics are not worth a word
+            disk = f"; {self.disk_bytes / 1e9:,.3g} GB of metrics on disk"
+        what = what.removesuffix("s") if self.num_runs == 1 else what
         return (
             f"{self.num_runs:,} {what} in {waves} (estimated {per_wave:.2g} GB per wave of "
-            f"{self.available / 1e9:.3g} GB available{timing})"
+            f"{self.available / 1e9:.3g} GB available{timing}{disk})"
         )
 
 
@@ -227,4 +236,16 @@ def plan_waves(
         size = min(num_runs, -(-math.ceil(num_runs / waves) // num_devices) * num_devices)
     per_device = -(-size // num_devices)
     seconds = config.num_iterations * iteration_seconds(config, per_device, backend)
-    return WavePlan(num_runs, size, per_run, available, seconds, why)
+    disk = metrics_disk_bytes(config, num_runs, size)
+    return WavePlan(num_runs, size, per_run, available, seconds, why, disk)
+
+
+def metrics_disk_bytes(config: PPOConfig, num_runs: int, wave_size: int) -> int:
+    """Estimated bytes of a run's metrics on disk: ``metrics.csv``, the stream of the wave
+    being trained and, in waves, each finished wave's copy (float32 per metric, run and
+    iteration). Training memory does not grow with them: they are streamed."""
+    from jaxcart.engine.trainer import METRIC_COLUMNS
+
+    row = len(METRIC_COLUMNS) * 4
+    waved = num_runs if wave_size < num_runs else 0
+    return config.num_iterations * (num_runs * CSV_BYTES_PER_ROW + (wave_size + waved) * row)

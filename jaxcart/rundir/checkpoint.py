@@ -1,13 +1,15 @@
 """Checkpoints of the full training state, written atomically.
 
 A checkpoint is one tree file (:mod:`jaxcart.rundir.files`): every array of the
-:class:`~jaxcart.engine.trainer.TrainState` under its tree path (``state/runners/params/params/actor/
-hidden_0/kernel``, ``state/hyperparams/learning_rate``, ...), the metrics so far under
-``metrics/<name>``, and a JSON ``__meta__`` entry (iteration, elapsed time, chunk size, config,
-package versions). It is written beside the target, fsynced and renamed over the previous
-checkpoint, so a crash or SIGKILL at any moment leaves the old or the new one, never a torn
-one. :func:`load_checkpoint` restores it into a template state built
-from the run's config, checking that every name, shape and dtype matches.
+:class:`~jaxcart.engine.trainer.TrainState` under its tree path
+(``state/runners/params/params/actor/hidden_0/kernel``, ``state/hyperparams/learning_rate``,
+...) and a JSON ``__meta__`` entry (iteration, elapsed time, chunk size, config, package
+versions, and the columns of the metrics so far). The metrics themselves are not in it but in
+its companion ``metrics.stream``, one row per iteration (:mod:`jaxcart.rundir.stream`), so its
+size does not grow with the run's length. It is written beside the target, fsynced and
+renamed over the previous checkpoint, so a crash or SIGKILL at any moment leaves the old or
+the new one, never a torn one. :func:`load_checkpoint` restores it into a template state
+built from the run's config, checking that every name, shape and dtype matches.
 """
 
 from __future__ import annotations
@@ -20,10 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.core.config import PPOConfig
-from jaxcart.engine.trainer import TrainState
+from jaxcart.engine.trainer import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_METRICS, CHECKPOINT_STATE
+from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_STATE
 from jaxcart.rundir.reader import (
     MAX_RUNS,
     bounded_int,
@@ -32,6 +34,7 @@ from jaxcart.rundir.reader import (
     read_run_config,
     recorded_combinations,
 )
+from jaxcart.rundir.stream import read_stream
 
 
 def state_arrays(state: TrainState) -> dict[str, np.ndarray]:
@@ -41,17 +44,17 @@ def state_arrays(state: TrainState) -> dict[str, np.ndarray]:
 
 
 def save_checkpoint(path: str | os.PathLike, state: TrainState, meta: dict) -> None:
-    """Writes ``state`` (its arrays and metrics) and ``meta`` (JSON-able) to ``path``."""
-    arrays = state_arrays(state)
-    metrics = {CHECKPOINT_METRICS + name: np.asarray(a) for name, a in state.metrics.items()}
+    """Writes ``state``'s arrays and ``meta`` (JSON-able) to ``path``; the metrics so far
+    are the stream's (made durable before this is called)."""
     meta = {
         **meta,
         "checkpoint_format": CHECKPOINT_FORMAT,
         "iteration": state.iteration,
         "elapsed": state.elapsed,
         "chunk_size": state.chunk_size,
+        "metrics_columns": list(METRIC_COLUMNS),
     }
-    files.save_tree(path, {**arrays, **metrics}, meta)
+    files.save_tree(path, state_arrays(state), meta)
     files.fsync_directory(Path(path).parent)
 
 
@@ -72,6 +75,7 @@ def read_checkpoint_meta(path: str | os.PathLike) -> dict:
         "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
         "versions": isinstance(meta.get("versions", {}), dict)
         and all(isinstance(v, str) for v in meta.get("versions", {}).values()),
+        "metrics_columns": meta.get("metrics_columns") == list(METRIC_COLUMNS),
     }
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
@@ -97,7 +101,7 @@ def load_checkpoint(
     from jaxcart.engine.trainer import TrainState
 
     meta = read_checkpoint_meta(path)
-    expected = _expected_headers(template, num_runs, int(meta["iteration"]))
+    expected = _expected_headers(template, num_runs)
     limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
     found = files.read_headers(path, max_bytes=limit + (1 << 20))
     found.pop(files.META_KEY, None)
@@ -116,27 +120,20 @@ def load_checkpoint(
     files.check_finite({n: arrays[n] for n in state_names}, path)
     tree = {"runners": template.runners, "hyperparams": template.hyperparams}
     restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
-    prefix = layout.CHECKPOINT_METRICS
-    metrics = {n[len(prefix) :]: a for n, a in arrays.items() if n.startswith(prefix)}
     return TrainState(
         runners=restored["runners"],
         hyperparams=restored["hyperparams"],
         iteration=int(meta["iteration"]),
         elapsed=float(meta["elapsed"]),
-        metrics=metrics,
+        metrics={},  # in the stream (jaxcart.rundir.stream)
         chunk_size=int(meta["chunk_size"]),
     )
 
 
-def _expected_headers(template: TrainState, num_runs: int | None, iterations: int) -> dict:
-    """Names, shapes and dtypes a checkpoint of ``num_runs`` runs at ``iterations`` holds."""
-    from jaxcart.rundir.checkpoint import state_arrays
-
+def _expected_headers(template: TrainState, num_runs: int | None) -> dict:
+    """Names, shapes and dtypes a checkpoint of ``num_runs`` runs holds."""
     runs = num_runs if num_runs is not None else len(template.runners.diverged_at)
-    expected = {name: ((runs, *a.shape[1:]), a.dtype) for name, a in state_arrays(template).items()}
-    for name, a in template.metrics.items():
-        expected[layout.CHECKPOINT_METRICS + name] = ((iterations, runs), np.asarray(a).dtype)
-    return expected
+    return {name: ((runs, *a.shape[1:]), a.dtype) for name, a in state_arrays(template).items()}
 
 
 @dataclass(frozen=True)
@@ -184,29 +181,27 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
         or not 0 <= iteration <= config.num_iterations
     ):
         raise RunDirError(f"{path} does not belong to this run's config.json")
-    params_prefix, metrics_prefix = layout.CHECKPOINT_PARAMS, layout.CHECKPOINT_METRICS
+    params_prefix = layout.CHECKPOINT_PARAMS
     expected = {
         params_prefix + name: header for name, header in params_headers(config, runs).items()
     }
-    limit = _checkpoint_bytes(config, runs, iteration)
+    limit = _checkpoint_bytes(config, runs)
     found = files.read_headers(path, max_bytes=limit)
     if any(found.get(name) != header for name, header in expected.items()):
         raise RunDirError(f"{path} does not hold this run's network")
-    metric_names = [n for n in found if n.startswith(metrics_prefix)]
-    if any(found[n][0] != (iteration, runs) or found[n][1].kind != "f" for n in metric_names):
-        raise RunDirError(f"{path} holds metrics other than floats [{iteration}, {runs}]")
     arrays, _ = files.load_tree(path, max_bytes=limit)
     params = {name[len(params_prefix) :]: arrays[name] for name in expected}
     files.check_finite(params, path)
-    metrics = {n[len(metrics_prefix) :]: arrays[n].astype(float) for n in metric_names}
+    streamed = read_stream(run_dir / layout.METRICS_STREAM_FILE, METRIC_COLUMNS, runs, iteration)
+    metrics = {name: a.astype(float) for name, a in streamed.items()}
     return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
 
 
-def _checkpoint_bytes(config: PPOConfig, runs: int, iterations: int) -> int:
+def _checkpoint_bytes(config: PPOConfig, runs: int) -> int:
     """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
-    two moments, per-env state, episode statistics, and metrics so far."""
+    two moments, per-env state and episode statistics (whatever the run's length)."""
     params = sum(
         math.prod(shape) * dtype.itemsize for shape, dtype in params_headers(config, runs).values()
     )
     per_run = config.num_envs * 256 + (1 << 14)
-    return 4 * params + runs * per_run + (iterations + 1) * runs * 64 * 8 + (1 << 20)
+    return 4 * params + runs * per_run + (1 << 20)

@@ -17,11 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.engine.trainer import TrainState
+from jaxcart.engine.trainer import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.lock import RunLock
+from jaxcart.rundir.stream import MetricsStream, NoStream
 
 VERSIONED_PACKAGES = ("jaxcart", "jax", "jaxlib", "flax", "optax", "distrax", "gymnasium", "numpy")
 """The packages that determine a run's numbers, recorded in config.json and checkpoints."""
@@ -105,6 +106,7 @@ class RunDir:
         self.path, self.main_process = Path(path), main_process
         self.lock = RunLock(self.path)
         self.checkpoint_meta: dict | None = None  # of the checkpoint on disk, when there is one
+        self.stream: MetricsStream | NoStream = NoStream()  # the metrics of the wave training
 
     @classmethod
     def create(
@@ -127,12 +129,8 @@ class RunDir:
 
     @classmethod
     def open(cls, path: str | os.PathLike, main_process: bool = True) -> RunDir:
-        """An existing run directory, locked (before its checkpoint is read: another process
-        may be writing it).
-
-        Raises:
-            RunInUse: another process holds it.
-        """
+        """An existing run directory, locked before its checkpoint is read (another process
+        may be writing it); :class:`RunInUse` when another process holds it."""
         directory = cls(path, main_process)
         if main_process:
             directory.lock.acquire()
@@ -147,6 +145,7 @@ class RunDir:
 
     def close(self) -> None:
         """Releases the run directory for other processes."""
+        self.stream.close()
         self.lock.release()
 
     def write_config(self, info: dict, config: PPOConfig, directory: Path | None = None) -> None:
@@ -165,9 +164,19 @@ class RunDir:
         return self.path / layout.CHECKPOINT_FILE
 
     def save_checkpoint(self, state: TrainState, meta: dict) -> None:
-        """Writes a (gathered) training state and its ``meta`` over the last checkpoint."""
+        """Writes a (gathered) training state and its ``meta`` over the last checkpoint,
+        once the metrics stream holds (durably) as many rows as the state has iterations."""
+        self.stream.sync(state.iteration)
         checkpoint.save_checkpoint(self.checkpoint_path, state, meta)
         self.checkpoint_meta = {**meta, "iteration": state.iteration}
+
+    def open_metrics(self, runs: int, rows: int) -> None:
+        """:attr:`stream` for the wave about to train (``runs`` runs) cut to ``rows`` rows
+        (the checkpoint's iterations; 0: a new wave). Only the main process keeps one."""
+        self.stream.close()
+        if self.main_process:
+            path = self.path / layout.METRICS_STREAM_FILE
+            self.stream = MetricsStream(path, METRIC_COLUMNS, runs, rows)
 
     def load_checkpoint(self, template: TrainState, num_runs: int) -> TrainState:
         """The checkpoint's state of ``num_runs`` runs, in the structure of ``template``."""

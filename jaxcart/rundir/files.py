@@ -11,7 +11,6 @@ import contextlib
 import errno
 import functools
 import hashlib
-import io
 import json
 import math
 import os
@@ -132,9 +131,13 @@ def arrays_digest(arrays: dict[str, np.ndarray]) -> str:
     """``sha256:<hex>`` of named arrays: each name, dtype, shape and bytes, in name order."""
     h = hashlib.sha256()
     for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
+        a = np.asarray(arrays[name])
         h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
-        h.update(a.tobytes())
+        # a long (e.g. memory-mapped) array is hashed a slab of rows at a time: the same
+        # bytes as its C-order whole, without a copy of all of it
+        rows = max(1, (64 << 20) // max(1, a[:1].nbytes)) if a.ndim else 1
+        for start in range(0, len(a) if a.ndim else 1, rows):
+            h.update(np.ascontiguousarray(a[start : start + rows] if a.ndim else a).tobytes())
     return "sha256:" + h.hexdigest()
 
 
@@ -180,9 +183,8 @@ def save_tree(
     entries = dict(arrays)
     if meta is not None:
         entries[META_KEY] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
-    buf = io.BytesIO()
-    np.savez(buf, **entries)
-    atomic_write_bytes(path, buf.getvalue())
+    with atomic_file(path, "wb") as f:  # written as it goes: no copy of the whole file
+        np.savez(f, **entries)
 
 
 @contextlib.contextmanager

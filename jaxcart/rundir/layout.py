@@ -10,6 +10,8 @@ Layout of ``RUN_DIR``:
 - ``evaluation.json``: per-seed greedy evaluation in Gymnasium's CartPole-v1 (and in jaxcart);
 - ``checkpoint.npz``: the full training state while a run is unfinished
   (:mod:`jaxcart.rundir.checkpoint`);
+- ``metrics.stream``: the metrics so far of the wave being trained, appended chunk by chunk
+  beside the checkpoint (:mod:`jaxcart.rundir.stream`);
 - ``waves/wave-00003.npz``: one block of results per finished wave of a run trained in waves
   (:mod:`jaxcart.rundir.outputs`);
 - ``.lock``: held by the process that trains it (:mod:`jaxcart.rundir.lock`);
@@ -30,14 +32,16 @@ from pathlib import Path
 
 FORMAT_VERSION = 1
 """Of ``config.json``."""
-CHECKPOINT_FORMAT = 2
-"""Of ``checkpoint.npz``: a checkpoint of another format is refused, never guessed at."""
+CHECKPOINT_FORMAT = 3
+"""Of ``checkpoint.npz``: a checkpoint of another format is refused, never guessed at (3: the
+metrics so far moved out of it, into ``metrics.stream``)."""
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.csv"
 PARAMS_FILE = "params.npz"
 EVALUATION_FILE = "evaluation.json"
 SWEEP_FILE = "sweep.json"
 CHECKPOINT_FILE = "checkpoint.npz"
+METRICS_STREAM_FILE = "metrics.stream"
 LOCK_FILE = ".lock"
 WAVES_DIR = "waves"
 SB3_PLAN_FILE = "sb3-plan.json"
@@ -58,8 +62,6 @@ METRICS_INDEX_COLUMNS = ("seed_index", "iteration", "env_steps")
 CHECKPOINT_STATE = "state/"
 CHECKPOINT_PARAMS = "state/runners/params/"
 """Where a checkpoint keeps the parameters, leaves ``[R, ...]``."""
-CHECKPOINT_METRICS = "metrics/"
-"""Where it keeps the metrics so far, ``metrics/<name>``, each ``[iterations, R]``."""
 BLOCK_PARAMS = "params/"
 BLOCK_METRICS = "metrics/"
 

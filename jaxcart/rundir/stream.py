@@ -1,0 +1,142 @@
+"""The metrics of the wave being trained, appended to disk chunk by chunk.
+
+``RUN_DIR/metrics.stream`` holds float32 rows, one per iteration, no header: each row is
+every column of :data:`~jaxcart.engine.trainer.METRIC_COLUMNS` for every run of the wave,
+``[iteration, column, run]`` in C order. What the rows mean (their columns and runs) is
+recorded in the checkpoint's metadata, and only as many rows as the checkpoint's iteration
+count: rows written after the last checkpoint are cut when training continues, so a resumed
+run's metrics are the uninterrupted run's, bit for bit. Rows are fsynced before every
+checkpoint that counts them.
+
+Training therefore holds one chunk of metrics in memory whatever the run's length, and a
+checkpoint's size does not grow with it. At the end of a wave the rows are read back
+memory-mapped (a finished wave's block file copies them; one wave's outputs are written
+from them). The checkpoint and this file are each other's companions: a finished one-wave
+run keeps both, so that ``--resume RUN --total-timesteps N`` can extend it.
+
+This is the one file jaxcart appends to; :mod:`jaxcart.rundir.files` writes every other.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from jaxcart.rundir import files
+from jaxcart.rundir.files import RunDirError
+
+DTYPE = np.dtype("<f4")
+
+
+class MetricsStream:
+    """The stream of one wave (``runs`` runs, ``columns``), opened with ``rows`` rows kept:
+    longer files are cut to them (rows past the checkpoint), shorter ones are refused."""
+
+    def __init__(self, path: Path, columns: Sequence[str], runs: int, rows: int) -> None:
+        self.path, self.columns, self.runs = Path(path), tuple(columns), int(runs)
+        self.row_bytes = len(self.columns) * self.runs * DTYPE.itemsize
+        try:
+            self.fd = files.open_regular(self.path, os.O_RDWR | os.O_CREAT, files.file_mode())
+        except OSError as exc:  # a full or read-only disk: reported as a failed write
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
+        try:
+            size = os.fstat(self.fd).st_size
+            if size < rows * self.row_bytes:
+                raise RunDirError(
+                    f"{self.path} holds {size // self.row_bytes} iterations of metrics, fewer "
+                    f"than the {rows} its checkpoint counts; the run cannot be continued"
+                )
+            self._call(os.ftruncate, self.fd, rows * self.row_bytes)
+            os.lseek(self.fd, 0, os.SEEK_END)
+        except BaseException:
+            os.close(self.fd)
+            raise
+        self.rows = rows
+
+    def _call(self, fn, *args):
+        try:
+            return fn(*args)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
+
+    def append(self, metrics: dict[str, np.ndarray]) -> None:
+        """Appends one chunk: leaves ``[iterations_in_chunk, runs]`` for every column."""
+        rows = np.stack([np.asarray(metrics[c], DTYPE) for c in self.columns], axis=1)
+        if rows.shape[1:] != (len(self.columns), self.runs):
+            raise ValueError(f"metrics of shape {rows.shape[1:]}, expected {self.runs} runs")
+        view = memoryview(np.ascontiguousarray(rows)).cast("B")
+        while view:
+            view = view[self._call(os.write, self.fd, view) :]
+        self.rows += len(rows)
+
+    def sync(self, rows: int) -> None:
+        """Makes the rows durable before a checkpoint of ``rows`` iterations counts them."""
+        if rows != self.rows:
+            raise RuntimeError(f"{self.path} holds {self.rows} iterations, the checkpoint {rows}")
+        self._call(os.fsync, self.fd)
+
+    def read(self) -> dict[str, np.ndarray]:
+        """Every row so far, memory-mapped from the open file (what this process wrote, even
+        if the path was removed meanwhile): column -> ``[rows, runs]``."""
+        shape = (self.rows, len(self.columns), self.runs)
+        if self.rows == 0:
+            return _columns(np.zeros(shape, DTYPE), self.columns)
+        with os.fdopen(os.dup(self.fd), "rb") as f:
+            return _columns(np.memmap(f, DTYPE, mode="r", shape=shape), self.columns)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+class NoStream:
+    """The stream of a process that writes none (not the main one, or no wave open yet)."""
+
+    def append(self, metrics: dict[str, np.ndarray]) -> None:
+        pass
+
+    def sync(self, rows: int) -> None:
+        pass
+
+    def read(self) -> dict[str, np.ndarray]:
+        return {}
+
+    def close(self) -> None:
+        pass
+
+
+def read_stream(
+    path: str | os.PathLike, columns: Sequence[str], runs: int, rows: int
+) -> dict[str, np.ndarray]:
+    """The first ``rows`` rows of a metrics stream, memory-mapped read-only: column ->
+    ``[rows, runs]`` float32 (a view; nothing is read until it is used).
+
+    Raises:
+        RunDirError: missing, a link, not a regular file, or shorter than ``rows`` rows.
+    """
+    path = Path(path)
+    shape = (rows, len(columns), runs)
+    if rows == 0:
+        block = np.zeros(shape, DTYPE)
+    else:
+        try:
+            fd = files.open_regular(path)
+        except FileNotFoundError:
+            raise RunDirError(f"{path} does not exist; the run's metrics are lost") from None
+        with os.fdopen(fd, "rb") as f:
+            if os.fstat(f.fileno()).st_size < np.prod(shape) * DTYPE.itemsize:
+                raise RunDirError(
+                    f"{path} holds fewer than the {rows} iterations of metrics its checkpoint "
+                    "counts; refusing it"
+                )
+            block = np.memmap(f, DTYPE, mode="r", shape=shape)
+    return _columns(block, columns)
+
+
+def _columns(block: np.ndarray, columns: Sequence[str]) -> dict[str, np.ndarray]:
+    """``[rows, column, run]`` as column -> ``[rows, runs]`` views."""
+    return {name: block[:, c, :] for c, name in enumerate(columns)}
