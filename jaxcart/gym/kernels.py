@@ -255,18 +255,28 @@ def compiled_vector_reset(num_envs: int, mode: AutoresetMode, x64: bool):
         return fn.lower(rows_spec(num_envs, mode, x64), key, float_spec(x64), mask).compile()
 
 
+def _vector_step_into(rows, spare, inputs, floats, params: EnvParams, mode: AutoresetMode):
+    """:func:`vector_step`, its result written into ``spare``'s buffer (donated, not read)."""
+    del spare
+    return vector_step(rows, inputs, floats, params, mode)
+
+
 @functools.cache
 def compiled_vector_step(params: EnvParams, num_envs: int, mode: AutoresetMode, x64: bool):
     """:func:`vector_step` for ``params`` (a :func:`compile_key`) and ``mode``, compiled ahead
-    of time (the rows donated)."""
+    of time, called as ``step(rows, spare, inputs, floats)``: the new rows are written into the
+    buffer of ``spare`` (donated; the rows of the step before), not over ``rows``. Writing over
+    ``rows`` would cost a copy of the whole state per step, as XLA cannot compute the new rows
+    in place (each row reads others)."""
     import jax
     import jax.numpy as jnp
 
     with precision(x64):
         rows = rows_spec(num_envs, mode, x64)
         inputs = jax.ShapeDtypeStruct((num_envs + 2,), jnp.uint32)
-        fn = jax.jit(functools.partial(vector_step, params=params, mode=mode), donate_argnums=0)
-        return fn.lower(rows, inputs, float_spec(x64)).compile()
+        step = functools.partial(_vector_step_into, params=params, mode=mode)
+        fn = jax.jit(step, donate_argnums=1, keep_unused=True)
+        return fn.lower(rows, rows, inputs, float_spec(x64)).compile()
 
 
 def step_inputs(actions: np.ndarray, key: np.ndarray) -> np.ndarray:
