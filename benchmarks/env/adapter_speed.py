@@ -62,7 +62,9 @@ KINDS = ("single", "vector", "vector-same-step", "sync")
 DEFAULT_SIZES = (1, 64, 4096)
 SEED = 0
 # Env steps (N per vector step) per measurement; the sync pair steps N Python envs per step.
-ENV_STEPS = {"single": 30_000, "vector": 120_000, "vector-same-step": 120_000, "sync": 10_000}
+# The vector pairs: 293 steps at N = 4096 (about 60 ms), so that other jobs on a shared machine
+# do not decide a measurement (at 120,000 it was 29 steps, about 6 ms).
+ENV_STEPS = {"single": 30_000, "vector": 1_200_000, "vector-same-step": 1_200_000, "sync": 10_000}
 SYNC_MAX_ENVS = 64  # a SyncVectorEnv of 4096 single envs takes tens of ms per step
 MAX_STEPS, MIN_STEPS = 10_000, 10
 LABELS = {
