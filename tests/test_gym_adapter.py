@@ -682,3 +682,62 @@ def test_sb3_check_env_and_short_ppo_run():
     assert len(episodes) >= 20
     assert all(e["r"] == e["l"] for e in episodes)  # +1 per step, terminating step included
     assert all(8 <= e["l"] <= 500 for e in episodes)
+
+
+@pytest.mark.parametrize("x64", [True, False], ids=["float64", "float32"])
+def test_sin_cos_once_is_jnp_sin_and_cos_bit_for_bit(x64):
+    """The vector step's sin and cos (a complex division by 1 + 0i, so that XLA evaluates them
+    once) are jnp.sin and jnp.cos exactly, signed zeros and non-finite angles included."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxcart.gym import kernels
+
+    dtype = np.float64 if x64 else np.float32
+    rng = np.random.default_rng(0)
+    special = [0.0, -0.0, np.pi / 2, -np.pi, 1e-30, 1e30, np.inf, -np.inf, np.nan]
+    theta = np.concatenate([rng.uniform(-4, 4, 20_000), rng.normal(0, 1e3, 1000), special])
+    with kernels.precision(x64):
+        theta = jnp.asarray(theta.astype(dtype))
+        once = jax.jit(kernels.sin_cos_once)(theta)
+        plain = jax.jit(lambda t: (jnp.sin(t), jnp.cos(t)))(theta)
+    for a, b in zip(once, plain):
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.dtype == b.dtype == dtype
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        finite = ~np.isnan(b)
+        np.testing.assert_array_equal(a[finite].view(np.uint8), b[finite].view(np.uint8))
+
+
+@pytest.mark.parametrize("mode", list(AutoresetMode))
+def test_vector_step_evaluates_sin_and_cos_once(mode):
+    """XLA:CPU keeps one sin and one cos of the pole angle in the compiled vector step (it would
+    recompute them in every fusion that uses them otherwise: benchmarks/RESULTS.md)."""
+    from jaxcart.gym import kernels
+
+    params = kernels.make_params(None, None, None)
+    hlo = kernels.compiled_vector_step(kernels.compile_key(params), 64, mode, True).as_text()
+    assert hlo.count(" sine(") == 1 and hlo.count(" cosine(") == 1
+
+
+def test_vector_env_action_check_is_action_space_contains():
+    """The vector env's fast action check accepts exactly what action_space.contains accepts."""
+    from jaxcart.gym.vector_env import _valid_actions
+
+    space = JaxCartPoleVectorEnv(num_envs=4).action_space
+    candidates = [np.array([0, 1, 1, 0], dtype=t) for t in ("int8", "uint8", "int32", "int64")]
+    candidates += [
+        np.array([0, 1, 2, 0]),
+        np.array([0, -1, 1, 0]),
+        np.array([0, 1, 1, 2**32]),
+        np.array([0, 1, 1, -(2**62)]),
+        np.array([255, 0, 0, 0], dtype=np.uint8),
+        np.array([0, 1]),
+        np.zeros((4, 1), dtype=np.int64),
+        np.array([0.0, 1.0, 1.0, 0.0]),
+        np.array([True, False, True, True]),
+        [0, 1, 1, 0],
+        1,
+    ]
+    for actions in candidates:
+        assert _valid_actions(actions, space) == bool(space.contains(actions)), actions

@@ -54,6 +54,7 @@ import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorEnv
 
 from benchmarks import lib
+from jaxcart.gym import vector_env
 from jaxcart.gym.adapter import JaxCartPoleEnv, JaxCartPoleVectorEnv
 
 STEM = "adapter_speed"
@@ -61,7 +62,9 @@ KINDS = ("single", "vector", "vector-same-step", "sync")
 DEFAULT_SIZES = (1, 64, 4096)
 SEED = 0
 # Env steps (N per vector step) per measurement; the sync pair steps N Python envs per step.
-ENV_STEPS = {"single": 30_000, "vector": 120_000, "vector-same-step": 120_000, "sync": 10_000}
+# The vector pairs: 293 steps at N = 4096 (about 60 ms), so that other jobs on a shared machine
+# do not decide a measurement (at 120,000 it was 29 steps, about 6 ms).
+ENV_STEPS = {"single": 30_000, "vector": 1_200_000, "vector-same-step": 1_200_000, "sync": 10_000}
 SYNC_MAX_ENVS = 64  # a SyncVectorEnv of 4096 single envs takes tens of ms per step
 MAX_STEPS, MIN_STEPS = 10_000, 10
 LABELS = {
@@ -214,11 +217,15 @@ def profile_vector(num_envs: int, quick: bool) -> dict:
     calls = max(20, (100 if quick else 1000) * 64 // max(num_envs, 64))
     inputs = np.concatenate([actions, [1, 2]]).astype(np.uint32)  # actions, then a key
 
-    def compiled_call():
-        env._rows = env._step_fn(env._rows, inputs, env._floats)
-        env._rows.block_until_ready()
+    def compiled_call():  # as JaxCartPoleVectorEnv.step: the new rows go into the spare buffer
+        rows = env._step_fn(env._rows, env._spare, inputs, env._floats)
+        env._rows, env._spare = rows, env._rows
+        rows.block_until_ready()
 
     rows = np.array(env._rows)
+
+    def read():  # the step's one transfer: a read-only view, no copy on CPU
+        return np.asarray(env._rows)[0, 0]
 
     def unpack():
         obs = rows[:4].T.astype(np.float32)
@@ -236,8 +243,11 @@ def profile_vector(num_envs: int, quick: bool) -> dict:
         "action check (action_space.contains)": per_call_microseconds(
             lambda: env.action_space.contains(actions), calls
         ),
+        "action check (the adapter's: integer array, every action 0 or 1)": per_call_microseconds(
+            lambda: vector_env._valid_actions(actions, env.action_space), calls
+        ),
         "compiled call, waited for": per_call_microseconds(compiled_call, calls),
-        "device-to-host copy (np.array)": per_call_microseconds(lambda: np.array(env._rows), calls),
+        "device-to-host read (np.asarray, no copy)": per_call_microseconds(read, calls),
         "unpacking (obs cast, reward, flags)": per_call_microseconds(unpack, calls),
         "f64 sin and cos of N angles, one jitted XLA call": per_call_microseconds(
             lambda: jax.block_until_ready(trig(device_angles)), calls
@@ -372,12 +382,12 @@ def markdown(report: dict) -> str:
         *sync_dispatch_lines(report),
         "Where a jaxcart step's time goes (µs per step, each part timed on its own in a loop; "
         "Gymnasium's step alongside). The compiled step is jaxcart's `step_env` plus the "
-        "autoreset; XLA:CPU splits it into "
+        "autoreset; XLA:CPU runs it as "
         f"{report['profiles'][-1]['step_fusions']} fusions that hold "
         f"{report['profiles'][-1]['sin_cos_in_fused_computations']} sin/cos evaluations "
-        "of θ between them (sin and cos are each needed by θ̈ and by ẍ, and XLA recomputes "
-        "them rather than keep them), so the f64 trigonometry, timed alone below, is paid "
-        "about twice per env:",
+        "of θ between them (`jaxcart.gym.kernels.sin_cos_once` makes it one sin and one cos, "
+        "a single libm `sincos` call per env; XLA's own choice was two of each, one pair per "
+        "fusion that uses them). The f64 trigonometry is timed alone below:",
         "",
         *profile_tables(report),
     ]

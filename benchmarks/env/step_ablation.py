@@ -9,6 +9,11 @@ core with one JAX device, timed interleaved over ``--rounds``:
 - ``fixed-reset``: the same with the reset states fixed (no hashing): what drawing them costs;
 - ``physics-only``: :func:`jaxcart.core.env.step_env` alone (no autoreset at all; episodes run on
   past their end, so this is not a usable env, only a floor);
+- ``sincos-once``: ``step_batch`` with sin and cos of the pole angle evaluated once per env
+  (:func:`jaxcart.gym.kernels.sin_cos_once`, as the Gymnasium vector adapter does). XLA:CPU
+  otherwise calls libm's ``sincosf`` in each of the three fusions that use them. Same values,
+  but not adopted for training: it changes which multiply-adds XLA contracts into FMAs in the
+  training program, so training is no longer bit-identical (``benchmarks/RESULTS.md``);
 - ``gymnax``: gymnax 1.x's ``vmap(step)`` for reference (if installed).
 
     benchmarks/.venv-bench/bin/python -m benchmarks.env.step_ablation
@@ -34,8 +39,10 @@ import jax.numpy as jnp  # noqa: E402
 import jaxcart.core.env as cartpole  # noqa: E402
 from benchmarks import lib  # noqa: E402
 from benchmarks.env import contenders  # noqa: E402
+from jaxcart.core.tricks import hash_uniform  # noqa: E402
+from jaxcart.gym import kernels  # noqa: E402
 
-VARIANTS = ("step_batch", "fixed-reset", "physics-only", "gymnax")
+VARIANTS = ("step_batch", "fixed-reset", "physics-only", "sincos-once", "gymnax")
 
 
 def rollout(variant: str, num_envs: int, num_steps: int):
@@ -47,6 +54,18 @@ def rollout(variant: str, num_envs: int, num_steps: int):
     def step(key, state, actions):
         if variant == "step_batch":
             return cartpole.step_batch(key, state, actions, params)[:5]
+        if variant == "sincos-once":
+            final_obs, next_state, reward, terminated, truncated = cartpole.step_env_with_trig(
+                state, actions, params, kernels.sin_cos_once
+            )
+            done = terminated | truncated
+            noise = hash_uniform(
+                key, (done.shape[0], 4), final_obs.dtype, params.reset_low, params.reset_high
+            )
+            obs, state = cartpole._autoreset(
+                done, noise, cartpole.state_from_obs(noise), final_obs, next_state
+            )
+            return obs, state, reward, terminated, truncated
         final_obs, next_state, reward, terminated, truncated = cartpole.step_env(
             state, actions, params
         )

@@ -24,6 +24,7 @@ actions (a check inside a compiled program could not raise); the Gymnasium adapt
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -131,11 +132,35 @@ def step_env(
     Returns:
         ``(obs, state, reward, terminated, truncated)``; obs ``(4,)``, the rest scalars.
     """
+    return step_env_with_trig(state, action, params, sin_and_cos)
+
+
+def sin_and_cos(theta: Array) -> tuple[Array, Array]:
+    """``(jnp.sin(theta), jnp.cos(theta))``, the pair :func:`step_env` uses."""
+    costheta = jnp.cos(theta)
+    sintheta = jnp.sin(theta)
+    return sintheta, costheta
+
+
+def step_env_with_trig(
+    state: EnvState,
+    action: Array,
+    params: EnvParams,
+    trig: Callable[[Array], tuple[Array, Array]],
+) -> tuple[Array, EnvState, Array, Array, Array]:
+    """:func:`step_env` with ``(sin, cos)`` of the pole angle computed by ``trig(theta)``.
+
+    ``trig`` must return exactly ``jnp.sin(theta)`` and ``jnp.cos(theta)``; what it may change
+    is how XLA computes them. The Gymnasium vector adapter passes
+    :func:`jaxcart.gym.kernels.sin_cos_once`, which makes XLA:CPU evaluate them once per env
+    instead of once per fusion that uses them. Training keeps :func:`sin_and_cos`: the
+    adapter's way changes which multiply-adds XLA fuses into FMAs in training's programs, so its
+    numbers would no longer be bit-identical (``benchmarks/RESULTS.md``, env throughput).
+    """
     total_mass = params.masspole + params.masscart
     polemass_length = params.masspole * params.length
     force = jnp.where(action == 1, params.force_mag, -params.force_mag)
-    costheta = jnp.cos(state.theta)
-    sintheta = jnp.sin(state.theta)
+    sintheta, costheta = trig(state.theta)
 
     temp = (force + polemass_length * jnp.square(state.theta_dot) * sintheta) / total_mass
     thetaacc = (params.gravity * sintheta - costheta * temp) / (

@@ -148,6 +148,25 @@ def vector_reset(rows, key, floats, mask):
     return jnp.where(mask, fresh, rows)
 
 
+def sin_cos_once(theta):
+    """``(jnp.sin(theta), jnp.cos(theta))``, bit for bit, evaluated once per element by XLA:CPU.
+
+    XLA:CPU counts sin and cos as cheap and recomputes them in every fusion that uses them: the
+    vector step held four float64 evaluations per env (two sin, two cos), each a call into libm.
+    Here they leave as one complex number ``cos + i sin`` divided by ``1 + 0i``, a division
+    (which XLA will not duplicate) by a one it cannot fold (``1 + 0 * theta``): one fusion
+    computes both (one ``sincos`` call) and the others read them. The division is exact:
+    ``(cos + i sin) / (1 + 0i)`` is ``cos + i sin`` in every formula XLA uses for it, as the
+    products are by 1 and 0 and ``cos`` is never zero; a non-finite theta gives NaNs either way.
+    """
+    import jax.numpy as jnp
+    from jax import lax
+
+    one = 1 + 0 * theta
+    z = lax.complex(jnp.cos(theta), jnp.sin(theta)) / lax.complex(one, jnp.zeros_like(theta))
+    return jnp.imag(z), jnp.real(z)
+
+
 def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
     """Steps every env, resetting as ``mode`` says; ``rows`` in, ``rows`` out (see the layout above).
     ``inputs``: uint32 ``[num_envs + 2]``, the actions then this step's key (one transfer).
@@ -159,8 +178,10 @@ def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
     state in case its episode ends now; the state rows keep the stepped state, the host's
     ``final_obs``. DISABLED: no reset.
 
-    The stepped state is used once: XLA:CPU would compute it again (its sin and cos included)
-    for a second use.
+    The physics is :func:`jaxcart.core.env.step_env`'s, with sin and cos evaluated once per env
+    (:func:`sin_cos_once`). The output is stacked row by row (each row its own select): XLA:CPU
+    emits a fused concatenation of whole rows as vector code, where a select over a stacked
+    ``[4, num_envs]`` block came out as scalar code.
     """
     import jax.numpy as jnp
 
@@ -168,26 +189,28 @@ def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
 
     actions, key = inputs[:-2], inputs[-2:]
     ended = rows[ENDED] != 0  # on the previous step
-    start, steps = rows[STATE_ROWS], rows[STEP_COUNT].astype(jnp.int32)
+    start, steps = list(rows[STATE_ROWS]), rows[STEP_COUNT].astype(jnp.int32)
     if mode is AutoresetMode.SAME_STEP:
-        start = jnp.where(ended, rows[START_ROWS], start)
+        start = [jnp.where(ended, s, x) for s, x in zip(rows[START_ROWS], start)]
         steps = jnp.where(ended, 0, steps)
-    state = cartpole.EnvState(start[0], start[1], start[2], start[3], step_count=steps)
+    state = cartpole.EnvState(*start, step_count=steps)
     params = with_floats(params, floats)
-    _, state, reward, terminated, truncated = cartpole.step_env(state, actions, params)
-    new = jnp.stack([state.x, state.x_dot, state.theta, state.theta_dot])
+    _, state, reward, terminated, truncated = cartpole.step_env_with_trig(
+        state, actions, params, sin_cos_once
+    )
+    new = [state.x, state.x_dot, state.theta, state.theta_dot]
     steps = state.step_count
     fresh = start_states(key, floats, rows.shape[1], rows.dtype)
     if mode is AutoresetMode.NEXT_STEP:
-        new = jnp.where(ended, fresh, new)
+        new = [jnp.where(ended, f, x) for f, x in zip(fresh, new)]
         steps = jnp.where(ended, 0, steps)
         reward = jnp.where(ended, jnp.zeros_like(reward), reward)
         terminated, truncated = terminated & ~ended, truncated & ~ended
     code = terminated.astype(rows.dtype) + 2 * truncated.astype(rows.dtype)
-    out = [new, steps[None], reward[None], code[None]]
+    out = [*new, steps, reward, code]
     if mode is AutoresetMode.SAME_STEP:
-        out.append(fresh)
-    return jnp.concatenate([r.astype(rows.dtype) for r in out])
+        out.extend(fresh)
+    return jnp.stack([r.astype(rows.dtype) for r in out])
 
 
 def float_spec(x64: bool):
@@ -232,18 +255,28 @@ def compiled_vector_reset(num_envs: int, mode: AutoresetMode, x64: bool):
         return fn.lower(rows_spec(num_envs, mode, x64), key, float_spec(x64), mask).compile()
 
 
+def _vector_step_into(rows, spare, inputs, floats, params: EnvParams, mode: AutoresetMode):
+    """:func:`vector_step`, its result written into ``spare``'s buffer (donated, not read)."""
+    del spare
+    return vector_step(rows, inputs, floats, params, mode)
+
+
 @functools.cache
 def compiled_vector_step(params: EnvParams, num_envs: int, mode: AutoresetMode, x64: bool):
     """:func:`vector_step` for ``params`` (a :func:`compile_key`) and ``mode``, compiled ahead
-    of time (the rows donated)."""
+    of time, called as ``step(rows, spare, inputs, floats)``: the new rows are written into the
+    buffer of ``spare`` (donated; the rows of the step before), not over ``rows``. Writing over
+    ``rows`` would cost a copy of the whole state per step, as XLA cannot compute the new rows
+    in place (each row reads others)."""
     import jax
     import jax.numpy as jnp
 
     with precision(x64):
         rows = rows_spec(num_envs, mode, x64)
         inputs = jax.ShapeDtypeStruct((num_envs + 2,), jnp.uint32)
-        fn = jax.jit(functools.partial(vector_step, params=params, mode=mode), donate_argnums=0)
-        return fn.lower(rows, inputs, float_spec(x64)).compile()
+        step = functools.partial(_vector_step_into, params=params, mode=mode)
+        fn = jax.jit(step, donate_argnums=1, keep_unused=True)
+        return fn.lower(rows, rows, inputs, float_spec(x64)).compile()
 
 
 def step_inputs(actions: np.ndarray, key: np.ndarray) -> np.ndarray:

@@ -95,6 +95,14 @@ def _current_states(rows: np.ndarray, mode: AutoresetMode) -> np.ndarray:
     return np.where(ended, rows[kernels.START_ROWS], rows[kernels.STATE_ROWS])
 
 
+def _valid_actions(actions: Any, space: Any) -> bool:
+    """``space.contains(actions)`` (``space``: the batched ``Discrete(2)``), without its generic
+    checks for the usual case of an integer array of the right shape: every action 0 or 1."""
+    if type(actions) is np.ndarray and actions.dtype.kind in "iu" and actions.shape == space.shape:
+        return not (actions >> 1).any()  # 0 and 1 are the only integers with no bit above the first
+    return bool(space.contains(actions))
+
+
 def _check_none_ended(ended: np.ndarray) -> None:
     """With autoreset disabled, stepping an env whose episode has ended is an error."""
     if ended.any():
@@ -190,6 +198,7 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             kernels.compile_key(self.params), self.num_envs, self.autoreset_mode, self._x64
         )
         self._rows = None  # the device state (see kernels.vector_step); None before the first reset
+        self._spare = None  # a buffer like it, into which the next step writes its rows
         self._floats = None  # kernels.float_values with the last reset's bounds, on the device
         self._keys = np.zeros((0, 2), dtype=np.uint32)  # step keys not yet used
         self._ended = np.zeros(self.num_envs, dtype=np.bool_)  # for DISABLED's check
@@ -226,11 +235,10 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             self._floats = jnp.asarray(kernels.float_values(self.params, low, high))
             if self._rows is None:
                 spec = kernels.rows_spec(self.num_envs, self.autoreset_mode, self._x64)
-                self._rows = jnp.zeros(spec.shape, spec.dtype)
+                self._rows, self._spare = (jnp.zeros(spec.shape, spec.dtype) for _ in "ab")
         self._rows = self._reset_fn(self._rows, key, self._floats, mask)
         self._ended &= ~mask
-        # A copy: the device buffer is donated to the next call.
-        return kernels.observations(np.array(self._rows)), {}
+        return kernels.observations(np.asarray(self._rows)), {}  # a new array
 
     def _step_key(self) -> np.ndarray:
         """The next step's key (``uint32[2]``), from a block drawn from ``np_random``."""
@@ -243,14 +251,15 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Steps every sub-environment, with the autoreset of ``autoreset_mode``."""
-        assert self.action_space.contains(actions), f"{actions!r} ({type(actions)}) invalid"
+        assert _valid_actions(actions, self.action_space), f"{actions!r} ({type(actions)}) invalid"
         assert self._rows is not None, "Call reset before using step method."
         if self.autoreset_mode is AutoresetMode.DISABLED:
             _check_none_ended(self._ended)
         inputs = kernels.step_inputs(actions, self._step_key())
-        self._rows = self._step_fn(self._rows, inputs, self._floats)
-        # The one transfer to the host; a copy, as the device buffer is donated to the next call.
-        results = _step_results(np.array(self._rows), self.autoreset_mode)
+        rows = self._step_fn(self._rows, self._spare, inputs, self._floats)
+        self._rows, self._spare = rows, self._rows
+        # One read-only view of the device buffer (no copy on CPU); every output is a new array.
+        results = _step_results(np.asarray(rows), self.autoreset_mode)
         if self.autoreset_mode is AutoresetMode.DISABLED:
             self._ended = results[2] | results[3]  # terminated | truncated
         return results
