@@ -46,10 +46,11 @@ trend past 8, and the sb3 preset 95 ms at 32 runs per device but 149 ms at 256; 
 only make every chunk slower (one sb3 iteration of 256 runs per device took 76 s)."""
 ACCELERATOR_ENVS_PER_DEVICE = 65_536
 """Parallel environments (runs x num_envs) per GPU or TPU: a model, not measured."""
-CPU_SECONDS_PER_ENV_STEP = 8e-6
+CPU_SECONDS_PER_ENV_STEP = 1.2e-6
 """Seconds per environment step and update epoch of one run on one CPU device, for the
-time estimate: 8.5 us (sb3 preset) and 7.1 us (fast) at 32 runs per device, measured as
-above."""
+time estimate. Measured on 2026-11-25 (load 1.5-2.2) at 32 runs per device: 1.1 us for the
+sb3 preset (0.793 s per iteration of a million-seed run) and about 0.9 us for fast (a
+64-seed, 100k-step process in 17.4 s); 2026-11-22's 8 us was a machine loaded 5-15."""
 ACCELERATOR_SECONDS_PER_ENV_STEP = 1e-8  # a guess; the first chunks' measurement follows
 CSV_BYTES_PER_ROW = 250
 """One (seed, iteration) row of ``metrics.csv`` (measured: 244 bytes in a fast-preset run)."""
