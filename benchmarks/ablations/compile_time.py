@@ -47,9 +47,9 @@ tree's (alternating which goes first), so that both sides see the same load.
     python -m benchmarks.ablations.compile_time --variants default --repeats 5 --run \\
         --before /tmp/before
 
-Writes ``compile_time.json`` and ``compile_time.md`` to ``--out`` (default
-``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
-figures).
+Writes ``STEM.json`` and ``STEM.md`` (``--stem``, default ``compile_time``) to ``--out``
+(default ``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the
+committed figures).
 """
 
 from __future__ import annotations
@@ -374,6 +374,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--before", type=Path, help="another source tree to measure too, interleaved"
     )
+    parser.add_argument("--stem", default="compile_time", help="report file name (no suffix)")
     lib.add_out_option(parser)
     parser.add_argument("--child", action="store_true", help=argparse_hidden())
     parser.add_argument("--stub", help=argparse_hidden())
@@ -405,7 +406,7 @@ def main(argv: list[str] | None = None) -> int:
         "before": str(before) if before else None,
         "rows": rows,
     }
-    lib.write_report(args.out, "compile_time", report, markdown(report))
+    lib.write_report(args.out, args.stem, report, markdown(report))
     return 0
 
 
