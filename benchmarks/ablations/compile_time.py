@@ -9,7 +9,8 @@ process with the persistent cache off and measures, for that program:
   into its HLO optimisation passes and the rest (IR emission, LLVM optimisation and machine
   code for every kernel; the number of kernels is counted too);
 - the optimised HLO's size (instructions) and its ``while`` loops;
-- wall and CPU seconds of each stage, the median of ``--repeats`` fresh processes.
+- wall and CPU seconds of each stage, the median of ``--repeats`` fresh processes, and the
+  best (least) total; the processes of all variants run in rounds, interleaved.
 
 Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
 
@@ -309,17 +310,28 @@ def one_process(variant: str, run: bool, tree: Path) -> dict:
     return sample
 
 
-def measure(variant: str, repeats: int, run: bool, before: Path | None = None) -> list[dict]:
-    """``variant`` compiled in ``repeats`` fresh processes of this tree (and of ``before``,
-    interleaved, alternating which goes first): one row per tree, medians and best totals."""
-    trees = [(variant, lib.REPO_ROOT)] + ([(f"{variant} (before)", before)] if before else [])
-    samples: dict[str, list[dict]] = {label: [] for label, _ in trees}
+def measure(names: list[str], repeats: int, run: bool, before: Path | None = None) -> list[dict]:
+    """Every variant compiled in ``repeats`` fresh processes of this tree (and of ``before``),
+    interleaved: each round runs every (variant, tree) once, in alternating order, so that a
+    change of load touches every row alike. One row per (variant, tree): medians and best
+    totals."""
+    jobs = [(name, name, lib.REPO_ROOT) for name in names]
+    if before:
+        jobs += [(name, f"{name} (before)", before) for name in names]
+    samples: dict[str, list[dict]] = {label: [] for _, label, _ in jobs}
     for i in range(repeats):
-        for label, tree in trees if i % 2 == 0 else trees[::-1]:
-            samples[label].append(one_process(variant, run, tree))
+        for name, label, tree in jobs if i % 2 == 0 else jobs[::-1]:
+            sample = one_process(name, run, tree)
+            samples[label].append(sample)
+            print(
+                f"round {i + 1}: {label:<28} total {sample['total_wall']:.2f} s "
+                f"(cpu {sample['total_cpu']:.2f})  {sample['llvm_kernels']} kernels  "
+                f"load {sample['load'][0] if sample['load'] else '?'}",
+                flush=True,
+            )
     rows = []
-    for label, tree in trees:
-        row = {"variant": label, "xla_flags": VARIANTS[variant], "tree": str(tree)}
+    for name, label, tree in sorted(jobs, key=lambda job: (names.index(job[0]), job[1])):
+        row = {"variant": label, "xla_flags": VARIANTS[name], "tree": str(tree)}
         row["samples"] = samples[label]
         for key in samples[label][0]:
             values = [s[key] for s in samples[label] if s[key] is not None and key != "load"]
@@ -388,17 +400,15 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
     before = args.before.resolve() if args.before else None
-    rows = []
-    for name in names:
-        rows += measure(name, args.repeats, args.run, before)
-        for r in rows[-2 if before else -1 :]:
-            print(
-                f"{r['variant']:<22} total best {r['best_total_wall']:.2f} s, median "
-                f"{r['total_wall']:.2f} (cpu {r['total_cpu']:.2f})  compile "
-                f"{r['compile_wall']:.2f} s  {r['llvm_kernels']} kernels  "
-                f"{r['hlo_instructions']:,} HLO instructions",
-                flush=True,
-            )
+    rows = measure(names, args.repeats, args.run, before)
+    for r in rows:
+        print(
+            f"{r['variant']:<28} total best {r['best_total_wall']:.2f} s, median "
+            f"{r['total_wall']:.2f} (cpu {r['total_cpu']:.2f})  compile "
+            f"{r['compile_wall']:.2f} s  {r['llvm_kernels']} kernels  "
+            f"{r['hlo_instructions']:,} HLO instructions",
+            flush=True,
+        )
     report = {
         "command": lib.command_line(),
         "machine": lib.machine_info(),
