@@ -191,6 +191,43 @@ def test_episode_buffer_keeps_last_100_in_order():
     np.testing.assert_allclose(kept, expected)
 
 
+def _scatter_window(buffer, done, episode_return, episode_length):
+    """The episode window as it was computed before the top_k version: the reference."""
+    valid = jnp.concatenate([buffer.valid, done.reshape(-1)])
+    returns = jnp.concatenate([buffer.returns, episode_return.reshape(-1).astype(jnp.float32)])
+    lengths = jnp.concatenate([buffer.lengths, episode_length.reshape(-1).astype(jnp.float32)])
+    rank = jnp.cumsum(valid[::-1])[::-1]
+    slot = jnp.where(valid & (rank <= 100), 100 - rank, 100)
+    empty = jnp.zeros((100,), jnp.float32)
+    return EpisodeBuffer(
+        returns=empty.at[slot].set(returns, mode="drop"),
+        lengths=empty.at[slot].set(lengths, mode="drop"),
+        valid=jnp.zeros((100,), bool).at[slot].set(True, mode="drop"),
+    )
+
+
+@pytest.mark.parametrize("steps, envs", [(2048, 1), (128, 4), (7, 3), (60, 3)])
+def test_episode_window_is_bit_identical_to_the_scatter_version(steps, envs):
+    """Random rollouts (from no episode to every step an episode end) and random buffers
+    (any valid pattern, not only what the function leaves): the same window, bit for bit."""
+    rng = np.random.default_rng(steps * envs)
+    new, ref = jax.jit(update_episode_buffer), jax.jit(_scatter_window)
+    for p_done in (0.0, 0.003, 0.05, 0.5, 1.0):
+        buffer = EpisodeBuffer(
+            jnp.asarray(rng.normal(size=100).astype(np.float32)),
+            jnp.asarray(rng.integers(1, 500, 100).astype(np.float32)),
+            jnp.asarray(rng.random(100) < rng.random()),
+        )
+        done = jnp.asarray(rng.random((steps, envs)) < p_done)
+        returns = jnp.asarray(rng.normal(size=(steps, envs)).astype(np.float32) * 100)
+        lengths = jnp.asarray(rng.integers(1, 500, (steps, envs)).astype(np.int32))
+        for _ in range(3):  # and the window it leaves, fed back
+            a, b = new(buffer, done, returns, lengths), ref(buffer, done, returns, lengths)
+            for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+                np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+            buffer, done = a, jnp.roll(done, 1, axis=0)
+
+
 def test_categorical_helpers_match_distrax():
     import distrax
 

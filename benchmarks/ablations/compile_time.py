@@ -9,33 +9,48 @@ process with the persistent cache off and measures, for that program:
   into its HLO optimisation passes and the rest (IR emission, LLVM optimisation and machine
   code for every kernel; the number of kernels is counted too);
 - the optimised HLO's size (instructions) and its ``while`` loops;
-- wall and CPU seconds of each stage, the median of ``--repeats`` fresh processes.
+- wall and CPU seconds of each stage, the median of ``--repeats`` fresh processes, and the
+  best (least) total; the processes of all variants run in rounds, interleaved.
 
 Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
 
-- ``default``: the flags ``python -m jaxcart.train`` uses;
-- ``O0``/``O1``: ``--xla_backend_optimization_level=0/1``: less LLVM optimisation, showing
-  LLVM's share of the compile (and what it costs at run time: ``--run`` times a chunk);
+- ``default``: the flags ``python -m jaxcart.train`` uses, the program it compiles;
+- ``O0``/``O1``/``O2``: ``--xla_backend_optimization_level=0/1/2``: less LLVM optimisation,
+  showing LLVM's share of the compile (and what it costs at run time: ``--run`` times a chunk);
 - ``no-expensive``: ``--xla_llvm_disable_expensive_passes=true``;
+- ``no-slp``: LLVM's SLP vectoriser off (``xla_cpu_disable_slp_vectorizer``);
 - ``split-N``: ``--xla_cpu_parallel_codegen_split_count=N`` (codegen in N parallel parts);
 - ``no-thunk``: ``--xla_cpu_use_thunk_runtime=false`` (XLA:CPU's older whole-program runtime);
-- ``fusion-emitters``: ``--xla_cpu_use_fusion_emitters=true`` (the MLIR fusion emitters);
+- ``no-fusion-emitters``: ``--xla_cpu_use_fusion_emitters=false`` (XLA:CPU's older LLVM
+  emitters instead of the MLIR fusion emitters; other numbers);
+- ``hoist-loops``: ``xla_cpu_small_while_loop_byte_threshold=1000000``: XLA compiles every
+  while loop small enough into one kernel (the rollout among them; other numbers);
 - ``stub-guard``, ``stub-update``, ``stub-episodes``: default flags, with the divergence
-  guard, the minibatch update or the episode-statistics buffer replaced by a stub, to see
+  guard, the minibatch update or the episode-statistics window replaced by a stub, to see
   what each part of the program costs to compile (these programs are not runnable training);
 - ``swap-fused-adam``: gradient clipping and Adam as one update over the concatenated
   parameters (:func:`fused_clip_adam`) instead of optax's leaf-by-leaf chain: fewer kernels,
   but not bit-identical (XLA rounds the flat element-wise kernel differently), so not adopted;
 - ``swap-one-scatter``: the episode window filled by one scatter of (return, length) pairs
-  (the valid mask derived from the count) instead of a scatter each for returns, lengths and
-  the valid mask: the same values, not fewer instructions, so not adopted.
+  (the valid mask derived from the count);
+- ``swap-scatter-window``: the episode window as it was before the ``top_k`` version (a
+  reversed cumulative count as each episode's rank, a scatter per field);
+- ``swap-leaf-guard``: the divergence guard's finiteness check leaf by leaf, as before;
+- ``swap-rolled-threefry``: the program lowered without
+  :func:`jaxcart.engine.lowering.fast_lowering` (JAX's CPU loop for every Threefry hash).
+
+``--before TREE`` also measures each variant with the benchmark and the code of another source
+tree (for example ``git worktree add /tmp/before main``), its processes interleaved with this
+tree's (alternating which goes first), so that both sides see the same load.
 
     python -m benchmarks.ablations.compile_time      # every variant, 3 processes each
     python -m benchmarks.ablations.compile_time --variants default,O1 --repeats 5 --run
+    python -m benchmarks.ablations.compile_time --variants default --repeats 5 --run \\
+        --before /tmp/before
 
-Writes ``compile_time.json`` and ``compile_time.md`` to ``--out`` (default
-``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the committed
-figures).
+Writes ``STEM.json`` and ``STEM.md`` (``--stem``, default ``compile_time``) to ``--out``
+(default ``benchmarks/results/scratch``, not committed; ``--out benchmarks/results`` replaces the
+committed figures).
 """
 
 from __future__ import annotations
@@ -45,6 +60,7 @@ import os
 import re
 import statistics
 import subprocess
+from pathlib import Path
 
 from benchmarks import lib
 
@@ -52,11 +68,14 @@ VARIANTS = {
     "default": "",
     "O0": "--xla_backend_optimization_level=0",
     "O1": "--xla_backend_optimization_level=1",
+    "O2": "--xla_backend_optimization_level=2",
     "no-expensive": "--xla_llvm_disable_expensive_passes=true",
+    "no-slp": "--xla_backend_extra_options=xla_cpu_disable_slp_vectorizer",
     "split-2": "--xla_cpu_parallel_codegen_split_count=2",
     "split-4": "--xla_cpu_parallel_codegen_split_count=4",
     "no-thunk": "--xla_cpu_use_thunk_runtime=false",
-    "fusion-emitters": "--xla_cpu_use_fusion_emitters=true",
+    "no-fusion-emitters": "--xla_cpu_use_fusion_emitters=false",
+    "hoist-loops": "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000",
     # the same flags as default, with one part of the program stubbed out (what it costs)
     "stub-guard": "",
     "stub-update": "",
@@ -64,6 +83,9 @@ VARIANTS = {
     # the same flags, with one part of the program computed another way
     "swap-fused-adam": "",
     "swap-one-scatter": "",
+    "swap-scatter-window": "",
+    "swap-leaf-guard": "",
+    "swap-rolled-threefry": "",
 }
 
 
@@ -131,6 +153,39 @@ def one_scatter(buffer, done, episode_return, episode_length):
     )
 
 
+def scatter_window(buffer, done, episode_return, episode_length):
+    """The episode window as it was before the ``top_k`` version (the same numbers)."""
+    import jax.numpy as jnp
+
+    from jaxcart.core.metrics import EPISODE_WINDOW, EpisodeBuffer
+
+    valid = jnp.concatenate([buffer.valid, done.reshape(-1)])
+    returns = jnp.concatenate([buffer.returns, episode_return.reshape(-1).astype(jnp.float32)])
+    lengths = jnp.concatenate([buffer.lengths, episode_length.reshape(-1).astype(jnp.float32)])
+    rank = jnp.cumsum(valid[::-1])[::-1]
+    slot = jnp.where(valid & (rank <= EPISODE_WINDOW), EPISODE_WINDOW - rank, EPISODE_WINDOW)
+    empty = jnp.zeros((EPISODE_WINDOW,), jnp.float32)
+    return EpisodeBuffer(
+        returns=empty.at[slot].set(returns, mode="drop"),
+        lengths=empty.at[slot].set(lengths, mode="drop"),
+        valid=jnp.zeros((EPISODE_WINDOW,), bool).at[slot].set(True, mode="drop"),
+    )
+
+
+def leaf_guard(old, new, metrics, iteration):
+    """The divergence guard with its finiteness check leaf by leaf, as before (same marks)."""
+    import jax
+    import jax.numpy as jnp
+
+    finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(new.params)]))
+    for name in ("train/loss", "train/value_loss", "train/policy_gradient_loss"):
+        finite &= jnp.isfinite(metrics[name])
+    frozen = old.diverged_at >= 0
+    diverged_at = jnp.where(frozen | finite, old.diverged_at, (iteration + 1).astype(jnp.int32))
+    metrics = {k: jnp.where(frozen, jnp.nan, v) for k, v in metrics.items()}
+    return new.replace(diverged_at=diverged_at), metrics
+
+
 def stub(part: str) -> None:
     """Replaces one part of the training program (:mod:`jaxcart.core.ppo`,
     :mod:`jaxcart.engine.chunk`) with a stub of the same signature."""
@@ -157,6 +212,16 @@ def stub(part: str) -> None:
         chunk.make_optimizer = ppo.make_optimizer
     elif part == "one-scatter":
         ppo.update_episode_buffer = one_scatter
+    elif part == "scatter-window":
+        ppo.update_episode_buffer = scatter_window
+    elif part == "leaf-guard":
+        chunk.guard_divergence = leaf_guard
+    elif part == "rolled-threefry":
+        import contextlib
+
+        from jaxcart.engine import lowering
+
+        lowering.fast_lowering = contextlib.nullcontext
 
 
 def child(run: bool, part: str | None) -> dict:
@@ -173,7 +238,7 @@ def child(run: bool, part: str | None) -> dict:
         stub(part)
     from jaxcart.core import env as cartpole
     from jaxcart.core.config import preset
-    from jaxcart.engine import chunk
+    from jaxcart.engine import chunk, lowering
     from jaxcart.engine.trainer import broadcast_hyperparams, default_chunk_size, init_runners
 
     config = preset("sb3")
@@ -186,9 +251,10 @@ def child(run: bool, part: str | None) -> dict:
         return chunk.train_chunk(runners, hps, start, config, env_params, chunk_size)
 
     marks = [(time.perf_counter(), time.process_time())]
-    traced = jax.jit(fn).trace(runners, hps, jnp.int32(0))
-    marks.append((time.perf_counter(), time.process_time()))
-    lowered = traced.lower()
+    with lowering.fast_lowering():  # as the trainer lowers it
+        traced = jax.jit(fn).trace(runners, hps, jnp.int32(0))
+        marks.append((time.perf_counter(), time.process_time()))
+        lowered = traced.lower()
     marks.append((time.perf_counter(), time.process_time()))
     compiled = lowered.compile()
     marks.append((time.perf_counter(), time.process_time()))
@@ -224,51 +290,89 @@ def xla_timers(log: str) -> dict:
     }
 
 
-def measure(variant: str, repeats: int, run: bool) -> dict:
-    """Median stage times of ``variant`` over ``repeats`` fresh processes."""
+def one_process(variant: str, run: bool, tree: Path) -> dict:
+    """One fresh process of ``tree``'s benchmark compiling ``variant``: its stage times, XLA's
+    timers, and the load average when it ended."""
     env = dict(os.environ)
     env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {VARIANTS[variant]}".strip()
     env.update(TF_CPP_MIN_LOG_LEVEL="0", TF_CPP_VMODULE="cpu_compiler=1")
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(tree), env.get("PYTHONPATH")]))
     command = [*lib.module_command("benchmarks.ablations.compile_time"), "--child"]
     if variant.startswith(("stub-", "swap-")):
         command += ["--stub", variant.split("-", 1)[1]]
     if run and not variant.startswith("stub-"):  # stubbed programs are not training
         command.append("--run")
-    samples = []
-    for _ in range(repeats):
-        done = subprocess.run(
-            command, env=env, check=True, capture_output=True, text=True, cwd=lib.REPO_ROOT
-        )
-        samples.append(json.loads(done.stdout.strip().splitlines()[-1]) | xla_timers(done.stderr))
-    row = {"variant": variant, "xla_flags": VARIANTS[variant], "samples": samples}
-    for key in samples[0]:
-        values = [s[key] for s in samples if s[key] is not None]
-        row[key] = statistics.median(values) if values else None
-    return row
+    done = subprocess.run(command, env=env, check=True, capture_output=True, text=True, cwd=tree)
+    sample = json.loads(done.stdout.strip().splitlines()[-1]) | xla_timers(done.stderr)
+    for unit in ("wall", "cpu"):
+        sample[f"total_{unit}"] = sum(sample[f"{s}_{unit}"] for s in ("trace", "lower", "compile"))
+    sample["load"] = lib.load_average()
+    return sample
+
+
+def measure(names: list[str], repeats: int, run: bool, before: Path | None = None) -> list[dict]:
+    """Every variant compiled in ``repeats`` fresh processes of this tree (and of ``before``),
+    interleaved: each round runs every (variant, tree) once, in alternating order, so that a
+    change of load touches every row alike. One row per (variant, tree): medians and best
+    totals."""
+    jobs = [(name, name, lib.REPO_ROOT) for name in names]
+    if before:
+        jobs += [(name, f"{name} (before)", before) for name in names]
+    samples: dict[str, list[dict]] = {label: [] for _, label, _ in jobs}
+    for i in range(repeats):
+        for name, label, tree in jobs if i % 2 == 0 else jobs[::-1]:
+            sample = one_process(name, run, tree)
+            samples[label].append(sample)
+            print(
+                f"round {i + 1}: {label:<28} total {sample['total_wall']:.2f} s "
+                f"(cpu {sample['total_cpu']:.2f})  {sample['llvm_kernels']} kernels  "
+                f"load {sample['load'][0] if sample['load'] else '?'}",
+                flush=True,
+            )
+    rows = []
+    for name, label, tree in sorted(jobs, key=lambda job: (names.index(job[0]), job[1])):
+        row = {"variant": label, "xla_flags": VARIANTS[name], "tree": str(tree)}
+        row["samples"] = samples[label]
+        for key in samples[label][0]:
+            values = [s[key] for s in samples[label] if s[key] is not None and key != "load"]
+            row[key] = statistics.median(values) if values else None
+        row["best_total_wall"] = min(s["total_wall"] for s in samples[label])
+        row["best_total_cpu"] = min(s["total_cpu"] for s in samples[label])
+        rows.append(row)
+    return rows
 
 
 def markdown(report: dict) -> str:
     lines = [
         "# Cold compile of the default training step",
         "",
-        f"`sb3` preset, one seed, one device; median of {report['repeats']} fresh processes, "
-        "persistent cache off. Seconds (wall / CPU).",
+        f"`sb3` preset, one seed, one device; {report['repeats']} fresh processes per row, "
+        "persistent cache off. Seconds (wall / CPU), medians; total wall and CPU also as the "
+        "best of the processes.",
         "",
         "| variant | XLA flags | trace | lower | XLA compile | of which HLO passes / codegen "
-        "| total wall | HLO instructions | kernels | run ms / iteration |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| total wall: best / median | total CPU: best / median | HLO instructions | kernels "
+        "| run ms / iteration |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in report["rows"]:
-        total = r["trace_wall"] + r["lower_wall"] + r["compile_wall"]
         run = r.get("run_seconds_per_iteration")
         lines.append(
             f"| {r['variant']} | `{r['xla_flags'] or '-'}` | {r['trace_wall']:.2f} / "
             f"{r['trace_cpu']:.2f} | {r['lower_wall']:.2f} / {r['lower_cpu']:.2f} | "
             f"{r['compile_wall']:.2f} / {r['compile_cpu']:.2f} | "
-            f"{r['hlo_passes_seconds']:.2f} / {r['codegen_seconds']:.2f} | {total:.2f} | "
+            f"{r['hlo_passes_seconds']:.2f} / {r['codegen_seconds']:.2f} | "
+            f"{r['best_total_wall']:.2f} / {r['total_wall']:.2f} | "
+            f"{r['best_total_cpu']:.2f} / {r['total_cpu']:.2f} | "
             f"{r['hlo_instructions']:,} | {r['llvm_kernels'] or '-'} | "
             f"{f'{run * 1e3:.1f}' if run else '-'} |"
         )
+    loads = [s["load"][0] for r in report["rows"] for s in r["samples"] if s.get("load")]
+    if loads:
+        lines += [
+            "",
+            f"1-minute load average after each process: {min(loads):.2f} to {max(loads):.2f}.",
+        ]
     lines += ["", f"Command: `{report['command']}`", ""]
     lines += lib.machine_markdown(report["machine"])
     return "\n".join(lines)
@@ -279,6 +383,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--run", action="store_true", help="also time a chunk's run")
+    parser.add_argument(
+        "--before", type=Path, help="another source tree to measure too, interleaved"
+    )
+    parser.add_argument("--stem", default="compile_time", help="report file name (no suffix)")
     lib.add_out_option(parser)
     parser.add_argument("--child", action="store_true", help=argparse_hidden())
     parser.add_argument("--stub", help=argparse_hidden())
@@ -291,13 +399,13 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [n for n in names if n not in VARIANTS]
     if unknown:
         parser.error(f"unknown variant(s) {unknown}; choose from {', '.join(VARIANTS)}")
-    rows = []
-    for name in names:
-        rows.append(measure(name, args.repeats, args.run))
-        r = rows[-1]
+    before = args.before.resolve() if args.before else None
+    rows = measure(names, args.repeats, args.run, before)
+    for r in rows:
         print(
-            f"{name:<13} trace {r['trace_wall']:.2f}  lower {r['lower_wall']:.2f}  "
-            f"compile {r['compile_wall']:.2f} s (cpu {r['compile_cpu']:.2f})  "
+            f"{r['variant']:<28} total best {r['best_total_wall']:.2f} s, median "
+            f"{r['total_wall']:.2f} (cpu {r['total_cpu']:.2f})  compile "
+            f"{r['compile_wall']:.2f} s  {r['llvm_kernels']} kernels  "
             f"{r['hlo_instructions']:,} HLO instructions",
             flush=True,
         )
@@ -305,9 +413,10 @@ def main(argv: list[str] | None = None) -> int:
         "command": lib.command_line(),
         "machine": lib.machine_info(),
         "repeats": args.repeats,
+        "before": str(before) if before else None,
         "rows": rows,
     }
-    lib.write_report(args.out, "compile_time", report, markdown(report))
+    lib.write_report(args.out, args.stem, report, markdown(report))
     return 0
 
 

@@ -47,23 +47,44 @@ def update_episode_buffer(
 ) -> EpisodeBuffer:
     """Adds the episodes that ended during a rollout and keeps the most recent window.
 
+    Slot ``EPISODE_WINDOW - r`` of the new window holds the episode finished r-th most recently
+    (time-major, then env order, as SB3 fills its buffer; the buffer's episodes count as
+    earlier than the rollout's, in slot order); slots with no episode hold 0 and are not
+    ``valid``. The ranking is one ``top_k`` of the positions of the ended episodes. Plain
+    version: a reversed cumulative count of the ended episodes as each one's rank, and a
+    scatter per field. Why: the same window (``tests/test_ppo.py`` checks it bit for bit) in
+    9 fewer compiled kernels of the default step (``benchmarks/RESULTS.md``, "Cold compile").
+
     Args:
         buffer: the window so far.
         done: ``[num_steps, num_envs]`` bool, where an episode ended (terminated or truncated).
         episode_return, episode_length: ``[num_steps, num_envs]``, the ended episode's return
             and length (read only where ``done``).
     """
-    valid = jnp.concatenate([buffer.valid, done.reshape(-1)])
-    returns = jnp.concatenate([buffer.returns, episode_return.reshape(-1).astype(jnp.float32)])
-    lengths = jnp.concatenate([buffer.lengths, episode_length.reshape(-1).astype(jnp.float32)])
-    # rank 1 = the most recently finished episode (time-major, then env order, as SB3 fills).
-    rank = jnp.cumsum(valid[::-1])[::-1]
-    slot = jnp.where(valid & (rank <= EPISODE_WINDOW), EPISODE_WINDOW - rank, EPISODE_WINDOW)
-    empty = jnp.zeros((EPISODE_WINDOW,), jnp.float32)
+    window, done = EPISODE_WINDOW, done.reshape(-1)
+    if window + done.size >= 2**24:  # the positions below are exact float32 integers
+        raise ValueError(f"a rollout of {done.size} transitions is too large (max 2**24)")
+    # position + 1 of every ended episode (buffer, then rollout), 0 elsewhere: the largest are
+    # the most recent
+    position = jnp.arange(1, window + done.size + 1, dtype=jnp.float32)
+    keys = jnp.where(jnp.concatenate([buffer.valid, done]), position, 0.0)
+    top, index = jax.lax.top_k(keys, window)
+    filled, index = top[::-1] > 0, index[::-1]  # slot s <- the (window - s)-th latest
+    from_buffer = index < window
+
+    def take(old: Array, new: Array) -> Array:
+        new = new.reshape(-1).astype(jnp.float32)
+        picked = jnp.where(
+            from_buffer,
+            jnp.take(old, index, mode="clip"),
+            jnp.take(new, index - window, mode="clip"),
+        )
+        return jnp.where(filled, picked, 0.0)
+
     return EpisodeBuffer(
-        returns=empty.at[slot].set(returns, mode="drop"),
-        lengths=empty.at[slot].set(lengths, mode="drop"),
-        valid=jnp.zeros((EPISODE_WINDOW,), bool).at[slot].set(True, mode="drop"),
+        returns=take(buffer.returns, episode_return),
+        lengths=take(buffer.lengths, episode_length),
+        valid=filled,
     )
 
 

@@ -90,9 +90,12 @@ def guard_divergence(
     checkpoint can hold), so the run keeps finite parameters and later chunks leave it
     untouched.
     """
-    finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(new.params)]))
-    for name in ("train/loss", "train/value_loss", "train/policy_gradient_loss"):
-        finite &= jnp.isfinite(metrics[name])
+    # one reduction over every parameter and the three losses: a kernel or two, where a check
+    # per leaf compiled to about 16 distinct kernels ("Cold compile" in benchmarks/RESULTS.md)
+    checked = [x.reshape(-1) for x in jax.tree.leaves(new.params)]
+    checked += [metrics[n].reshape(1) for n in ("train/loss", "train/value_loss")]
+    checked.append(metrics["train/policy_gradient_loss"].reshape(1))
+    finite = jnp.all(jnp.isfinite(jnp.concatenate(checked)))
     frozen = old.diverged_at >= 0
     # recorded 1-based, as metrics.csv numbers iterations
     diverged_at = jnp.where(frozen | finite, old.diverged_at, (iteration + 1).astype(jnp.int32))

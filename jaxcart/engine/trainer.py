@@ -26,6 +26,7 @@ from jaxcart.core.ppo import RunnerState, make_network
 from jaxcart.core.tricks import Hyperparams
 from jaxcart.engine import distributed
 from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, train_chunk
+from jaxcart.engine.lowering import fast_lowering
 from jaxcart.engine.signals import wait_interruptibly
 
 
@@ -447,8 +448,9 @@ def compiled_chunk(
             out_specs=(spec, PartitionSpec(None, *spec)),
             check_vma=False,  # per-run metrics vs the skip branch's constants
         )
-    chunk = jax.jit(local, donate_argnums=0)
-    _COMPILED[key] = chunk.lower(runners, hps, jnp.int32(0), jnp.int32(1)).compile()
+    with fast_lowering():
+        lowered = jax.jit(local, donate_argnums=0).lower(runners, hps, jnp.int32(0), jnp.int32(1))
+    _COMPILED[key] = lowered.compile()
     return _COMPILED[key], True
 
 
