@@ -302,6 +302,25 @@ def parse_ints(text: str, error: str = "expected positive integers") -> list[int
     return values
 
 
+def add_tree_options(parser: argparse.ArgumentParser) -> None:
+    """``--before TREE``, ``--after TREE`` and ``--before-label``: the two source trees a
+    before/after benchmark runs ``python -m jaxcart.train`` from (:func:`tree_train_command`)."""
+    parser.add_argument("--before", type=Path, required=True, help="source tree before")
+    parser.add_argument("--after", type=Path, default=Path("."), help="source tree after")
+    parser.add_argument(
+        "--before-label",
+        default=None,
+        help="what the before tree is (e.g. 'git archive 21db35f'), written in its place",
+    )
+
+
+def tree_train_command(tree: Path, args: list[str]) -> tuple[list[str], dict[str, str]]:
+    """``python -m jaxcart.train ARGS --quiet --no-compile-cache`` as run from the source tree
+    ``tree`` (its ``jaxcart``, through ``PYTHONPATH``): the command and its environment."""
+    env = {**os.environ, "PYTHONPATH": str(tree.resolve())}
+    return [sys.executable, "-m", "jaxcart.train", *args, "--quiet", "--no-compile-cache"], env
+
+
 def add_output_options(parser: argparse.ArgumentParser) -> None:
     """``--out`` and ``--from-json``, as every plotting benchmark takes them."""
     add_out_option(parser)

@@ -66,6 +66,20 @@ def assert_same_run_dirs(a: Path, b: Path) -> None:
     )
 
 
+def stopped_run(spec, out: Path, options, chunks: int = 2):
+    """A run created in ``out`` and stopped after ``chunks`` chunks (as Ctrl-C in a notebook
+    would), its state checkpointed: ``(run, result)``, the run still open (locked)."""
+    from jaxcart.run import lifecycle, training
+    from jaxcart.run.spec import Hooks
+
+    run = lifecycle.create_run(spec, out)
+    done: list[int] = []
+    hooks = Hooks(on_chunk=lambda p: done.append(p.iteration))
+    result = training.train_wave(run, options, hooks, should_stop=lambda: len(done) == chunks)
+    training.save_state(run, result.state)
+    return run, result
+
+
 TRAIN_ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
 """Environment of a training subprocess: two CPU devices, as in-process tests have."""
 

@@ -7,10 +7,10 @@ import json
 
 import numpy as np
 import pytest
-from helpers import TINY, assert_same_run_dirs
+from helpers import TINY, assert_same_run_dirs, stopped_run
 
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.run import lifecycle, training
+from jaxcart.run import lifecycle
 from jaxcart.run.evaluation import evaluate_run_dir
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import layout, reader
@@ -48,12 +48,8 @@ def test_stop_then_resume_run_matches_an_uninterrupted_run(tmp_path):
     lifecycle.run_new(spec, tmp_path / "whole", OPTIONS)
 
     # A run stopped after its second chunk (as Ctrl-C in a notebook would)...
-    run = lifecycle.create_run(spec, tmp_path / "part")
-    chunks: list[int] = []
-    hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
-    result = training.train_wave(run, OPTIONS, hooks, should_stop=lambda: len(chunks) == 2)
+    run, result = stopped_run(spec, tmp_path / "part", OPTIONS, chunks=2)
     assert result.stopped and result.state.iteration == 4
-    training.save_state(run, result.state)
     with pytest.raises(RunDirError, match="in use by another jaxcart process"):
         lifecycle.resume_run(tmp_path / "part", OPTIONS)  # this process still holds it
     run.close()

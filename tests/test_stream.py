@@ -8,12 +8,12 @@ import os
 
 import numpy as np
 import pytest
-from helpers import TINY, assert_same_run_dirs
+from helpers import TINY, assert_same_run_dirs, stopped_run
 
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.trainer import METRIC_COLUMNS, train
-from jaxcart.run import lifecycle, training
-from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+from jaxcart.run import lifecycle
+from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.stream import MetricsStream, read_stream
@@ -92,11 +92,8 @@ def test_rows_written_after_the_checkpoint_are_cut_on_resume(tmp_path):
     spec = RunSpec(small, num_seeds=2, seed=3)
     lifecycle.run_new(spec, tmp_path / "whole", options)
 
-    run = lifecycle.create_run(spec, tmp_path / "part")
-    chunks: list[int] = []
-    hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
-    result = training.train_wave(run, options, hooks, should_stop=lambda: len(chunks) == 2)
-    training.save_state(run, result.state)  # the checkpoint at iteration 4
+    run, result = stopped_run(spec, tmp_path / "part", options, chunks=2)
+    assert result.state.iteration == 4  # and so is the checkpoint
     run.directory.stream.append({k: np.full((3, 2), 7.0) for k in METRIC_COLUMNS})
     run.close()  # as if killed: 3 rows of junk after the checkpoint's 4
     stream = tmp_path / "part" / layout.METRICS_STREAM_FILE

@@ -15,7 +15,6 @@ Writes ``metrics_memory.json`` and ``.md`` to ``--out`` (default ``benchmarks/re
 
 from __future__ import annotations
 
-import os
 import shlex
 import signal
 import subprocess
@@ -55,8 +54,7 @@ def checkpoint_iteration(out: Path) -> int | None:
 
 def one_run(tree: Path, args: list[str], seconds: float, workdir: Path) -> dict:
     out = Path(tempfile.mkdtemp(dir=workdir)) / "run"
-    env = {**os.environ, "PYTHONPATH": str(tree.resolve())}
-    cmd = [sys.executable, "-m", "jaxcart.train", *args, "--quiet", "--no-compile-cache"]
+    cmd, env = lib.tree_train_command(tree, args)
     cmd += ["--checkpoint-every", "5", "--out", str(out)]
     process = subprocess.Popen(cmd, env=env, cwd=tree)
     samples, start = [], time.monotonic()
@@ -123,11 +121,9 @@ def markdown(report: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = lib.arg_parser(__doc__)
-    parser.add_argument("--before", type=Path, required=True, help="source tree before")
-    parser.add_argument("--after", type=Path, default=Path("."), help="source tree after")
+    lib.add_tree_options(parser)
     parser.add_argument("--args", default=DEFAULT_ARGS, help="jaxcart.train arguments")
     parser.add_argument("--seconds", type=float, default=120.0)
-    parser.add_argument("--before-label", default=None, help="what the before tree is")
     lib.add_out_option(parser)
     args = parser.parse_args(argv)
     args.out = lib.output_dir(args.out)

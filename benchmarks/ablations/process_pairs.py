@@ -22,7 +22,6 @@ import os
 import shlex
 import statistics
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -36,8 +35,7 @@ COLUMNS = ("wall_seconds", "cpu_seconds", *TIMINGS)
 def one_process(tree: Path, args: list[str], workdir: Path) -> dict:
     """Runs one training process from ``tree``; its wall seconds and reported timings."""
     out = Path(tempfile.mkdtemp(dir=workdir)) / "run"
-    env = {**os.environ, "PYTHONPATH": str(tree.resolve())}
-    cmd = [sys.executable, "-m", "jaxcart.train", *args, "--quiet", "--no-compile-cache"]
+    cmd, env = lib.tree_train_command(tree, args)
     start = time.perf_counter()
     process = subprocess.Popen([*cmd, "--out", str(out)], env=env, cwd=tree)
     # CPU seconds (user + system) of the process: on a shared, oversubscribed machine they
@@ -111,16 +109,10 @@ def markdown(report: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = lib.arg_parser(__doc__)
-    parser.add_argument("--before", type=Path, required=True, help="source tree before")
-    parser.add_argument("--after", type=Path, default=Path("."), help="source tree after")
+    lib.add_tree_options(parser)
     parser.add_argument("--args", default="--num-seeds 64", help="jaxcart.train arguments")
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--stem", default="process_pairs")
-    parser.add_argument(
-        "--before-label",
-        default=None,
-        help="what the before tree is (e.g. 'git archive 21db35f'), written in its place",
-    )
     lib.add_out_option(parser)
     args = parser.parse_args(argv)
     args.out = lib.output_dir(args.out)

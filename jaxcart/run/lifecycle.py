@@ -408,7 +408,7 @@ def _one_wave(
     diverged = np.asarray(distributed.gather(result.state.runners.diverged_at))
     if result.stopped:
         if run.main_process and run.plan.num_waves == 1:
-            run.directory.write_metrics(run.directory.stream.read(), run.config.batch_size)
+            run.directory.write_metrics(run.config.batch_size)
         return None
     params = distributed.gather(result.params)
     evaluation = Evaluation(

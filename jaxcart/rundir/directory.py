@@ -14,8 +14,6 @@ import os
 from importlib import metadata
 from pathlib import Path
 
-import numpy as np
-
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.engine.trainer import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
@@ -218,9 +216,9 @@ class RunDir:
         reader.check_block(path, config, runs, episodes)
         return path
 
-    def write_metrics(self, metrics: dict[str, np.ndarray], batch_size: int) -> None:
-        """``metrics.csv`` from metrics ``[iterations, R]`` in memory (a stopped run's)."""
-        outputs.write_metrics_csv(self.path / layout.METRICS_FILE, metrics, batch_size)
+    def write_metrics(self, batch_size: int) -> None:
+        """``metrics.csv`` of a stopped run, from its stream's rows so far."""
+        outputs.write_metrics_csv(self.path / layout.METRICS_FILE, self.stream.read(), batch_size)
 
     def write_outputs(
         self,

@@ -38,10 +38,8 @@ class MetricsStream:
     def __init__(self, path: Path, columns: Sequence[str], runs: int, rows: int) -> None:
         self.path, self.columns, self.runs = Path(path), tuple(columns), int(runs)
         self.row_bytes = len(self.columns) * self.runs * DTYPE.itemsize
-        try:
-            self.fd = files.open_regular(self.path, os.O_RDWR | os.O_CREAT, files.file_mode())
-        except OSError as exc:  # a full or read-only disk: reported as a failed write
-            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
+        flags = os.O_RDWR | os.O_CREAT
+        self.fd = self._call(files.open_regular, self.path, flags, files.file_mode())
         try:
             size = os.fstat(self.fd).st_size
             if size < rows * self.row_bytes:
@@ -57,6 +55,7 @@ class MetricsStream:
         self.rows = rows
 
     def _call(self, fn, *args):
+        """``fn(*args)``, an OSError (a full or read-only disk) naming the stream's file."""
         try:
             return fn(*args)
         except OSError as exc:
@@ -81,11 +80,8 @@ class MetricsStream:
     def read(self) -> dict[str, np.ndarray]:
         """Every row so far, memory-mapped from the open file (what this process wrote, even
         if the path was removed meanwhile): column -> ``[rows, runs]``."""
-        shape = (self.rows, len(self.columns), self.runs)
-        if self.rows == 0:
-            return _columns(np.zeros(shape, DTYPE), self.columns)
         with os.fdopen(os.dup(self.fd), "rb") as f:
-            return _columns(np.memmap(f, DTYPE, mode="r", shape=shape), self.columns)
+            return _mapped(f, self.rows, self.columns, self.runs)
 
     def close(self) -> None:
         if self.fd >= 0:
@@ -119,24 +115,24 @@ def read_stream(
         RunDirError: missing, a link, not a regular file, or shorter than ``rows`` rows.
     """
     path = Path(path)
-    shape = (rows, len(columns), runs)
     if rows == 0:
-        block = np.zeros(shape, DTYPE)
-    else:
-        try:
-            fd = files.open_regular(path)
-        except FileNotFoundError:
-            raise RunDirError(f"{path} does not exist; the run's metrics are lost") from None
-        with os.fdopen(fd, "rb") as f:
-            if os.fstat(f.fileno()).st_size < np.prod(shape) * DTYPE.itemsize:
-                raise RunDirError(
-                    f"{path} holds fewer than the {rows} iterations of metrics its checkpoint "
-                    "counts; refusing it"
-                )
-            block = np.memmap(f, DTYPE, mode="r", shape=shape)
-    return _columns(block, columns)
+        return _mapped(None, 0, columns, runs)
+    try:
+        fd = files.open_regular(path)
+    except FileNotFoundError:
+        raise RunDirError(f"{path} does not exist; the run's metrics are lost") from None
+    with os.fdopen(fd, "rb") as f:
+        if os.fstat(f.fileno()).st_size < rows * len(columns) * runs * DTYPE.itemsize:
+            raise RunDirError(
+                f"{path} holds fewer than the {rows} iterations of metrics its checkpoint "
+                "counts; refusing it"
+            )
+        return _mapped(f, rows, columns, runs)
 
 
-def _columns(block: np.ndarray, columns: Sequence[str]) -> dict[str, np.ndarray]:
-    """``[rows, column, run]`` as column -> ``[rows, runs]`` views."""
+def _mapped(f, rows: int, columns: Sequence[str], runs: int) -> dict[str, np.ndarray]:
+    """The first ``rows`` rows of the open stream ``f``, memory-mapped (zeros when there are
+    none: an empty file cannot be mapped), as column -> ``[rows, runs]`` views."""
+    shape = (rows, len(columns), runs)
+    block = np.memmap(f, DTYPE, mode="r", shape=shape) if rows else np.zeros(shape, DTYPE)
     return {name: block[:, c, :] for c, name in enumerate(columns)}
