@@ -232,27 +232,25 @@ def child(run: bool, part: str | None) -> dict:
 
     jax.config.update("jax_enable_compilation_cache", False)
     import jax.numpy as jnp
-    import numpy as np
 
     if part:
         stub(part)
     from jaxcart.core import env as cartpole
     from jaxcart.core.config import preset
-    from jaxcart.engine import chunk, lowering
-    from jaxcart.engine.trainer import broadcast_hyperparams, default_chunk_size, init_runners
+    from jaxcart.engine import lowering, trainer
 
+    # the program `python -m jaxcart.train` compiles: one seed on one device, adaptive chunks
     config = preset("sb3")
     env_params = cartpole.EnvParams()
-    chunk_size = default_chunk_size(config.num_iterations)
-    runners = jax.device_put(init_runners(config, 0, np.arange(1), env_params))
-    hps = broadcast_hyperparams(config, 1)
-
-    def fn(runners, hps, start):
-        return chunk.train_chunk(runners, hps, start, config, env_params, chunk_size)
+    state = trainer.initial_state(config, 1, 0, env_params=env_params)
+    runners, hps = trainer.place(state, jax.devices()[:1], 1, None)
+    sharding = jax.tree.leaves(runners)[0].sharding
+    program = trainer.chunk_program(config, env_params, state.chunk_size, sharding, adaptive=True)
+    args = (runners, hps, jnp.int32(0), jnp.int32(state.chunk_size))
 
     marks = [(time.perf_counter(), time.process_time())]
     with lowering.fast_lowering():  # as the trainer lowers it
-        traced = jax.jit(fn).trace(runners, hps, jnp.int32(0))
+        traced = program.trace(*args)
         marks.append((time.perf_counter(), time.process_time()))
         lowered = traced.lower()
     marks.append((time.perf_counter(), time.process_time()))
@@ -265,15 +263,15 @@ def child(run: bool, part: str | None) -> dict:
     out["hlo_instructions"] = sum(1 for line in text.splitlines() if " = " in line)
     out["hlo_while_loops"] = text.count(" while(")
     if run:
-        jax.block_until_ready(compiled(runners, hps, jnp.int32(0)))
+        jax.block_until_ready(compiled(*args))
         start = time.perf_counter()
-        jax.block_until_ready(compiled(runners, hps, jnp.int32(0)))
-        out["run_seconds_per_iteration"] = (time.perf_counter() - start) / chunk_size
+        jax.block_until_ready(compiled(*args))
+        out["run_seconds_per_iteration"] = (time.perf_counter() - start) / state.chunk_size
     return out
 
 
 def xla_timers(log: str) -> dict:
-    """XLA:CPU's own timers for the training program (module ``jit_fn``) from its log."""
+    """XLA:CPU's own timers for the training program (module ``jit_training_chunk``) from its log."""
 
     def seconds(pattern: str) -> float:
         found = re.search(pattern + r" time: ([\d.]+) (ms|s|us)", log)
@@ -284,8 +282,8 @@ def xla_timers(log: str) -> dict:
 
     kernels = re.findall(r"Running LLVM verifier time: .*#called: (\d+)\)", log)
     return {
-        "hlo_passes_seconds": seconds(r"Running HLO passes on \[jit_fn\] for CPU"),
-        "codegen_seconds": seconds(r"Compiling \[jit_fn\] for CPU using JIT"),
+        "hlo_passes_seconds": seconds(r"Running HLO passes on \[jit_training_chunk\] for CPU"),
+        "codegen_seconds": seconds(r"Compiling \[jit_training_chunk\] for CPU using JIT"),
         "llvm_kernels": int(kernels[-1]) if kernels else None,
     }
 

@@ -85,10 +85,10 @@ def guard_divergence(
     Records ``diverged_at`` (1-based, as metrics.csv numbers iterations) the first time, and
     reports NaN metrics for every later iteration. It selects nothing: keeping the old state
     alive beside the new one, leaf by leaf, in every iteration made the compiled program about
-    a third slower to compile (``benchmarks/RESULTS.md``, "Cold compile"). :func:`train_chunk`
-    instead rolls a marked run back to its state at the start of the chunk (the last state a
-    checkpoint can hold), so the run keeps finite parameters and later chunks leave it
-    untouched.
+    a third slower to compile (``benchmarks/RESULTS.md``, "Cold compile"). The trainer instead
+    rolls a marked run back to its state at the start of the chunk (the last state a
+    checkpoint can hold) with :func:`roll_back_diverged`, compiled apart and only once a run
+    has diverged, so the run keeps finite parameters and later chunks leave it untouched.
     """
     # one reduction over every parameter and the three losses: a kernel or two, where a check
     # per leaf compiled to about 16 distinct kernels ("Cold compile" in benchmarks/RESULTS.md)
@@ -171,7 +171,12 @@ def grouped_iteration(
 
 def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
     """``end``, except that every run marked diverged (``diverged_at >= 0``, leaves ``[R]``)
-    gets its ``start`` state back, with its ``diverged_at`` kept."""
+    gets its ``start`` state back, with its ``diverged_at`` kept.
+
+    Not part of :func:`train_chunk`: inside it, these selects (one per leaf of the state) and
+    the start state kept alive across the chunk's loop cost about 0.3 s of the default run's
+    cold compile, for an event most runs never see (``benchmarks/RESULTS.md``, "Cold
+    compile"). The trainer compiles it on its own the first time a run diverges."""
     diverged = end.diverged_at >= 0
 
     def pick(s: Array, e: Array) -> Array:
@@ -210,9 +215,10 @@ def train_chunk(
             (the guard selects whole iterations; ``tests/test_trainer.py`` checks it).
 
     Returns:
-        Runners after the chunk (a run that diverged during it rolled back to its state at the
-        chunk's start, see :func:`guard_divergence`) and metrics with leaves
-        ``[chunk_size, R]``.
+        Runners after the chunk and metrics with leaves ``[chunk_size, R]``. A run marked
+        diverged during the chunk (:func:`guard_divergence`) holds non-finite state until the
+        caller rolls it back to the chunk's start (:func:`roll_back_diverged`): so do not
+        donate ``runners`` to this program.
     """
     num_runs = runners.key.shape[0]
     if update_group is not None and num_runs > update_group:
@@ -235,8 +241,7 @@ def train_chunk(
             active &= offset < count
         return jax.lax.cond(active, run, skip, runners, iteration)
 
-    end, metrics = jax.lax.scan(body, runners, jnp.arange(chunk_size, dtype=jnp.int32))
-    return roll_back_diverged(runners, end), metrics
+    return jax.lax.scan(body, runners, jnp.arange(chunk_size, dtype=jnp.int32))
 
 
 __all__ = [

@@ -25,7 +25,7 @@ from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
 from jaxcart.core.tricks import Hyperparams
 from jaxcart.engine import distributed
-from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, train_chunk
+from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, roll_back_diverged, train_chunk
 from jaxcart.engine.lowering import fast_lowering
 from jaxcart.engine.signals import wait_interruptibly
 
@@ -276,7 +276,7 @@ def train(
         config, num_runs, seed, hyperparams, env_params, chunk_size, seed_indices
     )
     devices = _devices(devices, num_runs, runs_per_device)
-    runners, hps = _place(state, devices, num_runs, runs_per_device)
+    runners, hps = place(state, devices, num_runs, runs_per_device)
 
     start = time.perf_counter()
     compiled, fresh = None, False
@@ -294,11 +294,10 @@ def train(
         if should_stop is not None and distributed.any_process(should_stop()):
             stopped = True
             break
-        runners, metrics = compiled(runners, hps, jnp.int32(loop.done), jnp.int32(loop.count))
+        end, metrics = compiled(runners, hps, jnp.int32(loop.done), jnp.int32(loop.count))
         # waits for the chunk on a worker thread, so that signals are handled meanwhile
-        progress = loop.record(
-            runners, wait_interruptibly(functools.partial(distributed.gather, metrics))
-        )
+        metrics = wait_interruptibly(functools.partial(distributed.gather, metrics))
+        runners, progress = loop.record(runners, end, metrics)
         if on_chunk:
             on_chunk(progress)
     jax.block_until_ready(runners)
@@ -323,7 +322,7 @@ def _devices(devices: list | None, num_runs: int, runs_per_device: int | None) -
     return devices
 
 
-def _place(
+def place(
     state: TrainState, devices: list, num_runs: int, runs_per_device: int | None
 ) -> tuple[RunnerState, Hyperparams]:
     """The state's runs padded to fill every device equally and placed on them."""
@@ -357,8 +356,12 @@ class _ChunkLoop:
     def now(self) -> float:
         return self.elapsed_before + time.perf_counter() - self.start
 
-    def record(self, runners: RunnerState, metrics: dict) -> Progress:
-        """Takes one chunk's metrics ``[chunk_size, R]`` and returns the progress after it."""
+    def record(
+        self, start: RunnerState, end: RunnerState, metrics: dict
+    ) -> tuple[RunnerState, Progress]:
+        """Takes one chunk's runners before and after it and its metrics ``[chunk_size, R]``;
+        returns the runners to go on from (runs marked diverged rolled back to ``start``) and
+        the progress after the chunk."""
         config, now = self.config, self.now()
         take, num_runs = min(self.count, config.num_iterations - self.done), self.num_runs
         if self.chunk_seconds:
@@ -376,10 +379,11 @@ class _ChunkLoop:
         if self.chunks is not None:
             self.chunks.append(metrics)
         self.done += take
+        diverged = np.asarray(distributed.gather(end.diverged_at))
+        runners = rolled_back(start, end) if (diverged >= 0).any() else end
         snapshot = functools.partial(self._snapshot, runners, self.done, now)
-        diverged = np.asarray(distributed.gather(runners.diverged_at))[:num_runs]
-        done = self.done
-        return Progress(
+        done, diverged = self.done, diverged[:num_runs]
+        return runners, Progress(
             done, config.num_iterations, done * config.batch_size, now, metrics, snapshot, diverged
         )
 
@@ -429,11 +433,31 @@ def compiled_chunk(
     if key in _COMPILED:
         return _COMPILED[key], False
     sharding = jax.tree.leaves(runners)[0].sharding
+    program = chunk_program(config, env_params, chunk_size, sharding, adaptive)
+    with fast_lowering():
+        lowered = program.lower(runners, hps, jnp.int32(0), jnp.int32(1))
+    _COMPILED[key] = lowered.compile()
+    return _COMPILED[key], True
+
+
+def chunk_program(
+    config: PPOConfig,
+    env_params: cartpole.EnvParams,
+    chunk_size: int,
+    sharding: jax.sharding.Sharding,
+    adaptive: bool,
+) -> Callable:
+    """The jitted :func:`~jaxcart.engine.chunk.train_chunk` that :func:`compiled_chunk`
+    compiles, ``(runners, hps, start_iteration, count) -> (runners, metrics)`` for runners
+    placed with ``sharding``; lower it inside :func:`~jaxcart.engine.lowering.fast_lowering`.
+
+    The runners are not donated: a run that diverges is rolled back to them
+    (:func:`rolled_back`)."""
     # Groups keep a CPU core's working set in its cache; a GPU wants the widest vmap instead.
     on_cpu = all(d.platform == "cpu" for d in sharding.device_set)
     update_group = UPDATE_GROUP if on_cpu else None
 
-    def local(runners: RunnerState, hps: Hyperparams, start: jax.Array, count: jax.Array):
+    def training_chunk(runners: RunnerState, hps: Hyperparams, start: jax.Array, count: jax.Array):
         count = count if adaptive else None
         return train_chunk(runners, hps, start, config, env_params, chunk_size, update_group, count)
 
@@ -441,17 +465,20 @@ def compiled_chunk(
         # Every device runs the same program on its own runs with no communication: say so
         # with shard_map rather than leaving it to the SPMD partitioner (faster to compile).
         spec = sharding.spec
-        local = jax.shard_map(
-            local,
+        training_chunk = jax.shard_map(
+            training_chunk,
             mesh=sharding.mesh,
             in_specs=(spec, spec, PartitionSpec(), PartitionSpec()),
             out_specs=(spec, PartitionSpec(None, *spec)),
             check_vma=False,  # per-run metrics vs the skip branch's constants
         )
-    with fast_lowering():
-        lowered = jax.jit(local, donate_argnums=0).lower(runners, hps, jnp.int32(0), jnp.int32(1))
-    _COMPILED[key] = lowered.compile()
-    return _COMPILED[key], True
+    return jax.jit(training_chunk)  # XLA's module: jit_training_chunk
+
+
+def rolled_back(start: RunnerState, end: RunnerState) -> RunnerState:
+    """:func:`~jaxcart.engine.chunk.roll_back_diverged` compiled on its own (on the first call:
+    only once a run has diverged), ``end`` donated."""
+    return roll_back_diverged(start, end)
 
 
 def _concat(chunks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
