@@ -25,15 +25,17 @@ statistics in :mod:`jaxcart.analysis.stats` (:func:`iqm`, :func:`bootstrap_ci`,
 :func:`probability_of_improvement`).
 """
 
-from __future__ import annotations
-
-# Only modules CPython has already loaded before this line runs (``_signal`` is the C half of
-# ``signal``, whose own import takes milliseconds): a Ctrl-C while the package starts finds the
-# handler below installed, not a half-imported module.
+# The first call of the package installs its start-up signal handler. A signal is handled at
+# the first check CPython makes after it arrives, and every call is such a check: whatever
+# runs before this install could meet a Ctrl-C with a traceback. The imports below are of
+# modules CPython has already loaded (``_signal`` is the C half of ``signal``, whose own import
+# takes milliseconds), so they run no Python code and make no such check. No
+# ``from __future__ import annotations`` here for the same reason: it is an import.
 import _signal
-import importlib
 import os
 import sys
+
+_SIGNAL_NAMES = {_signal.SIGINT: "SIGINT", _signal.SIGTERM: "SIGTERM"}
 
 
 def _started_as_a_command() -> bool:
@@ -44,20 +46,30 @@ def _started_as_a_command() -> bool:
     return os.path.basename(sys.argv[0] if sys.argv else "") in ("jaxcart", "jaxcart-train")
 
 
-_SIGNAL_NAMES = {_signal.SIGINT: "SIGINT", _signal.SIGTERM: "SIGTERM"}
-
-
 def _exit_while_starting(signum: int, frame: object) -> None:
+    """A command ends with one line, never a traceback from inside an import. Imported by
+    other code, the package behaves as if it had installed nothing: SIGINT raises
+    ``KeyboardInterrupt``, SIGTERM ends the process as its default does."""
+    if not _started_as_a_command():
+        if signum == _signal.SIGINT:
+            raise KeyboardInterrupt
+        _signal.signal(signum, _signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
     name = _SIGNAL_NAMES.get(signum, str(signum))
     os.write(2, f"\ninterrupted ({name}) while starting; nothing was written\n".encode())
     os._exit(128 + signum)
 
 
-if _started_as_a_command():
-    # The command's imports take most of a second: a Ctrl-C meanwhile ends the process with one
-    # line, never a traceback from inside an import (the command installs its own handling).
-    for _sig in _SIGNAL_NAMES:
-        _signal.signal(_sig, _exit_while_starting)
+_PREVIOUS_SIGINT = _signal.signal(_signal.SIGINT, _exit_while_starting)
+_PREVIOUS_SIGTERM = _signal.signal(_signal.SIGTERM, _exit_while_starting)
+if not _started_as_a_command():
+    # Imported by other code: leave its signal handling as it was. A command keeps the handler
+    # through its imports (most of a second) and then installs its own handling.
+    _signal.signal(_signal.SIGINT, _PREVIOUS_SIGINT)
+    _signal.signal(_signal.SIGTERM, _PREVIOUS_SIGTERM)
+
+import importlib  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -31,6 +31,7 @@ import pytest
 from conftest import FAULT_FIGURES
 from helpers import TINY, TRAIN_ENV
 
+import jaxcart
 from jaxcart import train
 from jaxcart.core.config import ConfigError
 from jaxcart.run import comparison, lifecycle, loggers, training, waves
@@ -743,18 +744,32 @@ TRAIN_ARGV = [
 ]
 
 
+def _handler_install_line() -> int:
+    """The line of ``jaxcart/__init__.py`` that installs its start-up signal handler."""
+    lines = Path(jaxcart.__file__).read_text().splitlines()
+    return next(n for n, line in enumerate(lines, 1) if "_signal.signal(_signal.SIGINT" in line)
+
+
 def landed_before_jaxcart_ran(stderr: str) -> bool:
-    """Whether a SIGINT landed while CPython itself started, before any line of jaxcart ran:
-    CPython's "init_import_site" report, or a ``KeyboardInterrupt`` traceback whose every frame
-    is CPython's own (``<frozen runpy>`` finding the package), none in a file of jaxcart's."""
+    """Whether a SIGINT landed before jaxcart could handle it: CPython's "init_import_site"
+    report, or a ``KeyboardInterrupt`` traceback whose every frame is CPython's own
+    (``<frozen runpy>`` finding the package) or a line of ``jaxcart/__init__.py`` before the one
+    that installs its handler (no code can handle a signal before that)."""
     if "init_import_site" in stderr:
         return True
-    frames = re.findall(r'File "([^"]+)"', stderr)
+    frames = re.findall(r'File "([^"]+)", line (-?\d+)', stderr)
+    install = _handler_install_line()
+
+    def unhandleable(path: str, line: str) -> bool:
+        if path.startswith("<frozen "):
+            return True
+        return Path(path).parts[-2:] == ("jaxcart", "__init__.py") and int(line) < install
+
     return (
         "Traceback" in stderr
         and stderr.rstrip().endswith("KeyboardInterrupt")
         and bool(frames)
-        and all(frame.startswith("<frozen ") for frame in frames)
+        and all(unhandleable(path, line) for path, line in frames)
     )
 
 
@@ -762,7 +777,7 @@ def check_interrupted(result: subprocess.CompletedProcess) -> None:
     """No traceback and the exit code of a signal. A SIGINT that lands while CPython itself
     starts (before any line of jaxcart runs, so no package can handle it) is counted apart."""
     if landed_before_jaxcart_ran(result.stderr):
-        FAULT_FIGURES["hostile run directories: signals landing in CPython's own start-up"] += 1
+        FAULT_FIGURES["hostile run directories: signals landing before jaxcart's handler"] += 1
         return
     assert "Traceback" not in result.stderr and "Exception ignored" not in result.stderr, (
         result.stderr
@@ -770,18 +785,26 @@ def check_interrupted(result: subprocess.CompletedProcess) -> None:
     assert result.returncode in (0, 130, -signal.SIGINT), (result.returncode, result.stderr)
 
 
-def test_only_tracebacks_from_cpythons_own_start_up_are_counted_apart():
+def test_only_tracebacks_from_before_the_handler_are_counted_apart():
     frozen = (
         "Traceback (most recent call last):\n"
         '  File "<frozen runpy>", line 189, in _run_module_as_main\n'
         '  File "<frozen runpy>", line 112, in _get_module_details\n'
         "KeyboardInterrupt\n"
     )
-    ours = frozen.replace(
-        "KeyboardInterrupt",
-        '  File "/x/jaxcart/__init__.py", line 3, in <module>\nKeyboardInterrupt',
-    )
+    install = _handler_install_line()
+
+    def in_init(line: int) -> str:
+        return frozen.replace(
+            "KeyboardInterrupt",
+            f'  File "/x/jaxcart/__init__.py", line {line}, in <module>\nKeyboardInterrupt',
+        )
+
+    ours = in_init(install + 1)
     assert landed_before_jaxcart_ran(frozen)
+    assert landed_before_jaxcart_ran(in_init(0))
+    assert landed_before_jaxcart_ran(in_init(install - 1))
+    assert not landed_before_jaxcart_ran(in_init(install))
     assert landed_before_jaxcart_ran("Fatal Python error: init_import_site: Failed to import")
     assert not landed_before_jaxcart_ran(ours)
     assert not landed_before_jaxcart_ran(frozen.replace("KeyboardInterrupt", "ValueError: x"))
