@@ -25,6 +25,7 @@ Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
   emitters instead of the MLIR fusion emitters; other numbers);
 - ``hoist-loops``: ``xla_cpu_small_while_loop_byte_threshold=1000000``: XLA compiles every
   while loop small enough into one kernel (the rollout among them; other numbers);
+- ``no-unroll``: ``xla_cpu_disable_loop_unrolling`` (LLVM unrolls no loop; other numbers);
 - ``stub-guard``, ``stub-update``, ``stub-episodes``: default flags, with the divergence
   guard, the minibatch update or the episode-statistics window replaced by a stub, to see
   what each part of the program costs to compile (these programs are not runnable training);
@@ -76,6 +77,8 @@ VARIANTS = {
     "no-thunk": "--xla_cpu_use_thunk_runtime=false",
     "no-fusion-emitters": "--xla_cpu_use_fusion_emitters=false",
     "hoist-loops": "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000",
+    "no-unroll": "--xla_backend_extra_options=xla_cpu_disable_loop_unrolling",
+    "hoist-no-unroll": "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000,xla_cpu_disable_loop_unrolling",
     # the same flags as default, with one part of the program stubbed out (what it costs)
     "stub-guard": "",
     "stub-update": "",
