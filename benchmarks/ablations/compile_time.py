@@ -26,6 +26,7 @@ Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
 - ``hoist-loops``: ``xla_cpu_small_while_loop_byte_threshold=1000000``: XLA compiles every
   while loop small enough into one kernel (the rollout among them; other numbers);
 - ``no-unroll``: ``xla_cpu_disable_loop_unrolling`` (LLVM unrolls no loop; other numbers);
+- ``hoist-no-unroll``: ``hoist-loops`` and ``no-unroll`` together;
 - ``stub-guard``, ``stub-update``, ``stub-episodes``: default flags, with the divergence
   guard, the minibatch update or the episode-statistics window replaced by a stub, to see
   what each part of the program costs to compile (these programs are not runnable training);
