@@ -810,6 +810,28 @@ def test_only_tracebacks_from_before_the_handler_are_counted_apart():
     assert not landed_before_jaxcart_ran(frozen.replace("KeyboardInterrupt", "ValueError: x"))
 
 
+def test_importing_jaxcart_leaves_signal_handling_as_it_was():
+    """Imported by other code (not ``python -m jaxcart...``), the package restores the handlers
+    it installs first thing, and its start-up handler, had a SIGINT landed in between, raises
+    ``KeyboardInterrupt`` as Python's own would."""
+    code = (
+        "import signal, sys\n"
+        "signal.signal(signal.SIGTERM, lambda *a: None)\n"
+        "before = signal.getsignal(signal.SIGTERM)\n"
+        "import jaxcart\n"
+        "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
+        "assert signal.getsignal(signal.SIGTERM) is before\n"
+        "try:\n"
+        "    jaxcart._exit_while_starting(signal.SIGINT, None)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('raised')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=TRAIN_ENV, capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0 and done.stdout.strip() == "raised", done.stderr
+
+
 @pytest.mark.parametrize("delay", [0.05, 0.15, 0.3, 0.6])
 def test_ctrl_c_while_train_starts_is_never_a_traceback(delay, tmp_path):
     check_interrupted(interrupt_at([*TRAIN_ARGV, "--out", str(tmp_path / "r")], delay))
