@@ -61,13 +61,21 @@ def _exit_while_starting(signum: int, frame: object) -> None:
     os._exit(128 + signum)
 
 
-_PREVIOUS_SIGINT = _signal.signal(_signal.SIGINT, _exit_while_starting)
-_PREVIOUS_SIGTERM = _signal.signal(_signal.SIGTERM, _exit_while_starting)
-if not _started_as_a_command():
-    # Imported by other code: leave its signal handling as it was. A command keeps the handler
-    # through its imports (most of a second) and then installs its own handling.
-    _signal.signal(_signal.SIGINT, _PREVIOUS_SIGINT)
-    _signal.signal(_signal.SIGTERM, _PREVIOUS_SIGTERM)
+try:
+    _PREVIOUS = {
+        _signal.SIGINT: _signal.signal(_signal.SIGINT, _exit_while_starting),
+        _signal.SIGTERM: _signal.signal(_signal.SIGTERM, _exit_while_starting),
+    }
+except ValueError:  # imported in another thread: only the main thread may set handlers
+    _PREVIOUS = {}
+if _PREVIOUS and not _started_as_a_command():
+    # Imported by other code: leave its signal handling as it was (a handler set outside
+    # Python reads back as None and cannot be put back; the one above then stays, and it does
+    # what Python's defaults do). A command keeps the handler through its imports (most of a
+    # second) and then installs its own handling.
+    for _sig, _previous in _PREVIOUS.items():
+        if _previous is not None:
+            _signal.signal(_sig, _previous)
 
 import importlib  # noqa: E402
 

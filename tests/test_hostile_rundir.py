@@ -832,6 +832,29 @@ def test_importing_jaxcart_leaves_signal_handling_as_it_was():
     assert done.returncode == 0 and done.stdout.strip() == "raised", done.stderr
 
 
+def test_importing_jaxcart_in_another_thread():
+    """Only the main thread may set signal handlers: an import from another thread installs
+    none and fails nothing."""
+    code = (
+        "import importlib, signal, threading\n"
+        "errors = []\n"
+        "def load():\n"
+        "    try:\n"
+        "        importlib.import_module('jaxcart').PPOConfig\n"
+        "    except BaseException as e:\n"
+        "        errors.append(repr(e))\n"
+        "t = threading.Thread(target=load)\n"
+        "t.start(); t.join()\n"
+        "assert not errors, errors\n"
+        "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
+        "print('ok')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=TRAIN_ENV, capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+
+
 @pytest.mark.parametrize("delay", [0.05, 0.15, 0.3, 0.6])
 def test_ctrl_c_while_train_starts_is_never_a_traceback(delay, tmp_path):
     check_interrupted(interrupt_at([*TRAIN_ARGV, "--out", str(tmp_path / "r")], delay))
