@@ -48,13 +48,18 @@ def _started_as_a_command() -> bool:
 
 def _exit_while_starting(signum: int, frame: object) -> None:
     """A command ends with one line, never a traceback from inside an import. Imported by
-    other code, the package behaves as if it had installed nothing: SIGINT raises
-    ``KeyboardInterrupt``, SIGTERM ends the process as its default does."""
+    other code, the package behaves as if it had installed nothing: the handler it replaced
+    runs (Python's own raises ``KeyboardInterrupt`` for SIGINT), or the signal's default
+    action is taken."""
     if not _started_as_a_command():
-        if signum == _signal.SIGINT:
+        previous = globals().get("_PREVIOUS", {}).get(signum)
+        if callable(previous):
+            previous(signum, frame)
+        elif signum == _signal.SIGINT and previous is None:
             raise KeyboardInterrupt
-        _signal.signal(signum, _signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
+        elif previous != _signal.SIG_IGN:
+            _signal.signal(signum, _signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
         return
     name = _SIGNAL_NAMES.get(signum, str(signum))
     os.write(2, f"\ninterrupted ({name}) while starting; nothing was written\n".encode())

@@ -812,15 +812,19 @@ def test_only_tracebacks_from_before_the_handler_are_counted_apart():
 
 def test_importing_jaxcart_leaves_signal_handling_as_it_was():
     """Imported by other code (not ``python -m jaxcart...``), the package restores the handlers
-    it installs first thing, and its start-up handler, had a SIGINT landed in between, raises
-    ``KeyboardInterrupt`` as Python's own would."""
+    it installs first thing, and its start-up handler, had a signal landed in between, runs
+    the handler it replaced: Python's own (``KeyboardInterrupt``) for SIGINT, the script's own
+    for SIGTERM."""
     code = (
         "import signal, sys\n"
-        "signal.signal(signal.SIGTERM, lambda *a: None)\n"
+        "got = []\n"
+        "signal.signal(signal.SIGTERM, lambda signum, frame: got.append(signum))\n"
         "before = signal.getsignal(signal.SIGTERM)\n"
         "import jaxcart\n"
         "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
         "assert signal.getsignal(signal.SIGTERM) is before\n"
+        "jaxcart._exit_while_starting(signal.SIGTERM, None)\n"
+        "assert got == [signal.SIGTERM], got\n"
         "try:\n"
         "    jaxcart._exit_while_starting(signal.SIGINT, None)\n"
         "except KeyboardInterrupt:\n"
