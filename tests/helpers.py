@@ -84,6 +84,16 @@ TRAIN_ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=
 """Environment of a training subprocess: two CPU devices, as in-process tests have."""
 
 
+def fresh_python(code: str, env: dict[str, str], timeout: float = 120) -> str:
+    """Runs ``code`` in a fresh interpreter with ``env``; asserts it exits 0 (its stderr
+    otherwise) and returns its stdout, stripped."""
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
 def start_train(*args: str) -> subprocess.Popen:
     """``python -m jaxcart.train ARGS`` in a subprocess, stdout and stderr merged as text."""
     return subprocess.Popen(

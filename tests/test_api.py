@@ -14,6 +14,7 @@ from importlib import metadata
 from pathlib import Path
 
 import pytest
+from helpers import fresh_python
 
 import jaxcart
 from jaxcart.engine import devices
@@ -28,11 +29,7 @@ def _python(code: str, **env: str) -> str:
     """Runs ``code`` in a fresh interpreter (no XLA_FLAGS unless given); its stdout."""
     environ = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     environ.update(PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu", **env)
-    done = subprocess.run(
-        [sys.executable, "-c", code], env=environ, capture_output=True, text=True, timeout=120
-    )
-    assert done.returncode == 0, done.stderr
-    return done.stdout.strip()
+    return fresh_python(code, environ)
 
 
 def test_training_function_is_not_shadowed_by_the_cli_module():

@@ -12,8 +12,6 @@ each reset (their random draws differ).
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import warnings
 
 import gymnasium as gym
@@ -24,6 +22,7 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.utils.env_match import check_environments_match
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space
+from helpers import fresh_python
 
 from jaxcart.gym.adapter import ENV_ID, JaxCartPoleEnv, JaxCartPoleVectorEnv
 
@@ -111,28 +110,12 @@ def test_make_by_module_id_in_a_fresh_interpreter():
         "assert obs.tolist() == gym.make('CartPole-v1').reset(seed=0)[0].tolist()\n"
         "print(type(env.unwrapped).__name__)\n"
     )
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == "JaxCartPoleEnv"
+    assert run_fresh(code) == "JaxCartPoleEnv"
 
 
 def run_fresh(code: str) -> str:
     """Runs ``code`` in a fresh interpreter (CPU JAX) and returns its stdout."""
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-    )
-    assert out.returncode == 0, out.stderr
-    return out.stdout.strip()
+    return fresh_python(code, {**os.environ, "JAX_PLATFORMS": "cpu"})
 
 
 @pytest.mark.parametrize("first", ["jaxcart", "gymnasium"])

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import FAULT_FIGURES
-from helpers import TINY, TRAIN_ENV
+from helpers import TINY, TRAIN_ENV, fresh_python
 
 import jaxcart
 from jaxcart import train
@@ -830,10 +830,7 @@ def test_importing_jaxcart_leaves_signal_handling_as_it_was():
         "except KeyboardInterrupt:\n"
         "    print('raised')\n"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", code], env=TRAIN_ENV, capture_output=True, text=True, timeout=60
-    )
-    assert done.returncode == 0 and done.stdout.strip() == "raised", done.stderr
+    assert fresh_python(code, TRAIN_ENV, timeout=60) == "raised"
 
 
 def test_importing_jaxcart_in_another_thread():
@@ -853,10 +850,7 @@ def test_importing_jaxcart_in_another_thread():
         "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
         "print('ok')\n"
     )
-    done = subprocess.run(
-        [sys.executable, "-c", code], env=TRAIN_ENV, capture_output=True, text=True, timeout=60
-    )
-    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr
+    assert fresh_python(code, TRAIN_ENV, timeout=60) == "ok"
 
 
 @pytest.mark.parametrize("delay", [0.05, 0.15, 0.3, 0.6])
