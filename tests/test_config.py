@@ -5,10 +5,18 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import numpy as np
 import pytest
 
-from jaxcart.core.config import PRESETS, TRACED_FIELDS, ConfigError, PPOConfig, field_docs, preset
-from jaxcart.core.tricks import Hyperparams
+from jaxcart.core.config import (
+    PRESETS,
+    STATIC_FIELDS,
+    TRACED_FIELDS,
+    ConfigError,
+    PPOConfig,
+    field_docs,
+    preset,
+)
 
 
 def test_sb3_defaults():
@@ -81,7 +89,8 @@ def test_config_is_frozen_and_round_trips():
 
 
 def test_traced_fields_are_declared_once_on_the_config():
-    """The traced float hyperparameters come from field metadata; Hyperparams follows them."""
+    """The traced float hyperparameters come from field metadata: they are the config's pytree
+    leaves, named by field; everything else is its static structure."""
     traced = [f.name for f in dataclasses.fields(PPOConfig) if f.metadata.get("traced")]
     assert list(TRACED_FIELDS) == traced
     assert set(traced) == {
@@ -94,17 +103,36 @@ def test_traced_fields_are_declared_once_on_the_config():
         "vf_coef",
         "max_grad_norm",
     }
-    hp = Hyperparams.from_config(PPOConfig(clip_coef=0.3))
-    assert float(hp.clip_coef) == pytest.approx(0.3)
-    paths = [path[0].name for path, _ in jax.tree_util.tree_flatten_with_path(hp)[0]]
-    assert paths == list(TRACED_FIELDS)
-    with pytest.raises(TypeError):
-        Hyperparams(learning_rate=1.0)
+    config = PPOConfig(clip_coef=0.3)
+    leaves = jax.tree_util.tree_flatten_with_path(config)[0]
+    assert [path[0].name for path, _ in leaves] == list(TRACED_FIELDS)
+    assert dict((path[0].name, v) for path, v in leaves)["clip_coef"] == 0.3
+    assert set(STATIC_FIELDS) == {f.name for f in dataclasses.fields(PPOConfig)} - set(traced)
+    rebuilt = jax.tree.unflatten(jax.tree.structure(config), [0.5] * len(TRACED_FIELDS))
+    assert rebuilt.clip_coef == 0.5 and rebuilt.hidden_sizes == config.hidden_sizes
 
 
-def test_static_part_ignores_traced_fields_only():
+def test_structure_is_the_static_fields_only():
+    """Two configs that differ only in traced fields share one pytree structure (one compiled
+    program); a static field changes it."""
     a = preset("fast", learning_rate=1e-3, clip_coef=0.1, gamma=0.9)
     b = preset("fast")
-    assert a != b and a.static() == b.static() and hash(a.static()) == hash(b.static())
-    assert preset("fast", num_envs=8).static() != b.static()
-    assert preset("fast", anneal_lr=False).static() != b.static()
+    assert a != b and jax.tree.structure(a) == jax.tree.structure(b)
+    assert jax.tree.structure(preset("fast", num_envs=8)) != jax.tree.structure(b)
+    assert jax.tree.structure(preset("fast", anneal_lr=False)) != jax.tree.structure(b)
+
+
+def test_per_run_values_are_validated_and_sized():
+    sweep = PPOConfig(learning_rate=np.array([1e-3, 3e-3]))
+    assert sweep.is_per_run and not PPOConfig().is_per_run
+    runs = sweep.per_run(2)
+    assert runs.learning_rate.dtype == np.float32
+    np.testing.assert_array_equal(runs.clip_coef, np.full(2, 0.2, np.float32))
+    with pytest.raises(ConfigError, match="learning_rate holds 2 values, one per run"):
+        sweep.per_run(3)
+    with pytest.raises(ConfigError, match="learning_rate must be > 0"):
+        PPOConfig(learning_rate=np.array([1e-3, -1.0]))
+    with pytest.raises(ConfigError, match="gamma must be in"):
+        PPOConfig(gamma=np.array([0.9, 1.5]))
+    with pytest.raises(ConfigError, match="finite"):
+        PPOConfig(clip_coef=np.array([0.1, np.nan]))

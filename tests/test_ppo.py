@@ -3,6 +3,8 @@ environments that catch sign and wiring bugs in the update in seconds."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import chex
 import jax
 import jax.numpy as jnp
@@ -14,7 +16,6 @@ from jaxcart.core.metrics import EpisodeBuffer, explained_variance, update_episo
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.ppo import Batch, compute_gae, make_optimizer, ppo_loss, update_epochs
 from jaxcart.core.tricks import (
-    Hyperparams,
     categorical_entropy,
     categorical_log_prob,
     pack_batch,
@@ -105,15 +106,14 @@ def _setup_loss(num=256, seed=0):
     return network, params, batch, value
 
 
-def _hp(**kw):
-    base = Hyperparams.from_config(PPOConfig())
-    return base.replace(**{k: jnp.float32(v) for k, v in kw.items()})
+def _config(**kw):
+    return PPOConfig(**kw)
 
 
 def test_loss_at_ratio_one():
     """Fresh data from the same params: ratio 1, KL 0, nothing clipped, pg loss = -mean(A)."""
     network, params, batch, value = _setup_loss()
-    loss, aux = ppo_loss(params, network, batch, _hp(ent_coef=0.0), norm_adv=False)
+    loss, aux = ppo_loss(params, network, batch, _config(ent_coef=0.0, norm_adv=False))
     assert float(aux["approx_kl"]) == pytest.approx(0.0, abs=1e-7)
     assert float(aux["clip_fraction"]) == 0.0
     assert float(aux["policy_gradient_loss"]) == pytest.approx(
@@ -125,13 +125,14 @@ def test_loss_at_ratio_one():
         float(aux["policy_gradient_loss"]) + 0.5 * expected_value_loss, rel=1e-5
     )
     # normalised advantages have mean 0, so the surrogate at ratio 1 is 0
-    _, aux = ppo_loss(params, network, batch, _hp(), norm_adv=True)
+    _, aux = ppo_loss(params, network, batch, _config(norm_adv=True))
     assert float(aux["policy_gradient_loss"]) == pytest.approx(0.0, abs=1e-6)
 
 
 def _actor_grad(params, network, batch, hp):
     def pg_only(p):
-        return ppo_loss(p, network, batch, hp, norm_adv=False)[1]["policy_gradient_loss"]
+        config = dataclasses.replace(hp, norm_adv=False)
+        return ppo_loss(p, network, batch, config)[1]["policy_gradient_loss"]
 
     return jax.grad(pg_only)(params)["params"]["actor"]
 
@@ -141,13 +142,13 @@ def test_zero_policy_gradient_where_clipped():
     with negative advantages the unclipped branch is the minimum and the gradient is not zero."""
     network, params, batch, _ = _setup_loss()
     pushed = batch._replace(log_prob=batch.log_prob - 1.0, advantage=jnp.abs(batch.advantage) + 0.1)
-    _, aux = ppo_loss(params, network, pushed, _hp(), norm_adv=False)
+    _, aux = ppo_loss(params, network, pushed, _config(norm_adv=False))
     assert float(aux["clip_fraction"]) == 1.0
-    grads = _actor_grad(params, network, pushed, _hp())
+    grads = _actor_grad(params, network, pushed, _config())
     assert all(float(jnp.abs(g).max()) == 0.0 for g in jax.tree.leaves(grads))
 
     negative = pushed._replace(advantage=-pushed.advantage)
-    grads = _actor_grad(params, network, negative, _hp())
+    grads = _actor_grad(params, network, negative, _config())
     assert max(float(jnp.abs(g).max()) for g in jax.tree.leaves(grads)) > 1e-4
 
 
@@ -156,7 +157,7 @@ def test_entropy_loss_is_negative_mean_entropy():
     logits, _ = network.apply(params, batch.obs)
     p = jax.nn.softmax(logits)
     entropy = -(p * jnp.log(p)).sum(-1).mean()
-    _, aux = ppo_loss(params, network, batch, _hp(), norm_adv=True)
+    _, aux = ppo_loss(params, network, batch, _config(norm_adv=True))
     assert float(aux["entropy_loss"]) == pytest.approx(-float(entropy), rel=1e-5)
     # the 0.01 policy head starts near uniform: entropy close to log 2
     assert float(entropy) == pytest.approx(np.log(2), abs=0.01)
@@ -253,7 +254,7 @@ def _train_on_probe(reward_fn, iterations: int = 40, seed: int = 0):
     """PPO's own GAE + update on a one-step probe env; returns (params, network)."""
     network = ActorCritic(hidden_sizes=(16,))
     params = jax.tree.map(jnp.asarray, network.init(np.random.default_rng(seed)))
-    hp = Hyperparams.from_config(PROBE)
+    hp = PROBE
     shape = (PROBE.num_steps, PROBE.num_envs)
 
     def iteration(carry, key):
@@ -270,7 +271,7 @@ def _train_on_probe(reward_fn, iterations: int = 40, seed: int = 0):
         batch = Batch(obs, action, categorical_log_prob(logits, action), advantage, returns)
         batch = jax.tree.map(lambda x: x.reshape((PROBE.batch_size, *x.shape[2:])), batch)
         params, opt_state, _ = update_epochs(
-            params, opt_state, batch, update_key, hp, hp.learning_rate, PROBE
+            params, opt_state, batch, update_key, hp.learning_rate, PROBE
         )
         return (params, opt_state), None
 

@@ -11,10 +11,11 @@ import jax
 import numpy as np
 from helpers import TINY, assert_same_results
 
+from jaxcart.core.config import TRACED_FIELDS, PPOConfig
 from jaxcart.core.env import EnvParams
+from jaxcart.core.ppo import train_iteration
 from jaxcart.engine.chunk import group_layout, train_chunk
 from jaxcart.engine.trainer import (
-    broadcast_hyperparams,
     compiled_chunk,
     init_runners,
     initial_state,
@@ -62,15 +63,15 @@ def test_new_hyperparameter_values_do_not_recompile():
             compiles.append(duration)
 
     jax.monitoring.register_event_duration_secs_listener(listener)
-    hps = broadcast_hyperparams(TINY, 4)
-    other = hps.replace(
-        learning_rate=hps.learning_rate * 3,
-        clip_coef=hps.clip_coef * 0.5,
-        ent_coef=hps.ent_coef + 0.01,
+    other = dataclasses.replace(
+        TINY,
+        learning_rate=TINY.learning_rate * 3,
+        clip_coef=TINY.clip_coef * 0.5,
+        ent_coef=TINY.ent_coef + 0.01,
     )
-    first = train(TINY, 4, seed=1, hyperparams=hps)
+    first = train(TINY, 4, seed=1)
     mid = len(compiles)
-    second = train(TINY, 4, seed=1, hyperparams=other)
+    second = train(other, 4, seed=1)
     assert first.compiled and not second.compiled
     assert len(compiles) == mid, "new hyperparameter values triggered a compilation"
     np.testing.assert_allclose(second.metrics["train/learning_rate"][0], 3e-3, rtol=1e-6)
@@ -81,10 +82,9 @@ def test_divergence_freezes_only_that_seed(tmp_path):
     """A seed whose update goes non-finite is rolled back to its state at the start of that
     chunk and marked; the other seed trains exactly as it would have, checkpoints stay finite,
     and the rolled-back seed is left untouched by later chunks."""
-    hps = broadcast_hyperparams(TINY, 2)
-    bad = hps.replace(learning_rate=hps.learning_rate.at[1].set(1e35))
-    good = train(TINY, 2, seed=5, hyperparams=hps)
-    mixed = train(TINY, 2, seed=5, hyperparams=bad)
+    bad = dataclasses.replace(TINY, learning_rate=np.array([TINY.learning_rate, 1e35]))
+    good = train(TINY, 2, seed=5)
+    mixed = train(bad, 2, seed=5)
     diverged = np.asarray(mixed.runners.diverged_at)
     assert diverged[0] == -1 and diverged[1] >= 1
     for leaf in jax.tree.leaves(mixed.params):
@@ -100,8 +100,8 @@ def test_divergence_freezes_only_that_seed(tmp_path):
     if restart == 0:
         before = init_runners(TINY, 5, np.arange(2)).params
     else:
-        shorter = dataclasses.replace(TINY, total_timesteps=int(restart) * TINY.batch_size)
-        before = train(shorter, 2, seed=5, hyperparams=bad, chunk_size=chunk).params
+        shorter = dataclasses.replace(bad, total_timesteps=int(restart) * TINY.batch_size)
+        before = train(shorter, 2, seed=5, chunk_size=chunk).params
     for x, y in zip(jax.tree.leaves(before), jax.tree.leaves(mixed.params)):
         np.testing.assert_array_equal(np.asarray(x)[1], np.asarray(y)[1])
 
@@ -133,11 +133,52 @@ def test_configs_differing_only_in_traced_fields_compile_once():
 def test_compiled_chunk_key_ignores_traced_config_values():
     state = initial_state(TINY, 2, 0)
     runners = jax.device_put(state.runners)
-    hps = jax.device_put(state.hyperparams)
+    configs = jax.device_put(state.config)
+    other = jax.device_put(dataclasses.replace(TINY, vf_coef=2.0).per_run(2))
     env = EnvParams()
-    exe_a, _ = compiled_chunk(TINY, env, 4, runners, hps)
-    exe_b, fresh = compiled_chunk(dataclasses.replace(TINY, vf_coef=2.0), env, 4, runners, hps)
+    exe_a, _ = compiled_chunk(env, 4, runners, configs)
+    exe_b, fresh = compiled_chunk(env, 4, runners, other)
     assert exe_a is exe_b and not fresh
+    wider = jax.device_put(dataclasses.replace(TINY, update_epochs=3).per_run(2))
+    assert compiled_chunk(env, 4, runners, wider)[0] is not exe_a  # a static field: recompiled
+
+
+def test_a_swept_value_reaches_the_compiled_update():
+    """Two runs with other learning rates and clip ranges in one program: each run trains
+    bit for bit as the same values do when every run has them, and the update's logged
+    learning rate is each run's own."""
+    sweep = dataclasses.replace(
+        TINY, learning_rate=np.array([1e-3, 5e-3]), clip_coef=np.array([0.1, 0.3])
+    )
+    both = train(sweep, 2, seed=3, chunk_size=8)
+    np.testing.assert_allclose(both.metrics["train/learning_rate"][0], [1e-3, 5e-3], rtol=1e-6)
+    for run, (lr, clip) in enumerate([(1e-3, 0.1), (5e-3, 0.3)]):
+        alone = train(
+            dataclasses.replace(TINY, learning_rate=lr, clip_coef=clip), 2, 3, chunk_size=8
+        )
+        for name in ("train/clip_fraction", "train/value_loss"):
+            np.testing.assert_array_equal(both.metrics[name][:, run], alone.metrics[name][:, run])
+
+
+def test_the_program_reads_one_config_with_no_default_copy(monkeypatch):
+    """While the chunk program is traced, the config each iteration reads holds tracers in
+    every traced field (the values it was given), never a float left at a default."""
+    from jaxcart.engine import chunk
+
+    seen = []
+
+    def spy(runner, config, iteration, env_params):
+        seen.append({name: getattr(config, name) for name in TRACED_FIELDS})
+        return train_iteration(runner, config, iteration, env_params)
+
+    monkeypatch.setattr(chunk, "train_iteration", spy)
+    state = initial_state(TINY, 2, 0)
+    program = functools.partial(train_chunk, env_params=EnvParams(), chunk_size=2)
+    jax.eval_shape(program, state.runners, state.config, np.int32(0))
+    assert seen and all(
+        isinstance(value, jax.core.Tracer) for fields in seen for value in fields.values()
+    )
+    assert not hasattr(PPOConfig, "static")
 
 
 def test_seed_index_not_run_position_picks_the_random_stream():
@@ -173,13 +214,13 @@ def test_update_in_groups_computes_what_one_vmap_computes():
     """The grouped update (5 runs as 3 groups of width 2, the last padded by a copy) trains
     the same runs as the plain vmap, up to rounding (XLA compiles another width)."""
     state = initial_state(TINY, 5, 6)
-    runners, hps = jax.device_put(state.runners), jax.device_put(state.hyperparams)
+    runners, configs = jax.device_put(state.runners), jax.device_put(state.config)
     results = {}
     for group in (None, 2):
         chunk = functools.partial(
-            train_chunk, config=TINY, env_params=EnvParams(), chunk_size=3, update_group=group
+            train_chunk, env_params=EnvParams(), chunk_size=3, update_group=group
         )
-        results[group] = jax.jit(chunk)(runners, hps, np.int32(0))
+        results[group] = jax.jit(chunk)(runners, configs, np.int32(0))
     assert group_layout(5, 2) == (3, 2) and group_layout(32, 8) == (4, 8)
     assert group_layout(10, 8) == (2, 5) and group_layout(8, 8) == (1, 8)
     (plain, plain_metrics), (grouped, grouped_metrics) = results[None], results[2]

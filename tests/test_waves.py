@@ -34,8 +34,8 @@ def test_estimate_is_above_xlas_own_memory_analysis(name, runs):
     arguments, outputs and temporaries as XLA counts them."""
     config = preset(name, total_timesteps=preset(name).batch_size * 4)
     state = initial_state(config, runs, 0)
-    runners, hps = jax.device_put(state.runners), jax.device_put(state.hyperparams)
-    exe, _ = compiled_chunk(config, EnvParams(), state.chunk_size, runners, hps)
+    runners, configs = jax.device_put(state.runners), jax.device_put(state.config)
+    exe, _ = compiled_chunk(EnvParams(), state.chunk_size, runners, configs)
     m = exe.memory_analysis()
     measured = (m.temp_size_in_bytes + m.argument_size_in_bytes + m.output_size_in_bytes) / runs
     assert bytes_per_run(config) >= measured

@@ -37,9 +37,7 @@ Variants (``--variants``, comma-separated; ``XLA_FLAGS`` of each):
   (the valid mask derived from the count);
 - ``swap-scatter-window``: the episode window as it was before the ``top_k`` version (a
   reversed cumulative count as each episode's rank, a scatter per field);
-- ``swap-leaf-guard``: the divergence guard's finiteness check leaf by leaf, as before;
-- ``swap-rolled-threefry``: the program lowered without
-  :func:`jaxcart.engine.lowering.fast_lowering` (JAX's CPU loop for every Threefry hash).
+- ``swap-leaf-guard``: the divergence guard's finiteness check leaf by leaf, as before.
 
 ``--before TREE`` also measures each variant with the benchmark and the code of another source
 tree (for example ``git worktree add /tmp/before main``), its processes interleaved with this
@@ -89,7 +87,6 @@ VARIANTS = {
     "swap-one-scatter": "",
     "swap-scatter-window": "",
     "swap-leaf-guard": "",
-    "swap-rolled-threefry": "",
 }
 
 
@@ -220,12 +217,6 @@ def stub(part: str) -> None:
         ppo.update_episode_buffer = scatter_window
     elif part == "leaf-guard":
         chunk.guard_divergence = leaf_guard
-    elif part == "rolled-threefry":
-        import contextlib
-
-        from jaxcart.engine import lowering
-
-        lowering.fast_lowering = contextlib.nullcontext
 
 
 def child(run: bool, part: str | None) -> dict:
@@ -241,7 +232,7 @@ def child(run: bool, part: str | None) -> dict:
         stub(part)
     from jaxcart.core import env as cartpole
     from jaxcart.core.config import preset
-    from jaxcart.engine import lowering, trainer
+    from jaxcart.engine import trainer
 
     # the program `python -m jaxcart.train` compiles: one seed on one device, adaptive chunks
     config = preset("sb3")
@@ -253,10 +244,9 @@ def child(run: bool, part: str | None) -> dict:
     args = (runners, hps, jnp.int32(0), jnp.int32(state.chunk_size))
 
     marks = [(time.perf_counter(), time.process_time())]
-    with lowering.fast_lowering():  # as the trainer lowers it
-        traced = program.trace(*args)
-        marks.append((time.perf_counter(), time.process_time()))
-        lowered = traced.lower()
+    traced = program.trace(*args)
+    marks.append((time.perf_counter(), time.process_time()))
+    lowered = traced.lower()
     marks.append((time.perf_counter(), time.process_time()))
     compiled = lowered.compile()
     marks.append((time.perf_counter(), time.process_time()))

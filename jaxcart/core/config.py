@@ -1,4 +1,15 @@
-"""PPO configuration: a frozen, validated dataclass with a docstring per field, and presets."""
+"""PPO configuration: one frozen, validated dataclass with a docstring per field, and presets.
+
+:class:`PPOConfig` is also a JAX pytree. Each field is declared once, traced or static:
+
+- a field declared with :func:`traced` (a float hyperparameter such as ``learning_rate``) is a
+  leaf. The compiled program receives it as an array: changing it never recompiles, and a sweep
+  over it is one vmap axis (leaves ``[R]``, one value per run: :meth:`PPOConfig.per_run`);
+- every other field (shapes, switches) is static: part of the pytree's structure, so the
+  compiled program is specialised to it and JAX compiles anew when it changes.
+
+The program reads the one config it is given; there is no second copy with other values.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +19,10 @@ import functools
 import inspect
 import math
 from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import numpy as np
 
 
 class ConfigError(ValueError):
@@ -22,15 +37,20 @@ class ConfigError(ValueError):
         self.option = option
 
 
-def traced(default: float) -> float:
-    """A float hyperparameter that travels through the compiled program as an array: changing
-    it never recompiles, and a sweep over it is one vmap axis (see :data:`TRACED_FIELDS`)."""
+def traced(default: float) -> Any:
+    """Declares a float hyperparameter that travels through the compiled program as an array
+    (a pytree leaf of :class:`PPOConfig`): a Python float, or one float32 value per run."""
     return field(default=default, metadata={"traced": True})
 
 
 @dataclass(frozen=True)
 class PPOConfig:
-    """Hyperparameters of one PPO run on CartPole-v1. Defaults are Stable-Baselines3's."""
+    """Hyperparameters of PPO on CartPole-v1. Defaults are Stable-Baselines3's.
+
+    A traced field holds a Python float for one setting, or an array ``[R]`` with one value
+    per run (:meth:`per_run`; a sweep). Inside the compiled program traced fields are tracers
+    and static fields are Python values.
+    """
 
     num_envs: int = 1
     """Parallel environments per run (SB3: n_envs)."""
@@ -99,14 +119,36 @@ class PPOConfig:
         """Environment steps actually taken per run (total_timesteps rounded up)."""
         return self.num_iterations * self.batch_size
 
-    def static(self) -> PPOConfig:
-        """This config with every traced field at its default: the part that shapes the
-        compiled program (two configs that differ only in traced fields share it)."""
-        defaults = {f.name: f.default for f in dataclasses.fields(self) if f.metadata.get("traced")}
-        return dataclasses.replace(self, **defaults)
+    def per_run(self, num_runs: int) -> PPOConfig:
+        """This config with every traced field as float32 ``[num_runs]``: a scalar repeated for
+        every run, an array of one value per run kept (the form the compiled program takes).
+
+        Raises:
+            ConfigError: a traced field holds an array of another length.
+        """
+        values = {}
+        for name in TRACED_FIELDS:
+            value = np.asarray(getattr(self, name), np.float32)
+            if value.ndim == 0:
+                value = np.full((num_runs,), value, np.float32)
+            elif value.shape != (num_runs,):
+                raise ConfigError(
+                    f"{name} holds {value.shape[0]} values, one per run; expected {num_runs}",
+                    name,
+                )
+            values[name] = value
+        return _replace_unchecked(self, values)
+
+    @property
+    def is_per_run(self) -> bool:
+        """Whether any traced field holds one value per run (an array) instead of a float."""
+        return any(np.ndim(getattr(self, name)) for name in TRACED_FIELDS)
 
     def to_dict(self) -> dict:
-        """Plain dict of the fields (tuples become lists when dumped to JSON)."""
+        """Plain dict of the fields (tuples become lists when dumped to JSON; a per-run
+        field is refused: write each run's config, or the sweep, instead)."""
+        if self.is_per_run:
+            raise ValueError("a per-run config has no single dict; use to_dict() of each run's")
         return dataclasses.asdict(self)
 
     @classmethod
@@ -125,7 +167,35 @@ class PPOConfig:
 TRACED_FIELDS: tuple[str, ...] = tuple(
     f.name for f in dataclasses.fields(PPOConfig) if f.metadata.get("traced")
 )
-"""The fields declared with :func:`traced`, in declaration order."""
+"""The fields declared with :func:`traced`, in declaration order: the pytree's leaves."""
+STATIC_FIELDS: tuple[str, ...] = tuple(
+    f.name for f in dataclasses.fields(PPOConfig) if not f.metadata.get("traced")
+)
+"""Every other field, in declaration order: the pytree's structure."""
+
+
+def _replace_unchecked(config: PPOConfig, values: dict[str, Any]) -> PPOConfig:
+    """``dataclasses.replace`` without ``__init__``'s validation: for JAX's unflattening (the
+    leaves may be tracers or placeholders) and for values already checked."""
+    new = object.__new__(PPOConfig)
+    for f in dataclasses.fields(PPOConfig):
+        object.__setattr__(new, f.name, values.get(f.name, getattr(config, f.name, None)))
+    return new
+
+
+def _flatten(config: PPOConfig) -> tuple[list, tuple]:
+    leaves = [(jax.tree_util.GetAttrKey(n), getattr(config, n)) for n in TRACED_FIELDS]
+    return leaves, tuple(getattr(config, n) for n in STATIC_FIELDS)
+
+
+def _unflatten(static: tuple, leaves: list) -> PPOConfig:
+    blank = object.__new__(PPOConfig)
+    return _replace_unchecked(
+        blank, {**dict(zip(STATIC_FIELDS, static)), **dict(zip(TRACED_FIELDS, leaves))}
+    )
+
+
+jax.tree_util.register_pytree_with_keys(PPOConfig, _flatten, _unflatten)
 
 
 MAX_WEIGHTS = 1 << 26
@@ -154,19 +224,22 @@ def validate(config: PPOConfig) -> None:
         value = getattr(c, name)
         if (
             isinstance(value, bool)
-            or not isinstance(value, (int, float))
-            or not math.isfinite(value)
+            or not isinstance(value, (int, float, np.ndarray, jax.Array, np.number))
+            or np.ndim(value) > 1
+            or not np.issubdtype(np.asarray(value).dtype, np.number)
+            or np.asarray(value).dtype == bool
+            or not np.all(np.isfinite(value))
         ):
             raise ConfigError(f"{name} must be a finite number, got {value!r}")
     for name in ("learning_rate", "adam_eps", "clip_coef", "max_grad_norm"):
-        if getattr(c, name) <= 0:
+        if np.any(np.asarray(getattr(c, name)) <= 0):
             raise ConfigError(f"{name} must be > 0, got {getattr(c, name)!r}")
     for name in ("gamma", "gae_lambda"):
-        value = getattr(c, name)
-        if not 0 < value <= 1:
-            raise ConfigError(f"{name} must be in (0, 1], got {value!r}")
+        value = np.asarray(getattr(c, name))
+        if not np.all((value > 0) & (value <= 1)):
+            raise ConfigError(f"{name} must be in (0, 1], got {getattr(c, name)!r}")
     for name in ("ent_coef", "vf_coef"):
-        if getattr(c, name) < 0:
+        if np.any(np.asarray(getattr(c, name)) < 0):
             raise ConfigError(f"{name} must be >= 0, got {getattr(c, name)!r}")
     if not c.hidden_sizes or any(
         isinstance(h, bool) or not isinstance(h, int) or h <= 0 for h in c.hidden_sizes
@@ -262,6 +335,7 @@ def config_fields() -> list[dataclasses.Field]:
 
 __all__ = [
     "PRESETS",
+    "STATIC_FIELDS",
     "TRACED_FIELDS",
     "ConfigError",
     "PPOConfig",

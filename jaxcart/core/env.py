@@ -31,8 +31,6 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxcart.core.tricks import hash_uniform
-
 Array = jax.Array
 
 
@@ -229,13 +227,56 @@ def _autoreset(
     return jnp.where(done[..., None], reset_obs, final_obs), state
 
 
+def _fmix32(x: Array) -> Array:
+    """MurmurHash3's 32-bit finaliser: a bijection with full avalanche."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x85EBCA6B)
+    x = x ^ (x >> 13)
+    x = x * jnp.uint32(0xC2B2AE35)
+    return x ^ (x >> 16)
+
+
+def hash_uniform(
+    key: Array, shape: tuple[int, ...], dtype=None, minval: float = 0.0, maxval: float = 1.0
+) -> Array:
+    """Uniform numbers in ``[minval, maxval)`` from a keyed counter hash (the env's reset noise).
+
+    Plain version: ``jax.random.uniform`` (Threefry). Why: drawing 4 Threefry uniforms per env
+    and step cost about three times CartPole's physics, so the env was RNG-bound; with the hash
+    the draw is 5 ns of a 24 ns env step (``benchmarks/RESULTS.md``, env throughput;
+    ``benchmarks/results/env_step_ablation.md``, ``fixed-reset``). Same distribution, other
+    numbers: every run's reset states depend on it, so it cannot change without changing them.
+
+    Element ``i`` is ``fmix32(fmix32(i * golden + k0) ^ k1)`` for the key's two words
+    ``(k0, k1)``: counter-based like Threefry, with about 12 integer operations per number
+    instead of ~80 (``tests/test_env_parity.py`` checks uniformity and independence). float32
+    gets 24 random bits, float64 53 (two hashes); the default dtype is JAX's default float.
+    """
+    dtype = dtype or jax.dtypes.canonicalize_dtype(jnp.float64)
+    words = jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key) else key
+    words = words.astype(jnp.uint32)
+    size = math.prod(shape)
+    counter = jnp.arange(size, dtype=jnp.uint32)
+
+    def bits(c: Array) -> Array:
+        return _fmix32(_fmix32(c * jnp.uint32(0x9E3779B9) + words[0]) ^ words[1])
+
+    if jnp.dtype(dtype) == jnp.float64:
+        hi = (bits(2 * counter) >> 6).astype(dtype)  # 26 bits
+        lo = (bits(2 * counter + 1) >> 5).astype(dtype)  # 27 bits
+        unit = (hi * 2.0**27 + lo) * 2.0**-53
+    else:
+        unit = (bits(counter) >> 8).astype(dtype) * jnp.asarray(2.0**-24, dtype)
+    return (minval + (maxval - minval) * unit).reshape(shape).astype(dtype)
+
+
 def step_batch(
     key: Array, state: EnvState, action: Array, params: EnvParams
 ) -> tuple[Array, EnvState, Array, Array, Array, dict[str, Array]]:
     """:func:`step` for a batch of envs (state fields ``[N]``, actions ``[N]``) with one key.
 
     Same semantics as ``jax.vmap(step)`` with per-env keys, but the reset states of the whole
-    batch come from :func:`~jaxcart.core.tricks.hash_uniform` keyed by ``key`` (a counter hash:
+    batch come from :func:`hash_uniform` keyed by ``key`` (a counter hash:
     on CPU, 4 Threefry uniforms per env and step cost about three times the physics). The
     physics is elementwise, so no vmap is needed.
 

@@ -38,7 +38,6 @@ from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import EpisodeBuffer, iteration_metrics, update_episode_buffer
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.tricks import (
-    Hyperparams,
     categorical_entropy,
     categorical_log_prob,
     pack_batch,
@@ -97,13 +96,14 @@ def make_network(config: PPOConfig) -> ActorCritic:
     return ActorCritic.from_config(config)
 
 
-def make_optimizer(hp: Hyperparams) -> optax.GradientTransformation:
+def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
     """Global-norm clipping then Adam's scaling; the learning rate is applied by the caller.
 
-    The hyperparameters may be tracers: the optimizer state's structure does not depend on them.
+    The config's traced fields may be tracers: the optimizer state's structure does not depend
+    on them.
     """
     return optax.chain(
-        optax.clip_by_global_norm(hp.max_grad_norm), optax.scale_by_adam(eps=hp.adam_eps)
+        optax.clip_by_global_norm(config.max_grad_norm), optax.scale_by_adam(eps=config.adam_eps)
     )
 
 
@@ -201,7 +201,7 @@ def compute_gae(
     return advantages, advantages + value
 
 
-def training_batch(params: dict, rollout: Transition, hp: Hyperparams, config: PPOConfig) -> Batch:
+def training_batch(params: dict, rollout: Transition, config: PPOConfig) -> Batch:
     """GAE over ``rollout`` (fields ``[num_steps, num_envs, ...]``), bootstrapping from the
     values of its true next observations under ``params``, and the transitions flattened into
     one training batch, fields ``[batch_size, ...]``."""
@@ -212,8 +212,8 @@ def training_batch(params: dict, rollout: Transition, hp: Hyperparams, config: P
         next_value,
         rollout.terminated,
         rollout.truncated,
-        hp.gamma,
-        hp.gae_lambda,
+        config.gamma,
+        config.gae_lambda,
         config.bootstrap_truncation,
     )
     batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantages, returns)
@@ -225,10 +225,9 @@ def ppo_loss(
     params: dict,
     network: ActorCritic,
     batch: Batch,
-    hp: Hyperparams,
-    norm_adv: bool = True,
+    config: PPOConfig,
 ) -> tuple[Array, dict[str, Array]]:
-    """SB3's PPO loss on one minibatch (fields ``[M, ...]``).
+    """SB3's PPO loss on one minibatch (fields ``[M, ...]``), with ``config``'s coefficients.
 
     Returns:
         ``(loss, aux)``: the scalar loss and the scalars ``policy_gradient_loss, value_loss,
@@ -237,22 +236,22 @@ def ppo_loss(
     logits, value = network.apply(params, batch.obs)
     log_prob = categorical_log_prob(logits, batch.action)
     advantage = batch.advantage
-    if norm_adv and advantage.shape[0] > 1:
+    if config.norm_adv and advantage.shape[0] > 1:
         advantage = (advantage - advantage.mean()) / (advantage.std(ddof=1) + 1e-8)
     log_ratio = log_prob - batch.log_prob
     ratio = jnp.exp(log_ratio)
-    clipped = jnp.clip(ratio, 1.0 - hp.clip_coef, 1.0 + hp.clip_coef)
+    clipped = jnp.clip(ratio, 1.0 - config.clip_coef, 1.0 + config.clip_coef)
     pg_loss = -jnp.minimum(advantage * ratio, advantage * clipped).mean()
     value_loss = jnp.square(batch.returns - value).mean()
     entropy_loss = -categorical_entropy(logits).mean()
-    loss = pg_loss + hp.ent_coef * entropy_loss + hp.vf_coef * value_loss
+    loss = pg_loss + config.ent_coef * entropy_loss + config.vf_coef * value_loss
     aux = {
         "policy_gradient_loss": pg_loss,
         "value_loss": value_loss,
         "entropy_loss": entropy_loss,
         "approx_kl": jax.lax.stop_gradient(((ratio - 1.0) - log_ratio).mean()),
         "clip_fraction": jax.lax.stop_gradient(
-            (jnp.abs(ratio - 1.0) > hp.clip_coef).astype(jnp.float32).mean()
+            (jnp.abs(ratio - 1.0) > config.clip_coef).astype(jnp.float32).mean()
         ),
         "loss": loss,
     }
@@ -270,17 +269,16 @@ def update_minibatch(
     rows: Array,
     like: Batch,
     network: ActorCritic,
-    hp: Hyperparams,
+    config: PPOConfig,
     learning_rate: Array,
-    norm_adv: bool,
 ) -> tuple[Carry, dict[str, Array]]:
     """One gradient step on a minibatch of packed rows ``[M, obs_dim + 4]`` (fields and dtypes
     as ``like``'s); returns the new carry and the loss terms (scalars)."""
     params, opt_state = carry
     minibatch = unpack_batch(rows, like)
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
-    (_, aux), grads = grad_fn(params, network, minibatch, hp, norm_adv)
-    updates, opt_state = make_optimizer(hp).update(grads, opt_state, params)
+    (_, aux), grads = grad_fn(params, network, minibatch, config)
+    updates, opt_state = make_optimizer(config).update(grads, opt_state, params)
     params = jax.tree.map(lambda p, u: p - learning_rate * u, params, updates)
     return (params, opt_state), aux
 
@@ -299,7 +297,6 @@ def update_epochs(
     opt_state: optax.OptState,
     batch: Batch,
     key: Array,
-    hp: Hyperparams,
     learning_rate: Array,
     config: PPOConfig,
 ) -> tuple[dict, optax.OptState, dict[str, Array]]:
@@ -313,9 +310,8 @@ def update_epochs(
         update_minibatch,
         like=batch,
         network=make_network(config),
-        hp=hp,
+        config=config,
         learning_rate=learning_rate,
-        norm_adv=config.norm_adv,
     )
     epoch = functools.partial(
         update_epoch, rows=pack_batch(batch), minibatch_step=minibatch_step, config=config
@@ -325,19 +321,18 @@ def update_epochs(
     return params, opt_state, aux
 
 
-def learning_rate_at(hp: Hyperparams, iteration: Array, config: PPOConfig) -> Array:
+def learning_rate_at(config: PPOConfig, iteration: Array) -> Array:
     """Constant, or linearly annealed from ``learning_rate`` towards 0 over the iterations."""
     if not config.anneal_lr:
-        return hp.learning_rate
-    return hp.learning_rate * (1.0 - iteration / config.num_iterations)
+        return config.learning_rate
+    return config.learning_rate * (1.0 - iteration / config.num_iterations)
 
 
 # 6. One training iteration -------------------------------------------------------------------
 def prepare_update(
     runner: RunnerState,
-    hp: Hyperparams,
-    iteration: Array,
     config: PPOConfig,
+    iteration: Array,
     env_params: cartpole.EnvParams,
 ) -> tuple[RunnerState, Transition, Batch, Array, Array]:
     """The iteration up to the update: rollout (2) and GAE (3) for one run.
@@ -348,9 +343,9 @@ def prepare_update(
         ...]``), the update's PRNG key and the learning rate (scalar).
     """
     runner, rollout = collect_rollout(runner, config, env_params)
-    batch = training_batch(runner.params, rollout, hp, config)
+    batch = training_batch(runner.params, rollout, config)
     key, update_key = jax.random.split(runner.key)
-    learning_rate = learning_rate_at(hp, iteration, config)
+    learning_rate = learning_rate_at(config, iteration)
     return runner.replace(key=key), rollout, batch, update_key, learning_rate
 
 
@@ -385,9 +380,8 @@ def finish_iteration(
 
 def train_iteration(
     runner: RunnerState,
-    hp: Hyperparams,
-    iteration: Array,
     config: PPOConfig,
+    iteration: Array,
     env_params: cartpole.EnvParams,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """One PPO iteration for one run: rollout, GAE, all epochs and minibatches, metrics.
@@ -396,7 +390,8 @@ def train_iteration(
     so that the engine can vmap the update over runs differently from the rest.
 
     Args:
-        runner: the run's state (no run axis); hp: its hyperparameters, scalars.
+        runner: the run's state (no run axis).
+        config: the run's config (its traced fields scalars: one run's values).
         iteration: int32 scalar, the 0-based index of this iteration (for the learning rate).
 
     Returns:
@@ -404,9 +399,9 @@ def train_iteration(
         :data:`~jaxcart.core.metrics.METRIC_NAMES`.
     """
     runner, rollout, batch, update_key, learning_rate = prepare_update(
-        runner, hp, iteration, config, env_params
+        runner, config, iteration, env_params
     )
     params, opt_state, losses = update_epochs(
-        runner.params, runner.opt_state, batch, update_key, hp, learning_rate, config
+        runner.params, runner.opt_state, batch, update_key, learning_rate, config
     )
     return finish_iteration(runner, rollout, batch, learning_rate, params, opt_state, losses)

@@ -29,15 +29,14 @@ from jaxcart.core.ppo import (
     train_iteration,
     update_epochs,
 )
-from jaxcart.core.tricks import Hyperparams
 
 Array = jax.Array
 
 UPDATE_GROUP = 8
 """Most runs whose update is vmapped together on a CPU device. Why: the update of 8 runs
 (parameters, Adam moments, activations) fits in a core's L2 cache where that of 32 does not;
-with 32 runs on a core the update in groups of 8 took 0.89x, and on a later day 0.96x, as long
-as vmapped over all 32 (``benchmarks/RESULTS.md``, "Seed groups and compile levers")."""
+with 32 runs on a core the update in groups of 8 took 0.89-0.96x as long as vmapped over all 32
+(``benchmarks/RESULTS.md``)."""
 
 
 def initial_runners(
@@ -57,7 +56,7 @@ def initial_runners(
     """
     num_runs, num_envs = obs.shape[:2]
     one_run = jax.tree.map(lambda x: x[0], params)
-    opt_shapes = jax.eval_shape(make_optimizer(Hyperparams.from_config(config)).init, one_run)
+    opt_shapes = jax.eval_shape(make_optimizer(config).init, one_run)
     zeros = lambda shape, dtype: np.zeros((num_runs, *shape), dtype)
     window = (EPISODE_WINDOW,)
     return RunnerState(
@@ -105,13 +104,12 @@ def guard_divergence(
 
 def guarded_iteration(
     runner: RunnerState,
-    hp: Hyperparams,
-    iteration: Array,
     config: PPOConfig,
+    iteration: Array,
     env_params: cartpole.EnvParams,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """:func:`~jaxcart.core.ppo.train_iteration` of one run, then :func:`guard_divergence`."""
-    new, metrics = train_iteration(runner, hp, iteration, config, env_params)
+    new, metrics = train_iteration(runner, config, iteration, env_params)
     return guard_divergence(runner, new, metrics, iteration)
 
 
@@ -147,9 +145,8 @@ def in_groups(fn: Callable, num_runs: int, group: int) -> Callable:
 
 def grouped_iteration(
     runners: RunnerState,
-    hps: Hyperparams,
-    iteration: Array,
     config: PPOConfig,
+    iteration: Array,
     env_params: cartpole.EnvParams,
     group: int,
 ) -> tuple[RunnerState, dict[str, Array]]:
@@ -157,11 +154,11 @@ def grouped_iteration(
     ``group`` runs (:func:`in_groups`): the same arithmetic per run, but XLA compiles the update
     for the group width, so above ``group`` runs the last bits differ from a plain vmap."""
     before, rollout, batch, update_key, learning_rate = jax.vmap(
-        prepare_update, in_axes=(0, 0, None, None, None)
-    )(runners, hps, iteration, config, env_params)
-    update = in_groups(functools.partial(update_epochs, config=config), len(runners.key), group)
+        prepare_update, in_axes=(0, 0, None, None)
+    )(runners, config, iteration, env_params)
+    update = in_groups(update_epochs, len(runners.key), group)
     params, opt_state, losses = update(
-        before.params, before.opt_state, batch, update_key, hps, learning_rate
+        before.params, before.opt_state, batch, update_key, learning_rate, config
     )
     new, metrics = jax.vmap(finish_iteration)(
         before, rollout, batch, learning_rate, params, opt_state, losses
@@ -188,20 +185,19 @@ def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
 
 def train_chunk(
     runners: RunnerState,
-    hps: Hyperparams,
-    start_iteration: Array,
     config: PPOConfig,
+    start_iteration: Array,
     env_params: cartpole.EnvParams,
     chunk_size: int,
     update_group: int | None = None,
     count: Array | None = None,
 ) -> tuple[RunnerState, dict[str, Array]]:
-    """Scans up to ``chunk_size`` iterations of every run; jit this (config, env_params and
-    chunk_size static).
+    """Scans up to ``chunk_size`` iterations of every run; jit this (env_params and chunk_size
+    static; the config's static fields are part of its pytree structure).
 
     Args:
         runners: a :class:`RunnerState` with a leading run axis ``[R]``.
-        hps: :class:`Hyperparams` with leaves ``[R]``.
+        config: every run's config, its traced fields ``[R]`` (:meth:`PPOConfig.per_run`).
         start_iteration: int32 scalar, the index of the chunk's first iteration. When
             ``chunk_size`` does not divide the run, iterations at or past
             ``config.num_iterations`` are skipped (state unchanged, metrics NaN) by a
@@ -225,10 +221,10 @@ def train_chunk(
     if update_group is not None and num_runs > update_group:
         runs_iteration = functools.partial(grouped_iteration, group=update_group)
     else:  # exactly the program of a plain vmap (the grouped one differs in the last bits)
-        runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, None, None))
+        runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, None))
 
     def run(runners: RunnerState, iteration: Array):
-        return runs_iteration(runners, hps, iteration, config, env_params)
+        return runs_iteration(runners, config, iteration, env_params)
 
     def skip(runners: RunnerState, iteration: Array):
         return runners, {name: jnp.full((num_runs,), jnp.nan, jnp.float32) for name in METRIC_NAMES}

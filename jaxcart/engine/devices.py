@@ -25,17 +25,21 @@ def use_all_host_cores(count: int | None = None) -> None:
     if DEVICE_COUNT_FLAG in flags:
         check_device_count_flag(flags)
         return
-    bridge = sys.modules.get("jax._src.xla_bridge")
-    if bridge is not None and getattr(bridge, "_backends", None):
-        warnings.warn(
-            "use_all_host_cores() comes too late: JAX has started with its devices already; "
-            "call it before any JAX work (or set XLA_FLAGS before starting Python)",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-        return
     if count is None:
         count = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if "jax" in sys.modules:  # JAX is loaded: its own option, refused once backends exist
+        import jax
+
+        try:
+            jax.config.update("jax_num_cpu_devices", count or 1)
+        except RuntimeError:
+            warnings.warn(
+                "use_all_host_cores() comes too late: JAX has started with its devices already; "
+                "call it before any JAX work (or set XLA_FLAGS before starting Python)",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        return
     os.environ["XLA_FLAGS"] = f"{flags} {DEVICE_COUNT_FLAG}={count or 1}".strip()
 
 

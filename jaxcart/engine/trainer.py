@@ -23,10 +23,8 @@ from jaxcart.core import env as cartpole
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
-from jaxcart.core.tricks import Hyperparams
 from jaxcart.engine import distributed
 from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, roll_back_diverged, train_chunk
-from jaxcart.engine.lowering import fast_lowering
 from jaxcart.engine.signals import wait_interruptibly
 
 
@@ -133,11 +131,12 @@ METRIC_COLUMNS = (*METRIC_NAMES, "time/fps", "time/elapsed")
 
 @dataclass
 class TrainState:
-    """Everything needed to continue training: per-run state (leaves ``[R, ...]``), the
-    hyperparameters, iterations done, seconds of training so far and the metrics so far."""
+    """Everything needed to continue training: per-run state (leaves ``[R, ...]``), every
+    run's config (traced fields ``[R]``), iterations done, seconds of training so far and the
+    metrics so far."""
 
     runners: RunnerState
-    hyperparams: Hyperparams
+    config: PPOConfig
     iteration: int
     elapsed: float
     metrics: dict[str, np.ndarray]  # METRIC_COLUMNS -> [iteration, R] ({}: kept elsewhere)
@@ -196,17 +195,10 @@ class TrainResult:
         return self.state.runners.params
 
 
-def broadcast_hyperparams(config: PPOConfig, num_runs: int) -> Hyperparams:
-    """The config's float hyperparameters repeated for every run, leaves ``[R]``."""
-    hp = Hyperparams.from_config(config)
-    return jax.tree.map(lambda x: jnp.full((num_runs,), x, x.dtype), hp)
-
-
 def initial_state(
     config: PPOConfig,
     num_runs: int,
     seed: int,
-    hyperparams: Hyperparams | None = None,
     env_params: cartpole.EnvParams | None = None,
     chunk_size: int | None = None,
     seed_indices: np.ndarray | None = None,
@@ -214,16 +206,18 @@ def initial_state(
 ) -> TrainState:
     """The state before the first iteration (also the template a checkpoint is loaded into).
 
+    ``config``'s traced fields are floats (every run the same) or arrays ``[num_runs]`` (a
+    value per run: :meth:`PPOConfig.per_run`).
+
     ``seed_indices`` defaults to ``arange(num_runs)`` (every run its own seed index);
     ``on_progress`` as in :func:`init_runners`. Without ``chunk_size`` the chunks adapt
     their length to take about :data:`CHUNK_SECONDS` each; with it, every chunk runs that
     many iterations. Neither changes a number (only when the host looks).
     """
     indices = np.arange(num_runs) if seed_indices is None else np.asarray(seed_indices)
-    hps = hyperparams if hyperparams is not None else broadcast_hyperparams(config, num_runs)
     return TrainState(
         runners=init_runners(config, seed, indices, env_params, on_progress),
-        hyperparams=hps,
+        config=config.per_run(num_runs),
         iteration=0,
         elapsed=0.0,
         metrics={k: np.zeros((0, num_runs), np.float32) for k in METRIC_COLUMNS},
@@ -238,7 +232,6 @@ def train(
     num_runs: int = 1,
     seed: int = 0,
     *,
-    hyperparams: Hyperparams | None = None,
     env_params: cartpole.EnvParams | None = None,
     chunk_size: int | None = None,
     devices: list | None = None,
@@ -253,11 +246,10 @@ def train(
     """Trains ``num_runs`` independent PPO agents in one compiled program.
 
     Args:
-        config: shapes and (default) hyperparameters.
+        config: the runs' config; its traced fields are floats (every run the same) or
+            arrays ``[num_runs]`` with one value per run (a sweep: :meth:`PPOConfig.per_run`).
         num_runs: independent runs, a vmap axis sharded over ``devices``.
         seed: base seed; run r uses ``fold_in(PRNGKey(seed), seed_indices[r])``.
-        hyperparams: per-run float hyperparameters with leaves ``[num_runs]`` (a sweep);
-            defaults to the config's values for every run.
         chunk_size: iterations per compiled call between progress reports (default: calls
             that adapt to take about :data:`CHUNK_SECONDS` each).
         resume: continue from this state (e.g. a loaded checkpoint), bit-identically.
@@ -272,29 +264,27 @@ def train(
             ``on_chunk`` sees them, so memory does not grow with the run (they are ``{}``).
     """
     env_params = env_params or cartpole.EnvParams()
-    state = resume or initial_state(
-        config, num_runs, seed, hyperparams, env_params, chunk_size, seed_indices
-    )
+    state = resume or initial_state(config, num_runs, seed, env_params, chunk_size, seed_indices)
     devices = _devices(devices, num_runs, runs_per_device)
-    runners, hps = place(state, devices, num_runs, runs_per_device)
+    runners, run_configs = place(state, devices, num_runs, runs_per_device)
 
     start = time.perf_counter()
     compiled, fresh = None, False
     if state.iteration < config.num_iterations:  # a finished state needs no program
-        sizes = (state.chunk_size, runners, hps, state.chunk_seconds)
-        compiled, fresh = wait_interruptibly(lambda: compiled_chunk(config, env_params, *sizes))
+        sizes = (state.chunk_size, runners, run_configs, state.chunk_seconds)
+        compiled, fresh = wait_interruptibly(lambda: compiled_chunk(env_params, *sizes))
     compile_seconds = time.perf_counter() - start
     if on_compiled:
         on_compiled(compile_seconds)
 
-    loop = _ChunkLoop(config, state, hps, num_runs, keep_metrics)
+    loop = _ChunkLoop(state, run_configs, num_runs, keep_metrics)
     stopped = False
     while loop.done < config.num_iterations:
         # every process must agree, or one would wait forever for the others' next chunk
         if should_stop is not None and distributed.any_process(should_stop()):
             stopped = True
             break
-        end, metrics = compiled(runners, hps, jnp.int32(loop.done), jnp.int32(loop.count))
+        end, metrics = compiled(runners, run_configs, jnp.int32(loop.done), jnp.int32(loop.count))
         # waits for the chunk on a worker thread, so that signals are handled meanwhile
         metrics = wait_interruptibly(functools.partial(distributed.gather, metrics))
         runners, progress = loop.record(runners, end, metrics)
@@ -324,22 +314,20 @@ def _devices(devices: list | None, num_runs: int, runs_per_device: int | None) -
 
 def place(
     state: TrainState, devices: list, num_runs: int, runs_per_device: int | None
-) -> tuple[RunnerState, Hyperparams]:
-    """The state's runs padded to fill every device equally and placed on them."""
+) -> tuple[RunnerState, PPOConfig]:
+    """The state's runs and their configs padded to fill every device equally and placed."""
     sharding = run_sharding(devices)
     padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
     runners = distributed.to_global(pad_runs(state.runners, padded), sharding)
-    return runners, distributed.to_global(pad_runs(state.hyperparams, padded), sharding)
+    return runners, distributed.to_global(pad_runs(state.config, padded), sharding)
 
 
 class _ChunkLoop:
     """The host's bookkeeping between compiled chunks: iterations done, training time and
     the metrics so far (with SB3's ``time/fps`` and ``time/elapsed`` added)."""
 
-    def __init__(
-        self, config: PPOConfig, state: TrainState, hps: Hyperparams, num_runs: int, keep: bool
-    ) -> None:
-        self.config, self.hps, self.chunk_size = config, hps, state.chunk_size
+    def __init__(self, state: TrainState, config: PPOConfig, num_runs: int, keep: bool) -> None:
+        self.config, self.chunk_size = config, state.chunk_size  # config: the placed runs'
         self.chunk_seconds = state.chunk_seconds
         self.count = 1 if self.chunk_seconds else self.chunk_size  # the next call's iterations
         self.last = time.perf_counter()
@@ -392,7 +380,13 @@ class _ChunkLoop:
         real = functools.partial(jax.tree.map, lambda x: x[: self.num_runs])
         metrics = _concat(self.chunks) if self.chunks is not None else {}
         return TrainState(
-            real(runners), real(self.hps), done, now, metrics, self.chunk_size, self.chunk_seconds
+            real(runners),
+            real(self.config),
+            done,
+            now,
+            metrics,
+            self.chunk_size,
+            self.chunk_seconds,
         )
 
     def final_state(self, runners: RunnerState) -> TrainState:
@@ -403,53 +397,49 @@ _COMPILED: dict = {}
 
 
 def compiled_chunk(
-    config: PPOConfig,
     env_params: cartpole.EnvParams,
     chunk_size: int,
-    runners,
-    hps,
+    runners: RunnerState,
+    config: PPOConfig,
     chunk_seconds: float | None = None,
 ) -> tuple[Callable, bool]:
     """The compiled :func:`~jaxcart.engine.chunk.train_chunk` for these shapes and devices.
 
-    Kept per process, keyed by what shapes the program: the static part of the config
-    (:meth:`PPOConfig.static`), the env constants, the chunk size and the runs' array shapes
-    and shardings. The traced float hyperparameters are not part of the key (nor of the
-    program): new learning rates, clip ranges, ... reuse the same executable. The program
-    takes ``(runners, hps, start_iteration, count)``; ``count`` (how many of the chunk's
-    iterations run) is honoured when ``chunk_seconds`` is set (adaptive chunks), else every
-    call runs ``chunk_size`` iterations.
+    Kept per process, keyed by what shapes the program: the config's pytree structure (its
+    static fields), the env constants, the chunk size and the array shapes and shardings of
+    the runners and of the config's traced fields (``[R]``). The traced values are not part
+    of the key (nor of the program): new learning rates, clip ranges, ... reuse the same
+    executable. The program takes ``(runners, config, start_iteration, count)``; ``count``
+    (how many of the chunk's iterations run) is honoured when ``chunk_seconds`` is set
+    (adaptive chunks), else every call runs ``chunk_size`` iterations.
 
     Returns:
         ``(compiled, fresh)`` where ``fresh`` says whether it was compiled just now.
     """
-    config = config.static()
     signature = tuple(
         (leaf.shape, str(leaf.dtype), str(leaf.sharding))
-        for leaf in jax.tree.leaves((runners, hps))
+        for leaf in jax.tree.leaves((runners, config))
     )
     adaptive = bool(chunk_seconds)
-    key = (config, env_params, chunk_size, adaptive, signature)
+    key = (jax.tree.structure(config), env_params, chunk_size, adaptive, signature)
     if key in _COMPILED:
         return _COMPILED[key], False
     sharding = jax.tree.leaves(runners)[0].sharding
-    program = chunk_program(config, env_params, chunk_size, sharding, adaptive)
-    with fast_lowering():
-        lowered = program.lower(runners, hps, jnp.int32(0), jnp.int32(1))
+    program = chunk_program(env_params, chunk_size, sharding, adaptive)
+    lowered = program.lower(runners, config, jnp.int32(0), jnp.int32(1))
     _COMPILED[key] = lowered.compile()
     return _COMPILED[key], True
 
 
 def chunk_program(
-    config: PPOConfig,
     env_params: cartpole.EnvParams,
     chunk_size: int,
     sharding: jax.sharding.Sharding,
     adaptive: bool,
 ) -> Callable:
     """The jitted :func:`~jaxcart.engine.chunk.train_chunk` that :func:`compiled_chunk`
-    compiles, ``(runners, hps, start_iteration, count) -> (runners, metrics)`` for runners
-    placed with ``sharding``; lower it inside :func:`~jaxcart.engine.lowering.fast_lowering`.
+    compiles, ``(runners, config, start_iteration, count) -> (runners, metrics)`` for runners
+    placed with ``sharding``.
 
     The runners are not donated: a run that diverges is rolled back to them
     (:func:`rolled_back`)."""
@@ -457,9 +447,9 @@ def chunk_program(
     on_cpu = all(d.platform == "cpu" for d in sharding.device_set)
     update_group = UPDATE_GROUP if on_cpu else None
 
-    def training_chunk(runners: RunnerState, hps: Hyperparams, start: jax.Array, count: jax.Array):
+    def training_chunk(runners: RunnerState, config: PPOConfig, start: jax.Array, count: jax.Array):
         count = count if adaptive else None
-        return train_chunk(runners, hps, start, config, env_params, chunk_size, update_group, count)
+        return train_chunk(runners, config, start, env_params, chunk_size, update_group, count)
 
     if isinstance(sharding, NamedSharding) and sharding.mesh.size > 1:
         # Every device runs the same program on its own runs with no communication: say so

@@ -236,12 +236,10 @@ def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> T
     wave = len(plan.wave(run // plan.wave_size))
     used = min(devices_now, wave)  # fewer runs than devices trained on that many devices
     config = spec.combo_config(combination)
-    hps = sweeps.grid_hyperparams(config, sweeps.RunGrid(1))
     return train(
         config,
         1,
         spec.seed,
-        hyperparams=hps,
         seed_indices=np.array([seed_index]),
         devices=jax.devices()[:used],
         runs_per_device=-(-wave // used),

@@ -1,7 +1,7 @@
 """Hyperparameter sweeps as one compiled program, and the order of runs on the seed axis.
 
 Every combination x seed is one run on the vmapped axis; the swept float hyperparameters
-travel as arrays (:class:`~jaxcart.core.tricks.Hyperparams`), so the program compiles once
+travel as arrays (the config's traced fields, one value per run), so the program compiles once
 whatever the values. :class:`RunGrid` is the one definition of the run order: run ``r`` is
 combination ``r // num_seeds`` with seed index ``r % num_seeds``; all combinations share the
 seeds' random streams. "Seeds" are per combination, "runs" are all of them.
@@ -13,12 +13,10 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.analysis import stats, summary
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
-from jaxcart.core.tricks import Hyperparams
 
 
 @dataclass(frozen=True)
@@ -117,15 +115,15 @@ def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
     return dataclasses.replace(config, **combo)
 
 
-def grid_hyperparams(config: PPOConfig, grid: RunGrid) -> Hyperparams:
-    """Hyperparameters of every run in ``grid`` order, float32 leaves ``[num_runs]``: each
-    combination's values (``config``'s own where it sweeps nothing), once per seed."""
+def grid_config(config: PPOConfig, grid: RunGrid) -> PPOConfig:
+    """The config of every run in ``grid`` order, its traced fields float32 ``[num_runs]``:
+    each combination's values (``config``'s own where it sweeps nothing), once per seed."""
     leaves = {}
     for name in TRACED_FIELDS:
         base = getattr(config, name)
         per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], np.float32)
-        leaves[name] = jnp.asarray(np.repeat(per_combo, grid.num_seeds))
-    return Hyperparams(**leaves)
+        leaves[name] = np.repeat(per_combo, grid.num_seeds)
+    return dataclasses.replace(config, **leaves)
 
 
 def first_reach(returns: np.ndarray, env_steps: np.ndarray, target: float = 500.0) -> np.ndarray:

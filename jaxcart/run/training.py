@@ -14,7 +14,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from jaxcart.core.ppo import Hyperparams
+from jaxcart.core.config import PPOConfig
 from jaxcart.engine import distributed
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.engine.trainer import (
@@ -32,9 +32,9 @@ from jaxcart.run.spec import Evaluation, Hooks, Run, RunOptions
 from jaxcart.rundir.directory import package_versions
 
 
-def run_hyperparams(run: Run) -> Hyperparams:
-    """Every run's traced hyperparameters, leaves ``[R]``."""
-    return sweeps.grid_hyperparams(run.config, run.grid)
+def run_configs(run: Run) -> PPOConfig:
+    """Every run's config, its traced fields ``[R]``."""
+    return sweeps.grid_config(run.config, run.grid)
 
 
 def wave_start_state(
@@ -59,12 +59,11 @@ def wave_start_state(
         saved = run.directory.load_checkpoint(template, num_runs=len(runs))
         run.directory.open_metrics(len(runs), saved.iteration)  # rows after it are cut
         return dataclasses.replace(saved, chunk_seconds=adapt)
-    hps = jax.tree.map(lambda x: x[runs.start : runs.stop], run_hyperparams(run))
+    configs = jax.tree.map(lambda x: x[runs.start : runs.stop], run_configs(run))
     fresh = initial_state(
-        run.config,
+        configs,
         len(runs),
         run.spec.seed,
-        hps,
         chunk_size=chunk_size,
         seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
         on_progress=on_progress,
@@ -76,12 +75,10 @@ def wave_start_state(
 
 def save_state(run: Run, state: TrainState, wave: int = 0) -> None:
     """Checkpoints ``state``: every process takes part in gathering it; process 0 writes."""
-    arrays = distributed.gather({"runners": state.runners, "hyperparams": state.hyperparams})
+    arrays = distributed.gather({"runners": state.runners, "config": state.config})
     if not run.main_process:
         return
-    gathered = dataclasses.replace(
-        state, runners=arrays["runners"], hyperparams=arrays["hyperparams"]
-    )
+    gathered = dataclasses.replace(state, runners=arrays["runners"], config=arrays["config"])
     meta = {
         "num_runs": len(arrays["runners"].diverged_at),
         "wave": wave,

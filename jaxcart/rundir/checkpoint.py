@@ -38,8 +38,9 @@ from jaxcart.rundir.stream import read_stream
 
 
 def state_arrays(state: TrainState) -> dict[str, np.ndarray]:
-    """The checkpoint entries of a state's arrays: ``state/<tree path>`` -> ``[R, ...]``."""
-    tree = {"runners": state.runners, "hyperparams": state.hyperparams}
+    """The checkpoint entries of a state's arrays: ``state/<tree path>`` -> ``[R, ...]`` (the
+    config's traced fields under ``state/hyperparams/``)."""
+    tree = {"runners": state.runners, "hyperparams": state.config}
     return {CHECKPOINT_STATE + name: a for name, a in files.flatten(tree).items()}
 
 
@@ -118,11 +119,11 @@ def load_checkpoint(
     arrays, _ = files.load_tree(path, max_bytes=limit + (1 << 20))
     state_names = [n for n in expected if n.startswith(layout.CHECKPOINT_STATE)]
     files.check_finite({n: arrays[n] for n in state_names}, path)
-    tree = {"runners": template.runners, "hyperparams": template.hyperparams}
+    tree = {"runners": template.runners, "hyperparams": template.config}
     restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
     return TrainState(
         runners=restored["runners"],
-        hyperparams=restored["hyperparams"],
+        config=restored["hyperparams"],
         iteration=int(meta["iteration"]),
         elapsed=float(meta["elapsed"]),
         metrics={},  # in the stream (jaxcart.rundir.stream)
