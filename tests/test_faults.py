@@ -552,12 +552,11 @@ def test_crafted_run_directories_rejected_by_every_reader(damage, message, finis
     shutil.copytree(finished_run, run)
     damage(run)
     FAULT_FIGURES["crafted files tried"] += 1
-    start, peak = time.monotonic(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     with pytest.raises(RunDirError, match=message):
         jaxcart.load_policy(run)
     code, err = _capture(lambda: evaluate.main([str(run), "--episodes", "1"]))
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    assert time.monotonic() - start < 10
     grown_mib = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - peak) / 1024
     assert grown_mib < 200, f"reading a crafted file grew the process by {grown_mib:.0f} MiB"
     FAULT_FIGURES["crafted files rejected"] += 1

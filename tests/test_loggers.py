@@ -274,10 +274,10 @@ def test_log_returns_at_once_while_a_slow_writer_catches_up(tmp_path, recording,
     monkeypatch.setattr(recording, "delay", 0.1)
     logger = make_logger(["recording"], tmp_path, RUNS)
     chunks = synthetic_chunks(num_chunks=5)
-    start = time.perf_counter()
     for chunk in chunks:
         logger.log(*chunk)
-    assert time.perf_counter() - start < 0.05  # five writes take >= 0.5 s
+    # log() handed the chunks over without waiting: the slow writer has not caught up
+    assert recording.instances[0].calls.count("write") < 5
     chunks[0][2]["train/approx_kl"][:] = -1.0  # the logger kept its own copy
     logger.close()
 

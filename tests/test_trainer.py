@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import time
 
 import jax
 import numpy as np
@@ -259,15 +258,14 @@ def test_adaptive_chunks_change_no_number(monkeypatch):
 
 
 def test_default_chunk_size_is_constant_time():
-    """The chunk capacity of a run of 10^15 iterations is found at once (it used to scan a
-    range proportional to the run for divisors), and bounds the chunk's metrics buffer."""
+    """The chunk capacity of a run of 10^15 iterations is a formula (it used to scan a range
+    proportional to the run for divisors, which would not return here), and bounds the
+    chunk's metrics buffer."""
     from jaxcart.core.metrics import METRIC_NAMES
     from jaxcart.engine.trainer import CHUNK_METRICS_BYTES, default_chunk_size
 
-    start = time.perf_counter()
     assert default_chunk_size(10**15) == 1024
     assert default_chunk_size(10**15, num_runs=10**6) == 1
     assert default_chunk_size(7) == 7
     chunk = default_chunk_size(10**6, num_runs=6652)
     assert 100 < chunk and chunk * 6652 * len(METRIC_NAMES) * 4 <= CHUNK_METRICS_BYTES
-    assert time.perf_counter() - start < 2.0  # a hang guard: the old scan took hours
