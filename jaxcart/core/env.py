@@ -243,7 +243,7 @@ def hash_uniform(
 
     Plain version: ``jax.random.uniform`` (Threefry). Why: drawing 4 Threefry uniforms per env
     and step cost about three times CartPole's physics, so the env was RNG-bound; with the hash
-    the draw is 5 ns of a 24 ns env step (``benchmarks/RESULTS.md``, env throughput;
+    the draw is under a quarter of an env step (``benchmarks/RESULTS.md``, env throughput;
     ``benchmarks/results/env_step_ablation.md``, ``fixed-reset``). Same distribution, other
     numbers: every run's reset states depend on it, so it cannot change without changing them.
 

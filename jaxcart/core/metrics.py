@@ -53,7 +53,7 @@ def update_episode_buffer(
     ``valid``. The ranking is one ``top_k`` of the positions of the ended episodes. Plain
     version: a reversed cumulative count of the ended episodes as each one's rank, and a
     scatter per field. Why: the same window (``tests/test_ppo.py`` checks it bit for bit) in
-    9 fewer compiled kernels of the default step (``benchmarks/RESULTS.md``, "Cold compile").
+    9 fewer compiled kernels of the default step.
 
     Args:
         buffer: the window so far.

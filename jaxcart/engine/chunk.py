@@ -84,13 +84,13 @@ def guard_divergence(
     Records ``diverged_at`` (1-based, as metrics.csv numbers iterations) the first time, and
     reports NaN metrics for every later iteration. It selects nothing: keeping the old state
     alive beside the new one, leaf by leaf, in every iteration made the compiled program about
-    a third slower to compile (``benchmarks/RESULTS.md``, "Cold compile"). The trainer instead
+    a third slower to compile. The trainer instead
     rolls a marked run back to its state at the start of the chunk (the last state a
     checkpoint can hold) with :func:`roll_back_diverged`, compiled apart and only once a run
     has diverged, so the run keeps finite parameters and later chunks leave it untouched.
     """
     # one reduction over every parameter and the three losses: a kernel or two, where a check
-    # per leaf compiled to about 16 distinct kernels ("Cold compile" in benchmarks/RESULTS.md)
+    # per leaf compiles to about 16 distinct kernels
     checked = [x.reshape(-1) for x in jax.tree.leaves(new.params)]
     checked += [metrics[n].reshape(1) for n in ("train/loss", "train/value_loss")]
     checked.append(metrics["train/policy_gradient_loss"].reshape(1))
@@ -172,9 +172,8 @@ def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
 
     Not part of :func:`train_chunk`: inside it, these selects (one per leaf of the state) and
     the start state kept alive across the chunk's loop made the default run's program 13
-    kernels larger (220 against 207) for an event most runs never see
-    (``benchmarks/RESULTS.md``, "Cold compile"). The trainer compiles it on its own the first
-    time a run diverges."""
+    kernels larger (220 against 207) for an event most runs never see. The trainer calls it
+    only once a run has diverged."""
     diverged = end.diverged_at >= 0
 
     def pick(s: Array, e: Array) -> Array:

@@ -466,8 +466,8 @@ def chunk_program(
 
 
 def rolled_back(start: RunnerState, end: RunnerState) -> RunnerState:
-    """:func:`~jaxcart.engine.chunk.roll_back_diverged` compiled on its own (on the first call:
-    only once a run has diverged), ``end`` donated."""
+    """:func:`~jaxcart.engine.chunk.roll_back_diverged`, called on the host only once a run
+    has diverged (so the chunk program itself carries no rollback)."""
     return roll_back_diverged(start, end)
 
 

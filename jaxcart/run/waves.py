@@ -40,17 +40,18 @@ EVAL_BYTES_PER_EPISODE = 8_000  # a Gymnasium env object and its bookkeeping, pe
 PROCESS_RESERVE_BYTES = 1_500_000_000  # Python, JAX, XLA and the compiled program itself
 USABLE_FRACTION = 0.7
 CPU_RUNS_PER_DEVICE = 32
-"""Runs per CPU device in a wave. Measured on a 2-core machine (2 CPU devices, shared, so
-+-2x): the fast preset cost 9-20 ms per run and iteration at 4 to 64 runs per device with no
-trend past 8, and the sb3 preset 95 ms at 32 runs per device but 149 ms at 256; wider waves
-only make every chunk slower (one sb3 iteration of 256 runs per device took 76 s)."""
+"""Runs per CPU device in a wave. Why: on a shared 2-core host (+-2x) the fast preset cost 9-20
+ms per run and iteration at 4 to 64 runs per device with no trend past 8, and the sb3 preset 95
+ms at 32 runs per device but 149 ms at 256: a wider wave is no cheaper per run, and every chunk
+takes longer."""
 ACCELERATOR_ENVS_PER_DEVICE = 65_536
 """Parallel environments (runs x num_envs) per GPU or TPU: a model, not measured."""
 CPU_SECONDS_PER_ENV_STEP = 1.2e-6
 """Seconds per environment step and update epoch of one run on one CPU device, for the
-time estimate. Measured on 2026-11-25 (load 1.5-2.2) at 32 runs per device: 1.1 us for the
-sb3 preset (0.793 s per iteration of a million-seed run) and about 0.9 us for fast (a
-64-seed, 100k-step process in 17.4 s); 2026-11-22's 8 us was a machine loaded 5-15."""
+time estimate only: at 32 runs per device the sb3 preset takes about 1.1 us (0.793 s per
+iteration of a million-seed run, ``benchmarks/RESULTS.md``, "Memory at scale") and fast about
+0.9 us on a quiet 2-core host; a loaded host is several times slower, and the first chunks'
+measurement replaces the estimate."""
 ACCELERATOR_SECONDS_PER_ENV_STEP = 1e-8  # a guess; the first chunks' measurement follows
 CSV_BYTES_PER_ROW = 250
 """One (seed, iteration) row of ``metrics.csv`` (measured: 244 bytes in a fast-preset run)."""
