@@ -203,13 +203,13 @@ def stub(part: str) -> None:
         names = ("approx_kl", "clip_fraction", "entropy_loss", "policy_gradient_loss")
         names += ("value_loss", "loss")
 
-        def update(params, opt_state, batch, key, hp, learning_rate, config):
+        def update(params, opt_state, batch, key, learning_rate, config):
             shape = (config.update_epochs, config.num_minibatches)
             return params, opt_state, {n: jnp.zeros(shape) for n in names}
 
         ppo.update_epochs = update
     elif part == "fused-adam":
-        ppo.make_optimizer = lambda hp: fused_clip_adam(hp.max_grad_norm, hp.adam_eps)
+        ppo.make_optimizer = lambda config: fused_clip_adam(config.max_grad_norm, config.adam_eps)
         chunk.make_optimizer = ppo.make_optimizer
     elif part == "one-scatter":
         ppo.update_episode_buffer = one_scatter
@@ -238,10 +238,10 @@ def child(run: bool, part: str | None) -> dict:
     config = preset("sb3")
     env_params = cartpole.EnvParams()
     state = trainer.initial_state(config, 1, 0, env_params=env_params)
-    runners, hps = trainer.place(state, jax.devices()[:1], 1, None)
+    runners, configs = trainer.place(state, jax.devices()[:1], 1, None)
     sharding = jax.tree.leaves(runners)[0].sharding
-    program = trainer.chunk_program(config, env_params, state.chunk_size, sharding, adaptive=True)
-    args = (runners, hps, jnp.int32(0), jnp.int32(state.chunk_size))
+    program = trainer.chunk_program(env_params, state.chunk_size, sharding, adaptive=True)
+    args = (runners, configs, jnp.int32(0), jnp.int32(state.chunk_size))
 
     marks = [(time.perf_counter(), time.process_time())]
     traced = program.trace(*args)

@@ -26,31 +26,31 @@ from jaxcart.core import env as cartpole
 from jaxcart.core.config import preset
 from jaxcart.core.ppo import collect_rollout, training_batch, update_epochs
 from jaxcart.engine.chunk import train_chunk
-from jaxcart.engine.trainer import broadcast_hyperparams, init_runners
+from jaxcart.engine.trainer import init_runners
 
 
 def profile(preset_name: str, seeds: int) -> dict:
     config = preset(preset_name)
     env_params = cartpole.EnvParams()
     runners = jax.device_put(init_runners(config, 0, np.arange(seeds), env_params))
-    hps = broadcast_hyperparams(config, seeds)
+    configs = config.per_run(seeds)  # every seed's config, traced fields [S]
 
     rollout_fn = jax.vmap(lambda r: collect_rollout(r, config, env_params))
     _, rollout_s = lib.compile_and_time(rollout_fn, (runners,))
     _, rollout = jax.jit(rollout_fn)(runners)
 
     # GAE (and the flattening into one batch, free): the stage between rollout and update
-    gae_fn = jax.vmap(lambda r, roll, hp: training_batch(r.params, roll, hp, config))
-    _, gae_s = lib.compile_and_time(gae_fn, (runners, rollout, hps))
-    batch = jax.jit(gae_fn)(runners, rollout, hps)
+    gae_fn = jax.vmap(lambda r, roll, c: training_batch(r.params, roll, c))
+    _, gae_s = lib.compile_and_time(gae_fn, (runners, rollout, configs))
+    batch = jax.jit(gae_fn)(runners, rollout, configs)
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     update_fn = jax.vmap(
-        lambda r, b, k, h: update_epochs(r.params, r.opt_state, b, k, h, h.learning_rate, config)
+        lambda r, b, k, c: update_epochs(r.params, r.opt_state, b, k, c.learning_rate, c)
     )
-    _, update_s = lib.compile_and_time(update_fn, (runners, batch, keys, hps))
+    _, update_s = lib.compile_and_time(update_fn, (runners, batch, keys, configs))
 
-    chunk = functools.partial(train_chunk, config=config, env_params=env_params, chunk_size=2)
-    compile_s, chunk_s = lib.compile_and_time(chunk, (runners, hps, jnp.int32(0)), repeats=3)
+    chunk = functools.partial(train_chunk, env_params=env_params, chunk_size=2)
+    compile_s, chunk_s = lib.compile_and_time(chunk, (runners, configs, jnp.int32(0)), repeats=3)
     iteration_s = chunk_s / 2
     return {
         "preset": preset_name,

@@ -51,7 +51,7 @@ from benchmarks import lib  # noqa: E402
 from jaxcart.core import env as cartpole  # noqa: E402
 from jaxcart.core.config import PPOConfig, preset  # noqa: E402
 from jaxcart.core.ppo import Batch, collect_rollout, training_batch, update_epochs  # noqa: E402
-from jaxcart.engine.trainer import broadcast_hyperparams, init_runners  # noqa: E402
+from jaxcart.engine.trainer import init_runners  # noqa: E402
 
 OBS, HIDDEN, ACTIONS = 4, 64, 2
 
@@ -138,30 +138,31 @@ def chain_rate_for(shape: tuple[int, int, int], chains: list[dict]) -> float:
 
 
 def rollout_batch(config: PPOConfig, seeds: int):
-    """A real rollout batch ``[S, B, ...]`` and the runners it came from."""
+    """A real rollout batch ``[S, B, ...]``, the runners it came from and every seed's config
+    (traced fields ``[S]``)."""
     env_params = cartpole.EnvParams()
     runners = jax.device_put(init_runners(config, 0, np.arange(seeds), env_params))
-    hps = broadcast_hyperparams(config, seeds)
+    configs = config.per_run(seeds)
 
-    def batch_of(runner, hp):
-        runner, rollout = collect_rollout(runner, config, env_params)
-        return training_batch(runner.params, rollout, hp, config)
+    def batch_of(runner, run_config):
+        runner, rollout = collect_rollout(runner, run_config, env_params)
+        return training_batch(runner.params, rollout, run_config)
 
-    batch = jax.jit(jax.vmap(batch_of))(runners, hps)
-    return runners, batch, hps
+    batch = jax.jit(jax.vmap(batch_of))(runners, configs)
+    return runners, batch, configs
 
 
 def update_program(config: PPOConfig, seeds: int):
     """``(fn, args)``: jaxcart's update, vmapped over ``seeds``, as the trainer calls it."""
-    runners, batch, hps = rollout_batch(config, seeds)
+    runners, batch, configs = rollout_batch(config, seeds)
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
 
-    def update(params, opt_state, batch, keys, hps):
-        return jax.vmap(
-            lambda p, o, b, k, h: update_epochs(p, o, b, k, h, h.learning_rate, config)
-        )(params, opt_state, batch, keys, hps)
+    def update(params, opt_state, batch, keys, configs):
+        return jax.vmap(lambda p, o, b, k, c: update_epochs(p, o, b, k, c.learning_rate, c))(
+            params, opt_state, batch, keys, configs
+        )
 
-    return update, (runners.params, runners.opt_state, batch, keys, hps)
+    return update, (runners.params, runners.opt_state, batch, keys, configs)
 
 
 def mlp_step_program(config: PPOConfig, seeds: int, params: dict, batch: Batch):

@@ -35,23 +35,24 @@ from benchmarks.ablations import roofline  # noqa: F401
 from jaxcart.core import env as cartpole
 from jaxcart.core.config import preset
 from jaxcart.engine.chunk import guarded_iteration
-from jaxcart.engine.trainer import broadcast_hyperparams, init_runners
+from jaxcart.engine.trainer import init_runners
 
 CHUNK = 2
 
 
-def chunk_program(config, scheme: str):
-    """``CHUNK`` iterations of every seed, the seeds vmapped or mapped one after another."""
+def chunk_program(scheme: str):
+    """``CHUNK`` iterations of every seed, the seeds vmapped or mapped one after another;
+    takes ``(runners, configs)``, the configs' traced fields ``[S]``."""
     env_params = cartpole.EnvParams()
 
-    def one(runner, hp, iteration):
-        return guarded_iteration(runner, hp, iteration, config, env_params)
+    def one(runner, config, iteration):
+        return guarded_iteration(runner, config, iteration, env_params)
 
-    def program(runners, hps):
+    def program(runners, configs):
         def body(runners, iteration):
             if scheme == "vmap":
-                return jax.vmap(one, in_axes=(0, 0, None))(runners, hps, iteration)
-            return jax.lax.map(lambda a: one(a[0], a[1], iteration), (runners, hps))
+                return jax.vmap(one, in_axes=(0, 0, None))(runners, configs, iteration)
+            return jax.lax.map(lambda a: one(a[0], a[1], iteration), (runners, configs))
 
         return jax.lax.scan(body, runners, jnp.arange(CHUNK))
 
@@ -60,7 +61,7 @@ def chunk_program(config, scheme: str):
 
 def inputs(config, seeds: int):
     runners = jax.device_put(init_runners(config, 0, np.arange(seeds), cartpole.EnvParams()))
-    return runners, broadcast_hyperparams(config, seeds)
+    return runners, config.per_run(seeds)
 
 
 def seed0_params(fn, config, seeds: int) -> list[np.ndarray]:
@@ -72,7 +73,7 @@ def width_row(config, seeds: int, rounds: int) -> dict:
     row = {"seeds": seeds}
     compiled = {}
     for scheme in ("vmap", "map"):
-        fn = chunk_program(config, scheme)
+        fn = chunk_program(scheme)
         alone, batched = seed0_params(fn, config, 1), seed0_params(fn, config, seeds)
         row[f"{scheme}_identical"] = all(np.array_equal(a, b) for a, b in zip(alone, batched))
         args = inputs(config, seeds)

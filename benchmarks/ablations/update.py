@@ -60,8 +60,8 @@ VARIANTS = (
 def flat_adam(make_optimizer: Callable) -> Callable:
     """``make_optimizer`` applied to the raveled gradient (one vector per seed)."""
 
-    def make(hp):
-        inner = make_optimizer(hp)
+    def make(config):
+        inner = make_optimizer(config)
 
         def update(grads, state, params=None):
             flat, unravel = ravel_pytree(grads)
@@ -108,11 +108,11 @@ class Patched:
 def build(variant: str, config: PPOConfig, seeds: int):
     """``(compiled, args)``: the variant's update compiled for ``seeds`` seeds."""
     update, args = roofline.update_program(config, seeds)
-    params, opt_state, batch, keys, hps = args
-    one_hp = jax.tree.map(lambda x: x[0], hps)
+    params, opt_state, batch, keys, configs = args
+    one_config = jax.tree.map(lambda x: x[0], configs)
     swaps: list = []
     if variant == "no-optimizer":
-        swaps = [(ppo, "make_optimizer", lambda hp: optax.identity())]
+        swaps = [(ppo, "make_optimizer", lambda config: optax.identity())]
     elif variant == "no-shuffle":
         swaps = [
             (ppo, "random_permutations", lambda k, n, s: jnp.broadcast_to(jnp.arange(s), (n, s)))
@@ -129,9 +129,9 @@ def build(variant: str, config: PPOConfig, seeds: int):
         params = jax.vmap(lambda p: ravel_pytree(p)[0])(params)
     elif variant == "seed-map":
 
-        def update(params, opt_state, batch, keys, hps):
-            one = lambda a: ppo.update_epochs(*a[:4], a[4], a[4].learning_rate, config)
-            return jax.lax.map(one, (params, opt_state, batch, keys, hps))
+        def update(params, opt_state, batch, keys, configs):
+            one = lambda a: ppo.update_epochs(*a[:4], a[4].learning_rate, a[4])
+            return jax.lax.map(one, (params, opt_state, batch, keys, configs))
 
     elif variant.startswith("seed-groups-"):
         vmapped, group = update, int(variant.removeprefix("seed-groups-"))
@@ -143,8 +143,8 @@ def build(variant: str, config: PPOConfig, seeds: int):
 
     with Patched(*swaps):
         if variant in ("no-optimizer", "flat-adam", "flat-params"):
-            opt_state = jax.vmap(ppo.make_optimizer(one_hp).init)(params)
-        args = (params, opt_state, batch, keys, hps)
+            opt_state = jax.vmap(ppo.make_optimizer(one_config).init)(params)
+        args = (params, opt_state, batch, keys, configs)
         compiled = jax.jit(update).lower(*args).compile()
     jax.block_until_ready(compiled(*args))
     return compiled, args

@@ -39,7 +39,7 @@ import jax.numpy as jnp  # noqa: E402
 import jaxcart.core.env as cartpole  # noqa: E402
 from benchmarks import lib  # noqa: E402
 from benchmarks.env import contenders  # noqa: E402
-from jaxcart.core.tricks import hash_uniform  # noqa: E402
+from jaxcart.core.env import hash_uniform  # noqa: E402
 from jaxcart.gym import kernels  # noqa: E402
 
 VARIANTS = ("step_batch", "fixed-reset", "physics-only", "sincos-once", "gymnax")

@@ -20,6 +20,7 @@ from jaxcart.engine import devices
 
 devices.use_all_host_cores()
 
+import dataclasses  # noqa: E402
 import itertools  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
@@ -27,12 +28,11 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks import lib  # noqa: E402
 from jaxcart.core.config import PPOConfig  # noqa: E402
-from jaxcart.engine.trainer import broadcast_hyperparams, seed_keys, train  # noqa: E402
+from jaxcart.engine.trainer import seed_keys, train  # noqa: E402
 from jaxcart.run.evaluation import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
 from jaxcart.rundir.policy import numpy_policy  # noqa: E402
 
@@ -76,9 +76,8 @@ def screen(seeds: int) -> list[dict]:
     ):
         config = candidate(num_envs, num_steps, mbs, epochs, ts)
         runs = seeds * len(LEARNING_RATES)
-        lrs = jnp.repeat(jnp.asarray(LEARNING_RATES, jnp.float32), seeds)
-        hps = broadcast_hyperparams(config, runs).replace(learning_rate=lrs)
-        sweep = train(config, runs, seed=0, hyperparams=hps)
+        lrs = np.repeat(np.asarray(LEARNING_RATES, np.float32), seeds)
+        sweep = train(dataclasses.replace(config, learning_rate=lrs), runs, seed=0)
         solved = summarize(jax_eval(sweep.params, config, runs))["solved"].reshape(
             len(LEARNING_RATES), seeds
         )

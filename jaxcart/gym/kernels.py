@@ -126,16 +126,16 @@ def num_rows(mode: AutoresetMode) -> int:
 def start_states(key, floats, num_envs: int, dtype):
     """Fresh start states ``[4, num_envs]``, uniform in ``[low, high)`` (the last two floats).
 
-    Drawn with jaxcart's counter hash (:func:`jaxcart.core.tricks.hash_uniform`) in float32 (one hash
-    per number; the values are then exact in float64 too); Threefry would cost more than the
-    physics.
+    Drawn with jaxcart's counter hash (:func:`jaxcart.core.env.hash_uniform`) in float32 (one
+    hash per number; the values are then exact in float64 too); Threefry would cost more than
+    the physics.
     """
     import jax.numpy as jnp
 
-    from jaxcart.core import tricks
+    from jaxcart.core.env import hash_uniform
 
     low, high = floats[-2:].astype(jnp.float32)
-    return tricks.hash_uniform(key, (4, num_envs), jnp.float32, low, high).astype(dtype)
+    return hash_uniform(key, (4, num_envs), jnp.float32, low, high).astype(dtype)
 
 
 def vector_reset(rows, key, floats, mask):
