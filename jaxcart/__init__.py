@@ -1,6 +1,6 @@
 """jaxcart: CartPole-v1 and PPO in pure JAX.
 
-Importing ``jaxcart`` is cheap: the JAX-backed names below load on first use.
+Importing ``jaxcart`` loads no JAX: the JAX-backed names below load on first use.
 
 Env API (pure functions over pytrees)::
 
@@ -8,8 +8,12 @@ Env API (pure functions over pytrees)::
     obs, state = reset(key, EnvParams())
     obs, state, reward, terminated, truncated, info = step(key, state, action, params)
 
-Gymnasium: ``import jaxcart`` registers ``"jaxcart/CartPole-v1"`` (:mod:`jaxcart.gym.adapter`),
-so ``gymnasium.make("jaxcart/CartPole-v1")`` and ``gymnasium.make_vec(...)`` work.
+Gymnasium: ``import jaxcart`` registers ``"jaxcart/CartPole-v1"`` through Gymnasium's own
+``gymnasium.register``, with string entry points into :mod:`jaxcart.gym.adapter`, so
+``gymnasium.make("jaxcart/CartPole-v1")``, ``gymnasium.make("jaxcart:jaxcart/CartPole-v1")`` and
+``gymnasium.make_vec(...)`` work. Importing Gymnasium for that (about 0.1 s) is all the import
+does besides defining names: it installs no signal handler and no import hook. The commands
+handle Ctrl-C in their ``main`` (:func:`jaxcart.cli.command_main`).
 
 Training: ``python -m jaxcart.train`` (``python -m jaxcart`` lists the commands), or from
 Python :func:`run_new` / :func:`resume_run` (:mod:`jaxcart.run.lifecycle`: a run directory like
@@ -25,64 +29,9 @@ statistics in :mod:`jaxcart.analysis.stats` (:func:`iqm`, :func:`bootstrap_ci`,
 :func:`probability_of_improvement`).
 """
 
-# The first call of the package installs its start-up signal handler. A signal is handled at
-# the first check CPython makes after it arrives, and every call is such a check: whatever
-# runs before this install could meet a Ctrl-C with a traceback. The imports below are of
-# modules CPython has already loaded (``_signal`` is the C half of ``signal``, whose own import
-# takes milliseconds), so they run no Python code and make no such check. No
-# ``from __future__ import annotations`` here for the same reason: it is an import.
-import _signal
-import os
-import sys
+import importlib
 
-_SIGNAL_NAMES = {_signal.SIGINT: "SIGINT", _signal.SIGTERM: "SIGTERM"}
-
-
-def _started_as_a_command() -> bool:
-    """Whether this process is ``python -m jaxcart[.COMMAND]`` or a ``jaxcart`` script."""
-    argv = getattr(sys, "orig_argv", [])
-    if "-m" in argv[:-1]:
-        return argv[argv.index("-m") + 1].split(".")[0] == "jaxcart"
-    return os.path.basename(sys.argv[0] if sys.argv else "") in ("jaxcart", "jaxcart-train")
-
-
-def _exit_while_starting(signum: int, frame: object) -> None:
-    """A command ends with one line, never a traceback from inside an import. Imported by
-    other code, the package behaves as if it had installed nothing: the handler it replaced
-    runs (Python's own raises ``KeyboardInterrupt`` for SIGINT), or the signal's default
-    action is taken."""
-    if not _started_as_a_command():
-        previous = globals().get("_PREVIOUS", {}).get(signum)
-        if callable(previous):
-            previous(signum, frame)
-        elif signum == _signal.SIGINT and previous is None:
-            raise KeyboardInterrupt
-        elif previous != _signal.SIG_IGN:
-            _signal.signal(signum, _signal.SIG_DFL)
-            os.kill(os.getpid(), signum)
-        return
-    name = _SIGNAL_NAMES.get(signum, str(signum))
-    os.write(2, f"\ninterrupted ({name}) while starting; nothing was written\n".encode())
-    os._exit(128 + signum)
-
-
-try:
-    _PREVIOUS = {
-        _signal.SIGINT: _signal.signal(_signal.SIGINT, _exit_while_starting),
-        _signal.SIGTERM: _signal.signal(_signal.SIGTERM, _exit_while_starting),
-    }
-except ValueError:  # imported in another thread: only the main thread may set handlers
-    _PREVIOUS = {}
-if _PREVIOUS and not _started_as_a_command():
-    # Imported by other code: leave its signal handling as it was (a handler set outside
-    # Python reads back as None and cannot be put back; the one above then stays, and it does
-    # what Python's defaults do). A command keeps the handler through its imports (most of a
-    # second) and then installs its own handling.
-    for _sig, _previous in _PREVIOUS.items():
-        if _previous is not None:
-            _signal.signal(_sig, _previous)
-
-import importlib  # noqa: E402
+from jaxcart.gym import register as _register_gymnasium_env
 
 __version__ = "0.1.0"
 
@@ -137,11 +86,8 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-# Gymnasium registration. Importing Gymnasium costs about 0.2 s (NumPy included), a hundred
-# times the rest of ``import jaxcart``, so jaxcart registers its env when Gymnasium is imported:
-# at once if it already is, otherwise just after its import. Registering with string entry
-# points loads nothing else.
-
-from jaxcart.gym import register_when_gymnasium_loads  # noqa: E402
-
-register_when_gymnasium_loads()
+# Gymnasium's documented route: a package that provides an env registers it when imported, so
+# that ``import jaxcart`` then ``gymnasium.make("jaxcart/CartPole-v1")`` works, and so does
+# ``gymnasium.make("jaxcart:jaxcart/CartPole-v1")`` (Gymnasium imports the module before the
+# colon). The entry points are strings: neither JAX nor the front-ends load until an env is made.
+_register_gymnasium_env()

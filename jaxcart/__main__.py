@@ -6,6 +6,7 @@ from __future__ import annotations
 import difflib
 import importlib
 import sys
+from typing import NoReturn
 
 from jaxcart import cli
 from jaxcart.cli import EXIT_USAGE, VERSION_TEXT
@@ -58,11 +59,17 @@ def main(argv: list[str] | None = None) -> int:
         )
         return EXIT_USAGE
     if command == "train":
-        from jaxcart.train import cli_main
+        from jaxcart.train import main_on_all_cores
 
-        cli_main(rest)  # one CPU device per core, as python -m jaxcart.train; exits
+        return main_on_all_cores(rest)  # one CPU device per core, as python -m jaxcart.train
     return importlib.import_module(f"jaxcart.{command}").main(rest)
 
 
+def cli_main(argv: list[str] | None = None) -> NoReturn:
+    """The process entry (the ``jaxcart`` script, ``python -m jaxcart``): :func:`main`
+    through :func:`jaxcart.cli.command_main`; exits."""
+    cli.command_main(main, argv)
+
+
 if __name__ == "__main__":
-    cli.command_main(main)
+    cli_main()

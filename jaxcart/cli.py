@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import decimal
 import difflib
+import os
 import re
 import signal
 import sys
@@ -15,6 +16,7 @@ from typing import NoReturn
 
 from jaxcart import __version__
 from jaxcart.core.config import ConfigError
+from jaxcart.engine import devices, signals
 from jaxcart.rundir.files import RunDirError
 
 EXIT_USAGE = 2
@@ -262,27 +264,40 @@ def format_table(rows: list[list], header: list[str]) -> str:
     return "\n".join(lines)
 
 
-def command_main(main: Callable[[], int]) -> NoReturn:
-    """The process entry of a command that writes nothing it cannot lose (evaluate, plot,
-    compare, env): Ctrl-C while it runs is one line and exit 130, never a traceback, and
-    after it returns (interpreter teardown, ``atexit``) a signal ends it quietly."""
-    import os
+def command_main(
+    main: Callable[[list[str] | None], int], argv: list[str] | None = None
+) -> NoReturn:
+    """The process entry of every command, and the one place a command meets Ctrl-C:
+    ``python -m jaxcart`` and ``python -m jaxcart.COMMAND``, and the ``jaxcart`` and
+    ``jaxcart-train`` scripts, all call ``main(argv)`` through it and exit with its code.
 
-    from jaxcart.engine import devices, signals
-
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, signals.raise_interrupt)
+    Ctrl-C (:class:`KeyboardInterrupt`), and SIGTERM, which it reads as one while ``main``
+    runs, end the command with one line on stderr and exit code 130, never a traceback. The
+    training handles its own signals inside that (a checkpoint, then 128 + the signal:
+    :meth:`jaxcart.engine.signals.StopRequest.installed`). Once ``main`` has returned, SIGINT
+    and SIGTERM take their default action, so that one during the interpreter's teardown
+    (``atexit``) ends the process without a traceback; and when a second signal left XLA
+    working on a thread (:func:`jaxcart.engine.signals.abandoned_work`), the process ends
+    without that teardown.
+    """
     try:
-        devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
-        code = main()
+        try:
+            signal.signal(signal.SIGTERM, signals.raise_interrupt)
+            devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
+            code = main(argv)
+        finally:
+            for sig in signals.SIGNALS:
+                signal.signal(sig, signal.SIG_DFL)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         code = EXIT_USAGE
     except KeyboardInterrupt:
-        signals.exit_quietly_on_signal("exiting")
         print("error: interrupted; nothing more was written", file=sys.stderr, flush=True)
         code = 130
-    signals.exit_quietly_on_signal("exiting")
+    if signals.abandoned_work():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
     raise SystemExit(code)
 
 

@@ -17,14 +17,14 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, NoReturn
 
 from jaxcart import cli
-from jaxcart.core.config import PRESETS, ConfigError, config_fields, field_docs, preset
+from jaxcart.core.config import PRESETS, config_fields, field_docs, preset
 from jaxcart.engine import devices
 from jaxcart.engine.signals import StopRequest
 
-if TYPE_CHECKING:  # the modules that import JAX load in main(), once signals are handled
+if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
     from jaxcart import report
     from jaxcart.run import lifecycle
 
@@ -310,13 +310,12 @@ class TrainOptions:
             raise cli.UsageError("--distributed needs --out DIR (the same path on every process)")
 
 
-def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport) -> int:
+def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     """Plans, trains, evaluates and reports; returns the exit code."""
     from jaxcart import report
     from jaxcart.engine import distributed
     from jaxcart.engine.signals import Stopped
     from jaxcart.run import lifecycle
-    from jaxcart.rundir.files import RunDirError
 
     wall_start = time.perf_counter()
     opts.check_distributed()
@@ -333,24 +332,19 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
     if opts.dry_run:
         console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
         return 0
-    hooks = console.hooks()
+    stop = StopRequest(on_signal=console.on_signal)
     try:
-        if spec is None:
-            try:
-                extend_to = opts.overrides.get("total_timesteps")
-                outcome = lifecycle.resume_run(
-                    opts.resume, run_options, hooks, stop, extend_to, opts.allow_device_change
-                )
-            except RunDirError as exc:
-                finished = isinstance(exc, lifecycle.RunFinished) and extend_to is None
-                hint = _extend_hint(opts.resume) if finished else ""
-                raise cli.UsageError(f"cannot resume: {exc}{hint}") from None
-        else:
-            command = ["python -m jaxcart.train", *opts.argv]
-            outcome = lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
+        with stop.installed():  # the training's signal handling, from its plan to its outputs
+            outcome = _start_or_resume(opts, spec, run_options, console.hooks(), stop)
     except Stopped:
         console.print("stopped before the run started; nothing was written")
         return 128 + (stop.signum or 15)
+    except KeyboardInterrupt:
+        if stop.signum is None:  # not the second signal: command_main's one line
+            raise
+        console.close()  # the second signal: stop at once; the checkpoint on disk is valid
+        print(report.interrupted_text(console.run, stop.signum), file=sys.stderr, flush=True)
+        return 128 + stop.signum
     except OSError as exc:  # a full or read-only disk: earlier checkpoints stay intact
         console.close()
         print(report.write_failed_text(console.run, exc), file=sys.stderr, flush=True)
@@ -358,6 +352,31 @@ def _train(opts: TrainOptions, stop: StopRequest, console: report.ConsoleReport)
     finally:
         console.close()
     return _report(outcome, console, time.perf_counter() - wall_start)
+
+
+def _start_or_resume(
+    opts: TrainOptions,
+    spec: lifecycle.RunSpec | None,
+    run_options: lifecycle.RunOptions,
+    hooks: lifecycle.Hooks,
+    stop: StopRequest,
+) -> lifecycle.Outcome:
+    """The run: ``spec`` as a new run, or ``--resume`` (``spec`` None)."""
+    from jaxcart.run import lifecycle
+    from jaxcart.rundir.files import RunDirError
+
+    if spec is not None:
+        command = ["python -m jaxcart.train", *opts.argv]
+        return lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
+    extend_to = opts.overrides.get("total_timesteps")
+    try:
+        return lifecycle.resume_run(
+            opts.resume, run_options, hooks, stop, extend_to, opts.allow_device_change
+        )
+    except RunDirError as exc:
+        finished = isinstance(exc, lifecycle.RunFinished) and extend_to is None
+        hint = _extend_hint(opts.resume) if finished else ""
+        raise cli.UsageError(f"cannot resume: {exc}{hint}") from None
 
 
 def _extend_hint(out: Path) -> str:
@@ -419,54 +438,35 @@ def _devnull() -> IO[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input, 1 a failed write, 128+signal
-    when interrupted). Signals are handled from the start: a first SIGINT/SIGTERM stops at
-    the next safe point with a checkpoint, a second one at once; never with a traceback."""
+    when a signal stopped the training). While the run trains (planned, written, trained and
+    evaluated), a first SIGINT/SIGTERM stops it at the next safe point with a checkpoint and a
+    second one at once, without a traceback; before that, Ctrl-C is Python's
+    :class:`KeyboardInterrupt` (one line from :func:`jaxcart.cli.command_main`)."""
     from jaxcart import report
 
     console = report.ConsoleReport(sys.stdout)
-    stop = StopRequest(on_signal=console.on_signal)
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
         args = build_parser().parse_args(cli.join_negative_values(argv_))
         opts = TrainOptions.from_args(args, argv_)
         console.progress_bar = not opts.quiet
-        return _train(opts, stop, console)
+        return _train(opts, console)
 
-    try:
-        with stop.installed():
-            return cli.run_command(body)
-    except KeyboardInterrupt:  # the second signal: stop at once
-        console.close()
-        print(report.interrupted_text(console.run, stop.signum), file=sys.stderr, flush=True)
-        global _stopped_at_once
-        _stopped_at_once = True
-        return 128 + (stop.signum or 2)
+    return cli.run_command(body)
 
 
-_stopped_at_once = False
-"""Set when a second signal stopped the run: XLA may still be compiling on a worker thread,
-which must not be torn down with the interpreter (see the ``__main__`` block)."""
+def main_on_all_cores(argv: list[str] | None = None) -> int:
+    """:func:`main` as the command runs it (``python -m jaxcart.train``, ``jaxcart-train``,
+    ``python -m jaxcart train``): on one CPU device per core."""
+    devices.use_all_host_cores()
+    return main(argv)
 
 
-def cli_main(argv: list[str] | None = None) -> None:
-    """The process entry point (``python -m jaxcart.train``, ``jaxcart-train``,
-    ``python -m jaxcart train``): one CPU device per core, :func:`main`, and the exit code."""
-    from jaxcart.engine.signals import exit_quietly_on_signal
-
-    exit_quietly_on_signal("starting")  # the jaxcart-train script arrives here first
-    try:
-        devices.use_all_host_cores()
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        raise SystemExit(cli.EXIT_USAGE) from None
-    code = main(argv)
-    exit_quietly_on_signal("exiting")  # interpreter teardown and atexit: no traceback
-    if _stopped_at_once:  # leave at once: no interpreter teardown under a running XLA call
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-    raise SystemExit(code)
+def cli_main(argv: list[str] | None = None) -> NoReturn:
+    """The process entry (the ``jaxcart-train`` script, ``python -m jaxcart.train``):
+    :func:`main_on_all_cores` through :func:`jaxcart.cli.command_main`; exits."""
+    cli.command_main(main_on_all_cores, argv)
 
 
 if __name__ == "__main__":

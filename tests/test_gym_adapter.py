@@ -121,17 +121,19 @@ def run_fresh(code: str) -> str:
 @pytest.mark.parametrize("first", ["jaxcart", "gymnasium"])
 def test_import_jaxcart_registers_the_env_in_a_fresh_interpreter(first):
     """``import jaxcart``, before or after ``import gymnasium``, is all ``gym.make`` and
-    ``gym.make_vec`` need; registering loads neither JAX nor the adapter, and leaves
-    Gymnasium's module as it was."""
+    ``gym.make_vec`` need: it calls ``gymnasium.register`` with string entry points, so
+    registering loads neither JAX nor the adapter, and adds no import hook."""
     imports = ["import jaxcart", "import gymnasium as gym"]
     code = "\n".join(
         [
             "import sys",
+            "hooks = list(sys.meta_path)",
             *(imports if first == "jaxcart" else imports[::-1]),
             "assert 'jax' not in sys.modules and 'jaxcart.gym.adapter' not in sys.modules",
-            "loader = gym.__spec__.loader",
-            "assert gym.__loader__ is loader and type(loader).__name__ == 'SourceFileLoader'",
-            "assert not any('jaxcart' in type(f).__module__ for f in sys.meta_path)",
+            "assert sys.meta_path == hooks",
+            "spec = gym.spec('jaxcart/CartPole-v1')",
+            "assert spec.entry_point == 'jaxcart.gym.adapter:JaxCartPoleEnv', spec.entry_point",
+            "assert (spec.max_episode_steps, spec.reward_threshold) == (500, 475.0)",
             "env = gym.make('jaxcart/CartPole-v1')",
             "obs, _ = env.reset(seed=0)",
             "assert obs.tolist() == gym.make('CartPole-v1').reset(seed=0)[0].tolist()",
@@ -142,9 +144,26 @@ def test_import_jaxcart_registers_the_env_in_a_fresh_interpreter(first):
     assert run_fresh(code) == "JaxCartPoleEnv JaxCartPoleVectorEnv (3, 4)"
 
 
-def test_import_jaxcart_imports_neither_gymnasium_nor_numpy():
+def test_make_with_the_package_before_the_colon_in_a_fresh_interpreter():
+    """``gym.make("jaxcart:jaxcart/CartPole-v1")``: Gymnasium imports ``jaxcart``, whose import
+    registers the env; a second registration (the package reloaded) is silent."""
     code = (
-        "import sys, jaxcart\nprint([m for m in ('gymnasium', 'numpy', 'jax') if m in sys.modules])"
+        "import importlib, sys, warnings\n"
+        "import gymnasium as gym\n"
+        "env = gym.make('jaxcart:jaxcart/CartPole-v1')\n"
+        "envs = gym.make_vec('jaxcart:jaxcart/CartPole-v1', num_envs=2)\n"
+        "with warnings.catch_warnings():\n"
+        "    warnings.simplefilter('error')\n"
+        "    importlib.reload(sys.modules['jaxcart'])\n"
+        "print(type(env.unwrapped).__name__, type(envs).__name__, env.spec.max_episode_steps)\n"
+    )
+    assert run_fresh(code) == "JaxCartPoleEnv JaxCartPoleVectorEnv 500"
+
+
+def test_import_jaxcart_imports_neither_jax_nor_the_front_ends():
+    code = (
+        "import sys, jaxcart\n"
+        "print([m for m in ('jax', 'jaxcart.gym.adapter', 'jaxcart.gym.single_env') if m in sys.modules])"
     )
     assert run_fresh(code) == "[]"
 

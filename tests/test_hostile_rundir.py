@@ -15,12 +15,9 @@ import dataclasses
 import io
 import json
 import os
-import re
 import shutil
-import signal
 import subprocess
 import sys
-import time
 import warnings
 import zipfile
 from collections.abc import Callable
@@ -29,9 +26,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import FAULT_FIGURES
-from helpers import TINY, TRAIN_ENV, fresh_python
+from helpers import TINY, TRAIN_ENV
 
-import jaxcart
 from jaxcart import train
 from jaxcart.core.config import ConfigError
 from jaxcart.run import comparison, lifecycle, loggers, training, waves
@@ -715,183 +711,3 @@ def test_an_xla_device_count_of_zero_is_one_line(tmp_path):
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
         assert "device count in [1," in proc.stderr
     FAULT_FIGURES["hostile run directories: bad options and variables"] += 2
-
-
-def interrupt_at(argv: list[str], delay: float) -> subprocess.CompletedProcess:
-    """Starts ``python -m ...argv``, sends SIGINT after ``delay`` seconds, waits."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", *argv],
-        env=TRAIN_ENV,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    time.sleep(delay)
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=120)
-    return subprocess.CompletedProcess(argv, proc.returncode, out, err)
-
-
-TRAIN_ARGV = [
-    "jaxcart.train",
-    "--num-envs",
-    "4",
-    "--num-steps",
-    "32",
-    "--total-timesteps",
-    "256",
-    "--quiet",
-]
-
-
-def _handler_install_line() -> int:
-    """The line of ``jaxcart/__init__.py`` that installs its start-up signal handler."""
-    lines = Path(jaxcart.__file__).read_text().splitlines()
-    return next(n for n, line in enumerate(lines, 1) if "_signal.signal(_signal.SIGINT" in line)
-
-
-def landed_before_jaxcart_ran(stderr: str) -> bool:
-    """Whether a SIGINT landed before jaxcart could handle it: CPython's "init_import_site"
-    report, or a ``KeyboardInterrupt`` traceback whose every frame is CPython's own
-    (``<frozen runpy>`` finding the package) or a line of ``jaxcart/__init__.py`` before the one
-    that installs its handler (no code can handle a signal before that)."""
-    if "init_import_site" in stderr:
-        return True
-    frames = re.findall(r'File "([^"]+)", line (-?\d+)', stderr)
-    install = _handler_install_line()
-
-    def unhandleable(path: str, line: str) -> bool:
-        if path.startswith("<frozen "):
-            return True
-        return Path(path).parts[-2:] == ("jaxcart", "__init__.py") and int(line) < install
-
-    return (
-        "Traceback" in stderr
-        and stderr.rstrip().endswith("KeyboardInterrupt")
-        and bool(frames)
-        and all(unhandleable(path, line) for path, line in frames)
-    )
-
-
-def check_interrupted(result: subprocess.CompletedProcess) -> None:
-    """No traceback and the exit code of a signal. A SIGINT that lands while CPython itself
-    starts (before any line of jaxcart runs, so no package can handle it) is counted apart."""
-    if landed_before_jaxcart_ran(result.stderr):
-        FAULT_FIGURES["hostile run directories: signals landing before jaxcart's handler"] += 1
-        return
-    assert "Traceback" not in result.stderr and "Exception ignored" not in result.stderr, (
-        result.stderr
-    )
-    assert result.returncode in (0, 130, -signal.SIGINT), (result.returncode, result.stderr)
-
-
-def test_only_tracebacks_from_before_the_handler_are_counted_apart():
-    frozen = (
-        "Traceback (most recent call last):\n"
-        '  File "<frozen runpy>", line 189, in _run_module_as_main\n'
-        '  File "<frozen runpy>", line 112, in _get_module_details\n'
-        "KeyboardInterrupt\n"
-    )
-    install = _handler_install_line()
-
-    def in_init(line: int) -> str:
-        return frozen.replace(
-            "KeyboardInterrupt",
-            f'  File "/x/jaxcart/__init__.py", line {line}, in <module>\nKeyboardInterrupt',
-        )
-
-    ours = in_init(install + 1)
-    assert landed_before_jaxcart_ran(frozen)
-    assert landed_before_jaxcart_ran(in_init(0))
-    assert landed_before_jaxcart_ran(in_init(install - 1))
-    assert not landed_before_jaxcart_ran(in_init(install))
-    assert landed_before_jaxcart_ran("Fatal Python error: init_import_site: Failed to import")
-    assert not landed_before_jaxcart_ran(ours)
-    assert not landed_before_jaxcart_ran(frozen.replace("KeyboardInterrupt", "ValueError: x"))
-
-
-def test_importing_jaxcart_leaves_signal_handling_as_it_was():
-    """Imported by other code (not ``python -m jaxcart...``), the package restores the handlers
-    it installs first thing, and its start-up handler, had a signal landed in between, runs
-    the handler it replaced: Python's own (``KeyboardInterrupt``) for SIGINT, the script's own
-    for SIGTERM."""
-    code = (
-        "import signal, sys\n"
-        "got = []\n"
-        "signal.signal(signal.SIGTERM, lambda signum, frame: got.append(signum))\n"
-        "before = signal.getsignal(signal.SIGTERM)\n"
-        "import jaxcart\n"
-        "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
-        "assert signal.getsignal(signal.SIGTERM) is before\n"
-        "jaxcart._exit_while_starting(signal.SIGTERM, None)\n"
-        "assert got == [signal.SIGTERM], got\n"
-        "try:\n"
-        "    jaxcart._exit_while_starting(signal.SIGINT, None)\n"
-        "except KeyboardInterrupt:\n"
-        "    print('raised')\n"
-    )
-    assert fresh_python(code, TRAIN_ENV, timeout=60) == "raised"
-
-
-def test_importing_jaxcart_in_another_thread():
-    """Only the main thread may set signal handlers: an import from another thread installs
-    none and fails nothing."""
-    code = (
-        "import importlib, signal, threading\n"
-        "errors = []\n"
-        "def load():\n"
-        "    try:\n"
-        "        importlib.import_module('jaxcart').PPOConfig\n"
-        "    except BaseException as e:\n"
-        "        errors.append(repr(e))\n"
-        "t = threading.Thread(target=load)\n"
-        "t.start(); t.join()\n"
-        "assert not errors, errors\n"
-        "assert signal.getsignal(signal.SIGINT) is signal.default_int_handler\n"
-        "print('ok')\n"
-    )
-    assert fresh_python(code, TRAIN_ENV, timeout=60) == "ok"
-
-
-@pytest.mark.parametrize("delay", [0.05, 0.15, 0.3, 0.6])
-def test_ctrl_c_while_train_starts_is_never_a_traceback(delay, tmp_path):
-    check_interrupted(interrupt_at([*TRAIN_ARGV, "--out", str(tmp_path / "r")], delay))
-    FAULT_FIGURES["hostile run directories: signal timings"] += 1
-
-
-@pytest.mark.parametrize("module", ["plot", "compare", "evaluate"])
-def test_ctrl_c_in_the_analysis_commands_is_never_a_traceback(module, bases):
-    check_interrupted(interrupt_at([f"jaxcart.{module}", str(bases["finished"])], 0.3))
-    FAULT_FIGURES["hostile run directories: signal timings"] += 1
-
-
-@pytest.mark.slow
-def test_ctrl_c_every_20_ms_over_the_first_half_second_of_train(tmp_path):
-    for step in range(26):
-        check_interrupted(
-            interrupt_at([*TRAIN_ARGV, "--out", str(tmp_path / f"r{step}")], 0.02 * step)
-        )
-        FAULT_FIGURES["hostile run directories: signal timings"] += 1
-
-
-AT_EXIT = (
-    "import atexit, os, signal, sys, time\n"
-    "from jaxcart import cli, plot, train\n"
-    "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(2)))\n"
-)
-
-
-@pytest.mark.parametrize(
-    "call", ["cli.command_main(lambda: plot.main(['--help']))", "train.cli_main(['--help'])"]
-)
-def test_ctrl_c_during_atexit_is_one_line(call):
-    proc = subprocess.run(
-        [sys.executable, "-c", AT_EXIT + call],
-        env=TRAIN_ENV,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr, proc.stderr
-    assert proc.returncode == 130 and "while exiting" in proc.stderr
-    FAULT_FIGURES["hostile run directories: signal timings"] += 1

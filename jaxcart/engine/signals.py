@@ -1,16 +1,20 @@
-"""Stopping a run cleanly on SIGINT or SIGTERM, at any moment.
+"""Stopping a run cleanly on SIGINT or SIGTERM while it trains.
 
-The first signal sets a flag that the run checks at its safe points (between initialisation
+Inside :meth:`StopRequest.installed` (a context manager: the training, nothing else), the
+first signal sets a flag that the run checks at its safe points (between initialisation
 batches, after compiling, between chunks, before evaluation); a second SIGINT or SIGTERM
 raises :class:`KeyboardInterrupt` at once. Long calls into XLA (compiling, waiting for a
 chunk) run on a worker thread while the main thread waits in short steps, so a signal is
-handled (and its message printed) when it arrives, not when the call returns.
+handled (and its message printed) when it arrives, not when the call returns; a call given up
+on that way leaves its worker running (:func:`abandoned_work`).
+
+Outside training, signals are Python's: :func:`jaxcart.cli.command_main` turns the
+``KeyboardInterrupt`` into one line and exit code 130.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -18,35 +22,6 @@ from typing import TypeVar
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 T = TypeVar("T")
-
-
-_phase = "starting"
-
-
-def exit_quietly_on_signal(phase: str) -> None:
-    """Until a command handles signals itself (and again once it has returned): SIGINT or
-    SIGTERM writes one line and ends the process at once with ``128 + signal``. Installed by
-    a command's first line, before the imports that take most of a second, and after it
-    returns, so that neither an import nor an ``atexit`` callback ends in a traceback.
-
-    Args:
-        phase: what the process is doing, for the line: ``"starting"`` (nothing was written
-            yet) or ``"exiting"`` (the command has finished).
-    """
-    global _phase
-    _phase = phase
-    try:
-        for sig in SIGNALS:
-            signal.signal(sig, _exit_now)
-    except ValueError:  # not the main thread: the caller's handlers stay
-        pass
-
-
-def _exit_now(signum: int, frame: object) -> None:
-    done = "nothing was written" if _phase == "starting" else "the command had finished"
-    line = f"\ninterrupted ({signal.Signals(signum).name}) while {_phase}; {done}\n"
-    os.write(2, line.encode())
-    os._exit(128 + signum)
 
 
 def raise_interrupt(signum: int, frame: object) -> None:
@@ -122,11 +97,26 @@ def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
             box["value"] = fn()
         except BaseException as exc:  # handed to the waiting thread
             box["error"] = exc
+        finally:
+            _running.discard(worker)
 
     worker = threading.Thread(target=work, name="jaxcart-wait", daemon=True)
+    _running.add(worker)
     worker.start()
     while worker.is_alive():
         worker.join(poll_seconds)
     if "error" in box:
         raise box["error"]  # type: ignore[misc]
     return box["value"]  # type: ignore[return-value]
+
+
+_running: set[threading.Thread] = set()
+"""The workers of :func:`wait_interruptibly` whose call has not returned. (Not
+``Thread.is_alive``: a ``join`` interrupted by a signal marks the thread stopped.)"""
+
+
+def abandoned_work() -> bool:
+    """Whether a call that :func:`wait_interruptibly` gave up on (a second signal) still runs
+    on its worker thread: XLA may still be compiling there, so the process should end without
+    the interpreter's teardown (``os._exit``), which would free what that call is using."""
+    return bool(_running)

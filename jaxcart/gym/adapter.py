@@ -1,7 +1,7 @@
 """Gymnasium front-ends for jaxcart's CartPole: a ``gymnasium.Env`` and a ``VectorEnv``.
 
-``import jaxcart`` registers ``"jaxcart/CartPole-v1"`` with Gymnasium (as soon as Gymnasium is
-imported, before or after jaxcart; see ``jaxcart/__init__.py``)::
+``import jaxcart`` registers ``"jaxcart/CartPole-v1"`` with Gymnasium (``gymnasium.register``,
+with this module's classes as string entry points; see ``jaxcart/__init__.py``)::
 
     import gymnasium as gym
     import jaxcart
