@@ -17,7 +17,7 @@ handle Ctrl-C in their ``main`` (:func:`jaxcart.cli.command_main`).
 
 Training: ``python -m jaxcart.train`` (``python -m jaxcart`` lists the commands), or from
 Python :func:`run_new` / :func:`resume_run` (:mod:`jaxcart.run.lifecycle`: a run directory like
-the command line's) and :func:`train_runs` (:func:`jaxcart.engine.trainer.train`: arrays only, no
+the command line's) and :func:`train_runs` (:func:`jaxcart.engine.loop.train`: arrays only, no
 files); a trained policy: :func:`load_policy`. Call :func:`use_all_host_cores` first, before
 any JAX work, to train on one CPU device per core as the command line does.
 
@@ -36,19 +36,19 @@ from jaxcart.gym import register as _register_gymnasium_env
 __version__ = "0.1.0"
 
 _LAZY: dict[str, str | tuple[str, str]] = {
-    "EnvParams": "jaxcart.core.env",
-    "EnvState": "jaxcart.core.env",
-    "reset": "jaxcart.core.env",
-    "step": "jaxcart.core.env",
-    "step_env": "jaxcart.core.env",
-    "observation_space": "jaxcart.core.env",
-    "action_space": "jaxcart.core.env",
+    "EnvParams": "jaxcart.core.cartpole",
+    "EnvState": "jaxcart.core.cartpole",
+    "reset": "jaxcart.core.cartpole",
+    "step": "jaxcart.core.cartpole",
+    "step_env": "jaxcart.core.cartpole",
+    "observation_space": "jaxcart.core.cartpole",
+    "action_space": "jaxcart.core.cartpole",
     "describe": "jaxcart.env",
     "PPOConfig": "jaxcart.core.config",
     "ConfigError": "jaxcart.core.config",
     "preset": "jaxcart.core.config",
     "PRESETS": "jaxcart.core.config",
-    "train_runs": ("jaxcart.engine.trainer", "train"),
+    "train_runs": ("jaxcart.engine.loop", "train"),
     "use_all_host_cores": "jaxcart.engine.devices",
     "load_policy": "jaxcart.rundir.policy",
     "RunSpec": "jaxcart.run.spec",
@@ -62,7 +62,7 @@ _LAZY: dict[str, str | tuple[str, str]] = {
     "iqm": "jaxcart.analysis.stats",
     "bootstrap_ci": "jaxcart.analysis.stats",
     "probability_of_improvement": "jaxcart.analysis.stats",
-    "render_gif": "jaxcart.gym.render",
+    "render_gif": "jaxcart.results.gif",
 }
 
 __all__ = sorted(_LAZY)
@@ -77,7 +77,7 @@ def __getattr__(name: str):
     if name == "train":  # the submodule, once imported, is an attribute and never gets here
         raise AttributeError(
             "jaxcart.train is the command-line module (import jaxcart.train); the training "
-            "function is jaxcart.train_runs (jaxcart.engine.trainer.train) or jaxcart.run_new"
+            "function is jaxcart.train_runs (jaxcart.engine.loop.train) or jaxcart.run_new"
         )
     raise AttributeError(f"module 'jaxcart' has no attribute {name!r}")
 

@@ -5,8 +5,8 @@ Statistics of Agarwal et al. (2021), "Deep RL at the Edge of the Statistical Pre
 (:mod:`jaxcart.analysis.stats`), over any run directories: jaxcart's, a sweep's combinations (a
 sweep directory stands for all of them), or ``python -m jaxcart.sb3``'s.
 The command reads its options, calls :func:`compare_runs` and prints; the runs are read and
-scored in :mod:`jaxcart.run.comparison`, the statistics are :mod:`jaxcart.analysis.summary`'s
-and the figure :mod:`jaxcart.run.comparison_figure`'s.
+scored in :mod:`jaxcart.results.scores`, the statistics are :mod:`jaxcart.analysis.summary`'s
+and the figure :mod:`jaxcart.results.figure`'s.
 
 - ``--score``: the number that stands for a seed: ``eval`` (its mean greedy Gymnasium return,
   the default), ``auc`` (the mean of its ``rollout/ep_rew_mean`` over the run) or
@@ -40,8 +40,8 @@ import numpy as np
 from jaxcart import cli
 from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
-from jaxcart.run import comparison as runs
-from jaxcart.run.comparison import CompareError, Comparison
+from jaxcart.results import scores as runs
+from jaxcart.results.scores import CompareError, Comparison
 
 ESTIMATE_NAMES = {
     "iqm": "IQM",
@@ -227,7 +227,7 @@ def compare_runs(
         grouped = None
     out = runs.prepare_out(None if out is None else Path(out), entries)
     comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, grouped)
-    from jaxcart.run.comparison_figure import draw_comparison  # matplotlib: only when drawn
+    from jaxcart.results.figure import draw_comparison  # matplotlib: only when drawn
 
     buf = io.BytesIO()
     draw_comparison(comparison).savefig(buf, format="png", dpi=dpi)

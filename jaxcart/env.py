@@ -1,11 +1,11 @@
 """``python -m jaxcart.env``: CartPole-v1's spaces, thresholds, reward and limits, as jaxcart
-implements them (:mod:`jaxcart.core.env`)."""
+implements them (:mod:`jaxcart.core.cartpole`)."""
 
 from __future__ import annotations
 
 import math
 
-from jaxcart.core.env import EnvParams, action_space, float_dtype, observation_space
+from jaxcart.core.cartpole import EnvParams, action_space, float_dtype, observation_space
 
 
 def describe(params: EnvParams | None = None) -> str:

@@ -12,7 +12,7 @@ import jax
 
 from jaxcart import cli
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
-from jaxcart.run.evaluation import evaluate_params, summarize
+from jaxcart.run.greedy import evaluate_params, summarize
 from jaxcart.rundir.policy import RunParams, numpy_policy, run_params
 from jaxcart.rundir.reader import read_run_config, recorded_combinations
 
@@ -120,7 +120,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
 
 
 def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
-    from jaxcart.gym.render import render_gif
+    from jaxcart.results.gif import render_gif
 
     one = jax.tree.map(lambda x: x[args.seed_index], trained.params)
     policy = numpy_policy(one, trained.config.activation)

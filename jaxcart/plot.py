@@ -45,7 +45,7 @@ import numpy as np
 from jaxcart import cli
 from jaxcart.analysis import figures, stats
 from jaxcart.rundir import files, layout
-from jaxcart.rundir.runs import (
+from jaxcart.rundir.views import (
     ELAPSED_METRIC,
     RunCurves,
     load_runs,

@@ -20,7 +20,7 @@ from jaxcart.core.solved import EVAL_SEED
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
 
-    from jaxcart.engine.trainer import Progress
+    from jaxcart.engine.loop import Progress
     from jaxcart.run.spec import Outcome, Run, RunSpec
     from jaxcart.run.waves import WavePlan
 

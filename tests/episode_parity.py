@@ -15,7 +15,7 @@ import gymnasium as gym
 import jax
 import numpy as np
 
-from jaxcart.core import env as cartpole
+from jaxcart.core import cartpole
 
 
 def balancing_action(obs: np.ndarray) -> int:

@@ -69,14 +69,14 @@ def assert_same_run_dirs(a: Path, b: Path) -> None:
 def stopped_run(spec, out: Path, options, chunks: int = 2):
     """A run created in ``out`` and stopped after ``chunks`` chunks (as Ctrl-C in a notebook
     would), its state checkpointed: ``(run, result)``, the run still open (locked)."""
-    from jaxcart.run import lifecycle, training
+    from jaxcart.run import lifecycle
     from jaxcart.run.spec import Hooks
 
     run = lifecycle.create_run(spec, out)
     done: list[int] = []
     hooks = Hooks(on_chunk=lambda p: done.append(p.iteration))
-    result = training.train_wave(run, options, hooks, should_stop=lambda: len(done) == chunks)
-    training.save_state(run, result.state)
+    result = lifecycle.train_wave(run, options, hooks, should_stop=lambda: len(done) == chunks)
+    lifecycle.save_state(run, result.state)
     return run, result
 
 

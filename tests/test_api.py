@@ -21,8 +21,6 @@ from jaxcart.engine import devices
 from jaxcart.run import loggers
 
 ROOT = Path(__file__).resolve().parents[1]
-TRAINING_DOC = (ROOT / "docs" / "training.md").read_text()
-"""The depth of the README: the options, presets and loggers."""
 
 
 def _python(code: str, **env: str) -> str:
@@ -33,7 +31,7 @@ def _python(code: str, **env: str) -> str:
 
 
 def test_training_function_is_not_shadowed_by_the_cli_module():
-    from jaxcart.engine import trainer
+    from jaxcart.engine import loop as trainer
 
     package = importlib.import_module("jaxcart")
     assert package.train_runs is trainer.train
@@ -56,16 +54,17 @@ def test_training_function_is_not_shadowed_by_the_cli_module():
 def test_python_trains_on_every_host_core_after_one_call():
     cores = len(os.sched_getaffinity(0))
     code = (
-        "import sys, time\n"
-        "start = time.perf_counter()\n"
+        "import sys\n"
         "import jaxcart\n"
         "jaxcart.use_all_host_cores()\n"
-        "cheap = time.perf_counter() - start\n"
-        "print('jax' in sys.modules, cheap < 1.0)\n"
+        "print('jax' in sys.modules)\n"
         "import jax\n"
         "print(jax.device_count())"
     )
-    assert _python(code).splitlines() == ["False True", str(cores)]
+    assert _python(code).splitlines() == ["False", str(cores)]
+    # with JAX already imported (no backend yet), JAX's own option takes the count
+    loaded = "import jax, jaxcart\njaxcart.use_all_host_cores()\nprint(jax.device_count())"
+    assert _python(loaded) == str(cores)
     # an explicit device count in XLA_FLAGS is the user's choice and stays
     pinned = _python(code, XLA_FLAGS="--xla_force_host_platform_device_count=1")
     assert pinned.splitlines()[1] == "1"
@@ -128,7 +127,6 @@ def test_version_and_scripts_agree_with_pyproject():
         "jaxcart": "jaxcart.__main__:cli_main",
         "jaxcart-train": "jaxcart.train:cli_main",
     }
-    assert "jaxcart-train" in TRAINING_DOC and "python -m jaxcart " in TRAINING_DOC
 
 
 def test_missing_logger_hint_names_both_install_forms(monkeypatch):
@@ -137,10 +135,3 @@ def test_missing_logger_hint_names_both_install_forms(monkeypatch):
         loggers.check_available(["tensorboard"])
     for form in ("pip install 'jaxcart[tensorboard]'", "pip install -e '.[tensorboard]'"):
         assert form in str(exc.value)
-    assert "pip install 'jaxcart[tensorboard]'" in TRAINING_DOC
-    assert "pip install -e '.[tensorboard]'" in TRAINING_DOC
-
-
-def test_the_docs_state_the_purejaxrl_caveat():
-    assert "`purejaxrl` reproduces PureJaxRL's configuration faithfully" in TRAINING_DOC
-    assert "not tuned to solve" in TRAINING_DOC

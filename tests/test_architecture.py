@@ -1,10 +1,8 @@
-"""The package's shape, checked from its source.
+"""The package's shape, checked from its source: direction and cycles only.
 
 - Layers as folders: a module imports only from its own layer and the layers below it
   (:data:`LAYERS`), counting imports inside functions and under ``TYPE_CHECKING``.
 - No import cycle between modules.
-- The top level holds only the package face and the commands.
-- Every function fits on a screen, every class in a sitting, every module in a file one reads.
 """
 
 from __future__ import annotations
@@ -12,12 +10,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxcart"
-MAX_FUNCTION_LINES = 80
-MAX_CLASS_LINES = 150
-MAX_MODULE_LINES = 500
 
 LAYERS: dict[str, int] = {
     "core": 0,  # env, network, PPO math, config, the definition of solved: no I/O
@@ -25,13 +18,11 @@ LAYERS: dict[str, int] = {
     "analysis": 1,  # statistics over arrays: no run directories
     "rundir": 2,  # the run directory: names, the one writer, the one reader
     "run": 3,  # a run's lifecycle: training, evaluation, waves, sweeps, loggers
-    "gym": 3,  # the Gymnasium adapter, and GIFs (written through rundir's one writer)
+    "gym": 1,  # the Gymnasium adapter: jaxcart's env behind Gymnasium's API
+    "results": 3,  # finished runs read back: comparisons, compare.png, GIFs
     "": 4,  # the package face and the commands (argparse -> library -> printing)
 }
 """Layer of each subpackage (``""`` is the top level). Equal numbers may not import each other."""
-
-COMMANDS = {"train", "evaluate", "plot", "compare", "env", "sb3"}
-TOP_LEVEL = COMMANDS | {"__init__", "__main__", "cli", "report"}
 
 
 def _modules() -> dict[str, ast.Module]:
@@ -42,14 +33,6 @@ def _modules() -> dict[str, ast.Module]:
             parts.pop()
         modules[".".join(parts)] = ast.parse(path.read_text())
     return modules
-
-
-def _lines(name: str) -> int:
-    rel = name.split(".")[1:]
-    path = PACKAGE.joinpath(*rel).with_suffix(".py")
-    if not path.exists():
-        path = PACKAGE.joinpath(*rel, "__init__.py")
-    return len(path.read_text().splitlines())
 
 
 def import_graph() -> dict[str, set[str]]:
@@ -115,11 +98,6 @@ def test_every_subpackage_has_a_layer():
     assert len(subpackages) >= 5
 
 
-def test_the_top_level_holds_only_the_face_and_the_commands():
-    top = {p.stem for p in PACKAGE.glob("*.py")}
-    assert top <= TOP_LEVEL, sorted(top - TOP_LEVEL)
-
-
 def test_imports_point_down_the_layers():
     wrong = []
     for module, imports in import_graph().items():
@@ -139,23 +117,3 @@ def test_layer_rules_catch_an_upward_import():
 
 def test_the_lifecycle_never_prints():
     assert "jaxcart.report" not in import_graph()["jaxcart.run.lifecycle"]
-
-
-@pytest.mark.parametrize("module", sorted(_modules()))
-def test_functions_and_classes_fit(module):
-    tree = _modules()[module]
-    long = [
-        f"{node.name} ({node.end_lineno - node.lineno + 1} lines)"
-        for node in ast.walk(tree)
-        if (
-            isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef)
-            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES
-        )
-        or (isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > MAX_CLASS_LINES)
-    ]
-    assert not long, f"{module}: {', '.join(long)}"
-
-
-@pytest.mark.parametrize("module", sorted(_modules()))
-def test_modules_fit(module):
-    assert _lines(module) <= MAX_MODULE_LINES, f"{module}: {_lines(module)} lines"

@@ -9,7 +9,7 @@ import pytest
 from helpers import TINY
 
 from jaxcart.core.config import PPOConfig
-from jaxcart.engine.trainer import METRIC_COLUMNS, initial_state
+from jaxcart.engine.loop import METRIC_COLUMNS, initial_state
 from jaxcart.rundir import checkpoint, files
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError

@@ -456,7 +456,7 @@ def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, c
     """The sweep table's plain gym mean is the plot's "mean return" (the IQM beside it is
     another statistic, and the line under the table says so); the next steps run as printed."""
     from jaxcart import plot
-    from jaxcart.rundir.runs import load_runs
+    from jaxcart.rundir.views import load_runs
 
     out = tmp_path / "sweep"
     sweep = ["--sweep", "learning_rate=1e-3,3e-4", "--num-seeds", "2", "--no-compile-cache"]

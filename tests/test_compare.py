@@ -19,7 +19,7 @@ from jaxcart import compare
 from jaxcart.analysis import stats, summary, tasks
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.networks import ActorCritic
-from jaxcart.engine.trainer import METRIC_COLUMNS
+from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run import sb3
 from jaxcart.train import main as train_main
 

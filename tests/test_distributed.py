@@ -9,7 +9,6 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 from helpers import assert_same_run_dirs, tiny_args
@@ -99,16 +98,3 @@ def test_launch_local_forwards_sigterm_to_its_processes(tmp_path):
     assert codes == [128 + signal.SIGTERM] * 2
     assert signal.getsignal(signal.SIGTERM) is before
     assert not (out / "params.npz").exists() and (out / "checkpoint.npz").exists()
-
-
-def test_the_two_process_recipe_leaves_no_xla_flags_behind():
-    readme = (Path(__file__).resolve().parents[1] / "docs" / "scaling.md").read_text()
-    assert "export XLA_FLAGS" not in readme
-    recipe = readme[readme.index("Two processes on one machine") :]
-    recipe = recipe[: recipe.index("From Python")]
-    commands = [line for line in recipe.splitlines() if "python -m jaxcart.train" in line]
-    assert len(commands) == 2
-    assert all(
-        c.startswith("XLA_FLAGS=--xla_force_host_platform_device_count=1 ") for c in commands
-    )
-    assert "wait" in recipe

@@ -20,8 +20,7 @@ import numpy as np
 import pytest
 from episode_parity import run_episodes
 
-from jaxcart.core import env as cartpole
-from jaxcart.core.tricks import hash_uniform
+from jaxcart.core import cartpole
 
 NUM_STATES = 10_000
 X_LIM = 2.4
@@ -301,9 +300,9 @@ def test_hash_uniform_is_uniform_and_independent(x64):
     from scipy import stats
 
     with jax.enable_x64(x64):
-        u = np.asarray(hash_uniform(jax.random.PRNGKey(1), (200_000,)))
-        v = np.asarray(hash_uniform(jax.random.PRNGKey(2), (200_000,)))
-        b = np.asarray(hash_uniform(jax.random.PRNGKey(1), (1000, 4), None, -0.05, 0.05))
+        u = np.asarray(cartpole.hash_uniform(jax.random.PRNGKey(1), (200_000,)))
+        v = np.asarray(cartpole.hash_uniform(jax.random.PRNGKey(2), (200_000,)))
+        b = np.asarray(cartpole.hash_uniform(jax.random.PRNGKey(1), (1000, 4), None, -0.05, 0.05))
         assert u.dtype == (np.float64 if x64 else np.float32)
     assert u.min() >= 0.0 and u.max() < 1.0
     assert stats.kstest(u, "uniform").pvalue > 1e-3

@@ -14,7 +14,7 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from jaxcart.core import networks
 from jaxcart.core.solved import EVAL_SEED, SOLVED_RETURN
 from jaxcart.engine.signals import Stopped
-from jaxcart.run.evaluation import _GymnasiumCartPole, evaluate_gymnasium
+from jaxcart.run.greedy import _GymnasiumCartPole, evaluate_gymnasium
 from jaxcart.rundir.policy import NumpyPolicy
 
 NUM_POLICIES, NUM_EPISODES = 64, 20

@@ -30,9 +30,11 @@ from helpers import TINY, TRAIN_ENV
 
 from jaxcart import train
 from jaxcart.core.config import ConfigError
-from jaxcart.run import comparison, lifecycle, loggers, training, waves
+from jaxcart.results import scores as comparison
+from jaxcart.run import lifecycle, loggers, waves
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
-from jaxcart.rundir import files, layout, policy, reader, runs
+from jaxcart.rundir import files, layout, policy, reader
+from jaxcart.rundir import views as runs
 from jaxcart.rundir.directory import RunDir
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.lock import RunLock
@@ -52,8 +54,8 @@ def bases(tmp_path_factory) -> dict[str, Path]:
     run = lifecycle.create_run(longer, root / "interrupted")
     chunks: list[int] = []
     hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
-    result = training.train_wave(run, OPTIONS, hooks, should_stop=lambda: len(chunks) == 1)
-    training.save_state(run, result.state)
+    result = lifecycle.train_wave(run, OPTIONS, hooks, should_stop=lambda: len(chunks) == 1)
+    lifecycle.save_state(run, result.state)
     run.close()
     sweep = RunSpec(SMALL, num_seeds=1, sweep={"learning_rate": [1e-3, 2e-3]})
     lifecycle.run_new(sweep, root / "sweep", OPTIONS)
@@ -605,13 +607,13 @@ def test_an_interrupted_extension_reads_as_unfinished(bases, tmp_path):
 
 def test_a_run_directory_deleted_during_evaluation_is_not_recreated(bases, tmp_path, monkeypatch):
     run, _ = prepare(bases, "interrupted", tmp_path)
-    evaluate = training.evaluate_wave
+    evaluate = lifecycle.evaluate_wave
 
     def delete_then_evaluate(r, *args, **kwargs):
         shutil.rmtree(run)
         return evaluate(r, *args, **kwargs)
 
-    monkeypatch.setattr(training, "evaluate_wave", delete_then_evaluate)
+    monkeypatch.setattr(lifecycle, "evaluate_wave", delete_then_evaluate)
     with pytest.raises(OSError):
         lifecycle.resume_run(run, OPTIONS)
     assert not run.exists()

@@ -11,7 +11,7 @@ from helpers import TINY, assert_same_run_dirs, stopped_run
 
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run import lifecycle
-from jaxcart.run.evaluation import evaluate_run_dir
+from jaxcart.run.greedy import evaluate_run_dir
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError

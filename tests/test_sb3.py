@@ -14,9 +14,9 @@ import pytest
 from jaxcart import evaluate, load_policy
 from jaxcart import sb3 as sb3_command
 from jaxcart.core.config import PPOConfig
-from jaxcart.engine.trainer import METRIC_COLUMNS
+from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run import sb3
-from jaxcart.run.evaluation import evaluate_params
+from jaxcart.run.greedy import evaluate_params
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.policy import run_params
 

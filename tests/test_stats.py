@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from scipy.stats import mannwhitneyu, trim_mean
 
-from jaxcart.analysis import comparisons, stats, tasks
 from jaxcart.analysis import curves as curves_lib
+from jaxcart.analysis import multiplicity as comparisons
+from jaxcart.analysis import stats, tasks
 
 SAMPLE = np.array([0.0, 10, 20, 30, 40, 50, 60, 500])
 

@@ -11,7 +11,7 @@ import pytest
 from helpers import TINY, assert_same_run_dirs, stopped_run
 
 from jaxcart.core.config import PPOConfig
-from jaxcart.engine.trainer import METRIC_COLUMNS, train
+from jaxcart.engine.loop import METRIC_COLUMNS, train
 from jaxcart.run import lifecycle
 from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout

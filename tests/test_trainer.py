@@ -10,11 +10,11 @@ import jax
 import numpy as np
 from helpers import TINY, assert_same_results
 
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, PPOConfig
-from jaxcart.core.env import EnvParams
 from jaxcart.core.ppo import train_iteration
 from jaxcart.engine.chunk import group_layout, train_chunk
-from jaxcart.engine.trainer import (
+from jaxcart.engine.loop import (
     compiled_chunk,
     init_runners,
     initial_state,
@@ -238,7 +238,7 @@ def test_adaptive_chunks_change_no_number(monkeypatch):
     """Chunks whose length follows the wall clock (here forced to grow 1, 3, 9, ... by a
     stub) give metrics and parameters bit-identical to fixed chunks of 4, and to chunks
     of 5 that do not tile the run."""
-    from jaxcart.engine import trainer
+    from jaxcart.engine import loop as trainer
 
     lengths = []
 
@@ -262,7 +262,7 @@ def test_default_chunk_size_is_constant_time():
     proportional to the run for divisors, which would not return here), and bounds the
     chunk's metrics buffer."""
     from jaxcart.core.metrics import METRIC_NAMES
-    from jaxcart.engine.trainer import CHUNK_METRICS_BYTES, default_chunk_size
+    from jaxcart.engine.loop import CHUNK_METRICS_BYTES, default_chunk_size
 
     assert default_chunk_size(10**15) == 1024
     assert default_chunk_size(10**15, num_runs=10**6) == 1

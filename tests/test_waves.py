@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from helpers import TINY, TRAIN_ENV, assert_same_run_dirs, tiny_args
 
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig, preset
-from jaxcart.core.env import EnvParams
-from jaxcart.engine.trainer import compiled_chunk, initial_state, train
+from jaxcart.engine.loop import compiled_chunk, initial_state, train
 from jaxcart.run.waves import PROCESS_RESERVE_BYTES, USABLE_FRACTION, bytes_per_run, plan_waves
 from jaxcart.rundir import reader
 

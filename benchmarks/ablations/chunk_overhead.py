@@ -12,7 +12,7 @@ import statistics
 
 from benchmarks import lib
 from jaxcart.core.config import preset
-from jaxcart.engine.trainer import default_chunk_size, train
+from jaxcart.engine.loop import default_chunk_size, train
 
 
 def main() -> None:

@@ -230,9 +230,9 @@ def child(run: bool, part: str | None) -> dict:
 
     if part:
         stub(part)
-    from jaxcart.core import env as cartpole
+    from jaxcart.core import cartpole
     from jaxcart.core.config import preset
-    from jaxcart.engine import trainer
+    from jaxcart.engine import loop as trainer
 
     # the program `python -m jaxcart.train` compiles: one seed on one device, adaptive chunks
     config = preset("sb3")

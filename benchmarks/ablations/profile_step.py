@@ -22,11 +22,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from benchmarks import lib
-from jaxcart.core import env as cartpole
+from jaxcart.core import cartpole
 from jaxcart.core.config import preset
 from jaxcart.core.ppo import collect_rollout, training_batch, update_epochs
 from jaxcart.engine.chunk import train_chunk
-from jaxcart.engine.trainer import init_runners
+from jaxcart.engine.loop import init_runners
 
 
 def profile(preset_name: str, seeds: int) -> dict:

@@ -51,7 +51,7 @@ from benchmarks import lib  # noqa: E402
 from jaxcart.core import env as cartpole  # noqa: E402
 from jaxcart.core.config import PPOConfig, preset  # noqa: E402
 from jaxcart.core.ppo import Batch, collect_rollout, training_batch, update_epochs  # noqa: E402
-from jaxcart.engine.trainer import init_runners  # noqa: E402
+from jaxcart.engine.loop import init_runners  # noqa: E402
 
 OBS, HIDDEN, ACTIONS = 4, 64, 2
 

@@ -32,10 +32,10 @@ from benchmarks import lib
 
 # Imported for its side effect: it pins this process to one core with one JAX device.
 from benchmarks.ablations import roofline  # noqa: F401
-from jaxcart.core import env as cartpole
+from jaxcart.core import cartpole
 from jaxcart.core.config import preset
 from jaxcart.engine.chunk import guarded_iteration
-from jaxcart.engine.trainer import init_runners
+from jaxcart.engine.loop import init_runners
 
 CHUNK = 2
 

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-import jaxcart.core.env as cartpole
+import jaxcart.core.cartpole as cartpole
 
 # Env steps per compiled call (num_steps x num_envs) aimed at; a call is a scan this long.
 STEPS_PER_CALL = 2**19
@@ -130,7 +130,7 @@ def jax_rollout(step, reset_state, num_envs: int, num_steps: int):
 
 
 def jaxcart_random_rollout(num_envs: int, num_steps: int):
-    """jaxcart in :func:`jax_rollout`: :func:`jaxcart.core.env.step_batch` (its API takes one key
+    """jaxcart in :func:`jax_rollout`: :func:`jaxcart.core.cartpole.step_batch` (its API takes one key
     per step for the whole batch; reset states from jaxcart's counter hash)."""
     params = cartpole.EnvParams()
 

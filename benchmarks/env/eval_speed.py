@@ -1,4 +1,4 @@
-"""Wall-clock time of the Gymnasium evaluation (``jaxcart.run.evaluation.evaluate_gymnasium``):
+"""Wall-clock time of the Gymnasium evaluation (``jaxcart.run.greedy.evaluate_gymnasium``):
 ``--policies`` stacked tanh MLPs (4-64-64-2, jaxcart's actor) x ``--episodes`` greedy episodes
 in Gymnasium's CartPole-v1, median of ``--repeats`` runs after one warm-up.
 
@@ -20,7 +20,7 @@ import numpy as np
 
 from jaxcart.core import networks
 from jaxcart.core.solved import NUM_EVAL_EPISODES, SOLVED_RETURN
-from jaxcart.run.evaluation import evaluate_gymnasium
+from jaxcart.run.greedy import evaluate_gymnasium
 from jaxcart.rundir.policy import NumpyPolicy
 
 

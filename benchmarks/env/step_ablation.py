@@ -7,7 +7,7 @@ core with one JAX device, timed interleaved over ``--rounds``:
 - ``step_batch``: jaxcart's env as benchmarked (physics, termination, autoreset with reset
   states from the keyed counter hash);
 - ``fixed-reset``: the same with the reset states fixed (no hashing): what drawing them costs;
-- ``physics-only``: :func:`jaxcart.core.env.step_env` alone (no autoreset at all; episodes run on
+- ``physics-only``: :func:`jaxcart.core.cartpole.step_env` alone (no autoreset at all; episodes run on
   past their end, so this is not a usable env, only a floor);
 - ``sincos-once``: ``step_batch`` with sin and cos of the pole angle evaluated once per env
   (:func:`jaxcart.gym.kernels.sin_cos_once`, as the Gymnasium vector adapter does). XLA:CPU
@@ -36,10 +36,10 @@ import statistics  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-import jaxcart.core.env as cartpole  # noqa: E402
+import jaxcart.core.cartpole as cartpole  # noqa: E402
 from benchmarks import lib  # noqa: E402
 from benchmarks.env import contenders  # noqa: E402
-from jaxcart.core.env import hash_uniform  # noqa: E402
+from jaxcart.core.cartpole import hash_uniform  # noqa: E402
 from jaxcart.gym import kernels  # noqa: E402
 
 VARIANTS = ("step_batch", "fixed-reset", "physics-only", "sincos-once", "gymnax")

@@ -2,7 +2,7 @@
 
 Contenders, each at every number of parallel environments N in ``--sizes``:
 
-- ``jaxcart``: ``jaxcart.core.env.step_batch`` in the harness's ``jit(shard_map(scan(...)))``.
+- ``jaxcart``: ``jaxcart.core.cartpole.step_batch`` in the harness's ``jit(shard_map(scan(...)))``.
 - ``gymnax``: gymnax 1.x ``CartPole-v1`` (its ``step`` autoresets), ``vmap(env.step)`` in the
   same rollout code.
 - ``gymnasium-vector``: Gymnasium's NumPy ``CartPoleVectorEnv``

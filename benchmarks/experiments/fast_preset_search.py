@@ -32,8 +32,8 @@ import numpy as np  # noqa: E402
 
 from benchmarks import lib  # noqa: E402
 from jaxcart.core.config import PPOConfig  # noqa: E402
-from jaxcart.engine.trainer import seed_keys, train  # noqa: E402
-from jaxcart.run.evaluation import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
+from jaxcart.engine.loop import seed_keys, train  # noqa: E402
+from jaxcart.run.greedy import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
 from jaxcart.rundir.policy import numpy_policy  # noqa: E402
 
 SHAPES = [(4, 128), (8, 64), (16, 32), (16, 64), (32, 32), (64, 16)]

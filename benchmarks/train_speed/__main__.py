@@ -14,7 +14,7 @@ Contenders, each in a fresh subprocess (clean compile caches and memory):
   the same rl-zoo3 settings; S > 1 as for SB3. sbx runs in its own virtualenv
   (``--sbx-python``, default ``benchmarks/.venv-sbx/bin/python``).
 - ``jaxcart-sb3-xS``: jaxcart's ``sb3`` preset (SB3's hyperparameters), S seeds trained
-  together in one compiled program (``jaxcart.engine.trainer.train``); ``jaxcart-fast-xS``: its
+  together in one compiled program (``jaxcart.engine.loop.train``); ``jaxcart-fast-xS``: its
   ``fast`` preset; ``jaxcart-purejaxrl-xS``: its ``purejaxrl`` preset, i.e. jaxcart running
   PureJaxRL's CartPole configuration (PureJaxRL itself is a script in a GitHub repository,
   not an installable package, so it is not run here).
@@ -104,7 +104,7 @@ RUNNERS = {
 
 def evaluate_policy(policy, num_policies: int) -> dict:
     """Gymnasium evaluation with jaxcart's evaluator: per-seed mean/min and solved flags."""
-    from jaxcart.run.evaluation import evaluate_gymnasium, summarize
+    from jaxcart.run.greedy import evaluate_gymnasium, summarize
 
     start = time.perf_counter()
     returns = evaluate_gymnasium(policy, num_policies, EVAL_EPISODES)

@@ -233,7 +233,7 @@ def notes(s: dict) -> list[str]:
         "when the cores are busy.",
         "- jaxcart's *setup* is initialising the seeds (NumPy, on the host) and compiling the "
         "training step (*compile*, which includes tracing and lowering).",
-        "- jaxcart: `jaxcart.engine.trainer.train(preset(...), num_runs=S, seed=0)`; seeds sharded "
+        "- jaxcart: `jaxcart.engine.loop.train(preset(...), num_runs=S, seed=0)`; seeds sharded "
         "over the CPU devices (one per core).",
         f"- rejax: SB3's hyperparameters except where rejax has no option: {REJAX_DIFFERENCES}; "
         "its periodic evaluation replaced by a no-op; S seeds as `jit(vmap(train))` sharded "

@@ -21,7 +21,7 @@ seed's mean greedy Gymnasium return). Over them:
 Beside this module: :mod:`jaxcart.analysis.tasks` aggregates several configurations
 (rliable's *tasks*, the stratified bootstrap), :mod:`jaxcart.analysis.curves` turns learning
 curves into per-seed scores (area under the curve, return at a budget), and
-:mod:`jaxcart.analysis.comparisons` says what a set of comparisons can still tell (saturation,
+:mod:`jaxcart.analysis.multiplicity` says what a set of comparisons can still tell (saturation,
 many intervals at once).
 
 **NaN.** Scores are refused when they hold NaN (or infinity) or are empty: every function

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxcart.analysis import comparisons, curves, stats, tasks
+from jaxcart.analysis import curves, stats, tasks
+from jaxcart.analysis import multiplicity as comparisons
 
 SCORES = {
     "eval": "each seed's mean greedy return in gymnasium.make('CartPole-v1') (evaluation.json)",

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from jaxcart.core import env as cartpole
+from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import EpisodeBuffer, iteration_metrics, update_episode_buffer
 from jaxcart.core.networks import ActorCritic

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import env as cartpole
+from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import EPISODE_WINDOW, METRIC_NAMES, EpisodeBuffer
 from jaxcart.core.ppo import (

@@ -14,7 +14,7 @@ with this module's classes as string entry points; see ``jaxcart/__init__.py``):
 them), the same reward, ``terminated`` and ``{}`` info, ``truncated`` always ``False`` (the
 ``TimeLimit`` from registration truncates at 500 steps, as for ``CartPole-v1``), the same
 ``AssertionError`` for an invalid action, and a ``state`` attribute to read or inject the
-physical state. The physics step is jaxcart's :func:`jaxcart.core.env.step_env`.
+physical state. The physics step is jaxcart's :func:`jaxcart.core.cartpole.step_env`.
 
 :class:`JaxCartPoleVectorEnv` is a drop-in for Gymnasium's ``CartPoleVectorEnv``, with a choice
 of autoreset mode (``autoreset_mode=``: ``NEXT_STEP`` by default, as Gymnasium's; ``SAME_STEP``

@@ -12,7 +12,7 @@ from gymnasium.vector import VectorEnv
 from jaxcart.gym import ENV_ID
 
 if TYPE_CHECKING:
-    from jaxcart.core.env import EnvParams
+    from jaxcart.core.cartpole import EnvParams
 
 
 def reset_bounds(options: dict | None, params: EnvParams) -> tuple[float, float]:

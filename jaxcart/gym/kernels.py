@@ -19,7 +19,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 if TYPE_CHECKING:
-    from jaxcart.core.env import EnvParams
+    from jaxcart.core.cartpole import EnvParams
 
 
 def precision(x64: bool):
@@ -44,7 +44,7 @@ def make_params(
     leaf a Python scalar, so that :func:`compile_key` can key the cache of compiled programs."""
     import jax
 
-    from jaxcart.core import env as cartpole
+    from jaxcart.core import cartpole
 
     params = cartpole.EnvParams() if params is None else params
     if sutton_barto_reward is not None:
@@ -98,7 +98,7 @@ def single_step(packed, action, floats, params: EnvParams):
     parameters (see :func:`float_values`)."""
     import jax.numpy as jnp
 
-    from jaxcart.core import env as cartpole
+    from jaxcart.core import cartpole
 
     state = cartpole.state_from_obs(packed[:4])
     params = with_floats(params, floats)
@@ -126,13 +126,13 @@ def num_rows(mode: AutoresetMode) -> int:
 def start_states(key, floats, num_envs: int, dtype):
     """Fresh start states ``[4, num_envs]``, uniform in ``[low, high)`` (the last two floats).
 
-    Drawn with jaxcart's counter hash (:func:`jaxcart.core.env.hash_uniform`) in float32 (one
+    Drawn with jaxcart's counter hash (:func:`jaxcart.core.cartpole.hash_uniform`) in float32 (one
     hash per number; the values are then exact in float64 too); Threefry would cost more than
     the physics.
     """
     import jax.numpy as jnp
 
-    from jaxcart.core.env import hash_uniform
+    from jaxcart.core.cartpole import hash_uniform
 
     low, high = floats[-2:].astype(jnp.float32)
     return hash_uniform(key, (4, num_envs), jnp.float32, low, high).astype(dtype)
@@ -178,14 +178,14 @@ def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
     state in case its episode ends now; the state rows keep the stepped state, the host's
     ``final_obs``. DISABLED: no reset.
 
-    The physics is :func:`jaxcart.core.env.step_env`'s, with sin and cos evaluated once per env
+    The physics is :func:`jaxcart.core.cartpole.step_env`'s, with sin and cos evaluated once per env
     (:func:`sin_cos_once`). The output is stacked row by row (each row its own select): XLA:CPU
     emits a fused concatenation of whole rows as vector code, where a select over a stacked
     ``[4, num_envs]`` block came out as scalar code.
     """
     import jax.numpy as jnp
 
-    from jaxcart.core import env as cartpole
+    from jaxcart.core import cartpole
 
     actions, key = inputs[:-2], inputs[-2:]
     ended = rows[ENDED] != 0  # on the previous step

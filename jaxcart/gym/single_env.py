@@ -11,7 +11,7 @@ import numpy as np
 from jaxcart.gym import host, kernels
 
 if TYPE_CHECKING:
-    from jaxcart.core.env import EnvParams
+    from jaxcart.core.cartpole import EnvParams
 
 
 class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
@@ -21,7 +21,7 @@ class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
         render_mode: ``None`` or ``"rgb_array"``.
         sutton_barto_reward: Gymnasium's option (0 per step, -1 on failure); overrides
             ``params.sutton_barto_reward`` when given.
-        params: jaxcart :class:`~jaxcart.core.env.EnvParams` (physics, thresholds, reset bounds,
+        params: jaxcart :class:`~jaxcart.core.cartpole.EnvParams` (physics, thresholds, reset bounds,
             integrator); default CartPole-v1's. ``params.max_episode_steps`` is not used: as
             with Gymnasium's ``CartPoleEnv``, the episode limit is the ``TimeLimit`` wrapper's.
         float64: step the physics in float64 (JAX x64 enabled for this env's calls only), as
@@ -47,7 +47,7 @@ class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
     ) -> None:
         import jax.numpy as jnp
 
-        from jaxcart.core import env as cartpole
+        from jaxcart.core import cartpole
 
         host.check_render_mode(render_mode, self.metadata)
         self.params = kernels.make_params(params, sutton_barto_reward, None)

@@ -31,7 +31,7 @@ from gymnasium.vector.utils import batch_space
 from jaxcart.gym import host, kernels
 
 if TYPE_CHECKING:
-    from jaxcart.core.env import EnvParams
+    from jaxcart.core.cartpole import EnvParams
 
 _KEY_BLOCK = 1024  # step keys drawn from np_random at a time
 
@@ -149,7 +149,7 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             ``params.max_episode_steps`` when given.
         render_mode: ``None`` or ``"rgb_array"`` (a list of ``num_envs`` frames).
         sutton_barto_reward: as for :class:`JaxCartPoleEnv`.
-        params: jaxcart :class:`~jaxcart.core.env.EnvParams`; default CartPole-v1's.
+        params: jaxcart :class:`~jaxcart.core.cartpole.EnvParams`; default CartPole-v1's.
         float64: as for :class:`JaxCartPoleEnv` (the batch state stays on the JAX device in
             that precision).
         autoreset_mode: a ``gymnasium.vector.AutoresetMode`` or its value (``"NextStep"``,
@@ -177,7 +177,7 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         float64: bool = True,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
     ) -> None:
-        from jaxcart.core import env as cartpole
+        from jaxcart.core import cartpole
 
         if num_envs < 1:
             raise ValueError(f"num_envs must be at least 1, got {num_envs}")

@@ -33,7 +33,7 @@ import numpy as np
 from jaxcart.core import networks
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_DEFINITION, is_solved
-from jaxcart.engine.trainer import METRIC_COLUMNS
+from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.rundir import files, layout, outputs
 from jaxcart.rundir.directory import package_versions
 from jaxcart.rundir.files import RunDirError

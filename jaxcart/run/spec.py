@@ -3,7 +3,7 @@
 (:class:`Run`) and what a call did (:class:`Outcome`, :class:`Evaluation`).
 
 Nothing here trains or touches files: :mod:`jaxcart.run.lifecycle` does, through
-:mod:`jaxcart.run.training` and the run's :class:`~jaxcart.rundir.directory.RunDir`.
+:mod:`jaxcart.run.lifecycle` and the run's :class:`~jaxcart.rundir.directory.RunDir`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.solved import is_solved
-from jaxcart.engine.trainer import Progress, TrainResult
+from jaxcart.engine.loop import Progress, TrainResult
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.loggers import LoggerUnavailable, check_available
 from jaxcart.run.waves import WavePlan

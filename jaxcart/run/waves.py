@@ -63,7 +63,7 @@ def bytes_per_run(config: PPOConfig, eval_episodes: int = 20) -> int:
     """Estimated peak host memory of one run while it trains and is evaluated, in bytes."""
     import jax
 
-    from jaxcart.engine.trainer import MAX_CHUNK_ITERATIONS, initial_state
+    from jaxcart.engine.loop import MAX_CHUNK_ITERATIONS, initial_state
 
     state = initial_state(config, 1, 0)
     state_bytes = sum(np.asarray(x).nbytes for x in jax.tree.leaves(state.runners))
@@ -246,7 +246,7 @@ def metrics_disk_bytes(config: PPOConfig, num_runs: int, wave_size: int) -> int:
     """Estimated bytes of a run's metrics on disk: ``metrics.csv``, the stream of the wave
     being trained and, in waves, each finished wave's copy (float32 per metric, run and
     iteration). Training memory does not grow with them: they are streamed."""
-    from jaxcart.engine.trainer import METRIC_COLUMNS
+    from jaxcart.engine.loop import METRIC_COLUMNS
 
     row = len(METRIC_COLUMNS) * 4
     waved = num_runs if wave_size < num_runs else 0

@@ -1,7 +1,7 @@
 """Checkpoints of the full training state, written atomically.
 
 A checkpoint is one tree file (:mod:`jaxcart.rundir.files`): every array of the
-:class:`~jaxcart.engine.trainer.TrainState` under its tree path
+:class:`~jaxcart.engine.loop.TrainState` under its tree path
 (``state/runners/params/params/actor/hidden_0/kernel``, ``state/hyperparams/learning_rate``,
 ...) and a JSON ``__meta__`` entry (iteration, elapsed time, chunk size, config, package
 versions, and the columns of the metrics so far). The metrics themselves are not in it but in
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.core.config import PPOConfig
-from jaxcart.engine.trainer import METRIC_COLUMNS, TrainState
+from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_STATE
@@ -99,7 +99,7 @@ def load_checkpoint(
     """
     import jax
 
-    from jaxcart.engine.trainer import TrainState
+    from jaxcart.engine.loop import TrainState
 
     meta = read_checkpoint_meta(path)
     expected = _expected_headers(template, num_runs)

@@ -15,7 +15,7 @@ from importlib import metadata
 from pathlib import Path
 
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.engine.trainer import METRIC_COLUMNS, TrainState
+from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError

@@ -1,7 +1,7 @@
 """The metrics of the wave being trained, appended to disk chunk by chunk.
 
 ``RUN_DIR/metrics.stream`` holds float32 rows, one per iteration, no header: each row is
-every column of :data:`~jaxcart.engine.trainer.METRIC_COLUMNS` for every run of the wave,
+every column of :data:`~jaxcart.engine.loop.METRIC_COLUMNS` for every run of the wave,
 ``[iteration, column, run]`` in C order. What the rows mean (their columns and runs) is
 recorded in the checkpoint's metadata, and only as many rows as the checkpoint's iteration
 count: rows written after the last checkpoint are cut when training continues, so a resumed

@@ -9,7 +9,7 @@ from benchmarks.train_speed.common import QUICK_TIMESTEPS, configure_jax_cache
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
-    """``jaxcart.engine.trainer.train(preset(preset_name), num_seeds, seed=0)``.
+    """``jaxcart.engine.loop.train(preset(preset_name), num_seeds, seed=0)``.
 
     Returns:
         ``(data, policy)``: the timings and settings, and the seeds' stacked greedy policy
@@ -22,7 +22,7 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
 
     configure_jax_cache(cache_dir)
     from jaxcart.core.config import preset
-    from jaxcart.engine.trainer import train
+    from jaxcart.engine.loop import train
     from jaxcart.rundir.policy import numpy_policy
 
     overrides = {"total_timesteps": QUICK_TIMESTEPS[preset_name]} if quick else {}

@@ -11,12 +11,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import env as cartpole
+from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
+from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped
-from jaxcart.engine.trainer import seed_index_keys
 from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, numpy_policy, run_params

@@ -19,7 +19,7 @@ from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.runs import RunCurves, load_runs
+from jaxcart.rundir.views import RunCurves, load_runs
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 REACHED_METRIC = "rollout/ep_rew_max"

@@ -1,4 +1,4 @@
-"""``compare.png``: the figure of a :class:`~jaxcart.run.comparison.Comparison`.
+"""``compare.png``: the figure of a :class:`~jaxcart.results.scores.Comparison`.
 
 Top row: each run's IQM, median over seeds, mean and optimality gap with their intervals.
 Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the performance profile
@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.analysis import stats
-from jaxcart.run.comparison import RETURN_METRIC, Comparison
+from jaxcart.results.scores import RETURN_METRIC, Comparison
 
 if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
     from matplotlib.figure import Figure

@@ -8,7 +8,7 @@ evaluation measures. Needs Pillow (``pip install pillow pygame``).
 Example::
 
     import jaxcart
-    from jaxcart.gym.render import render_gif
+    from jaxcart.results.gif import render_gif
 
     render_gif(jaxcart.load_policy("runs/my-run"), "cartpole.gif")
 """
