@@ -13,7 +13,7 @@ import jax
 from jaxcart import cli
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.run.greedy import evaluate_params, summarize
-from jaxcart.rundir.policy import RunParams, numpy_policy, run_params
+from jaxcart.rundir.policy import RunParams, make_policy, run_params
 from jaxcart.rundir.reader import read_run_config, recorded_combinations
 
 
@@ -123,7 +123,7 @@ def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
     from jaxcart.results.gif import render_gif
 
     one = jax.tree.map(lambda x: x[args.seed_index], trained.params)
-    policy = numpy_policy(one, trained.config.activation)
+    policy = make_policy(one, trained.config)
     gif = render_gif(policy, args.gif, seed=args.gif_seed)
     print(
         f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "

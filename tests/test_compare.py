@@ -53,7 +53,7 @@ def sb3_run(out: Path, num_seeds: int, score: float | None = None) -> Path:
     ]
     network = ActorCritic.from_config(PPOConfig())
     results = [
-        sb3.SeedResult(m, network.init(np.random.default_rng(s)), r, 10.0)
+        sb3.SeedResult(m, network.host_init(np.random.default_rng(s)), r, 10.0)
         for s, (m, r) in enumerate(zip(per_seed, evaluations))
     ]
     out.mkdir()

@@ -20,7 +20,7 @@ def _gram(w: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("hidden_sizes", [(64, 64), (32,), (16, 8, 4)])
 def test_init_is_sb3s_orthogonal_init(hidden_sizes):
     network = ActorCritic(hidden_sizes=hidden_sizes)
-    params = network.init(np.random.default_rng(0))
+    params = network.host_init(np.random.default_rng(0))
     sizes = (4, *hidden_sizes)
     for head, out_dim, out_gain in (("actor", 2, 0.01), ("critic", 1, 1.0)):
         layers = params["params"][head]
@@ -44,8 +44,8 @@ def test_init_is_haar_random_and_seeded():
     assert abs(draws.mean()) < 0.01 and abs(draws.var() - 1 / 64) < 0.002
     assert not np.allclose(draws[0], draws[1])
     a, b = (
-        ActorCritic().init(np.random.default_rng(5)),
-        ActorCritic().init(np.random.default_rng(5)),
+        ActorCritic().host_init(np.random.default_rng(5)),
+        ActorCritic().host_init(np.random.default_rng(5)),
     )
     np.testing.assert_array_equal(
         a["params"]["critic"]["hidden_1"]["kernel"], b["params"]["critic"]["hidden_1"]["kernel"]
@@ -54,7 +54,7 @@ def test_init_is_haar_random_and_seeded():
 
 def test_shapes_match_init():
     network = ActorCritic(hidden_sizes=(8, 4), activation="relu")
-    params = network.init(np.random.default_rng(1))
+    params = network.host_init(np.random.default_rng(1))
     shapes = network.shapes()
     for head in ("actor", "critic"):
         for name, layer in params["params"][head].items():
@@ -65,7 +65,7 @@ def test_shapes_match_init():
 @pytest.mark.parametrize("activation", ["tanh", "relu"])
 def test_jax_forward_matches_a_hand_written_mlp(activation):
     network = ActorCritic(hidden_sizes=(8, 8), activation=activation)
-    params = network.init(np.random.default_rng(2))
+    params = network.host_init(np.random.default_rng(2))
     for head in ("actor", "critic"):  # non-zero biases so that they are exercised
         for layer in params["params"][head].values():
             layer["bias"] = (
@@ -90,7 +90,7 @@ def test_jax_forward_matches_a_hand_written_mlp(activation):
 
 def test_numpy_policy_matches_jax_logits_single_and_stacked():
     network = ActorCritic()
-    seeds = [network.init(np.random.default_rng(s)) for s in range(3)]
+    seeds = [network.host_init(np.random.default_rng(s)) for s in range(3)]
     obs = np.random.default_rng(0).normal(size=(3, 7, 4)).astype(np.float32)
     stacked_actor = {
         name: {k: np.stack([actor_params(p)[name][k] for p in seeds]) for k in ("kernel", "bias")}
@@ -114,7 +114,7 @@ def test_bad_activation_rejected():
 
 def test_linear_actor_is_one_layer_and_the_critic_keeps_its_hidden_layers():
     network = ActorCritic(hidden_sizes=(64, 64), linear_actor=True)
-    params = network.init(np.random.default_rng(0))
+    params = network.host_init(np.random.default_rng(0))
     assert list(params["params"]["actor"]) == ["out"]
     assert params["params"]["actor"]["out"]["kernel"].shape == (4, 2)
     assert list(params["params"]["critic"]) == ["hidden_0", "hidden_1", "out"]
@@ -127,7 +127,7 @@ def test_linear_actor_is_one_layer_and_the_critic_keeps_its_hidden_layers():
 
 def test_default_init_is_pytorchs_uniform_fan_in():
     network = ActorCritic(hidden_sizes=(64, 64), weight_init="default")
-    draws = [network.init(np.random.default_rng(s)) for s in range(10)]
+    draws = [network.host_init(np.random.default_rng(s)) for s in range(10)]
     for head in ("actor", "critic"):
         for name in ("hidden_0", "hidden_1", "out"):
             kernel = np.stack([d["params"][head][name]["kernel"] for d in draws])

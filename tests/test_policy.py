@@ -17,8 +17,8 @@ from helpers import TINY
 
 import jaxcart
 from jaxcart import evaluate, plot
+from jaxcart.core import networks
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.networks import ActorCritic
 from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
@@ -65,8 +65,7 @@ def _checkpoint_actions(run_dir, run: int, obs: np.ndarray) -> np.ndarray:
     """Greedy actions of run ``run`` computed straight from the checkpoint's arrays."""
     arrays, _ = files.load_tree(run_dir / CHECKPOINT_FILE)
     actor = {k[len(ACTOR) :]: v[run] for k, v in arrays.items() if k.startswith(ACTOR)}
-    params = {"params": {"actor": files.unflatten(actor)}}
-    return np.asarray(ActorCritic().logits(params, obs)).argmax(-1)
+    return networks.mlp(files.unflatten(actor), obs, "tanh", np).argmax(-1)
 
 
 OBS = np.random.default_rng(0).normal(size=(64, 4)).astype(np.float32)

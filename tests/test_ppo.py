@@ -95,7 +95,7 @@ def test_gae_hand_worked_three_steps():
 
 def _setup_loss(num=256, seed=0):
     network = ActorCritic()
-    params = network.init(np.random.default_rng(seed))
+    params = network.host_init(np.random.default_rng(seed))
     obs = jax.random.normal(jax.random.PRNGKey(seed + 1), (num, 4))
     logits, value = network.apply(params, obs)
     action = jax.random.categorical(jax.random.PRNGKey(seed + 2), logits)
@@ -247,13 +247,20 @@ def test_categorical_helpers_match_distrax():
 
 # Probe environments: one-step episodes (every step terminates), so the right value is the
 # reward itself and the right policy is greedy in it. Driven through the real GAE and update.
-PROBE = PPOConfig(num_envs=8, num_steps=16, minibatch_size=32, update_epochs=4, learning_rate=3e-3)
+PROBE = PPOConfig(
+    num_envs=8,
+    num_steps=16,
+    minibatch_size=32,
+    update_epochs=4,
+    learning_rate=3e-3,
+    hidden_sizes=(16,),
+)
 
 
 def _train_on_probe(reward_fn, iterations: int = 40, seed: int = 0):
     """PPO's own GAE + update on a one-step probe env; returns (params, network)."""
     network = ActorCritic(hidden_sizes=(16,))
-    params = jax.tree.map(jnp.asarray, network.init(np.random.default_rng(seed)))
+    params = jax.tree.map(jnp.asarray, network.host_init(np.random.default_rng(seed)))
     hp = PROBE
     shape = (PROBE.num_steps, PROBE.num_envs)
 

@@ -95,6 +95,11 @@ class PPOConfig:
     """Weight initialisation: orthogonal (SB3: gains sqrt(2), 0.01 for the policy head, 1 for
     the value head, zero biases) or default (PyTorch's nn.Linear: weights and biases uniform in
     +-1/sqrt(fan_in))."""
+    network: Any = field(default=None, metadata={"cli": False})
+    """The actor-critic, a flax module mapping observations [..., obs_dim] to (logits [...,
+    num_actions], value [...]); None: the built-in SB3 MLP that hidden_sizes, activation,
+    linear_actor and weight_init describe. Python API only: a run directory records its
+    importable class and fields, and rebuilds it from them."""
 
     def __post_init__(self) -> None:
         validate(self)
@@ -146,14 +151,24 @@ class PPOConfig:
 
     def to_dict(self) -> dict:
         """Plain dict of the fields (tuples become lists when dumped to JSON; a per-run
-        field is refused: write each run's config, or the sweep, instead)."""
+        field is refused: write each run's config, or the sweep, instead). A custom
+        ``network`` is written as :func:`network_spec`; the built-in one (None) is left out.
+
+        Raises:
+            ConfigError: a network that cannot be recorded (see :func:`network_spec`).
+        """
         if self.is_per_run:
             raise ValueError("a per-run config has no single dict; use to_dict() of each run's")
-        return dataclasses.asdict(self)
+        data = dataclasses.asdict(dataclasses.replace(self, network=None))
+        del data["network"]
+        if self.network is not None:
+            data["network"] = network_spec(self.network)
+        return data
 
     @classmethod
     def from_dict(cls, data: dict) -> PPOConfig:
-        """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`."""
+        """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`, and
+        rebuilds a recorded network (:func:`build_network`)."""
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
@@ -161,7 +176,88 @@ class PPOConfig:
         data = dict(data)
         if "hidden_sizes" in data:
             data["hidden_sizes"] = tuple(int(h) for h in data["hidden_sizes"])
+        if data.get("network") is not None:
+            data["network"] = build_network(data["network"])
         return cls(**data)
+
+
+def network_spec(network: Any) -> dict:
+    """How a run directory records a network: its class as ``"module:QualName"`` and the
+    dataclass fields (a flax module is a dataclass) that differ from the class's defaults.
+
+    A class defined in ``__main__`` (a script or a notebook) is recorded too: the same
+    process rebuilds it, another one refuses in one line (:func:`build_network`).
+
+    Raises:
+        ConfigError: a field set to something other than its default is not a JSON value.
+    """
+    cls = type(network)
+    where = f"{cls.__module__}:{cls.__qualname__}"
+    fields = {}
+    for f in dataclasses.fields(network):
+        if f.name in ("parent", "name") or not f.init:
+            continue
+        value = getattr(network, f.name)
+        if f.default is not dataclasses.MISSING and _same(value, f.default):
+            continue
+        value = list(value) if isinstance(value, tuple) else value
+        if not _is_json(value):
+            raise ConfigError(
+                f"network field {f.name}={value!r} of {where} is not a JSON value, so a run "
+                "directory cannot record it; make it the class's default or a JSON value"
+            )
+        fields[f.name] = value
+    return {"class": where, "fields": fields}
+
+
+def _same(value: Any, default: Any) -> bool:
+    try:
+        return bool(value is default or value == default)
+    except Exception:  # an array or another type without a truth value
+        return False
+
+
+def build_network(spec: Any) -> Any:
+    """The network :func:`network_spec` recorded: its class imported by name and called with
+    its fields (lists become tuples).
+
+    Raises:
+        ConfigError: not a recorded network, or its class cannot be imported or built.
+    """
+    import importlib
+
+    if not isinstance(spec, dict) or not isinstance(spec.get("class"), str):
+        raise ConfigError(
+            f"network must be a recorded network ({{'class', 'fields'}}), got {spec!r}"
+        )
+    module, _, name = spec["class"].partition(":")
+    fields = spec.get("fields") or {}
+    try:
+        cls = importlib.import_module(module)
+        for part in name.split("."):
+            cls = getattr(cls, part)
+        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in dict(fields).items()}
+        return cls(**kwargs)
+    except Exception as exc:  # an import or a constructor of someone else's code
+        hint = (
+            " (a class defined in a script or notebook can only be rebuilt there; define it in "
+            "an importable module)"
+            if module == "__main__" or "<locals>" in name
+            else ""
+        )
+        raise ConfigError(
+            f"cannot rebuild the run's network {spec['class']}: {type(exc).__name__}: {exc}{hint}"
+        ) from None
+
+
+def _is_json(value: Any) -> bool:
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return True
+    if isinstance(value, list):
+        return all(_is_json(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _is_json(v) for k, v in value.items())
+    return False
 
 
 TRACED_FIELDS: tuple[str, ...] = tuple(
@@ -269,6 +365,10 @@ def validate(config: PPOConfig) -> None:
         raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")
     if c.weight_init not in ("orthogonal", "default"):
         raise ConfigError(f"weight_init must be 'orthogonal' or 'default', got {c.weight_init!r}")
+    if c.network is not None and not (
+        callable(getattr(c.network, "apply", None)) and callable(getattr(c.network, "init", None))
+    ):
+        raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
     for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor"):
         if not isinstance(getattr(c, name), bool):
             raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
@@ -329,8 +429,9 @@ def field_docs(cls: type = PPOConfig) -> dict[str, str]:
 
 
 def config_fields() -> list[dataclasses.Field]:
-    """The dataclass fields of :class:`PPOConfig`, in declaration order."""
-    return list(dataclasses.fields(PPOConfig))
+    """The fields of :class:`PPOConfig` the command line sets (all but ``network``), in
+    declaration order."""
+    return [f for f in dataclasses.fields(PPOConfig) if f.metadata.get("cli", True)]
 
 
 __all__ = [

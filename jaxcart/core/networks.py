@@ -1,8 +1,10 @@
-"""The actor-critic: separate actor and critic MLPs with Stable-Baselines3's initialisation.
+"""The actor-critic: a flax module mapping observations to policy logits and a value.
 
-Everything about the network lives here: its parameter names, its initialisation (the one
-training uses) and its forward pass (in JAX for training, in NumPy for the policies that
-:mod:`jaxcart.rundir.policy` hands to Gymnasium loops).
+Any ``flax.linen`` module with ``__call__(obs [..., obs_dim]) -> (logits [..., num_actions],
+value [...])`` trains (``PPOConfig(network=...)``). The built-in one, :class:`ActorCritic`, is
+Stable-Baselines3's: separate actor and critic MLPs with SB3's initialisation, drawn on the host
+(:meth:`ActorCritic.host_init`); its forward pass also exists in NumPy (:func:`mlp`) for the
+policies that :mod:`jaxcart.rundir.policy` hands to Gymnasium loops.
 
 Parameters are a plain nested dict, ``{"params": {"actor": LAYERS, "critic": LAYERS}}`` with
 ``LAYERS = {"hidden_0": {"kernel", "bias"}, ..., "out": {"kernel", "bias"}}``; kernels are
@@ -13,10 +15,11 @@ Parameters are a plain nested dict, ``{"params": {"actor": LAYERS, "critic": LAY
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
 
+import flax.linen as nn
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -67,17 +70,32 @@ def mlp(layers: dict, x: Any, activation: str, xp: ModuleType = jnp) -> Any:
     return x
 
 
-@dataclass(frozen=True)
-class ActorCritic:
-    """Policy logits and state value from two independent MLPs.
+class MLP(nn.Module):
+    """One MLP as flax layers named ``hidden_0, ..., out``: ``[..., in] -> [..., out_dim]``,
+    each layer ``x @ kernel + bias``, the hidden ones followed by the activation."""
 
-    Maps observations ``[..., obs_dim]`` to ``(logits [..., num_actions], value [...])``.
-    Hashable, so it can be a static argument of a jitted function.
+    hidden_sizes: tuple[int, ...]
+    out_dim: int
+    activation: str = "tanh"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for i, width in enumerate(self.hidden_sizes):
+            x = activate(nn.Dense(width, name=f"hidden_{i}")(x), self.activation, jnp)
+        return nn.Dense(self.out_dim, name=OUT)(x)
+
+
+class ActorCritic(nn.Module):
+    """Stable-Baselines3's actor-critic: policy logits and state value from two independent
+    MLPs, ``obs [..., obs_dim] -> (logits [..., num_actions], value [...])``.
+
+    A flax module like any other network a user passes (``PPOConfig(network=...)``); what sets
+    it apart is :meth:`host_init`, SB3's initialisation drawn on the host with NumPy, which
+    training uses for it (so its runs do not depend on JAX's random numbers).
     """
 
     hidden_sizes: tuple[int, ...] = (64, 64)
     activation: str = "tanh"
-    obs_dim: int = 4
     num_actions: int = 2
     linear_actor: bool = False  # the actor is one linear layer (logits = obs @ W + b)
     weight_init: str = "orthogonal"  # or "default": PyTorch's nn.Linear initialisation
@@ -87,38 +105,47 @@ class ActorCritic:
             raise ValueError(f"activation must be one of {ACTIVATIONS}, got {self.activation!r}")
         if self.weight_init not in INITS:
             raise ValueError(f"weight_init must be one of {INITS}, got {self.weight_init!r}")
-        object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+        super().__post_init__()
 
     @classmethod
     def from_config(cls, config: Any) -> ActorCritic:
-        """The network a :class:`~jaxcart.core.config.PPOConfig` describes."""
+        """The built-in network a :class:`~jaxcart.core.config.PPOConfig` describes."""
         return cls(
-            hidden_sizes=config.hidden_sizes,
+            hidden_sizes=tuple(int(h) for h in config.hidden_sizes),
             activation=config.activation,
             linear_actor=config.linear_actor,
             weight_init=config.weight_init,
         )
 
-    def shapes(self) -> dict:
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+        actor_hidden = () if self.linear_actor else tuple(self.hidden_sizes)
+        logits = MLP(actor_hidden, self.num_actions, self.activation, name=ACTOR)(obs)
+        value = MLP(tuple(self.hidden_sizes), 1, self.activation, name=CRITIC)(obs)
+        return logits, value[..., 0]
+
+    def shapes(self, obs_dim: int = 4) -> dict:
         """The kernel and bias shapes of every layer, as the parameter tree (tuples as leaves)."""
 
         def head(hidden: tuple[int, ...], out_dim: int) -> dict:
-            sizes = (self.obs_dim, *hidden, out_dim)
+            sizes = (obs_dim, *hidden, out_dim)
             names = layer_names(len(hidden))
             return {
                 n: {"kernel": (sizes[i], sizes[i + 1]), "bias": (sizes[i + 1],)}
                 for i, n in enumerate(names)
             }
 
-        actor_hidden = () if self.linear_actor else self.hidden_sizes
+        actor_hidden = () if self.linear_actor else tuple(self.hidden_sizes)
         return {
             ROOT: {
                 ACTOR: head(actor_hidden, self.num_actions),
-                CRITIC: head(self.hidden_sizes, 1),
+                CRITIC: head(tuple(self.hidden_sizes), 1),
             }
         }
 
-    def init(self, rng: np.random.Generator, dtype: Any = np.float32) -> dict:
+    def host_init(
+        self, rng: np.random.Generator, obs_dim: int = 4, dtype: Any = np.float32
+    ) -> dict:
         """Fresh parameters (NumPy). ``weight_init="orthogonal"``: orthogonal kernels with gain
         sqrt(2) in hidden layers, 0.01 for the policy head and 1 for the value head, zero
         biases (SB3's ``ortho_init``). ``weight_init="default"``: PyTorch's ``nn.Linear`` default,
@@ -130,7 +157,7 @@ class ActorCritic:
         params: dict = {ROOT: {}}
         for head, out_gain in ((ACTOR, POLICY_GAIN), (CRITIC, VALUE_GAIN)):
             layers = {}
-            for name, shape in self.shapes()[ROOT][head].items():
+            for name, shape in self.shapes(obs_dim)[ROOT][head].items():
                 if self.weight_init == "default":
                     bound = 1.0 / math.sqrt(shape["kernel"][0])
                     kernel = rng.uniform(-bound, bound, shape["kernel"])
@@ -142,17 +169,38 @@ class ActorCritic:
             params[ROOT][head] = layers
         return params
 
-    def apply(self, params: dict, obs: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
-        """``(logits [..., num_actions], value [...])`` for ``obs [..., obs_dim]`` (JAX)."""
-        return self.logits(params, obs), self.value(params, obs)
+    def logits(self, params: dict, obs: jax.Array) -> jax.Array:
+        """Policy logits only, ``[..., num_actions]`` (JAX)."""
+        return self.apply(params, obs)[0]
 
-    def logits(self, params: dict, obs: jnp.ndarray) -> jnp.ndarray:
-        """Policy logits only, ``[..., num_actions]``."""
-        return mlp(params[ROOT][ACTOR], obs, self.activation)
+    def value(self, params: dict, obs: jax.Array) -> jax.Array:
+        """State value only, ``obs.shape[:-1]`` (JAX)."""
+        return self.apply(params, obs)[1]
 
-    def value(self, params: dict, obs: jnp.ndarray) -> jnp.ndarray:
-        """State value only, ``obs.shape[:-1]``."""
-        return mlp(params[ROOT][CRITIC], obs, self.activation)[..., 0]
+
+def init_params(network: nn.Module, rng: np.random.Generator, obs_dim: int) -> dict:
+    """A run's fresh parameters (NumPy leaves): the network's own host initialisation when it
+    has one (the built-in :class:`ActorCritic`), else flax's ``network.init`` with a key drawn
+    from ``rng``."""
+    if hasattr(network, "host_init"):
+        return network.host_init(rng, obs_dim)
+    key = jax.random.PRNGKey(int(rng.integers(0, 2**31)))
+    variables = network.init(key, jnp.zeros((1, obs_dim), jnp.float32))
+    return jax.tree.map(np.asarray, jax.device_get(dict(variables)))
+
+
+def param_shapes(network: nn.Module, obs_dim: int) -> dict:
+    """The parameter tree with ``(shape, dtype)`` leaves, without computing anything."""
+    if hasattr(network, "shapes"):
+        return jax.tree.map(
+            lambda s: (s, np.dtype(np.float32)),
+            network.shapes(obs_dim),
+            is_leaf=lambda x: isinstance(x, tuple),
+        )
+    shaped = jax.eval_shape(
+        network.init, jax.random.PRNGKey(0), jax.ShapeDtypeStruct((1, obs_dim), jnp.float32)
+    )
+    return jax.tree.map(lambda a: (tuple(a.shape), np.dtype(a.dtype)), dict(shaped))
 
 
 def actor_params(params: dict) -> dict:

@@ -28,6 +28,7 @@ import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
@@ -90,10 +91,11 @@ class Batch(NamedTuple):
 
 
 # 1. Set-up -----------------------------------------------------------------------------------
-def make_network(config: PPOConfig) -> ActorCritic:
-    """The actor-critic described by ``config``: observations ``[..., 4]`` to
-    ``(logits [..., 2], value [...])``."""
-    return ActorCritic.from_config(config)
+def make_network(config: PPOConfig) -> nn.Module:
+    """The actor-critic of ``config``: its ``network``, or the built-in SB3 MLP its
+    ``hidden_sizes``, ``activation``, ``linear_actor`` and ``weight_init`` describe. Maps
+    observations ``[..., obs_dim]`` to ``(logits [..., num_actions], value [...])``."""
+    return config.network if config.network is not None else ActorCritic.from_config(config)
 
 
 def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
@@ -109,7 +111,7 @@ def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
 
 # 2. Rollout ----------------------------------------------------------------------------------
 def env_step(
-    runner: RunnerState, _: None, network: ActorCritic, env_params: cartpole.EnvParams
+    runner: RunnerState, _: None, network: nn.Module, env_params: cartpole.EnvParams
 ) -> tuple[RunnerState, Transition]:
     """One step of every env: sample actions ``[num_envs]`` from the policy, step (finished
     episodes reset on the same step) and record a :class:`Transition` (fields ``[num_envs,
@@ -205,7 +207,7 @@ def training_batch(params: dict, rollout: Transition, config: PPOConfig) -> Batc
     """GAE over ``rollout`` (fields ``[num_steps, num_envs, ...]``), bootstrapping from the
     values of its true next observations under ``params``, and the transitions flattened into
     one training batch, fields ``[batch_size, ...]``."""
-    next_value = make_network(config).value(params, rollout.final_obs)
+    next_value = make_network(config).apply(params, rollout.final_obs)[1]
     advantages, returns = compute_gae(
         rollout.reward,
         rollout.value,
@@ -223,7 +225,7 @@ def training_batch(params: dict, rollout: Transition, config: PPOConfig) -> Batc
 # 4. The loss ---------------------------------------------------------------------------------
 def ppo_loss(
     params: dict,
-    network: ActorCritic,
+    network: nn.Module,
     batch: Batch,
     config: PPOConfig,
 ) -> tuple[Array, dict[str, Array]]:
@@ -268,7 +270,7 @@ def update_minibatch(
     carry: Carry,
     rows: Array,
     like: Batch,
-    network: ActorCritic,
+    network: nn.Module,
     config: PPOConfig,
     learning_rate: Array,
 ) -> tuple[Carry, dict[str, Array]]:

@@ -76,26 +76,37 @@ def init_runners(
 
     Run r draws from ``fold_in(PRNGKey(seed), seed_indices[r])``: seed index i starts the same
     whatever runs beside it, and a sweep repeats the seed indices for every combination so
-    combinations share random numbers. Drawn on the host (:meth:`ActorCritic.init
-    <jaxcart.core.networks.ActorCritic.init>` and resets uniform in the reset bounds), so there
-    is no initialisation program to compile. ``on_progress(done, total)`` is called every
+    combinations share random numbers. The built-in network and the resets are drawn on the
+    host (:meth:`ActorCritic.host_init <jaxcart.core.networks.ActorCritic.host_init>` and
+    uniform in the reset bounds), so there is no initialisation program to compile; another
+    flax network is initialised by its own ``init``, all runs in one call. ``on_progress(done, total)`` is called every
     1024 runs (it may raise to abandon the initialisation).
     """
     env_params = env_params or cartpole.EnvParams()
     indices = np.asarray(seed_indices)
     keys = seed_index_keys(seed, indices)
-    dtype = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0].dtype
+    reset_obs = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0]
+    dtype, obs_dim = reset_obs.dtype, reset_obs.shape[-1]
     network = make_network(config)
-    params, obs, run_keys = [], [], []
+    on_host = hasattr(network, "host_init")  # the built-in MLP: SB3's initialisation in NumPy
+    params, init_seeds, obs, run_keys = [], [], [], []
     for i, key in enumerate(keys):
         if on_progress is not None and i % 1024 == 0:
             on_progress(i, len(keys))
         rng = np.random.default_rng([int(k) for k in key])
-        params.append(network.init(rng))
-        shape = (config.num_envs, network.obs_dim)
+        if on_host:
+            params.append(network.host_init(rng, obs_dim))
+        else:
+            init_seeds.append(rng.integers(0, 2**31))
+        shape = (config.num_envs, obs_dim)
         obs.append(rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype))
         run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))
-    stacked = jax.tree.map(lambda *xs: np.stack(xs), *params)
+    if on_host:
+        stacked = jax.tree.map(lambda *xs: np.stack(xs), *params)
+    else:  # flax's own initialisation, every run's in one compiled call
+        example = jnp.zeros((1, obs_dim), dtype)
+        init = jax.jit(jax.vmap(lambda seed: network.init(jax.random.PRNGKey(seed), example)))
+        stacked = jax.tree.map(np.asarray, dict(init(jnp.asarray(init_seeds, jnp.uint32))))
     return initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
 
 

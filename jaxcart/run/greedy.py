@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -14,12 +15,13 @@ import numpy as np
 from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.networks import ActorCritic
+from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped
 from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.policy import RunParams, numpy_policy, run_params
+from jaxcart.rundir.policy import RunParams, make_policy, run_params
 
 
 @dataclass(frozen=True)
@@ -188,21 +190,24 @@ def evaluate_gymnasium(
 def greedy_returns(
     params: dict,
     key: jax.Array,
-    activation: str = "tanh",
-    hidden_sizes: tuple[int, ...] = (64, 64),
+    network: Any = None,
     num_episodes: int = NUM_EVAL_EPISODES,
     env_params: cartpole.EnvParams | None = None,
 ) -> jax.Array:
-    """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able."""
+    """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able.
+
+    Args:
+        network: the flax actor-critic ``params`` belong to (default: the built-in MLP).
+    """
     env_params = env_params or cartpole.EnvParams()
-    network = ActorCritic(hidden_sizes=tuple(hidden_sizes), activation=activation)
+    network = network if network is not None else ActorCritic()
     obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
         jax.random.split(key, num_episodes), env_params
     )
 
     def one_step(carry, _):
         obs, state, alive, total = carry
-        action = jnp.argmax(network.logits(params, obs), axis=-1)
+        action = jnp.argmax(network.apply(params, obs)[0], axis=-1)
         obs, state, reward, terminated, truncated = jax.vmap(
             cartpole.step_env, in_axes=(0, 0, None)
         )(state, action, env_params)
@@ -241,15 +246,12 @@ def evaluate_runs(
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
     num_runs = len(seed_indices)
-    policy = numpy_policy(params, config.activation, stacked=True)
+    policy = make_policy(params, config, stacked=True)
     gym_returns = evaluate_gymnasium(policy, num_runs, episodes, should_stop=should_stop)
     indices = np.asarray(seed_indices)
     keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_index_keys(seed, indices))
-    evaluate = jax.jit(
-        jax.vmap(
-            lambda p, k: greedy_returns(p, k, config.activation, config.hidden_sizes, episodes)
-        )
-    )
+    network = make_network(config)
+    evaluate = jax.jit(jax.vmap(lambda p, k: greedy_returns(p, k, network, episodes)))
     return gym_returns, np.asarray(evaluate(params, keys))
 
 
@@ -277,7 +279,7 @@ def evaluate_run_dir(
 
 def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> np.ndarray:
     try:
-        policy = numpy_policy(trained.params, trained.config.activation, stacked=True)
+        policy = make_policy(trained.params, trained.config, stacked=True)
     except (KeyError, TypeError, ValueError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
     return evaluate_gymnasium(policy, trained.num_seeds, episodes)

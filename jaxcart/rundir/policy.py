@@ -11,8 +11,10 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.core import networks
@@ -22,14 +24,61 @@ from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
 
 
-class NumpyPolicy:
-    """Actor in plain NumPy, for one or a stack of seeds.
+class Policy:
+    """A trained policy for one or a stack of seeds, callable on float32 observations:
+    ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked ``(S, N, 4) -> (S, N)``. Greedy
+    (argmax) when ``deterministic``, else sampled from the policy's softmax with ``rng`` (a NumPy
+    ``Generator``, or a seed for one). Subclasses compute :meth:`logits`."""
 
-    ``actor`` holds the actor's layers (:func:`jaxcart.core.networks.actor_params`), with a leading
-    seed axis ``[S, ...]`` on every array when ``stacked``. Calling it on float32 observations
-    returns actions: ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked
-    ``(S, N, 4) -> (S, N)``. Greedy (argmax) when ``deterministic``, else sampled from the
-    policy's softmax with ``rng`` (a NumPy ``Generator``, or a seed for one).
+    obs_dim = 4
+
+    def __init__(
+        self,
+        stacked: bool = False,
+        deterministic: bool = True,
+        rng: np.random.Generator | int | None = None,
+    ) -> None:
+        self.stacked = stacked
+        self.deterministic = deterministic
+        self.rng = np.random.default_rng(rng)
+        self.note: str | None = None  # where the parameters came from, if not a finished run
+
+    @property
+    def num_seeds(self) -> int | None:
+        """The leading seed axis of a stacked policy (None when not stacked)."""
+        raise NotImplementedError
+
+    def _checked(self, obs: np.ndarray) -> np.ndarray:
+        x = np.asarray(obs, np.float32)
+        if x.shape[-1:] != (self.obs_dim,):
+            raise ValueError(
+                f"expected observations with {self.obs_dim} values in the last axis, got shape "
+                f"{x.shape}"
+            )
+        if self.stacked and (x.ndim != 3 or x.shape[0] != self.num_seeds):
+            raise ValueError(
+                f"a policy of {self.num_seeds} stacked seeds takes observations "
+                f"[{self.num_seeds}, N, {self.obs_dim}], got shape {x.shape}"
+            )
+        return x
+
+    def logits(self, obs: np.ndarray) -> np.ndarray:
+        """Policy logits for ``obs`` (any leading shape matching the stacking)."""
+        raise NotImplementedError
+
+    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
+        logits = self.logits(obs)
+        if not self.deterministic:  # Gumbel-max: argmax(logits + Gumbel noise) ~ softmax
+            logits = logits + self.rng.gumbel(size=logits.shape)
+        actions = np.argmax(logits, axis=-1)
+        return int(actions) if actions.ndim == 0 else actions
+
+
+class NumpyPolicy(Policy):
+    """The built-in MLP's actor in plain NumPy (no JAX call per step).
+
+    ``actor`` holds the actor's layers (:func:`jaxcart.core.networks.actor_params`), with a
+    leading seed axis ``[S, ...]`` on every array when ``stacked``.
     """
 
     def __init__(
@@ -45,38 +94,44 @@ class NumpyPolicy:
             # stacked: bias [S, out] -> [S, 1, out] broadcasts over the N observations
             return {"kernel": kernel, "bias": bias[:, None, :] if stacked else bias}
 
+        super().__init__(stacked, deterministic, rng)
         self.actor = {name: layer(p) for name, p in actor.items()}
         self.activation = activation
-        self.stacked = stacked
-        self.deterministic = deterministic
-        self.rng = np.random.default_rng(rng)
-        self.note: str | None = None  # where the parameters came from, if not a finished run
 
     @property
     def num_seeds(self) -> int | None:
-        """The leading seed axis of a stacked policy (None when not stacked)."""
         return next(iter(self.actor.values()))["kernel"].shape[0] if self.stacked else None
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
-        """Policy logits for ``obs`` (any leading shape matching the stacking)."""
-        x = np.asarray(obs, np.float32)
-        if x.shape[-1] != 4:
-            raise ValueError(
-                f"expected observations with 4 values in the last axis, got shape {x.shape}"
-            )
-        if self.stacked and (x.ndim != 3 or x.shape[0] != self.num_seeds):
-            raise ValueError(
-                f"a policy of {self.num_seeds} stacked seeds takes observations "
-                f"[{self.num_seeds}, N, 4], got shape {x.shape}"
-            )
-        return networks.mlp(self.actor, x, self.activation, xp=np)
+        return networks.mlp(self.actor, self._checked(obs), self.activation, xp=np)
 
-    def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        logits = self.logits(obs)
-        if not self.deterministic:  # Gumbel-max: argmax(logits + Gumbel noise) ~ softmax
-            logits = logits + self.rng.gumbel(size=logits.shape)
-        actions = np.argmax(logits, axis=-1)
-        return int(actions) if actions.ndim == 0 else actions
+
+class JaxPolicy(Policy):
+    """Any flax network's policy, through JAX: one compiled call per step (the logits of
+    ``network.apply(params, obs)``, vmapped over the seeds when ``stacked``)."""
+
+    def __init__(
+        self,
+        network: Any,
+        params: dict,
+        stacked: bool = False,
+        deterministic: bool = True,
+        rng: np.random.Generator | int | None = None,
+    ) -> None:
+        super().__init__(stacked, deterministic, rng)
+        self.params = jax.tree.map(jnp.asarray, params)
+
+        def logits(p: dict, x: jax.Array) -> jax.Array:
+            return network.apply(p, x)[0]
+
+        self._logits = jax.jit(jax.vmap(logits) if stacked else logits)
+
+    @property
+    def num_seeds(self) -> int | None:
+        return jax.tree.leaves(self.params)[0].shape[0] if self.stacked else None
+
+    def logits(self, obs: np.ndarray) -> np.ndarray:
+        return np.asarray(self._logits(self.params, self._checked(obs)))
 
 
 def numpy_policy(
@@ -89,6 +144,20 @@ def numpy_policy(
     """A :class:`NumpyPolicy` from network parameters (a leading seed axis when ``stacked``)."""
     actor = networks.actor_params(jax.device_get(params))
     return NumpyPolicy(actor, activation, stacked, deterministic, rng)
+
+
+def make_policy(
+    params: dict,
+    config: PPOConfig,
+    stacked: bool = False,
+    deterministic: bool = True,
+    rng: np.random.Generator | int | None = None,
+) -> Policy:
+    """The policy of ``config``'s network with ``params``: the built-in MLP in NumPy
+    (:class:`NumpyPolicy`), any other network through JAX (:class:`JaxPolicy`)."""
+    if config.network is None:
+        return numpy_policy(params, config.activation, stacked, deterministic, rng)
+    return JaxPolicy(config.network, params, stacked, deterministic, rng)
 
 
 @dataclass(frozen=True)
@@ -156,7 +225,7 @@ def load_policy(
     combination: int | None = None,
     deterministic: bool = True,
     rng: np.random.Generator | int | None = None,
-) -> NumpyPolicy:
+) -> Policy:
     """A policy of a trained run, usable in any Gymnasium loop.
 
     Args:
@@ -191,7 +260,7 @@ def load_policy(
         )
     params = trained.params if stacked else jax.tree.map(lambda x: x[seed_index], trained.params)
     try:
-        policy = numpy_policy(params, trained.config.activation, stacked, deterministic, rng)
+        policy = make_policy(params, trained.config, stacked, deterministic, rng)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor network: {exc}") from None
     if trained.note:

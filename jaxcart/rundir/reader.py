@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.core.networks import ActorCritic
+from jaxcart.core.networks import ActorCritic, param_shapes
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
 
@@ -283,9 +283,9 @@ def _evaluation_bytes(run_dir: str | os.PathLike) -> int:
 
 def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
     """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes."""
-    network = ActorCritic.from_config(config)
-    shapes = files.flatten(network.shapes(), is_leaf=lambda x: isinstance(x, tuple))
-    return {name: ((num_seeds, *shape), np.dtype(np.float32)) for name, shape in shapes.items()}
+    network = config.network if config.network is not None else ActorCritic.from_config(config)
+    leaves = files.flatten(param_shapes(network, 4), is_leaf=lambda x: isinstance(x, tuple))
+    return {name: ((num_seeds, *shape), dtype) for name, (shape, dtype) in leaves.items()}
 
 
 def load_params(run_dir: str | os.PathLike) -> dict:
