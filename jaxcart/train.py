@@ -38,6 +38,16 @@ def _tuple_of_ints(text: str) -> tuple[int, ...]:
         ) from None
 
 
+def _float_or_none(text: str) -> float | None:
+    """A float, or ``none``/``off`` for None (an argparse ``type``)."""
+    if text.strip().lower() in ("none", "off"):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or none, got {text!r}") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The CLI: run options, then one option per config field (help from its docstring)."""
     parser = cli.Parser(
@@ -168,6 +178,8 @@ def _default_text(value: object) -> str:
     """A config value as the command line spells it: ``64,64``, ``on``/``off``, ``0.0003``."""
     if isinstance(value, bool):
         return "on" if value else "off"
+    if value is None:
+        return "none"
     if isinstance(value, tuple):
         return ",".join(map(str, value))
     return f"{value:g}" if isinstance(value, float) else str(value)
@@ -186,6 +198,8 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
             group.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
         elif f.name == "hidden_sizes":
             group.add_argument(flag, type=_tuple_of_ints, metavar="N,N", **kwargs)
+        elif f.name == "target_kl":
+            group.add_argument(flag, type=_float_or_none, metavar="KL", **kwargs)
         else:
             # every integer field is a count (validate() wants them positive): 1e5 and
             # 100_000 are read as 100000

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcart.core.config import PPOConfig
+from jaxcart.core.config import PPOConfig, preset
 from jaxcart.core.metrics import EpisodeBuffer, explained_variance, update_episode_buffer
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.ppo import Batch, compute_gae, make_optimizer, ppo_loss, update_epochs
@@ -102,7 +102,9 @@ def _setup_loss(num=256, seed=0):
     log_prob = jax.nn.log_softmax(logits)[jnp.arange(num), action]
     advantage = jax.random.normal(jax.random.PRNGKey(seed + 3), (num,))
     returns = value + jax.random.normal(jax.random.PRNGKey(seed + 4), (num,))
-    batch = Batch(obs=obs, action=action, log_prob=log_prob, advantage=advantage, returns=returns)
+    # the values at collection: near the current ones, so that value clipping bites on some
+    old_value = value + 0.3 * jax.random.normal(jax.random.PRNGKey(seed + 5), (num,))
+    batch = Batch(obs, action, log_prob, advantage, returns, old_value)
     return network, params, batch, value
 
 
@@ -275,7 +277,8 @@ def _train_on_probe(reward_fn, iterations: int = 40, seed: int = 0):
         advantage, returns = compute_gae(
             reward, value, jnp.zeros(shape), terminated, truncated, hp.gamma, hp.gae_lambda
         )
-        batch = Batch(obs, action, categorical_log_prob(logits, action), advantage, returns)
+        log_prob = categorical_log_prob(logits, action)
+        batch = Batch(obs, action, log_prob, advantage, returns, value)
         batch = jax.tree.map(lambda x: x.reshape((PROBE.batch_size, *x.shape[2:])), batch)
         params, opt_state, _ = update_epochs(
             params, opt_state, batch, update_key, hp.learning_rate, PROBE
@@ -327,11 +330,109 @@ def test_packed_batch_round_trips_exactly():
         log_prob=jnp.asarray(-rng.random(10), jnp.float32),
         advantage=jnp.asarray(rng.standard_normal(10), jnp.float32),
         returns=jnp.asarray(rng.standard_normal(10) * 100, jnp.float32),
+        value=jnp.asarray(rng.standard_normal(10), jnp.float32),
     )
     rows = pack_batch(batch)
-    assert rows.shape == (10, 8)
+    assert rows.shape == (10, 9)
     perm = jnp.asarray(rng.permutation(10))
     out = unpack_batch(rows[perm], batch)
     for name, got, field in zip(Batch._fields, out, batch):
         assert got.dtype == field.dtype, name
         np.testing.assert_array_equal(np.asarray(got), np.asarray(field)[np.asarray(perm)])
+
+
+# The peers' losses, re-derived plainly from their sources' formulas -----------------------
+def _sb3_loss(params, network, batch, clip, vf_coef, ent_coef, clip_range_vf=None):
+    """SB3 2.x ``PPO.train``: advantages normalised with torch's unbiased std, the clipped
+    surrogate, the value MSE (the prediction clipped around the old value when
+    ``clip_range_vf`` is set), ``loss = pg + ent_coef * (-entropy) + vf_coef * value_loss``."""
+    logits, values = network.apply(params, batch.obs)
+    log_p = jax.nn.log_softmax(logits)
+    log_prob = log_p[jnp.arange(len(batch.action)), batch.action]
+    adv = batch.advantage
+    adv = (adv - adv.mean()) / (jnp.std(adv, ddof=1) + 1e-8)
+    ratio = jnp.exp(log_prob - batch.log_prob)
+    policy_loss = -jnp.minimum(adv * ratio, adv * jnp.clip(ratio, 1 - clip, 1 + clip)).mean()
+    if clip_range_vf is not None:
+        values = batch.value + jnp.clip(values - batch.value, -clip_range_vf, clip_range_vf)
+    value_loss = jnp.mean((batch.returns - values) ** 2)
+    entropy = -(jnp.exp(log_p) * log_p).sum(-1)
+    return policy_loss + ent_coef * -entropy.mean() + vf_coef * value_loss
+
+
+def _purejaxrl_loss(params, network, batch, clip_eps, vf_coef, ent_coef):
+    """PureJaxRL's ``_loss_fn`` (ppo.py): the value clipped by ``clip_eps`` around the old value,
+    half the mean of the larger squared error, advantages normalised with ``jnp.std``
+    (population), ``total = loss_actor + vf_coef * value_loss - ent_coef * entropy``."""
+    logits, value = network.apply(params, batch.obs)
+    log_p = jax.nn.log_softmax(logits)
+    log_prob = log_p[jnp.arange(len(batch.action)), batch.action]
+    value_pred_clipped = batch.value + jnp.clip(value - batch.value, -clip_eps, clip_eps)
+    value_losses = jnp.square(value - batch.returns)
+    value_losses_clipped = jnp.square(value_pred_clipped - batch.returns)
+    value_loss = 0.5 * jnp.maximum(value_losses, value_losses_clipped).mean()
+    ratio = jnp.exp(log_prob - batch.log_prob)
+    gae = (batch.advantage - batch.advantage.mean()) / (batch.advantage.std() + 1e-8)
+    loss_actor1 = ratio * gae
+    loss_actor2 = jnp.clip(ratio, 1.0 - clip_eps, 1.0 + clip_eps) * gae
+    loss_actor = -jnp.minimum(loss_actor1, loss_actor2).mean()
+    entropy = -(jnp.exp(log_p) * log_p).sum(-1).mean()
+    return loss_actor + vf_coef * value_loss - ent_coef * entropy
+
+
+def _assert_same_loss_and_gradient(config, reference):
+    network, params, batch, _ = _setup_loss(num=128, seed=7)
+    # a policy moved off the one that collected the data, so ratios and clipping matter
+    params = jax.tree.map(lambda p: p * 1.3, params)
+    ours = jax.value_and_grad(lambda p: ppo_loss(p, network, batch, config)[0])(params)
+    theirs = jax.value_and_grad(lambda p: reference(p, network, batch))(params)
+    np.testing.assert_allclose(float(ours[0]), float(theirs[0]), rtol=1e-5)
+    for a, b in zip(jax.tree.leaves(ours[1]), jax.tree.leaves(theirs[1])):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+
+
+def test_the_purejaxrl_preset_loss_is_purejaxrls():
+    config = preset("purejaxrl")
+    assert (config.value_clip, config.adv_std, config.bootstrap_truncation) == (
+        "purejaxrl",
+        "population",
+        False,
+    )
+    _assert_same_loss_and_gradient(
+        config,
+        lambda p, n, b: _purejaxrl_loss(p, n, b, 0.2, config.vf_coef, config.ent_coef),
+    )
+
+
+def test_the_sb3_preset_loss_is_sb3s_with_and_without_clip_range_vf():
+    config = preset("sb3", ent_coef=0.01)
+    _assert_same_loss_and_gradient(config, lambda p, n, b: _sb3_loss(p, n, b, 0.2, 0.5, 0.01))
+    clipped = preset("sb3", ent_coef=0.01, value_clip="sb3", clip_range_vf=0.1)
+    _assert_same_loss_and_gradient(
+        clipped, lambda p, n, b: _sb3_loss(p, n, b, 0.2, 0.5, 0.01, clip_range_vf=0.1)
+    )
+
+
+def test_target_kl_stops_before_the_step_that_would_exceed_it():
+    """A tiny target_kl: the first minibatch (ratio 1, KL 0) takes its step, the second sees
+    KL > 1.5 x target and stops every later step, as SB3 does."""
+    network, params, batch, _ = _setup_loss(num=128, seed=2)
+    config = PPOConfig(num_steps=128, minibatch_size=32, update_epochs=3, target_kl=1e-9)
+    opt_state = make_optimizer(config).init(params)
+    key = jax.random.PRNGKey(0)
+    new_params, _, aux = update_epochs(params, opt_state, batch, key, 3e-4, config)
+    assert np.asarray(aux["computed"]).tolist() == [[True, True, False, False]] + [[False] * 4] * 2
+    # exactly one gradient step: the first minibatch of the first epoch's permutation
+    from jaxcart.core.ppo import update_minibatch
+    from jaxcart.core.tricks import pack_batch, random_permutations
+
+    perm = random_permutations(key, 3, 128)[0]
+    rows = pack_batch(batch)[perm][:32]
+    (one_step, _), _ = update_minibatch(
+        (params, opt_state), rows, batch, network, dataclasses.replace(config, target_kl=None), 3e-4
+    )
+    moved = 0.0
+    for a, b, c in zip(*map(jax.tree.leaves, (new_params, one_step, params))):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-9)
+        moved = max(moved, float(np.abs(np.asarray(a) - np.asarray(c)).max()))
+    assert moved > 1e-5  # the one step was taken

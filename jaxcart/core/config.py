@@ -74,6 +74,8 @@ class PPOConfig:
     """GAE lambda, in (0, 1]."""
     clip_coef: float = traced(0.2)
     """PPO ratio clip range epsilon (SB3: clip_range)."""
+    clip_range_vf: float = traced(0.2)
+    """Value clip range, used when value_clip is sb3 or purejaxrl (SB3: clip_range_vf)."""
     ent_coef: float = traced(0.0)
     """Entropy bonus coefficient."""
     vf_coef: float = traced(0.5)
@@ -82,6 +84,16 @@ class PPOConfig:
     """Global gradient-norm clip."""
     norm_adv: bool = True
     """Normalise advantages per minibatch (mean 0, std 1)."""
+    adv_std: str = "sample"
+    """The std that normalises advantages: sample (ddof 1, as SB3's torch) or population
+    (ddof 0, as PureJaxRL's jnp.std)."""
+    value_clip: str = "off"
+    """Value-loss clipping: off (SB3's default, plain MSE), sb3 (the prediction clipped to
+    within clip_range_vf of its value at collection, then MSE) or purejaxrl (half the mean of
+    the larger of the clipped and unclipped squared errors)."""
+    target_kl: float | None = None
+    """Stop an iteration's epochs at the first minibatch whose approx KL exceeds 1.5 x
+    target_kl, before its gradient step (SB3's rule); none: never."""
     bootstrap_truncation: bool = True
     """Bootstrap from V(final_obs) at time-limit truncations; off treats them as terminations."""
     hidden_sizes: tuple[int, ...] = (64, 64)
@@ -327,7 +339,7 @@ def validate(config: PPOConfig) -> None:
             or not np.all(np.isfinite(value))
         ):
             raise ConfigError(f"{name} must be a finite number, got {value!r}")
-    for name in ("learning_rate", "adam_eps", "clip_coef", "max_grad_norm"):
+    for name in ("learning_rate", "adam_eps", "clip_coef", "clip_range_vf", "max_grad_norm"):
         if np.any(np.asarray(getattr(c, name)) <= 0):
             raise ConfigError(f"{name} must be > 0, got {getattr(c, name)!r}")
     for name in ("gamma", "gae_lambda"):
@@ -361,6 +373,17 @@ def validate(config: PPOConfig) -> None:
             f"{c.batch_size:,} transitions, more than the {MAX_ITERATIONS:,} this trainer counts; "
             "use fewer total_timesteps"
         )
+    if c.adv_std not in ("sample", "population"):
+        raise ConfigError(f"adv_std must be 'sample' or 'population', got {c.adv_std!r}")
+    if c.value_clip not in ("off", "sb3", "purejaxrl"):
+        raise ConfigError(f"value_clip must be 'off', 'sb3' or 'purejaxrl', got {c.value_clip!r}")
+    if c.target_kl is not None and (
+        isinstance(c.target_kl, bool)
+        or not isinstance(c.target_kl, (int, float))
+        or not math.isfinite(c.target_kl)
+        or c.target_kl <= 0
+    ):
+        raise ConfigError(f"target_kl must be a finite number > 0 (or none), got {c.target_kl!r}")
     if c.activation not in ("tanh", "relu"):
         raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")
     if c.weight_init not in ("orthogonal", "default"):
@@ -387,6 +410,11 @@ PRESETS: dict[str, dict] = {
         learning_rate=2.5e-4,
         anneal_lr=True,
         ent_coef=0.01,
+        # PureJaxRL's loss: its value clipping (by clip_eps, with the 1/2 factor), jnp.std's
+        # population std, and truncation treated as termination
+        value_clip="purejaxrl",
+        adv_std="population",
+        bootstrap_truncation=False,
     ),
     # Least wall time to a policy that solves every seed on a 2-core CPU: 192/192 on three
     # held-out base seeds (benchmarks/experiments/fast_preset.md has the search).

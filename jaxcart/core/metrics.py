@@ -96,6 +96,28 @@ def explained_variance(y_pred: Array, y_true: Array) -> Array:
     )
 
 
+LOSS_NAMES = ("approx_kl", "clip_fraction", "entropy_loss", "policy_gradient_loss", "value_loss")
+_LOSS_METRICS = tuple(f"train/{n}" for n in (*LOSS_NAMES, "loss"))
+
+
+def _early_stopped_losses(losses: dict[str, Array]) -> dict[str, Array]:
+    """The loss metrics as SB3 logs them when ``target_kl`` stops the epochs: means over the
+    gradient steps computed (``losses["computed"]``, ``[epochs, minibatches]``), approx KL
+    over the last epoch that ran, the loss of the last step computed."""
+    computed = losses["computed"].astype(jnp.float32)
+
+    def mean(x: Array, mask: Array) -> Array:
+        return (x * mask).sum() / jnp.maximum(mask.sum(), 1.0)
+
+    last_epoch = jnp.max(jnp.where(computed.any(axis=1), jnp.arange(computed.shape[0]), 0))
+    flat = computed.reshape(-1)
+    last_step = jnp.max(jnp.where(flat > 0, jnp.arange(flat.shape[0]), 0))
+    out = {f"train/{n}": mean(losses[n], computed) for n in LOSS_NAMES}
+    out["train/approx_kl"] = mean(losses["approx_kl"][last_epoch], computed[last_epoch])
+    out["train/loss"] = losses["loss"].reshape(-1)[last_step]
+    return out
+
+
 def iteration_metrics(
     episodes: EpisodeBuffer,
     done: Array,
@@ -117,6 +139,18 @@ def iteration_metrics(
     """
     count = episodes.valid.sum()
     nan = jnp.float32(jnp.nan)
+    if "computed" in losses:  # target_kl may have stopped the epochs: computed steps count
+        loss_metrics = _early_stopped_losses(losses)
+    else:
+        loss_metrics = {
+            # SB3 resets its KL list every epoch, so it logs the last epoch's mean.
+            "train/approx_kl": losses["approx_kl"][-1].mean(),
+            "train/clip_fraction": losses["clip_fraction"].mean(),
+            "train/entropy_loss": losses["entropy_loss"].mean(),
+            "train/policy_gradient_loss": losses["policy_gradient_loss"].mean(),
+            "train/value_loss": losses["value_loss"].mean(),
+            "train/loss": losses["loss"][-1, -1],
+        }
     return {
         "rollout/ep_rew_mean": jnp.where(
             count > 0, (episodes.returns * episodes.valid).sum() / jnp.maximum(count, 1), nan
@@ -129,13 +163,7 @@ def iteration_metrics(
         "rollout/ep_rew_max": jnp.nan_to_num(
             jnp.max(jnp.where(done, episode_return, -jnp.inf)), neginf=jnp.nan
         ).astype(jnp.float32),
-        # SB3 resets its KL list every epoch, so it logs the last epoch's mean.
-        "train/approx_kl": losses["approx_kl"][-1].mean(),
-        "train/clip_fraction": losses["clip_fraction"].mean(),
-        "train/entropy_loss": losses["entropy_loss"].mean(),
-        "train/policy_gradient_loss": losses["policy_gradient_loss"].mean(),
-        "train/value_loss": losses["value_loss"].mean(),
-        "train/loss": losses["loss"][-1, -1],
+        **{name: loss_metrics[name] for name in _LOSS_METRICS},
         "train/explained_variance": explained_variance(value_pred, returns),
         "train/learning_rate": jnp.asarray(learning_rate, jnp.float32),
     }

@@ -88,6 +88,7 @@ class Batch(NamedTuple):
     log_prob: Array
     advantage: Array
     returns: Array
+    value: Array  # V(obs) at collection: the centre of value-loss clipping
 
 
 # 1. Set-up -----------------------------------------------------------------------------------
@@ -218,11 +219,30 @@ def training_batch(params: dict, rollout: Transition, config: PPOConfig) -> Batc
         config.gae_lambda,
         config.bootstrap_truncation,
     )
-    batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantages, returns)
+    batch = Batch(rollout.obs, rollout.action, rollout.log_prob, advantages, returns, rollout.value)
     return jax.tree.map(lambda x: x.reshape((config.batch_size,) + x.shape[2:]), batch)
 
 
 # 4. The loss ---------------------------------------------------------------------------------
+def value_loss_of(value: Array, batch: Batch, config: PPOConfig) -> Array:
+    """The value loss of predictions ``value [M]`` against ``batch.returns``, by
+    ``config.value_clip``:
+
+    - ``off`` (SB3's default): ``mean((R - V)^2)``;
+    - ``sb3`` (SB3's ``clip_range_vf``): the prediction clipped to within ``clip_range_vf`` of
+      the value at collection, ``V' = V_old + clip(V - V_old, -c, c)``, then ``mean((R - V')^2)``;
+    - ``purejaxrl`` (PureJaxRL's ``_loss_fn``): ``0.5 * mean(max((V - R)^2, (V' - R)^2))``.
+    """
+    if config.value_clip == "off":
+        return jnp.square(batch.returns - value).mean()
+    c = config.clip_range_vf
+    clipped = batch.value + jnp.clip(value - batch.value, -c, c)
+    if config.value_clip == "sb3":
+        return jnp.square(batch.returns - clipped).mean()
+    unclipped_loss = jnp.square(value - batch.returns)
+    return 0.5 * jnp.maximum(unclipped_loss, jnp.square(clipped - batch.returns)).mean()
+
+
 def ppo_loss(
     params: dict,
     network: nn.Module,
@@ -239,12 +259,13 @@ def ppo_loss(
     log_prob = categorical_log_prob(logits, batch.action)
     advantage = batch.advantage
     if config.norm_adv and advantage.shape[0] > 1:
-        advantage = (advantage - advantage.mean()) / (advantage.std(ddof=1) + 1e-8)
+        ddof = 1 if config.adv_std == "sample" else 0  # torch's unbiased std, or jnp.std's
+        advantage = (advantage - advantage.mean()) / (advantage.std(ddof=ddof) + 1e-8)
     log_ratio = log_prob - batch.log_prob
     ratio = jnp.exp(log_ratio)
     clipped = jnp.clip(ratio, 1.0 - config.clip_coef, 1.0 + config.clip_coef)
     pg_loss = -jnp.minimum(advantage * ratio, advantage * clipped).mean()
-    value_loss = jnp.square(batch.returns - value).mean()
+    value_loss = value_loss_of(value, batch, config)
     entropy_loss = -categorical_entropy(logits).mean()
     loss = pg_loss + config.ent_coef * entropy_loss + config.vf_coef * value_loss
     aux = {
@@ -274,15 +295,29 @@ def update_minibatch(
     config: PPOConfig,
     learning_rate: Array,
 ) -> tuple[Carry, dict[str, Array]]:
-    """One gradient step on a minibatch of packed rows ``[M, obs_dim + 4]`` (fields and dtypes
-    as ``like``'s); returns the new carry and the loss terms (scalars)."""
-    params, opt_state = carry
+    """One gradient step on a minibatch of packed rows ``[M, obs_dim + 5]`` (fields and dtypes
+    as ``like``'s); returns the new carry and the loss terms (scalars).
+
+    With ``config.target_kl`` the carry also holds whether the epochs have stopped (SB3's
+    rule): a minibatch whose approx KL exceeds ``1.5 * target_kl`` takes no step, nor does any
+    after it; its loss terms still count (SB3 records them before the check), later ones are
+    marked ``computed = False``.
+    """
+    if config.target_kl is None:
+        params, opt_state = carry
+    else:
+        params, opt_state, stopped = carry
     minibatch = unpack_batch(rows, like)
     grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
     (_, aux), grads = grad_fn(params, network, minibatch, config)
-    updates, opt_state = make_optimizer(config).update(grads, opt_state, params)
-    params = jax.tree.map(lambda p, u: p - learning_rate * u, params, updates)
-    return (params, opt_state), aux
+    updates, new_opt_state = make_optimizer(config).update(grads, opt_state, params)
+    new_params = jax.tree.map(lambda p, u: p - learning_rate * u, params, updates)
+    if config.target_kl is None:
+        return (new_params, new_opt_state), aux
+    stop = stopped | (aux["approx_kl"] > 1.5 * config.target_kl)
+    keep = functools.partial(jax.tree.map, lambda old, new: jnp.where(stop, old, new))
+    aux = {**aux, "computed": ~stopped}
+    return (keep(params, new_params), keep(opt_state, new_opt_state), stop), aux
 
 
 def update_epoch(
@@ -319,7 +354,11 @@ def update_epochs(
         update_epoch, rows=pack_batch(batch), minibatch_step=minibatch_step, config=config
     )
     perms = random_permutations(key, config.update_epochs, config.batch_size)
-    (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), perms)
+    if config.target_kl is None:
+        (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), perms)
+    else:
+        start = (params, opt_state, jnp.zeros((), bool))
+        (params, opt_state, _), aux = jax.lax.scan(epoch, start, perms)
     return params, opt_state, aux
 
 
