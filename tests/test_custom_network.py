@@ -13,7 +13,7 @@ import jax
 import numpy as np
 import pytest
 from custom_networks import GeluLayerNorm, ReluMLP
-from helpers import TINY, fresh_python
+from helpers import TINY, assert_same_run_dirs, fresh_python
 
 from jaxcart.core.config import ConfigError, PPOConfig, build_network, network_spec
 from jaxcart.engine import loop
@@ -94,3 +94,20 @@ def test_the_policy_of_a_custom_network_is_its_logits_argmax():
     policy = JaxPolicy(network, params)
     np.testing.assert_array_equal(policy(OBS), np.asarray(network.apply(params, OBS)[0]).argmax(-1))
     assert policy(OBS[0]) in (0, 1)
+
+
+def test_a_stopped_run_of_a_custom_network_resumes_bit_identically(tmp_path):
+    """Resume rebuilds the network from config.json and finishes as an uninterrupted run."""
+    from helpers import stopped_run
+
+    from jaxcart.run.lifecycle import resume_run
+
+    config = dataclasses.replace(TINY, network=ReluMLP(width=16))
+    options = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=4)
+    spec = RunSpec(config=config, num_seeds=2)
+    run_new(spec, out=tmp_path / "whole", options=options)
+    run, _ = stopped_run(spec, tmp_path / "part", options, chunks=2)
+    run.close()
+    resumed = resume_run(tmp_path / "part", options)
+    assert resumed.run.config.network == ReluMLP(width=16) and resumed.run.resumed_from == 8
+    assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
