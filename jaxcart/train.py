@@ -114,7 +114,8 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
     run.add_argument(
         "--no-compile-cache",
         action="store_true",
-        help="do not use JAX's persistent compilation cache (~/.cache/jaxcart/jax)",
+        help="do not use JAX's persistent compilation cache ($JAXCART_CACHE_DIR, else "
+        "$XDG_CACHE_HOME/jaxcart/jax, else ~/.cache/jaxcart/jax)",
     )
     run.add_argument(
         "--wave-size",
