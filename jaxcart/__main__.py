@@ -16,6 +16,7 @@ COMMANDS = {
     "evaluate": "greedy Gymnasium evaluation of a run's seeds; --gif renders one to a GIF",
     "plot": "learning curves of runs and sweeps as an image",
     "compare": "IQM and probability of improvement across runs, with intervals",
+    "export": "one seed's policy as a Stable-Baselines3 zip or an ONNX model",
     "sb3": "Stable-Baselines3's own PPO (PyTorch) trained into a run directory",
     "env": "CartPole's spaces, bounds and limits",
 }

@@ -14,10 +14,35 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-from jaxcart import __version__
-from jaxcart.core.config import ConfigError
-from jaxcart.engine import devices, signals
-from jaxcart.rundir.files import RunDirError
+
+def check_not_shadowed() -> None:
+    """Refuses, in one line, a ``jaxcart`` that is a folder rather than this package: a folder
+    named ``jaxcart`` in the current directory (a clone of the repository, seen from its
+    parent) comes first on ``sys.path`` and imports as an empty namespace package, which
+    would otherwise fail later with ``cannot import name '__version__'``. Run as a command
+    (``python -m jaxcart...``): the line on stderr and exit code 2; imported: ImportError."""
+    import jaxcart
+
+    if getattr(jaxcart, "__file__", None) is not None:
+        return
+    folder = next(iter(getattr(jaxcart, "__path__", [])), "jaxcart")
+    message = (
+        f"the folder {folder} shadows the installed jaxcart package (a jaxcart/ folder in the "
+        "current directory is imported first); run from another directory"
+    )
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    if spec is not None and spec.name.startswith("jaxcart."):
+        print(f"error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+    raise ImportError(message)
+
+
+check_not_shadowed()  # before the first name taken from the package
+
+from jaxcart import __version__  # noqa: E402
+from jaxcart.core.config import ConfigError  # noqa: E402
+from jaxcart.engine import devices, signals  # noqa: E402
+from jaxcart.rundir.files import RunDirError  # noqa: E402
 
 EXIT_USAGE = 2
 VERSION_TEXT = f"jaxcart {__version__}"
@@ -193,6 +218,23 @@ def bounded_count(maximum: int) -> Callable[[str], int]:
     return parse
 
 
+SCRIPTS = {"jaxcart-train": "jaxcart.train"}
+"""The installed scripts that run one command (``jaxcart`` runs any: ``jaxcart COMMAND``)."""
+
+
+def prog_name(module: str, argv0: str | None = None) -> str:
+    """What a command's usage line calls it: as it was started, when through an installed
+    script (``jaxcart-train``, ``jaxcart evaluate``), else ``python -m jaxcart.COMMAND``.
+    ``argv0`` defaults to ``sys.argv[0]``."""
+    argv0 = sys.argv[0] if argv0 is None and sys.argv else argv0 or ""
+    script = os.path.basename(argv0).removesuffix(".exe")
+    if SCRIPTS.get(script) == module:
+        return script
+    if script == "jaxcart":
+        return f"jaxcart {module.removeprefix('jaxcart.')}"
+    return f"python -m {module}"
+
+
 class Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` for every jaxcart command: errors raise :class:`UsageError` (one
     line, no usage dump) instead of exiting, so ``main(argv)`` can be called in-process;
@@ -200,6 +242,8 @@ class Parser(argparse.ArgumentParser):
     hint; ``--version`` prints ``jaxcart X.Y.Z``."""
 
     def __init__(self, *args, **kwargs) -> None:
+        if str(kwargs.get("prog", "")).startswith("python -m jaxcart."):
+            kwargs["prog"] = prog_name(kwargs["prog"][len("python -m ") :])
         kwargs.setdefault("allow_abbrev", False)
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)

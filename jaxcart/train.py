@@ -76,6 +76,15 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
     )
     run.add_argument("--preset", default=None, help=f"starting config: {presets} (default: sb3)")
     run.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="options from a TOML/YAML/JSON file (keys named as the options), rl-zoo3's ppo.yml "
+        "(its CartPole-v1 entry) or a run's config.json (trains it again); options on the "
+        "command line override the file's",
+    )
+    run.add_argument(
         "--num-seeds",
         type=cli.count,
         default=None,
@@ -115,7 +124,8 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
     run.add_argument(
         "--no-compile-cache",
         action="store_true",
-        help="do not use JAX's persistent compilation cache (~/.cache/jaxcart/jax)",
+        help="do not use JAX's persistent compilation cache ($JAXCART_CACHE_DIR, else "
+        "$XDG_CACHE_HOME/jaxcart/jax, else ~/.cache/jaxcart/jax)",
     )
     run.add_argument(
         "--wave-size",
@@ -462,12 +472,32 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
-        args = build_parser().parse_args(cli.join_negative_values(argv_))
+        args = _parse_args(argv_)
         opts = TrainOptions.from_args(args, argv_)
         console.progress_bar = not opts.quiet
         return _train(opts, console)
 
     return cli.run_command(body)
+
+
+def _parse_args(argv: list[str]) -> argparse.Namespace:
+    """The command line, after the ``--config`` file's options when it names one (so that
+    the command line's override the file's); the file's ignored keys are printed, a line each."""
+    from jaxcart import configfile
+
+    parser = build_parser()
+    tokens = cli.join_negative_values(argv)
+    args = parser.parse_args(tokens)
+    if args.config is None:
+        return args
+    from_file = configfile.read_config_file(args.config, parser)
+    for note in from_file.notes:
+        print(note, file=sys.stderr)
+    try:
+        parser.parse_args(from_file.tokens)  # a bad value names the file it came from
+    except cli.UsageError as exc:
+        raise cli.UsageError(f"--config {args.config}: {exc}") from None
+    return parser.parse_args(from_file.tokens + tokens)
 
 
 def main_on_all_cores(argv: list[str] | None = None) -> int:

@@ -196,6 +196,7 @@ def test_reset_dtype_follows_x64():
     assert obs.dtype == jnp.float32
 
 
+@pytest.mark.quick
 @pytest.mark.parametrize("integrator", ["euler", "semi-implicit"])
 def test_whole_random_episodes_match_in_x64(integrator):
     """Same start state and action sequence: same trajectory (1e-12), flags and lengths."""
@@ -217,6 +218,7 @@ def test_whole_500_step_episodes_bit_identical_without_fma():
     assert proc.stdout.count("max |diff| 0,") == 2, proc.stdout
 
 
+@pytest.mark.quick
 def test_spaces_match_gymnasium():
     env = gym.make("CartPole-v1")
     assert cartpole.observation_space() == env.observation_space

@@ -38,6 +38,7 @@ def test_init_is_sb3s_orthogonal_init(hidden_sizes):
             np.testing.assert_array_equal(bias, np.zeros(fan_out, np.float32))
 
 
+@pytest.mark.quick
 def test_init_is_haar_random_and_seeded():
     draws = np.stack([orthogonal(np.random.default_rng(s), (64, 64), 1.0) for s in range(20)])
     # entries of Haar-random orthogonal matrices: mean 0, variance 1/n
@@ -52,6 +53,7 @@ def test_init_is_haar_random_and_seeded():
     )
 
 
+@pytest.mark.quick
 def test_shapes_match_init():
     network = ActorCritic(hidden_sizes=(8, 4), activation="relu")
     params = network.host_init(np.random.default_rng(1))

@@ -65,9 +65,14 @@ def check_device_count_flag(flags: str) -> None:
 
 
 def compilation_cache_dir() -> Path:
-    """``$JAXCART_CACHE_DIR`` or ``~/.cache/jaxcart/jax``."""
-    default = Path.home() / ".cache" / "jaxcart" / "jax"
-    return Path(os.environ.get("JAXCART_CACHE_DIR", default))
+    """``$JAXCART_CACHE_DIR``, else ``$XDG_CACHE_HOME/jaxcart/jax``, else
+    ``~/.cache/jaxcart/jax`` (the XDG base-directory rule: an unset, empty or relative
+    ``XDG_CACHE_HOME`` is ignored)."""
+    if os.environ.get("JAXCART_CACHE_DIR"):
+        return Path(os.environ["JAXCART_CACHE_DIR"])
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    base = Path(xdg) if xdg and os.path.isabs(xdg) else Path.home() / ".cache"
+    return base / "jaxcart" / "jax"
 
 
 def enable_compilation_cache() -> None:

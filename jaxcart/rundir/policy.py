@@ -67,11 +67,32 @@ class Policy:
         raise NotImplementedError
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
-        logits = self.logits(obs)
-        if not self.deterministic:  # Gumbel-max: argmax(logits + Gumbel noise) ~ softmax
-            logits = logits + self.rng.gumbel(size=logits.shape)
-        actions = np.argmax(logits, axis=-1)
+        actions = self.actions(obs, self.deterministic)
         return int(actions) if actions.ndim == 0 else actions
+
+    def actions(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        """Actions (int64) for ``obs``: shape ``obs.shape[:-1]``; argmax when
+        ``deterministic``, else sampled with :attr:`rng`."""
+        logits = self.logits(obs)
+        if not deterministic:  # Gumbel-max: argmax(logits + Gumbel noise) ~ softmax
+            logits = logits + self.rng.gumbel(size=logits.shape)
+        return np.asarray(np.argmax(logits, axis=-1), dtype=np.int64)
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """Stable-Baselines3's ``predict``, so the policy drops into code written for SB3
+        (``evaluate_policy``, rl-zoo3's enjoy loop): ``(actions, state)``, where actions is an
+        int64 array of shape ``observation.shape[:-1]`` (``()`` for one observation ``(4,)``,
+        ``(N,)`` for a vectorized ``(N, 4)``) and ``state`` is returned as given (the policy
+        has no recurrent state; ``episode_start`` is ignored for the same reason).
+        ``deterministic`` is this call's choice, whatever the policy was loaded with.
+        """
+        return self.actions(observation, deterministic), state
 
 
 class NumpyPolicy(Policy):
@@ -208,6 +229,25 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
     return RunParams(params, _combo_config(info, combination), num_seeds, saved.note)
 
 
+def seed_params(trained: RunParams, seed_index: int | str, allow_all: bool = False) -> dict:
+    """One seed's parameters (no seed axis) of ``trained``.
+
+    Raises:
+        RunDirError: ``seed_index`` is not an integer in ``[0, num_seeds)``.
+    """
+    num_seeds = trained.num_seeds
+    if (
+        isinstance(seed_index, bool)
+        or not isinstance(seed_index, (int, np.integer))
+        or not 0 <= seed_index < num_seeds
+    ):
+        also = " or 'all'" if allow_all else ""
+        raise RunDirError(
+            f"seed_index must be an integer in [0, {num_seeds}){also}, got {seed_index!r}"
+        )
+    return jax.tree.map(lambda x: np.asarray(x[seed_index]), trained.params)
+
+
 def _combo_config(info: dict, combination: int | None) -> PPOConfig:
     """The config of one combination of an unfinished sweep (the run's config otherwise)."""
     if combination is None:
@@ -248,17 +288,8 @@ def load_policy(
         obs, reward, terminated, truncated, _ = env.step(policy(obs))
     """
     trained = run_params(run_dir, combination)
-    num_seeds = trained.num_seeds
     stacked = seed_index == "all"
-    if not stacked and (
-        isinstance(seed_index, bool)
-        or not isinstance(seed_index, (int, np.integer))
-        or not 0 <= seed_index < num_seeds
-    ):
-        raise RunDirError(
-            f"seed_index must be an integer in [0, {num_seeds}) or 'all', got {seed_index!r}"
-        )
-    params = trained.params if stacked else jax.tree.map(lambda x: x[seed_index], trained.params)
+    params = trained.params if stacked else seed_params(trained, seed_index, allow_all=True)
     try:
         policy = make_policy(params, trained.config, stacked, deterministic, rng)
     except (KeyError, TypeError, ValueError, IndexError) as exc:

@@ -1,0 +1,202 @@
+"""``python -m jaxcart.train --config FILE``: options from a file, read as command-line tokens.
+
+Three kinds of file, told apart by their contents:
+
+- **jaxcart's own** (TOML, YAML or JSON): a mapping whose keys are the command's options, spelled
+  either way (``learning_rate`` or ``learning-rate``, ``num_seeds``, ``preset``, ``sweep``, ...).
+  A key that is no option is an error, one line each (with a "did you mean").
+- **rl-zoo3's** ``hyperparams/ppo.yml``: a mapping of env ids to hyperparameters. The
+  ``CartPole-v1`` entry is read through Stable-Baselines3's names (:data:`jaxcart.cli.ALIASES`:
+  ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, ``n_timesteps``, ``clip_range``, ...),
+  ``lin_X`` learning rates as ``X`` annealed linearly to 0 (``--anneal-lr``, SB3's linear
+  schedule); each key jaxcart has no equivalent for gets one line and is ignored.
+- **a run's** ``config.json`` (or the run directory): its preset, seeds, sweep, wave width,
+  evaluation episodes and every config field, so the run trains again as it did (a new
+  ``--out``).
+
+The file becomes tokens placed before the command line's, so an option typed on the command
+line overrides the file's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from jaxcart import cli
+
+ZOO_ENV = "CartPole-v1"
+ZOO_ENV_ID = re.compile(r"[\w/.:-]+-v\d+")
+"""An rl-zoo3 file's top-level keys are env ids (``CartPole-v1``, ``ALE/Pong-v5``)."""
+RUN_KEYS = ("preset", "num_seeds", "seed", "sweep", "wave_size", "eval_episodes")
+"""What a run's ``config.json`` carries, besides its ``config``, that shapes the training."""
+NOT_FROM_FILE = ("config", "help", "version")
+MAX_FILE_BYTES = 1 << 20
+
+
+@dataclass
+class FileOptions:
+    """A config file read as command-line tokens, and its notes (one line per ignored key)."""
+
+    tokens: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+def read_config_file(path: Path, parser: argparse.ArgumentParser) -> FileOptions:
+    """``path`` (TOML, YAML, JSON, or a run directory) as tokens for ``parser``.
+
+    Raises:
+        cli.UsageError: unreadable, not a mapping, no ``CartPole-v1`` entry in an rl-zoo3 file,
+            or keys that are no option (one line each).
+    """
+    data = _load(path)
+    if not isinstance(data, dict):
+        raise cli.UsageError(f"--config {path}: expected a mapping of options at the top level")
+    options = FileOptions()
+    if "format_version" in data and isinstance(data.get("config"), dict):  # a run's config.json
+        values = {k: data[k] for k in RUN_KEYS if data.get(k) not in (None, {}, [])}
+        swept = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
+        values.update({k: v for k, v in data["config"].items() if k not in swept})
+        if data.get("lr_schedule"):
+            options.notes.append(
+                f"note: --config {path}: its lr_schedule (from a --resume that extended it) is "
+                "not reproduced; the learning rate anneals over the whole run"
+            )
+        _add(values, path, parser, options, zoo=False)
+    elif any(isinstance(v, dict) and ZOO_ENV_ID.fullmatch(str(k)) for k, v in data.items()):
+        if not isinstance(data.get(ZOO_ENV), dict):
+            envs = ", ".join(k for k in data if ZOO_ENV_ID.fullmatch(str(k)))
+            raise cli.UsageError(f"--config {path}: no {ZOO_ENV} entry (it has {envs})")
+        _add(_zoo_values(data[ZOO_ENV], path, options), path, parser, options, zoo=True)
+    else:
+        _add(data, path, parser, options, zoo=False)
+    return options
+
+
+def _load(path: Path) -> object:
+    """The file's data, by its suffix (a directory: its ``config.json``)."""
+    if path.is_dir():
+        path = path / "config.json"
+    suffix = path.suffix.lower()
+    if suffix not in (".toml", ".yml", ".yaml", ".json"):
+        raise cli.UsageError(f"--config {path}: expected a .toml, .yml, .yaml or .json file")
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise cli.UsageError(f"--config {path}: {exc.strerror or exc}") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise cli.UsageError(f"--config {path}: larger than {MAX_FILE_BYTES:,} bytes")
+    try:
+        if suffix == ".toml":
+            return tomllib.loads(raw.decode())
+        if suffix == ".json":
+            return json.loads(raw)
+        try:
+            import yaml
+        except ImportError:
+            raise cli.UsageError(
+                f"--config {path}: reading YAML needs PyYAML (pip install pyyaml)"
+            ) from None
+        return yaml.safe_load(raw)
+    except cli.UsageError:
+        raise
+    except Exception as exc:  # each parser has its own error class: all mean "not readable"
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise cli.UsageError(f"--config {path}: not valid {suffix[1:].upper()}: {first}") from None
+
+
+def _zoo_values(entry: dict, path: Path, options: FileOptions) -> dict:
+    """An rl-zoo3 entry's values, with its schedules and policy read as jaxcart's."""
+    values = {}
+    for key, value in entry.items():
+        if key == "policy":
+            if value != "MlpPolicy":
+                options.notes.append(
+                    f"note: --config {path}: policy {value!r} ignored; jaxcart trains an MLP"
+                )
+        elif key in ("learning_rate", "clip_range") and isinstance(value, str):
+            match = re.fullmatch(r"lin_(.+)", value.strip())
+            values[key] = match[1] if match else value
+            if match and key == "learning_rate":
+                values["anneal_lr"] = True
+            elif match:
+                options.notes.append(
+                    f"note: --config {path}: clip_range {value!r} read as {match[1]}; jaxcart "
+                    "keeps the clip range constant"
+                )
+        elif key == "n_timesteps" and isinstance(value, float) and value.is_integer():
+            values[key] = int(value)
+        else:
+            values[key] = value
+    return values
+
+
+def _option(key: str, parser: argparse.ArgumentParser, zoo: bool) -> argparse.Action | None:
+    """The parser's action for a file's key: its own option, or (rl-zoo3) an SB3 alias."""
+    actions = parser._option_string_actions  # argparse has no public map of its options
+    name = key.replace("_", "-").lower()
+    if name in NOT_FROM_FILE:
+        return None
+    flag = f"--{name}"
+    if flag not in actions and zoo:
+        flag = next((f for f in cli.ALIASES.get(name, ()) if f in actions), flag)
+    return actions.get(flag)
+
+
+def _add(
+    values: dict, path: Path, parser: argparse.ArgumentParser, options: FileOptions, zoo: bool
+) -> None:
+    """Each key's tokens into ``options``; unknown keys are notes (rl-zoo3) or errors."""
+    unknown = []
+    for key, value in values.items():
+        action = _option(str(key), parser, zoo)
+        if action is None:
+            if zoo:
+                options.notes.append(
+                    f"note: --config {path}: {key} is not supported by jaxcart; ignored"
+                )
+            else:
+                hint = cli.suggestion(f"--{key}", list(parser._option_string_actions))
+                unknown.append(
+                    f"{key!r} is no option of this command"
+                    + (f" (did you mean {hint}?)" if hint else "")
+                )
+            continue
+        try:
+            options.tokens += _tokens(action, value)
+        except ValueError as exc:
+            raise cli.UsageError(f"--config {path}: {exc}") from None
+    if unknown:
+        raise cli.UsageError("\nerror: ".join(f"--config {path}: {u}" for u in unknown))
+
+
+def _tokens(action: argparse.Action, value: object) -> list[str]:
+    """The command-line tokens that give ``action`` the file's ``value``."""
+    flag = action.option_strings[0]
+    if isinstance(action, argparse.BooleanOptionalAction):
+        return [flag if _truth(value, flag) else "--no-" + flag[2:]]
+    if action.nargs == 0:  # store_true
+        return [flag] if _truth(value, flag) else []
+    if isinstance(action, argparse._AppendAction):
+        if isinstance(value, dict):  # sweep = {learning_rate = [1e-3, 5e-3]}
+            value = [f"{k}={_text(v)}" for k, v in value.items()]
+        return [t for v in (value if isinstance(value, list) else [value]) for t in (flag, str(v))]
+    return [f"{flag}={_text(value)}"]
+
+
+def _truth(value: object, flag: str) -> bool:
+    if isinstance(value, bool):
+        return value
+    raise ValueError(f"{flag} in a config file takes true or false, got {value!r}")
+
+
+def _text(value: object) -> str:
+    """A value as the command line spells it (lists comma-separated)."""
+    if isinstance(value, (list, tuple)):
+        return ",".join(_text(v) for v in value)
+    return repr(value) if isinstance(value, float) else str(value)

@@ -1,0 +1,142 @@
+"""``python -m jaxcart.export RUN --to sb3|onnx --out FILE``: one seed's trained policy as a
+Stable-Baselines3 ``PPO`` zip (``stable_baselines3.PPO.load`` opens it: rl-zoo3,
+``huggingface_sb3`` and ``evaluate_policy`` take it from there) or as an ONNX model
+(``onnxruntime`` runs it). Neither needs PyTorch; ONNX needs the ``onnx`` package
+(``pip install -e '.[export]'``)."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+from jaxcart import cli
+
+FORMATS = {"sb3": ".zip", "onnx": ".onnx"}
+"""Each export format and the suffix its file takes."""
+POLICIES = ("final", "best")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``python -m jaxcart.export`` command line."""
+    parser = cli.Parser(
+        prog="python -m jaxcart.export",
+        description="Export one seed's trained policy: --to sb3 writes a zip that "
+        "stable_baselines3.PPO.load opens (no PyTorch needed to write it); --to onnx writes an "
+        "ONNX model (input obs [N, 4] float32, outputs logits [N, 2] and action [N] int64) "
+        "built with the onnx package.",
+    )
+    parser.add_argument(
+        "run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run (or sweep) directory"
+    )
+    parser.add_argument("--to", required=True, choices=list(FORMATS), help="the format")
+    parser.add_argument(
+        "--out", type=Path, required=True, help="the file to write (.zip for sb3, .onnx for onnx)"
+    )
+    parser.add_argument("--seed-index", type=int, default=0, help="which seed of the run")
+    parser.add_argument(
+        "--combination", type=int, default=None, metavar="C", help="a sweep's combination"
+    )
+    parser.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default="final",
+        help="final: the parameters at the end of training (the last checkpoint's for a run "
+        "that did not finish); best: the best evaluated policy, where the run kept one",
+    )
+    return parser
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """What the command line asked for, checked."""
+
+    run_dir: Path
+    to: str
+    out: Path
+    seed_index: int = 0
+    combination: int | None = None
+    policy: str = "final"
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> ExportOptions:
+        opts = cls(args.run_dir, args.to, args.out, args.seed_index, args.combination, args.policy)
+        suffix = FORMATS[opts.to]
+        if opts.out.suffix.lower() != suffix:
+            raise cli.UsageError(f"--out {opts.out} must end in {suffix} for --to {opts.to}")
+        if not opts.out.parent.is_dir():
+            raise cli.UsageError(f"--out {opts.out}: directory {opts.out.parent} does not exist")
+        if opts.policy == "best":
+            raise cli.UsageError(
+                f"--policy best: no best policy was kept in {opts.run_dir}; export its final "
+                "policy (--policy final)"
+            )
+        return opts
+
+
+def export(opts: ExportOptions) -> str:
+    """Writes the export; returns what to print."""
+    import sys
+
+    from jaxcart.core import networks
+    from jaxcart.rundir.files import atomic_file
+    from jaxcart.rundir.policy import run_params, seed_params
+
+    trained = run_params(opts.run_dir, opts.combination)
+    if trained.note:
+        print(f"note: {opts.run_dir}: parameters {trained.note}", file=sys.stderr)
+    if not 0 <= opts.seed_index < trained.num_seeds:
+        raise cli.UsageError(
+            f"--seed-index must be in [0, {trained.num_seeds}) for this {trained.num_seeds}-seed "
+            f"run, got {opts.seed_index}"
+        )
+    params = seed_params(trained, opts.seed_index)
+    config = trained.config
+    if config.network is not None:
+        raise cli.UsageError(
+            f"{opts.run_dir} trained its own network ({type(config.network).__name__}); "
+            f"--to {opts.to} exports the built-in SB3 MLP only"
+        )
+    what = f"seed {opts.seed_index} of {opts.run_dir}"
+    if opts.to == "sb3":
+        from jaxcart.results.sb3_zip import ACTIVATION_CLASSES, net_arch, sb3_zip_bytes
+
+        data = sb3_zip_bytes(params, config)
+        arch = net_arch(config)
+        text = (
+            f"wrote {opts.out}: {what} as SB3 PPO (MlpPolicy, net_arch pi={arch['pi']} "
+            f"vf={arch['vf']}, {ACTIVATION_CLASSES[config.activation]}); "
+            f"stable_baselines3.PPO.load({str(opts.out)!r}) opens it"
+        )
+    else:
+        try:
+            from jaxcart.results.onnx_policy import onnx_model_bytes
+
+            data = onnx_model_bytes(networks.actor_params(params), config.activation)
+        except ImportError as exc:
+            raise cli.UsageError(
+                f"--to onnx needs the onnx package ({exc.name} is missing): "
+                "pip install 'jaxcart[export]' (or pip install onnx)"
+            ) from None
+        text = (
+            f"wrote {opts.out}: {what} as ONNX (input obs [N, 4] float32; outputs logits "
+            "[N, 2], action [N] int64)"
+        )
+    with atomic_file(opts.out, "wb") as f:
+        f.write(data)
+    return text
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 written, 2 a user's mistake)."""
+
+    def body() -> int:
+        args = build_parser().parse_args(argv)
+        print(export(ExportOptions.from_args(args)))
+        return 0
+
+    return cli.run_command(body)
+
+
+if __name__ == "__main__":
+    cli.command_main(main)

@@ -1,0 +1,264 @@
+"""A trained jaxcart network as a Stable-Baselines3 ``PPO`` zip, written without PyTorch.
+
+``stable_baselines3.PPO.load`` reads a zip holding ``data`` (JSON; the values that are Python
+objects are pickles in base64), ``policy.pth`` and ``policy.optimizer.pth`` (each a
+``torch.save`` archive: a zip of ``data.pkl`` naming the tensors and one raw little-endian
+record per tensor) and ``_stable_baselines3_version``. This module writes that format itself,
+so an export needs neither torch nor SB3; the pickles name only what SB3's own loader allows
+(``torch.load(weights_only=True)``: ``collections.OrderedDict``,
+``torch._utils._rebuild_tensor_v2``, ``torch.FloatStorage``).
+
+The network maps onto SB3's ``ActorCriticPolicy`` with ``net_arch=dict(pi=H, vf=H)``:
+jaxcart's ``actor/hidden_i`` is ``mlp_extractor.policy_net.{2i}``, ``actor/out`` is
+``action_net``, the critic likewise with ``value_net``; SB3's ``Linear`` stores
+``weight [out, in]``, the transpose of jaxcart's kernel ``[in, out]``.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import pickle
+import struct
+import zipfile
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from jaxcart.core import networks
+from jaxcart.core.config import PPOConfig
+
+SB3_FORMAT_VERSION = "2.9.2"
+"""Written as ``_stable_baselines3_version``: the SB3 release the zips were checked against
+(``PPO.load``, ``predict``, ``evaluate_policy``, ``learn``); SB3 reads it only to print it."""
+ACTIVATION_CLASSES = {"tanh": "Tanh", "relu": "ReLU"}
+"""jaxcart's activation -> its ``torch.nn`` class (in ``torch.nn.modules.activation``)."""
+ADAM_DEFAULTS = {
+    "betas": (0.9, 0.999),
+    "weight_decay": 0,
+    "amsgrad": False,
+    "maximize": False,
+    "foreach": None,
+    "capturable": False,
+    "differentiable": False,
+    "fused": None,
+}
+"""``torch.optim.Adam``'s settings besides ``lr`` and ``eps`` (SB3's PPO optimizer)."""
+_TORCH_ALIGNMENT = 64  # torch.save aligns each tensor record so it can be memory-mapped
+
+
+@dataclass(frozen=True)
+class Global:
+    """A class or function, named by module and attribute: pickled without importing it."""
+
+    module: str
+    name: str
+
+
+@dataclass(frozen=True)
+class TensorRef:
+    """A float32 tensor of ``shape`` whose bytes are the archive's record ``data/{key}``."""
+
+    key: str
+    shape: tuple[int, ...]
+
+
+def write_pickle(obj: object) -> bytes:
+    """``obj`` as a protocol-2 pickle: None, bools, ints, floats, strings, tuples, lists, dicts
+    (an ``OrderedDict`` stays one), :class:`Global` and :class:`TensorRef` (torch's
+    ``_rebuild_tensor_v2`` of a persistent ``FloatStorage``, as ``torch.save`` writes it)."""
+    out = bytearray(b"\x80\x02")
+    _write(obj, out)
+    return bytes(out + b".")
+
+
+def _write(obj: object, out: bytearray) -> None:
+    if obj is None:
+        out += b"N"
+    elif isinstance(obj, bool):
+        out += b"\x88" if obj else b"\x89"
+    elif isinstance(obj, int):
+        out += b"K" + bytes([obj]) if 0 <= obj < 256 else b"J" + struct.pack("<i", obj)
+    elif isinstance(obj, float):
+        out += b"G" + struct.pack(">d", obj)
+    elif isinstance(obj, str):
+        data = obj.encode()
+        out += b"X" + struct.pack("<I", len(data)) + data
+    elif isinstance(obj, Global):
+        out += b"c" + f"{obj.module}\n{obj.name}\n".encode()
+    elif isinstance(obj, tuple):
+        out += b"("
+        for item in obj:
+            _write(item, out)
+        out += b"t"
+    elif isinstance(obj, list):
+        out += b"]("
+        for item in obj:
+            _write(item, out)
+        out += b"e"
+    elif isinstance(obj, dict):
+        # an OrderedDict is OrderedDict() filled by SETITEMS, as pickle writes one
+        out += b"ccollections\nOrderedDict\n)R(" if isinstance(obj, OrderedDict) else b"}("
+        for key, value in obj.items():
+            _write(key, out)
+            _write(value, out)
+        out += b"u"
+    elif isinstance(obj, TensorRef):
+        numel = int(np.prod(obj.shape, dtype=np.int64))
+        strides = tuple(
+            int(np.prod(obj.shape[i + 1 :], dtype=np.int64)) for i in range(len(obj.shape))
+        )
+        storage = ("storage", Global("torch", "FloatStorage"), obj.key, "cpu", numel)
+        _write(Global("torch._utils", "_rebuild_tensor_v2"), out)
+        out += b"("
+        _write(storage, out)
+        out += b"Q"  # BINPERSID: torch.load reads the storage from the record data/{key}
+        for arg in (0, obj.shape, strides, False, OrderedDict()):  # offset, size, stride, ...
+            _write(arg, out)
+        out += b"tR"
+    else:
+        raise TypeError(f"cannot pickle {type(obj).__name__}")
+
+
+def torch_save_bytes(obj: object, tensors: dict[str, np.ndarray]) -> bytes:
+    """What ``torch.save(obj)`` writes, for ``obj`` made of :func:`write_pickle`'s types whose
+    :class:`TensorRef` keys name the float32 arrays in ``tensors``."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+        _aligned_record(archive, "archive/data.pkl", write_pickle(obj))
+        _aligned_record(archive, "archive/byteorder", b"little")
+        for key, array in tensors.items():
+            data = np.ascontiguousarray(array, dtype="<f4").tobytes()
+            _aligned_record(archive, f"archive/data/{key}", data)
+        _aligned_record(archive, "archive/version", b"3\n")
+    return buffer.getvalue()
+
+
+def _aligned_record(archive: zipfile.ZipFile, name: str, data: bytes) -> None:
+    """One stored record whose data starts on a multiple of 64 bytes, padded as torch pads
+    (an extra field ``FB`` in the local header)."""
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    start = archive.fp.tell() + 30 + len(name.encode()) + 4  # local header, name, extra's head
+    pad = -start % _TORCH_ALIGNMENT
+    info.extra = b"FB" + struct.pack("<H", pad) + b"Z" * pad
+    archive.writestr(info, data, compress_type=zipfile.ZIP_STORED)
+
+
+def policy_state_dict(params: dict, config: PPOConfig) -> OrderedDict[str, np.ndarray]:
+    """SB3's ``ActorCriticPolicy.state_dict()`` for one seed's jaxcart parameters, in SB3's
+    order: ``mlp_extractor.policy_net.*``, ``mlp_extractor.value_net.*``, ``action_net.*``,
+    ``value_net.*`` (weights ``[out, in]``, biases ``[out]``, float32)."""
+    root = params[networks.ROOT]
+    state: OrderedDict[str, np.ndarray] = OrderedDict()
+    heads = {}
+    for head, extractor, sb3_out in (
+        (networks.ACTOR, "policy_net", "action_net"),
+        (networks.CRITIC, "value_net", "value_net"),
+    ):
+        layers = root[head]
+        names = networks.layer_names(len(layers) - 1)
+        for i, name in enumerate(names[:-1]):
+            state[f"mlp_extractor.{extractor}.{2 * i}.weight"] = layers[name]["kernel"].T
+            state[f"mlp_extractor.{extractor}.{2 * i}.bias"] = layers[name]["bias"]
+        heads[sb3_out] = layers[networks.OUT]
+    for sb3_out in ("action_net", "value_net"):
+        state[f"{sb3_out}.weight"] = heads[sb3_out]["kernel"].T
+        state[f"{sb3_out}.bias"] = heads[sb3_out]["bias"]
+    return OrderedDict((k, np.ascontiguousarray(v, np.float32)) for k, v in state.items())
+
+
+def net_arch(config: PPOConfig) -> dict[str, list[int]]:
+    """SB3's ``net_arch`` for the config's network (``pi=[]`` for a linear actor)."""
+    hidden = list(config.hidden_sizes)
+    return {"pi": [] if config.linear_actor else hidden, "vf": hidden}
+
+
+def sb3_zip_bytes(params: dict, config: PPOConfig, num_timesteps: int = 0) -> bytes:
+    """One seed's parameters (``params``, no seed axis) as the zip ``PPO.load`` reads.
+
+    The hyperparameters recorded are the config's (an annealed learning rate as its initial
+    value: SB3 would need a schedule function); the optimizer state is empty (Adam's moments
+    are not kept), so ``PPO.load(...).learn()`` continues with a fresh Adam.
+    """
+    import gymnasium  # noqa: F401  (the spaces' pickles name gymnasium's classes)
+
+    from jaxcart.core import cartpole
+
+    state = policy_state_dict(params, config)
+    keys = {name: str(i) for i, name in enumerate(state)}
+    policy = OrderedDict((name, TensorRef(keys[name], state[name].shape)) for name in state)
+    optimizer = {
+        "state": {},
+        "param_groups": [
+            {"lr": float(config.learning_rate), "eps": float(config.adam_eps), **ADAM_DEFAULTS}
+            | {"params": list(range(len(state)))}
+        ],
+    }
+    policy_kwargs = {
+        "net_arch": net_arch(config),
+        "activation_fn": Global(
+            "torch.nn.modules.activation", ACTIVATION_CLASSES[config.activation]
+        ),
+    }
+    data = {
+        "policy_class": _serialized(
+            write_pickle(Global("stable_baselines3.common.policies", "ActorCriticPolicy")),
+            "<class 'abc.ABCMeta'>",
+        ),
+        "policy_kwargs": _serialized(write_pickle(policy_kwargs), "<class 'dict'>"),
+        "observation_space": _serialized(
+            pickle.dumps(cartpole.observation_space(), protocol=4),
+            "<class 'gymnasium.spaces.box.Box'>",
+        ),
+        "action_space": _serialized(
+            pickle.dumps(cartpole.action_space(), protocol=4),
+            "<class 'gymnasium.spaces.discrete.Discrete'>",
+        ),
+        "n_envs": config.num_envs,
+        "num_timesteps": int(num_timesteps),
+        "_total_timesteps": int(config.env_steps_per_seed),
+        "seed": None,
+        "verbose": 0,
+        "tensorboard_log": None,
+        "_last_obs": None,
+        "_last_episode_starts": None,
+        "_last_original_obs": None,
+        "_episode_num": 0,
+        "_current_progress_remaining": 1.0,
+        "_stats_window_size": 100,
+        "_n_updates": 0,
+        "learning_rate": float(config.learning_rate),
+        "n_steps": config.num_steps,
+        "batch_size": config.minibatch_size,
+        "n_epochs": config.update_epochs,
+        "gamma": float(config.gamma),
+        "gae_lambda": float(config.gae_lambda),
+        "clip_range": float(config.clip_coef),
+        "clip_range_vf": None,
+        "normalize_advantage": bool(config.norm_adv),
+        "ent_coef": float(config.ent_coef),
+        "vf_coef": float(config.vf_coef),
+        "max_grad_norm": float(config.max_grad_norm),
+        "target_kl": None,
+        "use_sde": False,
+        "sde_sample_freq": -1,
+    }
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("data", json.dumps(data, indent=4))
+        archive.writestr("policy.optimizer.pth", torch_save_bytes(optimizer, {}))
+        archive.writestr(
+            "policy.pth", torch_save_bytes(policy, {keys[n]: a for n, a in state.items()})
+        )
+        archive.writestr("_stable_baselines3_version", SB3_FORMAT_VERSION)
+        archive.writestr(
+            "system_info.txt", "- Written by jaxcart (jaxcart.results.sb3_zip), without PyTorch\n"
+        )
+    return buffer.getvalue()
+
+
+def _serialized(pickled: bytes, type_text: str) -> dict[str, str]:
+    """A ``data`` entry SB3 unpickles on load (``:serialized:``, base64)."""
+    return {":type:": type_text, ":serialized:": base64.b64encode(pickled).decode()}
