@@ -12,6 +12,7 @@ import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from jaxcart import __version__
@@ -235,6 +236,32 @@ class Parser(argparse.ArgumentParser):
         if hints:
             return text + "".join(f"; {t}: did you mean {s}?" for t, s in hints)
         return text
+
+
+LOGGER_CHOICES = ("tensorboard", "swanlab", "wandb")
+
+
+def add_logger_arguments(group: argparse._ActionsContainer) -> None:
+    """``--logger`` (repeatable) and ``--logger-dir``, as ``train`` and ``sb3`` share them."""
+    group.add_argument(
+        "--logger",
+        action="append",
+        default=[],
+        choices=LOGGER_CHOICES,
+        help="also log metrics (under SB3's names) to TensorBoard event files, SwanLab (offline) "
+        "or Weights & Biases (offline unless WANDB_MODE is set; WANDB_PROJECT, WANDB_ENTITY "
+        "and WANDB_DIR are honoured; one W&B run per seed, grouped by the run directory); "
+        "repeatable",
+    )
+    group.add_argument(
+        "--logger-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="one folder the loggers write into, shared by several runs so that one dashboard "
+        "shows them together (default: SwanLab's SWANLAB_LOG_DIR or ./swanlog; W&B's "
+        "WANDB_DIR or the run directory; TensorBoard's RUN_DIR/tensorboard)",
+    )
 
 
 def join_negative_values(argv: list[str]) -> list[str]:

@@ -93,15 +93,7 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         default=None,
         help="greedy evaluation episodes per seed (default 20; a resumed run keeps its own)",
     )
-    run.add_argument(
-        "--logger",
-        action="append",
-        default=[],
-        choices=["tensorboard", "swanlab", "wandb"],
-        help="also log metrics to TensorBoard event files, SwanLab (offline) or Weights & Biases "
-        "(offline unless WANDB_MODE is set; one W&B run per seed, grouped by the run "
-        "directory); repeatable",
-    )
+    cli.add_logger_arguments(run)
     run.add_argument(
         "--no-compile-cache",
         action="store_true",
@@ -208,6 +200,7 @@ class TrainOptions:
     checkpoint_every: float = 30.0
     eval_episodes: int | None = None
     loggers: tuple[str, ...] = ()
+    logger_dir: Path | None = None
     compile_cache: bool = True
     quiet: bool = False
     wave_size: int | None = None
@@ -234,6 +227,7 @@ class TrainOptions:
             checkpoint_every=args.checkpoint_every,
             eval_episodes=args.eval_episodes,
             loggers=tuple(args.logger),
+            logger_dir=args.logger_dir,
             compile_cache=not args.no_compile_cache,
             quiet=args.quiet,
             wave_size=args.wave_size,
@@ -273,6 +267,7 @@ class TrainOptions:
             checkpoint_every=self.checkpoint_every,
             eval_episodes=self.eval_episodes,
             loggers=self.loggers,
+            logger_dir=self.logger_dir,
             compile_cache=self.compile_cache,
             wave_size=self.wave_size,
         )

@@ -43,7 +43,7 @@ from jaxcart.engine.loop import (
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.greedy import evaluate_runs
-from jaxcart.run.loggers import Logger, make_logger
+from jaxcart.run.loggers import Logger, make_logger, sb3_extras
 from jaxcart.run.spec import (
     Evaluation,
     Hooks,
@@ -479,7 +479,7 @@ def train_wave(
     names = [run.grid.run_name(r) for r in runs]
     loggers = list(options.loggers) if run.main_process else []
     info = {**run.info, "config": run.config.to_dict()}
-    logger = make_logger(loggers, run.out, names, info)
+    logger = make_logger(loggers, run.out, names, info, options.logger_dir)
     handler = ChunkHandler(run, options, hooks, logger, runs, wave)
     try:
         return train(
@@ -529,6 +529,16 @@ class ChunkHandler:
         self.runs, self.wave = runs, wave  # progress.diverged_at is indexed within the wave
         self.last_save = time.monotonic()
         self.reported: set[int] = set()
+        grid = run.grid
+        self.clip_ranges = np.array(
+            [
+                grid.combos[grid.combo_of(r)].get("clip_coef", run.config.clip_coef)
+                if grid.is_sweep
+                else run.config.clip_coef
+                for r in runs
+            ],
+            np.float64,
+        )
 
     def __call__(self, progress: Progress) -> None:
         run = self.run
@@ -544,7 +554,8 @@ class ChunkHandler:
         count = len(progress.metrics["time/fps"])
         first = progress.iteration - count
         steps = (first + 1 + np.arange(count)) * run.config.batch_size
-        self.logger.log(first, steps, progress.metrics)
+        extras = sb3_extras(first, count, run.config.update_epochs, self.clip_ranges)
+        self.logger.log(first, steps, {**progress.metrics, **extras})
         due = time.monotonic() - self.last_save >= self.options.checkpoint_every
         due = distributed.any_process(due)  # every process must agree on when to gather
         if due and progress.iteration < run.config.num_iterations:
