@@ -223,14 +223,22 @@ class Parser(argparse.ArgumentParser):
     def parse_args(self, args=None, namespace=None):  # type: ignore[override]
         namespace, extras = self.parse_known_args(args, namespace)
         if extras:
-            self.error(self.unrecognized_text(extras))
+            argv = sys.argv[1:] if args is None else list(args)
+            self.error(self.unrecognized_text(extras, argv))
         return namespace
 
-    def unrecognized_text(self, extras: list[str]) -> str:
-        """``unrecognized arguments: --num_seeds 3 (did you mean --num-seeds?)``."""
+    def unrecognized_text(self, extras: list[str], argv: Sequence[str] = ()) -> str:
+        """``unrecognized arguments: --num_seeds 3 (did you mean --num-seeds?)``; a list
+        option given space-separated values (``--hidden-sizes 64 64``) gets its form."""
         options = list(self._option_string_actions)
         hints = [(t, s) for t in extras if (s := suggestion(t, options))]
         text = f"unrecognized arguments: {' '.join(extras)}"
+        for i, token in enumerate(argv[:-2]):
+            list_option = getattr(self._option_string_actions.get(token), "metavar", None) == "N,N"
+            # "--hidden-sizes 64 64": the value, then the first unrecognized token
+            if list_option and argv[i + 2] == extras[0]:
+                values = ",".join([argv[i + 1], *(t for t in extras if t.isdigit())])
+                return f"{text} ({token} takes one comma-separated list: {token} {values})"
         if len(hints) == 1:
             return f"{text} (did you mean {hints[0][1]}?)"
         if hints:

@@ -17,6 +17,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import IO, TYPE_CHECKING, NoReturn
 
 from jaxcart import cli
@@ -325,6 +326,12 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if not distributed.is_main_process():
         console.out, console.progress_bar = _devnull(), False
     if opts.dry_run:
+        import jax
+
+        # the header a run would print, without a directory: what would train, in env steps
+        out = opts.out or "(none: --dry-run creates nothing)"
+        planned = SimpleNamespace(grid=spec.grid, config=spec.config, preset=spec.preset, out=out)
+        console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
         console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
         return 0
     stop = StopRequest(on_signal=console.on_signal)
