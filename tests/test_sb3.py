@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from jaxcart import evaluate, load_policy
+from jaxcart import plot as plot_command
 from jaxcart import sb3 as sb3_command
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS
@@ -192,6 +193,12 @@ def test_an_interrupted_run_keeps_its_finished_seeds_and_resumes(
     assert "2 finished seed(s) kept" in err and f"python -m jaxcart.sb3 --resume {out}" in err
     assert "Traceback" not in err
     assert not (out / layout.EVALUATION_FILE).exists()
+    # plot and evaluate say what the directory is, and how to finish it
+    for command in (evaluate.main, plot_command.main):
+        assert command([str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "interrupted python -m jaxcart.sb3 run (2 seed(s) kept)" in err, err
+        assert f"python -m jaxcart.sb3 --resume {out}" in err
 
     again = []
     monkeypatch.setattr(
