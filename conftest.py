@@ -9,12 +9,15 @@
 - ``text`` blocks (sample output, trees) are not code. A fence with another language, or
   none, fails, so that no block is silently left untested.
 
-Each document gets a fresh temporary directory as the working directory of its blocks
-(``runs/...`` written by one block is read by the next), removed afterwards.
+Every document's blocks run in one shared temporary directory, as a reader who follows
+README.md, the course and the guides in one folder would: ``runs/...`` written by one block is
+read by the next, and two pages that reuse a run name collide here (``--out ... is not
+empty``) instead of in a reader's folder. It is removed when the tests end.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import re
 import shlex
@@ -137,17 +140,28 @@ class BashBlockParser:
             yield Region(region.start, region.end, region.lexemes["source"], run_shell_block)
 
 
+_shared_workdir: list[str] = []
+
+
+def shared_workdir() -> str:
+    """The one temporary directory every document's blocks run in (made on first use)."""
+    if not _shared_workdir:
+        path = tempfile.mkdtemp(prefix="jaxcart-docs-")
+        atexit.register(shutil.rmtree, path, ignore_errors=True)
+        _shared_workdir.append(path)
+    return _shared_workdir[0]
+
+
 def enter_workdir(namespace: dict) -> None:
-    """Before a document: a fresh temporary working directory for its blocks."""
-    namespace["workdir"] = tempfile.mkdtemp(prefix="jaxcart-docs-")
+    """Before a document: the shared working directory for its blocks."""
+    namespace["workdir"] = shared_workdir()
     namespace["previous_cwd"] = os.getcwd()
     os.chdir(namespace["workdir"])
 
 
 def leave_workdir(namespace: dict) -> None:
-    """After a document: back to where pytest was, and the temporary directory removed."""
+    """After a document: back to where pytest was (the directory stays for the next one)."""
     os.chdir(namespace["previous_cwd"])
-    shutil.rmtree(namespace["workdir"], ignore_errors=True)
 
 
 pytest_collect_file = Sybil(

@@ -12,6 +12,7 @@ import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import NoReturn
 
 
@@ -266,19 +267,53 @@ class Parser(argparse.ArgumentParser):
     def parse_args(self, args=None, namespace=None):  # type: ignore[override]
         namespace, extras = self.parse_known_args(args, namespace)
         if extras:
-            self.error(self.unrecognized_text(extras))
+            argv = sys.argv[1:] if args is None else list(args)
+            self.error(self.unrecognized_text(extras, argv))
         return namespace
 
-    def unrecognized_text(self, extras: list[str]) -> str:
-        """``unrecognized arguments: --num_seeds 3 (did you mean --num-seeds?)``."""
+    def unrecognized_text(self, extras: list[str], argv: Sequence[str] = ()) -> str:
+        """``unrecognized arguments: --num_seeds 3 (did you mean --num-seeds?)``; a list
+        option given space-separated values (``--hidden-sizes 64 64``) gets its form."""
         options = list(self._option_string_actions)
         hints = [(t, s) for t in extras if (s := suggestion(t, options))]
         text = f"unrecognized arguments: {' '.join(extras)}"
+        for i, token in enumerate(argv[:-2]):
+            list_option = getattr(self._option_string_actions.get(token), "metavar", None) == "N,N"
+            # "--hidden-sizes 64 64": the value, then the first unrecognized token
+            if list_option and argv[i + 2] == extras[0]:
+                values = ",".join([argv[i + 1], *(t for t in extras if t.isdigit())])
+                return f"{text} ({token} takes one comma-separated list: {token} {values})"
         if len(hints) == 1:
             return f"{text} (did you mean {hints[0][1]}?)"
         if hints:
             return text + "".join(f"; {t}: did you mean {s}?" for t, s in hints)
         return text
+
+
+LOGGER_CHOICES = ("tensorboard", "swanlab", "wandb")
+
+
+def add_logger_arguments(group: argparse._ActionsContainer) -> None:
+    """``--logger`` (repeatable) and ``--logger-dir``, as ``train`` and ``sb3`` share them."""
+    group.add_argument(
+        "--logger",
+        action="append",
+        default=[],
+        choices=LOGGER_CHOICES,
+        help="also log metrics (under SB3's names) to TensorBoard event files, SwanLab (offline) "
+        "or Weights & Biases (offline unless WANDB_MODE is set; WANDB_PROJECT, WANDB_ENTITY "
+        "and WANDB_DIR are honoured; one W&B run per seed, grouped by the run directory); "
+        "repeatable",
+    )
+    group.add_argument(
+        "--logger-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="one folder the loggers write into, shared by several runs so that one dashboard "
+        "shows them together (default: SwanLab's SWANLAB_LOG_DIR or ./swanlog; W&B's "
+        "WANDB_DIR or the run directory; TensorBoard's RUN_DIR/tensorboard)",
+    )
 
 
 def join_negative_values(argv: list[str]) -> list[str]:

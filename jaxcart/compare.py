@@ -21,7 +21,8 @@ and the figure :mod:`jaxcart.results.figure`'s.
   rliable's stratified bootstrap.
 
 Writes ``compare.json``, ``compare.png`` and ``curves.csv`` into ``--out`` (default a new
-``compare-<time>`` directory here; never into a run directory) and prints a table. Bootstrap
+``compare-<time>`` directory beside the first run, e.g. in ``runs/``; never into a run
+directory) and prints a table. Bootstrap
 resamples come from a fixed seed (``--seed``), so the same runs give the same output.
 """
 
@@ -201,7 +202,8 @@ def compare_runs(
         run_dirs: run or sweep directories (a sweep stands for its combinations).
         baseline: the run the others are compared with (default the first); with ``arms``,
             the name of the baseline arm.
-        out: output directory (default ``compare-<time>`` in the current directory).
+        out: output directory (default a new ``compare-<time>`` beside the first run
+            directory, e.g. in ``runs/``).
         reps, seed: bootstrap resamples and their random seed.
         score: ``"eval"``, ``"auc"``, ``"return-at:STEPS"`` or a :class:`Score`.
         adjust: ``"none"`` or ``"bonferroni"``.
@@ -314,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="DIR",
         help="directory for compare.json, compare.png and curves.csv "
-        "(default: a new compare-<time> here)",
+        "(default: a new compare-<time> beside the first RUN_DIR, e.g. runs/compare-<time>)",
     )
     parser.add_argument(
         "--reps", type=int, default=stats.DEFAULT_REPS, help="bootstrap resamples (default 2000)"

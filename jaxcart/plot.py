@@ -22,8 +22,9 @@ its own colour (colour-blind safe) and line style, later runs drawn over earlier
 or broken, so that equal curves (the same settings run twice) both stay visible. A sweep
 directory (``sweep.json`` and ``combo-000/``, ``combo-001/``, ...) stands for its combinations,
 each labelled by its hyperparameter values (``learning_rate=0.001,clip_coef=0.2``). One run is
-drawn into ``RUN_DIR/curves.png`` by default, several into ``comparison.png`` in the current
-directory, or ``comparison-2.png``, ... when that exists (never overwritten).
+drawn into ``RUN_DIR/curves.png`` by default (a sweep directory is one run directory), several
+into ``comparison.png`` in the current directory, or ``comparison-2.png``, ... when that exists
+(never overwritten). From Python, :func:`plot_runs` returns the matplotlib ``Figure``.
 
 Uses matplotlib's object API (no pyplot), so it never changes the caller's backend.
 """
@@ -144,22 +145,22 @@ def plot_runs(
     out: str | os.PathLike | None = None,
     labels: Sequence[str] | None = None,
     dpi: int = 100,
-) -> Path:
-    """Plots the learning curves of one or several run directories into one image.
+) -> Figure:
+    """Plots the learning curves of one or several run directories as one figure, which a
+    notebook shows inline; with ``out``, also writes it there.
 
     Args:
         run_dirs: jaxcart run directories (what ``python -m jaxcart.train --out`` wrote); a
             sweep directory stands for its combinations.
         out: the image to write (``.png``, ``.svg`` or ``.pdf``), replaced if it exists;
-            default ``<run_dirs[0]>/curves.png`` for one run, and for several (a sweep is
-            several) ``comparison.png`` in the current directory, or ``comparison-2.png``, ...
-            if it exists (:func:`default_out`).
+            ``None`` writes nothing (the command line's default place is
+            :func:`default_out`: ``RUN_DIR/curves.png`` for one run directory).
         labels: legend labels, one per entry of ``run_dirs`` (default: each run directory's
             name, or a combination's hyperparameter values; a sweep's label prefixes them).
         dpi: resolution of a PNG (the figure is 15 x 11 inches).
 
     Returns:
-        The path written.
+        The matplotlib ``Figure`` (``fig.savefig(...)`` writes it anywhere else).
 
     Raises:
         files.RunDirError: a path is not a usable run directory.
@@ -171,25 +172,32 @@ def plot_runs(
         raise ValueError("give at least one run directory")
     if labels is not None and len(labels) != len(run_dirs):
         raise ValueError(f"got {len(labels)} label(s) for {len(run_dirs)} run directories")
-    return draw_runs(load_runs(run_dirs, labels), out, dpi)
+    runs = load_runs(run_dirs, labels)
+    if out is None:
+        return draw_figure(runs)
+    return draw_runs(runs, out, dpi)[1]
 
 
-def default_out(runs: list[RunCurves]) -> Path:
-    """Where a plot goes without ``--out``: one run's own ``RUN_DIR/curves.png`` (redrawn in
-    place), otherwise the first of ``comparison.png``, ``comparison-2.png``, ... in the current
-    directory that does not exist yet, so that an earlier comparison is never overwritten."""
-    if len(runs) == 1:
-        return runs[0].path / layout.CURVES_FILE
+def default_out(run_dirs: Sequence[str | os.PathLike]) -> Path:
+    """Where a plot goes without ``--out``: one run directory's own ``RUN_DIR/curves.png``
+    (redrawn in place; a sweep directory is one), otherwise the first of ``comparison.png``,
+    ``comparison-2.png``, ... in the current directory that does not exist yet, so that an
+    earlier comparison is never overwritten."""
+    if len(run_dirs) == 1:
+        return Path(run_dirs[0]) / layout.CURVES_FILE
     out, number = Path(COMPARISON), 2
     while out.exists():
         out, number = Path(f"{Path(COMPARISON).stem}-{number}.png"), number + 1
     return out
 
 
-def draw_runs(runs: list[RunCurves], out: str | os.PathLike | None = None, dpi: int = 100) -> Path:
+def draw_runs(
+    runs: list[RunCurves], out: str | os.PathLike | None = None, dpi: int = 100
+) -> tuple[Path, Figure]:
     """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`; default
-    :func:`default_out`)."""
-    out = default_out(runs) if out is None else Path(out)
+    :func:`default_out`); returns the path written and the figure."""
+    out = default_out(list(dict.fromkeys(_run_dir(run) for run in runs))) if out is None else out
+    out = Path(out)
     fmt = out.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
         raise ValueError(f"output {out} must end in one of .{', .'.join(FORMATS)}")
@@ -201,7 +209,12 @@ def draw_runs(runs: list[RunCurves], out: str | os.PathLike | None = None, dpi: 
     buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=dpi)
     files.atomic_write_bytes(out, buf.getvalue())
-    return out
+    return out, fig
+
+
+def _run_dir(run: RunCurves) -> Path:
+    """The directory a run was named by: a sweep's combinations stand for their sweep."""
+    return run.path.parent if run.combination is not None else run.path
 
 
 def draw_figure(runs: list[RunCurves]) -> Figure:
@@ -224,11 +237,14 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
     _draw_curves(runs, styles, ax_steps, ax_time, metric_axes)
     _draw_legend(fig, runs, styles)
     num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
-    fig.suptitle(
-        f"jaxcart PPO on CartPole-v1, {num}: mean across seeds, shaded {CONFIDENCE:.0%} "
-        "bootstrap confidence interval (the axes fit the means; a band may run past them)",
-        fontsize=13,
-    )
+    if all(run.num_seeds == 1 for run in runs):
+        what = "one seed each: no confidence band (train several seeds for one)"
+    else:
+        what = (
+            f"mean across seeds, shaded {CONFIDENCE:.0%} bootstrap confidence interval (the "
+            "axes fit the means; a band may run past them)"
+        )
+    fig.suptitle(f"PPO on CartPole-v1, {num}: {what}", fontsize=13)
     caption = _caption(ax_time, wall_time_notes(runs)) if ax_time.lines else None
     fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
     if caption is not None:
@@ -421,7 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         help="image to write (.png, .svg, .pdf), replaced if it exists; default "
-        "RUN_DIR/curves.png for one run (redrawn in place), and for several (or a sweep) "
+        "RUN_DIR/curves.png for one run or sweep directory (redrawn in place), and for several "
         "comparison.png in the current directory, or comparison-2.png, comparison-3.png, ... "
         "if that exists: an earlier comparison is never overwritten",
     )
@@ -446,7 +462,7 @@ def _plot_command(argv: list[str] | None) -> int:
     cli.check_dpi(args.dpi)
     runs = load_runs(args.run_dirs, args.label)
     try:
-        out = draw_runs(runs, args.out, dpi=args.dpi)
+        out, _ = draw_runs(runs, args.out, dpi=args.dpi)
     except OSError as exc:
         raise cli.UsageError(f"cannot write the plot: {exc.strerror or exc}") from None
     for line in unfinished_notes(runs):

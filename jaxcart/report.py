@@ -16,6 +16,7 @@ import numpy as np
 from jaxcart.cli import format_table
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.core.solved import EVAL_SEED
+from jaxcart.run.progress import ProgressBar
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
@@ -305,23 +306,24 @@ def interrupted_text(run: Run | None, signum: int | None) -> str:
     )
 
 
-class ConsoleReport:
-    """Lifecycle hooks that print: the header, compile time, a tqdm progress bar,
-    divergences and signals. ``out`` gets the lines, stderr the bar and warnings."""
+class ConsoleReport(ProgressBar):
+    """Lifecycle hooks that print: the header, compile time, the progress bar (a
+    :class:`~jaxcart.run.progress.ProgressBar`), the measured pace, divergences and signals.
+    ``out`` gets the lines, stderr the bar and warnings; ``progress_bar=False`` (``--quiet``)
+    leaves out the bar and the pace line."""
 
     def __init__(self, out: IO[str], progress_bar: bool = True) -> None:
-        self.out, self.progress_bar = out, progress_bar
-        self.bar = None
+        super().__init__(enabled=progress_bar)
+        self.out = out
         self.init_bar = None
-        self.wave_offset = 0
-        self.run: Run | None = None
+        self.compiled_said = False
         self.pace_start: tuple[float, int] | None = None  # (elapsed, iteration) at first chunk
 
     def print(self, text: str) -> None:
         print(text, file=self.out, flush=True)
 
     def on_start(self, run: Run, device_count: int, backend: str) -> None:
-        self.run = run
+        super().on_start(run, device_count, backend)
         self.print(header_line(run, device_count, backend))
         runs = len(run.plan.wave(run.plan.num_waves - 1))  # the others divide over the devices
         if runs < device_count and run.plan.num_waves == 1:
@@ -349,39 +351,16 @@ class ConsoleReport:
                 f"resuming from iteration {run.resumed_from}/{run.config.num_iterations}{at}"
             )
 
-    def on_wave(self, wave: int, num_waves: int, runs: range) -> None:
-        """Each wave's iterations continue the one progress bar."""
-        self.wave_offset = wave * self.run.config.num_iterations
-        if self.bar is not None:
-            self.bar.set_description(f"training (wave {wave + 1}/{num_waves})")
-
     def on_compiled(self, seconds: float) -> None:
-        from tqdm import tqdm
-
-        if self.bar is not None:  # a later wave: the program is cached
-            return
-        self.print(f"compiled the fused training step in {seconds:.2f} s")
-        if self.progress_bar:
-            waves = self.run.plan.num_waves
-            self.bar = tqdm(
-                total=self.run.config.num_iterations * waves,
-                initial=self.wave_offset + (self.run.resumed_from or 0),
-                unit="it",
-                desc="training",
-                dynamic_ncols=True,
-                file=sys.stderr,
-            )
+        if not self.compiled_said:  # a later wave's program is cached
+            self.print(f"compiled the fused training step in {seconds:.2f} s")
+            self.compiled_said = True
+        super().on_compiled(seconds)
 
     def on_chunk(self, progress: Progress) -> None:
-        self._measure_pace(progress)
-        if self.bar is None:
-            return
-        ret = progress.metrics["rollout/ep_rew_mean"][-1]
-        mean_ret = float(np.nanmean(ret)) if np.isfinite(ret).any() else float("nan")
-        self.bar.set_postfix_str(
-            f"env steps/seed {progress.env_steps:,} | ep_rew_mean {mean_ret:.1f}", refresh=False
-        )
-        self.bar.update(self.wave_offset + progress.iteration - self.bar.n)
+        if self.progress_bar:
+            self._measure_pace(progress)
+        super().on_chunk(progress)
 
     def _measure_pace(self, progress: Progress) -> None:
         """Once, after 10 s of training past the first chunk (which includes warm-up): the
@@ -403,7 +382,7 @@ class ConsoleReport:
         text = f"measured {pace:.3g} s per iteration: {format_duration(wave_seconds)} per wave"
         if plan.num_waves > 1:
             text += f", about {format_duration(left)} left for {plan.num_waves:,} waves"
-        (self.bar.write if self.bar is not None else print)(text, file=sys.stderr)
+        self.write(text)
         self.pace_start = (0.0, -1)  # said once
 
     def on_diverged(self, run_name: str, iteration: int) -> None:
@@ -411,7 +390,7 @@ class ConsoleReport:
             f"{run_name} diverged at iteration {iteration} (non-finite loss or parameters): "
             f"it stops there with its last finite parameters; other runs continue"
         )
-        (self.bar.write if self.bar is not None else print)(message, file=sys.stderr)
+        self.write(message)
 
     def on_signal(self, signum: int) -> None:
         name = signal.Signals(signum).name
@@ -427,7 +406,7 @@ class ConsoleReport:
         if total < 4096 or not self.progress_bar:
             return
         if self.init_bar is None:
-            from tqdm import tqdm
+            from tqdm.auto import tqdm
 
             self.init_bar = tqdm(total=total, unit="run", desc="initialising", file=sys.stderr)
         self.init_bar.update(done - self.init_bar.n)
@@ -436,22 +415,8 @@ class ConsoleReport:
             self.init_bar.close()
             self.init_bar = None
 
-    def hooks(self):  # -> lifecycle.Hooks
-        """These methods as the lifecycle's hooks."""
-        from jaxcart.run.spec import Hooks
-
-        return Hooks(
-            on_start=self.on_start,
-            on_compiled=self.on_compiled,
-            on_chunk=self.on_chunk,
-            on_diverged=self.on_diverged,
-            on_signal=self.on_signal,
-            on_init=self.on_init,
-            on_wave=self.on_wave,
-        )
-
     def close(self) -> None:
-        for bar in (self.bar, self.init_bar):
-            if bar is not None:
-                bar.close()
-        self.bar = self.init_bar = None
+        super().close()
+        if self.init_bar is not None:
+            self.init_bar.close()
+        self.init_bar = None

@@ -15,6 +15,8 @@ from pathlib import Path
 from jaxcart import cli
 from jaxcart.core.solved import is_solved
 from jaxcart.run import sb3
+from jaxcart.run.loggers import LoggerUnavailable
+from jaxcart.run.loggers import check_available as check_loggers
 from jaxcart.rundir import layout
 
 
@@ -50,14 +52,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="RUN_DIR",
         help="continue an interrupted run: train the seeds it has not kept yet (each seed is "
-        "kept as it finishes; --jobs and --threads may change, nothing else)",
+        "kept as it finishes; --jobs, --threads and the loggers may change, nothing else)",
     )
+    cli.add_logger_arguments(parser)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Runs the command; returns the exit code (2 with one line for a user's mistake)."""
-    return cli.run_command(lambda: _main(argv), also=(sb3.SB3Unavailable,))
+    return cli.run_command(lambda: _main(argv), also=(sb3.SB3Unavailable, LoggerUnavailable))
 
 
 def _main(argv: list[str] | None) -> int:
@@ -79,6 +82,8 @@ def _main(argv: list[str] | None) -> int:
     if args.resume is None and out.exists():
         raise cli.UsageError(f"--out {out} exists; choose a new run directory")
     sb3.check_available()
+    check_loggers(args.logger)
+    logging = {"loggers": tuple(args.logger), "logger_dir": args.logger_dir}
 
     def on_start(plan: dict, kept: int) -> None:
         resumed = f" | {kept} already kept" if kept else ""
@@ -95,7 +100,7 @@ def _main(argv: list[str] | None) -> int:
 
     try:
         if args.resume is not None:
-            results = sb3.resume_run(out, args.jobs, args.threads, on_seed, on_start)
+            results = sb3.resume_run(out, args.jobs, args.threads, on_seed, on_start, **logging)
         else:
             results = sb3.train_run(
                 out,
@@ -106,6 +111,7 @@ def _main(argv: list[str] | None) -> int:
                 args.threads,
                 on_seed,
                 on_start,
+                **logging,
             )
     except KeyboardInterrupt:
         kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))

@@ -17,6 +17,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import IO, TYPE_CHECKING, NoReturn
 
 from jaxcart import cli
@@ -112,15 +113,7 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         default=None,
         help="greedy evaluation episodes per seed (default 20; a resumed run keeps its own)",
     )
-    run.add_argument(
-        "--logger",
-        action="append",
-        default=[],
-        choices=["tensorboard", "swanlab", "wandb"],
-        help="also log metrics to TensorBoard event files, SwanLab (offline) or Weights & Biases "
-        "(offline unless WANDB_MODE is set; one W&B run per seed, grouped by the run "
-        "directory); repeatable",
-    )
+    cli.add_logger_arguments(run)
     run.add_argument(
         "--no-compile-cache",
         action="store_true",
@@ -232,6 +225,7 @@ class TrainOptions:
     checkpoint_every: float = 30.0
     eval_episodes: int | None = None
     loggers: tuple[str, ...] = ()
+    logger_dir: Path | None = None
     compile_cache: bool = True
     quiet: bool = False
     wave_size: int | None = None
@@ -258,6 +252,7 @@ class TrainOptions:
             checkpoint_every=args.checkpoint_every,
             eval_episodes=args.eval_episodes,
             loggers=tuple(args.logger),
+            logger_dir=args.logger_dir,
             compile_cache=not args.no_compile_cache,
             quiet=args.quiet,
             wave_size=args.wave_size,
@@ -297,6 +292,7 @@ class TrainOptions:
             checkpoint_every=self.checkpoint_every,
             eval_episodes=self.eval_episodes,
             loggers=self.loggers,
+            logger_dir=self.logger_dir,
             compile_cache=self.compile_cache,
             wave_size=self.wave_size,
         )
@@ -354,6 +350,12 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if not distributed.is_main_process():
         console.out, console.progress_bar = _devnull(), False
     if opts.dry_run:
+        import jax
+
+        # the header a run would print, without a directory: what would train, in env steps
+        out = opts.out or "(none: --dry-run creates nothing)"
+        planned = SimpleNamespace(grid=spec.grid, config=spec.config, preset=spec.preset, out=out)
+        console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
         console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
         return 0
     stop = StopRequest(on_signal=console.on_signal)

@@ -103,3 +103,28 @@ def start_train(*args: str) -> subprocess.Popen:
         stderr=subprocess.STDOUT,
         text=True,
     )
+
+
+def read_swanlog(folder: Path) -> dict[str, dict[str, list[tuple[int, float]]]]:
+    """A SwanLab log folder read back with the record reader `swanlab sync` uses: experiment name ->
+    scalar key -> ``[(step, value)]``, of every finished experiment in ``folder``."""
+    from swanlab.proto.swanlab.record.v1.record_pb2 import Record
+    from swanlab.sdk.internal.core_python.store import DataStoreReader
+
+    experiments = {}
+    for records_file in sorted(Path(folder).glob("run-*/*.swanlab")):
+        reader = DataStoreReader()
+        reader.open(records_file)
+        name, finished, scalars = None, False, {}
+        for payload in reader:
+            record = Record.FromString(payload)
+            if record.HasField("start"):
+                name = record.start.name
+            finished |= record.HasField("finish")
+            if record.HasField("scalar"):
+                point = (record.scalar.step, record.scalar.value.number)
+                scalars.setdefault(record.scalar.key, []).append(point)
+        reader.close()
+        assert finished and name is not None, records_file
+        experiments[name] = scalars
+    return experiments

@@ -135,6 +135,8 @@ def test_same_seed_same_metrics(small_run, tmp_path):
         (["--update-epochs", "0"], "--update-epochs must be a positive integer, got 0"),
         (["--lr", "1e-3"], "unrecognized arguments: --lr 1e-3 (did you mean --learning-rate?)"),
         (["--hidden-sizes", "64,x"], "comma-separated integers"),
+        (["--hidden-sizes", "64", "64"], "comma-separated list: --hidden-sizes 64,64)"),
+        (["--hidden-sizes", "8", "8", "8"], "comma-separated list: --hidden-sizes 8,8,8)"),
     ],
 )
 def test_bad_input_is_one_line_error(argv, message, capsys, tmp_path):
@@ -151,6 +153,20 @@ def test_non_empty_out_dir_refused(tmp_path, capsys):
     assert main([*SMALL, "--out", str(tmp_path)]) == 2
     assert "not empty" in capsys.readouterr().err
     assert (tmp_path / "keep.txt").read_text() == "earlier work"
+
+
+def test_dry_run_says_what_would_train_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["--dry-run", "--num-seeds", "3", "--total-timesteps", "4096"]) == 0
+    out = capsys.readouterr().out
+    assert "3 seed(s) x 4,096 env steps (2 iterations of 1 env(s) x 2048 steps)" in out
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_run_new_into_a_used_directory_names_the_python_way_to_resume(tmp_path):
+    (tmp_path / "keep.txt").write_text("earlier work")
+    with pytest.raises(jaxcart.ConfigError, match=r"jaxcart\.resume_run\("):
+        jaxcart.run_new(jaxcart.RunSpec(jaxcart.preset("sb3")), out=tmp_path)
 
 
 def test_help_lists_every_config_field_with_its_docstring():

@@ -132,7 +132,9 @@ def test_a_sweep_alone_agrees_with_its_ranking(runs, tmp_path, monkeypatch, caps
     monkeypatch.chdir(tmp_path)
     assert compare.main([str(sweep)]) == 0
     capsys.readouterr()
-    [out] = tmp_path.glob("compare-*")  # the default: a new directory here
+    # the default: a new directory beside the compared run, nothing in the current directory
+    [out] = sweep.parent.glob("compare-*")
+    assert sweep.parent != tmp_path and not list(tmp_path.iterdir())
     data = json.loads((out / "compare.json").read_text())
     ranking = {
         r["combination"]: r for r in json.loads((sweep / "sweep.json").read_text())["ranking"]

@@ -75,3 +75,30 @@ def test_every_skipped_block_says_why(doc: Path):
         assert re.fullmatch(r'\s*"[^"]{10,}"\s*', reason), (
             f"{doc.name}: a skip needs a reason in quotes, got {reason.strip()!r}"
         )
+
+
+EXCERPT = re.compile(
+    r'<!--\s*skip:\s*next\s+"excerpt of ([\w/.]+)"\s*-->\s*```python\n(.*?)```', re.S
+)
+
+
+def excerpts(doc: Path) -> list[tuple[str, str]]:
+    """``(path, code)`` of every block a document marks as an excerpt of a repository file."""
+    return EXCERPT.findall(doc.read_text())
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: p.name)
+def test_code_excerpts_still_stand_in_their_files(doc: Path):
+    """An excerpt is a run of consecutive lines of its file, indentation included, so a
+    change to the code shows here: update the excerpt (and the text around it) to match."""
+    for path, code in excerpts(doc):
+        source = (REPO / path).read_text()
+        assert code in source, (
+            f"{doc.name}: this excerpt of {path} is no longer in the file; copy the current "
+            f"lines into the document:\n{code}"
+        )
+
+
+def test_the_course_quotes_excerpts_of_the_network_and_ppo():
+    quoted = {path for path, _ in excerpts(REPO / "docs" / "course.md")}
+    assert quoted == {"jaxcart/core/ppo.py", "jaxcart/core/networks.py"}

@@ -743,3 +743,53 @@ def test_vector_env_action_check_is_action_space_contains():
     ]
     for actions in candidates:
         assert _valid_actions(actions, space) == bool(space.contains(actions)), actions
+
+
+# Pygame handles, the registry entry (its id differs) and per-step bookkeeping: not
+# constants a user reads off the env.
+RENDER_INTERNALS = {"clock", "isopen", "screen", "screens", "surf", "spec"}
+VECTOR_BOOKKEEPING = {"steps", "prev_done", "steps_beyond_terminated"}
+
+
+def public_constants(env: object, skip: set[str]) -> list[str]:
+    """The public attributes Gymnasium's env sets on itself, less rendering and the state."""
+    return sorted(n for n in vars(env) if not n.startswith("_") and n not in skip | {"state"})
+
+
+def test_cartpole_env_attributes_read_the_same_on_both_envs():
+    # The chapter's snippet, run unchanged on both envs.
+    def snippet(env_id: str) -> tuple:
+        env = gym.make(env_id)
+        env.reset(seed=0)
+        u = env.unwrapped
+        return (
+            env.observation_space,
+            env.action_space,
+            u.x_threshold,
+            np.degrees(u.theta_threshold_radians),
+            env.spec.max_episode_steps,
+        )
+
+    assert snippet(ENV_ID) == snippet("CartPole-v1")
+    reference = gym.make("CartPole-v1").unwrapped
+    ours = gym.make(ENV_ID).unwrapped
+    names = public_constants(reference, RENDER_INTERNALS)
+    assert {"x_threshold", "total_mass", "polemass_length", "kinematics_integrator"} <= set(names)
+    for name in names:
+        assert getattr(ours, name) == getattr(reference, name), name
+
+
+def test_vector_env_attributes_read_as_gymnasiums_vector_cartpole():
+    reference = CartPoleVectorEnv(num_envs=3)
+    ours = JaxCartPoleVectorEnv(num_envs=3)
+    for name in public_constants(reference, RENDER_INTERNALS | VECTOR_BOOKKEEPING):
+        assert getattr(ours, name) == getattr(reference, name), name
+
+
+def test_attributes_follow_the_params_and_setting_one_names_the_params_route():
+    from jaxcart.core.cartpole import EnvParams
+
+    env = gym.make(ENV_ID, params=EnvParams(masspole=0.2, length=1.0)).unwrapped
+    assert (env.masspole, env.total_mass, env.polemass_length) == (0.2, 1.2, 0.2)
+    with pytest.raises(AttributeError, match=r"params=EnvParams\(x_threshold=\.\.\.\)"):
+        env.x_threshold = 3.0

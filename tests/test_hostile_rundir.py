@@ -314,7 +314,8 @@ CASES = [
         S_LINK,
     ),
     Case("params-link-unfinished", "interrupted", link(layout.PARAMS_FILE), READERS, S_LINK),
-    # logger directories: nothing is logged through a link
+    # logger directories in the run directory: nothing is logged through a link (SwanLab's
+    # folder is the user's ./swanlog or --logger-dir, outside the run directory)
     *(
         Case(
             f"{name}-dir-link",
@@ -325,7 +326,6 @@ CASES = [
         )
         for name, backend in (
             ("tensorboard", "tensorboard"),
-            ("swanlog", "swanlab"),
             ("wandb", "wandb"),
         )
     ),

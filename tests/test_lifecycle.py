@@ -183,3 +183,37 @@ def test_replay_above_the_update_group_width_is_bit_identical(tmp_path):
             np.asarray(replayed.params["params"]["critic"]["out"]["kernel"])[0],
             params["params"]["critic"]["out"]["kernel"][seed_index],
         )
+
+
+def test_progress_true_draws_one_bar_that_closes_when_training_ends(tmp_path, monkeypatch):
+    """``run_new(progress=True)``: a ``tqdm.auto`` bar (a widget in a notebook) over every
+    iteration, alongside the caller's hooks, closed before the evaluation starts."""
+    import io
+
+    import tqdm.auto
+
+    bars = []
+
+    class Recorded(tqdm.auto.tqdm):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **{**kwargs, "file": io.StringIO()})
+            self.total_asked, self.updates, self.closed_at = kwargs["total"], [], None
+            bars.append(self)
+
+        def update(self, n=1):
+            self.updates.append(n)
+            super().update(n)
+
+        def close(self):
+            if self.closed_at is None:
+                self.closed_at = sum(self.updates)
+            super().close()
+
+    monkeypatch.setattr(tqdm.auto, "tqdm", Recorded)
+    chunks = []
+    hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
+    spec = RunSpec(SMALL, num_seeds=2, seed=4)
+    lifecycle.run_new(spec, tmp_path / "run", OPTIONS, hooks, progress=True)
+    (bar,) = bars
+    assert chunks == [2, 4, 6, 8]  # the caller's hooks still run
+    assert bar.total_asked == 8 and bar.updates == [2, 2, 2, 2] and bar.closed_at == 8

@@ -110,7 +110,7 @@ def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypa
             logger.log(*chunk)
 
     assert network == []
-    run_dirs = list((tmp_path / "out" / "swanlog").glob("run-*"))
+    run_dirs = list((tmp_path / "swanlog").glob("run-*"))  # ./swanlog, SwanLab's default
     assert len(run_dirs) == 1
     records_file = next(run_dirs[0].glob("*.swanlab"))
     assert records_file.stat().st_size > 0
@@ -164,7 +164,7 @@ class RecordingBackend:
     fail_in: str | None = None
     instances: ClassVar[list["RecordingBackend"]] = []
 
-    def __init__(self, out_dir, run_names, config):
+    def __init__(self, out_dir, run_names, config, log_dir=None):
         self.batches: list[MetricBatch] = []
         self.calls: list[str] = []
         self.thread_names: set[str] = set()
@@ -252,6 +252,42 @@ def test_wandb_offline_one_run_per_seed_grouped_by_run_dir(tmp_path, monkeypatch
                 [v for _, v in logged[key]], [v for _, v in points], rtol=1e-6
             )
     assert seen == set(RUNS)
+
+
+def test_wandb_project_entity_and_dir_from_the_environment(tmp_path, monkeypatch):
+    pytest.importorskip("wandb")
+    from wandb.proto import wandb_internal_pb2
+
+    monkeypatch.delenv("WANDB_MODE", raising=False)
+    monkeypatch.setenv("WANDB_PROJECT", "course")
+    monkeypatch.setenv("WANDB_ENTITY", "student")
+    monkeypatch.setenv("WANDB_DIR", str(tmp_path / "wandb-home"))
+    monkeypatch.chdir(tmp_path)
+    with make_logger(["wandb"], tmp_path / "out", RUNS) as logger:
+        logger.log(*synthetic_chunks(1)[0])
+    assert not (tmp_path / "out" / "wandb").exists()
+    path = next((tmp_path / "wandb-home" / "wandb").glob("offline-run-*/run-*.wandb"))
+    runs = [wandb_internal_pb2.Record.FromString(p) for p in read_wandb_records(path)]
+    (run,) = [r.run for r in runs if r.HasField("run")]
+    assert (run.project, run.entity) == ("course", "student")
+
+
+def test_one_logger_dir_holds_tensorboard_runs_of_several_run_directories(tmp_path):
+    pytest.importorskip("tensorboardX")
+    for out in ("a", "b"):
+        with make_logger(["tensorboard"], tmp_path / out, RUNS, log_dir=tmp_path / "tb") as log:
+            log.log(*synthetic_chunks(1)[0])
+    found = sorted(p.parent.relative_to(tmp_path) for p in tmp_path.glob("tb/*/*/events.*"))
+    assert [str(p) for p in found] == ["tb/a/seed0", "tb/a/seed1", "tb/b/seed0", "tb/b/seed1"]
+    assert not (tmp_path / "a" / "tensorboard").exists()
+
+
+def test_elapsed_time_is_logged_under_sb3s_name(tmp_path, recording):
+    first, steps, metrics = synthetic_chunks(1)[0]
+    with make_logger(["recording"], tmp_path, RUNS) as logger:
+        logger.log(first, steps, {**metrics, "time/elapsed": np.array([1.0, 2.0])})
+    (batch,) = recording.instances[0].batches
+    assert "time/time_elapsed" in batch.metrics and "time/elapsed" not in batch.metrics
 
 
 def test_wandb_mode_from_the_environment_is_respected(tmp_path, monkeypatch):

@@ -107,9 +107,14 @@ def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path, monke
     assert not (single_seed_run / "comparison.png").exists()
     runs = load_runs([single_seed_run, tiny_run])
     assert "different seed counts (1, 2)" in plot.wall_time_notes(runs)[0]
-    out = plot.plot_runs([tiny_run, single_seed_run], tmp_path / "both.png", ["a", "b"], dpi=50)
-    assert out == tmp_path / "both.png"
+    out = tmp_path / "both.png"
+    fig = plot.plot_runs([tiny_run, single_seed_run], out, ["a", "b"], dpi=50)
+    assert fig.axes and "confidence interval" in fig._suptitle.get_text()
     assert_nontrivial_png(out)
+    before = sorted(tmp_path.iterdir())
+    alone = plot.plot_runs([single_seed_run])  # a notebook's figure: no file written
+    assert sorted(tmp_path.iterdir()) == before
+    assert "no confidence band" in alone._suptitle.get_text()
     with Image.open(out) as image:
         pixels = np.asarray(image.convert("RGB"), float)
     orange = (np.abs(pixels - [230, 159, 0]).sum(-1) < 30).sum()  # the second run's colour
@@ -310,7 +315,8 @@ def test_plot_expands_sweeps_into_labelled_combinations(tiny_run, tmp_path, monk
     assert both[2] == "other/learning_rate=0.001,clip_coef=0.2"
     monkeypatch.chdir(tmp_path)
     assert plot.main([str(sweep), "--dpi", "50"]) == 0
-    assert_nontrivial_png(tmp_path / "comparison.png")
+    assert_nontrivial_png(sweep / "curves.png")  # one directory: drawn into it
+    assert not (tmp_path / "comparison.png").exists()
     empty = tmp_path / "empty"
     empty.mkdir()
     shutil.copy(sweep / "config.json", empty)

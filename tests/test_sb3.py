@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from jaxcart import evaluate, load_policy
+from jaxcart import plot as plot_command
 from jaxcart import sb3 as sb3_command
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS
@@ -192,6 +193,12 @@ def test_an_interrupted_run_keeps_its_finished_seeds_and_resumes(
     assert "2 finished seed(s) kept" in err and f"python -m jaxcart.sb3 --resume {out}" in err
     assert "Traceback" not in err
     assert not (out / layout.EVALUATION_FILE).exists()
+    # plot and evaluate say what the directory is, and how to finish it
+    for command in (evaluate.main, plot_command.main):
+        assert command([str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "interrupted python -m jaxcart.sb3 run (2 seed(s) kept)" in err, err
+        assert f"python -m jaxcart.sb3 --resume {out}" in err
 
     again = []
     monkeypatch.setattr(
@@ -243,3 +250,50 @@ def test_resume_refuses_a_damaged_kept_seed_and_other_settings(
     assert "seed-0.npz" in capsys.readouterr().err
     assert sb3_command.main(["--resume", str(out), "--num-seeds", "3"]) == 2
     assert "drop --num-seeds" in capsys.readouterr().err
+
+
+def test_the_chapters_swanlab_comparison_shares_one_folder(fake_sb3, monkeypatch, tmp_path):
+    """``python -m jaxcart.sb3 --logger swanlab`` and ``python -m jaxcart.train --logger
+    swanlab`` both write into ./swanlog (the chapter's ``swanlab watch swanlog``), read back
+    with SwanLab's own reader, under SB3's names."""
+    pytest.importorskip("swanlab")
+    from helpers import read_swanlog, tiny_args
+
+    from jaxcart.train import main as train_main
+
+    monkeypatch.chdir(tmp_path)  # SwanLab also reads ./.env and ./swanlab.yaml
+    monkeypatch.delenv("SWANLAB_LOG_DIR", raising=False)
+    monkeypatch.setenv("CI", "true")
+    argv = ["--total-timesteps", "6144", "--out", "runs/sb3-torch", "--logger", "swanlab"]
+    assert sb3_command.main(argv) == 0
+    tiny = tiny_args(384, num_seeds=1)  # 3 iterations of 128 steps
+    argv = [*tiny, "--out", "runs/jaxcart", "--logger", "swanlab", "--quiet"]
+    assert train_main(argv) == 0
+
+    logged = read_swanlog(tmp_path / "swanlog")
+    assert set(logged) == {"sb3-torch", "jaxcart"}
+    for name, batch, epochs in (("sb3-torch", 2048, 10), ("jaxcart", 128, 2)):
+        scalars = logged[name]
+        steps = [batch * i for i in (1, 2, 3)]
+        for key in ("time/time_elapsed", "rollout/ep_rew_mean", "train/approx_kl"):
+            assert [s for s, _ in scalars[key]] == steps, (name, key)
+        assert [v for _, v in scalars["train/n_updates"]] == [epochs * i for i in (1, 2, 3)]
+        np.testing.assert_allclose([v for _, v in scalars["train/clip_range"]], 0.2)
+        assert "time/elapsed" not in scalars
+    # SB3's own log, as the fake seed made it: time_elapsed 2, 4, 6 s
+    assert [v for _, v in logged["sb3-torch"]["time/time_elapsed"]] == [2.0, 4.0, 6.0]
+
+
+def test_swanlab_folder_from_logger_dir_then_the_environment(fake_sb3, monkeypatch, tmp_path):
+    pytest.importorskip("swanlab")
+    from helpers import read_swanlog
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("CI", "true")
+    monkeypatch.setenv("SWANLAB_LOG_DIR", str(tmp_path / "from-env"))
+    base = ["--total-timesteps", "2048", "--logger", "swanlab"]
+    assert sb3_command.main([*base, "--out", "runs/a"]) == 0
+    assert sb3_command.main([*base, "--out", "runs/b", "--logger-dir", "chosen"]) == 0
+    assert set(read_swanlog(tmp_path / "from-env")) == {"a"}
+    assert set(read_swanlog(tmp_path / "chosen")) == {"b"}
+    assert not (tmp_path / "swanlog").exists()

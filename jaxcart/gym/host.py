@@ -15,6 +15,55 @@ if TYPE_CHECKING:
     from jaxcart.core.cartpole import EnvParams
 
 
+def _param_attribute(name: str) -> property:
+    def get(env: Any) -> Any:
+        return getattr(env.params, name)
+
+    def refuse(env: Any, value: Any) -> None:
+        raise AttributeError(
+            f"{name} is read-only on jaxcart's env (its physics is compiled from the params): "
+            f'make the env with gym.make("{ENV_ID}", params=EnvParams({name}=...)) instead'
+        )
+
+    return property(get, refuse, doc=f"``params.{name}``, as ``CartPoleEnv.{name}``.")
+
+
+class CartPoleAttributes:
+    """Gymnasium ``CartPoleEnv``'s attributes (``x_threshold``, ``gravity``, ``total_mass``, ...)
+    read from ``self.params``, so code written for ``gym.make("CartPole-v1").unwrapped`` runs
+    on jaxcart's envs unchanged. Read-only: setting one names the ``params=`` route."""
+
+    params: EnvParams
+
+    gravity = _param_attribute("gravity")
+    masscart = _param_attribute("masscart")
+    masspole = _param_attribute("masspole")
+    length = _param_attribute("length")
+    force_mag = _param_attribute("force_mag")
+    tau = _param_attribute("tau")
+    kinematics_integrator = _param_attribute("kinematics_integrator")
+    theta_threshold_radians = _param_attribute("theta_threshold_radians")
+    x_threshold = _param_attribute("x_threshold")
+
+    @property
+    def total_mass(self) -> float:
+        """``masspole + masscart``, derived from the params as ``step`` derives it."""
+        return self.params.masspole + self.params.masscart
+
+    @property
+    def polemass_length(self) -> float:
+        """``masspole * length``, derived from the params as ``step`` derives it."""
+        return self.params.masspole * self.params.length
+
+    @property
+    def screen_width(self) -> int:
+        return 600
+
+    @property
+    def screen_height(self) -> int:
+        return 400
+
+
 def reset_bounds(options: dict | None, params: EnvParams) -> tuple[float, float]:
     """Gymnasium's ``options={"low": ..., "high": ...}`` reset bounds, else the params' ones."""
     from gymnasium.envs.classic_control import utils

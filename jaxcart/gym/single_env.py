@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from jaxcart.core.cartpole import EnvParams
 
 
-class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
+class JaxCartPoleEnv(host.CartPoleAttributes, gym.Env[np.ndarray, int]):
     """Gymnasium's CartPole with jaxcart's compiled physics; see :mod:`jaxcart.gym.adapter`.
 
     Args:
@@ -34,6 +34,10 @@ class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
             array (``None`` before the first reset), as Gymnasium's ``CartPoleEnv.state``;
             assign a new array to inject a state (the step itself keeps its copy on the JAX
             device, so editing the array in place could not reach it).
+        x_threshold, theta_threshold_radians, gravity, masscart, masspole, length, force_mag,
+            tau, kinematics_integrator, total_mass, polemass_length: ``CartPoleEnv``'s
+            constants, read from ``params`` (read-only: set them through ``params=``).
+        steps_beyond_terminated: as ``CartPoleEnv``'s (``None`` until the episode ends).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
@@ -68,6 +72,10 @@ class JaxCartPoleEnv(gym.Env[np.ndarray, int]):
     @property
     def state(self) -> np.ndarray | None:
         return self._state
+
+    @property
+    def steps_beyond_terminated(self) -> int | None:
+        return self._steps_beyond_terminated
 
     @state.setter
     def state(self, value: Any) -> None:

@@ -132,7 +132,7 @@ def _step_results(
     return obs, reward, terminated, truncated, info
 
 
-class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
+class JaxCartPoleVectorEnv(host.CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     """``num_envs`` CartPoles stepped as one compiled jaxcart step, with the autoreset of
     ``autoreset_mode`` (``NEXT_STEP``, ``SAME_STEP`` or ``DISABLED``: see the module docstring).
 
@@ -159,6 +159,9 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         state: the physical states, float64 ``[4, num_envs]`` (rows x, x_dot, theta,
             theta_dot), as Gymnasium's ``CartPoleVectorEnv.state``: a read-only copy of the
             device state; assign a new array to inject states (step counts are kept).
+        x_threshold, theta_threshold_radians, gravity, masscart, masspole, length, force_mag,
+            tau, kinematics_integrator, total_mass, polemass_length, max_episode_steps, low,
+            high: ``CartPoleVectorEnv``'s constants, read from ``params`` (read-only).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -205,6 +208,20 @@ class JaxCartPoleVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._keys = np.zeros((0, 2), dtype=np.uint32)  # step keys not yet used
         self._ended = np.zeros(self.num_envs, dtype=np.bool_)  # for DISABLED's check
         self._renderer: host.Renderer | None = None
+
+    @property
+    def max_episode_steps(self) -> int:
+        return int(self.params.max_episode_steps)
+
+    @property
+    def low(self) -> float:
+        """The default lower reset bound, as ``CartPoleVectorEnv.low``."""
+        return self.params.reset_low
+
+    @property
+    def high(self) -> float:
+        """The default upper reset bound, as ``CartPoleVectorEnv.high``."""
+        return self.params.reset_high
 
     @property
     def state(self) -> np.ndarray | None:

@@ -180,10 +180,16 @@ def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict):
 
 
 def _annotate(image, text: str) -> None:
-    """Writes ``text`` in the top-left corner of a PIL image."""
-    from PIL import ImageDraw
+    """Writes ``text`` in the top-left corner of a PIL image, in a font sized to the image
+    (Pillow's bitmap default is 6 pixels wide a letter, unreadable in a 300x200 GIF)."""
+    from PIL import ImageDraw, ImageFont
 
-    ImageDraw.Draw(image).text((6, 4), text, fill=CAPTION_COLOUR)
+    size = max(10, round(image.height * 0.07))
+    try:
+        font = ImageFont.load_default(size=size)  # FreeType's scalable default font
+    except (AttributeError, TypeError, ImportError):  # Pillow without FreeType
+        font = ImageFont.load_default()
+    ImageDraw.Draw(image).text((6, 4), text, fill=CAPTION_COLOUR, font=font)
 
 
 def render_gif(

@@ -368,12 +368,18 @@ def curves_csv(entries: list[Entry]) -> bytes:
 
 
 def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
-    """Creates the output directory; refuses one inside a compared run (or its sweep)."""
-    out = layout.default_compare_dir() if out is None else Path(out)
+    """Creates the output directory (default: a new ``compare-<time>`` beside the first
+    compared run, e.g. in ``runs/``); refuses one inside a compared run (or its sweep)."""
+    if out is None:
+        first = entries[0].run
+        # a combination's sweep directory is a run directory too
+        run_dir = first.path.parent if first.combination else first.path
+        out = layout.default_compare_dir(run_dir.parent)
+    out = Path(out)
     target = out.resolve()
     for entry in entries:
         owner = entry.run.path.resolve()
-        if entry.run.combination:  # a combination's sweep directory is a run directory too
+        if entry.run.combination:
             owner = owner.parent
         if target == owner or owner in target.parents:
             raise CompareError(

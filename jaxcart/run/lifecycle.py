@@ -43,7 +43,8 @@ from jaxcart.engine.loop import (
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.greedy import evaluate_runs
-from jaxcart.run.loggers import Logger, make_logger
+from jaxcart.run.loggers import Logger, make_logger, sb3_extras
+from jaxcart.run.progress import ProgressBar
 from jaxcart.run.spec import (
     Evaluation,
     Hooks,
@@ -276,11 +277,14 @@ def run_new(
     hooks: Hooks | None = None,
     stop: StopRequest | None = None,
     command: list[str] | None = None,
+    progress: bool = False,
 ) -> Outcome:
     """Creates a run directory for ``spec`` and carries the run out (see :func:`carry_out`).
 
     The runs train in waves when they do not all fit in memory (:mod:`jaxcart.run.waves`);
     ``command`` (the command line, when there is one) is recorded in ``config.json``.
+    ``progress=True`` shows a progress bar (``tqdm.auto``: a widget in a notebook, text on a
+    terminal; see :class:`jaxcart.run.progress.ProgressBar`), besides ``hooks``.
     """
     options = options or RunOptions()
     if options.compile_cache:
@@ -292,7 +296,7 @@ def run_new(
         stop.check()
     extra = {"eval_episodes": episodes, **({"command": list(command)} if command else {})}
     run = create_run(spec, out, distributed.is_main_process(), plan, extra)
-    return carry_out(run, options, hooks, stop)
+    return carry_out(run, options, hooks, stop, progress)
 
 
 def plan_run(spec: RunSpec, options: RunOptions | None = None) -> WavePlan:
@@ -316,13 +320,15 @@ def resume_run(
     stop: StopRequest | None = None,
     total_timesteps: int | None = None,
     allow_device_change: bool = False,
+    progress: bool = False,
 ) -> Outcome:
     """Continues an interrupted run from its last checkpoint, bit-identically; with
     ``total_timesteps``, extends an interrupted or finished run to that many env steps per
     seed, as SB3's ``learn(more, reset_num_timesteps=False)``: an annealed learning rate then
     anneals over the new total from the checkpoint on (recorded as ``lr_schedule`` in
     ``config.json``).
-    ``allow_device_change`` continues on another device count (see :func:`open_run`).
+    ``allow_device_change`` continues on another device count (see :func:`open_run`);
+    ``progress`` as for :func:`run_new`.
     """
     options = options or RunOptions()
     if options.compile_cache:
@@ -337,11 +343,16 @@ def resume_run(
             f"{out} evaluates {recorded} episodes per seed (config.json); drop --eval-episodes",
         )
     episodes = options.eval_episodes or recorded or NUM_EVAL_EPISODES
-    return carry_out(run, dataclasses.replace(options, eval_episodes=episodes), hooks, stop)
+    options = dataclasses.replace(options, eval_episodes=episodes)
+    return carry_out(run, options, hooks, stop, progress)
 
 
 def carry_out(
-    run: Run, options: RunOptions, hooks: Hooks | None = None, stop: StopRequest | None = None
+    run: Run,
+    options: RunOptions,
+    hooks: Hooks | None = None,
+    stop: StopRequest | None = None,
+    progress: bool = False,
 ) -> Outcome:
     """Trains (wave by wave), evaluates every run and writes the run directory; holds the
     run's lock throughout and releases it at the end.
@@ -349,13 +360,17 @@ def carry_out(
     SIGINT and SIGTERM (handled here unless the caller passes its own ``stop``) stop at the
     next safe point: the state is checkpointed and the outcome is ``stopped``, resumable.
     A stopped run keeps its checkpoint (and, trained in one wave, a partial metrics.csv).
+    ``progress=True`` adds a :class:`~jaxcart.run.progress.ProgressBar` to ``hooks``.
     """
-    hooks = hooks or Hooks()
+    bar = ProgressBar() if progress else None
+    hooks = bar.hooks(hooks) if bar is not None else hooks or Hooks()
     stop = stop or StopRequest(hooks.on_signal)
     try:
         with stop.installed():
             return _carry_out(run, options, hooks, stop)
     finally:
+        if bar is not None:
+            bar.close()
         run.close()
 
 
@@ -479,7 +494,7 @@ def train_wave(
     names = [run.grid.run_name(r) for r in runs]
     loggers = list(options.loggers) if run.main_process else []
     info = {**run.info, "config": run.config.to_dict()}
-    logger = make_logger(loggers, run.out, names, info)
+    logger = make_logger(loggers, run.out, names, info, options.logger_dir)
     handler = ChunkHandler(run, options, hooks, logger, runs, wave)
     try:
         return train(
@@ -529,6 +544,16 @@ class ChunkHandler:
         self.runs, self.wave = runs, wave  # progress.diverged_at is indexed within the wave
         self.last_save = time.monotonic()
         self.reported: set[int] = set()
+        grid = run.grid
+        self.clip_ranges = np.array(
+            [
+                grid.combos[grid.combo_of(r)].get("clip_coef", run.config.clip_coef)
+                if grid.is_sweep
+                else run.config.clip_coef
+                for r in runs
+            ],
+            np.float64,
+        )
 
     def __call__(self, progress: Progress) -> None:
         run = self.run
@@ -544,7 +569,8 @@ class ChunkHandler:
         count = len(progress.metrics["time/fps"])
         first = progress.iteration - count
         steps = (first + 1 + np.arange(count)) * run.config.batch_size
-        self.logger.log(first, steps, progress.metrics)
+        extras = sb3_extras(first, count, run.config.update_epochs, self.clip_ranges)
+        self.logger.log(first, steps, {**progress.metrics, **extras})
         due = time.monotonic() - self.last_save >= self.options.checkpoint_every
         due = distributed.any_process(due)  # every process must agree on when to gather
         if due and progress.iteration < run.config.num_iterations:

@@ -6,28 +6,34 @@ writing, so a slow disk (or a slow library) never stalls training. A backend tha
 reported once on stderr, switched off for the rest of the run, and its error is raised again
 by :meth:`Logger.close`; training itself never sees it.
 
+Every backend logs Stable-Baselines3's names (``rollout/ep_rew_mean``, ``train/approx_kl``,
+``time/time_elapsed``, ``train/clip_range``, ``train/n_updates``, ...: :data:`SB3_NAMES`) plus
+``time/iterations``, at step = env steps of that run, so jaxcart's curves and SB3's sit on the
+same axes. ``log_dir`` (the commands' ``--logger-dir``) is one folder that several runs share.
+
 Backends (each imported lazily, in its own thread):
 
 - ``tensorboard``: TensorBoard event files written with ``tensorboardX``, one TensorBoard run
-  per training run in ``out_dir/tensorboard/<run_name>/``, scalars under the
-  Stable-Baselines3 names (``rollout/ep_rew_mean``, ``train/approx_kl``, ...) plus
-  ``time/iterations``, with ``global_step`` = env steps of that run. View with
-  ``tensorboard --logdir out_dir/tensorboard``.
+  per training run in ``out_dir/tensorboard/<run_name>/``, or with ``log_dir`` in
+  ``log_dir/<run directory's name>/<run_name>/``. View with ``tensorboard --logdir`` that
+  folder.
 - ``swanlab``: SwanLab without a server (nothing leaves the machine), written under
-  ``out_dir/swanlog/run-<time>-<id>/``. SwanLab allows one active experiment per process, so
-  the R runs share one experiment: with R > 1 each run's metrics go under
-  ``<run_name>/<metric>`` and the mean over runs (of those that have a value) under the plain
-  SB3 names; ``time/*`` is the same for every run and logged once. With R = 1 only the plain
-  names are logged. The step is env steps per run. Mode ``offline`` by default: records for
-  ``swanlab sync out_dir/swanlog/run-...`` (uploads; needs an account or a self-hosted
-  server). With ``pip install 'swanlab[dashboard]'`` the mode is ``local`` instead, which also
-  fills the database that ``swanlab watch out_dir/swanlog`` serves on localhost.
-
+  ``log_dir``, else ``$SWANLAB_LOG_DIR``, else ``./swanlog`` (SwanLab's own default, so that
+  ``swanlab watch swanlog`` shows every run started from this folder), one
+  ``run-<time>-<id>/`` per experiment, named after the run directory. SwanLab allows one
+  active experiment per process, so the R runs share one experiment: with R > 1 each run's
+  metrics go under ``<run_name>/<metric>`` and the mean over runs (of those that have a value)
+  under the plain SB3 names; ``time/*`` is the same for every run and logged once. With R = 1
+  only the plain names are logged. Mode ``offline`` by default: records for ``swanlab sync``
+  (uploads; needs an account or a self-hosted server). With ``pip install
+  'swanlab[dashboard]'`` the mode is ``local`` instead, which also fills the database that
+  ``swanlab watch swanlog`` serves on localhost.
 - ``wandb``: Weights & Biases, one W&B run per training run (named after it), grouped by the
-  run directory's name, in project ``jaxcart``, under ``out_dir/wandb/``; scalars under the
-  SB3 names plus ``time/iterations``, at step = env steps. Offline by default (nothing leaves
-  the machine; ``wandb sync out_dir/wandb/offline-run-*`` uploads later); ``WANDB_MODE``
-  (``online``, ``offline``, ``disabled``) is respected when set.
+  run directory's name, in project ``$WANDB_PROJECT`` (default ``jaxcart``) and entity
+  ``$WANDB_ENTITY`` (default: the account's), under ``log_dir/wandb/``, else
+  ``$WANDB_DIR/wandb/``, else ``out_dir/wandb/``. Offline by default (nothing leaves the
+  machine; ``wandb sync .../wandb/offline-run-*`` uploads later); ``WANDB_MODE`` (``online``,
+  ``offline``, ``disabled``) is respected when set.
 
 NaN values (``rollout/ep_rew_mean`` before the first episode ends) are skipped, not logged.
 """
@@ -50,6 +56,25 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from jaxcart.rundir import files
+
+SB3_NAMES = {"time/elapsed": "time/time_elapsed"}
+"""jaxcart metric name -> the name Stable-Baselines3 logs it under, where they differ."""
+
+
+def sb3_extras(
+    first_iteration: int, count: int, update_epochs: int, clip_range: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The metrics SB3 logs that jaxcart's step does not compute, for ``count`` iterations
+    after ``first_iteration``: ``train/n_updates`` ``[count]`` (epochs run so far, as SB3
+    counts them) and ``train/clip_range`` ``[count, R]`` from each run's ``clip_range [R]``."""
+    iterations = first_iteration + 1 + np.arange(count)
+    clip = np.broadcast_to(np.asarray(clip_range, np.float64), (count, len(clip_range)))
+    return {"train/n_updates": iterations * update_epochs, "train/clip_range": clip}
+
+
+def swanlab_dir(log_dir: Path | None) -> Path:
+    """SwanLab's folder: ``log_dir``, else ``$SWANLAB_LOG_DIR``, else ``./swanlog``."""
+    return Path(log_dir or os.environ.get("SWANLAB_LOG_DIR") or "swanlog")
 
 
 class LoggerUnavailable(ValueError):
@@ -89,7 +114,9 @@ class Backend(Protocol):
     module: ClassVar[str | None]  # package that must be importable (None: nothing needed)
     extra: ClassVar[str | None]  # pip extra of jaxcart that installs it
 
-    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None: ...
+    def __init__(
+        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
+    ) -> None: ...
 
     def open(self) -> None: ...
 
@@ -104,16 +131,21 @@ def _json_safe(config: dict) -> dict:
 
 
 class TensorBoardBackend:
-    """One event file per run in ``out_dir/tensorboard/<run_name>/``; each iteration is one
-    event per run holding all its scalars, at ``global_step`` = env steps."""
+    """One event file per run in ``out_dir/tensorboard/<run_name>/`` (or
+    ``log_dir/<run directory's name>/<run_name>/``); each iteration is one event per run
+    holding all its scalars, at ``global_step`` = env steps."""
 
     name = "tensorboard"
     module = "tensorboardX"
     extra = "tensorboard"
 
-    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None:
+    def __init__(
+        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
+    ) -> None:
         self.out_dir = out_dir
-        self.run_dirs = [out_dir / "tensorboard" / run for run in run_names]
+        self.log_dir = None if log_dir is None else Path(log_dir) / experiment_name(out_dir)
+        base = out_dir / "tensorboard" if self.log_dir is None else self.log_dir
+        self.run_dirs = [base / run for run in run_names]
         self.config = config
         self.writers: list[Any] = []
 
@@ -123,7 +155,11 @@ class TensorBoardBackend:
 
         # Markdown: indenting by four spaces shows the JSON as a code block in the Text tab.
         config_text = textwrap.indent(json.dumps(self.config, indent=2, default=str), "    ")
-        base = files.subdir(self.out_dir, "tensorboard", create=True)  # never through a link
+        if self.log_dir is None:
+            base = files.subdir(self.out_dir, "tensorboard", create=True)  # never through a link
+        else:  # the user's own folder, shared with other runs
+            base = self.log_dir
+            base.mkdir(parents=True, exist_ok=True)
         for run_dir in self.run_dirs:
             files.subdir(base, run_dir.name, create=True)
             writer = FileWriter(str(run_dir), max_queue=1024, flush_secs=30)
@@ -178,15 +214,17 @@ class SwanLabBackend:
     module = "swanlab"
     extra = "swanlab"
 
-    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None:
-        self.log_dir = out_dir / "swanlog"
-        self.experiment = out_dir.resolve().name or "jaxcart"
+    def __init__(
+        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
+    ) -> None:
+        self.log_dir = swanlab_dir(log_dir).absolute()
+        self.experiment = experiment_name(out_dir)
         self.run_names = run_names
         self.config = config
         self.run: Any = None
 
     def open(self) -> None:
-        files.subdir(self.log_dir.parent, self.log_dir.name, create=True)  # never through a link
+        self.log_dir.mkdir(parents=True, exist_ok=True)
         import swanlab
 
         Settings = swanlab.Settings
@@ -237,15 +275,19 @@ class SwanLabBackend:
 
 class WandbBackend:
     """One W&B run per training run, grouped by the run directory; offline unless
-    ``WANDB_MODE`` says otherwise."""
+    ``WANDB_MODE`` says otherwise; ``WANDB_PROJECT``, ``WANDB_ENTITY`` and ``WANDB_DIR``
+    (below ``log_dir``) are honoured."""
 
     name = "wandb"
     module = "wandb"
     extra = "wandb"
 
-    def __init__(self, out_dir: Path, run_names: list[str], config: dict) -> None:
+    def __init__(
+        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
+    ) -> None:
         self.out_dir = out_dir
-        self.group = out_dir.resolve().name or "jaxcart"
+        self.log_dir = Path(log_dir or os.environ.get("WANDB_DIR") or out_dir)
+        self.group = experiment_name(out_dir)
         self.run_names = run_names
         self.config = config
         self.runs: list[Any] = []
@@ -253,8 +295,11 @@ class WandbBackend:
     def open(self) -> None:
         import wandb
 
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        files.subdir(self.out_dir, "wandb", create=True)  # W&B writes here; never through a link
+        if self.log_dir == self.out_dir:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            files.subdir(self.out_dir, "wandb", create=True)  # W&B writes here; never via a link
+        else:
+            (self.log_dir / "wandb").mkdir(parents=True, exist_ok=True)
         # offline unless the user chose otherwise; no console capture (it would wrap the
         # progress bar's stream), no system-metrics sampling thread
         settings = wandb.Settings(
@@ -266,11 +311,12 @@ class WandbBackend:
         for run in self.run_names:
             self.runs.append(
                 wandb.init(
-                    project="jaxcart",
+                    project=os.environ.get("WANDB_PROJECT") or "jaxcart",
+                    entity=os.environ.get("WANDB_ENTITY") or None,
                     group=self.group,
                     name=f"{self.group}-{run}",
                     job_type="train",
-                    dir=str(self.out_dir),
+                    dir=str(self.log_dir),
                     config={**_json_safe(self.config), "run_name": run},
                     settings=settings,
                     reinit="create_new",  # every seed's run open at once
@@ -400,7 +446,7 @@ class Logger:
                     f"metric {name!r} has shape {array.shape}; expected ({n}, {self.num_runs}) "
                     f"= (len(env_steps), number of runs)"
                 )
-            copied[name] = array
+            copied[SB3_NAMES.get(name, name)] = array
         if n == 0:
             return
         batch = MetricBatch(int(first_iteration), steps, copied)
@@ -466,8 +512,17 @@ def check_available(names: Sequence[str]) -> None:
             )
 
 
+def experiment_name(out_dir: Path) -> str:
+    """The name a run directory's logs go under (its folder's name)."""
+    return Path(out_dir).resolve().name or "jaxcart"
+
+
 def make_logger(
-    names: Sequence[str], out_dir: Path, run_names: Sequence[str], config: dict | None = None
+    names: Sequence[str],
+    out_dir: Path,
+    run_names: Sequence[str],
+    config: dict | None = None,
+    log_dir: Path | None = None,
 ) -> Logger:
     """A :class:`Logger` writing to each named backend (``[]``: a logger that does nothing).
 
@@ -477,6 +532,9 @@ def make_logger(
         out_dir: the run directory; each backend writes in its own subdirectory.
         run_names: one name per run (the ``R`` axis of the metrics), used as directory names.
         config: JSON-able settings stored with the logs.
+        log_dir: one folder for every backend, shared with other runs (default: SwanLab's
+            ``$SWANLAB_LOG_DIR`` or ``./swanlog``, W&B's ``$WANDB_DIR`` or ``out_dir``,
+            TensorBoard's ``out_dir/tensorboard``).
 
     Raises:
         LoggerUnavailable: a backend's package is not installed.
@@ -495,4 +553,5 @@ def make_logger(
     check_available(names)
     out_dir = Path(out_dir)
     config = dict(config or {})
-    return Logger([BACKENDS[n](out_dir, run_names, config) for n in names], len(run_names))
+    backends = [BACKENDS[n](out_dir, run_names, config, log_dir) for n in names]
+    return Logger(backends, len(run_names))

@@ -34,6 +34,7 @@ from jaxcart.core import networks
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_DEFINITION, is_solved
 from jaxcart.engine.loop import METRIC_COLUMNS
+from jaxcart.run.loggers import make_logger, sb3_extras
 from jaxcart.rundir import files, layout, outputs
 from jaxcart.rundir.directory import package_versions
 from jaxcart.rundir.files import RunDirError
@@ -239,6 +240,30 @@ def write_run(
     )
 
 
+def log_run(
+    out: Path,
+    config: PPOConfig,
+    results: list[SeedResult],
+    first_seed: int,
+    loggers: tuple[str, ...],
+    logger_dir: Path | None,
+) -> None:
+    """Logs the seeds' curves to ``loggers`` (one run per seed, ``seed<index>``)."""
+    if not loggers:
+        return
+    iterations = min(len(r.metrics["time/fps"]) for r in results)
+    metrics = {
+        k: np.stack([r.metrics[k][:iterations] for r in results], axis=1) for k in METRIC_COLUMNS
+    }
+    clip = np.full(len(results), float(config.clip_coef))
+    metrics |= sb3_extras(0, iterations, config.update_epochs, clip)
+    names = [f"seed{s}" for s in range(len(results))]  # seed indices, as jaxcart names runs
+    info = {"framework": FRAMEWORK, "preset": "sb3", "config": config.to_dict()}
+    steps = (1 + np.arange(iterations)) * config.batch_size
+    with make_logger(loggers, out, names, info, logger_dir) as logger:
+        logger.log(0, steps, metrics)
+
+
 def _stack(trees: list[dict]) -> dict:
     """Nested dicts of arrays -> the same dict with arrays stacked on a new leading axis."""
     if isinstance(trees[0], dict):
@@ -333,6 +358,8 @@ def train_run(
     threads: int = 1,
     on_seed: Callable[[int, SeedResult], None] | None = None,
     on_start: Callable[[dict, int], None] | None = None,
+    loggers: tuple[str, ...] = (),
+    logger_dir: Path | None = None,
 ) -> list[SeedResult]:
     """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3, ``jobs`` processes
     at once, and writes them as the run directory ``out`` (created; it must not exist). Each
@@ -348,7 +375,7 @@ def train_run(
     out.mkdir(parents=True, exist_ok=False)
     plan = {"first_seed": first_seed, "num_seeds": num_seeds, "total_timesteps": total_timesteps}
     files.write_json(out / layout.SB3_PLAN_FILE, plan)
-    return resume_run(out, jobs, threads, on_seed, on_start)
+    return resume_run(out, jobs, threads, on_seed, on_start, loggers, logger_dir)
 
 
 def resume_run(
@@ -357,10 +384,14 @@ def resume_run(
     threads: int = 1,
     on_seed: Callable[[int, SeedResult], None] | None = None,
     on_start: Callable[[dict, int], None] | None = None,
+    loggers: tuple[str, ...] = (),
+    logger_dir: Path | None = None,
 ) -> list[SeedResult]:
     """Trains the seeds of an unfinished SB3 run ``out`` that it has not kept yet, then writes
     the run directory (and removes the plan and kept seeds). ``on_start(plan, kept)`` is
-    called before training.
+    called before training. ``loggers`` and ``logger_dir`` as for
+    :func:`jaxcart.run.loggers.make_logger`: every seed's curves are logged once all are
+    trained (SB3 trains in other processes), under the names SB3 itself logs.
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -386,6 +417,7 @@ def resume_run(
     results = [kept[s][0] for s in seeds]
     elapsed = offset + time.perf_counter() - start
     write_run(out, config, results, plan["first_seed"], elapsed, jobs)
+    log_run(out, config, results, plan["first_seed"], loggers, logger_dir)
     shutil.rmtree(files.subdir(out, layout.SB3_SEEDS_DIR), ignore_errors=True)
     (out / layout.SB3_PLAN_FILE).unlink()
     return results

@@ -89,7 +89,10 @@ class RunOptions:
     eval_episodes: int | None = None
     """Greedy Gymnasium evaluation episodes per seed (None: 20, or a resumed run's own)."""
     loggers: tuple[str, ...] = ()
-    """Metric backends besides metrics.csv: ``tensorboard``, ``swanlab``."""
+    """Metric backends besides metrics.csv: ``tensorboard``, ``swanlab``, ``wandb``."""
+    logger_dir: Path | None = None
+    """One folder the loggers write into, shared with other runs (default: SwanLab's
+    ``$SWANLAB_LOG_DIR`` or ``./swanlog``; see :func:`jaxcart.run.loggers.make_logger`)."""
     compile_cache: bool = True
     """Use JAX's persistent compilation cache."""
     chunk_size: int | None = None

@@ -73,7 +73,8 @@ def prepare_out_dir(out: Path) -> Path:
     if out.is_dir() and any(not _leftover(p) for p in out.iterdir()):
         raise ConfigError(
             f"--out {out} is not empty; choose a new directory so no earlier run is "
-            f"overwritten (or continue it with --resume {out})"
+            f"overwritten (or continue it: --resume {out} on the command line, "
+            f"jaxcart.resume_run({str(out)!r}) from Python)"
         )
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -129,6 +129,7 @@ def default_run_dir(preset_name: str) -> Path:
     return fresh_dir(Path("runs") / f"{preset_name}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
-def default_compare_dir() -> Path:
-    """``compare-<YYYYmmdd-HHMMSS>`` in the current directory, suffixed when it exists."""
-    return fresh_dir(Path(f"compare-{time.strftime('%Y%m%d-%H%M%S')}"))
+def default_compare_dir(beside: Path) -> Path:
+    """``compare-<YYYYmmdd-HHMMSS>`` in ``beside`` (the folder holding the compared runs, such
+    as ``runs/``, so that nothing lands in the current directory), suffixed when it exists."""
+    return fresh_dir(Path(beside) / f"compare-{time.strftime('%Y%m%d-%H%M%S')}")

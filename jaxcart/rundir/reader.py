@@ -79,6 +79,14 @@ def read_run_config(run_dir: str | os.PathLike, verify: bool = False) -> dict:
             if only_lock
             else ""
         )
+        if layout.present(run_dir / layout.SB3_PLAN_FILE):
+            # SB3's seeds are kept one by one; the run directory is written once all finish
+            kept = len(list(run_dir.glob(f"{layout.SB3_SEEDS_DIR}/seed-*.npz")))
+            hint = (
+                f" yet: it is an interrupted python -m jaxcart.sb3 run ({kept} seed(s) kept); "
+                f"train the others, then plot or evaluate it: python -m jaxcart.sb3 --resume "
+                f"{run_dir}"
+            )
         raise RunDirError(
             f"{run_dir} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory{hint}"
         )

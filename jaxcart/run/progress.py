@@ -1,0 +1,113 @@
+"""A progress bar over a run's iterations, as lifecycle hooks.
+
+``tqdm.auto`` picks the bar: a widget in Jupyter and Colab (with ``ipywidgets``), text on a
+terminal. ``run_new(..., progress=True)`` uses :class:`ProgressBar`; the command line's
+:class:`jaxcart.report.ConsoleReport` is one too, with the printing around it.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import IO, TYPE_CHECKING, Any
+
+import numpy as np
+
+from jaxcart.run.spec import Hooks
+
+if TYPE_CHECKING:
+    from jaxcart.engine.loop import Progress
+    from jaxcart.run.spec import Run
+
+HOOK_NAMES = (
+    "on_start",
+    "on_compiled",
+    "on_chunk",
+    "on_diverged",
+    "on_signal",
+    "on_init",
+    "on_wave",
+)
+"""The fields of :class:`~jaxcart.run.spec.Hooks`."""
+
+
+class ProgressBar:
+    """One bar for all of a run's iterations (every wave), with the env steps per seed and the
+    mean ``rollout/ep_rew_mean`` over runs; it closes when training ends, so its time is the
+    training's (the evaluation after it is not counted).
+
+    Args:
+        file: where a text bar goes (default stderr; a notebook's widget ignores it).
+        enabled: ``False`` draws nothing (the hooks still track the run).
+    """
+
+    def __init__(self, file: IO[str] | None = None, enabled: bool = True) -> None:
+        self.file, self.progress_bar = file, enabled
+        self.bar: Any = None
+        self.run: Run | None = None
+        self.wave_offset = 0
+        self.total = 0
+
+    def on_start(self, run: Run, device_count: int, backend: str) -> None:
+        self.run = run
+
+    def on_wave(self, wave: int, num_waves: int, runs: range) -> None:
+        """Each wave's iterations continue the one bar."""
+        self.wave_offset = wave * self.run.config.num_iterations
+        if self.bar is not None:
+            self.bar.set_description(f"training (wave {wave + 1}/{num_waves})")
+
+    def on_compiled(self, seconds: float) -> None:
+        if self.bar is not None or not self.progress_bar or self.total:
+            return  # a later wave (its program is cached): the bar goes on
+        from tqdm.auto import tqdm
+
+        self.total = self.run.config.num_iterations * self.run.plan.num_waves
+        self.bar = tqdm(
+            total=self.total,
+            initial=self.wave_offset + (self.run.resumed_from or 0),
+            unit="it",
+            desc="training",
+            dynamic_ncols=True,
+            file=self.file or sys.stderr,
+        )
+
+    def on_chunk(self, progress: Progress) -> None:
+        if self.bar is None:
+            return
+        ret = progress.metrics["rollout/ep_rew_mean"][-1]
+        mean_ret = float(np.nanmean(ret)) if np.isfinite(ret).any() else float("nan")
+        self.bar.set_postfix_str(
+            f"env steps/seed {progress.env_steps:,} | ep_rew_mean {mean_ret:.1f}", refresh=False
+        )
+        self.bar.update(self.wave_offset + progress.iteration - self.bar.n)
+        if self.bar.n >= self.total:
+            self.close()
+
+    def write(self, text: str) -> None:
+        """A line above the bar (or on stderr without one)."""
+        if self.bar is not None:
+            self.bar.write(text, file=self.file or sys.stderr)
+        else:
+            print(text, file=sys.stderr, flush=True)
+
+    def hooks(self, base: Hooks | None = None) -> Hooks:
+        """These methods as the lifecycle's hooks, each called after ``base``'s (if any)."""
+        base = base or Hooks()
+        merged = {}
+        for name in HOOK_NAMES:
+            first, mine = getattr(base, name), getattr(self, name, None)
+            merged[name] = mine if first is None else _both(first, mine) if mine else first
+        return Hooks(**merged)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.bar = None
+
+
+def _both(first, second):
+    def call(*args):
+        first(*args)
+        second(*args)
+
+    return call
