@@ -91,7 +91,7 @@ def init_runners(
         if on_progress is not None and i % 1024 == 0:
             on_progress(i, len(keys))
         rng = np.random.default_rng([int(k) for k in key])
-        params.append(network.init(rng))
+        params.append(network.init(rng, dtype))  # float64 under x64, as the env
         shape = (config.num_envs, network.obs_dim)
         obs.append(rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype))
         run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))

@@ -30,6 +30,7 @@ from jaxcart.rundir.reader import (
     MAX_RUNS,
     bounded_int,
     finite_number,
+    params_dtype,
     params_headers,
     read_run_config,
     recorded_combinations,
@@ -183,10 +184,9 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
     ):
         raise RunDirError(f"{path} does not belong to this run's config.json")
     params_prefix = layout.CHECKPOINT_PARAMS
-    expected = {
-        params_prefix + name: header for name, header in params_headers(config, runs).items()
-    }
-    limit = _checkpoint_bytes(config, runs)
+    headers = params_headers(config, runs, params_dtype(info))
+    expected = {params_prefix + name: header for name, header in headers.items()}
+    limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64
     found = files.read_headers(path, max_bytes=limit)
     if any(found.get(name) != header for name, header in expected.items()):
         raise RunDirError(f"{path} does not hold this run's network")

@@ -14,7 +14,7 @@ import os
 from importlib import metadata
 from pathlib import Path
 
-from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
@@ -213,7 +213,7 @@ class RunDir:
         """The file of a wave finished before an interruption, checked (headers, digest,
         finite values) before the outputs are built from it."""
         path = self.wave_file(wave)
-        reader.check_block(path, config, runs, episodes)
+        reader.check_block(path, config, runs, episodes, float_dtype())  # as resume checked
         return path
 
     def write_metrics(self, batch_size: int) -> None:

@@ -35,6 +35,8 @@ EVAL_JSON_BYTES_PER_SEED = 1024  # a seed's entry besides its returns
 MAX_CSV_BYTES_PER_ROW = 4096
 
 
+X64_KEY = "x64"
+"""Of ``config.json``: true when the run trained in float64 (``JAX_ENABLE_X64=1``)."""
 MAX_RUNS = 1 << 20
 """The most runs (seeds x combinations) a ``config.json`` may declare."""
 MAX_EVAL_EPISODES = 100_000
@@ -132,6 +134,8 @@ def _check_run_fields(data: dict) -> None:
     preset = data.get("preset", "")
     if not isinstance(preset, str) or len(preset) > 256:
         raise ValueError(f"preset {preset!r}")
+    if not isinstance(data.get(X64_KEY, False), bool):
+        raise ValueError(f"{X64_KEY} {data.get(X64_KEY)!r}")
     versions = data.get("versions", {})
     if not isinstance(versions, dict) or not all(isinstance(v, str) for v in versions.values()):
         raise ValueError("versions is not a {package: version} object")
@@ -281,11 +285,19 @@ def _evaluation_bytes(run_dir: str | os.PathLike) -> int:
     return MAX_JSON_BYTES + seeds * per_seed
 
 
-def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
-    """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes."""
+def params_headers(
+    config: PPOConfig, num_seeds: int, dtype: np.dtype | type = np.float32
+) -> dict[str, files.Header]:
+    """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes
+    of ``dtype`` (float64 for a run trained under x64: :func:`params_dtype`)."""
     network = ActorCritic.from_config(config)
     shapes = files.flatten(network.shapes(), is_leaf=lambda x: isinstance(x, tuple))
-    return {name: ((num_seeds, *shape), np.dtype(np.float32)) for name, shape in shapes.items()}
+    return {name: ((num_seeds, *shape), np.dtype(dtype)) for name, shape in shapes.items()}
+
+
+def params_dtype(info: dict) -> np.dtype:
+    """The float type a run trained in: float64 when its ``config.json`` records ``x64``."""
+    return np.dtype(np.float64 if info.get(X64_KEY) else np.float32)
 
 
 def load_params(run_dir: str | os.PathLike) -> dict:
@@ -301,7 +313,7 @@ def load_params(run_dir: str | os.PathLike) -> dict:
             f"{run_dir} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
         )
     info = read_run_config(run_dir)
-    expected = params_headers(info["config"], int(info.get("num_seeds", 1)))
+    expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
     path = files.inside(run_dir, layout.PARAMS_FILE)
     found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
     if found != expected:
@@ -326,7 +338,9 @@ def _bytes(headers: dict[str, files.Header]) -> int:
     return sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in headers.values())
 
 
-def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> None:
+def check_block(
+    path: Path, config: PPOConfig, runs: range, episodes: int, dtype: np.dtype | type = np.float32
+) -> None:
     """Refuses a wave file (:class:`~jaxcart.rundir.outputs.Block`) that is not the one this
     run wrote for ``runs``: its headers (parameters of this network, metrics
     ``[iterations, n]``, returns ``[n, episodes]``) are checked before anything is read, then
@@ -337,9 +351,10 @@ def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> No
     """
     n = len(runs)
     expected = {
-        layout.BLOCK_PARAMS + name: header for name, header in params_headers(config, n).items()
+        layout.BLOCK_PARAMS + name: header
+        for name, header in params_headers(config, n, dtype).items()
     }
-    found = files.read_headers(path, max_bytes=_block_bytes(config, n, episodes))
+    found = files.read_headers(path, max_bytes=2 * _block_bytes(config, n, episodes))
     found.pop(files.META_KEY, None)
     iterations = config.num_iterations
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
@@ -352,7 +367,7 @@ def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> No
     ]
     if wrong:
         raise RunDirError(f"{path} does not hold this wave's results: {wrong[0]} has another shape")
-    arrays, meta = files.load_tree(path, max_bytes=_block_bytes(config, n, episodes))
+    arrays, meta = files.load_tree(path, max_bytes=2 * _block_bytes(config, n, episodes))
     if meta is None or (meta.get("start"), meta.get("stop")) != (runs.start, runs.stop):
         raise RunDirError(f"{path} is not the file of runs [{runs.start}, {runs.stop})")
     if meta.get(layout.DIGEST_KEY) != files.arrays_digest(arrays):
