@@ -12,6 +12,7 @@ The counts go to the "fault injection" summary at the end of the session.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
 import os
@@ -252,11 +253,30 @@ def logger_opens(backend: type) -> Callable[[Path], None]:
 
 @dataclasses.dataclass(frozen=True)
 class Case:
+    """One way to break a run directory. ``sealed``: its manifest is then rewritten to match
+    (a directory crafted by someone who recomputes the digests), so what is tested is the
+    check behind the manifest; unsealed cases are edited bytes the manifest must catch."""
+
     name: str
     base: str
     mutate: Callable[[Path, Path], None]
     actions: tuple[Callable[[Path], None], ...]
     match: str
+    sealed: bool = True
+
+
+def reseal(run: Path) -> None:
+    """Rewrites every manifest under ``run`` to list its files' current digests."""
+    for listing in [run / layout.MANIFEST_FILE, *run.glob(f"*/{layout.MANIFEST_FILE}")]:
+        if listing.is_symlink() or not listing.is_file():
+            continue
+        data = json.loads(listing.read_text())
+        for name in data["files"]:
+            path = listing.parent / name
+            if path.is_file() and not path.is_symlink():
+                digest = "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
+                data["files"][name] = [digest]
+        listing.write_text(json.dumps(data))
 
 
 S_LINK = "symbolic link"
@@ -555,6 +575,8 @@ def prepare(bases: dict[str, Path], base: str, tmp_path: Path) -> tuple[Path, Pa
 def test_a_crafted_run_directory_is_refused_in_one_line(case, bases, tmp_path):
     run, outside = prepare(bases, case.base, tmp_path)
     case.mutate(run, outside)
+    if case.sealed:
+        reseal(run)
     before = snapshot(outside)
     for action in case.actions:
         with pytest.raises((RunDirError, ConfigError), match=case.match) as info:
@@ -573,6 +595,8 @@ CLI_CASES = [c for c in CASES if resume in c.actions and c.base != "waved"][:12]
 def test_the_command_line_says_one_line_and_exits_2(case, bases, tmp_path, capsys):
     run, outside = prepare(bases, case.base, tmp_path)
     case.mutate(run, outside)
+    if case.sealed:
+        reseal(run)
     assert train.main(["--resume", str(run), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: cannot resume:") and "\n" not in err and "Traceback" not in err
@@ -582,6 +606,7 @@ def test_the_command_line_says_one_line_and_exits_2(case, bases, tmp_path, capsy
 def test_a_device_change_is_allowed_when_asked_and_recorded(bases, tmp_path):
     run, outside = prepare(bases, "interrupted", tmp_path)
     config_field(device_count=1)(run, outside)
+    reseal(run)
     outcome = lifecycle.resume_run(run, OPTIONS, allow_device_change=True)
     assert not outcome.stopped
     info = json.loads((run / layout.CONFIG_FILE).read_text())

@@ -37,6 +37,7 @@ from jaxcart.engine.loop import (
     Progress,
     TrainResult,
     TrainState,
+    default_chunk_size,
     initial_state,
     train,
 )
@@ -431,6 +432,14 @@ def wave_start_state(
         # a one-run template names the arrays; the file has them all
         template = initial_state(run.config, 1, run.spec.seed, chunk_size=chunk_size)
         saved = run.directory.load_checkpoint(template, num_runs=len(runs))
+        # a chunk runs at most the run's iterations (or the default chunk): a larger one from
+        # a crafted checkpoint would build [chunk_size, R] metrics in the compiled call
+        most = max(run.config.num_iterations, default_chunk_size(run.config.num_iterations, 1))
+        if saved.chunk_size > most:
+            raise RunDirError(
+                f"{run.directory.checkpoint_path} is corrupted: chunk_size {saved.chunk_size} "
+                f"is more than the {most} iterations a chunk of this run can run"
+            )
         run.directory.open_metrics(len(runs), saved.iteration)  # rows after it are cut
         return dataclasses.replace(saved, chunk_seconds=adapt)
     configs = jax.tree.map(lambda x: x[runs.start : runs.stop], run_configs(run))
