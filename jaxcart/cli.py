@@ -12,9 +12,10 @@ import re
 import signal
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import NoReturn
 
-from jaxcart import __version__
+from jaxcart import __version__, environment  # first: it imports JAX, which reads JAX_*
 from jaxcart.core.config import ConfigError
 from jaxcart.engine import devices, signals
 from jaxcart.rundir.files import RunDirError
@@ -165,6 +166,34 @@ def count(text: str) -> int:
     return int(value)
 
 
+def seed(text: str) -> int:
+    """A seed for ``env.reset``: a whole number in [0, 2**32) (an argparse ``type``)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"must be a whole number in [0, 2**32), got {text}")
+    return value
+
+
+KERNEL_FILESYSTEMS = ("/proc", "/sys", "/dev")
+"""Where no output directory can be: the kernel's own filesystems."""
+
+
+def out_dir(text: str) -> Path:
+    """A directory to write into (an argparse ``type``): not empty (``Path('')`` would be
+    the current directory) and not under the kernel's filesystems."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty; name a directory")
+    resolved = os.path.realpath(text)
+    if any(resolved == k or resolved.startswith(k + "/") for k in KERNEL_FILESYSTEMS):
+        raise argparse.ArgumentTypeError(
+            f"{text} is under {resolved.split('/')[1]!r}, the kernel's own filesystem; choose a directory on disk"
+        )
+    return Path(text)
+
+
 MAX_EPISODES = 100_000
 """The most evaluation episodes per seed (a run directory declaring more is refused too)."""
 
@@ -284,6 +313,7 @@ def command_main(
         try:
             signal.signal(signal.SIGTERM, signals.raise_interrupt)
             devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
+            environment.check_backend()  # JAX_PLATFORMS, XLA_FLAGS: one line, not an abort
             code = main(argv)
         finally:
             for sig in signals.SIGNALS:
