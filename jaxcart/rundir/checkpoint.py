@@ -69,6 +69,8 @@ def save_checkpoint(
         files.fsync_directory(Path(path).parent)
 
 
+MAX_ELAPSED = 1e10
+"""Seconds of training a checkpoint may declare (three centuries)."""
 MAX_CHUNK = 1 << 20
 """The most iterations a checkpoint's chunk may declare: the compiled chunk scans an int32
 iteration counter and builds ``[chunk_size, R]`` metrics, so a larger one could overflow or
@@ -87,7 +89,7 @@ def read_checkpoint_meta(path: str | os.PathLike) -> dict:
     checks = {
         "iteration": bounded_int(meta.get("iteration"), 0, 1 << 40),
         "chunk_size": bounded_int(meta.get("chunk_size"), 1, MAX_CHUNK),
-        "elapsed": finite_number(meta.get("elapsed")) and meta.get("elapsed") >= 0,
+        "elapsed": finite_number(meta.get("elapsed")) and 0 <= meta.get("elapsed") < MAX_ELAPSED,
         "wave": bounded_int(meta.get("wave", 0), 0, MAX_RUNS),
         "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
         "versions": isinstance(meta.get("versions", {}), dict)

@@ -203,17 +203,15 @@ class RunDir:
             if opened is not None:
                 opened.close()
 
-    def write_config(
-        self, info: dict, config: PPOConfig, directory: files.Dir | None = None
-    ) -> None:
+    def write_config(self, info: dict, config: PPOConfig, manifest: Manifest | None = None) -> None:
         """``config.json``: ``info`` with ``config`` as a dict (in a combination's
-        ``directory`` when given); a sweep's combinations are left to the reader to derive
+        directory, through its ``manifest``, when given); a sweep's combinations are left to the reader to derive
         from its ``sweep`` (:func:`~jaxcart.rundir.reader.sweep_combinations`)."""
         data = {k: v for k, v in info.items() if k != layout.DIGEST_KEY}
         if data.get("sweep"):  # the reader derives them: a million would be 70 MB of JSON
             data.pop("combinations", None)
         data["config"] = config.to_dict()
-        manifest = self.manifest if directory is None else Manifest(directory)
+        manifest = manifest or self.manifest
         if isinstance(manifest, Manifest):
             data[MANIFEST_FLAG] = True
         body = {**data, layout.DIGEST_KEY: files.json_digest(data)}
@@ -321,7 +319,7 @@ class RunDir:
             manifest = Manifest(directory)
         try:
             if record is not None:
-                self.write_config(*record, directory=directory)
+                self.write_config(*record, manifest=manifest)
             manifest.write(
                 layout.METRICS_FILE,
                 lambda e, d: outputs.write_blocks_metrics_csv(e, blocks, runs, batch_size, d),
