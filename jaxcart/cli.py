@@ -7,10 +7,12 @@ from __future__ import annotations
 import argparse
 import decimal
 import difflib
+import functools
 import os
 import re
 import signal
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -331,12 +333,25 @@ def command_main(
     raise SystemExit(code)
 
 
+def _note_line(shown: Callable, message, category, *args, **kwargs) -> None:
+    """A run that cannot be verified is one ``note:`` line, not a warning with its source."""
+    from jaxcart.rundir.manifest import UnverifiedRunWarning
+
+    if issubclass(category, UnverifiedRunWarning):
+        print(f"note: {message}", file=sys.stderr)
+    else:
+        shown(message, category, *args, **kwargs)
+
+
 def run_command(body: Callable[[], int], also: tuple[type[Exception], ...] = ()) -> int:
     """Runs a command's body; a user's mistake (bad option, bad config, unusable run
     directory, unwritable path, or one of the exception types in ``also``) becomes
     ``error: ...`` on stderr and exit code 2."""
     try:
-        return body()
+        with warnings.catch_warnings():  # restores showwarning afterwards
+            shown = warnings.showwarning
+            warnings.showwarning = functools.partial(_note_line, shown)
+            return body()
     except ParserExit as exc:  # --help, --version
         return int(exc.code or 0)
     except ConfigError as exc:

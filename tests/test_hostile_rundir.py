@@ -1029,7 +1029,7 @@ def test_a_run_directory_renamed_or_swapped_for_a_link_while_it_trains_keeps_eve
 
 
 def test_a_run_from_before_manifests_is_read_with_a_note_and_a_missing_one_is_refused(
-    bases, tmp_path
+    bases, tmp_path, capsys
 ):
     run, _ = prepare(bases, "finished", tmp_path)
     (run / layout.MANIFEST_FILE).unlink()
@@ -1039,6 +1039,11 @@ def test_a_run_from_before_manifests_is_read_with_a_note_and_a_missing_one_is_re
     with pytest.warns(UserWarning, match="cannot be verified"):
         (curves,) = runs.load_runs([run])
     assert curves.metrics
+    from jaxcart import plot as plot_command
+
+    assert plot_command.main([str(run), "--dpi", "20"]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "cannot be verified" in line]
+    assert notes and all(line.startswith("note: ") for line in notes)
 
 
 def test_x64_training_is_float64_end_to_end_and_resumes_only_in_x64(tmp_path):
