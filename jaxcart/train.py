@@ -31,14 +31,15 @@ if TYPE_CHECKING:  # the modules that import JAX load in main(), after the optio
 
 def _tuple_of_ints(text: str) -> tuple[int, ...]:
     parts = text.replace(" ", "").split(",")
-    if "" in parts[:-1] or not parts[0]:  # "64,,64" is a mistake, not (64, 64); "64," is fine
-        raise argparse.ArgumentTypeError(f"has an empty element: {text!r}")
     try:
-        return tuple(int(v) for v in parts if v)
+        values = tuple(int(v) for v in parts if v)
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected comma-separated integers like 64,64, got {text!r}"
         ) from None
+    if "" in parts[:-1] or not parts[0]:  # "64,,64" is a mistake, not (64, 64); "64," is fine
+        raise argparse.ArgumentTypeError(f"has an empty element: {text!r}")
+    return values
 
 
 def build_parser() -> argparse.ArgumentParser:
