@@ -7,10 +7,12 @@ from __future__ import annotations
 import argparse
 import decimal
 import difflib
+import functools
 import os
 import re
 import signal
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -40,7 +42,7 @@ def check_not_shadowed() -> None:
 
 check_not_shadowed()  # before the first name taken from the package
 
-from jaxcart import __version__  # noqa: E402
+from jaxcart import __version__, environment  # noqa: E402  (first: JAX reads JAX_* on import)
 from jaxcart.core.config import ConfigError  # noqa: E402
 from jaxcart.engine import devices, signals  # noqa: E402
 from jaxcart.rundir.files import RunDirError  # noqa: E402
@@ -189,6 +191,34 @@ def count(text: str) -> int:
     if value > MAX_COUNT:  # int() of 1e999999999 would take the memory of a billion digits
         raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.3g}, got {text}")
     return int(value)
+
+
+def seed(text: str) -> int:
+    """A seed for ``env.reset``: a whole number in [0, 2**32) (an argparse ``type``)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"must be a whole number in [0, 2**32), got {text}")
+    return value
+
+
+KERNEL_FILESYSTEMS = ("/proc", "/sys", "/dev")
+"""Where no output directory can be: the kernel's own filesystems."""
+
+
+def out_dir(text: str) -> Path:
+    """A directory to write into (an argparse ``type``): not empty (``Path('')`` would be
+    the current directory) and not under the kernel's filesystems."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty; name a directory")
+    resolved = os.path.realpath(text)
+    if any(resolved == k or resolved.startswith(k + "/") for k in KERNEL_FILESYSTEMS):
+        raise argparse.ArgumentTypeError(
+            f"{text} is under {resolved.split('/')[1]!r}, the kernel's own filesystem; choose a directory on disk"
+        )
+    return Path(text)
 
 
 MAX_EPISODES = 100_000
@@ -363,6 +393,7 @@ def command_main(
         try:
             signal.signal(signal.SIGTERM, signals.raise_interrupt)
             devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
+            environment.check_backend()  # JAX_PLATFORMS, XLA_FLAGS: one line, not an abort
             code = main(argv)
         finally:
             for sig in signals.SIGNALS:
@@ -380,12 +411,25 @@ def command_main(
     raise SystemExit(code)
 
 
+def _note_line(shown: Callable, message, category, *args, **kwargs) -> None:
+    """A run that cannot be verified is one ``note:`` line, not a warning with its source."""
+    from jaxcart.rundir.manifest import UnverifiedRunWarning
+
+    if issubclass(category, UnverifiedRunWarning):
+        print(f"note: {message}", file=sys.stderr)
+    else:
+        shown(message, category, *args, **kwargs)
+
+
 def run_command(body: Callable[[], int], also: tuple[type[Exception], ...] = ()) -> int:
     """Runs a command's body; a user's mistake (bad option, bad config, unusable run
     directory, unwritable path, or one of the exception types in ``also``) becomes
     ``error: ...`` on stderr and exit code 2."""
     try:
-        return body()
+        with warnings.catch_warnings():  # restores showwarning afterwards
+            shown = warnings.showwarning
+            warnings.showwarning = functools.partial(_note_line, shown)
+            return body()
     except ParserExit as exc:  # --help, --version
         return int(exc.code or 0)
     except ConfigError as exc:

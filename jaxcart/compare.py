@@ -312,7 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--out",
-        type=Path,
+        type=cli.out_dir,
         default=None,
         metavar="DIR",
         help="directory for compare.json, compare.png and curves.csv "

@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
     parser.add_argument(
         "--gif-seed",
-        type=int,
+        type=cli.seed,
         default=EVAL_SEED,
         help=f"env.reset seed of the GIF's episode (default: {EVAL_SEED}, the first "
         "evaluation episode's)",

@@ -44,7 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--threads", type=cli.count, default=1, help="PyTorch threads per process")
     parser.add_argument(
-        "--out", type=Path, default=None, help="run directory (default: runs/sb3-torch-<time>)"
+        "--out",
+        type=cli.out_dir,
+        default=None,
+        help="run directory (default: runs/sb3-torch-<time>)",
     )
     parser.add_argument(
         "--resume",

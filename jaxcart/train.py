@@ -31,12 +31,16 @@ if TYPE_CHECKING:  # the modules that import JAX load in main(), after the optio
 
 
 def _tuple_of_ints(text: str) -> tuple[int, ...]:
+    parts = text.replace(" ", "").split(",")
     try:
-        return tuple(int(v) for v in text.replace(" ", "").split(",") if v)
+        values = tuple(int(v) for v in parts if v)
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected comma-separated integers like 64,64, got {text!r}"
         ) from None
+    if "" in parts[:-1] or not parts[0]:  # "64,,64" is a mistake, not (64, 64); "64," is fine
+        raise argparse.ArgumentTypeError(f"has an empty element: {text!r}")
+    return values
 
 
 def _float_or_none(text: str) -> float | None:
@@ -98,7 +102,10 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         help="base seed; seed index i uses fold_in(seed, i) (default: 0)",
     )
     run.add_argument(
-        "--out", type=Path, default=None, help="run directory (default: runs/<preset>-<time>)"
+        "--out",
+        type=cli.out_dir,
+        default=None,
+        help="run directory (default: runs/<preset>-<time>)",
     )
     run.add_argument(
         "--sweep",

@@ -128,3 +128,21 @@ def read_swanlog(folder: Path) -> dict[str, dict[str, list[tuple[int, float]]]]:
         assert finished and name is not None, records_file
         experiments[name] = scalars
     return experiments
+
+
+def seal(run_dir: Path) -> None:
+    """Rewrites ``run_dir``'s manifest to list every file it holds as it is now: a run
+    directory crafted by someone who recomputes the digests (:mod:`jaxcart.rundir.manifest`)."""
+    import hashlib
+    import json
+
+    from jaxcart.rundir import layout
+
+    skip = {layout.MANIFEST_FILE, layout.LOCK_FILE, layout.METRICS_STREAM_FILE}
+    listed = {
+        p.name: ["sha256:" + hashlib.sha256(p.read_bytes()).hexdigest()]
+        for p in sorted(Path(run_dir).iterdir())
+        if p.is_file() and not p.is_symlink() and p.name not in skip
+    }
+    manifest = {"format": 1, "files": listed}
+    (Path(run_dir) / layout.MANIFEST_FILE).write_text(json.dumps(manifest))

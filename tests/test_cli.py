@@ -11,7 +11,7 @@ import time
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import assert_same_run_dirs, start_train, tiny_args
+from helpers import assert_same_run_dirs, seal, start_train, tiny_args
 
 import jaxcart
 from jaxcart.core.metrics import METRIC_NAMES
@@ -462,6 +462,7 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
     info.pop("digest")  # a run made so (a hand edit alone is refused for its digest)
     info["digest"] = files.json_digest(info)
     (out / "config.json").write_text(json.dumps(info))
+    seal(out)
     assert main(["--resume", str(out)]) == 2
     err = capsys.readouterr().err
     assert "with N above its current 1,024 env steps per seed; its annealed learning rate" in err

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import tiny_args
+from helpers import seal, tiny_args
 from PIL import Image
 from scipy.stats import trim_mean
 
@@ -206,6 +206,7 @@ def test_bad_inputs_exit_2_with_one_line(runs, tmp_path, capsys):
     corrupted = tmp_path / "corrupted"
     shutil.copytree(a, corrupted)
     (corrupted / "evaluation.json").write_text('{"seeds": [{"solved": true}]}')
+    seal(corrupted)
     cases = [
         ([str(tmp_path / "missing"), *out], "is not a directory"),
         ([str(tmp_path), *out], "not a jaxcart run directory"),

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import FAULT_FIGURES
-from helpers import TRAIN_ENV, assert_same_run_dirs, start_train, tiny_args
+from helpers import TRAIN_ENV, assert_same_run_dirs, seal, start_train, tiny_args
 
 from jaxcart.rundir import layout
 from jaxcart.rundir.checkpoint import read_checkpoint_meta
@@ -218,6 +218,7 @@ def test_bad_resume_directories_rejected(damage, message, finished_run, tmp_path
     shutil.copytree(finished_run, run)
     (run / "evaluation.json").unlink()  # pretend it was interrupted
     damage(run)
+    seal(run)  # crafted, digests and all: the checks behind the manifest refuse it
     FAULT_FIGURES["bad inputs tried"] += 1
     done = _run("--resume", str(run))
     assert done.returncode == 2, done.stdout + done.stderr
@@ -551,6 +552,7 @@ def test_crafted_run_directories_rejected_by_every_reader(damage, message, finis
     run = tmp_path / "crafted"
     shutil.copytree(finished_run, run)
     damage(run)
+    seal(run)  # crafted, digests and all: the checks behind the manifest refuse it
     FAULT_FIGURES["crafted files tried"] += 1
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     with pytest.raises(RunDirError, match=message):
@@ -592,6 +594,7 @@ def test_crafted_checkpoints_rejected_on_resume(damage, message, finished_run, t
     shutil.copytree(finished_run, run)
     (run / "evaluation.json").unlink()
     damage(run)
+    seal(run)  # crafted, digests and all: the checks behind the manifest refuse it
     FAULT_FIGURES["crafted files tried"] += 1
     done = _run("--resume", str(run), "--quiet", timeout=60)
     assert done.returncode == 2 and message in done.stderr, done.stderr
@@ -643,6 +646,7 @@ def test_crafted_outputs_rejected_by_plot_and_compare(damage, message, finished_
     run = tmp_path / "crafted"
     shutil.copytree(finished_run, run)
     damage(run)
+    seal(run)  # crafted, digests and all: the checks behind the manifest refuse it
     for command in (plot.main, compare.main):
         FAULT_FIGURES["crafted files tried"] += 1
         code, err = _capture(lambda c=command: c([str(run), "--out", str(tmp_path / "o.png")]))

@@ -12,6 +12,7 @@ The counts go to the "fault injection" summary at the end of the session.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import io
 import json
 import os
@@ -252,11 +253,31 @@ def logger_opens(backend: type) -> Callable[[Path], None]:
 
 @dataclasses.dataclass(frozen=True)
 class Case:
+    """One way to break a run directory. ``sealed``: its manifest is then rewritten to match
+    (a directory crafted by someone who recomputes the digests), so what is tested is the
+    check behind the manifest; unsealed cases are edited bytes the manifest must catch."""
+
     name: str
     base: str
     mutate: Callable[[Path, Path], None]
     actions: tuple[Callable[[Path], None], ...]
     match: str
+    sealed: bool = True
+    group: str = "crafted files"
+
+
+def reseal(run: Path) -> None:
+    """Rewrites every manifest under ``run`` to list its files' current digests."""
+    for listing in [run / layout.MANIFEST_FILE, *run.glob(f"*/{layout.MANIFEST_FILE}")]:
+        if listing.is_symlink() or not listing.is_file():
+            continue
+        data = json.loads(listing.read_text())
+        for name in data["files"]:
+            path = listing.parent / name
+            if path.is_file() and not path.is_symlink():
+                digest = "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
+                data["files"][name] = [digest]
+        listing.write_text(json.dumps(data))
 
 
 S_LINK = "symbolic link"
@@ -530,6 +551,270 @@ CASES = [
 ]
 
 
+# ---- generated classes: hard links, edited bytes, duplicate entries, values out of range ----
+
+
+def hardlink(name: str) -> Callable[[Path, Path], None]:
+    """``name`` (a file jaxcart changes in place) as a hard link to a file outside."""
+
+    def mutate(run: Path, outside: Path) -> None:
+        (outside / "precious").write_bytes(PRECIOUS * 64)
+        (run / name).unlink(missing_ok=True)
+        os.link(outside / "precious", run / name)
+
+    return mutate
+
+
+def append_byte(name: str) -> Callable[[Path, Path], None]:
+    """One byte more at the end of ``name``: still a valid JSON, CSV or zip, other bytes."""
+    return lambda run, outside: (run / name).write_bytes((run / name).read_bytes() + b" ")
+
+
+def duplicate_entry(name: str) -> Callable[[Path, Path], None]:
+    """``name`` (an archive) with its first array written twice, the second copy zeros: what
+    ``np.load`` would read is not what a header check saw."""
+
+    def mutate(run: Path, outside: Path) -> None:
+        path = run / name
+        with zipfile.ZipFile(path) as zf:
+            first = zf.infolist()[0].filename
+            header = zf.read(first)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # zipfile warns about the duplicate name
+            with zipfile.ZipFile(path, "a") as zf:
+                zf.writestr(first, header[:128] + bytes(len(header) - 128))
+
+    return mutate
+
+
+def metrics_value(column: str, value: str) -> Callable[[Path, Path], None]:
+    def mutate(run: Path, outside: Path) -> None:
+        lines = (run / layout.METRICS_FILE).read_text().splitlines()
+        header = lines[0].split(",")
+        row = lines[1].split(",")
+        row[header.index(column)] = value
+        lines[1] = ",".join(row)
+        (run / layout.METRICS_FILE).write_text("\n".join(lines) + "\n")
+
+    return mutate
+
+
+def seed_entry(**fields: object) -> Callable[[Path, Path], None]:
+    return evaluation(lambda d: d["seeds"][0].update(fields))
+
+
+def stream_nans(run: Path, outside: Path) -> None:
+    path = run / layout.METRICS_STREAM_FILE
+    path.write_bytes(np.full(path.stat().st_size // 4, np.nan, "<f4").tobytes())
+
+
+READS = {  # who reads each file a run keeps in its manifest
+    layout.CONFIG_FILE: READERS,
+    layout.METRICS_FILE: (plot,),
+    layout.EVALUATION_FILE: (compare_scores,),
+    layout.PARAMS_FILE: (load_policy, evaluate_params),
+    layout.CHECKPOINT_FILE: (resume, load_policy),
+}
+EDITED = "not the file the run wrote"
+RANGE = "outside|refusing|does not count|says solved|not the mean|not a list"
+GENERATED = [
+    # files changed in place, as hard links to a file elsewhere
+    *(
+        Case(f"hardlink-{name}-{base}", base, hardlink(name), (resume,), "hard links", group=g)
+        for name, base in (
+            (layout.LOCK_FILE, "interrupted"),
+            (layout.LOCK_FILE, "finished"),
+            (layout.LOCK_FILE, "waved"),
+            (layout.METRICS_STREAM_FILE, "interrupted"),
+        )
+        for g in ("hard links",)
+    ),
+    # edited bytes in every file a manifest lists (nothing recomputed)
+    *(
+        Case(
+            f"edited-{name}-{base}",
+            base,
+            append_byte(name),
+            READS[name],
+            EDITED,
+            False,
+            "edited bytes",
+        )
+        for base, names in (
+            (
+                "finished",
+                (
+                    layout.CONFIG_FILE,
+                    layout.METRICS_FILE,
+                    layout.EVALUATION_FILE,
+                    layout.PARAMS_FILE,
+                ),
+            ),
+            ("interrupted", (layout.CONFIG_FILE, layout.CHECKPOINT_FILE)),
+        )
+        for name in names
+    ),
+    Case(
+        "edited-activation",
+        "finished",
+        config_field(config={**SMALL.to_dict(), "activation": "relu"}),
+        READERS,
+        EDITED,
+        False,
+        "edited bytes",
+    ),
+    Case(
+        "edited-meta-iteration",
+        "interrupted",
+        edit_meta(iteration=0),
+        (resume, load_policy),
+        EDITED,
+        False,
+        "edited bytes",
+    ),
+    Case(
+        "edited-stream-nan",
+        "interrupted",
+        stream_nans,
+        (resume, load_policy),
+        "rows differ",
+        False,
+        "edited bytes",
+    ),
+    Case(
+        "edited-combo-evaluation",
+        "sweep",
+        append_byte(f"combo-000/{layout.EVALUATION_FILE}"),
+        (plot, compare_scores),
+        EDITED,
+        False,
+        "edited bytes",
+    ),
+    # a duplicate entry in every archive
+    *(
+        Case(
+            f"duplicate-{name.replace('/', '-')}",
+            base,
+            mutate,
+            actions,
+            "twice",
+            group="duplicate zip entries",
+        )
+        for name, base, mutate, actions in (
+            (
+                layout.PARAMS_FILE,
+                "finished",
+                duplicate_entry(layout.PARAMS_FILE),
+                (load_policy, evaluate_params),
+            ),
+            (
+                layout.CHECKPOINT_FILE,
+                "interrupted",
+                duplicate_entry(layout.CHECKPOINT_FILE),
+                (resume, load_policy),
+            ),
+            (
+                "waves/wave-00000.npz",
+                "waved",
+                both(unfinish, duplicate_entry("waves/wave-00000.npz")),
+                (resume,),
+            ),
+        )
+    ),
+    # out-of-range values in every numeric field (the manifest recomputed: crafted files)
+    *(
+        Case(
+            f"range-metrics-{column}-{value}",
+            "finished",
+            metrics_value(column, value),
+            (plot,),
+            RANGE,
+            group="values out of range",
+        )
+        for column in (
+            "rollout/ep_rew_mean",
+            "rollout/ep_len_mean",
+            "rollout/ep_rew_max",
+            "train/approx_kl",
+            "train/clip_fraction",
+            "train/entropy_loss",
+            "train/policy_gradient_loss",
+            "train/value_loss",
+            "train/loss",
+            "train/explained_variance",
+            "train/learning_rate",
+            "time/fps",
+            "time/elapsed",
+        )
+        for value in ("1e308", "inf", "-1e300")
+    ),
+    Case(
+        "range-clip-fraction-7",
+        "finished",
+        metrics_value("train/clip_fraction", "7"),
+        (plot,),
+        RANGE,
+        group="values out of range",
+    ),
+    *(
+        Case(
+            f"range-evaluation-{name}",
+            "finished",
+            mutate,
+            (plot, compare_scores),
+            RANGE,
+            group="values out of range",
+        )
+        for name, mutate in (
+            ("mean-1e300", seed_entry(gymnasium_mean=1e300)),
+            ("mean-minus-7", seed_entry(gymnasium_mean=-7.0)),
+            ("returns-1e300", seed_entry(gymnasium_returns=[1e300, 1e300], gymnasium_mean=1e300)),
+            ("returns-minus-7", seed_entry(gymnasium_returns=[-7.0, -7.0], gymnasium_mean=-7.0)),
+            ("returns-count", seed_entry(gymnasium_returns=[500.0])),
+            (
+                "solved-377",
+                seed_entry(
+                    gymnasium_returns=[377.0, 377.0],
+                    gymnasium_mean=377.0,
+                    gymnasium_min=377.0,
+                    solved=True,
+                ),
+            ),
+            ("min-not-least", seed_entry(gymnasium_min=-1.0)),
+            (
+                "mean-not-mean",
+                seed_entry(
+                    gymnasium_returns=[10.0, 20.0],
+                    gymnasium_min=10.0,
+                    gymnasium_mean=11.0,
+                    solved=False,
+                ),
+            ),
+            ("jaxcart-returns-9999", seed_entry(jaxcart_returns=[9999.0, 1.0])),
+            ("final-ep-rew-1e300", seed_entry(final_ep_rew_mean=1e300)),
+            ("solved-seeds", evaluation(lambda d: d.update(solved_seeds=99))),
+        )
+    ),
+    Case(
+        "range-meta-chunk-huge",
+        "interrupted",
+        edit_meta(chunk_size=1 << 30),
+        (resume, load_policy),
+        CORRUPT,
+        group="values out of range",
+    ),
+    Case(
+        "range-meta-elapsed-1e308",
+        "interrupted",
+        edit_meta(elapsed=1e308),
+        (resume, load_policy),
+        CORRUPT,
+        group="values out of range",
+    ),
+]
+CASES += GENERATED
+
+
 def snapshot(root: Path) -> dict[str, tuple[bytes, int]]:
     """Every file under ``root``: its bytes and mtime."""
     return {
@@ -555,6 +840,8 @@ def prepare(bases: dict[str, Path], base: str, tmp_path: Path) -> tuple[Path, Pa
 def test_a_crafted_run_directory_is_refused_in_one_line(case, bases, tmp_path):
     run, outside = prepare(bases, case.base, tmp_path)
     case.mutate(run, outside)
+    if case.sealed:
+        reseal(run)
     before = snapshot(outside)
     for action in case.actions:
         with pytest.raises((RunDirError, ConfigError), match=case.match) as info:
@@ -564,6 +851,7 @@ def test_a_crafted_run_directory_is_refused_in_one_line(case, bases, tmp_path):
     assert snapshot(outside) == before  # nothing outside was written through a link
     assert not (outside / "missing").exists()  # a dangling link created nothing
     FAULT_FIGURES["hostile run directories: crafted cases"] += 1
+    FAULT_FIGURES[f"hostile run directories: {case.group}, cases refused"] += 1
 
 
 CLI_CASES = [c for c in CASES if resume in c.actions and c.base != "waved"][:12]
@@ -573,6 +861,8 @@ CLI_CASES = [c for c in CASES if resume in c.actions and c.base != "waved"][:12]
 def test_the_command_line_says_one_line_and_exits_2(case, bases, tmp_path, capsys):
     run, outside = prepare(bases, case.base, tmp_path)
     case.mutate(run, outside)
+    if case.sealed:
+        reseal(run)
     assert train.main(["--resume", str(run), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: cannot resume:") and "\n" not in err and "Traceback" not in err
@@ -582,6 +872,7 @@ def test_the_command_line_says_one_line_and_exits_2(case, bases, tmp_path, capsy
 def test_a_device_change_is_allowed_when_asked_and_recorded(bases, tmp_path):
     run, outside = prepare(bases, "interrupted", tmp_path)
     config_field(device_count=1)(run, outside)
+    reseal(run)
     outcome = lifecycle.resume_run(run, OPTIONS, allow_device_change=True)
     assert not outcome.stopped
     info = json.loads((run / layout.CONFIG_FILE).read_text())
@@ -713,3 +1004,109 @@ def test_an_xla_device_count_of_zero_is_one_line(tmp_path):
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
         assert "device count in [1," in proc.stderr
     FAULT_FIGURES["hostile run directories: bad options and variables"] += 2
+
+
+def test_a_run_directory_renamed_or_swapped_for_a_link_while_it_trains_keeps_every_write(
+    tmp_path,
+):
+    """The path of a training run is renamed and a link to another directory put in its
+    place: what the run writes next lands in the run's own directory (opened once), never in
+    the link's target."""
+    run = lifecycle.create_run(RunSpec(SMALL, num_seeds=1), tmp_path / "run")
+    try:
+        (tmp_path / "run").rename(tmp_path / "moved")
+        (tmp_path / "elsewhere").mkdir()
+        os.symlink(tmp_path / "elsewhere", tmp_path / "run")
+        state = lifecycle.wave_start_state(run, range(0, 1), 0, 1, None, None)
+        lifecycle.save_state(run, state)
+        run.directory.write_ranking({"x": 1})
+    finally:
+        run.close()
+    assert list((tmp_path / "elsewhere").iterdir()) == []
+    written = {p.name for p in (tmp_path / "moved").iterdir()}
+    assert {layout.CHECKPOINT_FILE, layout.SWEEP_FILE, layout.MANIFEST_FILE} <= written
+    FAULT_FIGURES["hostile run directories: directory renames during writes"] += 1
+
+
+def test_a_run_from_before_manifests_is_read_with_a_note_and_a_missing_one_is_refused(
+    bases, tmp_path, capsys
+):
+    run, _ = prepare(bases, "finished", tmp_path)
+    (run / layout.MANIFEST_FILE).unlink()
+    with pytest.raises(RunDirError, match=r"manifest\.json is missing"):
+        runs.load_runs([run])
+    edit_json(run / layout.CONFIG_FILE, lambda d: d.pop("manifest"))  # an older run
+    with pytest.warns(UserWarning, match="cannot be verified"):
+        (curves,) = runs.load_runs([run])
+    assert curves.metrics
+    from jaxcart import plot as plot_command
+
+    assert plot_command.main([str(run), "--dpi", "20"]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "cannot be verified" in line]
+    assert notes and all(line.startswith("note: ") for line in notes)
+
+
+def test_x64_training_is_float64_end_to_end_and_resumes_only_in_x64(tmp_path):
+    args = [*"--num-envs 4 --num-steps 32 --total-timesteps 512 --eval-episodes 2".split()]
+    env = {**TRAIN_ENV, "JAX_ENABLE_X64": "1"}
+    out = tmp_path / "x64"
+    command = [sys.executable, "-m", "jaxcart.train", *args, "--quiet", "--out", str(out)]
+    proc = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((out / layout.CONFIG_FILE).read_text())["x64"] is True
+    with np.load(out / layout.PARAMS_FILE) as params:
+        assert {params[k].dtype for k in params.files} == {np.dtype(np.float64)}
+    with np.load(out / layout.CHECKPOINT_FILE) as state:
+        floats = {state[k].dtype for k in state.files if k.startswith("state/runners/params/")}
+        assert floats == {np.dtype(np.float64)}
+    assert policy.load_policy(out)(np.zeros(4, np.float32)) in (0, 1)
+    with pytest.raises(RunDirError, match="trained in float64"):
+        lifecycle.resume_run(out, OPTIONS, total_timesteps=1024)
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [
+        ("JAX_PLATFORMS", "junk"),
+        ("JAX_PLATFORMS", "tpu"),
+        ("JAX_DEFAULT_MATMUL_PRECISION", "junk"),
+        ("JAX_ENABLE_X64", "junk"),
+        ("XLA_FLAGS", "junk"),
+        ("XLA_FLAGS", "--xla_force_host_platform_device_count=2 --xla_no_such_flag=1"),
+    ],
+)
+def test_an_environment_variable_jax_cannot_use_is_one_line_and_leaves_no_run(
+    name, value, tmp_path
+):
+    out = tmp_path / "r"
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxcart.train", "--num-envs", "4", "--out", str(out)],
+        env={**TRAIN_ENV, name: value},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and "\n" not in err and "Traceback" not in err, err
+    assert err.startswith("error:") and (name in err or name.lower() in err)
+    assert not out.exists()
+    FAULT_FIGURES["hostile run directories: bad options and variables"] += 1
+
+
+@pytest.mark.parametrize(
+    ("module", "argv", "match"),
+    [
+        ("train", ["--hidden-sizes", "64,,64", "--dry-run"], "empty element"),
+        ("train", ["--out", "", "--dry-run"], "--out: is empty"),
+        ("train", ["--out", "/proc/x", "--dry-run"], "kernel"),
+        ("compare", ["--out", "/proc/x"], "kernel"),
+        ("evaluate", ["--gif-seed", "-1"], "--gif-seed"),
+    ],
+)
+def test_option_values_outside_sense_are_one_line(module, argv, match, bases, capsys):
+    main = __import__(f"jaxcart.{module}", fromlist=["main"]).main
+    run = [] if module == "train" else [str(bases["finished"])]
+    assert main([*run, *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert match in err and "\n" not in err
+    FAULT_FIGURES["hostile run directories: bad options and variables"] += 1

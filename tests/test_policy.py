@@ -13,7 +13,7 @@ import zipfile
 
 import numpy as np
 import pytest
-from helpers import TINY
+from helpers import TINY, seal
 
 import jaxcart
 from jaxcart import evaluate, plot
@@ -138,6 +138,7 @@ def test_finished_sweep_combination_is_its_directory(runs, tmp_path):
     info.update(sweep=SWEEP, combinations=[{"learning_rate": v} for v in SWEEP["learning_rate"]])
     (sweep / "config.json").write_text(json.dumps(info))
     (sweep / "sweep.json").write_text("{}")
+    seal(sweep)
     with pytest.raises(RunDirError, match="is a sweep"):
         jaxcart.load_policy(sweep)
     policy = jaxcart.load_policy(sweep, seed_index=1, combination=1)
@@ -212,6 +213,7 @@ def test_plot_of_a_run_stopped_before_its_first_iteration(runs, tmp_path, capsys
     shutil.copytree(runs["stopped"], run)
     arrays, meta = files.load_tree(run / CHECKPOINT_FILE)
     files.save_tree(run / CHECKPOINT_FILE, arrays, {**meta, "iteration": 0})
+    seal(run)
     assert plot.main([str(run)]) == 2
     assert "iteration 0/8" in capsys.readouterr().err
     with pytest.warns(UserWarning, match="iteration 0/8"):
@@ -304,6 +306,7 @@ def test_crafted_checkpoints_refused_by_every_reader(damage, message, runs, tmp_
     run = tmp_path / "crafted"
     shutil.copytree(runs["stopped"], run)
     damage(run)
+    seal(run)  # crafted, digests and all: the checks behind the manifest refuse it
     with pytest.raises(RunDirError, match=message):
         jaxcart.load_policy(run)
     for command in (evaluate.main, plot.main):

@@ -174,7 +174,13 @@ def test_an_interrupted_run_keeps_its_finished_seeds_and_resumes(
     whole = tmp_path / "whole"
     assert sb3_command.main([*argv, "--out", str(whole)]) == 0
     assert sorted(p.name for p in whole.iterdir()) == sorted(
-        [layout.CONFIG_FILE, layout.METRICS_FILE, layout.PARAMS_FILE, layout.EVALUATION_FILE]
+        [
+            layout.CONFIG_FILE,
+            layout.METRICS_FILE,
+            layout.PARAMS_FILE,
+            layout.EVALUATION_FILE,
+            layout.MANIFEST_FILE,
+        ]
     )
 
     trained = []

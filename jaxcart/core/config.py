@@ -43,6 +43,12 @@ def traced(default: float) -> Any:
     return field(default=default, metadata={"traced": True})
 
 
+def float_dtype() -> np.dtype:
+    """The float type training runs in: float32, or float64 when JAX runs with x64 enabled
+    (``JAX_ENABLE_X64=1``), so that the env state, the network and the update all follow."""
+    return np.dtype(np.float64 if jax.config.jax_enable_x64 else np.float32)
+
+
 @dataclass(frozen=True)
 class PPOConfig:
     """Hyperparameters of PPO on CartPole-v1. Defaults are Stable-Baselines3's.
@@ -137,17 +143,18 @@ class PPOConfig:
         return self.num_iterations * self.batch_size
 
     def per_run(self, num_runs: int) -> PPOConfig:
-        """This config with every traced field as float32 ``[num_runs]``: a scalar repeated for
-        every run, an array of one value per run kept (the form the compiled program takes).
+        """This config with every traced field as :func:`float_dtype` ``[num_runs]`` (float32;
+        float64 under ``JAX_ENABLE_X64``): a scalar repeated for every run, an array of one
+        value per run kept (the form the compiled program takes).
 
         Raises:
             ConfigError: a traced field holds an array of another length.
         """
-        values = {}
+        values, dtype = {}, float_dtype()
         for name in TRACED_FIELDS:
-            value = np.asarray(getattr(self, name), np.float32)
+            value = np.asarray(getattr(self, name), dtype)
             if value.ndim == 0:
-                value = np.full((num_runs,), value, np.float32)
+                value = np.full((num_runs,), value, dtype)
             elif value.shape != (num_runs,):
                 raise ConfigError(
                     f"{name} holds {value.shape[0]} values, one per run; expected {num_runs}",

@@ -226,7 +226,11 @@ def train_chunk(
         return runs_iteration(runners, config, iteration, env_params)
 
     def skip(runners: RunnerState, iteration: Array):
-        return runners, {name: jnp.full((num_runs,), jnp.nan, jnp.float32) for name in METRIC_NAMES}
+        # NaN metrics of the dtypes an iteration produces (float32, or float64 under x64)
+        shapes = jax.eval_shape(run, runners, iteration)[1]
+        return runners, {
+            name: jnp.full((num_runs,), jnp.nan, shapes[name].dtype) for name in METRIC_NAMES
+        }
 
     def body(runners: RunnerState, offset: Array):
         iteration = start_iteration + offset

@@ -95,7 +95,7 @@ def init_runners(
             on_progress(i, len(keys))
         rng = np.random.default_rng([int(k) for k in key])
         if on_host:
-            params.append(network.host_init(rng, obs_dim))
+            params.append(network.host_init(rng, obs_dim, dtype))  # float64 under x64, as the env
         else:
             init_seeds.append(rng.integers(0, 2**31))
         shape = (config.num_envs, obs_dim)

@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed
 from jaxcart.engine.loop import (
@@ -37,6 +37,7 @@ from jaxcart.engine.loop import (
     Progress,
     TrainResult,
     TrainState,
+    default_chunk_size,
     initial_state,
     train,
 )
@@ -90,6 +91,7 @@ def create_run(
         "backend": jax.default_backend(),
         "device_count": jax.device_count(),
         "wave_size": plan.wave_size,
+        **({reader.X64_KEY: True} if float_dtype() == np.float64 else {}),
         **(extra or {}),
     }
     return Run(RunDir.create(out, info, spec.config, main_process), spec, info, plan)
@@ -153,11 +155,22 @@ def _device_change(out: Path, info: dict, allowed: bool) -> bool:
     return True
 
 
+def _check_precision(out: Path, info: dict) -> None:
+    """Refuses to continue a float64 (x64) run in float32, or the other way round."""
+    trained, now = reader.params_dtype(info), float_dtype()
+    if trained != now:
+        setting = "JAX_ENABLE_X64=1" if trained == np.float64 else "JAX_ENABLE_X64 unset"
+        raise RunDirError(
+            f"{out} trained in {trained}, this process runs {now}; resume it with {setting}"
+        )
+
+
 def _resumable(directory: RunDir, info: dict) -> Run:
     """The run a directory's ``info`` (its config.json) and checkpoint describe, at the wave
     and iteration it continues from."""
     meta = directory.read_checkpoint_meta()
     check_versions(directory.path, (meta or info).get("versions", {}))
+    _check_precision(directory.path, info)
     config = info.pop("config")
     if meta and meta["iteration"] >= config.num_iterations and directory.finished():
         raise RunFinished(
@@ -434,6 +447,14 @@ def wave_start_state(
         # a one-run template names the arrays; the file has them all
         template = initial_state(run.config, 1, run.spec.seed, chunk_size=chunk_size)
         saved = run.directory.load_checkpoint(template, num_runs=len(runs))
+        # a chunk runs at most the run's iterations (or the default chunk): a larger one from
+        # a crafted checkpoint would build [chunk_size, R] metrics in the compiled call
+        most = max(run.config.num_iterations, default_chunk_size(run.config.num_iterations, 1))
+        if saved.chunk_size > most:
+            raise RunDirError(
+                f"{run.directory.checkpoint_path} is corrupted: chunk_size {saved.chunk_size} "
+                f"is more than the {most} iterations a chunk of this run can run"
+            )
         run.directory.open_metrics(len(runs), saved.iteration)  # rows after it are cut
         return dataclasses.replace(saved, chunk_seconds=adapt)
     configs = jax.tree.map(lambda x: x[runs.start : runs.stop], run_configs(run))

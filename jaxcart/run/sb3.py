@@ -35,7 +35,7 @@ from jaxcart.core.config import PPOConfig
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_DEFINITION, is_solved
 from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run.loggers import make_logger, sb3_extras
-from jaxcart.rundir import files, layout, outputs
+from jaxcart.rundir import files, layout, manifest, outputs
 from jaxcart.rundir.directory import package_versions
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import bounded_int, finite_number, params_headers, read_json
@@ -197,23 +197,19 @@ def write_run(
     metrics = {
         k: np.stack([r.metrics[k][:iterations] for r in results], axis=1) for k in METRIC_COLUMNS
     }
-    files.write_json(
-        out / layout.CONFIG_FILE,
-        {
-            "format_version": layout.FORMAT_VERSION,
-            "preset": "sb3",
-            "framework": FRAMEWORK,
-            "num_seeds": num_seeds,
-            "seed": first_seed,
-            "jobs": jobs,
-            "wall_seconds": wall_seconds,
-            "config": config.to_dict(),
-            "versions": package_versions(),
-        },
-    )
-    outputs.write_metrics_csv(out / layout.METRICS_FILE, metrics, config.batch_size)
-    stacked = _stack([r.params for r in results])
-    files.save_tree(out / layout.PARAMS_FILE, files.flatten(stacked))
+    info = {
+        "format_version": layout.FORMAT_VERSION,
+        "preset": "sb3",
+        "framework": FRAMEWORK,
+        "num_seeds": num_seeds,
+        "seed": first_seed,
+        "jobs": jobs,
+        "wall_seconds": wall_seconds,
+        "config": config.to_dict(),
+        "versions": package_versions(),
+        manifest.FLAG: True,
+    }
+    stacked = files.flatten(_stack([r.params for r in results]))
     returns = np.stack([r.returns for r in results])
     solved = is_solved(returns)
     episodes = returns.shape[1]
@@ -229,15 +225,24 @@ def write_run(
         }
         for s in range(num_seeds)
     ]
-    files.write_json(
-        out / layout.EVALUATION_FILE,
-        {
-            "episodes": episodes,
-            "solved_definition": SOLVED_DEFINITION.format(episodes=episodes),
-            "seeds": seeds,
-            "solved_seeds": int(solved.sum()),
-        },
-    )
+    evaluation = {
+        "episodes": episodes,
+        "solved_definition": SOLVED_DEFINITION.format(episodes=episodes),
+        "seeds": seeds,
+        "solved_seeds": int(solved.sum()),
+    }
+    directory = files.Dir.open(out)  # every file through it, and recorded in its manifest
+    try:
+        listing = manifest.Manifest(directory)
+        listing.write(layout.CONFIG_FILE, lambda e, d: files.write_json(e, info, d))
+        listing.write(
+            layout.METRICS_FILE,
+            lambda e, d: outputs.write_metrics_csv(e, metrics, config.batch_size, d),
+        )
+        listing.write(layout.PARAMS_FILE, lambda e, d: files.save_tree(e, stacked, None, d))
+        listing.write(layout.EVALUATION_FILE, lambda e, d: files.write_json(e, evaluation, d))
+    finally:
+        directory.close()
 
 
 def log_run(

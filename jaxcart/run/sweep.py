@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jaxcart.analysis import stats, summary
-from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
+from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
 
 
 @dataclass(frozen=True)
@@ -116,12 +116,13 @@ def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
 
 
 def grid_config(config: PPOConfig, grid: RunGrid) -> PPOConfig:
-    """The config of every run in ``grid`` order, its traced fields float32 ``[num_runs]``:
+    """The config of every run in ``grid`` order, its traced fields ``[num_runs]`` (float32, or
+    float64 under x64):
     each combination's values (``config``'s own where it sweeps nothing), once per seed."""
     leaves = {}
     for name in TRACED_FIELDS:
         base = getattr(config, name)
-        per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], np.float32)
+        per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], float_dtype())
         leaves[name] = np.repeat(per_combo, grid.num_seeds)
     return dataclasses.replace(config, **leaves)
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,18 +24,19 @@ import numpy as np
 
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
-from jaxcart.rundir import files, layout
+from jaxcart.rundir import files, layout, manifest
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_STATE
 from jaxcart.rundir.reader import (
     MAX_RUNS,
     bounded_int,
     finite_number,
+    params_dtype,
     params_headers,
     read_run_config,
     recorded_combinations,
 )
-from jaxcart.rundir.stream import read_stream
+from jaxcart.rundir.stream import STREAM_DIGEST_KEY, read_stream
 
 
 def state_arrays(state: TrainState) -> dict[str, np.ndarray]:
@@ -44,7 +46,12 @@ def state_arrays(state: TrainState) -> dict[str, np.ndarray]:
     return {CHECKPOINT_STATE + name: a for name, a in files.flatten(tree).items()}
 
 
-def save_checkpoint(path: str | os.PathLike, state: TrainState, meta: dict) -> None:
+def save_checkpoint(
+    path: files.Target,
+    state: TrainState,
+    meta: dict,
+    on_digest: Callable[[str], None] | None = None,
+) -> None:
     """Writes ``state``'s arrays and ``meta`` (JSON-able) to ``path``; the metrics so far
     are the stream's (made durable before this is called)."""
     meta = {
@@ -55,8 +62,19 @@ def save_checkpoint(path: str | os.PathLike, state: TrainState, meta: dict) -> N
         "chunk_size": state.chunk_size,
         "metrics_columns": list(METRIC_COLUMNS),
     }
-    files.save_tree(path, state_arrays(state), meta)
-    files.fsync_directory(Path(path).parent)
+    files.save_tree(path, state_arrays(state), meta, on_digest)
+    if isinstance(path, files.Entry):
+        path.dir.fsync()
+    else:
+        files.fsync_directory(Path(path).parent)
+
+
+MAX_ELAPSED = 1e10
+"""Seconds of training a checkpoint may declare (three centuries)."""
+MAX_CHUNK = 1 << 20
+"""The most iterations a checkpoint's chunk may declare: the compiled chunk scans an int32
+iteration counter and builds ``[chunk_size, R]`` metrics, so a larger one could overflow or
+exhaust memory in the compiled call (the trainer also caps it at the run's iterations)."""
 
 
 def read_checkpoint_meta(path: str | os.PathLike) -> dict:
@@ -70,8 +88,8 @@ def read_checkpoint_meta(path: str | os.PathLike) -> dict:
         )
     checks = {
         "iteration": bounded_int(meta.get("iteration"), 0, 1 << 40),
-        "chunk_size": bounded_int(meta.get("chunk_size"), 1, 1 << 40),
-        "elapsed": finite_number(meta.get("elapsed")) and meta.get("elapsed") >= 0,
+        "chunk_size": bounded_int(meta.get("chunk_size"), 1, MAX_CHUNK),
+        "elapsed": finite_number(meta.get("elapsed")) and 0 <= meta.get("elapsed") < MAX_ELAPSED,
         "wave": bounded_int(meta.get("wave", 0), 0, MAX_RUNS),
         "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
         "versions": isinstance(meta.get("versions", {}), dict)
@@ -173,6 +191,7 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
     if files.refuse_link(run_dir / layout.CHECKPOINT_FILE) is None:
         raise RunDirError(f"{run_dir} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}")
     path = files.inside(run_dir, layout.CHECKPOINT_FILE)
+    manifest.verify(run_dir, layout.CHECKPOINT_FILE, info)
     meta = read_checkpoint_meta(path)
     runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
     iteration = meta.get("iteration")
@@ -183,17 +202,18 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
     ):
         raise RunDirError(f"{path} does not belong to this run's config.json")
     params_prefix = layout.CHECKPOINT_PARAMS
-    expected = {
-        params_prefix + name: header for name, header in params_headers(config, runs).items()
-    }
-    limit = _checkpoint_bytes(config, runs)
+    headers = params_headers(config, runs, params_dtype(info))
+    expected = {params_prefix + name: header for name, header in headers.items()}
+    limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64
     found = files.read_headers(path, max_bytes=limit)
     if any(found.get(name) != header for name, header in expected.items()):
         raise RunDirError(f"{path} does not hold this run's network")
     arrays, _ = files.load_tree(path, max_bytes=limit)
     params = {name[len(params_prefix) :]: arrays[name] for name in expected}
     files.check_finite(params, path)
-    streamed = read_stream(run_dir / layout.METRICS_STREAM_FILE, METRIC_COLUMNS, runs, iteration)
+    stream_path = run_dir / layout.METRICS_STREAM_FILE
+    digest = meta.get(STREAM_DIGEST_KEY)
+    streamed = read_stream(stream_path, METRIC_COLUMNS, runs, iteration, digest)
     metrics = {name: a.astype(float) for name, a in streamed.items()}
     return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
 

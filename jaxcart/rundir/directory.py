@@ -11,16 +11,19 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+import stat
 from importlib import metadata
 from pathlib import Path
 
-from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.lock import RunLock
-from jaxcart.rundir.stream import MetricsStream, NoStream
+from jaxcart.rundir.manifest import FLAG as MANIFEST_FLAG
+from jaxcart.rundir.manifest import Manifest, NoManifest
+from jaxcart.rundir.stream import STREAM_DIGEST_KEY, MetricsStream, NoStream
 
 VERSIONED_PACKAGES = ("jaxcart", "jax", "jaxlib", "flax", "optax", "distrax", "gymnasium", "numpy")
 """The packages that determine a run's numbers, recorded in config.json and checkpoints."""
@@ -58,18 +61,20 @@ def check_versions(run_dir: str | os.PathLike, saved: dict) -> None:
 
 
 def _leftover(path: Path) -> bool:
-    """Left by a start that failed before writing anything: a temporary or the lock."""
-    return layout.is_temporary(path) or path.name == layout.LOCK_FILE
+    """Left by a start that failed before writing its ``config.json``: a temporary, the lock
+    or the manifest that was to list it."""
+    return layout.is_temporary(path) or path.name in (layout.LOCK_FILE, layout.MANIFEST_FILE)
 
 
-def prepare_out_dir(out: Path) -> Path:
-    """Creates ``out``; refuses a non-empty or unwritable one with a clear message. A
-    directory holding only what a failed start leaves (its ``.lock``, temporaries) is taken
-    over (:meth:`RunDir.create` then takes its lock, so a live start is never taken over)."""
+def prepare_out_dir(out: Path) -> files.Dir:
+    """Creates ``out`` and opens it (never through a link); refuses a non-empty or
+    unwritable one with a clear message. A directory holding only what a failed start
+    leaves (its ``.lock``, temporaries) is taken over (:meth:`RunDir.create` then takes its
+    lock, so a live start is never taken over)."""
+    if str(out) == "":
+        raise ConfigError("--out is empty; name a directory for the run")
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory; choose another path")
-    if out.is_dir():
-        files.refuse_link(out / layout.LOCK_FILE)
     if out.is_dir() and any(not _leftover(p) for p in out.iterdir()):
         raise ConfigError(
             f"--out {out} is not empty; choose a new directory so no earlier run is "
@@ -78,34 +83,59 @@ def prepare_out_dir(out: Path) -> Path:
         )
     try:
         out.mkdir(parents=True, exist_ok=True)
-        probe = out / layout.WRITE_PROBE
-        files.refuse_link(probe)
-        probe.write_text("")
-        probe.unlink()
+        directory = files.Dir.open(out)
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
-    return out
+    try:  # the probe is created through the directory's descriptor: never through a link
+        fd = os.open(
+            layout.WRITE_PROBE,
+            os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW,
+            0o600,
+            dir_fd=directory.fd,
+        )
+        os.close(fd)
+        directory.unlink(layout.WRITE_PROBE)
+    except OSError as exc:
+        directory.close()
+        raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
+    return directory
 
 
-def _remove_failed_start(out: Path, created: bool) -> None:
-    """Removes what a start that failed before its ``config.json`` left: the lock, and the
-    directory when this start created it (a rerun then starts afresh)."""
+def _remove_failed_start(directory: files.Dir, created: bool) -> None:
+    """Removes what a start that failed before its ``config.json`` left: the lock and the
+    manifest, and the directory when this start created it (a rerun then starts afresh)."""
     with contextlib.suppress(OSError):
-        if not (out / layout.CONFIG_FILE).exists():
-            (out / layout.LOCK_FILE).unlink(missing_ok=True)
+        if directory.lstat(layout.CONFIG_FILE) is None:
+            directory.unlink(layout.MANIFEST_FILE)
+            directory.unlink(layout.LOCK_FILE)
             if created:
-                out.rmdir()
+                directory.path.rmdir()
 
 
 class RunDir:
     """One run directory, locked by the main process from :meth:`create`/:meth:`open` to
-    :meth:`close`. Only the main process writes; the others hold no lock."""
+    :meth:`close`. Only the main process writes; the others hold no lock.
+
+    The main process opens the directory once (:class:`~jaxcart.rundir.files.Dir`) and
+    opens, creates, renames and removes every file through that descriptor: renaming the
+    directory or a component of its path while the run writes changes nothing it writes.
+    """
 
     def __init__(self, path: str | os.PathLike, main_process: bool = True) -> None:
         self.path, self.main_process = Path(path), main_process
+        self.dir: files.Dir | None = None
         self.lock = RunLock(self.path)
+        self.manifest: Manifest | NoManifest = NoManifest()
         self.checkpoint_meta: dict | None = None  # of the checkpoint on disk, when there is one
         self.stream: MetricsStream | NoStream = NoStream()  # the metrics of the wave training
+        self._waves: files.Dir | None = None
+
+    def _take(self, directory: files.Dir, verified: bool) -> None:
+        self.dir = directory
+        self.lock = RunLock(directory)
+        self.lock.acquire()
+        # a run from before manifests keeps none: it stays a run that cannot be verified
+        self.manifest = Manifest(directory) if verified else NoManifest(directory)
 
     @classmethod
     def create(
@@ -116,12 +146,16 @@ class RunDir:
         directory = cls(path, main_process)
         if main_process:
             created = not directory.path.exists()
-            prepare_out_dir(directory.path)
-            directory.lock.acquire()
+            opened = prepare_out_dir(directory.path)
+            try:
+                directory._take(opened, verified=True)
+            except BaseException:
+                opened.close()
+                raise
             try:
                 directory.write_config(info, config)
             except BaseException:
-                _remove_failed_start(directory.path, created)  # while holding the lock
+                _remove_failed_start(opened, created)  # while holding the lock
                 directory.close()
                 raise
         return directory
@@ -132,31 +166,57 @@ class RunDir:
         may be writing it); :class:`RunInUse` when another process holds it."""
         directory = cls(path, main_process)
         if main_process:
-            directory.lock.acquire()
+            opened = files.Dir.open(directory.path)
+            try:
+                directory._take(opened, opened.lstat(layout.MANIFEST_FILE) is not None)
+            except BaseException:
+                opened.close()
+                raise
         return directory
+
+    def _present(self, name: str, directory: files.Dir | None = None) -> bool:
+        """Whether ``name`` exists (a link is refused, never followed)."""
+        directory = directory or self.dir
+        st = directory.lstat(name) if directory is not None else None
+        if st is not None and stat.S_ISLNK(st.st_mode):
+            raise RunDirError(f"{directory.path / name} is {files.LINK_REASON}")
+        return st is not None
+
+    def _verified(self, name: str) -> files.Entry:
+        """``name`` checked against the manifest (a run from before manifests: unchecked)."""
+        self.manifest.verify(name)
+        return self.dir / name
 
     def read_checkpoint_meta(self) -> dict | None:
         """:attr:`checkpoint_meta` read from the checkpoint on disk; None when there is none
         (stopped while starting up: nothing was trained)."""
-        path = self.checkpoint_path
-        self.checkpoint_meta = read_checkpoint_meta(path) if layout.present(path) else None
+        if not self._present(layout.CHECKPOINT_FILE):
+            self.checkpoint_meta = None
+        else:
+            self.checkpoint_meta = read_checkpoint_meta(self._verified(layout.CHECKPOINT_FILE))
         return self.checkpoint_meta
 
     def close(self) -> None:
         """Releases the run directory for other processes."""
         self.stream.close()
         self.lock.release()
+        for opened in (self._waves, self.dir):
+            if opened is not None:
+                opened.close()
 
-    def write_config(self, info: dict, config: PPOConfig, directory: Path | None = None) -> None:
+    def write_config(self, info: dict, config: PPOConfig, manifest: Manifest | None = None) -> None:
         """``config.json``: ``info`` with ``config`` as a dict (in a combination's
-        ``directory`` when given); a sweep's combinations are left to the reader to derive
+        directory, through its ``manifest``, when given); a sweep's combinations are left to the reader to derive
         from its ``sweep`` (:func:`~jaxcart.rundir.reader.sweep_combinations`)."""
-        path = (directory or self.path) / layout.CONFIG_FILE
         data = {k: v for k, v in info.items() if k != layout.DIGEST_KEY}
         if data.get("sweep"):  # the reader derives them: a million would be 70 MB of JSON
             data.pop("combinations", None)
         data["config"] = config.to_dict()
-        files.write_json(path, {**data, layout.DIGEST_KEY: files.json_digest(data)})
+        manifest = manifest or self.manifest
+        if isinstance(manifest, Manifest):
+            data[MANIFEST_FLAG] = True
+        body = {**data, layout.DIGEST_KEY: files.json_digest(data)}
+        manifest.write(layout.CONFIG_FILE, lambda entry, d: files.write_json(entry, body, d))
 
     @property
     def checkpoint_path(self) -> Path:
@@ -164,62 +224,83 @@ class RunDir:
 
     def save_checkpoint(self, state: TrainState, meta: dict) -> None:
         """Writes a (gathered) training state and its ``meta`` over the last checkpoint,
-        once the metrics stream holds (durably) as many rows as the state has iterations."""
-        self.stream.sync(state.iteration)
-        checkpoint.save_checkpoint(self.checkpoint_path, state, meta)
+        once the metrics stream holds (durably) as many rows as the state has iterations;
+        the checkpoint records the stream's digest, the manifest the checkpoint's."""
+        digest = self.stream.sync(state.iteration)
+        if digest is not None:
+            meta = {**meta, STREAM_DIGEST_KEY: digest}
+        self.manifest.write(
+            layout.CHECKPOINT_FILE,
+            lambda entry, d: checkpoint.save_checkpoint(entry, state, meta, d),
+        )
         self.checkpoint_meta = {**meta, "iteration": state.iteration}
 
     def open_metrics(self, runs: int, rows: int) -> None:
         """:attr:`stream` for the wave about to train (``runs`` runs) cut to ``rows`` rows
-        (the checkpoint's iterations; 0: a new wave). Only the main process keeps one."""
+        (the checkpoint's iterations; 0: a new wave), which must match the digest the
+        checkpoint recorded. Only the main process keeps one."""
         self.stream.close()
         if self.main_process:
-            path = self.path / layout.METRICS_STREAM_FILE
-            self.stream = MetricsStream(path, METRIC_COLUMNS, runs, rows)
+            expected = (self.checkpoint_meta or {}).get(STREAM_DIGEST_KEY) if rows else None
+            entry = self.dir / layout.METRICS_STREAM_FILE
+            self.stream = MetricsStream(entry, METRIC_COLUMNS, runs, rows, expected)
 
     def load_checkpoint(self, template: TrainState, num_runs: int) -> TrainState:
         """The checkpoint's state of ``num_runs`` runs, in the structure of ``template``."""
-        return load_checkpoint(self.checkpoint_path, template, num_runs=num_runs)
+        entry = self._verified(layout.CHECKPOINT_FILE)
+        return load_checkpoint(entry, template, num_runs=num_runs)
 
     def finished(self) -> bool:
         """Whether the run wrote its last output: its evaluation, or a sweep's ranking."""
-        return any(
-            files.refuse_link(self.path / name) is not None
-            for name in (layout.EVALUATION_FILE, layout.SWEEP_FILE)
-        )
+        return any(self._present(name) for name in (layout.EVALUATION_FILE, layout.SWEEP_FILE))
 
     def mark_unfinished(self) -> None:
         """Removes a finished run's top-level outputs before it is trained further, so that
         until the extension finishes every reader says the run is unfinished (and reads its
         checkpoint) instead of presenting the old outputs as the run's."""
-        for name in (layout.SWEEP_FILE, layout.EVALUATION_FILE, layout.PARAMS_FILE):
-            (self.path / name).unlink(missing_ok=True)
-        files.fsync_directory(self.path)
+        names = (layout.SWEEP_FILE, layout.EVALUATION_FILE, layout.PARAMS_FILE)
+        for name in names:
+            self.dir.unlink(name)
+        self.manifest.forget(*names)
+        self.dir.fsync()
 
-    def wave_file(self, wave: int) -> Path:
-        return files.subdir(self.path, layout.WAVES_DIR) / layout.wave_file(".", wave).name
+    def _waves_dir(self, create: bool = False) -> files.Dir | None:
+        if self._waves is None and (create or self._present(layout.WAVES_DIR)):
+            self._waves = self.dir.sub(layout.WAVES_DIR, create=create)
+        return self._waves
+
+    def wave_file(self, wave: int) -> files.Entry:
+        return self._waves_dir(create=True) / layout.wave_file(".", wave).name
 
     def has_wave(self, wave: int) -> bool:
         """Whether wave ``wave`` finished (its block file is saved; a link is refused)."""
-        return files.refuse_link(self.wave_file(wave)) is not None
+        waves = self._waves_dir()
+        return waves is not None and self._present(layout.wave_file(".", wave).name, waves)
 
-    def save_wave(self, block: outputs.Block, wave: int) -> Path:
-        """Keeps a finished wave's block until the outputs are written; returns its file."""
-        files.subdir(self.path, layout.WAVES_DIR, create=True)
-        path = self.wave_file(wave)
-        block.save(path)
-        return path
+    def save_wave(self, block: outputs.Block, wave: int) -> files.Entry:
+        """Keeps a finished wave's block until the outputs are written; returns its file
+        (its own digest inside: many waves would make the manifest a long file rewritten
+        after every one)."""
+        entry = self.wave_file(wave)
+        block.save(entry)
+        return entry
 
-    def finished_wave(self, wave: int, runs: range, episodes: int, config: PPOConfig) -> Path:
+    def finished_wave(
+        self, wave: int, runs: range, episodes: int, config: PPOConfig
+    ) -> files.Entry:
         """The file of a wave finished before an interruption, checked (headers, digest,
         finite values) before the outputs are built from it."""
-        path = self.wave_file(wave)
-        reader.check_block(path, config, runs, episodes)
-        return path
+        entry = self.wave_file(wave)
+        reader.check_block(entry, config, runs, episodes, float_dtype())  # as resume checked
+        return entry
 
     def write_metrics(self, batch_size: int) -> None:
         """``metrics.csv`` of a stopped run, from its stream's rows so far."""
-        outputs.write_metrics_csv(self.path / layout.METRICS_FILE, self.stream.read(), batch_size)
+        rows = self.stream.read()
+        self.manifest.write(
+            layout.METRICS_FILE,
+            lambda entry, d: outputs.write_metrics_csv(entry, rows, batch_size, d),
+        )
 
     def write_outputs(
         self,
@@ -233,16 +314,28 @@ class RunDir:
     ) -> None:
         """metrics.csv, params.npz and evaluation.json of ``runs`` from the blocks: in the run
         directory, or in combination ``combo``'s, with its own config.json ``record``."""
-        directory = self.path  # never recreated: a deleted run directory fails the write
+        directory, manifest = self.dir, self.manifest  # never recreated once deleted
         if combo is not None:
-            directory = files.subdir(self.path, layout.combo_dir(".", combo).name, create=True)
-        if record is not None:
-            self.write_config(*record, directory=directory)
-        outputs.write_blocks_metrics_csv(directory / layout.METRICS_FILE, blocks, runs, batch_size)
-        outputs.write_params(directory / layout.PARAMS_FILE, blocks, runs)
-        path = directory / layout.EVALUATION_FILE
-        outputs.write_evaluation(path, blocks, runs, episodes, timing)
+            directory = self.dir.sub(layout.combo_dir(".", combo).name, create=True)
+            manifest = Manifest(directory)
+        try:
+            if record is not None:
+                self.write_config(*record, manifest=manifest)
+            manifest.write(
+                layout.METRICS_FILE,
+                lambda e, d: outputs.write_blocks_metrics_csv(e, blocks, runs, batch_size, d),
+            )
+            manifest.write(
+                layout.PARAMS_FILE, lambda e, d: outputs.write_params(e, blocks, runs, d)
+            )
+            manifest.write(
+                layout.EVALUATION_FILE,
+                lambda e, d: outputs.write_evaluation(e, blocks, runs, episodes, timing, d),
+            )
+        finally:
+            if directory is not self.dir:
+                directory.close()
 
     def write_ranking(self, data: dict) -> None:
         """``sweep.json``: a sweep's combinations, ranked."""
-        files.write_json(self.path / layout.SWEEP_FILE, data)
+        self.manifest.write(layout.SWEEP_FILE, lambda entry, d: files.write_json(entry, data, d))

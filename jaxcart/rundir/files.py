@@ -14,10 +14,10 @@ import hashlib
 import json
 import math
 import os
+import secrets
 import stat
-import tempfile
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
@@ -56,32 +56,142 @@ def file_mode() -> int:
     return 0o666 & ~_read_umask()
 
 
+class Dir:
+    """A directory opened once (``O_DIRECTORY | O_NOFOLLOW``) that every file inside it is
+    opened, created, renamed and removed through (``dir_fd``, ``O_NOFOLLOW``): renaming the
+    directory, or swapping one of its path's components for a link, while a run writes
+    cannot send a write anywhere else, and no link inside it is ever followed."""
+
+    def __init__(self, path: str | os.PathLike, fd: int) -> None:
+        self.path, self.fd = Path(path), fd
+
+    @classmethod
+    def open(cls, path: str | os.PathLike, parent: Dir | None = None) -> Dir:
+        """``path`` (a name inside ``parent`` when given) as a directory, never through a
+        link as its last component.
+
+        Raises:
+            RunDirError: a link or not a directory.
+            FileNotFoundError: it does not exist.
+        """
+        shown = parent.path / path if parent is not None else Path(path)
+        flags = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
+        try:
+            fd = os.open(path, flags, dir_fd=parent.fd if parent is not None else None)
+        except OSError as exc:
+            if exc.errno in (errno.ELOOP, errno.ENOTDIR):  # Linux says ENOTDIR for a link
+                with contextlib.suppress(OSError):
+                    st = os.stat(path, dir_fd=parent.fd if parent else None, follow_symlinks=False)
+                    if stat.S_ISLNK(st.st_mode):
+                        raise RunDirError(f"{shown} is {LINK_REASON}") from None
+                raise RunDirError(f"{shown} is not a directory; refusing it") from None
+            raise
+        return cls(shown, fd)
+
+    def sub(self, name: str, create: bool = False) -> Dir:
+        """The directory ``name`` inside this one, created first when ``create`` (this one
+        is never recreated: a deleted run directory fails the write)."""
+        if create:
+            with contextlib.suppress(FileExistsError):
+                os.mkdir(name, dir_fd=self.fd)
+        return Dir.open(name, parent=self)
+
+    def __truediv__(self, name: str) -> Entry:
+        return Entry(self, name)
+
+    def lstat(self, name: str) -> os.stat_result | None:
+        """``name``'s own status (a link is not followed), None when it does not exist."""
+        try:
+            return os.stat(name, dir_fd=self.fd, follow_symlinks=False)
+        except FileNotFoundError:
+            return None
+
+    def unlink(self, name: str) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(name, dir_fd=self.fd)
+
+    def fsync(self) -> None:
+        """Makes the renames inside this directory durable."""
+        os.fsync(self.fd)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+class Entry:
+    """A name inside an open :class:`Dir`: what the writers and readers take in place of a
+    path (``str()`` of it is the path, for messages)."""
+
+    def __init__(self, directory: Dir, name: str) -> None:
+        self.dir, self.name = directory, name
+
+    @property
+    def path(self) -> Path:
+        return self.dir.path / self.name
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+
+Target = str | os.PathLike | Entry
+"""Where a file is: a path, or a name inside an open :class:`Dir`."""
+LINK_REASON = "a symbolic link; jaxcart never follows links in a run directory"
+
+
+def _located(target: Target) -> tuple[str, int | None]:
+    """The name to pass to ``os.open`` and the directory descriptor it is relative to."""
+    if isinstance(target, Entry):
+        return target.name, target.dir.fd
+    return os.fspath(target), None
+
+
 @contextlib.contextmanager
-def atomic_file(path: str | os.PathLike, mode: str = "w") -> Iterator[IO]:
-    """A file to write ``path`` through: a temporary beside it (``.<name>.<random>.tmp``),
+def atomic_file(
+    target: Target, mode: str = "w", on_digest: Callable[[str], None] | None = None
+) -> Iterator[IO]:
+    """A file to write ``target`` through: a temporary beside it (``.<name>.<random>.tmp``),
     fsynced and renamed into place when the block ends without an exception, so a crash
     mid-write leaves either the old file or the new one. The one writer of every file jaxcart
-    writes.
+    writes. The temporary is created, renamed and removed through the directory's descriptor
+    (``target`` a path: its parent, opened for the write), never through a link.
 
     Args:
-        path: the file to (re)place.
+        target: the file to (re)place.
         mode: ``"w"`` (UTF-8 text, ``newline=""``: what is written is what lands) or
             ``"wb"``.
+        on_digest: called with the ``sha256:<hex>`` of the finished bytes before they are
+            renamed into place (a manifest records it first: :mod:`jaxcart.rundir.manifest`).
 
     Raises:
         OSError: the write failed (a full or read-only disk, no permission); ``filename`` is
-            ``path`` and the previous file, if any, is untouched.
+            the target and the previous file, if any, is untouched.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_file writes with mode 'w' or 'wb', got {mode!r}")
-    path = Path(path)
+    if not isinstance(target, Entry):
+        path = Path(target)
+        try:
+            parent = Dir.open(path.parent)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        try:
+            with atomic_file(parent / path.name, mode, on_digest) as f:
+                yield f
+        finally:
+            parent.close()
+        return
+    directory, name = target.dir, target.name
     tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(
-            dir=path.parent, prefix=layout.temporary_prefix(path), suffix=layout.TEMPORARY_SUFFIX
-        )
+        tmp = f"{layout.temporary_prefix(name)}{secrets.token_hex(6)}{layout.TEMPORARY_SUFFIX}"
+        flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+        fd = os.open(tmp, flags, 0o666, dir_fd=directory.fd)  # 0o666 less the umask
         try:
-            os.fchmod(fd, file_mode())
             text = {"encoding": "utf-8", "newline": ""} if mode == "w" else {}
             f = os.fdopen(fd, mode, **text)
         except BaseException:
@@ -91,18 +201,32 @@ def atomic_file(path: str | os.PathLike, mode: str = "w") -> Iterator[IO]:
             yield f
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+            if on_digest is not None:
+                on_digest(fd_digest(f.fileno()))
+        os.replace(tmp, name, src_dir_fd=directory.fd, dst_dir_fd=directory.fd)
     except BaseException as exc:
         if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                os.unlink(tmp, dir_fd=directory.fd)
         if isinstance(exc, OSError):
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+            raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from None
         raise
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Writes ``data`` to ``path`` through :func:`atomic_file`."""
-    with atomic_file(path, "wb") as f:
+def fd_digest(fd: int) -> str:
+    """``sha256:<hex>`` of an open file's bytes, read from its start (the offset is kept)."""
+    h, offset = hashlib.sha256(), 0
+    while chunk := os.pread(fd, 1 << 20, offset):
+        h.update(chunk)
+        offset += len(chunk)
+    return "sha256:" + h.hexdigest()
+
+
+def atomic_write_bytes(
+    target: Target, data: bytes, on_digest: Callable[[str], None] | None = None
+) -> None:
+    """Writes ``data`` to ``target`` through :func:`atomic_file`."""
+    with atomic_file(target, "wb", on_digest) as f:
         f.write(data)
 
 
@@ -115,9 +239,9 @@ def fsync_directory(path: str | os.PathLike) -> None:
         os.close(fd)
 
 
-def write_json(path: str | os.PathLike, data: dict) -> None:
+def write_json(target: Target, data: dict, on_digest: Callable[[str], None] | None = None) -> None:
     """Atomic, indented JSON."""
-    atomic_write_bytes(path, (json.dumps(data, indent=2) + "\n").encode())
+    atomic_write_bytes(target, (json.dumps(data, indent=2) + "\n").encode(), on_digest)
 
 
 def json_digest(data: dict) -> str:
@@ -177,13 +301,16 @@ def unflatten(flat: dict[str, np.ndarray]) -> dict:
 
 
 def save_tree(
-    path: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict | None = None
+    target: Target,
+    arrays: dict[str, np.ndarray],
+    meta: dict | None = None,
+    on_digest: Callable[[str], None] | None = None,
 ) -> None:
     """Writes named arrays (see :func:`flatten`) and optional JSON ``meta`` atomically."""
     entries = dict(arrays)
     if meta is not None:
         entries[META_KEY] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
-    with atomic_file(path, "wb") as f:  # written as it goes: no copy of the whole file
+    with atomic_file(target, "wb", on_digest) as f:  # written as it goes: no copy of the whole file
         np.savez(f, **entries)
 
 
@@ -228,9 +355,7 @@ def refuse_link(path: str | os.PathLike) -> os.stat_result | None:
     except OSError as exc:
         raise RunDirError(f"{path} cannot be read: {exc.strerror or exc}") from None
     if stat.S_ISLNK(st.st_mode):
-        raise RunDirError(
-            f"{path} is a symbolic link; jaxcart never follows links in a run directory"
-        )
+        raise RunDirError(f"{path} is {LINK_REASON}")
     return st
 
 
@@ -239,30 +364,41 @@ WRITE_FAILURES = (errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.E
 bad run directory."""
 
 
-def open_regular(path: str | os.PathLike, flags: int = os.O_RDONLY, mode: int = 0o666) -> int:
+def open_regular(
+    path: Target, flags: int = os.O_RDONLY, mode: int = 0o666, in_place: bool = False
+) -> int:
     """A descriptor of ``path`` opened without following a link, checked to be a regular
     file (never a FIFO, device or directory: ``O_NONBLOCK`` keeps a FIFO from blocking the
-    open, and it is cleared once the file is known to be regular).
+    open, and it is cleared once the file is known to be regular). ``in_place``: a file
+    jaxcart changes where it lies (the lock, the metrics stream) must have one link, else
+    truncating or appending to it would change a hard-linked file outside the run.
 
     Raises:
-        RunDirError: ``path`` is a link or not a regular file.
+        RunDirError: ``path`` is a link, not a regular file, or (``in_place``) hard-linked.
         FileNotFoundError: it does not exist (and ``flags`` do not create it).
         OSError: the disk refuses an open for writing (:data:`WRITE_FAILURES`).
     """
+    name, dir_fd = _located(path)
     try:
-        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode)
+        fd = os.open(
+            name, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode, dir_fd=dir_fd
+        )
     except OSError as exc:
         if exc.errno == errno.ELOOP:
-            raise RunDirError(
-                f"{path} is a symbolic link; jaxcart never follows links in a run directory"
-            ) from None
+            raise RunDirError(f"{path} is {LINK_REASON}") from None
         writing = flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT)
         if isinstance(exc, FileNotFoundError) or (writing and exc.errno in WRITE_FAILURES):
             raise  # a missing file; or a disk that refuses writes: the caller's write failure
         raise RunDirError(f"{path} cannot be opened: {exc.strerror or exc}") from None
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
             raise RunDirError(f"{path} is not a regular file; refusing it")
+        if in_place and st.st_nlink != 1:
+            raise RunDirError(
+                f"{path} has {st.st_nlink} hard links; jaxcart changes it in place and "
+                "refuses a file that is also elsewhere (remove it and resume)"
+            )
         os.set_blocking(fd, True)
     except BaseException:
         os.close(fd)
@@ -350,6 +486,10 @@ def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
     headers: dict[str, Header] = {}
     with _reading(path), open_tree(path) as raw, zipfile.ZipFile(raw) as zf:
         infos = zf.infolist()
+        names = [i.filename for i in infos]
+        if len(set(names)) != len(names):  # np.load would read the last, unchecked, copy
+            twice = next(n for n in names if names.count(n) > 1)
+            raise RunDirError(f"{path} holds the entry {twice!r} twice; refusing it")
         total = sum(i.file_size for i in infos)
         if total > max_bytes:
             raise RunDirError(

@@ -14,6 +14,8 @@ Layout of ``RUN_DIR``:
   beside the checkpoint (:mod:`jaxcart.rundir.stream`);
 - ``waves/wave-00003.npz``: one block of results per finished wave of a run trained in waves
   (:mod:`jaxcart.rundir.outputs`);
+- ``manifest.json``: the digest of every finished file, checked by every reader
+  (:mod:`jaxcart.rundir.manifest`);
 - ``.lock``: held by the process that trains it (:mod:`jaxcart.rundir.lock`);
 - ``sb3-plan.json`` and ``sb3-seeds/seed-314159.npz``: while ``python -m jaxcart.sb3`` trains,
   what it was asked for and each seed it has finished (removed once the run is written);
@@ -43,6 +45,8 @@ SWEEP_FILE = "sweep.json"
 CHECKPOINT_FILE = "checkpoint.npz"
 METRICS_STREAM_FILE = "metrics.stream"
 LOCK_FILE = ".lock"
+MANIFEST_FILE = "manifest.json"
+"""Every finished file's digest (:mod:`jaxcart.rundir.manifest`), rewritten after each."""
 WAVES_DIR = "waves"
 SB3_PLAN_FILE = "sb3-plan.json"
 SB3_SEEDS_DIR = "sb3-seeds"

@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from jaxcart.rundir.files import RunDirError, open_regular
+from jaxcart.rundir.files import Dir, RunDirError, open_regular
 from jaxcart.rundir.layout import LOCK_FILE
 
 
@@ -21,8 +21,9 @@ class RunInUse(RunDirError):
 class RunLock:
     """An exclusive lock on a run directory; :meth:`acquire` fails at once if it is held."""
 
-    def __init__(self, run_dir: str | os.PathLike) -> None:
-        self.path = Path(run_dir) / LOCK_FILE
+    def __init__(self, run_dir: str | os.PathLike | Dir) -> None:
+        self.dir = run_dir if isinstance(run_dir, Dir) else None
+        self.path = (run_dir.path if isinstance(run_dir, Dir) else Path(run_dir)) / LOCK_FILE
         self._fd: int | None = None
 
     @property
@@ -36,8 +37,10 @@ class RunLock:
         if self._fd is not None:
             return self
         # 0o666 less the umask, as every file of a run directory (jaxcart.rundir.files); a
-        # link is refused, not followed: truncating it would truncate whatever it points to
-        fd = open_regular(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        # link (symbolic or hard) is refused, not followed: truncating it would truncate
+        # whatever it points to
+        target = self.dir / LOCK_FILE if self.dir is not None else self.path
+        fd = open_regular(target, os.O_RDWR | os.O_CREAT, 0o666, in_place=True)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

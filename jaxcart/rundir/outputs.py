@@ -13,15 +13,17 @@ from __future__ import annotations
 import csv
 import json
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from jaxcart.core.solved import SOLVED_DEFINITION, is_solved
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.layout import BLOCK_METRICS, BLOCK_PARAMS
+
+Digest = Callable[[str], None] | None
+"""Called with a finished file's digest before it is renamed into place (its manifest)."""
 
 
 @dataclass
@@ -38,7 +40,7 @@ class Block:
     jax_returns: np.ndarray  # [n, episodes]
     timing: dict[str, float]
 
-    def save(self, path: Path) -> None:
+    def save(self, path: files.Target) -> None:
         arrays = {BLOCK_PARAMS + k: v for k, v in self.params.items()}
         arrays |= {BLOCK_METRICS + k: np.asarray(v) for k, v in self.metrics.items()}
         arrays |= {
@@ -50,7 +52,7 @@ class Block:
         files.save_tree(path, arrays, {**meta, layout.DIGEST_KEY: files.arrays_digest(arrays)})
 
     @classmethod
-    def load(cls, path: Path) -> Block:
+    def load(cls, path: files.Target) -> Block:
         arrays, meta = files.load_tree(path)
         take = lambda prefix: {
             k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)
@@ -78,7 +80,7 @@ def overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
     """Each block that holds some of ``runs`` (loaded when it is a path), with the slice of
     its axis that does."""
     for item in blocks:
-        block = Block.load(item) if isinstance(item, Path) else item
+        block = item if isinstance(item, Block) else Block.load(item)
         take = _overlap(block.start, block.stop, runs)
         if take is not None:
             yield block, take
@@ -88,7 +90,7 @@ def _param_slices(blocks: list, runs: range, name: str) -> Iterator[np.ndarray]:
     """One parameter array of each block that holds some of ``runs``, sliced to them; a
     block file is read for that array alone."""
     for item in blocks:
-        if not isinstance(item, Path):
+        if isinstance(item, Block):
             take = _overlap(item.start, item.stop, runs)
             if take is not None:
                 yield item.params[name][take]
@@ -119,19 +121,23 @@ def metrics_csv_rows(
             yield [first_seed + s, i + 1, (i + 1) * batch_size, *row]
 
 
-def write_metrics_csv(path: Path, metrics: dict[str, np.ndarray], batch_size: int) -> None:
+def write_metrics_csv(
+    path: files.Target, metrics: dict[str, np.ndarray], batch_size: int, on_digest: Digest = None
+) -> None:
     """Rows ``seed_index, iteration, env_steps, <metrics...>`` from leaves ``[iterations, S]``
     (a run's metrics in memory: a stopped run's so far, or another library's log)."""
-    with files.atomic_file(path) as f:
+    with files.atomic_file(path, "w", on_digest) as f:
         writer = csv.writer(f, lineterminator="\n")
         writer.writerow(metrics_csv_header(list(metrics)))
         writer.writerows(metrics_csv_rows(metrics, batch_size))
 
 
-def write_blocks_metrics_csv(path: Path, blocks: list, runs: range, batch_size: int) -> None:
+def write_blocks_metrics_csv(
+    path: files.Target, blocks: list, runs: range, batch_size: int, on_digest: Digest = None
+) -> None:
     """Rows ``seed_index, iteration, env_steps, <metrics...>`` for ``runs`` (seed index
     counted from ``runs.start``), streamed block by block and renamed into place."""
-    with files.atomic_file(path) as f:
+    with files.atomic_file(path, "w", on_digest) as f:
         writer, header = csv.writer(f, lineterminator="\n"), None
         for block, take in overlapping(blocks, runs):
             if header is None:
@@ -141,11 +147,14 @@ def write_blocks_metrics_csv(path: Path, blocks: list, runs: range, batch_size: 
             writer.writerows(metrics_csv_rows(block.metrics, batch_size, first, take))
 
 
-def write_params(path: Path, blocks: list, runs: range) -> None:
+def write_params(path: files.Target, blocks: list, runs: range, on_digest: Digest = None) -> None:
     """``params.npz`` for ``runs``: each array's header for the whole run, then its blocks'
     bytes in order (a leading-axis concatenation), streamed into place."""
     first, _ = next(overlapping(blocks, runs))
-    with files.atomic_file(path, "wb") as out, zipfile.ZipFile(out, "w", allowZip64=True) as zf:
+    with (
+        files.atomic_file(path, "wb", on_digest) as out,
+        zipfile.ZipFile(out, "w", allowZip64=True) as zf,
+    ):
         for name, a in first.params.items():
             shape = (len(runs), *a.shape[1:])
             with zf.open(name + ".npy", "w", force_zip64=True) as f:
@@ -159,10 +168,17 @@ def write_params(path: Path, blocks: list, runs: range) -> None:
                     f.write(np.ascontiguousarray(part).tobytes())
 
 
-def write_evaluation(path: Path, blocks: list, runs: range, episodes: int, extra: dict) -> None:
+def write_evaluation(
+    path: files.Target,
+    blocks: list,
+    runs: range,
+    episodes: int,
+    extra: dict,
+    on_digest: Digest = None,
+) -> None:
     """``evaluation.json`` for ``runs``: per-seed returns and solved flags, streamed."""
     solved_total = 0
-    with files.atomic_file(path) as f:
+    with files.atomic_file(path, "w", on_digest) as f:
         definition = json.dumps(SOLVED_DEFINITION.format(episodes=episodes))
         head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
         f.write(head + '  "seeds": [')

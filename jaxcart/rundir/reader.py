@@ -21,9 +21,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.networks import ActorCritic, param_shapes
-from jaxcart.rundir import files, layout
+from jaxcart.core.solved import is_solved
+from jaxcart.rundir import files, layout, manifest
 from jaxcart.rundir.files import RunDirError
 
 if TYPE_CHECKING:  # the trainer (and JAX) load when a checkpoint is restored
@@ -35,6 +37,11 @@ EVAL_JSON_BYTES_PER_SEED = 1024  # a seed's entry besides its returns
 MAX_CSV_BYTES_PER_ROW = 4096
 
 
+MAX_RETURN = EnvParams().max_episode_steps
+"""The largest episode return (and length) of CartPole-v1: one point per step, 500 steps."""
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+X64_KEY = "x64"
+"""Of ``config.json``: true when the run trained in float64 (``JAX_ENABLE_X64=1``)."""
 MAX_RUNS = 1 << 20
 """The most runs (seeds x combinations) a ``config.json`` may declare."""
 MAX_EVAL_EPISODES = 100_000
@@ -93,6 +100,7 @@ def read_run_config(run_dir: str | os.PathLike, verify: bool = False) -> dict:
     for name in CLASSIFYING_FILES:  # what the directory is: never decided through a link
         files.refuse_link(run_dir / name)
     data = read_json(run_dir, layout.CONFIG_FILE)
+    manifest.verify(run_dir, layout.CONFIG_FILE, data)
     if verify:
         _check_digest(path, data)
     try:
@@ -140,6 +148,8 @@ def _check_run_fields(data: dict) -> None:
     preset = data.get("preset", "")
     if not isinstance(preset, str) or len(preset) > 256:
         raise ValueError(f"preset {preset!r}")
+    if not isinstance(data.get(X64_KEY, False), bool):
+        raise ValueError(f"{X64_KEY} {data.get(X64_KEY)!r}")
     versions = data.get("versions", {})
     if not isinstance(versions, dict) or not all(isinstance(v, str) for v in versions.values()):
         raise ValueError("versions is not a {package: version} object")
@@ -248,8 +258,41 @@ def read_run_metrics(run_dir: str | os.PathLike, info: dict) -> dict[str, np.nda
     """A run's ``metrics.csv``, bounded by the seeds x iterations its ``info`` (its
     ``config.json``) trains; leaves ``[iterations, S]``."""
     path = files.inside(run_dir, layout.METRICS_FILE)
+    manifest.verify(run_dir, layout.METRICS_FILE, info)
     num_seeds, iterations = int(info.get("num_seeds", 1)), info["config"].num_iterations
-    return read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
+    metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
+    check_metrics(metrics, path)
+    return metrics
+
+
+METRIC_BOUNDS = {
+    "rollout/ep_rew_mean": (0.0, MAX_RETURN),
+    "rollout/ep_len_mean": (0.0, MAX_RETURN),
+    "rollout/ep_rew_max": (0.0, MAX_RETURN),
+    "train/approx_kl": (-FLOAT32_MAX, FLOAT32_MAX),
+    "train/clip_fraction": (0.0, 1.0),
+    "train/value_loss": (0.0, FLOAT32_MAX),
+    "train/learning_rate": (0.0, FLOAT32_MAX),
+    "train/explained_variance": (-FLOAT32_MAX, 1.0),
+    "time/fps": (0.0, FLOAT32_MAX),
+    "time/elapsed": (0.0, FLOAT32_MAX),
+}
+"""What each metric can hold: episode statistics within the env's returns, fractions in
+[0, 1], losses and rates within float32 (the stream stores float32). NaN is allowed (a
+diverged run's iterations, and no finished episode yet); infinities never."""
+
+
+def check_metrics(metrics: dict[str, np.ndarray], path: str | os.PathLike) -> None:
+    """Refuses metrics outside what training can produce (:data:`METRIC_BOUNDS`; any other
+    column within float32)."""
+    for name, values in metrics.items():
+        low, high = METRIC_BOUNDS.get(name, (-FLOAT32_MAX, FLOAT32_MAX))
+        a = np.asarray(values, float)
+        bad = np.isinf(a) | (a < low) | (a > high)
+        if bad.any():
+            raise RunDirError(
+                f"{path}: {name} holds {a[bad].flat[0]!r}, outside [{low:g}, {high:g}]; refusing it"
+            )
 
 
 def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) -> dict:
@@ -260,6 +303,7 @@ def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) ->
     """
     data = read_json(run_dir, layout.EVALUATION_FILE, _evaluation_bytes(run_dir))
     path = Path(run_dir) / layout.EVALUATION_FILE
+    manifest.verify(run_dir, layout.EVALUATION_FILE, read_json(run_dir, layout.CONFIG_FILE))
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
         isinstance(s, dict)
@@ -275,7 +319,62 @@ def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) ->
     episodes = data.get("episodes")
     if episodes is not None and not bounded_int(episodes, 1, MAX_EVAL_EPISODES):
         raise RunDirError(f"{path} is corrupted: episodes {episodes!r}")
+    for s in seeds:
+        problem = _seed_problem(s, episodes)
+        if problem:
+            raise RunDirError(
+                f"{path}: seed {s.get('seed_index', '?')!r:.20} {problem}; refusing it"
+            )
+    solved = data.get("solved_seeds")
+    if solved is not None and solved != sum(s["solved"] for s in seeds):
+        raise RunDirError(f"{path}: solved_seeds {solved!r:.20} does not count the solved seeds")
     return data
+
+
+def _return_list(values: object, episodes: int | None) -> np.ndarray | None:
+    """Episode returns as an array when they are a list of numbers of the right length."""
+    if not isinstance(values, list) or not all(finite_number(v) for v in values):
+        return None
+    if not values or (episodes is not None and len(values) != episodes):
+        return None
+    return np.asarray(values, float)
+
+
+def _seed_problem(seed: dict, episodes: int | None) -> str | None:
+    """What is wrong with one seed's entry of ``evaluation.json`` (None: nothing): returns
+    outside the env's [0, max episode return], means and minima that are not theirs, and a
+    ``solved`` that is not what the returns say."""
+    mean = seed["gymnasium_mean"]
+    if not 0 <= mean <= MAX_RETURN:
+        return f"has gymnasium_mean {mean!r:.20}, outside [0, {MAX_RETURN}]"
+    if "gymnasium_returns" not in seed:  # another library's entry: the mean and flag alone
+        return (
+            "says solved with a mean under the maximum"
+            if seed["solved"] and mean < MAX_RETURN
+            else None
+        )
+    returns = _return_list(seed["gymnasium_returns"], episodes)
+    if returns is None:
+        return "has gymnasium_returns that are not a list of one number per episode"
+    if returns.min() < 0 or returns.max() > MAX_RETURN:
+        return f"has returns outside [0, {MAX_RETURN}]"
+    if not math.isclose(mean, float(returns.mean()), rel_tol=1e-9, abs_tol=1e-9):
+        return "has a gymnasium_mean that is not the mean of its returns"
+    if "gymnasium_min" in seed and seed["gymnasium_min"] != float(returns.min()):
+        return "has a gymnasium_min that is not the least of its returns"
+    if seed["solved"] != bool(is_solved(returns)):
+        return f"says solved={seed['solved']} where its returns say {bool(is_solved(returns))}"
+    jax_returns = seed.get("jaxcart_returns")
+    if jax_returns is not None:
+        values = _return_list(jax_returns, None)
+        if values is None or values.min() < 0 or values.max() > MAX_RETURN:
+            return f"has jaxcart_returns outside [0, {MAX_RETURN}]"
+    final = seed.get("final_ep_rew_mean")
+    if final is not None and not (
+        isinstance(final, (int, float)) and (math.isnan(final) or 0 <= final <= MAX_RETURN)
+    ):
+        return f"has final_ep_rew_mean {final!r:.20}, outside [0, {MAX_RETURN}]"
+    return None
 
 
 def _evaluation_bytes(run_dir: str | os.PathLike) -> int:
@@ -289,11 +388,23 @@ def _evaluation_bytes(run_dir: str | os.PathLike) -> int:
     return MAX_JSON_BYTES + seeds * per_seed
 
 
-def params_headers(config: PPOConfig, num_seeds: int) -> dict[str, files.Header]:
-    """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes."""
-    network = config.network if config.network is not None else ActorCritic.from_config(config)
-    leaves = files.flatten(param_shapes(network, 4), is_leaf=lambda x: isinstance(x, tuple))
-    return {name: ((num_seeds, *shape), dtype) for name, (shape, dtype) in leaves.items()}
+def params_headers(
+    config: PPOConfig, num_seeds: int, dtype: np.dtype | type = np.float32
+) -> dict[str, files.Header]:
+    """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes; the
+    built-in network's of ``dtype`` (float64 for a run trained under x64: :func:`params_dtype`),
+    another network's as its own initialisation gives them."""
+    if config.network is None:
+        network = ActorCritic.from_config(config)
+        shapes = files.flatten(network.shapes(), is_leaf=lambda x: isinstance(x, tuple))
+        return {name: ((num_seeds, *shape), np.dtype(dtype)) for name, shape in shapes.items()}
+    leaves = files.flatten(param_shapes(config.network, 4), is_leaf=lambda x: isinstance(x, tuple))
+    return {name: ((num_seeds, *shape), dt) for name, (shape, dt) in leaves.items()}
+
+
+def params_dtype(info: dict) -> np.dtype:
+    """The float type a run trained in: float64 when its ``config.json`` records ``x64``."""
+    return np.dtype(np.float64 if info.get(X64_KEY) else np.float32)
 
 
 def load_params(run_dir: str | os.PathLike) -> dict:
@@ -309,8 +420,9 @@ def load_params(run_dir: str | os.PathLike) -> dict:
             f"{run_dir} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
         )
     info = read_run_config(run_dir)
-    expected = params_headers(info["config"], int(info.get("num_seeds", 1)))
+    expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
     path = files.inside(run_dir, layout.PARAMS_FILE)
+    manifest.verify(run_dir, layout.PARAMS_FILE, info)
     found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
     if found != expected:
         raise RunDirError(
@@ -334,7 +446,9 @@ def _bytes(headers: dict[str, files.Header]) -> int:
     return sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in headers.values())
 
 
-def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> None:
+def check_block(
+    path: Path, config: PPOConfig, runs: range, episodes: int, dtype: np.dtype | type = np.float32
+) -> None:
     """Refuses a wave file (:class:`~jaxcart.rundir.outputs.Block`) that is not the one this
     run wrote for ``runs``: its headers (parameters of this network, metrics
     ``[iterations, n]``, returns ``[n, episodes]``) are checked before anything is read, then
@@ -345,9 +459,10 @@ def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> No
     """
     n = len(runs)
     expected = {
-        layout.BLOCK_PARAMS + name: header for name, header in params_headers(config, n).items()
+        layout.BLOCK_PARAMS + name: header
+        for name, header in params_headers(config, n, dtype).items()
     }
-    found = files.read_headers(path, max_bytes=_block_bytes(config, n, episodes))
+    found = files.read_headers(path, max_bytes=2 * _block_bytes(config, n, episodes))
     found.pop(files.META_KEY, None)
     iterations = config.num_iterations
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
@@ -360,7 +475,7 @@ def check_block(path: Path, config: PPOConfig, runs: range, episodes: int) -> No
     ]
     if wrong:
         raise RunDirError(f"{path} does not hold this wave's results: {wrong[0]} has another shape")
-    arrays, meta = files.load_tree(path, max_bytes=_block_bytes(config, n, episodes))
+    arrays, meta = files.load_tree(path, max_bytes=2 * _block_bytes(config, n, episodes))
     if meta is None or (meta.get("start"), meta.get("stop")) != (runs.start, runs.stop):
         raise RunDirError(f"{path} is not the file of runs [{runs.start}, {runs.stop})")
     if meta.get(layout.DIGEST_KEY) != files.arrays_digest(arrays):

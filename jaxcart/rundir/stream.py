@@ -19,6 +19,7 @@ This is the one file jaxcart appends to; :mod:`jaxcart.rundir.files` writes ever
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,21 +32,40 @@ from jaxcart.rundir.files import RunDirError
 DTYPE = np.dtype("<f4")
 
 
+STREAM_DIGEST_KEY = "metrics_stream_digest"
+"""Of a checkpoint's metadata: ``sha256:<hex>`` of the stream's rows it counts."""
+
+
 class MetricsStream:
     """The stream of one wave (``runs`` runs, ``columns``), opened with ``rows`` rows kept:
-    longer files are cut to them (rows past the checkpoint), shorter ones are refused."""
+    longer files are cut to them (rows past the checkpoint), shorter ones are refused, and
+    with ``digest`` (the checkpoint's record of them) rows whose bytes differ are refused."""
 
-    def __init__(self, path: Path, columns: Sequence[str], runs: int, rows: int) -> None:
-        self.path, self.columns, self.runs = Path(path), tuple(columns), int(runs)
+    def __init__(
+        self,
+        path: files.Target,
+        columns: Sequence[str],
+        runs: int,
+        rows: int,
+        digest: str | None = None,
+    ) -> None:
+        self.path, self.columns, self.runs = path, tuple(columns), int(runs)
         self.row_bytes = len(self.columns) * self.runs * DTYPE.itemsize
         flags = os.O_RDWR | os.O_CREAT
-        self.fd = self._call(files.open_regular, self.path, flags, files.file_mode())
+        # appended where it lies: a hard link to a file elsewhere is refused
+        self.fd = self._call(files.open_regular, self.path, flags, files.file_mode(), True)
         try:
             size = os.fstat(self.fd).st_size
             if size < rows * self.row_bytes:
                 raise RunDirError(
                     f"{self.path} holds {size // self.row_bytes} iterations of metrics, fewer "
                     f"than the {rows} its checkpoint counts; the run cannot be continued"
+                )
+            self.hash = _hash_rows(self.fd, rows * self.row_bytes)
+            if digest is not None and "sha256:" + self.hash.hexdigest() != digest:
+                raise RunDirError(
+                    f"{self.path} is not the file the run wrote: its rows differ from the "
+                    "digest its checkpoint records"
                 )
             self._call(os.ftruncate, self.fd, rows * self.row_bytes)
             os.lseek(self.fd, 0, os.SEEK_END)
@@ -67,15 +87,18 @@ class MetricsStream:
         if rows.shape[1:] != (len(self.columns), self.runs):
             raise ValueError(f"metrics of shape {rows.shape[1:]}, expected {self.runs} runs")
         view = memoryview(np.ascontiguousarray(rows)).cast("B")
+        self.hash.update(view)
         while view:
             view = view[self._call(os.write, self.fd, view) :]
         self.rows += len(rows)
 
-    def sync(self, rows: int) -> None:
-        """Makes the rows durable before a checkpoint of ``rows`` iterations counts them."""
+    def sync(self, rows: int) -> str:
+        """Makes the rows durable before a checkpoint of ``rows`` iterations counts them;
+        returns their digest, for the checkpoint to record."""
         if rows != self.rows:
             raise RuntimeError(f"{self.path} holds {self.rows} iterations, the checkpoint {rows}")
         self._call(os.fsync, self.fd)
+        return "sha256:" + self.hash.hexdigest()
 
     def read(self) -> dict[str, np.ndarray]:
         """Every row so far, memory-mapped from the open file (what this process wrote, even
@@ -105,14 +128,32 @@ class NoStream:
         pass
 
 
+def _hash_rows(fd: int, size: int) -> hashlib._Hash:
+    """sha256 of the first ``size`` bytes of ``fd``, kept open for the rows appended next."""
+    h, offset = hashlib.sha256(), 0
+    while offset < size:
+        chunk = os.pread(fd, min(1 << 20, size - offset), offset)
+        if not chunk:
+            break
+        h.update(chunk)
+        offset += len(chunk)
+    return h
+
+
 def read_stream(
-    path: str | os.PathLike, columns: Sequence[str], runs: int, rows: int
+    path: str | os.PathLike,
+    columns: Sequence[str],
+    runs: int,
+    rows: int,
+    digest: str | None = None,
 ) -> dict[str, np.ndarray]:
     """The first ``rows`` rows of a metrics stream, memory-mapped read-only: column ->
-    ``[rows, runs]`` float32 (a view; nothing is read until it is used).
+    ``[rows, runs]`` float32 (a view; nothing is read until it is used). With ``digest``
+    (the checkpoint's record), rows whose bytes differ are refused.
 
     Raises:
-        RunDirError: missing, a link, not a regular file, or shorter than ``rows`` rows.
+        RunDirError: missing, a link, not a regular file, shorter than ``rows`` rows, or
+            not the rows the checkpoint recorded.
     """
     path = Path(path)
     if rows == 0:
@@ -126,6 +167,12 @@ def read_stream(
             raise RunDirError(
                 f"{path} holds fewer than the {rows} iterations of metrics its checkpoint "
                 "counts; refusing it"
+            )
+        size = rows * len(columns) * runs * DTYPE.itemsize
+        if digest is not None and "sha256:" + _hash_rows(f.fileno(), size).hexdigest() != digest:
+            raise RunDirError(
+                f"{path} is not the file the run wrote: its rows differ from the digest its "
+                "checkpoint records"
             )
         return _mapped(f, rows, columns, runs)
 

@@ -1,0 +1,86 @@
+"""The environment variables JAX reads, checked before any command runs: a value JAX or XLA
+cannot use becomes one line on stderr and exit code 2 (JAX raises a traceback, XLA aborts the
+process with a fatal log line).
+
+Importing this module imports JAX, and turns a value JAX refuses at import
+(``JAX_ENABLE_X64=junk``, ``JAX_DEFAULT_MATMUL_PRECISION=junk``, ...) into that line: every
+command imports it first, through :mod:`jaxcart.cli`. :func:`check_backend` does the same for
+what JAX reads when it starts its backend (``JAX_PLATFORMS``, ``XLA_FLAGS``), which
+:func:`jaxcart.cli.command_main` calls before the command's ``main``.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+EXIT_USAGE = 2
+DEVICE_COUNT_FLAG = "--xla_force_host_platform_device_count"
+"""The one XLA flag jaxcart sets itself (checked by :mod:`jaxcart.engine.devices`)."""
+
+
+def _refuse(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(EXIT_USAGE)
+
+
+def _import_jax() -> None:
+    try:
+        import jax  # noqa: F401  (it reads JAX_* variables as it is imported)
+    except ValueError as exc:  # JAX's message names the variable or its flag
+        _refuse(f"{str(exc).splitlines()[0]}; fix or unset that environment variable")
+
+
+def xla_flags_problem(flags: str) -> str | None:
+    """What is wrong with an ``XLA_FLAGS`` value that XLA would abort on, read without
+    starting XLA: a token that is not a ``--flag`` (XLA reads it as a file of flags)."""
+    for token in flags.split():
+        if not token.startswith("--"):
+            return (
+                f"XLA_FLAGS holds {token!r}, which is not a --flag (XLA would read it as a "
+                "file of flags and abort); fix or unset XLA_FLAGS"
+            )
+    return None
+
+
+def _probe_xla_flags(flags: str) -> str | None:
+    """Starts JAX's backend in a child process when ``XLA_FLAGS`` holds flags jaxcart does
+    not set itself (XLA aborts the whole process on an unknown one): its last line on
+    failure, None when it starts."""
+    if all(t.startswith(DEVICE_COUNT_FLAG) for t in flags.split()):
+        return None
+    proc = subprocess.run(
+        [sys.executable, "-c", "import jax; jax.devices()"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    if proc.returncode == 0:
+        return None
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    return lines[-1][-300:] if lines else f"exit code {proc.returncode}"
+
+
+def check_backend() -> None:
+    """Refuses, in one line (exit 2), ``XLA_FLAGS`` or ``JAX_PLATFORMS`` values the backend
+    cannot start with; does nothing (and starts nothing) when neither is set."""
+    flags, platforms = os.environ.get("XLA_FLAGS", ""), os.environ.get("JAX_PLATFORMS")
+    if flags.strip():
+        problem = xla_flags_problem(flags)
+        if problem is None and (failure := _probe_xla_flags(flags)) is not None:
+            problem = f"XLA cannot start with XLA_FLAGS={flags!r}: {failure}"
+        if problem is not None:
+            _refuse(problem)
+    if platforms:
+        import jax
+
+        try:
+            jax.devices()
+        except RuntimeError as exc:
+            first = str(exc).split(" (set JAX_PLATFORMS")[0].splitlines()[0].rstrip(".")
+            _refuse(f"JAX_PLATFORMS={platforms!r}: {first}; fix or unset JAX_PLATFORMS")
+
+
+_import_jax()
