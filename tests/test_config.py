@@ -99,6 +99,7 @@ def test_traced_fields_are_declared_once_on_the_config():
         "gamma",
         "gae_lambda",
         "clip_coef",
+        "clip_range_vf",
         "ent_coef",
         "vf_coef",
         "max_grad_norm",

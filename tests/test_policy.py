@@ -198,7 +198,9 @@ def test_plot_stopped_run_and_sweep(runs, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert plot.main([str(sweep), "--dpi", "40"]) == 0
     captured = capsys.readouterr()
-    assert captured.out.strip() == "comparison.png" and (tmp_path / "comparison.png").is_file()
+    # a sweep is drawn into its own folder, and nothing is left in the current directory
+    assert captured.out.strip() == str(sweep / "curves.png") and (sweep / "curves.png").is_file()
+    assert not (tmp_path / "comparison.png").exists()
     assert f"a sweep: its 2 combinations drawn {STOPPED_NOTE}" in captured.err
     combos = load_runs([sweep])
     assert [r.label for r in combos] == ["learning_rate=0.001", "learning_rate=0.003"]
