@@ -44,12 +44,10 @@ def xla_flags_problem(flags: str) -> str | None:
     return None
 
 
-def _probe_xla_flags(flags: str) -> str | None:
-    """Starts JAX's backend in a child process when ``XLA_FLAGS`` holds flags jaxcart does
-    not set itself (XLA aborts the whole process on an unknown one): its last line on
-    failure, None when it starts."""
-    if all(t.startswith(DEVICE_COUNT_FLAG) for t in flags.split()):
-        return None
+def _probe_backend() -> str | None:
+    """Starts JAX's backend in a child process (XLA aborts the whole process on an unknown
+    flag, and a backend started here could not be given ``jax.distributed`` any more): its
+    last line on failure, None when it starts."""
     proc = subprocess.run(
         [sys.executable, "-c", "import jax; jax.devices()"],
         capture_output=True,
@@ -65,22 +63,21 @@ def _probe_xla_flags(flags: str) -> str | None:
 
 def check_backend() -> None:
     """Refuses, in one line (exit 2), ``XLA_FLAGS`` or ``JAX_PLATFORMS`` values the backend
-    cannot start with; does nothing (and starts nothing) when neither is set."""
-    flags, platforms = os.environ.get("XLA_FLAGS", ""), os.environ.get("JAX_PLATFORMS")
+    cannot start with. Starts nothing in this process; probes in a child only when a value
+    is one jaxcart does not set itself (flags other than the device count, a platform other
+    than ``cpu``)."""
+    flags, platforms = os.environ.get("XLA_FLAGS", ""), os.environ.get("JAX_PLATFORMS", "")
     if flags.strip():
         problem = xla_flags_problem(flags)
-        if problem is None and (failure := _probe_xla_flags(flags)) is not None:
+        needs_probe = not all(t.startswith(DEVICE_COUNT_FLAG) for t in flags.split())
+        if problem is None and needs_probe and (failure := _probe_backend()) is not None:
             problem = f"XLA cannot start with XLA_FLAGS={flags!r}: {failure}"
         if problem is not None:
             _refuse(problem)
-    if platforms:
-        import jax
-
-        try:
-            jax.devices()
-        except RuntimeError as exc:
-            first = str(exc).split(" (set JAX_PLATFORMS")[0].splitlines()[0].rstrip(".")
-            _refuse(f"JAX_PLATFORMS={platforms!r}: {first}; fix or unset JAX_PLATFORMS")
+    if {p.strip() for p in platforms.split(",") if p.strip()} - {"cpu"}:
+        failure = _probe_backend()
+        if failure is not None:
+            _refuse(f"JAX_PLATFORMS={platforms!r}: {failure}; fix or unset JAX_PLATFORMS")
 
 
 _import_jax()
