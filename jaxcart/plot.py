@@ -213,8 +213,10 @@ def draw_runs(
 
 
 def _run_dir(run: RunCurves) -> Path:
-    """The directory a run was named by: a sweep's combinations stand for their sweep."""
-    return run.path.parent if run.combination is not None else run.path
+    """The directory a run was named by: a sweep's combinations stand for their sweep (a
+    finished one's are its ``combo-NNN/`` directories, an unfinished one's the sweep itself)."""
+    in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
+    return run.path.parent if run.combination is not None and in_combo_dir else run.path
 
 
 def draw_figure(runs: list[RunCurves]) -> Figure:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import tiny_args
+from helpers import seal, tiny_args
 from PIL import Image, ImageSequence
 
 from jaxcart import evaluate, plot
@@ -54,6 +54,7 @@ def single_seed_run(tiny_run, tmp_path_factory):
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+    seal(out)  # crafted by someone who recomputes the manifest: the checks behind it run
     return out
 
 
@@ -292,8 +293,10 @@ def fake_sweep(tiny_run, out, rates=(0.001, 0.01)):
         info = json.loads((combo / "config.json").read_text())
         info["combination"] = {"learning_rate": rate, "clip_coef": 0.2}
         (combo / "config.json").write_text(json.dumps(info))
+        seal(combo)
     shutil.copy(tiny_run / "config.json", out / "config.json")
     (out / "sweep.json").write_text(json.dumps({"ranking": []}))
+    seal(out)
     return out
 
 
@@ -321,6 +324,7 @@ def test_plot_expands_sweeps_into_labelled_combinations(tiny_run, tmp_path, monk
     empty.mkdir()
     shutil.copy(sweep / "config.json", empty)
     shutil.copy(sweep / "sweep.json", empty)
+    seal(empty)
     with pytest.raises(RunDirError, match="without combination directories"):
         load_runs([empty])
 
@@ -354,6 +358,7 @@ def test_plot_bad_options(tiny_run, tmp_path, capsys):
     broken = tmp_path / "broken"
     broken.mkdir()
     shutil.copy(tiny_run / "config.json", broken)
+    seal(broken)
     assert plot.main([str(broken)]) == 2
     assert "metrics.csv" in one_line_error(capsys)
 
