@@ -92,3 +92,36 @@ def test_a_jaxcart_folder_in_the_working_directory_is_one_line(tmp_path, args, s
     assert f"the folder {tmp_path / 'jaxcart'} shadows the installed jaxcart package" in last
     if args[0] == "-m":  # a command: that one line, exit code 2
         assert out.returncode == 2 and out.stderr.count("\n") == 1 and not out.stdout
+
+
+@pytest.mark.parametrize("where", ["/proc/jaxcart-cache", "FILE"])
+def test_an_unusable_jaxcart_cache_dir_is_one_line_and_exit_2(tmp_path, where):
+    if where == "FILE":
+        where = str(tmp_path / "a-file")
+        Path(where).write_text("not a directory")
+    out = tmp_path / "run"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jaxcart.train",
+            "--total-timesteps",
+            "256",
+            "--num-envs",
+            "4",
+            "--num-steps",
+            "32",
+            "--minibatch-size",
+            "64",
+            "--out",
+            str(out),
+        ],
+        env={**os.environ, "JAXCART_CACHE_DIR": where},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "JAXCART_CACHE_DIR" in lines[0] and "Traceback" not in done.stderr
+    assert not out.exists()

@@ -76,13 +76,30 @@ def compilation_cache_dir() -> Path:
 
 
 def enable_compilation_cache() -> None:
-    """Turns on JAX's persistent compilation cache so repeated runs skip XLA compilation."""
+    """Turns on JAX's persistent compilation cache so repeated runs skip XLA compilation.
+
+    Raises:
+        ConfigError: ``$JAXCART_CACHE_DIR`` names a place that is not a writable directory
+            (the user chose it, so it is a mistake to report, where an unwritable default
+            cache only costs compile time and is skipped).
+    """
     import jax
+
+    from jaxcart.core.config import ConfigError
 
     path = compilation_cache_dir()
     try:
         path.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return  # an unwritable cache only costs compile time
+        usable = path.is_dir() and os.access(path, os.W_OK | os.X_OK)
+        reason = "it is not a writable directory"
+    except OSError as exc:
+        usable, reason = False, exc.strerror or str(exc)
+    if not usable:
+        if os.environ.get("JAXCART_CACHE_DIR"):
+            raise ConfigError(
+                f"JAXCART_CACHE_DIR={path} cannot hold the compilation cache: {reason}; "
+                "choose another directory, unset it, or pass --no-compile-cache"
+            )
+        return  # the default place: an unwritable cache only costs compile time
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
