@@ -45,11 +45,13 @@ def pack_batch(batch: Fields) -> Array:
     Plain version: gather each field with the same permutation. Why: one gather of contiguous
     rows per epoch instead of one per field (``benchmarks/RESULTS.md``, "What was changed" in
     the update section; ``benchmarks/results/update_ablation.md``: the shuffle now costs 2-3%).
-    Integer fields travel as floats, exact below 2**24, so the round trip is exact.
+    Integer fields travel as floats, exact below 2**24, so the round trip is exact. A field
+    that is None takes no column.
     """
-    floats = [f for f in batch if jnp.issubdtype(f.dtype, jnp.floating)]
+    present = [f for f in batch if f is not None]
+    floats = [f for f in present if jnp.issubdtype(f.dtype, jnp.floating)]
     dtype = jnp.result_type(*floats)  # no float field loses precision
-    columns = [f.astype(dtype) if f.ndim == 2 else f.astype(dtype)[:, None] for f in batch]
+    columns = [f.astype(dtype) if f.ndim == 2 else f.astype(dtype)[:, None] for f in present]
     return jnp.concatenate(columns, axis=-1)
 
 
@@ -58,6 +60,9 @@ def unpack_batch(rows: Array, like: Fields) -> Fields:
     widths and dtypes, ``[M, ...]``."""
     fields, start = [], 0
     for field in like:
+        if field is None:
+            fields.append(None)
+            continue
         if field.ndim == 2:
             width = field.shape[-1]
             fields.append(rows[:, start : start + width].astype(field.dtype))
