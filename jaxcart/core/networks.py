@@ -178,25 +178,9 @@ class ActorCritic(nn.Module):
         return self.apply(params, obs)[1]
 
 
-def init_params(network: nn.Module, rng: np.random.Generator, obs_dim: int) -> dict:
-    """A run's fresh parameters (NumPy leaves): the network's own host initialisation when it
-    has one (the built-in :class:`ActorCritic`), else flax's ``network.init`` with a key drawn
-    from ``rng``."""
-    if hasattr(network, "host_init"):
-        return network.host_init(rng, obs_dim)
-    key = jax.random.PRNGKey(int(rng.integers(0, 2**31)))
-    variables = network.init(key, jnp.zeros((1, obs_dim), jnp.float32))
-    return jax.tree.map(np.asarray, jax.device_get(dict(variables)))
-
-
 def param_shapes(network: nn.Module, obs_dim: int) -> dict:
-    """The parameter tree with ``(shape, dtype)`` leaves, without computing anything."""
-    if hasattr(network, "shapes"):
-        return jax.tree.map(
-            lambda s: (s, np.dtype(np.float32)),
-            network.shapes(obs_dim),
-            is_leaf=lambda x: isinstance(x, tuple),
-        )
+    """A flax network's parameter tree with ``(shape, dtype)`` leaves, as its ``init`` makes
+    them, without computing anything (the built-in network's: :meth:`ActorCritic.shapes`)."""
     shaped = jax.eval_shape(
         network.init, jax.random.PRNGKey(0), jax.ShapeDtypeStruct((1, obs_dim), jnp.float32)
     )
