@@ -61,6 +61,14 @@ def read_config_file(path: Path, parser: argparse.ArgumentParser) -> FileOptions
         values = {k: data[k] for k in RUN_KEYS if data.get(k) not in (None, {}, [])}
         swept = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
         values.update({k: v for k, v in data["config"].items() if k not in swept})
+        if isinstance(data.get("env_params"), dict) and data["env_params"]:
+            values["env_param"] = data["env_params"]
+        if isinstance(data.get("randomize"), dict) and data["randomize"]:
+            values["randomize"] = {
+                f"env.{k}": f"{_text(r.get('low'))}:{_text(r.get('high'))}:{r.get('per')}"
+                for k, r in data["randomize"].items()
+                if isinstance(r, dict)
+            }
         if data.get("lr_schedule"):
             options.notes.append(
                 f"note: --config {path}: its lr_schedule (from a --resume that extended it) is "
@@ -140,6 +148,7 @@ def _option(key: str, parser: argparse.ArgumentParser, zoo: bool) -> argparse.Ac
     """The parser's action for a file's key: its own option, or (rl-zoo3) an SB3 alias."""
     actions = parser._option_string_actions  # argparse has no public map of its options
     name = key.replace("_", "-").lower()
+    name = {"env-params": "env-param"}.get(name, name)  # config.json's name for the option
     if name in NOT_FROM_FILE:
         return None
     flag = f"--{name}"

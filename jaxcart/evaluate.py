@@ -6,11 +6,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import jax
 
 from jaxcart import cli
+from jaxcart.core import physics
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.run.greedy import evaluate_params, summarize
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
@@ -41,6 +43,15 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="C",
         help="only this combination of a sweep (needed with --gif)",
+    )
+    parser.add_argument(
+        "--env-param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="evaluate on other physics: this field of CartPole's params over the run's own "
+        "(repeatable; default: the physics the run trained on, a randomised field at its "
+        "nominal value)",
     )
     parser.add_argument("--gif", type=Path, default=None, help="also render one episode to a GIF")
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
@@ -83,14 +94,36 @@ def _combo_label(c: int, combos: list) -> str:
     return f"{c} " + ",".join(f"{k}={v:g}" for k, v in values.items())
 
 
+def _with_env_params(trained: RunParams, specs: list[str]) -> RunParams:
+    """``trained`` evaluated on its own physics with the ``--env-param`` fields over them."""
+    if not specs:
+        return trained
+    values = {**physics.overrides(trained.env_params), **physics.parse_env_params(specs)}
+    return dataclasses.replace(trained, env_params=physics.make_env_params(values))
+
+
+def _physics_text(sources: list[tuple[str | None, RunParams]]) -> str:
+    """`` with length=1`` when every source runs on the same non-default physics; ``""``
+    for CartPole-v1's; `` with each combination's physics`` when they differ."""
+    shown = {physics.describe(physics.overrides(t.env_params)) for _, t in sources}
+    if len(shown) > 1:
+        return " with each combination's physics"
+    text = shown.pop()
+    return f" with {text}" if text else ""
+
+
 def _evaluate_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    physics.parse_env_params(args.env_param)  # a bad --env-param before anything is read
     info = read_run_config(args.run_dir)
     num_seeds = int(info.get("num_seeds", 1))
     sweep = bool(recorded_combinations(info))
     if args.gif is not None:
         _check_gif_options(args, num_seeds, sweep)
-    sources = _sources(args.run_dir, args.combination)
+    sources = [
+        (label, _with_env_params(trained, args.env_param))
+        for label, trained in _sources(args.run_dir, args.combination)
+    ]
     note = sources[0][1].note
     if note:
         print(
@@ -108,7 +141,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
         ]
     print(
         f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
-        f"gymnasium.make('CartPole-v1') (reset seeds {EVAL_SEED}..."
+        f"gymnasium.make('CartPole-v1'){_physics_text(sources)} (reset seeds {EVAL_SEED}..."
         f"{EVAL_SEED + args.episodes - 1}):"
     )
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
@@ -124,7 +157,7 @@ def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
 
     one = jax.tree.map(lambda x: x[args.seed_index], trained.params)
     policy = make_policy(one, trained.config)
-    gif = render_gif(policy, args.gif, seed=args.gif_seed)
+    gif = render_gif(policy, args.gif, seed=args.gif_seed, env_params=trained.env_params)
     print(
         f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
         f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"

@@ -112,7 +112,27 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         action="append",
         default=[],
         metavar="NAME=V1,V2",
-        help="sweep a float hyperparameter (repeatable); every combination x seed trains in one program",
+        help="sweep a float hyperparameter, or a continuous physics field as env.NAME (e.g. "
+        "env.length=0.5,1.0,2.0) (repeatable); every combination x seed trains in one program",
+    )
+    run.add_argument(
+        "--env-param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="set a field of CartPole's physics for every run, e.g. length=1.0 (half the "
+        "pole's length, as in Gymnasium); repeatable; recorded in config.json and used by "
+        "the Gymnasium evaluation, evaluate, load_policy and the GIF (python -m jaxcart.env "
+        "lists the fields)",
+    )
+    run.add_argument(
+        "--randomize",
+        action="append",
+        default=[],
+        metavar="env.NAME=LOW:HIGH",
+        help="draw a continuous physics field uniformly in [LOW, HIGH] once per seed (from the "
+        "seed, recorded per seed in config.json); repeatable; the runs are evaluated on the "
+        "nominal physics (--env-param or CartPole-v1's)",
     )
     run.add_argument(
         "--eval-episodes",
@@ -227,6 +247,8 @@ class TrainOptions:
     seed: int | None = None
     out: Path | None = None
     sweep: tuple[str, ...] = ()
+    env_param: tuple[str, ...] = ()
+    randomize: tuple[str, ...] = ()
     resume: Path | None = None
     allow_device_change: bool = False
     checkpoint_every: float = 30.0
@@ -254,6 +276,8 @@ class TrainOptions:
             seed=args.seed,
             out=args.out,
             sweep=tuple(args.sweep),
+            env_param=tuple(args.env_param),
+            randomize=tuple(args.randomize),
             resume=args.resume,
             allow_device_change=args.allow_device_change,
             checkpoint_every=args.checkpoint_every,
@@ -273,10 +297,17 @@ class TrainOptions:
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
+        from jaxcart.core import physics
         from jaxcart.run import lifecycle
         from jaxcart.run.sweep import parse_sweep
 
         sweep = parse_sweep(list(self.sweep))
+        env_values = physics.parse_env_params(self.env_param)
+        for name in env_values:
+            if physics.PREFIX + name in sweep:
+                raise cli.UsageError(
+                    f"--env-param {name} and --sweep env.{name} both given; keep one"
+                )
         for name in sweep:
             if name in self.overrides:
                 raise cli.UsageError(
@@ -289,6 +320,8 @@ class TrainOptions:
             num_seeds=1 if self.num_seeds is None else self.num_seeds,
             seed=0 if self.seed is None else self.seed,
             sweep=sweep,
+            env_params=physics.make_env_params(env_values),
+            randomize=physics.parse_randomize(self.randomize),
         )
 
     def run_options(self) -> lifecycle.RunOptions:
@@ -319,6 +352,8 @@ class TrainOptions:
             if value is not None:
                 given.append(flag)
         given += ["--sweep"] if self.sweep else []
+        given += ["--env-param"] if self.env_param else []
+        given += ["--randomize"] if self.randomize else []
         if given:
             raise cli.UsageError(
                 f"--resume continues a run with its saved settings; drop {', '.join(given)}"

@@ -154,7 +154,7 @@ def grouped_iteration(
     ``group`` runs (:func:`in_groups`): the same arithmetic per run, but XLA compiles the update
     for the group width, so above ``group`` runs the last bits differ from a plain vmap."""
     before, rollout, batch, update_key, learning_rate = jax.vmap(
-        prepare_update, in_axes=(0, 0, None, None)
+        prepare_update, in_axes=(0, 0, None, env_axes(env_params))
     )(runners, config, iteration, env_params)
     update = in_groups(update_epochs, len(runners.key), group)
     params, opt_state, losses = update(
@@ -164,6 +164,15 @@ def grouped_iteration(
         before, rollout, batch, learning_rate, params, opt_state, losses
     )
     return jax.vmap(guard_divergence, in_axes=(0, 0, 0, None))(runners, new, metrics, iteration)
+
+
+def env_axes(env_params: cartpole.EnvParams) -> cartpole.EnvParams | None:
+    """The vmap axes of ``env_params`` over runs: None when every field is one number for all
+    runs (the default, a constant of the program), else 0 for each field that holds an array
+    ``[R]`` (a swept or randomised physics field) and None for the others."""
+    if not any(jnp.ndim(v) for v in jax.tree.leaves(env_params)):
+        return None
+    return jax.tree.map(lambda v: 0 if jnp.ndim(v) else None, env_params)
 
 
 def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
@@ -194,6 +203,9 @@ def train_chunk(
     """Scans up to ``chunk_size`` iterations of every run; jit this (env_params and chunk_size
     static; the config's static fields are part of its pytree structure).
 
+    ``env_params``' fields are numbers (constants of the program), except those that differ
+    between runs: arrays ``[R]``, vmapped with the runs (:func:`env_axes`).
+
     Args:
         runners: a :class:`RunnerState` with a leading run axis ``[R]``.
         config: every run's config, its traced fields ``[R]`` (:meth:`PPOConfig.per_run`).
@@ -220,7 +232,7 @@ def train_chunk(
     if update_group is not None and num_runs > update_group:
         runs_iteration = functools.partial(grouped_iteration, group=update_group)
     else:  # exactly the program of a plain vmap (the grouped one differs in the last bits)
-        runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, None))
+        runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, env_axes(env_params)))
 
     def run(runners: RunnerState, iteration: Array):
         return runs_iteration(runners, config, iteration, env_params)
@@ -246,6 +258,7 @@ def train_chunk(
 
 __all__ = [
     "UPDATE_GROUP",
+    "env_axes",
     "group_layout",
     "grouped_iteration",
     "guard_divergence",

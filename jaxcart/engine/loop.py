@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxcart.core import cartpole
-from jaxcart.core.config import PPOConfig
+from jaxcart.core import cartpole, physics
+from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
 from jaxcart.engine import distributed
@@ -82,7 +82,7 @@ def init_runners(
     flax network is initialised by its own ``init``, all runs in one call. ``on_progress(done, total)`` is called every
     1024 runs (it may raise to abandon the initialisation).
     """
-    env_params = env_params or cartpole.EnvParams()
+    env_params = physics.split_per_run(env_params or cartpole.EnvParams())[0]
     indices = np.asarray(seed_indices)
     keys = seed_index_keys(seed, indices)
     reset_obs = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0]
@@ -261,6 +261,9 @@ def train(
             arrays ``[num_runs]`` with one value per run (a sweep: :meth:`PPOConfig.per_run`).
         num_runs: independent runs, a vmap axis sharded over ``devices``.
         seed: base seed; run r uses ``fold_in(PRNGKey(seed), seed_indices[r])``.
+        env_params: CartPole's params (default CartPole-v1's); a continuous field may hold
+            an array ``[num_runs]``, one value per run (a physics sweep or randomisation),
+            which the program takes as an argument: other values reuse the executable.
         chunk_size: iterations per compiled call between progress reports (default: calls
             that adapt to take about :data:`CHUNK_SECONDS` each).
         resume: continue from this state (e.g. a loaded checkpoint), bit-identically.
@@ -278,6 +281,7 @@ def train(
     state = resume or initial_state(config, num_runs, seed, env_params, chunk_size, seed_indices)
     devices = _devices(devices, num_runs, runs_per_device)
     runners, run_configs = place(state, devices, num_runs, runs_per_device)
+    env_params = place_env_params(env_params, devices, num_runs, runs_per_device)
 
     start = time.perf_counter()
     compiled, fresh = None, False
@@ -331,6 +335,23 @@ def place(
     padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
     runners = distributed.to_global(pad_runs(state.runners, padded), sharding)
     return runners, distributed.to_global(pad_runs(state.config, padded), sharding)
+
+
+def place_env_params(
+    env_params: cartpole.EnvParams, devices: list, num_runs: int, runs_per_device: int | None
+) -> cartpole.EnvParams:
+    """``env_params`` with its per-run fields (arrays ``[num_runs]``, if any) in the training's
+    float type, padded and placed as :func:`place` places the runs; unchanged without them."""
+    static, per_run = physics.split_per_run(env_params)
+    if not per_run:
+        return env_params
+    for name, values in per_run.items():
+        if np.shape(values) != (num_runs,):
+            raise ValueError(f"env param {name} holds {np.shape(values)}; expected ({num_runs},)")
+    padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
+    arrays = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
+    placed = distributed.to_global(pad_runs(arrays, padded), run_sharding(devices))
+    return physics.with_values(static, placed)
 
 
 class _ChunkLoop:
@@ -420,26 +441,39 @@ def compiled_chunk(
     static fields), the env constants, the chunk size and the array shapes and shardings of
     the runners and of the config's traced fields (``[R]``). The traced values are not part
     of the key (nor of the program): new learning rates, clip ranges, ... reuse the same
-    executable. The program takes ``(runners, config, start_iteration, count)``; ``count``
+    executable. So are env params that differ between runs (arrays ``[R]`` on
+    ``env_params``, placed as the runners): the returned callable passes them to the program,
+    whose key holds only their names. The program takes ``(runners, config, start_iteration, count)``; ``count``
     (how many of the chunk's iterations run) is honoured when ``chunk_seconds`` is set
     (adaptive chunks), else every call runs ``chunk_size`` iterations.
 
     Returns:
         ``(compiled, fresh)`` where ``fresh`` says whether it was compiled just now.
     """
+    static_env, per_run = physics.split_per_run(env_params)
     signature = tuple(
         (leaf.shape, str(leaf.dtype), str(leaf.sharding))
-        for leaf in jax.tree.leaves((runners, config))
+        for leaf in jax.tree.leaves((runners, config, per_run))
     )
     adaptive = bool(chunk_seconds)
-    key = (jax.tree.structure(config), env_params, chunk_size, adaptive, signature)
-    if key in _COMPILED:
-        return _COMPILED[key], False
-    sharding = jax.tree.leaves(runners)[0].sharding
-    program = chunk_program(env_params, chunk_size, sharding, adaptive)
-    lowered = program.lower(runners, config, jnp.int32(0), jnp.int32(1))
-    _COMPILED[key] = lowered.compile()
-    return _COMPILED[key], True
+    key = (jax.tree.structure(config), static_env, tuple(per_run), chunk_size, adaptive, signature)
+    fresh = key not in _COMPILED
+    if fresh:
+        sharding = jax.tree.leaves(runners)[0].sharding
+        program = chunk_program(static_env, chunk_size, sharding, adaptive, bool(per_run))
+        extra = (per_run,) if per_run else ()
+        lowered = program.lower(runners, config, jnp.int32(0), jnp.int32(1), *extra)
+        _COMPILED[key] = lowered.compile()
+    if per_run:
+        return functools.partial(_with_env_values, _COMPILED[key], per_run), fresh
+    return _COMPILED[key], fresh
+
+
+def _with_env_values(
+    compiled: Callable, per_run: dict, runners: RunnerState, config: PPOConfig, *args: jax.Array
+) -> tuple[RunnerState, dict]:
+    """The compiled chunk called with the runs' own env param values ``[R]``."""
+    return compiled(runners, config, *args, per_run)
 
 
 def chunk_program(
@@ -447,10 +481,12 @@ def chunk_program(
     chunk_size: int,
     sharding: jax.sharding.Sharding,
     adaptive: bool,
+    per_run_env: bool = False,
 ) -> Callable:
     """The jitted :func:`~jaxcart.engine.chunk.train_chunk` that :func:`compiled_chunk`
     compiles, ``(runners, config, start_iteration, count) -> (runners, metrics)`` for runners
-    placed with ``sharding``.
+    placed with ``sharding``; with ``per_run_env``, a fifth argument holds the env params that
+    differ between runs, ``{name: [R]}``, placed as the runners.
 
     The runners are not donated: a run that diverges is rolled back to them
     (:func:`rolled_back`)."""
@@ -458,9 +494,16 @@ def chunk_program(
     on_cpu = all(d.platform == "cpu" for d in sharding.device_set)
     update_group = UPDATE_GROUP if on_cpu else None
 
-    def training_chunk(runners: RunnerState, config: PPOConfig, start: jax.Array, count: jax.Array):
+    def training_chunk(
+        runners: RunnerState,
+        config: PPOConfig,
+        start: jax.Array,
+        count: jax.Array,
+        per_run: dict | None = None,
+    ):
         count = count if adaptive else None
-        return train_chunk(runners, config, start, env_params, chunk_size, update_group, count)
+        env = physics.with_values(env_params, per_run or {})
+        return train_chunk(runners, config, start, env, chunk_size, update_group, count)
 
     if isinstance(sharding, NamedSharding) and sharding.mesh.size > 1:
         # Every device runs the same program on its own runs with no communication: say so
@@ -469,7 +512,7 @@ def chunk_program(
         training_chunk = jax.shard_map(
             training_chunk,
             mesh=sharding.mesh,
-            in_specs=(spec, spec, PartitionSpec(), PartitionSpec()),
+            in_specs=(spec, spec, PartitionSpec(), PartitionSpec(), *[spec] * per_run_env),
             out_specs=(spec, PartitionSpec(None, *spec)),
             check_vma=False,  # per-run metrics vs the skip branch's constants
         )

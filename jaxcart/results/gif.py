@@ -23,6 +23,9 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from jaxcart.core.cartpole import EnvParams
+from jaxcart.gym.stock import make_cartpole, reset_options
+
 SCREEN_WIDTH, SCREEN_HEIGHT = 600, 400
 """Gymnasium's CartPole canvas in pixels."""
 
@@ -123,6 +126,7 @@ def render_frames(
     max_steps: int = 500,
     backend: Literal["auto", "gymnasium", "pillow"] = "auto",
     env_id: str = "CartPole-v1",
+    env_params: EnvParams | None = None,
 ) -> tuple[list[np.ndarray], float, str]:
     """Runs one greedy episode and yields its frames.
 
@@ -131,6 +135,8 @@ def render_frames(
         seed: ``env.reset(seed=seed)``.
         max_steps: stop after this many steps even if the episode goes on.
         backend: ``"gymnasium"`` (pygame), ``"pillow"``, or ``"auto"`` (pygame when installed).
+        env_params: the physics (default CartPole-v1's; e.g. ``policy.env_params`` of a
+            :func:`jaxcart.load_policy` policy).
 
     Returns:
         ``(frames, episode_return, backend)``: ``steps + 1`` frames ``(400, 600, 3)`` uint8 (the
@@ -138,14 +144,12 @@ def render_frames(
         :func:`render_gif` streams them instead).
     """
     stats: dict = {}
-    frames = list(_iter_frames(policy, seed, max_steps, backend, env_id, stats))
+    frames = list(_iter_frames(policy, seed, max_steps, backend, env_id, stats, env_params))
     return frames, stats["return"], stats["backend"]
 
 
-def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict):
+def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict, env_params=None):
     """Yields ``(400, 600, 3)`` frames of one episode; fills ``stats`` with its return/backend."""
-    import gymnasium as gym
-
     if backend not in ("auto", "gymnasium", "pillow"):
         raise ValueError(f"backend must be 'auto', 'gymnasium' or 'pillow', got {backend!r}")
     if backend == "auto":
@@ -155,7 +159,8 @@ def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict):
             "backend='gymnasium' needs pygame: pip install pygame (or use backend='pillow')"
         )
     stats["backend"] = backend
-    env = gym.make(env_id, render_mode="rgb_array" if backend == "gymnasium" else None)
+    mode = "rgb_array" if backend == "gymnasium" else None
+    env = make_cartpole(env_params, env_id, render_mode=mode)
     core = env.unwrapped
 
     def frame() -> np.ndarray:
@@ -164,7 +169,7 @@ def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict):
         return draw_frame(np.asarray(core.state), core.length, core.x_threshold)
 
     try:
-        obs, _ = env.reset(seed=seed)
+        obs, _ = env.reset(seed=seed, options=reset_options(env_params))
         total = 0.0
         stats["return"], stats["steps"] = total, 0
         yield frame()
@@ -204,6 +209,7 @@ def render_gif(
     annotate: bool = True,
     backend: Literal["auto", "gymnasium", "pillow"] = "auto",
     env_id: str = "CartPole-v1",
+    env_params: EnvParams | None = None,
 ) -> RenderedGif:
     """Renders one greedy episode of ``policy`` in Gymnasium's CartPole-v1 to an animated GIF.
 
@@ -221,6 +227,8 @@ def render_gif(
         scale: resize factor of Gymnasium's 600x400 frames (0.5 gives 300x200).
         annotate: write the step count and return in the corner.
         backend: ``"gymnasium"`` (pygame renderer), ``"pillow"`` (drawn here), or ``"auto"``.
+        env_params: the physics the episode runs on (default CartPole-v1's), e.g. the
+            ``env_params`` of a :func:`jaxcart.load_policy` policy.
 
     Returns:
         A :class:`RenderedGif` with the path, frame count, steps and episode return.
@@ -235,7 +243,8 @@ def render_gif(
     palette = gif_palette()
     images = []
     last = None
-    for i, frame in enumerate(_iter_frames(policy, seed, max_steps, backend, env_id, stats)):
+    frames = _iter_frames(policy, seed, max_steps, backend, env_id, stats, env_params)
+    for i, frame in enumerate(frames):
         last = (i, frame)
         if i % frame_skip:
             continue

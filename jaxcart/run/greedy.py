@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,13 +13,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import cartpole
-from jaxcart.core.config import PPOConfig
+from jaxcart.core import cartpole, physics
+from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped
+from jaxcart.gym.stock import make_cartpole, reset_options
 from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
@@ -30,6 +32,7 @@ class _GymnasiumCartPole:
     under its ``TimeLimit``), and its step for a whole batch of states at once."""
 
     gravity: float
+    masscart: float
     masspole: float
     total_mass: float
     length: float
@@ -56,6 +59,7 @@ class _GymnasiumCartPole:
             )
         return cls(
             gravity=cartpole.gravity,
+            masscart=cartpole.masscart,
             masspole=cartpole.masspole,
             total_mass=cartpole.total_mass,
             length=cartpole.length,
@@ -67,6 +71,20 @@ class _GymnasiumCartPole:
             euler=cartpole.kinematics_integrator == "euler",
             sutton_barto_reward=bool(getattr(cartpole, "_sutton_barto_reward", False)),
             max_episode_steps=env.spec.max_episode_steps if env.spec else None,
+        )
+
+    def per_policy(self, per_run: dict[str, np.ndarray]) -> _GymnasiumCartPole:
+        """These constants with some fields one value per policy (arrays ``[P]``, shaped
+        ``[P, 1]`` to broadcast over the episodes), and the masses Gymnasium derives from
+        them recomputed as its constructor does."""
+        if not per_run:
+            return self
+        values = {n: np.asarray(v, np.float64)[:, None] for n, v in per_run.items()}
+        new = dataclasses.replace(self, **values)
+        return dataclasses.replace(
+            new,
+            total_mass=new.masspole + new.masscart,
+            polemass_length=new.masspole * new.length,
         )
 
     def step(self, state: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -112,12 +130,15 @@ class _GymnasiumCartPole:
         return np.ones(terminated.shape)
 
 
-def _start_states(env, seed: int, num_episodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """Episode ``e``'s start from ``env.reset(seed=seed + e)``: ``(states [4, num_episodes]
-    float64, observations [num_episodes, 4] float32)``, drawn by Gymnasium itself."""
+def _start_states(
+    env, seed: int, num_episodes: int, options: dict | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Episode ``e``'s start from ``env.reset(seed=seed + e, options=options)``: ``(states
+    [4, num_episodes] float64, observations [num_episodes, 4] float32)``, drawn by Gymnasium
+    itself."""
     states, observations = [], []
     for e in range(num_episodes):
-        obs, _ = env.reset(seed=seed + e)
+        obs, _ = env.reset(seed=seed + e, options=options)
         states.append(np.array(env.unwrapped.state, dtype=np.float64))
         observations.append(obs)
     return np.stack(states, axis=1), np.stack(observations)
@@ -130,8 +151,11 @@ def evaluate_gymnasium(
     seed: int = EVAL_SEED,
     env_id: str = "CartPole-v1",
     should_stop: Callable[[], bool] | None = None,
+    env_params: cartpole.EnvParams | None = None,
 ) -> np.ndarray:
-    """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``.
+    """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``, with
+    ``env_params``' physics when given (:func:`jaxcart.gym.stock.make_cartpole`; a continuous
+    field may hold one value per policy, ``[num_policies]``).
 
     Episode ``e`` of every policy starts where ``gymnasium.make(env_id).reset(seed=seed + e)``
     starts. All policies and episodes then advance in lockstep, with one batched policy call
@@ -154,12 +178,11 @@ def evaluate_gymnasium(
         ValueError: ``env_id`` is not Gymnasium's ``CartPoleEnv``, or an action not 0 or 1.
         Stopped: ``should_stop()`` turned true.
     """
-    import gymnasium as gym
-
-    env = gym.make(env_id)
+    static, per_run = physics.split_per_run(env_params or cartpole.EnvParams())
+    env = make_cartpole(static, env_id)
     try:
-        cartpole = _GymnasiumCartPole.of(env)
-        states, first_obs = _start_states(env, seed, num_episodes)
+        constants = _GymnasiumCartPole.of(env).per_policy(per_run)
+        states, first_obs = _start_states(env, seed, num_episodes, reset_options(static))
     finally:
         env.close()
     shape = (num_policies, num_episodes)
@@ -175,14 +198,14 @@ def evaluate_gymnasium(
         invalid = alive & (actions != 0) & (actions != 1)
         if invalid.any():
             raise ValueError(f"actions must be 0 or 1, got {np.unique(actions[invalid])}")
-        stepped, terminated = cartpole.step(state, actions)
+        stepped, terminated = constants.step(state, actions)
         steps += 1
         # Only the running episodes move on; the finished keep their state and observation.
-        np.add(returns, cartpole.reward(terminated), out=returns, where=alive)
+        np.add(returns, constants.reward(terminated), out=returns, where=alive)
         np.copyto(state, stepped, where=alive)
         np.copyto(obs, np.moveaxis(stepped, 0, -1), casting="same_kind", where=alive[..., None])
         alive &= ~terminated
-        if cartpole.max_episode_steps is not None and steps >= cartpole.max_episode_steps:
+        if constants.max_episode_steps is not None and steps >= constants.max_episode_steps:
             alive[:] = False  # TimeLimit: every episode still running is truncated here
     return returns
 
@@ -237,22 +260,33 @@ def evaluate_runs(
     seed_indices: np.ndarray,
     episodes: int,
     should_stop: Callable[[], bool] | None = None,
+    env_params: cartpole.EnvParams | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
     Gymnasium's CartPole-v1 (the same reset seeds for all) and in jaxcart's env (run r's
-    episodes from ``fold_in(seed key of seed_indices[r], 1)``).
+    episodes from ``fold_in(seed key of seed_indices[r], 1)``), both with ``env_params``'
+    physics (default CartPole-v1's; a continuous field may hold one value per run, ``[R]``).
 
     Args:
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
     num_runs = len(seed_indices)
+    env_params = env_params or cartpole.EnvParams()
     policy = make_policy(params, config, stacked=True)
-    gym_returns = evaluate_gymnasium(policy, num_runs, episodes, should_stop=should_stop)
+    gym_returns = evaluate_gymnasium(
+        policy, num_runs, episodes, should_stop=should_stop, env_params=env_params
+    )
     indices = np.asarray(seed_indices)
     keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_index_keys(seed, indices))
     network = make_network(config)
-    evaluate = jax.jit(jax.vmap(lambda p, k: greedy_returns(p, k, network, episodes)))
-    return gym_returns, np.asarray(evaluate(params, keys))
+    static, per_run = physics.split_per_run(env_params)
+    per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
+
+    def one_run(p: dict, k: jax.Array, values: dict) -> jax.Array:
+        return greedy_returns(p, k, network, episodes, physics.with_values(static, values))
+
+    evaluate = jax.jit(jax.vmap(one_run))
+    return gym_returns, np.asarray(evaluate(params, keys, per_run))
 
 
 def evaluate_run_dir(
@@ -282,4 +316,4 @@ def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> n
         policy = make_policy(trained.params, trained.config, stacked=True)
     except (KeyError, TypeError, ValueError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
-    return evaluate_gymnasium(policy, trained.num_seeds, episodes)
+    return evaluate_gymnasium(policy, trained.num_seeds, episodes, env_params=trained.env_params)

@@ -63,6 +63,12 @@ from jaxcart.rundir.files import RunDirError
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 
 
+MAX_RECORDED_SEEDS = 10_000
+"""config.json lists each seed's randomised physics (``env_per_seed``) up to this many seeds;
+above it the values are drawn again from the seed when needed
+(:meth:`~jaxcart.run.spec.RunSpec.seed_env_values`), as training drew them."""
+
+
 class RunFinished(RunDirError):
     """``--resume`` of a run (or sweep) that finished: nothing to resume."""
 
@@ -87,6 +93,12 @@ def create_run(
         "num_seeds": spec.num_seeds,
         "seed": spec.seed,
         "sweep": spec.sweep,
+        **spec.record(),
+        **(
+            {"env_per_seed": spec.seed_env_values()}
+            if spec.randomize and spec.num_seeds <= MAX_RECORDED_SEEDS
+            else {}
+        ),
         "versions": package_versions(),
         "backend": jax.default_backend(),
         "device_count": jax.device_count(),
@@ -264,6 +276,7 @@ def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> T
         config,
         1,
         spec.seed,
+        env_params=spec.run_env_params(range(run, run + 1)),
         seed_indices=np.array([seed_index]),
         devices=jax.devices()[:used],
         runs_per_device=-(-wave // used),
@@ -462,6 +475,7 @@ def wave_start_state(
         configs,
         len(runs),
         run.spec.seed,
+        env_params=run.spec.env_params,
         chunk_size=chunk_size,
         seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
         on_progress=on_progress,
@@ -522,6 +536,7 @@ def train_wave(
             run.config,
             len(runs),
             run.spec.seed,
+            env_params=run.spec.run_env_params(runs),
             resume=state,
             on_compiled=hooks.on_compiled,
             on_chunk=handler,
@@ -550,6 +565,7 @@ def evaluate_wave(
         run.grid.seed_indices()[runs.start : runs.stop],
         episodes,
         should_stop=stop,
+        env_params=run.spec.eval_env_params(runs),
     )
     return Evaluation(episodes, gym_returns, jax_returns, time.perf_counter() - start)
 

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxcart.core import physics
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.solved import is_solved
 from jaxcart.engine.loop import Progress, TrainResult
@@ -47,7 +49,13 @@ class RunSpec:
     seed: int = 0
     """Base seed: seed index i uses ``fold_in(PRNGKey(seed), i)``."""
     sweep: dict[str, list[float]] = field(default_factory=dict)
-    """Traced float hyperparameter -> values; every combination x seed trains in one program."""
+    """Traced float hyperparameter (or ``env.NAME``, a continuous physics field) -> values;
+    every combination x seed trains in one program."""
+    env_params: EnvParams = field(default_factory=EnvParams)
+    """CartPole's physics for every run (config.json records the fields that differ from
+    CartPole-v1's)."""
+    randomize: tuple[physics.Randomization, ...] = ()
+    """Physics fields drawn uniformly per run (from the seed) or per episode (at every reset)."""
 
     def __post_init__(self) -> None:
         check_option(
@@ -61,12 +69,82 @@ class RunSpec:
             f"must be in [0, 2**32), got {self.seed}",
         )
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
+        physics.check_physics(self.env_params)
+        for name in ("max_episode_steps", "sutton_barto_reward"):
+            if name in physics.overrides(self.env_params):
+                raise ConfigError(
+                    f"--env-param {name} changes what an episode scores, and a run directory "
+                    "judges 500 as solved; train it through the Python API "
+                    "(jaxcart.engine.loop.train(env_params=...))"
+                )
+        sweeps.validate_env_sweep(self.env_params, self.sweep)
+        swept = sweeps.env_values_of(self.sweep)
+        for r in self.randomize:
+            if r.name in swept:
+                raise ConfigError(f"env.{r.name} is both swept and randomised; keep one")
+            if r.per == "episode":
+                raise ConfigError(
+                    f"--randomize env.{r.name}=...:episode is not supported yet; "
+                    "randomise per run (drop :episode)"
+                )
+            for bound in (r.low, r.high):
+                try:
+                    physics.check_physics(self.env_params.replace(**{r.name: bound}))
+                except ConfigError as exc:
+                    raise ConfigError(f"--randomize env.{r.name}: {exc}") from None
 
     @classmethod
     def from_record(cls, info: dict) -> RunSpec:
         """The spec a run's ``config.json`` records (``config`` already a PPOConfig)."""
         sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
-        return cls(info["config"], info["preset"], int(info["num_seeds"]), int(info["seed"]), sweep)
+        env_params = physics.make_env_params(info.get("env_params") or {})
+        randomize = tuple(
+            physics.Randomization(name, float(r["low"]), float(r["high"]), str(r["per"]))
+            for name, r in (info.get("randomize") or {}).items()
+        )
+        return cls(
+            info["config"],
+            info["preset"],
+            int(info["num_seeds"]),
+            int(info["seed"]),
+            sweep,
+            env_params,
+            randomize,
+        )
+
+    def record(self) -> dict:
+        """What ``config.json`` records of the physics: ``env_params`` (the fields that
+        differ from CartPole-v1's) and ``randomize``, each only when there is one, so a run on
+        the default physics records what it always did."""
+        out: dict = {}
+        if physics.overrides(self.env_params):
+            out["env_params"] = physics.overrides(self.env_params)
+        if self.randomize:
+            out["randomize"] = {r.name: r.to_dict() for r in self.randomize}
+        return out
+
+    def run_env_params(self, runs: range) -> EnvParams:
+        """The physics of ``runs`` (grid order) as they train: the run's env params, with
+        each swept or per-run randomised field an array ``[len(runs)]``."""
+        values = {
+            n: v[runs.start : runs.stop] for n, v in sweeps.grid_env_values(self.grid).items()
+        }
+        indices = self.grid.seed_indices()[runs.start : runs.stop]
+        values.update(physics.randomized_values(self.randomize, self.seed, indices))
+        return physics.with_values(self.env_params, values)
+
+    def eval_env_params(self, runs: range) -> EnvParams:
+        """The physics ``runs`` are evaluated on: a sweep's own values per run, the nominal
+        physics (``env_params``) for a randomised field."""
+        values = {
+            n: v[runs.start : runs.stop] for n, v in sweeps.grid_env_values(self.grid).items()
+        }
+        return physics.with_values(self.env_params, values)
+
+    def seed_env_values(self) -> dict[str, list[float]]:
+        """Each per-run randomised field's value for every seed index, as recorded."""
+        drawn = physics.randomized_values(self.randomize, self.seed, range(self.num_seeds))
+        return {n: [float(x) for x in v] for n, v in drawn.items()}
 
     @functools.cached_property
     def grid(self) -> sweeps.RunGrid:
@@ -78,6 +156,13 @@ class RunSpec:
         if not self.sweep:
             return self.config
         return sweeps.combo_config(self.config, self.grid.combos[combination])
+
+    def combo_env_params(self, combination: int) -> EnvParams:
+        """The physics of one combination (the run's env params without a physics sweep)."""
+        if not self.sweep:
+            return self.env_params
+        swept = sweeps.env_values_of(self.grid.combos[combination])
+        return physics.with_values(self.env_params, swept)
 
 
 @dataclass(frozen=True)

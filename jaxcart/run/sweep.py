@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from jaxcart.analysis import stats, summary
+from jaxcart.core import physics
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
 
 
@@ -67,7 +69,8 @@ class RunGrid:
 
 
 def parse_sweep(specs: list[str]) -> dict[str, list[float]]:
-    """``["learning_rate=1e-4,3e-4", "clip_coef=0.1,0.2"]`` -> ``{name: [values]}``.
+    """``["learning_rate=1e-4,3e-4", "clip_coef=0.1,0.2"]`` -> ``{name: [values]}``; a
+    continuous physics field sweeps as ``env.length=0.5,1.0`` (kept with its prefix).
 
     Raises:
         ConfigError: malformed spec, unknown or non-sweepable field, bad or repeated value.
@@ -80,7 +83,9 @@ def parse_sweep(specs: list[str]) -> dict[str, list[float]]:
             raise ConfigError(
                 f"malformed --sweep {spec!r}; expected NAME=V1,V2,... e.g. learning_rate=1e-4,3e-4"
             )
-        if name not in TRACED_FIELDS:
+        if name.startswith(physics.PREFIX):
+            physics.check_continuous(name[len(physics.PREFIX) :], "--sweep")
+        elif name not in TRACED_FIELDS:
             raise ConfigError(
                 f"cannot sweep {name!r}: only float hyperparameters run in one program "
                 f"({', '.join(TRACED_FIELDS)})"
@@ -103,6 +108,8 @@ def validate_sweep(config: PPOConfig, sweep: dict[str, list[float]]) -> None:
     on its own, so checking every value once checks every combination (a million-combination
     sweep costs its 2,000 values, not a million configs)."""
     for name, values in sweep.items():
+        if name.startswith(physics.PREFIX):
+            continue  # physics: checked with the run's env params (validate_env_sweep)
         for value in values:
             try:
                 dataclasses.replace(config, **{name: value})
@@ -110,9 +117,37 @@ def validate_sweep(config: PPOConfig, sweep: dict[str, list[float]]) -> None:
                 raise ConfigError(f"--sweep value out of range: {exc}") from None
 
 
+def validate_env_sweep(env_params: EnvParams, sweep: dict[str, list[float]]) -> None:
+    """Raises :class:`ConfigError` for a swept physics value outside sense with
+    ``env_params``' other fields (each checked on its own, as :func:`validate_sweep`)."""
+    for name, values in env_values_of(sweep).items():
+        for value in values:
+            try:
+                physics.check_physics(env_params.replace(**{name: value}))
+            except ConfigError as exc:
+                raise ConfigError(f"--sweep value out of range: {exc}") from None
+
+
+def env_values_of(combo: dict) -> dict:
+    """The physics entries of a combination (or a sweep), without their ``env.`` prefix."""
+    prefix = physics.PREFIX
+    return {k[len(prefix) :]: v for k, v in combo.items() if k.startswith(prefix)}
+
+
 def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
-    """The config of one combination."""
-    return dataclasses.replace(config, **combo)
+    """The config of one combination (its physics entries are not config fields)."""
+    fields = {k: v for k, v in combo.items() if not k.startswith(physics.PREFIX)}
+    return dataclasses.replace(config, **fields)
+
+
+def grid_env_values(grid: RunGrid) -> dict[str, np.ndarray]:
+    """Each swept physics field's value for every run in ``grid`` order, float64
+    ``[num_runs]`` (``{}`` when the sweep has none)."""
+    names = sorted({k for c in grid.combos for k in env_values_of(c)})
+    return {
+        n: np.repeat([env_values_of(c)[n] for c in grid.combos], grid.num_seeds).astype(float)
+        for n in names
+    }
 
 
 def grid_config(config: PPOConfig, grid: RunGrid) -> PPOConfig:

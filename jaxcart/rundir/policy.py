@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.core import networks
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.checkpoint import read_checkpoint_runs
@@ -42,6 +43,9 @@ class Policy:
         self.deterministic = deterministic
         self.rng = np.random.default_rng(rng)
         self.note: str | None = None  # where the parameters came from, if not a finished run
+        # the physics the policy trained on (set by load_policy), for an env to run it in:
+        # jaxcart.gym.stock.make_cartpole(policy.env_params)
+        self.env_params: EnvParams = EnvParams()
 
     @property
     def num_seeds(self) -> int | None:
@@ -191,6 +195,9 @@ class RunParams:
     note: str | None = None
     """``from the checkpoint at iteration 12/40: the run did not finish`` when the parameters
     are not a finished run's; None for ``params.npz``."""
+    env_params: EnvParams = field(default_factory=EnvParams)
+    """The physics the run trained on (a randomised field: its nominal value), which its
+    evaluation uses (:func:`jaxcart.rundir.reader.run_env_params`)."""
 
 
 def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> RunParams:
@@ -221,12 +228,20 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
     elif combination is not None:
         raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
     num_seeds = int(info.get("num_seeds", 1))
+    env = _env_params(run_dir, info, combination)
     if not combos and layout.present(run_dir / layout.PARAMS_FILE):
-        return RunParams(reader.load_params(run_dir), info["config"], num_seeds)
+        return RunParams(reader.load_params(run_dir), info["config"], num_seeds, None, env)
     saved = read_checkpoint_runs(run_dir, info)  # unfinished
     first = (combination or 0) * num_seeds
     params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
-    return RunParams(params, _combo_config(info, combination), num_seeds, saved.note)
+    return RunParams(params, _combo_config(info, combination), num_seeds, saved.note, env)
+
+
+def _env_params(run_dir: Path, info: dict, combination: int | None) -> EnvParams:
+    try:
+        return reader.run_env_params(info, combination)
+    except (ConfigError, TypeError, ValueError) as exc:
+        raise RunDirError(f"{run_dir}: config.json env_params are unusable: {exc}") from None
 
 
 def seed_params(trained: RunParams, seed_index: int | str, allow_all: bool = False) -> dict:
@@ -253,6 +268,7 @@ def _combo_config(info: dict, combination: int | None) -> PPOConfig:
     if combination is None:
         return info["config"]
     values = reader.recorded_combinations(info)[combination]
+    values = {k: v for k, v in values.items() if not k.startswith("env.")}
     try:
         return PPOConfig.from_dict({**info["config"].to_dict(), **values})
     except (ConfigError, TypeError, ValueError) as exc:
@@ -294,6 +310,7 @@ def load_policy(
         policy = make_policy(params, trained.config, stacked, deterministic, rng)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor network: {exc}") from None
+    policy.env_params = trained.env_params
     if trained.note:
         policy.note = trained.note
         warnings.warn(f"{run_dir}: parameters {trained.note}", UserWarning, stacklevel=2)

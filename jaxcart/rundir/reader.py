@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.networks import ActorCritic, param_shapes
@@ -164,10 +165,55 @@ def _check_run_fields(data: dict) -> None:
     num_combos = math.prod(len(v) for v in sweep.values()) if sweep else 0
     if num_seeds * max(1, num_combos) > MAX_RUNS:  # checked before any list is built
         raise ValueError(f"{num_seeds} seeds x {num_combos} combinations is over {MAX_RUNS:,} runs")
+    _check_physics_fields(data)
     derived = sweep_combinations(sweep)
     if "combinations" in data and recorded_combinations(data) != derived:  # older runs
         raise ValueError("combinations do not match the sweep")
     data["combinations"] = derived
+
+
+def _check_physics_fields(data: dict) -> None:
+    """``env_params`` (a {field: value} object CartPole's params accept), ``randomize`` and the
+    physics entries of a sweep or combination, checked as a new run's are."""
+    env = data.get("env_params") or {}
+    if not isinstance(env, dict):
+        raise ValueError("env_params is not a {field: value} object")
+    params = physics.make_env_params(env)
+    randomize = data.get("randomize") or {}
+    if not isinstance(randomize, dict) or not all(
+        isinstance(r, dict)
+        and finite_number(r.get("low"))
+        and finite_number(r.get("high"))
+        and r.get("per") in ("run", "episode")
+        and r["low"] <= r["high"]
+        and name in physics.CONTINUOUS
+        for name, r in randomize.items()
+    ):
+        raise ValueError("randomize is not a {field: {low, high, per}} object")
+    for name in (*data.get("sweep", {}), *(data.get("combination") or {})):
+        if name.startswith(physics.PREFIX):
+            physics.check_continuous(name[len(physics.PREFIX) :], "config.json: sweep")
+    physics.check_physics(physics.with_values(params, env_values(data.get("combination") or {})))
+
+
+def env_values(combination: dict) -> dict:
+    """The physics entries of a combination, without their ``env.`` prefix."""
+    prefix = physics.PREFIX
+    return {k[len(prefix) :]: v for k, v in combination.items() if k.startswith(prefix)}
+
+
+def run_env_params(info: dict, combination: int | None = None) -> EnvParams:
+    """The physics a run (or one combination of a sweep) trained on, from its ``config.json``
+    (read by :func:`read_run_config`): CartPole-v1's, with ``env_params`` and the
+    combination's ``env.NAME`` values over them. A randomised field keeps its nominal value
+    (``env_params``'), which is what a randomised run is evaluated on."""
+    values = dict(info.get("env_params") or {})
+    values.update(env_values(info.get("combination") or {}))
+    if combination is not None:
+        combos = recorded_combinations(info)
+        if 0 <= combination < len(combos):
+            values.update(env_values(combos[combination]))
+    return physics.make_env_params(values)
 
 
 def sweep_combinations(sweep: dict[str, list[float]]) -> list[dict[str, float]]:

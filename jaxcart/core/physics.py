@@ -1,0 +1,277 @@
+"""CartPole's physics as a user sets it: ``NAME=VALUE`` settings of
+:class:`~jaxcart.core.cartpole.EnvParams`, the checks that keep them physical, and per-run
+values (a sweep's ``env.NAME`` or a ``--randomize`` draw) as arrays ``[R]``.
+
+The env file (:mod:`jaxcart.core.cartpole`) stays physics and nothing else; parsing and
+checking live here. A value given for every run is a Python number on ``EnvParams``: it is a
+constant of the compiled program, exactly as the defaults are. Only a field that differs
+between runs travels as an array ``[R]`` (:func:`split_per_run`), so a run that sweeps and
+randomises nothing compiles the very program it always did.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from jaxcart.core.cartpole import EnvParams
+from jaxcart.core.config import ConfigError
+
+FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EnvParams))
+"""Every field of :class:`EnvParams`, the names ``--env-param`` takes."""
+
+CONTINUOUS: tuple[str, ...] = (
+    "gravity",
+    "masscart",
+    "masspole",
+    "length",
+    "force_mag",
+    "tau",
+    "x_threshold",
+    "theta_threshold_radians",
+)
+"""The float fields that may differ between runs (``--sweep env.NAME``, ``--randomize``):
+they enter the step as numbers. The others shape the program (the integrator, the episode
+limit, the reward mode) or are drawn on the host (the reset bounds), so they are one value
+for a whole run."""
+
+PREFIX = "env."
+"""How a sweep or a randomisation names a physics field: ``env.length``."""
+
+_KINDS = {f.name: f.type for f in dataclasses.fields(EnvParams)}
+
+
+def parse_value(name: str, text: str) -> Any:
+    """``text`` as field ``name``'s type (float, int, bool or the integrator's string).
+
+    Raises:
+        ConfigError: not a field of CartPole's params, or not a value of its type.
+    """
+    if name not in FIELDS:
+        raise ConfigError(f"CartPole has no env param {name!r}; choose one of: {', '.join(FIELDS)}")
+    kind, text = str(_KINDS[name]), text.strip()
+    try:
+        if kind == "bool":
+            if text.lower() not in ("true", "false", "on", "off", "1", "0"):
+                raise ValueError
+            return text.lower() in ("true", "on", "1")
+        if kind == "int":
+            value = float(text)
+            if not value.is_integer():
+                raise ValueError
+            return int(value)
+        if kind == "str":
+            return text
+        return float(text)
+    except ValueError:
+        raise ConfigError(f"env param {name}: {text!r} is not a {kind}") from None
+
+
+def parse_env_params(specs: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``["length=1.0", "masspole=0.2"]`` -> ``{"length": 1.0, "masspole": 0.2}``.
+
+    Raises:
+        ConfigError: malformed, unknown, repeated or of the wrong type.
+    """
+    values: dict[str, Any] = {}
+    for spec in specs:
+        name, sep, text = spec.partition("=")
+        name = name.strip().replace("-", "_")
+        if name.startswith(PREFIX):
+            name = name[len(PREFIX) :]
+        if not sep or not name or not text.strip():
+            raise ConfigError(
+                f"malformed --env-param {spec!r}; expected NAME=VALUE, e.g. length=1.0"
+            )
+        if name in values:
+            raise ConfigError(f"--env-param {name} given twice; keep one")
+        values[name] = parse_value(name, text)
+    return values
+
+
+def check_physics(params: EnvParams) -> None:
+    """Raises :class:`ConfigError` (one line) for params outside physical sense: masses,
+    length, ``tau`` and thresholds must be positive, gravity and the force not negative,
+    every number finite, the episode limit a positive integer and the reset bounds ordered.
+    Fields may hold arrays (one value per run); every value is checked."""
+    positive = ("masscart", "masspole", "length", "tau", "x_threshold", "theta_threshold_radians")
+    for name in (*positive, "gravity", "force_mag", "reset_low", "reset_high"):
+        value = np.asarray(getattr(params, name), np.float64)
+        if not np.all(np.isfinite(value)):
+            raise ConfigError(f"env param {name} must be a finite number, got {_shown(value)}")
+        if name in positive and np.any(value <= 0):
+            raise ConfigError(f"env param {name} must be > 0, got {_shown(value)}")
+        if name in ("gravity", "force_mag") and np.any(value < 0):
+            raise ConfigError(f"env param {name} must be >= 0, got {_shown(value)}")
+    steps = params.max_episode_steps
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps <= 0:
+        raise ConfigError(f"env param max_episode_steps must be a positive integer, got {steps!r}")
+    if not isinstance(params.sutton_barto_reward, (bool, np.bool_)):
+        raise ConfigError(
+            f"env param sutton_barto_reward must be true or false, got {params.sutton_barto_reward!r}"
+        )
+    if not params.reset_low < params.reset_high:
+        raise ConfigError(
+            f"env params reset_low={params.reset_low:g} must be below reset_high="
+            f"{params.reset_high:g}"
+        )
+
+
+def _shown(value: np.ndarray) -> str:
+    bad = value.reshape(-1)
+    return f"{bad[0]:g}" if bad.size == 1 else f"values down to {np.nanmin(bad):g}"
+
+
+def make_env_params(values: dict[str, Any]) -> EnvParams:
+    """:class:`EnvParams` with ``values`` over the defaults, checked.
+
+    Raises:
+        ConfigError: an unknown field, a wrong type or a value outside sense.
+    """
+    unknown = sorted(set(values) - set(FIELDS))
+    if unknown:
+        raise ConfigError(
+            f"CartPole has no env param {unknown[0]!r}; choose one of: {', '.join(FIELDS)}"
+        )
+    try:
+        params = EnvParams(**values)
+    except ValueError as exc:  # the integrator's own check
+        raise ConfigError(f"env param {exc}") from None
+    check_physics(params)
+    return params
+
+
+def overrides(params: EnvParams) -> dict[str, Any]:
+    """The fields of ``params`` that differ from CartPole-v1's (what ``config.json`` records:
+    nothing for the default physics, so older runs read the same)."""
+    default = EnvParams()
+    return {
+        name: getattr(params, name)
+        for name in FIELDS
+        if getattr(params, name) != getattr(default, name)
+    }
+
+
+@dataclass(frozen=True)
+class Randomization:
+    """A physics field drawn uniformly in ``[low, high]``: once per run (``per="run"``), from
+    the run's base seed and seed index, or at every reset (``per="episode"``)."""
+
+    name: str
+    low: float
+    high: float
+    per: str = "run"
+
+    def to_dict(self) -> dict:
+        return {"low": self.low, "high": self.high, "per": self.per}
+
+
+def parse_randomize(specs: list[str] | tuple[str, ...]) -> tuple[Randomization, ...]:
+    """``["env.length=0.5:1.5", "env.masspole=0.05:0.2:episode"]`` -> randomisations.
+
+    Raises:
+        ConfigError: malformed, not a continuous physics field, ``low > high``, repeated.
+    """
+    out: dict[str, Randomization] = {}
+    for spec in specs:
+        name, sep, text = spec.partition("=")
+        name = name.strip().replace("-", "_")
+        parts = text.split(":")
+        if not sep or not name.startswith(PREFIX) or len(parts) not in (2, 3):
+            raise ConfigError(
+                f"malformed --randomize {spec!r}; expected env.NAME=LOW:HIGH[:episode], "
+                "e.g. env.length=0.5:1.5"
+            )
+        name = name[len(PREFIX) :]
+        check_continuous(name, "--randomize")
+        per = parts[2].strip() if len(parts) == 3 else "run"
+        if per not in ("run", "episode"):
+            raise ConfigError(f"--randomize {spec!r}: the third part must be run or episode")
+        try:
+            low, high = float(parts[0]), float(parts[1])
+        except ValueError:
+            raise ConfigError(f"--randomize {spec!r}: LOW and HIGH must be numbers") from None
+        if not low <= high:
+            raise ConfigError(f"--randomize env.{name}: low {low:g} is above high {high:g}")
+        if name in out:
+            raise ConfigError(f"--randomize env.{name} given twice; keep one")
+        out[name] = Randomization(name, low, high, per)
+    return tuple(out.values())
+
+
+def check_continuous(name: str, option: str) -> None:
+    """Raises :class:`ConfigError` unless ``name`` is a field that may differ between runs."""
+    if name in FIELDS and name not in CONTINUOUS:
+        raise ConfigError(
+            f"{option} env.{name}: only continuous physics fields vary between runs "
+            f"({', '.join(CONTINUOUS)}); set {name} for all runs with --env-param"
+        )
+    if name not in FIELDS:
+        raise ConfigError(
+            f"{option} env.{name}: CartPole has no env param {name!r}; choose one of: "
+            f"{', '.join(CONTINUOUS)}"
+        )
+
+
+def randomized_values(
+    randomize: tuple[Randomization, ...], seed: int, seed_indices: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Each per-run randomisation's value for every run, float64 ``[R]``: uniform in
+    ``[low, high]`` from ``default_rng([seed, seed_index, field number])``, so a seed index
+    draws the same physics whatever runs beside it (a replay of one seed draws its own)."""
+    values = {}
+    for r in randomize:
+        if r.per != "run":
+            continue
+        tag = FIELDS.index(r.name)
+        values[r.name] = np.array(
+            [
+                np.random.default_rng([seed, int(i), tag]).uniform(r.low, r.high)
+                for i in np.asarray(seed_indices)
+            ],
+            np.float64,
+        )
+    return values
+
+
+def with_values(params: EnvParams, values: dict[str, Any]) -> EnvParams:
+    """``params`` with some fields replaced (numbers, or arrays ``[R]`` one per run)."""
+    return params.replace(**values) if values else params
+
+
+def split_per_run(params: EnvParams) -> tuple[EnvParams, dict[str, Any]]:
+    """``(static, per_run)``: ``params`` with every field that holds an array set back to
+    CartPole-v1's default (a hashable constant for the compiled program), and those arrays
+    ``[R]`` as they are (NumPy or placed JAX arrays). Without arrays, ``params`` itself and
+    ``{}``."""
+    per_run = {n: getattr(params, n) for n in CONTINUOUS if np.ndim(getattr(params, n)) > 0}
+    if not per_run:
+        return params, {}
+    default = EnvParams()
+    return params.replace(**{n: getattr(default, n) for n in per_run}), per_run
+
+
+def describe(values: dict[str, Any]) -> str:
+    """``length=1 masspole=0.2``: a run's physics as a label (``""`` for the defaults)."""
+    return " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
+
+
+__all__ = [
+    "CONTINUOUS",
+    "FIELDS",
+    "PREFIX",
+    "Randomization",
+    "check_continuous",
+    "check_physics",
+    "describe",
+    "make_env_params",
+    "overrides",
+    "parse_env_params",
+    "parse_randomize",
+    "randomized_values",
+    "split_per_run",
+    "with_values",
+]
