@@ -14,6 +14,8 @@ from typing import IO, TYPE_CHECKING
 import numpy as np
 
 from jaxcart.cli import format_table
+from jaxcart.core import physics
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.core.solved import EVAL_SEED
 from jaxcart.run.progress import ProgressBar
@@ -45,11 +47,24 @@ def header_line(run: Run, device_count: int, backend: str) -> str:
             changed.append(f"{f.name}={text:g}" if isinstance(value, float) else f"{f.name}={text}")
     modified = f" + {', '.join(changed)}" if changed else ""
     return (
-        f"jaxcart PPO | preset {run.preset}{modified} | {what} x "
+        f"jaxcart PPO | preset {run.preset}{modified}{physics_text(run)} | {what} x "
         f"{config.env_steps_per_seed:,} env steps "
         f"({config.num_iterations} iterations of {config.num_envs} env(s) x {config.num_steps} steps) "
         f"| {device_count} {backend} device(s) | out {run.out}"
     )
+
+
+def physics_text(run: Run) -> str:
+    """`` | physics length=1, randomized masspole in [0.05, 0.2] per run``: the run's physics
+    where it is not CartPole-v1's (``""`` otherwise)."""
+    spec = getattr(run, "spec", run)
+    overrides = physics.overrides(getattr(spec, "env_params", EnvParams()))
+    parts = [physics.describe(overrides)] if overrides else []
+    parts += [
+        f"randomized {r.name} in [{r.low:g}, {r.high:g}] per {r.per}"
+        for r in getattr(spec, "randomize", ())
+    ]
+    return f" | physics {', '.join(parts)}" if parts else ""
 
 
 def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
@@ -137,11 +152,12 @@ def results_text(outcome: Outcome) -> str:
             f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
         )
     rows, header = evaluation_rows(outcome)
+    overrides = physics.overrides(outcome.run.spec.env_params)
+    on = f" with {physics.describe(overrides)}" if overrides else ""
+    nominal = " (nominal physics)" if outcome.run.spec.randomize else ""
     return (
-        f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('CartPole-v1'):\n"
-        + format_table(rows, header)
-        + "\n"
-        + evaluation_columns_text(episodes)
+        f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('CartPole-v1')"
+        f"{on}{nominal}:\n" + format_table(rows, header) + "\n" + evaluation_columns_text(episodes)
     )
 
 

@@ -396,7 +396,9 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
 
         # the header a run would print, without a directory: what would train, in env steps
         out = opts.out or "(none: --dry-run creates nothing)"
-        planned = SimpleNamespace(grid=spec.grid, config=spec.config, preset=spec.preset, out=out)
+        planned = SimpleNamespace(
+            grid=spec.grid, config=spec.config, preset=spec.preset, out=out, spec=spec
+        )
         console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
         console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
         return 0

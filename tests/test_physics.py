@@ -179,3 +179,15 @@ def test_corrupted_physics_in_config_json_is_refused():
     with pytest.raises(ConfigError, match="masspole must be > 0"):
         reader._check_physics_fields(info)
     assert math.isclose(reader.run_env_params({"env_params": {"length": 2.0}}).length, 2.0)
+
+
+def test_runs_are_labelled_by_their_physics(tmp_path):
+    from jaxcart.rundir.views import default_label
+
+    info = {
+        "env_params": {"length": 0.25, "kinematics_integrator": "semi-implicit"},
+        "randomize": {"masspole": {"low": 0.05, "high": 0.2, "per": "run"}},
+    }
+    label = default_label(tmp_path / "short", info)
+    assert label == "short (length=0.25,kinematics_integrator=semi-implicit,masspole~U[0.05,0.2])"
+    assert default_label(tmp_path / "plain", {}) == "plain"

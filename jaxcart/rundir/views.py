@@ -68,7 +68,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     num_seeds = next(iter(metrics.values())).shape[1]
     combination = info.get("combination") or None
     if label is None:
-        label = combination_label(combination) if combination else default_label(path)
+        label = combination_label(combination) if combination else default_label(path, info)
     return RunCurves(
         path=path,
         label=label,
@@ -102,7 +102,7 @@ def checkpoint_curves(
         metrics = {k: v[:, c * num_seeds : (c + 1) * num_seeds] for k, v in saved.metrics.items()}
         label = labels[c] if labels is not None else None
         if label is None:
-            label = combination_label(combination) if combination else default_label(path)
+            label = combination_label(combination) if combination else default_label(path, info)
         runs.append(
             RunCurves(
                 path=path,
@@ -119,9 +119,27 @@ def checkpoint_curves(
     return runs
 
 
-def default_label(path: Path) -> str:
-    """The run directory's name (``runs/sb3-x/`` and ``.`` resolve to a real name)."""
-    return path.resolve().name or str(path)
+def default_label(path: Path, info: dict | None = None) -> str:
+    """The run directory's name (``runs/sb3-x/`` and ``.`` resolve to a real name), with the
+    physics its ``config.json`` records when they are not CartPole-v1's:
+    ``short-pole (length=0.25)``, ``rand (length~U[0.5,1.5])``."""
+    name = path.resolve().name or str(path)
+    physics = physics_label(info or {})
+    return f"{name} ({physics})" if physics else name
+
+
+def physics_label(info: dict) -> str:
+    """A run's physics from its ``config.json``: ``length=0.25,masspole~U[0.05,0.2]``
+    (``""`` for CartPole-v1's)."""
+    parts = [
+        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+        for k, v in (info.get("env_params") or {}).items()
+    ]
+    parts += [
+        f"{k}~U[{r['low']:g},{r['high']:g}]" + ("/episode" if r.get("per") == "episode" else "")
+        for k, r in (info.get("randomize") or {}).items()
+    ]
+    return ",".join(parts)
 
 
 def combination_label(combination: dict[str, float]) -> str:
