@@ -9,13 +9,13 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import TINY, tiny_args
+from helpers import TINY, assert_same_run_dirs, stopped_run, tiny_args
 
 import jaxcart
 from jaxcart import evaluate, train
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
-from jaxcart.core.config import ConfigError
+from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.solved import EVAL_SEED
 from jaxcart.engine.loop import train as train_runs
 from jaxcart.gym.stock import make_cartpole
@@ -191,3 +191,37 @@ def test_runs_are_labelled_by_their_physics(tmp_path):
     label = default_label(tmp_path / "short", info)
     assert label == "short (length=0.25,kinematics_integrator=semi-implicit,masspole~U[0.05,0.2])"
     assert default_label(tmp_path / "plain", {}) == "plain"
+
+
+SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
+OPTIONS = lifecycle.RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
+
+
+@pytest.mark.slow
+def test_a_stopped_run_resumes_on_its_physics(tmp_path):
+    spec = RunSpec(SMALL, num_seeds=2, env_params=physics.make_env_params({"length": 1.0}))
+    lifecycle.run_new(spec, tmp_path / "whole", OPTIONS)
+    run, result = stopped_run(spec, tmp_path / "part", OPTIONS, chunks=2)
+    run.close()
+    lifecycle.resume_run(tmp_path / "part", OPTIONS)
+    assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
+    # and the physics mattered: the default pole trains other numbers
+    lifecycle.run_new(RunSpec(SMALL, num_seeds=2), tmp_path / "default", OPTIONS)
+    with pytest.raises(AssertionError):
+        assert_same_run_dirs(tmp_path / "whole", tmp_path / "default")
+
+
+@pytest.mark.slow
+def test_physics_sweep_evaluates_each_combination_on_its_own_physics(tmp_path):
+    spec = RunSpec(SMALL, num_seeds=2, sweep={"env.length": [0.25, 1.0]})
+    outcome = lifecycle.run_new(spec, tmp_path / "sweep", OPTIONS)
+    assert outcome.run.grid.num_runs == 4 and len(outcome.ranking) == 2
+    for c, length in enumerate([0.25, 1.0]):
+        combo = layout.combo_dir(tmp_path / "sweep", c)
+        info = json.loads((combo / layout.CONFIG_FILE).read_text())
+        assert info["combination"] == {"env.length": length}
+        policy = jaxcart.load_policy(combo, 0)
+        assert policy.env_params.length == length
+        recorded = reader.read_evaluation(combo, 2)["seeds"][0]["gymnasium_returns"]
+        assert recorded == plain_gymnasium_returns(policy, length, 2)
+        assert recorded == outcome.evaluation.gym_returns[2 * c].tolist()
