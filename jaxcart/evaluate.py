@@ -102,14 +102,17 @@ def _with_env_params(trained: RunParams, specs: list[str]) -> RunParams:
     return dataclasses.replace(trained, env_params=physics.make_env_params(values))
 
 
-def _physics_text(sources: list[tuple[str | None, RunParams]]) -> str:
+def _physics_text(sources: list[tuple[str | None, RunParams]], chosen: bool) -> str:
     """`` with length=1`` when every source runs on the same non-default physics; ``""``
-    for CartPole-v1's; `` with each combination's physics`` when they differ."""
+    for CartPole-v1's (`` with CartPole-v1's own physics`` when ``--env-param`` chose them);
+    `` with each combination's physics`` when they differ."""
     shown = {physics.describe(physics.overrides(t.env_params)) for _, t in sources}
     if len(shown) > 1:
         return " with each combination's physics"
     text = shown.pop()
-    return f" with {text}" if text else ""
+    if not text:
+        return " with CartPole-v1's own physics" if chosen else ""
+    return f" with {text}"
 
 
 def _evaluate_command(argv: list[str] | None) -> int:
@@ -141,7 +144,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
         ]
     print(
         f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
-        f"gymnasium.make('CartPole-v1'){_physics_text(sources)} (reset seeds {EVAL_SEED}..."
+        f"gymnasium.make('CartPole-v1'){_physics_text(sources, bool(args.env_param))} (reset seeds {EVAL_SEED}..."
         f"{EVAL_SEED + args.episodes - 1}):"
     )
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))

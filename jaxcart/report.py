@@ -82,10 +82,18 @@ def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
         ]
         for s in range(min(len(ev.solved), MAX_TABLE_ROWS))
     ]
+    header = ["seed", "gym mean", "gym min", "solved", "jaxcart mean", "train ep_rew_mean"]
+    spec = outcome.run.spec
+    # each seed's randomised physics: what it trained on (it is evaluated on the nominal)
+    drawn = physics.randomized_values(spec.randomize, spec.seed, np.arange(len(rows)))
+    for name, values in drawn.items():
+        header.append(f"trained {name}")
+        for row, value in zip(rows, values):
+            row.append(f"{value:.3g}")
     if len(ev.solved) > MAX_TABLE_ROWS:
         rows.append(["...", f"{len(ev.solved) - MAX_TABLE_ROWS:,} more in evaluation.json"])
-        rows[-1] += [""] * 4
-    return rows, ["seed", "gym mean", "gym min", "solved", "jaxcart mean", "train ep_rew_mean"]
+        rows[-1] += [""] * (len(header) - 2)
+    return rows, header
 
 
 def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
