@@ -151,6 +151,7 @@ def test_randomised_run_records_each_seed_and_replays_exactly(tmp_path):
         (["--randomize", "env.length=1.5:0.5"], "low 1.5 is above high 0.5"),
         (["--randomize", "env.mass=0.5:1.5"], "CartPole has no env param 'mass'"),
         (["--randomize", "env.length=0:1"], "env param length must be > 0"),
+        (["--randomize", "env.length=0.5:1:often"], "must be run or episode"),
         (["--sweep", "env.length=0.5,-1"], "env param length must be > 0"),
         (["--sweep", "env.max_episode_steps=100,200"], "only continuous physics fields"),
         (["--env-param", "length=1", "--sweep", "env.length=0.5,2"], "both given"),
@@ -225,3 +226,43 @@ def test_physics_sweep_evaluates_each_combination_on_its_own_physics(tmp_path):
         recorded = reader.read_evaluation(combo, 2)["seeds"][0]["gymnasium_returns"]
         assert recorded == plain_gymnasium_returns(policy, length, 2)
         assert recorded == outcome.evaluation.gym_returns[2 * c].tolist()
+
+
+@pytest.mark.slow
+def test_per_episode_randomisation_trains_resumes_and_replays(tmp_path):
+    randomize = physics.parse_randomize(["env.length=0.25:1.0:episode"])
+    spec = RunSpec(SMALL, num_seeds=2, randomize=randomize)
+    lifecycle.run_new(spec, tmp_path / "whole", OPTIONS)
+    info = json.loads((tmp_path / "whole" / layout.CONFIG_FILE).read_text())
+    assert info["randomize"] == {"length": {"low": 0.25, "high": 1.0, "per": "episode"}}
+    assert "env_per_seed" not in info  # drawn per episode, from the run's keys
+    # the env state (each env's current pole) is checkpointed: a resume ends bit-identical
+    run, _ = stopped_run(spec, tmp_path / "part", OPTIONS, chunks=2)
+    run.close()
+    lifecycle.resume_run(tmp_path / "part", OPTIONS)
+    assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
+    replay = lifecycle.replay_seed(tmp_path / "whole", 1)
+    recorded = reader.read_metrics_csv(tmp_path / "whole" / layout.METRICS_FILE)
+    np.testing.assert_array_equal(
+        replay.metrics["rollout/ep_len_mean"][:, 0], recorded["rollout/ep_len_mean"][:, 1]
+    )
+    poles = np.asarray(replay.state.runners.env_state.values["length"])
+    assert np.all((poles >= 0.25) & (poles <= 1.0)) and len(np.unique(poles)) == poles.size
+
+
+def test_per_episode_draws_happen_at_resets_only():
+    """Envs whose episode goes on keep their pole; an env that resets draws a new one."""
+    import jax.numpy as jnp
+
+    from jaxcart.core.cartpole import state_from_obs
+
+    env = state_from_obs(np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.0]], np.float32))
+    state = physics.episode_state(
+        env, {"length": np.array([0.3, 0.4], np.float32)}, {"length": (0.25, 1.0)}
+    )
+    key = jnp.array([1, 2], jnp.uint32)
+    _, new, _, terminated, _, _ = physics.step_batch(key, state, jnp.array([1, 1]), EnvParams())
+    assert terminated.tolist() == [False, True]  # the second pole is past 12 degrees
+    poles = np.asarray(new.values["length"])
+    assert poles[0] == np.float32(0.3) and poles[1] != np.float32(0.4)
+    assert 0.25 <= poles[1] <= 1.0

@@ -15,9 +15,13 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
-from jaxcart.core.cartpole import EnvParams
+from jaxcart.core import cartpole
+from jaxcart.core.cartpole import EnvParams, EnvState
 from jaxcart.core.config import ConfigError
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EnvParams))
@@ -254,6 +258,56 @@ def split_per_run(params: EnvParams) -> tuple[EnvParams, dict[str, Any]]:
     return params.replace(**{n: getattr(default, n) for n in per_run}), per_run
 
 
+@struct.dataclass
+class EpisodeState:
+    """The env state of envs whose physics are drawn anew at every reset: CartPole's state,
+    each drawn field's value in the current episode, and the range it is drawn from (all
+    ``[num_envs]``, so the draw needs nothing static and a checkpoint holds it all)."""
+
+    env: EnvState
+    values: dict[str, jax.Array]
+    low: dict[str, jax.Array]
+    high: dict[str, jax.Array]
+
+
+def episode_state(
+    env: EnvState, values: dict[str, np.ndarray], ranges: dict[str, tuple[float, float]]
+) -> EpisodeState:
+    """An :class:`EpisodeState` around ``env`` (NumPy fields ``[..., num_envs]``) whose first
+    episodes have ``values`` (of the same shape) and draw later ones from ``ranges``."""
+    shape, dtype = np.shape(env.x), np.asarray(env.x).dtype
+    low = {n: np.full(shape, lo, dtype) for n, (lo, _) in ranges.items()}
+    high = {n: np.full(shape, hi, dtype) for n, (_, hi) in ranges.items()}
+    return EpisodeState(env, {n: np.asarray(values[n], dtype) for n in ranges}, low, high)
+
+
+def episode_ranges(randomize: tuple[Randomization, ...]) -> dict[str, tuple[float, float]]:
+    """The per-episode randomisations as ``{name: (low, high)}`` (``{}`` when none)."""
+    return {r.name: (r.low, r.high) for r in randomize if r.per == "episode"}
+
+
+def step_batch(
+    key: jax.Array, state: EnvState | EpisodeState, action: jax.Array, params: EnvParams
+) -> tuple[jax.Array, EnvState | EpisodeState, jax.Array, jax.Array, jax.Array, dict]:
+    """:func:`jaxcart.core.cartpole.step_batch`, itself for an :class:`EnvState`. For an
+    :class:`EpisodeState`, each env steps with its episode's physics, and an env whose
+    episode ends draws its next episode's values uniformly in their ranges, from ``key`` (the
+    key its reset state is drawn from, folded with the field's number)."""
+    if not isinstance(state, EpisodeState):
+        return cartpole.step_batch(key, state, action, params)
+    stepped = cartpole.step_batch(key, state.env, action, params.replace(**state.values))
+    obs, env, reward, terminated, truncated, info = stepped
+    done = terminated | truncated
+    values = {}
+    for name, value in state.values.items():
+        unit = cartpole.hash_uniform(
+            jax.random.fold_in(key, FIELDS.index(name) + 1), done.shape, value.dtype
+        )
+        drawn = state.low[name] + (state.high[name] - state.low[name]) * unit
+        values[name] = jnp.where(done, drawn, value)
+    return obs, state.replace(env=env, values=values), reward, terminated, truncated, info
+
+
 def describe(values: dict[str, Any]) -> str:
     """``length=1 masspole=0.2``: a run's physics as a label (``""`` for the defaults)."""
     return " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
@@ -263,15 +317,19 @@ __all__ = [
     "CONTINUOUS",
     "FIELDS",
     "PREFIX",
+    "EpisodeState",
     "Randomization",
     "check_continuous",
     "check_physics",
     "describe",
+    "episode_ranges",
+    "episode_state",
     "make_env_params",
     "overrides",
     "parse_env_params",
     "parse_randomize",
     "randomized_values",
     "split_per_run",
+    "step_batch",
     "with_values",
 ]

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from jaxcart.core import cartpole
+from jaxcart.core import cartpole, physics
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import EpisodeBuffer, iteration_metrics, update_episode_buffer
 from jaxcart.core.networks import ActorCritic
@@ -56,7 +56,7 @@ class RunnerState:
 
     params: dict
     opt_state: optax.OptState
-    env_state: cartpole.EnvState  # fields [num_envs]
+    env_state: cartpole.EnvState  # fields [num_envs]; physics.EpisodeState: drawn per episode
     obs: Array  # [num_envs, 4]
     episode_return: Array  # [num_envs] running return of the current episodes
     episode_length: Array  # [num_envs] int32
@@ -121,7 +121,7 @@ def env_step(
     logits, value = network.apply(runner.params, runner.obs)
     action = jax.random.categorical(act_key, logits)
     log_prob = categorical_log_prob(logits, action)
-    obs, env_state, reward, terminated, truncated, info = cartpole.step_batch(
+    obs, env_state, reward, terminated, truncated, info = physics.step_batch(
         env_key, runner.env_state, action, env_params
     )
     done = terminated | truncated

@@ -71,6 +71,7 @@ def init_runners(
     seed_indices: np.ndarray,
     env_params: cartpole.EnvParams | None = None,
     on_progress: Callable[[int, int], None] | None = None,
+    episode_ranges: dict[str, tuple[float, float]] | None = None,
 ) -> RunnerState:
     """Initial state of every run, NumPy leaves ``[R, ...]`` (the caller places them).
 
@@ -80,7 +81,10 @@ def init_runners(
     host (:meth:`ActorCritic.host_init <jaxcart.core.networks.ActorCritic.host_init>` and
     uniform in the reset bounds), so there is no initialisation program to compile; another
     flax network is initialised by its own ``init``, all runs in one call. ``on_progress(done, total)`` is called every
-    1024 runs (it may raise to abandon the initialisation).
+    1024 runs (it may raise to abandon the initialisation). With ``episode_ranges``
+    (``{field: (low, high)}``), every env's physics are drawn per episode: the env state is a
+    :class:`~jaxcart.core.physics.EpisodeState` whose first values come from the run's host
+    generator after everything else it draws (so the other draws are the same).
     """
     env_params = physics.split_per_run(env_params or cartpole.EnvParams())[0]
     indices = np.asarray(seed_indices)
@@ -89,7 +93,7 @@ def init_runners(
     dtype, obs_dim = reset_obs.dtype, reset_obs.shape[-1]
     network = make_network(config)
     on_host = hasattr(network, "host_init")  # the built-in MLP: SB3's initialisation in NumPy
-    params, init_seeds, obs, run_keys = [], [], [], []
+    params, init_seeds, obs, run_keys, episodes = [], [], [], [], []
     for i, key in enumerate(keys):
         if on_progress is not None and i % 1024 == 0:
             on_progress(i, len(keys))
@@ -101,13 +105,21 @@ def init_runners(
         shape = (config.num_envs, obs_dim)
         obs.append(rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype))
         run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))
+        if episode_ranges:
+            n = config.num_envs
+            episodes.append({k: rng.uniform(lo, hi, n) for k, (lo, hi) in episode_ranges.items()})
     if on_host:
         stacked = jax.tree.map(lambda *xs: np.stack(xs), *params)
     else:  # flax's own initialisation, every run's in one compiled call
         example = jnp.zeros((1, obs_dim), dtype)
         init = jax.jit(jax.vmap(lambda seed: network.init(jax.random.PRNGKey(seed), example)))
         stacked = jax.tree.map(np.asarray, dict(init(jnp.asarray(init_seeds, jnp.uint32))))
-    return initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    runners = initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    if not episode_ranges:
+        return runners
+    values = {k: np.stack([e[k] for e in episodes]) for k in episode_ranges}
+    env_state = physics.episode_state(runners.env_state, values, episode_ranges)
+    return runners.replace(env_state=env_state)
 
 
 CHUNK_SECONDS = 2.0
@@ -214,6 +226,7 @@ def initial_state(
     chunk_size: int | None = None,
     seed_indices: np.ndarray | None = None,
     on_progress: Callable[[int, int], None] | None = None,
+    episode_ranges: dict[str, tuple[float, float]] | None = None,
 ) -> TrainState:
     """The state before the first iteration (also the template a checkpoint is loaded into).
 
@@ -221,13 +234,13 @@ def initial_state(
     value per run: :meth:`PPOConfig.per_run`).
 
     ``seed_indices`` defaults to ``arange(num_runs)`` (every run its own seed index);
-    ``on_progress`` as in :func:`init_runners`. Without ``chunk_size`` the chunks adapt
+    ``on_progress`` and ``episode_ranges`` as in :func:`init_runners`. Without ``chunk_size`` the chunks adapt
     their length to take about :data:`CHUNK_SECONDS` each; with it, every chunk runs that
     many iterations. Neither changes a number (only when the host looks).
     """
     indices = np.arange(num_runs) if seed_indices is None else np.asarray(seed_indices)
     return TrainState(
-        runners=init_runners(config, seed, indices, env_params, on_progress),
+        runners=init_runners(config, seed, indices, env_params, on_progress, episode_ranges),
         config=config.per_run(num_runs),
         iteration=0,
         elapsed=0.0,
@@ -253,6 +266,7 @@ def train(
     seed_indices: np.ndarray | None = None,
     runs_per_device: int | None = None,
     keep_metrics: bool = True,
+    episode_ranges: dict[str, tuple[float, float]] | None = None,
 ) -> TrainResult:
     """Trains ``num_runs`` independent PPO agents in one compiled program.
 
@@ -276,9 +290,13 @@ def train(
             numbers depend on that width only: padding replays one seed bit for bit).
         keep_metrics: keep every iteration's metrics (``TrainResult.metrics``); False: only
             ``on_chunk`` sees them, so memory does not grow with the run (they are ``{}``).
+        episode_ranges: ``{field: (low, high)}``: draw these physics fields uniformly at
+            every reset (:func:`init_runners`); ignored with ``resume``, whose state has them.
     """
     env_params = env_params or cartpole.EnvParams()
-    state = resume or initial_state(config, num_runs, seed, env_params, chunk_size, seed_indices)
+    state = resume or initial_state(
+        config, num_runs, seed, env_params, chunk_size, seed_indices, None, episode_ranges
+    )
     devices = _devices(devices, num_runs, runs_per_device)
     runners, run_configs = place(state, devices, num_runs, runs_per_device)
     env_params = place_env_params(env_params, devices, num_runs, runs_per_device)

@@ -96,7 +96,7 @@ def create_run(
         **spec.record(),
         **(
             {"env_per_seed": spec.seed_env_values()}
-            if spec.randomize and spec.num_seeds <= MAX_RECORDED_SEEDS
+            if spec.num_seeds <= MAX_RECORDED_SEEDS and spec.seed_env_values()
             else {}
         ),
         "versions": package_versions(),
@@ -277,6 +277,7 @@ def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> T
         1,
         spec.seed,
         env_params=spec.run_env_params(range(run, run + 1)),
+        episode_ranges=spec.episode_ranges,
         seed_indices=np.array([seed_index]),
         devices=jax.devices()[:used],
         runs_per_device=-(-wave // used),
@@ -458,7 +459,13 @@ def wave_start_state(
     meta = run.directory.checkpoint_meta
     if meta is not None and meta.get("wave", 0) == wave:
         # a one-run template names the arrays; the file has them all
-        template = initial_state(run.config, 1, run.spec.seed, chunk_size=chunk_size)
+        template = initial_state(
+            run.config,
+            1,
+            run.spec.seed,
+            chunk_size=chunk_size,
+            episode_ranges=run.spec.episode_ranges,
+        )
         saved = run.directory.load_checkpoint(template, num_runs=len(runs))
         # a chunk runs at most the run's iterations (or the default chunk): a larger one from
         # a crafted checkpoint would build [chunk_size, R] metrics in the compiled call
@@ -477,6 +484,7 @@ def wave_start_state(
         run.spec.seed,
         env_params=run.spec.env_params,
         chunk_size=chunk_size,
+        episode_ranges=run.spec.episode_ranges,
         seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
         on_progress=on_progress,
     )

@@ -82,11 +82,6 @@ class RunSpec:
         for r in self.randomize:
             if r.name in swept:
                 raise ConfigError(f"env.{r.name} is both swept and randomised; keep one")
-            if r.per == "episode":
-                raise ConfigError(
-                    f"--randomize env.{r.name}=...:episode is not supported yet; "
-                    "randomise per run (drop :episode)"
-                )
             for bound in (r.low, r.high):
                 try:
                     physics.check_physics(self.env_params.replace(**{r.name: bound}))
@@ -140,6 +135,11 @@ class RunSpec:
             n: v[runs.start : runs.stop] for n, v in sweeps.grid_env_values(self.grid).items()
         }
         return physics.with_values(self.env_params, values)
+
+    @property
+    def episode_ranges(self) -> dict[str, tuple[float, float]]:
+        """The fields drawn at every reset, ``{name: (low, high)}`` (``{}``: none)."""
+        return physics.episode_ranges(self.randomize)
 
     def seed_env_values(self) -> dict[str, list[float]]:
         """Each per-run randomised field's value for every seed index, as recorded."""
