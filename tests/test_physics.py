@@ -266,3 +266,27 @@ def test_per_episode_draws_happen_at_resets_only():
     poles = np.asarray(new.values["length"])
     assert poles[0] == np.float32(0.3) and poles[1] != np.float32(0.4)
     assert 0.25 <= poles[1] <= 1.0
+
+
+def test_a_runs_config_json_trains_again_with_its_physics(tmp_path):
+    randomize = physics.parse_randomize(["env.masspole=0.05:0.2", "env.length=0.3:0.9:episode"])
+    gravity = physics.make_env_params({"gravity": 3.7})
+    spec = RunSpec(SMALL, preset="sb3", env_params=gravity, randomize=randomize)
+    run = lifecycle.create_run(spec, tmp_path / "mars")
+    run.close()
+    again = train.TrainOptions.from_args(train._parse_args(["--config", str(tmp_path / "mars")]))
+    rebuilt = again.run_spec()
+    assert rebuilt.env_params == spec.env_params and rebuilt.randomize == spec.randomize
+
+
+def test_the_gif_runs_on_the_policys_physics():
+    from jaxcart.results.gif import render_frames
+
+    def push_left(obs):
+        return 0
+
+    default, _, _ = render_frames(push_left, max_steps=1, backend="pillow")
+    longer, _, _ = render_frames(
+        push_left, max_steps=1, backend="pillow", env_params=EnvParams(length=1.0)
+    )
+    assert not np.array_equal(default[0], longer[0])  # a pole twice as long is drawn
