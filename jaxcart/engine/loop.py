@@ -234,9 +234,10 @@ def initial_state(
     value per run: :meth:`PPOConfig.per_run`).
 
     ``seed_indices`` defaults to ``arange(num_runs)`` (every run its own seed index);
-    ``on_progress`` and ``episode_ranges`` as in :func:`init_runners`. Without ``chunk_size`` the chunks adapt
-    their length to take about :data:`CHUNK_SECONDS` each; with it, every chunk runs that
-    many iterations. Neither changes a number (only when the host looks).
+    ``on_progress`` and ``episode_ranges`` as in :func:`init_runners`. Without
+    ``chunk_size`` the chunks adapt their length to take about :data:`CHUNK_SECONDS` each;
+    with it, every chunk runs that many iterations. Neither changes a number (only when the
+    host looks).
     """
     indices = np.arange(num_runs) if seed_indices is None else np.asarray(seed_indices)
     return TrainState(
