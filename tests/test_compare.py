@@ -352,3 +352,24 @@ def test_help_defines_every_statistic(capsys):
     for name in summary.DEFINITIONS:
         assert f"\n{name}: " in text, name
     assert "median over seeds" in text and "--score" in text and "--arm" in text
+
+
+def test_figure_panels_share_one_score_axis_and_show_small_differences_small(runs, tmp_path):
+    from jaxcart.results import figure
+
+    a, sweep = runs
+    result = compare.compare_runs([a, sweep], out=tmp_path / "cmp")
+    fig = figure.draw_comparison(result.comparison)
+    by_title = {ax.get_title(): ax for ax in fig.axes}
+    location = [by_title[figure.ESTIMATE_TITLES[n]].get_xlim() for n in ("iqm", "median", "mean")]
+    assert location[0] == location[1] == location[2]
+    low, high = location[0]
+    assert high - low >= figure.MIN_SPAN and high <= 500 * 1.05 and low >= -500 * 0.05
+    for ax in fig.axes:  # every interval panel writes its numbers out
+        if ax.get_title() in figure.ESTIMATE_TITLES.values():
+            assert any("[" in t.get_text() for t in ax.texts)
+
+    # Two estimates 1.6 points apart near 500 get a panel at least MIN_SPAN wide within [0, 500].
+    close = [stats.Estimate(498.4, 497.0, 499.5), stats.Estimate(500.0, 499.0, 500.0)]
+    low, high = figure._limits(close, 0.0, 500.0, include=498.4)
+    assert high - low >= figure.MIN_SPAN and high < 500 + 0.05 * figure.MIN_SPAN + 1
