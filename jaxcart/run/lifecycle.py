@@ -381,10 +381,23 @@ def carry_out(
     try:
         with stop.installed():
             return _carry_out(run, options, hooks, stop)
+    except Exception:
+        if _nothing_trained(run):  # a new run that failed starting: nothing worth keeping
+            run.directory.discard()
+        raise
     finally:
         if bar is not None:
             bar.close()
         run.close()
+
+
+def _nothing_trained(run: Run) -> bool:
+    """Whether ``run`` is a new run, owned by this process, none of whose iterations trained
+    (its only checkpoint, if any, is the one written before the first iteration)."""
+    if run.resumed_from is not None or not run.main_process:
+        return False
+    meta = run.directory.checkpoint_meta or {}
+    return int(meta.get("iteration", 0)) == 0 and int(meta.get("wave", 0)) == 0
 
 
 def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -> Outcome:
