@@ -22,6 +22,7 @@ import dataclasses
 import shlex
 import signal
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -59,6 +60,7 @@ from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_wav
 from jaxcart.rundir import files, layout, outputs, reader
 from jaxcart.rundir.directory import RunDir, check_versions, package_versions
 from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.manifest import UnverifiedRunWarning
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 
@@ -117,9 +119,12 @@ def open_run(
             waves).
     """
     out = Path(out)
-    info = reader.read_run_config(out, verify=True)
+    with warnings.catch_warnings():  # said once, by the read below
+        warnings.simplefilter("ignore", UnverifiedRunWarning)
+        reader.read_run_config(out)  # a clear error for what is not a run, before the lock
     directory = RunDir.open(out, main_process)
-    try:
+    try:  # config.json again, through the directory the run resumes in
+        info = reader.read_run_config(directory.dir or out, verify=True)
         changed = _device_change(out, info, allow_device_change)
         if extend_to is not None:
             meta = directory.read_checkpoint_meta()
