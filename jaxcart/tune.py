@@ -17,7 +17,6 @@ import shlex
 import signal
 import sys
 import time
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
@@ -256,8 +255,6 @@ def _tune(opts: TuneOptions) -> int:
     from jaxcart.run import search
     from jaxcart.run.spec import Hooks
 
-    # Optuna flags the heartbeat (what lets a study fail a dead process's trials) experimental
-    warnings.filterwarnings("ignore", message=".*(experimental|Heartbeat of storage).*")
     spec = opts.base.run_spec()
     space = search.parse_space(list(opts.space), spec.config)
     given = [n for n in space if n in opts.base.overrides]

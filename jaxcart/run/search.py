@@ -15,10 +15,12 @@ study is opened, so the space is checked (one line per mistake) without it.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Sequence
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -175,6 +177,8 @@ def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]
         )
     for dim in space.values():
         ends = dim.choices or (dim.low, dim.high)
+        if dim.integer and dim.high - dim.low <= 4096:  # a shape value between may not divide
+            ends = range(int(dim.low), int(dim.high) + 1)
         for value in ends:
             value = int(value) if dim.integer else value
             try:
@@ -214,6 +218,15 @@ def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[d
 
 
 # -- the study --------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _heartbeat_warnings_off() -> Iterator[None]:
+    """Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
+    that it is meant for ``Study.optimize``; ask-and-tell records it by hand (:class:`RungReporter`)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(experimental|Heartbeat of storage).*")
+        yield
+
+
 def require_optuna() -> Any:
     """The ``optuna`` module, or a one-line error naming the extra to install."""
     try:
@@ -243,9 +256,10 @@ def open_study(
     if storage.startswith("sqlite:///"):
         Path(storage.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
     try:
-        rdb = optuna.storages.RDBStorage(
-            storage, heartbeat_interval=HEARTBEAT_SECONDS, grace_period=STALE_GRACE_SECONDS
-        )
+        with _heartbeat_warnings_off():
+            rdb = optuna.storages.RDBStorage(
+                storage, heartbeat_interval=HEARTBEAT_SECONDS, grace_period=STALE_GRACE_SECONDS
+            )
     except Exception as exc:  # SQLAlchemy's and the drivers' many errors: all "cannot open"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ConfigError(f"--storage {storage}: cannot open it: {first}") from None
@@ -340,7 +354,8 @@ class Tuner:
         optuna = require_optuna()
         done = 0
         while True:
-            optuna.storages.fail_stale_trials(self.study)
+            with _heartbeat_warnings_off():
+                optuna.storages.fail_stale_trials(self.study)
             finished, running = counts(self.study)
             remaining = n_trials - finished - running
             if remaining <= 0:
@@ -359,7 +374,8 @@ class Tuner:
         states = optuna.trial.TrialState
         trials = []
         for _ in range(k):
-            trial = self.study.ask(fixed_distributions=distributions)
+            with _heartbeat_warnings_off():
+                trial = self.study.ask(fixed_distributions=distributions)
             ahead = sum(
                 t.number < trial.number and t.state != states.FAIL
                 for t in self.study.get_trials(deepcopy=False)
