@@ -217,3 +217,14 @@ def test_two_processes_share_one_study_without_duplicates(tmp_path):
         d for i in range(2) if (tmp_path / f"p{i}").exists() for d in (tmp_path / f"p{i}").iterdir()
     ]
     assert sum(len(load_runs([d])) for d in dirs) == 6  # every complete trial trained once
+
+
+def test_space_from_a_config_file(tmp_path, capsys):
+    config = tmp_path / "search.toml"
+    config.write_text('preset = "fast"\nspace = ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1"]\n')
+    db = tmp_path / "study.db"
+    assert tune.main(["--config", str(config), "--storage", f"sqlite:///{db}"]) == 2
+    assert "--space clip_coef: low 0.3 must be below high 0.1" in capsys.readouterr().err
+    args = tune._parse_args(["--config", str(config), "--space", "gamma=0.9:0.99"])
+    assert args.preset == "fast"
+    assert args.space == ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1", "gamma=0.9:0.99"]
