@@ -9,6 +9,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -221,10 +222,25 @@ def test_two_processes_share_one_study_without_duplicates(tmp_path):
 
 def test_space_from_a_config_file(tmp_path, capsys):
     config = tmp_path / "search.toml"
-    config.write_text('preset = "fast"\nspace = ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1"]\n')
+    config.write_text(
+        'preset = "fast"\nspace = ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1"]\n'
+    )
     db = tmp_path / "study.db"
     assert tune.main(["--config", str(config), "--storage", f"sqlite:///{db}"]) == 2
     assert "--space clip_coef: low 0.3 must be below high 0.1" in capsys.readouterr().err
     args = tune._parse_args(["--config", str(config), "--space", "gamma=0.9:0.99"])
     assert args.preset == "fast"
     assert args.space == ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1", "gamma=0.9:0.99"]
+
+
+@pytest.mark.slow
+def test_trials_of_a_killed_process_go_stale_and_are_asked_again(tmp_path, monkeypatch):
+    monkeypatch.setattr(search, "STALE_GRACE_SECONDS", 1)
+    storage = f"sqlite:///{tmp_path}/study.db"
+    tuner = _tuner(storage, tmp_path / "runs")
+    orphan = tuner._ask(1, 1)  # a process asked it, sent one heartbeat, and was killed
+    with search.Heartbeat(tuner.study, orphan):
+        pass
+    time.sleep(2.5)  # SQLite keeps heartbeats to the second
+    tuner.run(1, 1)
+    assert sorted(_states(storage, "s")) == ["COMPLETE", "FAIL"]

@@ -18,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
-import time
+import threading
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -394,8 +394,9 @@ class Tuner:
 
         untold = {t.number: t for t in trials}
         try:
-            for static, group in group_by_shape(self.space, trials):
-                self._run_group(static, group, untold)
+            with Heartbeat(self.study, trials):
+                for static, group in group_by_shape(self.space, trials):
+                    self._run_group(static, group, untold)
         finally:
             for trial in untold.values():
                 self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
@@ -447,6 +448,35 @@ class Tuner:
             untold.pop(trial.number)
             results.append(TrialResult(trial.number, trial.params, scores, run_dir, pruned))
         return results
+
+
+class Heartbeat:
+    """Records the trials' heartbeat in the storage every :data:`HEARTBEAT_SECONDS` from a
+    thread while the block runs (compile, training and evaluation alike), as
+    ``Study.optimize`` does, so that only the trials of a process that died go stale."""
+
+    def __init__(self, study: Any, trials: list[Any]) -> None:
+        self.storage, self.ids = study._storage, [t._trial_id for t in trials]
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._beat, daemon=True, name="jaxcart-heartbeat")
+
+    def _beat(self) -> None:
+        while True:
+            for trial_id in self.ids:
+                try:
+                    self.storage.record_heartbeat(trial_id)
+                except Exception:  # a finished trial, or the database busy: the next beat
+                    pass
+            if self.done.wait(HEARTBEAT_SECONDS):
+                return
+
+    def __enter__(self) -> Heartbeat:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.done.set()
+        self.thread.join()
 
 
 def _chained(first: Callable | None, second: Callable) -> Callable:
@@ -506,7 +536,6 @@ class RungReporter(StopRequest):
         self.pruned: set[int] = set()
         self.last_scores: dict[int, np.ndarray] = {}
         self.all_pruned = False
-        self.last_heartbeat = time.monotonic()
 
     def __call__(self) -> bool:
         """``should_stop`` for the training: a signal, or every trial pruned."""
@@ -521,7 +550,6 @@ class RungReporter(StopRequest):
             done = first + row + 1
             if done in self.rungs:
                 self._report(done)
-        self._heartbeat()
 
     def _report(self, iteration: int) -> None:
         partial = (self.sums / iteration).reshape(len(self.trials), self.num_seeds)
@@ -536,14 +564,6 @@ class RungReporter(StopRequest):
         self.iteration = iteration
         if len(self.pruned) == len(self.trials):
             self.all_pruned = True
-
-    def _heartbeat(self) -> None:
-        if time.monotonic() - self.last_heartbeat < HEARTBEAT_SECONDS / 2:
-            return
-        storage = self.study._storage
-        for trial in self.trials:
-            storage.record_heartbeat(trial._trial_id)
-        self.last_heartbeat = time.monotonic()
 
     def seconds_saved(self, outcome: Outcome) -> float:
         """The training time the rest of the group's iterations would have taken, at the
