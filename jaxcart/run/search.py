@@ -34,6 +34,7 @@ from jaxcart.engine.loop import Progress
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
+from jaxcart.rundir import layout
 from jaxcart.rundir.views import load_runs
 
 RETURN_METRIC = "rollout/ep_rew_mean"
@@ -406,7 +407,8 @@ class Tuner:
         config = dataclasses.replace(self.spec.config, **static)
         points = tuple(split_params(self.space, t.params)[1] for t in trials)
         spec = dataclasses.replace(self.spec, config=config, combinations=points)
-        out = self.out / f"trials-{trials[0].number:05d}-{trials[-1].number:05d}"
+        # fresh: a study made anew (its numbers from 0 again) keeps the old one's directories
+        out = layout.fresh_dir(self.out / f"trials-{trials[0].number:05d}-{trials[-1].number:05d}")
         for trial in trials:
             trial.set_user_attr("run_dir", str(out))
         pruning = RungReporter(self.study, trials, spec, self.hooks.on_signal)
