@@ -244,3 +244,10 @@ def test_trials_of_a_killed_process_go_stale_and_are_asked_again(tmp_path, monke
     time.sleep(2.5)  # SQLite keeps heartbeats to the second
     tuner.run(1, 1)
     assert sorted(_states(storage, "s")) == ["COMPLETE", "FAIL"]
+
+
+def test_python_m_jaxcart_tune_is_the_tune_command(capsys):
+    from jaxcart.__main__ import main
+
+    assert main(["tune", "--space", "nope=1:2"]) == 2
+    assert capsys.readouterr().err == "error: --space nope: no such config field\n"
