@@ -251,3 +251,23 @@ def test_python_m_jaxcart_tune_is_the_tune_command(capsys):
 
     assert main(["tune", "--space", "nope=1:2"]) == 2
     assert capsys.readouterr().err == "error: --space nope: no such config field\n"
+
+
+@pytest.mark.slow
+def test_a_batch_of_explicit_combinations_resumes_as_it_would_have_trained(tmp_path):
+    from helpers import assert_same_run_dirs, stopped_run
+
+    from jaxcart.run import lifecycle
+
+    points = ({"learning_rate": 1e-3, "clip_coef": 0.1}, {"learning_rate": 3e-3, "clip_coef": 0.3})
+    spec = RunSpec(SMALL, num_seeds=2, combinations=points)
+    options = RunOptions(eval_episodes=1, chunk_size=2)
+    lifecycle.run_new(spec, tmp_path / "whole", options)
+    run, _ = stopped_run(spec, tmp_path / "stopped", options)
+    run.close()
+    lifecycle.resume_run(tmp_path / "stopped", options)
+    for c in range(2):
+        assert_same_run_dirs(
+            tmp_path / "whole" / f"combo-{c:03d}", tmp_path / "stopped" / f"combo-{c:03d}"
+        )
+        assert load_run(tmp_path / "stopped" / f"combo-{c:03d}").combination == points[c]
