@@ -23,6 +23,7 @@ from typing import NoReturn
 
 from jaxcart import cli, train
 from jaxcart.core.config import config_fields
+from jaxcart.run.search import DEFAULT_SPACE
 
 DEFAULT_STORAGE = "sqlite:///runs/study.db"
 DEFAULT_STUDY = "jaxcart"
@@ -56,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=SPEC",
         help="a config field to search (repeatable): LOW:HIGH (uniform), log:LOW:HIGH, "
         "int:LOW:HIGH, or choices A,B,C (shape settings such as num_envs=1,4,8 or "
-        "hidden_sizes=64x64,32x32 group a batch into one program per shape)",
+        "hidden_sizes=64x64,32x32 group a batch into one program per shape); default: "
+        "rl-zoo3's PPO float ranges, " + " ".join(DEFAULT_SPACE),
     )
     search.add_argument(
         "--score",

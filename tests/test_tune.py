@@ -88,6 +88,12 @@ def test_space_parsing_draws_what_it_says():
     assert traced == {"learning_rate": 1e-3, "clip_coef": 0.2}
 
 
+def test_no_space_is_rl_zoo3s_float_ranges_in_one_program():
+    space = search.parse_space([], preset("sb3"))
+    assert space["learning_rate"].log and space["gamma"].high == 0.9999
+    assert all(d.traced for d in space.values())  # every batch one program
+
+
 def test_space_with_a_shape_combination_that_cannot_train_is_refused():
     base = preset("sb3", num_steps=64, minibatch_size=64, total_timesteps=10**9)
     with pytest.raises(ConfigError, match="combination num_envs=8192, num_steps=4096"):

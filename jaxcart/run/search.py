@@ -46,6 +46,19 @@ STALE_GRACE_SECONDS = 300
 """A trial silent this long belonged to a process that died; it is marked failed."""
 
 
+DEFAULT_SPACE = (
+    "learning_rate=log:1e-5:1e-2",
+    "clip_coef=0.1:0.4",
+    "ent_coef=log:1e-8:1e-1",
+    "gamma=0.9:0.9999",
+    "gae_lambda=0.8:1.0",
+    "max_grad_norm=0.3:5.0",
+    "vf_coef=0.1:1.0",
+)
+"""Without ``--space``: rl-zoo3's PPO float ranges (``sample_ppo_params``), all traced, so a
+batch is one program; its learning rate tops out at 1e-2 rather than rl-zoo3's 1."""
+
+
 class TuneUnavailable(ConfigError):
     """Optuna is not installed."""
 
@@ -159,23 +172,20 @@ def parse_dimension(spec: str) -> Dimension:
 
 
 def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]:
-    """Every ``--space`` option, checked against ``config`` (the trials' base) before anything
-    compiles: each range end and each choice must make a valid config on its own.
+    """Every ``--space`` option (none: :data:`DEFAULT_SPACE`), checked against ``config``
+    (the trials' base) before anything compiles: each range end and each choice must make a
+    valid config on its own.
 
     Raises:
         ConfigError: a mistake in a spec (see :func:`parse_dimension`), a field given twice,
-            no spec at all, or a value that makes an invalid config (one line).
+            or a value that makes an invalid config (one line).
     """
     space: dict[str, Dimension] = {}
-    for spec in specs:
+    for spec in specs or DEFAULT_SPACE:
         dim = parse_dimension(spec)
         if dim.name in space:
             raise ConfigError(f"--space {dim.name} given twice; keep one")
         space[dim.name] = dim
-    if not space:
-        raise ConfigError(
-            "no --space given: name at least one field, e.g. learning_rate=log:1e-5:1e-2"
-        )
     for dim in space.values():
         ends = dim.choices or (dim.low, dim.high)
         if dim.integer and dim.high - dim.low <= 4096:  # a shape value between may not divide
