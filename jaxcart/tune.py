@@ -268,6 +268,7 @@ def _tune(opts: TuneOptions) -> int:
         score = Score.parse(opts.score)
     except ValueError as exc:
         raise cli.UsageError(f"--score: {exc}") from None
+    search.check_score(score, space, spec.config)
     study = search.open_study(
         opts.storage, opts.study_name, opts.sampler, opts.pruner, opts.sampler_seed
     )

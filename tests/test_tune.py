@@ -55,11 +55,13 @@ def _states(storage: str, name: str) -> list[str]:
         ("num_envs=2,3", "--space num_envs=3"),  # 3 x 32 steps do not split into 64s
         ("num_envs=int:2:4", "--space num_envs=3"),  # every value of a small int range
         ("gamma=0.9,0.9", "give distinct choices"),
+        ("learning_rate=log:1e-4:1e-2 --score return-at:2048", "some trials end at 1,024"),
     ],
 )
 def test_bad_space_is_one_line_before_anything_compiles(tmp_path, capsys, space, message):
     db = tmp_path / "study.db"
-    code = tune.main([*BASE, "--space", space, "--storage", f"sqlite:///{db}"])
+    space, *rest = space.split()
+    code = tune.main([*BASE, "--space", space, *rest, "--storage", f"sqlite:///{db}"])
     err = capsys.readouterr().err
     assert code == 2
     assert message in err and len(err.strip().splitlines()) == 1, err

@@ -519,8 +519,31 @@ def trial_scores(out: Path, outcome: Outcome, score: Score, num_trials: int) -> 
         evaluation = None
         if run.evaluation is not None:
             evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
-        results.append(score.compute(evaluation, run.metrics.get(RETURN_METRIC), run.env_steps))
+        try:
+            curve = run.metrics.get(RETURN_METRIC)
+            results.append(score.compute(evaluation, curve, run.env_steps))
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
     return results
+
+
+def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:
+    """Refuses a ``return-at:STEPS`` that the base config, or one of the space's shape
+    choices, ends before (one line, before anything compiles)."""
+    if score.steps is None:
+        return
+    configs = [config] + [
+        dataclasses.replace(config, **{d.name: d.config_value(v)})
+        for d in space.values()
+        if not d.traced
+        for v in (d.choices or (int(d.low), int(d.high)))
+    ]
+    short = min(c.env_steps_per_seed for c in configs)
+    if score.steps > short:
+        raise ConfigError(
+            f"--score {score.label}: some trials end at {short:,} env steps per seed; "
+            "choose fewer steps or a larger --total-timesteps"
+        )
 
 
 class RungReporter(StopRequest):
