@@ -4,12 +4,14 @@ grouped by shape, and the best trial's retrain command reproducing its score."""
 
 from __future__ import annotations
 
+import importlib
 import os
 import shlex
 import signal
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -279,3 +281,27 @@ def test_a_batch_of_explicit_combinations_resumes_as_it_would_have_trained(tmp_p
             tmp_path / "whole" / f"combo-{c:03d}", tmp_path / "stopped" / f"combo-{c:03d}"
         )
         assert load_run(tmp_path / "stopped" / f"combo-{c:03d}").combination == points[c]
+
+
+def test_benchmark_reads_best_score_against_wall_time_from_a_study(tmp_path):
+    bench = importlib.import_module("benchmarks.tune.__main__")
+    storage = f"sqlite:///{tmp_path}/b.db"
+    study = optuna.create_study(storage=storage, study_name="b", direction="maximize")
+    for value in (10.0, 30.0, 20.0):
+        study.tell(study.ask(), value)
+    started = study.get_trials()[0].datetime_start.timestamp() - 1.0
+    curve = bench.study_curve(storage, "b", started)
+    assert [best for _, best in curve] == [10.0, 30.0, 30.0]  # the best so far, in finish order
+    assert all(seconds >= 1.0 for seconds, _ in curve)
+    # both contenders get the same space, trial budget and env steps per seed
+    args = types.SimpleNamespace(
+        space=["learning_rate=log:1e-5:1e-2"],
+        trials=8,
+        batch_trials=4,
+        num_seeds=2,
+        timesteps=4096,
+        sb3_python=tmp_path / "python",
+    )
+    jax_cmd, sb3_cmd = bench.commands(args, tmp_path).values()
+    for cmd in (jax_cmd, sb3_cmd):
+        assert "learning_rate=log:1e-5:1e-2" in cmd and "8" in cmd and "4096" in cmd
