@@ -89,6 +89,7 @@ def create_run(
         "num_seeds": spec.num_seeds,
         "seed": spec.seed,
         "sweep": spec.sweep,
+        **({"combinations": [dict(c) for c in spec.combinations]} if spec.combinations else {}),
         "versions": package_versions(),
         "backend": jax.default_backend(),
         "device_count": jax.device_count(),

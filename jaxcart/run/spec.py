@@ -48,6 +48,9 @@ class RunSpec:
     """Base seed: seed index i uses ``fold_in(PRNGKey(seed), i)``."""
     sweep: dict[str, list[float]] = field(default_factory=dict)
     """Traced float hyperparameter -> values; every combination x seed trains in one program."""
+    combinations: tuple[dict[str, float], ...] = ()
+    """Explicit points instead of the sweep's grid (a search's trials): each one's traced float
+    hyperparameters; every point x seed trains in one program, as a sweep does."""
 
     def __post_init__(self) -> None:
         check_option(
@@ -61,21 +64,28 @@ class RunSpec:
             f"must be in [0, 2**32), got {self.seed}",
         )
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
+        if self.combinations:
+            check_option(not self.sweep, "combinations", "and sweep cannot both be given")
+            sweeps.validate_combinations(self.config, self.combinations)
 
     @classmethod
     def from_record(cls, info: dict) -> RunSpec:
         """The spec a run's ``config.json`` records (``config`` already a PPOConfig)."""
         sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
-        return cls(info["config"], info["preset"], int(info["num_seeds"]), int(info["seed"]), sweep)
+        points = () if sweep else tuple(dict(c) for c in info.get("combinations") or ())
+        return cls(
+            info["config"], info["preset"], int(info["num_seeds"]), int(info["seed"]), sweep, points
+        )
 
     @functools.cached_property
     def grid(self) -> sweeps.RunGrid:
         """Seeds x combinations (built once: a large sweep has a million combinations)."""
-        return sweeps.RunGrid(self.num_seeds, tuple(sweep_combinations(self.sweep)))
+        combos = self.combinations or tuple(sweep_combinations(self.sweep))
+        return sweeps.RunGrid(self.num_seeds, combos)
 
     def combo_config(self, combination: int) -> PPOConfig:
         """The config of one combination (the config itself without a sweep)."""
-        if not self.sweep:
+        if not self.grid.is_sweep:
             return self.config
         return sweeps.combo_config(self.config, self.grid.combos[combination])
 

@@ -173,6 +173,10 @@ def _check_run_fields(data: dict) -> None:
     num_combos = math.prod(len(v) for v in sweep.values()) if sweep else 0
     if num_seeds * max(1, num_combos) > MAX_RUNS:  # checked before any list is built
         raise ValueError(f"{num_seeds} seeds x {num_combos} combinations is over {MAX_RUNS:,} runs")
+    if not sweep and data.get("combinations"):  # explicit points (a search's trials)
+        if num_seeds * len(recorded_combinations(data)) > MAX_RUNS:
+            raise ValueError(f"{num_seeds} seeds x its combinations is over {MAX_RUNS:,} runs")
+        return
     derived = sweep_combinations(sweep)
     if "combinations" in data and recorded_combinations(data) != derived:  # older runs
         raise ValueError("combinations do not match the sweep")
