@@ -16,6 +16,7 @@ COMMANDS = {
     "evaluate": "greedy Gymnasium evaluation of a run's seeds; --gif renders one to a GIF",
     "plot": "learning curves of runs and sweeps as an image",
     "compare": "IQM and probability of improvement across runs, with intervals",
+    "tune": "hyperparameter search on Optuna, trials x seeds in one program",
     "export": "one seed's policy as a Stable-Baselines3 zip or an ONNX model",
     "sb3": "Stable-Baselines3's own PPO (PyTorch) trained into a run directory",
     "env": "CartPole's spaces, bounds and limits",
@@ -59,10 +60,8 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
-    if command == "train":
-        from jaxcart.train import main_on_all_cores
-
-        return main_on_all_cores(rest)  # one CPU device per core, as python -m jaxcart.train
+    if command in ("train", "tune"):  # one CPU device per core, as python -m jaxcart.COMMAND
+        return importlib.import_module(f"jaxcart.{command}").main_on_all_cores(rest)
     return importlib.import_module(f"jaxcart.{command}").main(rest)
 
 

@@ -12,6 +12,7 @@ import os
 import re
 import signal
 import sys
+import textwrap
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -364,13 +365,38 @@ def join_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
-def format_table(rows: list[list], header: list[str]) -> str:
-    """Right-aligned plain-text table."""
+TABLE_WIDTH = 100  # a terminal's width, with room for a prompt
+
+
+def format_table(rows: list[list], header: list[str], width: int | None = None) -> str:
+    """Right-aligned plain-text table.
+
+    With ``width``, columns that would not fit go into further tables below, each beginning
+    with the first column again (the row's name), so that no line is wider than ``width``
+    unless one column alone is.
+    """
     widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
-    lines = ["  ".join(str(h).rjust(w) for h, w in zip(header, widths))]
-    lines.append("  ".join("-" * w for w in widths))
-    lines += ["  ".join(str(c).rjust(w) for c, w in zip(r, widths)) for r in rows]
-    return "\n".join(lines)
+    groups: list[list[int]] = [[0]]
+    for i in range(1, len(header)):
+        used = sum(widths[j] + 2 for j in groups[-1])
+        if width is not None and len(groups[-1]) > 1 and used + widths[i] > width:
+            groups.append([0])
+        groups[-1].append(i)
+    tables = []
+    for columns in groups:
+        lines = ["  ".join(str(header[i]).rjust(widths[i]) for i in columns)]
+        lines.append("  ".join("-" * widths[i] for i in columns))
+        lines += ["  ".join(str(r[i]).rjust(widths[i]) for i in columns) for r in rows]
+        tables.append("\n".join(lines))
+    return "\n\n".join(tables)
+
+
+def wrap(text: str, width: int = TABLE_WIDTH) -> str:
+    """``text`` wrapped to ``width`` columns, later lines indented by two spaces."""
+    return "\n".join(
+        textwrap.fill(line, width, subsequent_indent="  ", break_on_hyphens=False)
+        for line in text.splitlines()
+    )
 
 
 def command_main(

@@ -46,7 +46,7 @@ from jaxcart.results.scores import CompareError, Comparison
 
 ESTIMATE_NAMES = {
     "iqm": "IQM",
-    "median": "median over seeds",
+    "median": "median",
     "mean": "mean",
     "optimality_gap": "opt. gap",
 }
@@ -65,31 +65,41 @@ def _solved(e: stats.Estimate | None, n: int) -> str:
     return f"{round(e.value * n)}/{n} [{e.ci_low:.1%}, {e.ci_high:.1%}]"
 
 
+NAME_WIDTH = 24  # longer run names are listed under the table and numbered in it
+
+
+def _row_names(names: list[str]) -> tuple[list[str], str | None]:
+    """The names the table's rows show, and the legend that numbered rows need (or None)."""
+    if max(len(name) for name in names) <= NAME_WIDTH:
+        return names, None
+    legend = "runs: " + "; ".join(f"[{i}] {name}" for i, name in enumerate(names))
+    return [f"[{i}]" for i in range(len(names))], legend
+
+
 def table(comparison: Comparison) -> str:
-    """The terminal table: one row per run."""
+    """The terminal table: one row per run, split so that it fits 100 columns."""
     reference = "baseline"
     if comparison.arms:
         reference = f"{comparison.arms.names[0]} same config"
     ci = f"{100 * comparison.stats.confidence:.3g}% CI"  # wider with --adjust bonferroni
     header = [
         "run",
-        "score",
         "seeds",
         *(f"{label} [95% CI]" for label in ESTIMATE_NAMES.values()),
         "solved [95% CI]",
         f"IQM - {reference} [{ci}]",
         f"P(> {reference}) [{ci}]",
         "reached 500",
-        "median steps to a 500 episode",
+        "steps to 500",
     ]
+    names, legend = _row_names([entry.name for entry in comparison.entries])
     rows = []
-    for entry, st in zip(comparison.entries, comparison.stats.runs):
+    for name, entry, st in zip(names, comparison.entries, comparison.stats.runs):
         n = len(entry.scores)
         steps = entry.first_reached(entry.run.env_steps)
         rows.append(
             [
-                entry.name,
-                comparison.score.label,
+                name,
                 n,
                 *(st.estimates[name].format(1) for name in ESTIMATE_NAMES),
                 _solved(st.solved, n),
@@ -99,7 +109,8 @@ def table(comparison: Comparison) -> str:
                 _median_steps(steps),
             ]
         )
-    return cli.format_table(rows, header)
+    text = cli.format_table(rows, header, width=cli.TABLE_WIDTH)
+    return text if legend is None else f"{text}\n{cli.wrap(legend)}"
 
 
 def matrix_text(comparison: Comparison) -> str | None:
@@ -111,9 +122,9 @@ def matrix_text(comparison: Comparison) -> str | None:
     rows = [[name, *(f"{v:.2f}" for v in row)] for name, row in zip(names, matrix)]
     return (
         "P(row > column) over seed pairs (point values):\n"
-        + cli.format_table(rows, ["", *(f"[{i}]" for i in range(len(names)))])
-        + "\ncolumns: "
-        + ", ".join(f"[{i}] {name}" for i, name in enumerate(names))
+        + cli.format_table(rows, ["", *(f"[{i}]" for i in range(len(names)))], cli.TABLE_WIDTH)
+        + "\n"
+        + cli.wrap("columns: " + ", ".join(f"[{i}] {name}" for i, name in enumerate(names)))
     )
 
 
@@ -138,7 +149,7 @@ def arms_text(comparison: Comparison) -> str | None:
     return (
         f"Arms over {len(arms.runs[0])} configuration(s) (stratified bootstrap: seeds "
         "resampled within each configuration; P(>) is the mean over configurations):\n"
-        + cli.format_table(rows, header)
+        + cli.format_table(rows, header, cli.TABLE_WIDTH)
     )
 
 
@@ -162,18 +173,24 @@ def report_text(comparison: Comparison) -> str:
     baseline = comparison.entries[comparison.baseline].name
     if comparison.arms:
         baseline = f"arm {comparison.arms.names[0]} (each run against its configuration's run)"
+    wrap = cli.wrap
     lines = [
-        f"Comparing {len(comparison.entries)} run(s); score = {score.label}: {score.definition}; "
-        f"{stats.CONFIDENCE:.0%} percentile bootstrap CIs ({reps} resamples, seed {seed}); "
-        f"baseline {baseline}",
+        wrap(
+            f"Comparing {len(comparison.entries)} run(s); score = {score.label}: "
+            f"{score.definition}; {stats.CONFIDENCE:.0%} percentile bootstrap CIs ({reps} "
+            f"resamples, seed {seed}); baseline {baseline}"
+        ),
         table(comparison),
-        "solved: every greedy episode scored 500 (Wilson interval); "
-        f"reached 500: {runs.REACHED_DEFINITION}",
-        saturation_text(comparison),
-        comparison.stats.reading_note(),
+        wrap(
+            "solved: every greedy episode scored 500 (Wilson interval); "
+            f"reached 500: {runs.REACHED_DEFINITION}; steps to 500: the median over seeds of "
+            "the env steps when that first happened (never: not in half the seeds)"
+        ),
+        wrap(saturation_text(comparison)),
+        wrap(comparison.stats.reading_note()),
     ]
     lines += [text for text in (matrix_text(comparison), arms_text(comparison)) if text]
-    lines += [f"note: {note}" for note in comparison.notes]
+    lines += [wrap(f"note: {note}") for note in comparison.notes]
     return "\n".join(lines)
 
 

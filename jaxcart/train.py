@@ -521,7 +521,18 @@ def main(argv: list[str] | None = None) -> int:
         args = _parse_args(argv_)
         opts = TrainOptions.from_args(args, argv_)
         console.progress_bar = not opts.quiet
-        return _train(opts, console)
+        try:
+            return _train(opts, console)
+        except RuntimeError as exc:  # JAX's runtime errors are RuntimeErrors
+            if "RESOURCE_EXHAUSTED" not in str(exc):
+                raise  # anything else is jaxcart's bug: its traceback is the report
+            console.close()
+            print(
+                "error: the device ran out of memory compiling or running the training; "
+                "train fewer runs at once (--wave-size N, or fewer --num-seeds)",
+                file=sys.stderr,
+            )
+            return 1
 
     return cli.run_command(body)
 

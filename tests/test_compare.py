@@ -68,6 +68,11 @@ def assert_png(path: Path) -> None:
     assert pixels.std() > 10 and len(np.unique(pixels.reshape(-1, 3), axis=0)) > 20
 
 
+def printed(capsys: pytest.CaptureFixture) -> str:
+    """What the command printed, with the notes it wrapped to 100 columns read as one line."""
+    return capsys.readouterr().out.replace("\n  ", " ")
+
+
 def read_scores(run_dir: Path) -> list[float]:
     seeds = json.loads((run_dir / "evaluation.json").read_text())["seeds"]
     return [s["gymnasium_mean"] for s in seeds]
@@ -79,11 +84,15 @@ def test_compare_runs_and_a_sweep(runs, tmp_path, capsys):
     assert compare.main([str(a), str(sweep), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     lines = text.splitlines()
-    assert "baseline a" in lines[0] and "2000 resamples, seed 0" in lines[0]
-    assert "IQM [95% CI]" in lines[1] and "P(> baseline) [95% CI]" in lines[1]
-    names = [line.split()[0] for line in lines[3:6]]
+    assert max(len(line) for line in lines if not line.startswith("wrote ")) <= 100
+    heading = " ".join(lines[:2])
+    assert "baseline a" in heading and "2000 resamples, seed 0" in heading
+    first = next(i for i, line in enumerate(lines) if "IQM [95% CI]" in line)
+    names = [line.split()[0] for line in lines[first + 2 : first + 5]]
     assert names == ["a", "learning_rate=0.001", "learning_rate=0.01"]
-    assert "baseline" in lines[3]
+    second = next(i for i, line in enumerate(lines) if "P(> baseline) [95% CI]" in line)
+    assert lines[second + 2].split()[0] == "a" and "baseline" in lines[second + 2]
+    text = text.replace("\n  ", " ")  # notes wrapped to 100 columns, read as one line
     assert "note: seed counts differ (4 for a; 2 for 2 runs)" in text
     assert f"wrote {out / 'compare.json'}, {out / 'compare.png'}, {out / 'curves.csv'}" in text
     assert "saturated: no" in text and "2 comparison(s) against a baseline" in text
@@ -168,14 +177,14 @@ def test_baseline_option(runs, tmp_path, capsys):
     data = json.loads((tmp_path / "y" / "compare.json").read_text())
     assert data["baseline"] == "learning_rate=0.01" and len(data["runs"]) == 3
     assert [r["probability_of_improvement"] is None for r in data["runs"]] == [False, False, True]
-    assert "baseline learning_rate=0.01" in capsys.readouterr().out
+    assert "baseline learning_rate=0.01" in printed(capsys)
 
 
 def test_sb3_format_and_single_seed(runs, tmp_path, capsys):
     a, _ = runs
     single = sb3_run(tmp_path / "sb3-torch", num_seeds=1)
     assert compare.main([str(a), str(single), "--out", str(tmp_path / "cmp")]) == 0
-    text = capsys.readouterr().out
+    text = printed(capsys)
     assert "note: sb3-torch has a single seed: its confidence intervals are degenerate" in text
     assert "note: seed counts differ (4 for a; 1 for sb3-torch)" in text
     assert "greedy evaluation episodes per seed differ (2, 20)" in text
@@ -187,7 +196,7 @@ def test_sb3_format_and_single_seed(runs, tmp_path, capsys):
     assert_png(tmp_path / "cmp" / "compare.png")
     several = sb3_run(tmp_path / "sb3-3", num_seeds=3)
     assert compare.main([str(several), "--out", str(tmp_path / "one")]) == 0
-    assert "one run only" in capsys.readouterr().out
+    assert "one run only" in printed(capsys)
 
 
 def one_line_error(capsys) -> str:
@@ -249,7 +258,7 @@ def test_auc_score_is_recomputable_from_metrics_csv(runs, tmp_path, capsys):
         )
         == 0
     )
-    text = capsys.readouterr().out
+    text = printed(capsys)
     assert "score = auc" in text
     data = json.loads((out / "compare.json").read_text())
     assert data["score"] == "auc" and data["runs"][0]["name"] == "a"
@@ -287,7 +296,7 @@ def test_return_at_score(runs, tmp_path, capsys):
 def test_saturated_scores_are_said_out_loud(tmp_path, capsys):
     x, y = sb3_run(tmp_path / "x", 3, score=500.0), sb3_run(tmp_path / "y", 3, score=500.0)
     assert compare.main([str(x), str(y), "--out", str(tmp_path / "eval")]) == 0
-    text = capsys.readouterr().out
+    text = printed(capsys)
     assert (
         "every seed of every run scores 500 by eval: the score cannot tell the runs apart" in text
     )
@@ -299,7 +308,7 @@ def test_saturated_scores_are_said_out_loud(tmp_path, capsys):
     assert_png(tmp_path / "eval" / "compare.png")
     # The learning curves still differ between seeds: the AUC can tell them apart.
     assert compare.main([str(x), str(y), "--score", "auc", "--out", str(tmp_path / "auc")]) == 0
-    assert "saturated: no" in capsys.readouterr().out
+    assert "saturated: no" in printed(capsys)
     assert json.loads((tmp_path / "auc" / "compare.json").read_text())["saturated"] is False
 
 
@@ -310,7 +319,7 @@ def test_arms_over_configurations(tmp_path, capsys):
     assert (
         compare.main([*argv, "--baseline", "q", "--adjust", "bonferroni", "--out", str(out)]) == 0
     )
-    text = capsys.readouterr().out
+    text = printed(capsys)
     assert "Arms over 2 configuration(s)" in text and "baseline arm q" in text
     data = json.loads((out / "compare.json").read_text())
     assert data["baseline"] == "q" and [a["name"] for a in data["arms"]] == ["q", "p"]
@@ -339,7 +348,28 @@ def test_arms_over_configurations(tmp_path, capsys):
 
 def test_help_defines_every_statistic(capsys):
     assert compare.main(["--help"]) == 0
-    text = capsys.readouterr().out
+    text = printed(capsys)
     for name in summary.DEFINITIONS:
         assert f"\n{name}: " in text, name
     assert "median over seeds" in text and "--score" in text and "--arm" in text
+
+
+def test_figure_panels_share_one_score_axis_and_show_small_differences_small(runs, tmp_path):
+    from jaxcart.results import figure
+
+    a, sweep = runs
+    result = compare.compare_runs([a, sweep], out=tmp_path / "cmp")
+    fig = figure.draw_comparison(result.comparison)
+    by_title = {ax.get_title(): ax for ax in fig.axes}
+    location = [by_title[figure.ESTIMATE_TITLES[n]].get_xlim() for n in ("iqm", "median", "mean")]
+    assert location[0] == location[1] == location[2]
+    low, high = location[0]
+    assert high - low >= figure.MIN_SPAN and high <= 500 * 1.05 and low >= -500 * 0.05
+    for ax in fig.axes:  # every interval panel writes its numbers out
+        if ax.get_title() in figure.ESTIMATE_TITLES.values():
+            assert any("[" in t.get_text() for t in ax.texts)
+
+    # Two estimates 1.6 points apart near 500 get a panel at least MIN_SPAN wide within [0, 500].
+    close = [stats.Estimate(498.4, 497.0, 499.5), stats.Estimate(500.0, 499.0, 500.0)]
+    low, high = figure._limits(close, 0.0, 500.0, include=498.4)
+    assert high - low >= figure.MIN_SPAN and high < 500 + 0.05 * figure.MIN_SPAN + 1

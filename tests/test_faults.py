@@ -416,6 +416,33 @@ def test_a_failing_checkpoint_write_keeps_the_last_one_and_resume_finishes(
     FAULT_FIGURES["failing writes survived"] += 1
 
 
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_run_that_fails_before_training_leaves_nothing(tmp_path, monkeypatch, capsys, existing):
+    """XLA out of memory while compiling: one line and exit 1; the run directory this start
+    created is gone (one that already existed is left empty), so the same command starts
+    afresh."""
+    from jaxcart.engine import loop
+    from jaxcart.train import main
+
+    def out_of_memory(*args, **kwargs):
+        raise RuntimeError("RESOURCE_EXHAUSTED: Out of memory while trying to allocate 9 TB")
+
+    out = tmp_path / "run"
+    if existing:
+        out.mkdir()
+    real = loop.compiled_chunk
+    monkeypatch.setattr(loop, "compiled_chunk", out_of_memory)
+    capsys.readouterr()
+    assert main([*SMALL_RUN, "--out", str(out), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert "ran out of memory" in err and "--wave-size" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert (out.is_dir() and not list(out.iterdir())) if existing else not out.exists()
+    monkeypatch.setattr(loop, "compiled_chunk", real)
+    assert main([*SMALL_RUN, "--out", str(out), "--quiet"]) == 0  # the same command, afresh
+    assert (out / layout.PARAMS_FILE).is_file()
+
+
 @pytest.mark.slow
 def test_a_full_small_filesystem(tmp_path):
     """A real 400 KiB tmpfs: the second checkpoint does not fit beside the first."""

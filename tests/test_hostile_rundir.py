@@ -1028,6 +1028,48 @@ def test_a_run_directory_renamed_or_swapped_for_a_link_while_it_trains_keeps_eve
     FAULT_FIGURES["hostile run directories: directory renames during writes"] += 1
 
 
+@pytest.mark.parametrize("reading", ["curves", "params", "unfinished"])
+def test_a_run_directory_swapped_while_it_is_read_is_read_from_the_one_opened(
+    bases, tmp_path, monkeypatch, reading
+):
+    """A reader opens the run directory once: renaming it after its config.json was read, and
+    putting a link to another run (trained with a different activation) in its place, does
+    not mix the two runs' files: the reader still reads the first run's."""
+    name = "interrupted" if reading == "unfinished" else "finished"
+    run, _ = prepare(bases, name, tmp_path)
+    other = tmp_path / "other"
+    shutil.copytree(bases["sweep"] / "combo-001", other)  # another run, same shapes
+    real, swaps = reader.read_run_config, []
+
+    def read_then_swap(run_dir, verify=False):
+        info = real(run_dir, verify)
+        if not swaps:
+            swaps.append(run)
+            run.rename(tmp_path / "moved")
+            os.symlink(other, run)
+        return info
+
+    monkeypatch.setattr(reader, "read_run_config", read_then_swap)
+    if reading == "params":
+        got = policy.run_params(run).params
+        want = reader.load_params(tmp_path / "moved")
+        assert all(np.array_equal(a, b) for a, b in zip(jax_leaves(got), jax_leaves(want)))
+    else:
+        curves = runs.load_run(run)
+        monkeypatch.setattr(reader, "read_run_config", real)
+        want = runs.load_run(tmp_path / "moved")
+        assert curves.note == want.note
+        assert all(
+            np.array_equal(curves.metrics[k], v, equal_nan=True) for k, v in want.metrics.items()
+        )
+    assert swaps, "the swap happened while reading"
+    FAULT_FIGURES["hostile run directories: directory renames during reads"] += 1
+
+
+def jax_leaves(tree: dict) -> list[np.ndarray]:
+    return [np.asarray(x) for x in files.flatten(tree).values()]
+
+
 def test_a_run_from_before_manifests_is_read_with_a_note_and_a_missing_one_is_refused(
     bases, tmp_path, capsys
 ):

@@ -1,6 +1,8 @@
 """``compare.png``: the figure of a :class:`~jaxcart.results.scores.Comparison`.
 
-Top row: each run's IQM, median over seeds, mean and optimality gap with their intervals.
+Top row: each run's IQM, median over seeds, mean and optimality gap with their intervals, each
+written out; IQM, median and mean share one score axis, and no panel spans less than
+:data:`MIN_SPAN` points, so that a small difference looks small.
 Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the performance profile
 (fraction of seeds scoring at least tau, the solved fraction marked at 500). Bottom: sample
 efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction of seeds whose training
@@ -26,11 +28,15 @@ CURVE_POINTS = 100
 """Sample-efficiency curves are drawn at most at this many iterations (evenly spaced)."""
 CURVE_REPS = 1000
 """Resamples per point of a drawn band (the reported numbers use ``--reps``)."""
+MIN_SPAN = 0.1 * stats.MAX_RETURN
+"""The narrowest score range a panel shows, so that a difference of a few points between runs
+looks as small as it is, instead of filling the panel."""
+LABEL_SIZE = 10
 ESTIMATE_TITLES = {
     "iqm": "IQM over seeds",
     "median": "median over seeds",
     "mean": "mean over seeds",
-    "optimality_gap": "optimality gap (mean of max(500 - score, 0))",
+    "optimality_gap": "optimality gap: mean of 500 - score",
 }
 
 
@@ -61,16 +67,44 @@ def _tick_label(name: str, width: int = 14) -> str:
 
 
 def _intervals(ax, rows: list[tuple[int, str, stats.Estimate]], title: str, xlabel: str) -> None:
-    """One point with its interval per ``(colour index, name, estimate)``, top to bottom; the
-    run names are the y labels (the panel's legend)."""
+    """One point with its interval per ``(colour index, name, estimate)``, top to bottom, each
+    written out as ``value [low, high]`` above its bar; the run names are the y labels (the
+    panel's legend)."""
     n = len(rows)
     for k, (i, _, e) in enumerate(rows):
         y = n - 1 - k
         ax.plot([e.ci_low, e.ci_high], [y, y], color=_colour(i), lw=6, alpha=0.45)
         ax.plot([e.value], [y], "|", color=_colour(i), ms=16, mew=2)
-    ax.set_yticks(range(n), [_tick_label(name) for _, name, _ in reversed(rows)], fontsize=8)
+        ax.annotate(
+            e.format(1 if abs(e.value) >= 2 else 2),
+            (e.value, y),
+            xytext=(0, 9),
+            textcoords="offset points",
+            ha="center",
+            fontsize=9,
+        )
+    names = [_tick_label(name) for _, name, _ in reversed(rows)]
+    ax.set_yticks(range(n), names, fontsize=LABEL_SIZE)
+    ax.tick_params(axis="x", labelsize=LABEL_SIZE)
     ax.set(title=title, xlabel=xlabel, ylim=(-0.7, n - 0.3))
     ax.grid(axis="x", alpha=0.3)
+
+
+def _limits(
+    estimates: list[stats.Estimate], lower: float | None, upper: float | None, include: float
+) -> tuple[float, float]:
+    """An x range holding every interval and ``include``, at least :data:`MIN_SPAN` wide,
+    within ``[lower, upper]`` (where the score cannot go), with a margin for the bars' ends."""
+    low = min([include, *(e.ci_low for e in estimates)])
+    high = max([include, *(e.ci_high for e in estimates)])
+    grow = max(MIN_SPAN - (high - low), 0.0) / 2
+    low, high = low - grow, high + grow
+    if lower is not None and low < lower:
+        low, high = lower, max(high, lower + MIN_SPAN)
+    if upper is not None and high > upper:
+        low, high = min(low, upper - MIN_SPAN), upper
+    margin = 0.04 * (high - low)
+    return low - margin, high + margin
 
 
 def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
@@ -95,9 +129,12 @@ def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
         return
     _intervals(ax, rows, title, xlabel)
     ax.axvline(zero, color="0.5", ls="--", lw=0.8, label="no difference")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=8, loc="lower right")
     if kind == "improvement":
         ax.set_xlim(-0.02, 1.02)
+    else:  # a difference of scores in [0, 500]
+        span = stats.MAX_RETURN
+        ax.set_xlim(*_limits([e for _, _, e in rows], -span, span, include=0.0))
 
 
 def _profile_panel(ax, comparison: Comparison) -> None:
@@ -181,7 +218,7 @@ def _matrix_panel(ax, comparison: Comparison) -> None:
     ax.set_title("P(row > column) over seed pairs")
     if matrix is None:
         ax.set_axis_off()
-        why = "arms: see the table" if comparison.arms else "two runs: see the panel on the left"
+        why = "arms: see the table" if comparison.arms else "two runs: see P(run > ...) above"
         _no_data(ax, why)
         return
     names = [_tick_label(e.name) for e in comparison.entries]
@@ -202,6 +239,10 @@ def draw_comparison(comparison: Comparison) -> Figure:
     fig = Figure(figsize=(18, 13 + 0.25 * n), layout="constrained")
     grid = fig.add_gridspec(3, 12, height_ratios=[0.6 + 0.12 * n, 1, 1])
     score = comparison.score
+    location = [
+        r.estimates[name] for r in comparison.stats.runs for name in ("iqm", "median", "mean")
+    ]
+    shared = _limits(location, 0.0, stats.MAX_RETURN, include=location[0].value)
     for k, (name, title) in enumerate(ESTIMATE_TITLES.items()):
         ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
         rows = [
@@ -209,6 +250,11 @@ def draw_comparison(comparison: Comparison) -> Figure:
             for i, e in enumerate(comparison.entries)
         ]
         _intervals(ax, rows, title, f"score ({score.label})")
+        if name == "optimality_gap":  # 500 - score: as wide as the other panels
+            gaps = [e for _, _, e in rows]
+            ax.set_xlim(*_limits(gaps, 0.0, stats.MAX_RETURN, include=0.0))
+        else:  # one score axis for IQM, median and mean, so that they read alike
+            ax.set_xlim(*shared)
     _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference")
     _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "improvement")
     _profile_panel(fig.add_subplot(grid[1, 8:12]), comparison)

@@ -22,6 +22,7 @@ import dataclasses
 import shlex
 import signal
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -59,6 +60,7 @@ from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_wav
 from jaxcart.rundir import files, layout, outputs, reader
 from jaxcart.rundir.directory import RunDir, check_versions, package_versions
 from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.manifest import UnverifiedRunWarning
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 
@@ -99,6 +101,7 @@ def create_run(
             if spec.num_seeds <= MAX_RECORDED_SEEDS and spec.seed_env_values()
             else {}
         ),
+        **({"combinations": [dict(c) for c in spec.combinations]} if spec.combinations else {}),
         "versions": package_versions(),
         "backend": jax.default_backend(),
         "device_count": jax.device_count(),
@@ -129,9 +132,12 @@ def open_run(
             waves).
     """
     out = Path(out)
-    info = reader.read_run_config(out, verify=True)
+    with warnings.catch_warnings():  # said once, by the read below
+        warnings.simplefilter("ignore", UnverifiedRunWarning)
+        reader.read_run_config(out)  # a clear error for what is not a run, before the lock
     directory = RunDir.open(out, main_process)
-    try:
+    try:  # config.json again, through the directory the run resumes in
+        info = reader.read_run_config(directory.dir or out, verify=True)
         changed = _device_change(out, info, allow_device_change)
         if extend_to is not None:
             meta = directory.read_checkpoint_meta()
@@ -395,10 +401,23 @@ def carry_out(
     try:
         with stop.installed():
             return _carry_out(run, options, hooks, stop)
+    except Exception:
+        if _nothing_trained(run):  # a new run that failed starting: nothing worth keeping
+            run.directory.discard()
+        raise
     finally:
         if bar is not None:
             bar.close()
         run.close()
+
+
+def _nothing_trained(run: Run) -> bool:
+    """Whether ``run`` is a new run, owned by this process, none of whose iterations trained
+    (its only checkpoint, if any, is the one written before the first iteration)."""
+    if run.resumed_from is not None or not run.main_process:
+        return False
+    meta = run.directory.checkpoint_meta or {}
+    return int(meta.get("iteration", 0)) == 0 and int(meta.get("wave", 0)) == 0
 
 
 def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -> Outcome:

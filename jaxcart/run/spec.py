@@ -51,6 +51,9 @@ class RunSpec:
     sweep: dict[str, list[float]] = field(default_factory=dict)
     """Traced float hyperparameter (or ``env.NAME``, a continuous physics field) -> values;
     every combination x seed trains in one program."""
+    combinations: tuple[dict[str, float], ...] = ()
+    """Explicit points instead of the sweep's grid (a search's trials): each one's traced float
+    hyperparameters; every point x seed trains in one program, as a sweep does."""
     env_params: EnvParams = field(default_factory=EnvParams)
     """CartPole's physics for every run (config.json records the fields that differ from
     CartPole-v1's)."""
@@ -87,11 +90,15 @@ class RunSpec:
                     physics.check_physics(self.env_params.replace(**{r.name: bound}))
                 except ConfigError as exc:
                     raise ConfigError(f"--randomize env.{r.name}: {exc}") from None
+        if self.combinations:
+            check_option(not self.sweep, "combinations", "and sweep cannot both be given")
+            sweeps.validate_combinations(self.config, self.combinations)
 
     @classmethod
     def from_record(cls, info: dict) -> RunSpec:
         """The spec a run's ``config.json`` records (``config`` already a PPOConfig)."""
         sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
+        points = () if sweep else tuple(dict(c) for c in info.get("combinations") or ())
         env_params = physics.make_env_params(info.get("env_params") or {})
         randomize = tuple(
             physics.Randomization(name, float(r["low"]), float(r["high"]), str(r["per"]))
@@ -103,6 +110,7 @@ class RunSpec:
             int(info["num_seeds"]),
             int(info["seed"]),
             sweep,
+            points,
             env_params,
             randomize,
         )
@@ -149,11 +157,12 @@ class RunSpec:
     @functools.cached_property
     def grid(self) -> sweeps.RunGrid:
         """Seeds x combinations (built once: a large sweep has a million combinations)."""
-        return sweeps.RunGrid(self.num_seeds, tuple(sweep_combinations(self.sweep)))
+        combos = self.combinations or tuple(sweep_combinations(self.sweep))
+        return sweeps.RunGrid(self.num_seeds, combos)
 
     def combo_config(self, combination: int) -> PPOConfig:
         """The config of one combination (the config itself without a sweep)."""
-        if not self.sweep:
+        if not self.grid.is_sweep:
             return self.config
         return sweeps.combo_config(self.config, self.grid.combos[combination])
 

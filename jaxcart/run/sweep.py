@@ -134,6 +134,22 @@ def env_values_of(combo: dict) -> dict:
     return {k[len(prefix) :]: v for k, v in combo.items() if k.startswith(prefix)}
 
 
+def validate_combinations(config: PPOConfig, combos: tuple[dict[str, float], ...]) -> None:
+    """Raises :class:`ConfigError` for explicit combinations that set anything but traced
+    float hyperparameters, or a value invalid with ``config``'s other fields."""
+    for combo in combos:
+        unknown = [name for name in combo if name not in TRACED_FIELDS]
+        if unknown:
+            raise ConfigError(
+                f"a combination sets {unknown[0]!r}: only float hyperparameters run in one "
+                f"program ({', '.join(TRACED_FIELDS)})"
+            )
+        try:
+            dataclasses.replace(config, **combo)
+        except ConfigError as exc:
+            raise ConfigError(f"combination value out of range: {exc}") from None
+
+
 def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
     """The config of one combination (its physics entries are not config fields)."""
     fields = {k: v for k, v in combo.items() if not k.startswith(physics.PREFIX)}

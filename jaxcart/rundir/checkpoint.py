@@ -77,7 +77,7 @@ iteration counter and builds ``[chunk_size, R]`` metrics, so a larger one could 
 exhaust memory in the compiled call (the trainer also caps it at the run's iterations)."""
 
 
-def read_checkpoint_meta(path: str | os.PathLike) -> dict:
+def read_checkpoint_meta(path: files.Target) -> dict:
     """The metadata of a checkpoint, with a :class:`RunDirError` if it is unreadable, of
     another format, or holds fields of the wrong type or out of range."""
     meta = files.read_meta(path)
@@ -176,7 +176,7 @@ class CheckpointRuns:
         return f"{where}: the run did not finish"
 
 
-def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> CheckpointRuns:
+def read_checkpoint_runs(run_dir: files.Where, info: dict | None = None) -> CheckpointRuns:
     """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
     optimizer or env state is restored), refusing crafted files: the metadata must match the
     run's ``config.json``, every array header is checked before anything is read, the whole
@@ -185,13 +185,18 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
     Raises:
         RunDirError: no usable checkpoint.
     """
-    run_dir = Path(run_dir)
-    info = info or read_run_config(run_dir)
+    with files.opened(run_dir) as directory:
+        return _read_checkpoint_runs(directory, info or read_run_config(directory))
+
+
+def _read_checkpoint_runs(directory: files.Dir, info: dict) -> CheckpointRuns:
     config = info["config"]
-    if files.refuse_link(run_dir / layout.CHECKPOINT_FILE) is None:
-        raise RunDirError(f"{run_dir} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}")
-    path = files.inside(run_dir, layout.CHECKPOINT_FILE)
-    manifest.verify(run_dir, layout.CHECKPOINT_FILE, info)
+    if files.refuse_link(directory / layout.CHECKPOINT_FILE) is None:
+        raise RunDirError(
+            f"{directory} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}"
+        )
+    path = files.inside(directory, layout.CHECKPOINT_FILE)
+    manifest.verify(directory, layout.CHECKPOINT_FILE, info)
     meta = read_checkpoint_meta(path)
     runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
     iteration = meta.get("iteration")
@@ -211,7 +216,7 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
     arrays, _ = files.load_tree(path, max_bytes=limit)
     params = {name[len(params_prefix) :]: arrays[name] for name in expected}
     files.check_finite(params, path)
-    stream_path = run_dir / layout.METRICS_STREAM_FILE
+    stream_path = directory / layout.METRICS_STREAM_FILE
     digest = meta.get(STREAM_DIGEST_KEY)
     streamed = read_stream(stream_path, METRIC_COLUMNS, runs, iteration, digest)
     metrics = {name: a.astype(float) for name, a in streamed.items()}

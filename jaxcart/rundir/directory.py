@@ -101,6 +101,16 @@ def prepare_out_dir(out: Path) -> files.Dir:
     return directory
 
 
+STARTING_FILES = (
+    layout.CONFIG_FILE,
+    layout.MANIFEST_FILE,
+    layout.CHECKPOINT_FILE,
+    layout.METRICS_STREAM_FILE,
+    layout.METRICS_FILE,
+)
+"""What a run directory holds before its first iteration has trained (besides its lock)."""
+
+
 def _remove_failed_start(directory: files.Dir, created: bool) -> None:
     """Removes what a start that failed before its ``config.json`` left: the lock and the
     manifest, and the directory when this start created it (a rerun then starts afresh)."""
@@ -127,6 +137,7 @@ class RunDir:
         self.lock = RunLock(self.path)
         self.manifest: Manifest | NoManifest = NoManifest()
         self.checkpoint_meta: dict | None = None  # of the checkpoint on disk, when there is one
+        self.created = False  # by this process's create(): discard() may remove it
         self.stream: MetricsStream | NoStream = NoStream()  # the metrics of the wave training
         self._waves: files.Dir | None = None
 
@@ -145,7 +156,7 @@ class RunDir:
         (``info`` and ``config``)."""
         directory = cls(path, main_process)
         if main_process:
-            created = not directory.path.exists()
+            created = directory.created = not directory.path.exists()
             opened = prepare_out_dir(directory.path)
             try:
                 directory._take(opened, verified=True)
@@ -195,6 +206,28 @@ class RunDir:
         else:
             self.checkpoint_meta = read_checkpoint_meta(self._verified(layout.CHECKPOINT_FILE))
         return self.checkpoint_meta
+
+    def discard(self) -> None:
+        """Removes what a start wrote before its first iteration trained (the files jaxcart
+        writes at a start, never anything else), releases the directory, and removes it too
+        when this start created it: a run that failed then (an XLA error while compiling, a
+        full disk) leaves nothing behind, and the same command starts it afresh."""
+        if self.dir is None:
+            return
+        self.stream.close()
+        for name in STARTING_FILES:
+            with contextlib.suppress(OSError, RunDirError):
+                if self._present(name):
+                    self.dir.unlink(name)
+        with contextlib.suppress(OSError):
+            self.dir.unlink(layout.LOCK_FILE)  # while holding it: no one else took it
+        empty = False
+        with contextlib.suppress(OSError):
+            empty = not os.listdir(self.dir.fd)
+        self.close()
+        if empty and self.created:
+            with contextlib.suppress(OSError):
+                self.path.rmdir()
 
     def close(self) -> None:
         """Releases the run directory for other processes."""

@@ -99,6 +99,17 @@ class Dir:
     def __truediv__(self, name: str) -> Entry:
         return Entry(self, name)
 
+    def __str__(self) -> str:
+        return str(self.path)
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    def names(self) -> list[str]:
+        """The names inside this directory (``os.listdir`` of its descriptor)."""
+        return os.listdir(self.fd)
+
     def lstat(self, name: str) -> os.stat_result | None:
         """``name``'s own status (a link is not followed), None when it does not exist."""
         try:
@@ -140,6 +151,50 @@ class Entry:
 
 Target = str | os.PathLike | Entry
 """Where a file is: a path, or a name inside an open :class:`Dir`."""
+Where = str | os.PathLike | Dir
+"""A run directory as the readers take it: a path, or the :class:`Dir` a caller opened."""
+
+
+@contextlib.contextmanager
+def opened(run_dir: Where) -> Iterator[Dir]:
+    """``run_dir`` opened once (:meth:`Dir.open`) for the block, so that every file a reader
+    reads in it is opened through that descriptor: renaming the directory, or swapping a
+    component of its path, while it is read cannot mix files of two directories. A
+    :class:`Dir` is used as it is (and left open).
+
+    Raises:
+        RunDirError: missing, a link, or not a directory.
+    """
+    if isinstance(run_dir, Dir):
+        yield run_dir
+        return
+    try:
+        directory = Dir.open(run_dir)
+    except FileNotFoundError:
+        raise RunDirError(
+            f"{run_dir} is not a directory; pass the --out directory of a jaxcart run"
+        ) from None
+    except OSError as exc:
+        raise RunDirError(f"{run_dir} cannot be read: {exc.strerror or exc}") from None
+    try:
+        yield directory
+    finally:
+        directory.close()
+
+
+def present(target: Target) -> bool:
+    """Whether ``target`` exists, by ``lstat`` (see :func:`jaxcart.rundir.layout.present`),
+    relative to its directory's descriptor when it is an :class:`Entry`."""
+    name, dir_fd = _located(target)
+    try:
+        os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True  # there, but not readable: its reader says why
+    return True
+
+
 LINK_REASON = "a symbolic link; jaxcart never follows links in a run directory"
 
 
@@ -340,7 +395,7 @@ Header = tuple[tuple[int, ...], np.dtype]
 MAX_META_BYTES = 1 << 20
 
 
-def refuse_link(path: str | os.PathLike) -> os.stat_result | None:
+def refuse_link(path: Target) -> os.stat_result | None:
     """``lstat(path)``, refusing a symbolic link (a run directory someone else made may hold
     anything: a link would make jaxcart read or write outside the directory). None when
     ``path`` does not exist.
@@ -348,8 +403,9 @@ def refuse_link(path: str | os.PathLike) -> os.stat_result | None:
     Raises:
         RunDirError: ``path`` is a symbolic link.
     """
+    name, dir_fd = _located(path)
     try:
-        st = os.lstat(path)
+        st = os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
     except FileNotFoundError:
         return None
     except OSError as exc:
@@ -406,7 +462,7 @@ def open_regular(
     return fd
 
 
-def read_bytes(path: str | os.PathLike, max_bytes: int) -> bytes:
+def read_bytes(path: Target, max_bytes: int) -> bytes:
     """A regular file's bytes (no link followed), refusing one larger than ``max_bytes``.
 
     Raises:
@@ -447,14 +503,14 @@ def subdir(directory: str | os.PathLike, name: str, create: bool = False) -> Pat
     return path
 
 
-def inside(directory: str | os.PathLike, name: str) -> Path:
+def inside(directory: Where, name: str) -> Target:
     """``directory / name`` after checking that it is a regular file there, not a link (a
     run directory someone else made may hold anything).
 
     Raises:
         RunDirError: missing, a link, or not a regular file.
     """
-    path = Path(directory) / name
+    path = directory / name if isinstance(directory, Dir) else Path(directory) / name
     st = refuse_link(path)
     if st is None:
         raise RunDirError(f"{path} does not exist")
@@ -464,7 +520,7 @@ def inside(directory: str | os.PathLike, name: str) -> Path:
 
 
 @contextlib.contextmanager
-def open_tree(path: str | os.PathLike) -> Iterator[IO[bytes]]:
+def open_tree(path: Target) -> Iterator[IO[bytes]]:
     """A tree file opened for reading without following a link (see :func:`open_regular`)."""
     try:
         fd = open_regular(path)
@@ -474,7 +530,7 @@ def open_tree(path: str | os.PathLike) -> Iterator[IO[bytes]]:
         yield f
 
 
-def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
+def read_headers(path: Target, max_bytes: int) -> dict[str, Header]:
     """Each array's shape and dtype from its header alone, after checking that the file is
     a plain ``.npz`` whose declared sizes add up and stay under ``max_bytes``: a crafted
     file is refused before anything large is read.
@@ -518,9 +574,7 @@ def read_headers(path: str | os.PathLike, max_bytes: int) -> dict[str, Header]:
     return headers
 
 
-def load_tree(
-    path: str | os.PathLike, max_bytes: int = 1 << 34
-) -> tuple[dict[str, np.ndarray], dict | None]:
+def load_tree(path: Target, max_bytes: int = 1 << 34) -> tuple[dict[str, np.ndarray], dict | None]:
     """Every named array of a tree file and its metadata (None when it has none), reading
     at most ``max_bytes`` (checked against the headers before any array is read).
 
@@ -544,7 +598,7 @@ def _meta(data: Any) -> dict:
     return meta
 
 
-def read_meta(path: str | os.PathLike) -> dict:
+def read_meta(path: Target) -> dict:
     """Only the JSON metadata of a tree file (the arrays are not read)."""
     headers = read_headers(path, max_bytes=1 << 40)  # sizes are checked, nothing large read
     if META_KEY not in headers:

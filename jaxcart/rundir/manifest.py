@@ -23,7 +23,6 @@ import json
 import os
 import warnings
 from collections.abc import Callable
-from pathlib import Path
 
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
@@ -128,22 +127,23 @@ def _parse(path: files.Target) -> dict[str, list[str]]:
     return listed
 
 
-def read_manifest(run_dir: str | os.PathLike) -> dict[str, list[str]]:
+def read_manifest(run_dir: files.Where) -> dict[str, list[str]]:
     """The digests ``RUN_DIR/manifest.json`` lists, file name -> accepted digests.
 
     Raises:
         RunDirError: missing, a link, or not a manifest.
     """
-    path = Path(run_dir) / layout.MANIFEST_FILE
-    try:
-        return _parse(path)
-    except ValueError as exc:  # JSON errors (RunDirError is one too, and passes as it is)
-        if isinstance(exc, RunDirError):
-            raise
-        raise RunDirError(f"{path} is corrupted: {str(exc)[:120]}") from None
+    with files.opened(run_dir) as directory:
+        path = directory / layout.MANIFEST_FILE
+        try:
+            return _parse(path)
+        except ValueError as exc:  # JSON errors (RunDirError is one too, and passes as it is)
+            if isinstance(exc, RunDirError):
+                raise
+            raise RunDirError(f"{path} is corrupted: {str(exc)[:120]}") from None
 
 
-def verify(run_dir: str | os.PathLike, name: str, info: dict | None) -> None:
+def verify(run_dir: files.Where, name: str, info: dict | None) -> None:
     """Refuses ``RUN_DIR/name`` unless its bytes are those its manifest records; ``info``
     (the run's ``config.json``, None while that file itself is checked) says whether the run
     keeps a manifest. A run from before manifests gets an :class:`UnverifiedRunWarning`.
@@ -151,16 +151,16 @@ def verify(run_dir: str | os.PathLike, name: str, info: dict | None) -> None:
     Raises:
         RunDirError: the manifest is missing or broken, or the file is not listed or differs.
     """
-    run_dir = Path(run_dir)
-    manifest_path = run_dir / layout.MANIFEST_FILE
-    if info is not None and not info.get(FLAG) and not layout.present(manifest_path):
-        warnings.warn(
-            f"{run_dir} was written before jaxcart kept a manifest: its files cannot be "
-            "verified, only checked for sense",
-            UnverifiedRunWarning,
-            stacklevel=3,
-        )
-        return
-    if not layout.present(manifest_path):
-        raise RunDirError(f"{manifest_path} is missing: the run's files cannot be verified")
-    check_digest(run_dir / name, read_manifest(run_dir).get(name))
+    with files.opened(run_dir) as directory:
+        manifest_path = directory / layout.MANIFEST_FILE
+        if info is not None and not info.get(FLAG) and not files.present(manifest_path):
+            warnings.warn(
+                f"{directory} was written before jaxcart kept a manifest: its files cannot be "
+                "verified, only checked for sense",
+                UnverifiedRunWarning,
+                stacklevel=3,
+            )
+            return
+        if not files.present(manifest_path):
+            raise RunDirError(f"{manifest_path} is missing: the run's files cannot be verified")
+        check_digest(directory / name, read_manifest(directory).get(name))

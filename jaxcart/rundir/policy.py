@@ -203,38 +203,45 @@ class RunParams:
 def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> RunParams:
     """Every seed's parameters of a run directory: ``params.npz`` when the run finished,
     else its checkpoint (:attr:`RunParams.note` says so). A sweep needs ``combination``
-    (its ``combo-NNN/`` directory, or its runs in the sweep's checkpoint if unfinished).
+    (its ``combo-NNN/`` directory, or its runs in the sweep's checkpoint if unfinished). The
+    directory is opened once and every file read through it.
 
     Raises:
         RunDirError: not a run directory, nothing usable in it, or a bad ``combination``.
     """
     run_dir = Path(run_dir)
-    info = reader.read_run_config(run_dir)
-    combos = reader.recorded_combinations(info)
-    if combos or layout.is_sweep(run_dir):
-        if (
-            isinstance(combination, bool)
-            or not isinstance(combination, (int, np.integer))
-            or not 0 <= combination < max(len(combos), 1)
-        ):
-            count, bounds = (f" of {len(combos)} combinations", f" in [0, {len(combos)})")
-            raise RunDirError(
-                f"{run_dir} is a sweep{count if combos else ''}: choose a combination with "
-                f"combination=C (--combination C){bounds if combos else ''}, got {combination!r}"
-            )
-        if layout.is_sweep(run_dir):  # finished: each combination is a run directory
-            name = layout.combo_dir(".", int(combination)).name
-            return run_params(files.subdir(run_dir, name))  # a link is refused
-    elif combination is not None:
-        raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
-    num_seeds = int(info.get("num_seeds", 1))
-    env = _env_params(run_dir, info, combination)
-    if not combos and layout.present(run_dir / layout.PARAMS_FILE):
-        return RunParams(reader.load_params(run_dir), info["config"], num_seeds, None, env)
-    saved = read_checkpoint_runs(run_dir, info)  # unfinished
-    first = (combination or 0) * num_seeds
-    params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
-    return RunParams(params, _combo_config(info, combination), num_seeds, saved.note, env)
+    with files.opened(run_dir) as directory:
+        info = reader.read_run_config(directory)
+        combos = reader.recorded_combinations(info)
+        sweep = reader.is_sweep(directory)
+        if combos or sweep:
+            if (
+                isinstance(combination, bool)
+                or not isinstance(combination, (int, np.integer))
+                or not 0 <= combination < max(len(combos), 1)
+            ):
+                count, bounds = (f" of {len(combos)} combinations", f" in [0, {len(combos)})")
+                raise RunDirError(
+                    f"{run_dir} is a sweep{count if combos else ''}: choose a combination with "
+                    f"combination=C (--combination C){bounds if combos else ''}, "
+                    f"got {combination!r}"
+                )
+        elif combination is not None:
+            raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
+        if not sweep:
+            num_seeds = int(info.get("num_seeds", 1))
+            env = _env_params(run_dir, info, combination)
+            if not combos and files.present(directory / layout.PARAMS_FILE):
+                params = reader.load_params(directory)
+                return RunParams(params, info["config"], num_seeds, None, env)
+            saved = read_checkpoint_runs(directory, info)  # unfinished
+            first = (combination or 0) * num_seeds
+            params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
+            config = _combo_config(info, combination)
+            return RunParams(params, config, num_seeds, saved.note, env)
+    # a finished sweep: each combination is a run directory of its own (a link is refused)
+    name = layout.combo_dir(".", int(combination)).name
+    return run_params(files.subdir(run_dir, name))
 
 
 def _env_params(run_dir: Path, info: dict, combination: int | None) -> EnvParams:

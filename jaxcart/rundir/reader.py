@@ -11,6 +11,7 @@ before reading arrays, and turns every way a file can be broken into one
 from __future__ import annotations
 
 import csv
+import fnmatch
 import io
 import itertools
 import json
@@ -54,11 +55,12 @@ CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FI
 (:func:`~jaxcart.rundir.layout.is_sweep`): :func:`read_run_config` refuses each as a link."""
 
 
-def read_json(run_dir: str | os.PathLike, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
+def read_json(run_dir: files.Where, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
     """A JSON object from a run directory, refusing links, non-regular files, files over
     ``max_bytes`` and anything but an object."""
-    path = Path(run_dir) / name
-    data = files.read_bytes(path, max_bytes)
+    with files.opened(run_dir) as directory:
+        path = directory / name
+        data = files.read_bytes(path, max_bytes)
     try:
         data = json.loads(data.decode())
     except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
@@ -68,40 +70,47 @@ def read_json(run_dir: str | os.PathLike, name: str, max_bytes: int = MAX_JSON_B
     return data
 
 
-def read_run_config(run_dir: str | os.PathLike, verify: bool = False) -> dict:
+def read_run_config(run_dir: files.Where, verify: bool = False) -> dict:
     """The run's ``config.json`` as a dict (``config`` a :class:`PPOConfig`), with a clear
     error when it is not a run or does not hold what a run's config holds; with ``verify``
     (a resume), its digest must match its contents (hand edits and corruption are refused).
     """
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise RunDirError(
-            f"{run_dir} is not a directory; pass the --out directory of a jaxcart run"
-        )
-    path = run_dir / layout.CONFIG_FILE
+    with files.opened(run_dir) as directory:
+        return _read_run_config(directory, verify)
+
+
+def _read_run_config(directory: files.Dir, verify: bool) -> dict:
+    path = directory / layout.CONFIG_FILE
     if files.refuse_link(path) is None:
-        only_lock = [p.name for p in run_dir.iterdir()] == [layout.LOCK_FILE]
+        names = directory.names()
+        only_lock = names == [layout.LOCK_FILE]
         hint = (
             f" (only the {layout.LOCK_FILE} of a start that failed: start it again with "
-            f"--out {run_dir}, which takes it over)"
+            f"--out {directory}, which takes it over)"
             if only_lock
             else ""
         )
-        if layout.present(run_dir / layout.SB3_PLAN_FILE):
+        if files.present(directory / layout.SB3_PLAN_FILE):
             # SB3's seeds are kept one by one; the run directory is written once all finish
-            kept = len(list(run_dir.glob(f"{layout.SB3_SEEDS_DIR}/seed-*.npz")))
+            kept = 0
+            if layout.SB3_SEEDS_DIR in names:
+                seeds = directory.sub(layout.SB3_SEEDS_DIR)
+                try:
+                    kept = len(fnmatch.filter(seeds.names(), "seed-*.npz"))
+                finally:
+                    seeds.close()
             hint = (
                 f" yet: it is an interrupted python -m jaxcart.sb3 run ({kept} seed(s) kept); "
                 f"train the others, then plot or evaluate it: python -m jaxcart.sb3 --resume "
-                f"{run_dir}"
+                f"{directory}"
             )
         raise RunDirError(
-            f"{run_dir} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory{hint}"
+            f"{directory} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory{hint}"
         )
     for name in CLASSIFYING_FILES:  # what the directory is: never decided through a link
-        files.refuse_link(run_dir / name)
-    data = read_json(run_dir, layout.CONFIG_FILE)
-    manifest.verify(run_dir, layout.CONFIG_FILE, data)
+        files.refuse_link(directory / name)
+    data = read_json(directory, layout.CONFIG_FILE)
+    manifest.verify(directory, layout.CONFIG_FILE, data)
     if verify:
         _check_digest(path, data)
     try:
@@ -112,7 +121,7 @@ def read_run_config(run_dir: str | os.PathLike, verify: bool = False) -> dict:
     return data
 
 
-def _check_digest(path: Path, data: dict) -> None:
+def _check_digest(path: files.Target, data: dict) -> None:
     """Refuses a ``config.json`` whose digest is missing or does not match its contents."""
     if layout.DIGEST_KEY not in data:
         raise RunDirError(
@@ -166,6 +175,10 @@ def _check_run_fields(data: dict) -> None:
     if num_seeds * max(1, num_combos) > MAX_RUNS:  # checked before any list is built
         raise ValueError(f"{num_seeds} seeds x {num_combos} combinations is over {MAX_RUNS:,} runs")
     _check_physics_fields(data)
+    if not sweep and data.get("combinations"):  # explicit points (a search's trials)
+        if num_seeds * len(recorded_combinations(data)) > MAX_RUNS:
+            raise ValueError(f"{num_seeds} seeds x its combinations is over {MAX_RUNS:,} runs")
+        return
     derived = sweep_combinations(sweep)
     if "combinations" in data and recorded_combinations(data) != derived:  # older runs
         raise ValueError("combinations do not match the sweep")
@@ -257,7 +270,7 @@ def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
 
 
 def read_metrics_csv(
-    path: str | os.PathLike, max_rows: int | None = None, shape: tuple[int, int] | None = None
+    path: files.Target, max_rows: int | None = None, shape: tuple[int, int] | None = None
 ) -> dict[str, np.ndarray]:
     """Reads ``metrics.csv`` (:mod:`jaxcart.rundir.outputs`) back into leaves
     ``[iterations, S]``.
@@ -266,7 +279,6 @@ def read_metrics_csv(
     ``shape`` (iterations, seeds) the indices of its rows: nothing is allocated from a
     number in the file itself.
     """
-    path = Path(path)
     limit = MAX_JSON_BYTES * 64 if max_rows is None else (max_rows + 1) * MAX_CSV_BYTES_PER_ROW
     text = files.read_bytes(path, limit)
     seed_column, iteration_column, _ = layout.METRICS_INDEX_COLUMNS
@@ -300,13 +312,14 @@ def read_metrics_csv(
     return out
 
 
-def read_run_metrics(run_dir: str | os.PathLike, info: dict) -> dict[str, np.ndarray]:
+def read_run_metrics(run_dir: files.Where, info: dict) -> dict[str, np.ndarray]:
     """A run's ``metrics.csv``, bounded by the seeds x iterations its ``info`` (its
     ``config.json``) trains; leaves ``[iterations, S]``."""
-    path = files.inside(run_dir, layout.METRICS_FILE)
-    manifest.verify(run_dir, layout.METRICS_FILE, info)
     num_seeds, iterations = int(info.get("num_seeds", 1)), info["config"].num_iterations
-    metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
+    with files.opened(run_dir) as directory:
+        path = files.inside(directory, layout.METRICS_FILE)
+        manifest.verify(directory, layout.METRICS_FILE, info)
+        metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
     check_metrics(metrics, path)
     return metrics
 
@@ -328,7 +341,7 @@ METRIC_BOUNDS = {
 diverged run's iterations, and no finished episode yet); infinities never."""
 
 
-def check_metrics(metrics: dict[str, np.ndarray], path: str | os.PathLike) -> None:
+def check_metrics(metrics: dict[str, np.ndarray], path: files.Target) -> None:
     """Refuses metrics outside what training can produce (:data:`METRIC_BOUNDS`; any other
     column within float32)."""
     for name, values in metrics.items():
@@ -341,15 +354,17 @@ def check_metrics(metrics: dict[str, np.ndarray], path: str | os.PathLike) -> No
             )
 
 
-def read_evaluation(run_dir: str | os.PathLike, num_seeds: int | None = None) -> dict:
+def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     """A run's ``evaluation.json`` (per-seed returns and solved flags), checked: one entry
     per seed (``num_seeds``, from its ``config.json``, when given), each with a finite
     ``gymnasium_mean`` and a boolean ``solved``. Its size is bounded by the seeds x episodes
     the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB).
     """
-    data = read_json(run_dir, layout.EVALUATION_FILE, _evaluation_bytes(run_dir))
-    path = Path(run_dir) / layout.EVALUATION_FILE
-    manifest.verify(run_dir, layout.EVALUATION_FILE, read_json(run_dir, layout.CONFIG_FILE))
+    with files.opened(run_dir) as directory:
+        data = read_json(directory, layout.EVALUATION_FILE, _evaluation_bytes(directory))
+        path = directory / layout.EVALUATION_FILE
+        info = read_json(directory, layout.CONFIG_FILE)
+        manifest.verify(directory, layout.EVALUATION_FILE, info)
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
         isinstance(s, dict)
@@ -423,7 +438,7 @@ def _seed_problem(seed: dict, episodes: int | None) -> str | None:
     return None
 
 
-def _evaluation_bytes(run_dir: str | os.PathLike) -> int:
+def _evaluation_bytes(run_dir: files.Where) -> int:
     """The largest ``evaluation.json`` the run's ``config.json`` allows: its declared seeds x
     combinations x episodes (read as declared, within the reader's bounds)."""
     info = read_json(run_dir, layout.CONFIG_FILE)
@@ -453,28 +468,36 @@ def params_dtype(info: dict) -> np.dtype:
     return np.dtype(np.float64 if info.get(X64_KEY) else np.float32)
 
 
-def load_params(run_dir: str | os.PathLike) -> dict:
+def is_sweep(directory: files.Dir) -> bool:
+    """:func:`jaxcart.rundir.layout.is_sweep`, through the directory's descriptor."""
+    return files.present(directory / layout.SWEEP_FILE) and not files.present(
+        directory / layout.PARAMS_FILE
+    )
+
+
+def load_params(run_dir: files.Where) -> dict:
     """Every seed's parameters from ``params.npz``, leaves ``[num_seeds, ...]``."""
-    path = Path(run_dir) / layout.PARAMS_FILE
-    if layout.is_sweep(run_dir):
-        raise RunDirError(
-            f"{run_dir} is a sweep: each combination is a run directory of its own, "
-            f"e.g. {layout.combo_dir(run_dir, 0)}"
-        )
-    if files.refuse_link(path) is None:
-        raise RunDirError(
-            f"{run_dir} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
-        )
-    info = read_run_config(run_dir)
-    expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
-    path = files.inside(run_dir, layout.PARAMS_FILE)
-    manifest.verify(run_dir, layout.PARAMS_FILE, info)
-    found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
-    if found != expected:
-        raise RunDirError(
-            f"{path} does not hold this run's network: {_difference(found, expected)}"
-        )
-    arrays, _ = files.load_tree(path)
+    with files.opened(run_dir) as directory:
+        if is_sweep(directory):
+            raise RunDirError(
+                f"{directory} is a sweep: each combination is a run directory of its own, "
+                f"e.g. {layout.combo_dir(directory.path, 0)}"
+            )
+        if files.refuse_link(directory / layout.PARAMS_FILE) is None:
+            raise RunDirError(
+                f"{directory} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
+            )
+        info = read_run_config(directory)
+        num_seeds = int(info.get("num_seeds", 1))
+        expected = params_headers(info["config"], num_seeds, params_dtype(info))
+        path = files.inside(directory, layout.PARAMS_FILE)
+        manifest.verify(directory, layout.PARAMS_FILE, info)
+        found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
+        if found != expected:
+            raise RunDirError(
+                f"{path} does not hold this run's network: {_difference(found, expected)}"
+            )
+        arrays, _ = files.load_tree(path)
     files.check_finite(arrays, path)
     return files.unflatten(arrays)
 

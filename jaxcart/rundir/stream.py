@@ -22,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import os
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
@@ -141,7 +140,7 @@ def _hash_rows(fd: int, size: int) -> hashlib._Hash:
 
 
 def read_stream(
-    path: str | os.PathLike,
+    path: files.Target,
     columns: Sequence[str],
     runs: int,
     rows: int,
@@ -155,7 +154,6 @@ def read_stream(
         RunDirError: missing, a link, not a regular file, shorter than ``rows`` rows, or
             not the rows the checkpoint recorded.
     """
-    path = Path(path)
     if rows == 0:
         return _mapped(None, 0, columns, runs)
     try:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.rundir import layout, reader
+from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
 
@@ -34,37 +34,43 @@ class RunCurves:
     note: str | None = None  # "from the checkpoint at iteration 12/40: ..." when unfinished
 
 
-def unfinished(path: Path) -> bool:
+def unfinished(run_dir: files.Where) -> bool:
     """A run (or sweep) that did not write its outputs but has a checkpoint to plot from."""
-    done = layout.PARAMS_FILE if not layout.is_sweep(path) else layout.SWEEP_FILE
-    return not layout.present(path / done) and layout.present(path / layout.CHECKPOINT_FILE)
+    with files.opened(run_dir) as directory:
+        done = layout.SWEEP_FILE if reader.is_sweep(directory) else layout.PARAMS_FILE
+        return not files.present(directory / done) and files.present(
+            directory / layout.CHECKPOINT_FILE
+        )
 
 
 def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     """Reads a run directory's config, metrics and evaluation; a run that did not finish,
-    its metrics so far from its checkpoint (:attr:`RunCurves.note` says so).
+    its metrics so far from its checkpoint (:attr:`RunCurves.note` says so). The directory
+    is opened once and every file read through it (:func:`jaxcart.rundir.files.opened`).
 
     Raises:
         RunDirError: ``run_dir`` is not a jaxcart run directory, or its
             ``metrics.csv`` is missing or unreadable.
     """
     path = Path(run_dir)
-    info = reader.read_run_config(path)
-    if unfinished(path):
-        return checkpoint_curves(path, info, [label] if label is not None else None)[0]
-    if not layout.present(path / layout.METRICS_FILE):
-        raise RunDirError(
-            f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
-            "never started training"
-        )
-    metrics = reader.read_run_metrics(path, info)
+    with files.opened(path) as directory:
+        info = reader.read_run_config(directory)
+        if unfinished(directory):
+            labels = [label] if label is not None else None
+            return checkpoint_curves(path, info, labels, directory)[0]
+        if not files.present(directory / layout.METRICS_FILE):
+            raise RunDirError(
+                f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
+                "never started training"
+            )
+        metrics = reader.read_run_metrics(directory, info)
+        evaluation = None
+        if files.present(directory / layout.EVALUATION_FILE):
+            evaluation = reader.read_evaluation(directory, int(info.get("num_seeds", 1)))
     if "env_steps" not in metrics:
         raise RunDirError(f"{path / layout.METRICS_FILE} has no env_steps column")
     env_steps = _first_finite(metrics["env_steps"])
     elapsed = _first_finite(metrics[ELAPSED_METRIC]) if ELAPSED_METRIC in metrics else None
-    evaluation = None
-    if layout.present(path / layout.EVALUATION_FILE):
-        evaluation = reader.read_evaluation(path, int(info.get("num_seeds", 1)))
     num_seeds = next(iter(metrics.values())).shape[1]
     combination = info.get("combination") or None
     if label is None:
@@ -82,7 +88,10 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
 
 
 def checkpoint_curves(
-    path: Path, info: dict, labels: Sequence[str] | None = None
+    path: Path,
+    info: dict,
+    labels: Sequence[str] | None = None,
+    directory: files.Dir | None = None,
 ) -> list[RunCurves]:
     """The curves so far of an unfinished run, or of each combination of an unfinished sweep
     (whose checkpoint holds every combination x seed), from ``checkpoint.npz``.
@@ -90,7 +99,7 @@ def checkpoint_curves(
     Raises:
         RunDirError: no usable checkpoint, or no iteration finished yet.
     """
-    saved = read_checkpoint_runs(path, info)
+    saved = read_checkpoint_runs(directory or path, info)
     if saved.iteration == 0:
         raise RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
     config, num_seeds = info["config"], int(info.get("num_seeds", 1))

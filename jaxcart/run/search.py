@@ -1,0 +1,618 @@
+"""Hyperparameter search as a library, on Optuna's ask-and-tell interface. Nothing here prints.
+
+A search space names config fields and how to draw them (:func:`parse_space`). A study is
+driven a batch at a time (:class:`Tuner`): ``batch_trials`` trials are asked at once, grouped
+by their shape settings (static fields: ``num_envs``, ``hidden_sizes``, ...), and each group
+trains as one run of :func:`jaxcart.run.lifecycle.run_new` whose explicit combinations are the
+group's trials: its float hyperparameters are traced, so trials x seeds are one vmapped program.
+Each trial is told its score over its seeds (the IQM of :class:`jaxcart.analysis.summary.Score`,
+the score ``compare`` ranks by), and every group leaves a sweep-shaped run directory that
+``plot``, ``compare`` and ``evaluate`` read.
+
+Optuna is an optional dependency (``pip install -e '.[tune]'``): it is imported only when a
+study is opened, so the space is checked (one line per mistake) without it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import threading
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxcart.analysis import stats
+from jaxcart.analysis.summary import Score
+from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, config_fields
+from jaxcart.engine.loop import Progress
+from jaxcart.engine.signals import StopRequest
+from jaxcart.run.lifecycle import run_new
+from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
+from jaxcart.rundir import layout
+from jaxcart.rundir.views import load_runs
+
+RETURN_METRIC = "rollout/ep_rew_mean"
+RUNGS = 8
+"""Intermediate scores reported to the pruner per trial, at evenly spaced iterations."""
+HEARTBEAT_SECONDS = 60
+"""How often a running trial tells the storage it is alive (Optuna's heartbeat)."""
+STALE_GRACE_SECONDS = 300
+"""A trial silent this long belonged to a process that died; it is marked failed."""
+
+
+DEFAULT_SPACE = (
+    "learning_rate=log:1e-5:1e-2",
+    "clip_coef=0.1:0.4",
+    "ent_coef=log:1e-8:1e-1",
+    "gamma=0.9:0.9999",
+    "gae_lambda=0.8:1.0",
+    "max_grad_norm=0.3:5.0",
+    "vf_coef=0.1:1.0",
+)
+"""Without ``--space``: rl-zoo3's PPO float ranges (``sample_ppo_params``), all traced, so a
+batch is one program; its learning rate tops out at 1e-2 rather than rl-zoo3's 1."""
+
+
+class TuneUnavailable(ConfigError):
+    """Optuna is not installed."""
+
+
+# -- search spaces --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Dimension:
+    """How one config field is drawn: a float or int range (``log`` for log-uniform), or a
+    categorical set of ``choices`` (as Optuna stores them: numbers, strings, bools)."""
+
+    name: str
+    low: float | None = None
+    high: float | None = None
+    log: bool = False
+    integer: bool = False
+    choices: tuple = ()
+
+    @property
+    def traced(self) -> bool:
+        """Whether the field is a traced float: drawn values share one compiled program."""
+        return self.name in TRACED_FIELDS
+
+    def distribution(self) -> Any:
+        """The Optuna distribution (``study.ask(fixed_distributions=...)``)."""
+        import optuna
+
+        if self.choices:
+            return optuna.distributions.CategoricalDistribution(list(self.choices))
+        if self.integer:
+            return optuna.distributions.IntDistribution(int(self.low), int(self.high), log=self.log)
+        return optuna.distributions.FloatDistribution(self.low, self.high, log=self.log)
+
+    def config_value(self, value: Any) -> Any:
+        """A drawn value as the config field takes it (``"64x64"`` -> ``(64, 64)``)."""
+        if self.name == "hidden_sizes":
+            return tuple(int(n) for n in str(value).split("x"))
+        return float(value) if self.traced else value
+
+
+def _field_kinds() -> dict[str, str]:
+    return {f.name: str(f.type) for f in config_fields()}
+
+
+def _choice(name: str, kind: str, text: str) -> Any:
+    """One categorical value of field ``name`` (of annotation ``kind``), from its text."""
+    text = text.strip()
+    if name == "hidden_sizes":
+        sizes = [s for s in text.split("x")]
+        if not all(s.isdigit() and int(s) > 0 for s in sizes):
+            raise ValueError(
+                f"hidden_sizes choices are layer widths joined by x, e.g. 64x64; got {text!r}"
+            )
+        return "x".join(sizes)
+    if kind in ("bool", "<class 'bool'>"):
+        if text.lower() not in ("on", "off", "true", "false"):
+            raise ValueError(f"{name} choices are on/off, got {text!r}")
+        return text.lower() in ("on", "true")
+    if kind in ("int", "<class 'int'>"):
+        return int(float(text)) if float(text).is_integer() else int(text)
+    if kind in ("float", "<class 'float'>") or name in TRACED_FIELDS:
+        return float(text)
+    return text
+
+
+def parse_dimension(spec: str) -> Dimension:
+    """``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``, ``num_envs=1,4,8``,
+    ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``.
+
+    Raises:
+        ConfigError: malformed, an unknown field, a low not below its high, a log range
+            through zero, a repeated or invalid choice (one line).
+    """
+    name, sep, text = spec.partition("=")
+    name = name.strip().replace("-", "_")
+    kinds = _field_kinds()
+    if not sep or not name or not text.strip():
+        raise ConfigError(
+            f"malformed --space {spec!r}; expected NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
+        )
+    if name not in kinds:
+        import difflib
+
+        near = difflib.get_close_matches(name, list(kinds), n=1)
+        hint = f" (did you mean {near[0]}?)" if near else ""
+        raise ConfigError(f"--space {name}: no such config field{hint}")
+    kind = kinds[name]
+    parts = text.strip().split(":")
+    try:
+        if len(parts) == 1 or "," in text:
+            choices = tuple(_choice(name, kind, c) for c in text.split(",") if c.strip())
+            if len(set(choices)) != len(choices) or not choices:
+                raise ValueError(f"give distinct choices, got {text!r}")
+            return Dimension(name, choices=choices)
+        prefix = parts[0] if len(parts) == 3 else ""
+        if len(parts) not in (2, 3) or prefix not in ("", "log", "int", "log-int"):
+            raise ValueError(f"expected LOW:HIGH, log:LOW:HIGH, int:LOW:HIGH, got {text!r}")
+        low, high = float(parts[-2]), float(parts[-1])
+    except ValueError as exc:
+        raise ConfigError(f"--space {name}: {exc}") from None
+    integer = "int" in prefix or kind in ("int", "<class 'int'>")
+    if not (name in TRACED_FIELDS or integer):
+        raise ConfigError(f"--space {name}: a range needs a number field; give choices A,B,C")
+    if not (math.isfinite(low) and math.isfinite(high)) or low >= high:
+        raise ConfigError(f"--space {name}: low {low:g} must be below high {high:g}")
+    if integer and not (low.is_integer() and high.is_integer()):
+        raise ConfigError(f"--space {name}: an integer range needs integer bounds")
+    log = prefix.startswith("log")
+    if log and low <= 0:
+        raise ConfigError(f"--space {name}: a log range must be above zero, got {low:g}:{high:g}")
+    return Dimension(name, low, high, log, integer)
+
+
+def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]:
+    """Every ``--space`` option (none: :data:`DEFAULT_SPACE`), checked against ``config``
+    (the trials' base) before anything compiles: each range end and each choice must make a
+    valid config on its own.
+
+    Raises:
+        ConfigError: a mistake in a spec (see :func:`parse_dimension`), a field given twice,
+            or a value that makes an invalid config (one line).
+    """
+    space: dict[str, Dimension] = {}
+    for spec in specs or DEFAULT_SPACE:
+        dim = parse_dimension(spec)
+        if dim.name in space:
+            raise ConfigError(f"--space {dim.name} given twice; keep one")
+        space[dim.name] = dim
+    for dim in space.values():
+        ends = dim.choices or (dim.low, dim.high)
+        if dim.integer and dim.high - dim.low <= 4096:  # a shape value between may not divide
+            ends = range(int(dim.low), int(dim.high) + 1)
+        for value in ends:
+            value = int(value) if dim.integer else value
+            try:
+                dataclasses.replace(config, **{dim.name: dim.config_value(value)})
+            except ConfigError as exc:
+                raise ConfigError(f"--space {dim.name}={value}: {exc}") from None
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"--space {dim.name}={value}: {exc}") from None
+    _check_shape_combinations(space, config)
+    return space
+
+
+def _check_shape_combinations(space: dict[str, Dimension], config: PPOConfig) -> None:
+    """Every combination of the shape settings' choices makes a valid config (num_envs x
+    num_steps must divide into minibatches, ...): refused before anything compiles."""
+    import itertools
+
+    shaped = [d for d in space.values() if not d.traced and d.choices]
+    if len(shaped) < 2:
+        return
+    for values in itertools.islice(itertools.product(*(d.choices for d in shaped)), 10_000):
+        setting = {d.name: d.config_value(v) for d, v in zip(shaped, values)}
+        try:
+            dataclasses.replace(config, **setting)
+        except ConfigError as exc:
+            shown = ", ".join(f"{k}={v}" for k, v in zip((d.name for d in shaped), values))
+            raise ConfigError(f"--space: the combination {shown} is invalid: {exc}") from None
+
+
+def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[dict, dict]:
+    """A trial's params as ``(shape settings, traced floats)``, in config values."""
+    static, traced = {}, {}
+    for name, value in params.items():
+        dim = space[name]
+        (traced if dim.traced else static)[name] = dim.config_value(value)
+    return static, traced
+
+
+# -- the study --------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _heartbeat_warnings_off() -> Iterator[None]:
+    """Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
+    that it is meant for ``Study.optimize``; ask-and-tell records it by hand (:class:`RungReporter`)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*(experimental|Heartbeat of storage).*")
+        yield
+
+
+def require_optuna() -> Any:
+    """The ``optuna`` module, or a one-line error naming the extra to install."""
+    try:
+        import optuna
+    except ImportError:
+        raise TuneUnavailable(
+            "jaxcart.tune needs Optuna: pip install -e '.[tune]' (or pip install optuna)"
+        ) from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna
+
+
+def open_study(
+    storage: str,
+    study_name: str,
+    sampler: str = "tpe",
+    pruner: str = "none",
+    sampler_seed: int | None = None,
+) -> Any:
+    """Opens (or creates) a study in ``storage`` (any URL Optuna's RDB storage accepts).
+
+    Raises:
+        ConfigError: Optuna missing, a storage that cannot be opened, or a study that exists
+            with another direction.
+    """
+    optuna = require_optuna()
+    if storage.startswith("sqlite:///"):
+        Path(storage.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with _heartbeat_warnings_off():
+            rdb = optuna.storages.RDBStorage(
+                storage, heartbeat_interval=HEARTBEAT_SECONDS, grace_period=STALE_GRACE_SECONDS
+            )
+    except Exception as exc:  # SQLAlchemy's and the drivers' many errors: all "cannot open"
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"--storage {storage}: cannot open it: {first}") from None
+    samplers = {
+        # constant_liar: trials asked together (a batch, or another process) spread out
+        "tpe": lambda: optuna.samplers.TPESampler(seed=sampler_seed, constant_liar=True),
+        "random": lambda: optuna.samplers.RandomSampler(seed=sampler_seed),
+    }
+    pruners = {
+        "none": optuna.pruners.NopPruner,
+        "median": lambda: optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=1),
+        "halving": optuna.pruners.SuccessiveHalvingPruner,
+    }
+    try:
+        return optuna.create_study(
+            storage=rdb,
+            study_name=study_name,
+            sampler=samplers[sampler](),
+            pruner=pruners[pruner](),
+            direction="maximize",
+            load_if_exists=True,
+        )
+    except ValueError as exc:
+        raise ConfigError(f"--study-name {study_name}: {exc}") from None
+
+
+@dataclass
+class TrialResult:
+    """One finished trial: its number, params, per-seed scores and where its runs are."""
+
+    number: int
+    params: dict[str, Any]
+    scores: np.ndarray  # [num_seeds]
+    run_dir: Path  # the trial's own run directory (a combination of its batch's sweep)
+    pruned: bool = False
+
+    @property
+    def iqm(self) -> stats.Estimate:
+        return stats.bootstrap_ci(self.scores, stats.iqm)
+
+
+@dataclass
+class BatchStopped(Exception):
+    """A signal stopped a batch; its trials were marked failed."""
+
+    signum: int
+
+
+def counts(study: Any) -> tuple[int, int]:
+    """``(finished, running)``: trials complete or pruned, and trials running or waiting."""
+    import optuna
+
+    states = optuna.trial.TrialState
+    trials = study.get_trials(deepcopy=False)
+    finished = sum(t.state in (states.COMPLETE, states.PRUNED) for t in trials)
+    running = sum(t.state in (states.RUNNING, states.WAITING) for t in trials)
+    return finished, running
+
+
+@dataclass
+class Tuner:
+    """Runs a study's batches until it holds ``n_trials`` finished trials.
+
+    Attributes:
+        study: an Optuna study (:func:`open_study`).
+        space: the search space (:func:`parse_space`).
+        spec: the trials' base: config, preset, seeds and base seed.
+        out: the folder that holds one run directory per batch group.
+        score: what a trial is told (over its seeds: the IQM).
+        on_batch: told each group's run directory and its trial results.
+    """
+
+    study: Any
+    space: dict[str, Dimension]
+    spec: RunSpec
+    out: Path
+    options: RunOptions = field(default_factory=RunOptions)
+    score: Score = field(default_factory=lambda: Score("auc"))
+    hooks: Hooks = field(default_factory=Hooks)
+    on_batch: Callable[[Path, list[TrialResult]], None] | None = None
+    pruned_seconds_saved: float = 0.0
+
+    def run(self, n_trials: int, batch_trials: int) -> int:
+        """Asks, trains and tells batches until the study has ``n_trials`` finished trials
+        (trials other processes are running count as finishing). Returns the trials this
+        process finished.
+
+        Raises:
+            BatchStopped: a signal stopped a batch (its trials are marked failed, so that a
+                later call finishes the study without them).
+        """
+        optuna = require_optuna()
+        done = 0
+        while True:
+            with _heartbeat_warnings_off():
+                optuna.storages.fail_stale_trials(self.study)
+            finished, running = counts(self.study)
+            remaining = n_trials - finished - running
+            if remaining <= 0:
+                return done
+            trials = self._ask(min(batch_trials, remaining), n_trials)
+            if not trials:
+                return done
+            done += self._run_batch(trials)
+
+    def _ask(self, k: int, n_trials: int) -> list[Any]:
+        """``k`` new trials; one asked past the study's ``n_trials`` (another process asked at
+        the same moment) is told failed at once, marked ``surplus``."""
+        import optuna
+
+        distributions = {name: d.distribution() for name, d in self.space.items()}
+        states = optuna.trial.TrialState
+        trials = []
+        for _ in range(k):
+            with _heartbeat_warnings_off():
+                trial = self.study.ask(fixed_distributions=distributions)
+            ahead = sum(
+                t.number < trial.number and t.state != states.FAIL
+                for t in self.study.get_trials(deepcopy=False)
+            )
+            if ahead >= n_trials:
+                trial.set_user_attr("surplus", True)
+                self.study.tell(trial, state=states.FAIL)
+                break
+            trials.append(trial)
+        return trials
+
+    def _run_batch(self, trials: list[Any]) -> int:
+        """Trains the trials group by group; any trial left untold (a signal, an error) is
+        told failed before this returns or raises."""
+        import optuna
+
+        untold = {t.number: t for t in trials}
+        try:
+            with Heartbeat(self.study, trials):
+                for static, group in group_by_shape(self.space, trials):
+                    self._run_group(static, group, untold)
+        finally:
+            for trial in untold.values():
+                self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
+        return len(trials)
+
+    def _run_group(self, static: dict, trials: list[Any], untold: dict) -> None:
+        config = dataclasses.replace(self.spec.config, **static)
+        points = tuple(split_params(self.space, t.params)[1] for t in trials)
+        spec = dataclasses.replace(self.spec, config=config, combinations=points)
+        # fresh: a study made anew (its numbers from 0 again) keeps the old one's directories
+        out = layout.fresh_dir(self.out / f"trials-{trials[0].number:05d}-{trials[-1].number:05d}")
+        for trial in trials:
+            trial.set_user_attr("run_dir", str(out))
+        pruning = RungReporter(self.study, trials, spec, self.hooks.on_signal)
+        on_chunk = _chained(self.hooks.on_chunk, pruning.on_chunk)
+        hooks = dataclasses.replace(self.hooks, on_chunk=on_chunk)
+        outcome = run_new(spec, out, self.options, hooks, stop=pruning)
+        if outcome.stopped and not pruning.all_pruned:
+            raise BatchStopped(outcome.signum or 15)
+        results = self._tell(outcome, out, trials, pruning, untold)
+        if pruning.all_pruned:
+            self.pruned_seconds_saved += pruning.seconds_saved(outcome)
+        if self.on_batch:
+            self.on_batch(out, results)
+
+    def _tell(
+        self, outcome: Outcome, out: Path, trials: list[Any], pruning: RungReporter, untold: dict
+    ) -> list[TrialResult]:
+        import optuna
+
+        results = []
+        if outcome.stopped:  # every trial pruned: the group stopped at its last rung
+            for trial in trials:
+                self.study.tell(trial, state=optuna.trial.TrialState.PRUNED)
+                untold.pop(trial.number)
+                scores = pruning.last_scores[trial.number]
+                results.append(TrialResult(trial.number, trial.params, scores, out, pruned=True))
+            return results
+        per_trial = trial_scores(out, outcome, self.score, len(trials))
+        for c, trial in enumerate(trials):
+            scores = per_trial[c]
+            est = stats.bootstrap_ci(scores, stats.iqm)
+            run_dir = out / f"combo-{c:03d}"
+            trial.set_user_attr("scores", [float(s) for s in scores])
+            trial.set_user_attr("iqm_ci", [est.ci_low, est.ci_high])
+            trial.set_user_attr("run_dir", str(run_dir))
+            pruned = trial.number in pruning.pruned
+            state = optuna.trial.TrialState.PRUNED if pruned else optuna.trial.TrialState.COMPLETE
+            self.study.tell(trial, None if pruned else est.value, state=state)
+            untold.pop(trial.number)
+            results.append(TrialResult(trial.number, trial.params, scores, run_dir, pruned))
+        return results
+
+
+class Heartbeat:
+    """Records the trials' heartbeat in the storage every :data:`HEARTBEAT_SECONDS` from a
+    thread while the block runs (compile, training and evaluation alike), as
+    ``Study.optimize`` does, so that only the trials of a process that died go stale."""
+
+    def __init__(self, study: Any, trials: list[Any]) -> None:
+        self.storage, self.ids = study._storage, [t._trial_id for t in trials]
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._beat, daemon=True, name="jaxcart-heartbeat")
+
+    def _beat(self) -> None:
+        while True:
+            for trial_id in self.ids:
+                try:
+                    self.storage.record_heartbeat(trial_id)
+                except Exception:  # a finished trial, or the database busy: the next beat
+                    pass
+            if self.done.wait(HEARTBEAT_SECONDS):
+                return
+
+    def __enter__(self) -> Heartbeat:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.done.set()
+        self.thread.join()
+
+
+def _chained(first: Callable | None, second: Callable) -> Callable:
+    if first is None:
+        return second
+    return lambda progress: (first(progress), second(progress))
+
+
+def group_by_shape(space: dict[str, Dimension], trials: list[Any]) -> list[tuple[dict, list]]:
+    """The trials grouped by their shape settings (one compiled program per group), in the
+    order of each group's first trial."""
+    groups: dict[tuple, tuple[dict, list]] = {}
+    for trial in trials:
+        static = split_params(space, trial.params)[0]
+        key = tuple(sorted((k, repr(v)) for k, v in static.items()))
+        groups.setdefault(key, (static, []))[1].append(trial)
+    return list(groups.values())
+
+
+def trial_scores(out: Path, outcome: Outcome, score: Score, num_trials: int) -> list[np.ndarray]:
+    """Each trial's per-seed scores ``[num_seeds]``, read back from the group's run
+    directory as ``compare`` reads it (``eval``: each seed's mean greedy return)."""
+    runs = load_runs([out])
+    if len(runs) != num_trials:
+        raise RuntimeError(f"{out} holds {len(runs)} combinations, expected {num_trials}")
+    results = []
+    for run in runs:
+        evaluation = None
+        if run.evaluation is not None:
+            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
+        try:
+            curve = run.metrics.get(RETURN_METRIC)
+            results.append(score.compute(evaluation, curve, run.env_steps))
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    return results
+
+
+def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:
+    """Refuses a ``return-at:STEPS`` that the base config, or one of the space's shape
+    choices, ends before (one line, before anything compiles)."""
+    if score.steps is None:
+        return
+    configs = [config] + [
+        dataclasses.replace(config, **{d.name: d.config_value(v)})
+        for d in space.values()
+        if not d.traced
+        for v in (d.choices or (int(d.low), int(d.high)))
+    ]
+    short = min(c.env_steps_per_seed for c in configs)
+    if score.steps > short:
+        raise ConfigError(
+            f"--score {score.label}: some trials end at {short:,} env steps per seed; "
+            "choose fewer steps or a larger --total-timesteps"
+        )
+
+
+class RungReporter(StopRequest):
+    """At chunk boundaries, reports each trial's partial area under its learning curve (the
+    mean ``ep_rew_mean`` so far, IQM over its seeds) at :data:`RUNGS` evenly spaced
+    iterations, and asks the pruner. A pruned trial is marked; when every trial of the group
+    is pruned, the group stops (as this stop request, which a signal sets too) and saves the
+    rest of its compute. The step reported is the per-mille of training done, so that trials
+    of other shapes (other iterations) are compared at the same point."""
+
+    def __init__(
+        self,
+        study: Any,
+        trials: list[Any],
+        spec: RunSpec,
+        on_signal: Callable[[int], None] | None = None,
+    ) -> None:
+        super().__init__(on_signal)
+        self.study, self.trials, self.num_seeds = study, trials, spec.num_seeds
+        self.num_iterations = spec.config.num_iterations
+        steps = (self.num_iterations * (np.arange(RUNGS) + 1)) // RUNGS
+        self.rungs = {int(i) for i in steps if 0 < i < self.num_iterations}
+        self.sums = np.zeros(len(trials) * spec.num_seeds)
+        self.iteration = 0
+        self.pruned: set[int] = set()
+        self.last_scores: dict[int, np.ndarray] = {}
+        self.all_pruned = False
+
+    def __call__(self) -> bool:
+        """``should_stop`` for the training: a signal, or every trial pruned."""
+        return self.signum is not None or self.all_pruned
+
+    def on_chunk(self, progress: Progress) -> None:
+        """The chunk's returns added to each run's sum; each rung passed reported."""
+        returns = np.nan_to_num(np.asarray(progress.metrics[RETURN_METRIC], float), nan=0.0)
+        first = progress.iteration - returns.shape[0]
+        for row, values in enumerate(returns):
+            self.sums += values
+            done = first + row + 1
+            if done in self.rungs:
+                self._report(done)
+
+    def _report(self, iteration: int) -> None:
+        partial = (self.sums / iteration).reshape(len(self.trials), self.num_seeds)
+        for c, trial in enumerate(self.trials):
+            self.last_scores[trial.number] = partial[c]
+            if trial.number in self.pruned:
+                continue
+            step = 1000 * iteration // self.num_iterations
+            trial.report(float(stats.iqm(partial[c])), step=step)
+            if trial.should_prune():
+                self.pruned.add(trial.number)
+        self.iteration = iteration
+        if len(self.pruned) == len(self.trials):
+            self.all_pruned = True
+
+    def seconds_saved(self, outcome: Outcome) -> float:
+        """The training time the rest of the group's iterations would have taken, at the
+        speed its trained ones ran."""
+        if self.iteration <= 0:
+            return 0.0
+        per_iteration = outcome.train_seconds / self.iteration
+        return per_iteration * (self.num_iterations - self.iteration)
+
+
+__all__ = [
+    "Dimension",
+    "TrialResult",
+    "Tuner",
+    "open_study",
+    "parse_space",
+]

@@ -1,0 +1,362 @@
+"""``python -m jaxcart.tune``: hyperparameter search on Optuna, trials x seeds in one program.
+
+Train's options are every trial's base (``--preset``, ``--total-timesteps``, ...); ``--space``
+says what the search draws. Each batch of ``--batch-trials`` trials trains as one program per
+shape (:mod:`jaxcart.run.search`) into a run directory under ``--out``; the study lives in
+``--storage`` (SQLite by default, any URL Optuna accepts), so the same command run again, or
+in another process or on another machine, continues it to ``--trials`` finished trials::
+
+    python -m jaxcart.tune --trials 32 --batch-trials 8 --num-seeds 4 \\
+        --space learning_rate=log:1e-5:1e-2 --space clip_coef=0.1:0.3
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NoReturn
+
+from jaxcart import cli, train
+from jaxcart.core.config import config_fields
+from jaxcart.run.search import DEFAULT_SPACE
+
+DEFAULT_STORAGE = "sqlite:///runs/study.db"
+DEFAULT_STUDY = "jaxcart"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The CLI: the search's options, train's run options, one option per config field."""
+    parser = cli.Parser(
+        prog="python -m jaxcart.tune",
+        description="Search PPO's hyperparameters with Optuna (ask-and-tell, TPE by default): "
+        "each batch of trials x seeds trains as one compiled program; the study lives in a "
+        "database, so the same command continues it after an interruption or in other processes.",
+    )
+    search = parser.add_argument_group("search")
+    search.add_argument(
+        "--trials",
+        type=cli.count,
+        default=32,
+        help="finished trials the study should hold (default: 32)",
+    )
+    search.add_argument(
+        "--batch-trials",
+        type=cli.count,
+        default=8,
+        help="trials asked and trained together (default: 8)",
+    )
+    search.add_argument(
+        "--space",
+        action="append",
+        default=[],
+        metavar="NAME=SPEC",
+        help="a config field to search (repeatable): LOW:HIGH (uniform), log:LOW:HIGH, "
+        "int:LOW:HIGH, or choices A,B,C (shape settings such as num_envs=1,4,8 or "
+        "hidden_sizes=64x64,32x32 group a batch into one program per shape); default: "
+        "rl-zoo3's PPO float ranges, " + " ".join(DEFAULT_SPACE),
+    )
+    search.add_argument(
+        "--score",
+        default="auc",
+        help="what a trial is told, the IQM over its seeds of compare's score: auc (default), "
+        "eval or return-at:STEPS",
+    )
+    search.add_argument(
+        "--storage",
+        default=DEFAULT_STORAGE,
+        help=f"Optuna storage URL (default: {DEFAULT_STORAGE})",
+    )
+    search.add_argument("--study-name", default=DEFAULT_STUDY, help=f"(default: {DEFAULT_STUDY})")
+    search.add_argument(
+        "--sampler", choices=("tpe", "random"), default="tpe", help="(default: tpe)"
+    )
+    search.add_argument("--sampler-seed", type=int, default=None, help="seed of the sampler")
+    search.add_argument(
+        "--pruner",
+        choices=("none", "median", "halving"),
+        default="none",
+        help="Optuna's MedianPruner or SuccessiveHalvingPruner on the partial AUC at 8 rungs; "
+        "a batch group stops when all its trials are pruned (default: none)",
+    )
+    search.add_argument(
+        "--top", type=cli.count, default=5, help="trials in the final table (default: 5)"
+    )
+    run = parser.add_argument_group("every trial (as for jaxcart.train)")
+    run.add_argument("--preset", default=None, help="starting config (default: sb3)")
+    run.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="options from a TOML/YAML/JSON file (keys named as the options, space = [...] "
+        "included); options on the command line override the file's",
+    )
+    run.add_argument("--num-seeds", type=cli.count, default=4, help="seeds per trial (default: 4)")
+    run.add_argument(
+        "--seed", type=cli.seed, default=0, help="base seed, shared by every trial (default: 0)"
+    )
+    run.add_argument(
+        "--out",
+        type=cli.out_dir,
+        default=None,
+        help="folder of the trials' run directories (default: runs/STUDY_NAME)",
+    )
+    run.add_argument(
+        "--eval-episodes",
+        type=cli.bounded_count(cli.MAX_EPISODES),
+        default=None,
+        help="greedy evaluation episodes per seed (default 20)",
+    )
+    run.add_argument(
+        "--no-compile-cache",
+        action="store_true",
+        help="do not use JAX's persistent compilation cache",
+    )
+    run.add_argument("--quiet", action="store_true", help="no line per batch")
+    train._add_config_options(parser.add_argument_group("PPO config, the trials' base"))
+    return parser
+
+
+@dataclass(frozen=True)
+class TuneOptions:
+    """Everything the command line said: nothing past :func:`main` sees argparse."""
+
+    trials: int = 32
+    batch_trials: int = 8
+    space: tuple[str, ...] = ()
+    score: str = "auc"
+    storage: str = DEFAULT_STORAGE
+    study_name: str = DEFAULT_STUDY
+    sampler: str = "tpe"
+    sampler_seed: int | None = None
+    pruner: str = "none"
+    top: int = 5
+    base: train.TrainOptions = field(default_factory=train.TrainOptions)
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace, argv: list[str]) -> TuneOptions:
+        names = {f.name for f in config_fields()}
+        base = train.TrainOptions(
+            preset=args.preset,
+            overrides={k: v for k, v in vars(args).items() if k in names},
+            num_seeds=args.num_seeds,
+            seed=args.seed,
+            out=args.out or Path("runs") / args.study_name,
+            eval_episodes=args.eval_episodes,
+            compile_cache=not args.no_compile_cache,
+            quiet=args.quiet,
+            argv=tuple(argv),
+        )
+        return cls(
+            trials=args.trials,
+            batch_trials=args.batch_trials,
+            space=tuple(args.space),
+            score=args.score,
+            storage=args.storage,
+            study_name=args.study_name,
+            sampler=args.sampler,
+            sampler_seed=args.sampler_seed,
+            pruner=args.pruner,
+            top=args.top,
+            base=base,
+        )
+
+
+def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str) -> str:
+    """The ``python -m jaxcart.train`` command that trains a trial again: the tune command's
+    base options, the trial's values, its seeds."""
+    words = ["python", "-m", "jaxcart.train"]
+    base = opts.base
+    if base.preset:
+        words += ["--preset", base.preset]
+    values = {**base.overrides, **{k: space[k].config_value(v) for k, v in params.items()}}
+    for name, value in values.items():
+        flag = "--" + name.replace("_", "-")
+        if isinstance(value, bool):
+            words.append(flag if value else "--no-" + flag[2:])
+        elif isinstance(value, float):
+            words.append(f"{flag}={value!r}")
+        else:
+            words.append(f"{flag}={train._default_text(value)}")
+    words += ["--num-seeds", str(base.num_seeds), "--seed", str(base.seed)]
+    if base.eval_episodes:
+        words += ["--eval-episodes", str(base.eval_episodes)]
+    words += ["--out", out]
+    return shlex.join(words)
+
+
+def _print_batch(out: Path, results: list, started: float) -> None:
+    from jaxcart.analysis import stats
+
+    best = max(results, key=lambda r: float(stats.iqm(r.scores)))
+    pruned = sum(r.pruned for r in results)
+    print(
+        f"trials {', '.join(str(r.number) for r in results)}: best #{best.number} "
+        f"{best.iqm.format()}{f' | {pruned} pruned' if pruned else ''} | {out} | "
+        f"{time.monotonic() - started:.1f} s so far",
+        flush=True,
+    )
+
+
+def _print_summary(opts: TuneOptions, study: object, space: dict) -> None:
+    """The top trials with their intervals over seeds, and the best one's retrain command."""
+    import optuna
+
+    complete = [
+        t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE
+    ]
+    states = [t.state.name.lower() for t in study.get_trials(deepcopy=False)]
+    counted = {s: states.count(s) for s in ("complete", "pruned", "fail", "running")}
+    print(
+        f"study {opts.study_name!r} in {opts.storage}: "
+        + ", ".join(f"{n} {s}" for s, n in counted.items() if n)
+    )
+    if not complete:
+        return
+    ranked = sorted(complete, key=lambda t: -t.value)[: opts.top]
+    names = list(space)
+    rows = []
+    for rank, t in enumerate(ranked, 1):
+        low, high = t.user_attrs.get("iqm_ci", [t.value, t.value])
+        shown = [
+            f"{t.params[n]:.4g}" if isinstance(t.params.get(n), float) else str(t.params.get(n))
+            for n in names
+        ]
+        rows.append(
+            [
+                rank,
+                t.number,
+                f"{t.value:.1f} [{low:.1f}, {high:.1f}]",
+                *shown,
+                t.user_attrs.get("run_dir", ""),
+            ]
+        )
+    print(
+        f"\nTop trials by the IQM of --score {opts.score} over {opts.base.num_seeds} seed(s), 95% bootstrap CIs:"
+    )
+    print(cli.format_table(rows, ["rank", "trial", "iqm [95% CI]", *names, "run directory"]))
+    best = ranked[0]
+    out = f"runs/{opts.study_name}-best"
+    print(f"\nbest: trial {best.number}; train it again with:")
+    print(f"  {retrain_command(opts, best.params, space, out)}")
+    print(
+        f"  python -m jaxcart.compare {best.user_attrs.get('run_dir')} {out} --score {opts.score}"
+    )
+    print(
+        f"  optuna-dashboard {opts.storage}   # the study in a browser (pip install optuna-dashboard)"
+    )
+
+
+def _tune(opts: TuneOptions) -> int:
+    from jaxcart.analysis.summary import Score
+    from jaxcart.run import search
+    from jaxcart.run.spec import Hooks
+
+    spec = opts.base.run_spec()
+    space = search.parse_space(list(opts.space), spec.config)
+    given = [n for n in space if n in opts.base.overrides]
+    if given:
+        raise cli.UsageError(
+            f"--{given[0].replace('_', '-')} and --space {given[0]} both given; keep one"
+        )
+    try:
+        score = Score.parse(opts.score)
+    except ValueError as exc:
+        raise cli.UsageError(f"--score: {exc}") from None
+    search.check_score(score, space, spec.config)
+    study = search.open_study(
+        opts.storage, opts.study_name, opts.sampler, opts.pruner, opts.sampler_seed
+    )
+    started = time.monotonic()
+    on_batch = (
+        None if opts.base.quiet else (lambda out, results: _print_batch(out, results, started))
+    )
+
+    def on_signal(signum: int) -> None:
+        print(
+            f"\n{signal.Signals(signum).name}: stopping; this batch's trials are marked failed",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    tuner = search.Tuner(
+        study,
+        space,
+        spec,
+        opts.base.out,
+        opts.base.run_options(),
+        score,
+        Hooks(on_signal=on_signal),
+        on_batch,
+    )
+    print(
+        f"jaxcart tune | study {opts.study_name!r} in {opts.storage} | {opts.trials} trials, "
+        f"{opts.batch_trials} at a time x {spec.num_seeds} seed(s) | score {score.label} | "
+        f"sampler {opts.sampler}, pruner {opts.pruner} | out {opts.base.out}",
+        flush=True,
+    )
+    try:
+        tuner.run(opts.trials, opts.batch_trials)
+    except search.BatchStopped as exc:
+        print(
+            f"stopped by {signal.Signals(exc.signum).name}; run the same command again to continue the study",
+            file=sys.stderr,
+        )
+        return 128 + exc.signum
+    except KeyboardInterrupt:
+        print("interrupted; run the same command again to continue the study", file=sys.stderr)
+        return 130
+    if tuner.pruned_seconds_saved:
+        print(
+            f"pruning stopped groups early: about {tuner.pruned_seconds_saved:.1f} s of training saved"
+        )
+    _print_summary(opts, study, space)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 bad input, 128+signal when stopped)."""
+
+    def body() -> int:
+        argv_ = sys.argv[1:] if argv is None else list(argv)
+        args = _parse_args(argv_)
+        return _tune(TuneOptions.from_args(args, argv_))
+
+    return cli.run_command(body)
+
+
+def _parse_args(argv: list[str]) -> argparse.Namespace:
+    """The command line, after the ``--config`` file's options (the command line's win)."""
+    from jaxcart import configfile
+
+    parser = build_parser()
+    tokens = cli.join_negative_values(argv)
+    args = parser.parse_args(tokens)
+    if args.config is None:
+        return args
+    from_file = configfile.read_config_file(args.config, parser)
+    for note in from_file.notes:
+        print(note, file=sys.stderr)
+    return parser.parse_args(from_file.tokens + tokens)
+
+
+def main_on_all_cores(argv: list[str] | None = None) -> int:
+    """:func:`main` on one CPU device per core, as ``jaxcart.train`` runs."""
+    from jaxcart.engine import devices
+
+    devices.use_all_host_cores()
+    return main(argv)
+
+
+def cli_main(argv: list[str] | None = None) -> NoReturn:
+    """The process entry (``python -m jaxcart.tune``)."""
+    cli.command_main(main_on_all_cores, argv)
+
+
+if __name__ == "__main__":
+    cli_main()

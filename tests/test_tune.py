@@ -1,0 +1,307 @@
+"""``python -m jaxcart.tune``: search spaces checked before anything compiles, a study that
+finishes with exactly its trials (interrupted, resumed, or shared by two processes), trials
+grouped by shape, and the best trial's retrain command reproducing its score."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+optuna = pytest.importorskip("optuna")
+
+from helpers import TINY, TRAIN_ENV  # noqa: E402
+
+from jaxcart import train, tune  # noqa: E402
+from jaxcart.analysis.summary import Score  # noqa: E402
+from jaxcart.core.config import ConfigError, preset  # noqa: E402
+from jaxcart.results.scores import make_entry  # noqa: E402
+from jaxcart.run import search  # noqa: E402
+from jaxcart.run.spec import Hooks, RunOptions, RunSpec  # noqa: E402
+from jaxcart.rundir.views import load_run, load_runs  # noqa: E402
+
+# 8 iterations of 4 envs x 32 steps: a trial in well under a second once compiled
+BASE = [
+    "--num-envs=4",
+    "--num-steps=32",
+    "--total-timesteps=1024",
+    "--minibatch-size=64",
+    "--update-epochs=2",
+    "--eval-episodes=2",
+]
+SMALL = TINY.__class__(**{**TINY.to_dict(), "total_timesteps": 1024})
+
+
+def _states(storage: str, name: str) -> list[str]:
+    study = optuna.load_study(study_name=name, storage=storage)
+    return [t.state.name for t in study.get_trials()]
+
+
+@pytest.mark.parametrize(
+    ("space", "message"),
+    [
+        ("lerning_rate=log:1e-5:1e-2", "no such config field (did you mean learning_rate?)"),
+        ("learning_rate=1e-2:1e-5", "low 0.01 must be below high 1e-05"),
+        ("learning_rate=log:0:1e-2", "a log range must be above zero"),
+        ("clip_coef", "malformed --space"),
+        ("activation=0.1:0.3", "a range needs a number field"),
+        ("num_envs=2,3", "--space num_envs=3"),  # 3 x 32 steps do not split into 64s
+        ("num_envs=int:2:4", "--space num_envs=3"),  # every value of a small int range
+        ("gamma=0.9,0.9", "give distinct choices"),
+        ("learning_rate=log:1e-4:1e-2 --score return-at:2048", "some trials end at 1,024"),
+    ],
+)
+def test_bad_space_is_one_line_before_anything_compiles(tmp_path, capsys, space, message):
+    db = tmp_path / "study.db"
+    space, *rest = space.split()
+    code = tune.main([*BASE, "--space", space, *rest, "--storage", f"sqlite:///{db}"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and len(err.strip().splitlines()) == 1, err
+    assert not db.exists()  # refused before the study, let alone a compile
+
+
+def test_space_parsing_draws_what_it_says():
+    space = search.parse_space(
+        [
+            "learning_rate=log:1e-5:1e-2",
+            "clip_coef=0.1:0.3",
+            "num_envs=1,4,8",
+            "hidden_sizes=32x32,64",
+        ],
+        preset("sb3"),
+    )
+    lr, clip, envs, sizes = space.values()
+    assert (lr.low, lr.high, lr.log, lr.traced) == (1e-5, 1e-2, True, True)
+    assert (clip.low, clip.high, clip.log) == (0.1, 0.3, False)
+    assert envs.choices == (1, 4, 8) and not envs.traced
+    assert sizes.config_value("32x32") == (32, 32)
+    static, traced = search.split_params(
+        space, {"learning_rate": 1e-3, "clip_coef": 0.2, "num_envs": 4, "hidden_sizes": "64"}
+    )
+    assert static == {"num_envs": 4, "hidden_sizes": (64,)}
+    assert traced == {"learning_rate": 1e-3, "clip_coef": 0.2}
+
+
+def test_no_space_is_rl_zoo3s_float_ranges_in_one_program():
+    space = search.parse_space([], preset("sb3"))
+    assert space["learning_rate"].log and space["gamma"].high == 0.9999
+    assert all(d.traced for d in space.values())  # every batch one program
+
+
+def test_space_with_a_shape_combination_that_cannot_train_is_refused():
+    base = preset("sb3", num_steps=64, minibatch_size=64, total_timesteps=10**9)
+    with pytest.raises(ConfigError, match="combination num_envs=8192, num_steps=4096"):
+        search.parse_space(["num_envs=1,8192", "num_steps=64,4096"], base)
+
+
+def test_explicit_combinations_and_a_sweep_are_exclusive():
+    with pytest.raises(ConfigError, match="combinations and sweep"):
+        RunSpec(SMALL, sweep={"gamma": [0.9]}, combinations=({"gamma": 0.9},))
+    with pytest.raises(ConfigError, match="only float hyperparameters"):
+        RunSpec(SMALL, combinations=({"num_envs": 2},))
+
+
+@pytest.mark.slow
+def test_study_finishes_groups_by_shape_and_the_retrain_command_reproduces(
+    tmp_path, capsys, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    storage = f"sqlite:///{tmp_path}/study.db"
+    argv = [
+        *BASE[1:3],
+        "--minibatch-size=32",
+        *BASE[4:],
+        "--trials",
+        "4",
+        "--batch-trials",
+        "4",
+        "--num-seeds",
+        "2",
+    ]
+    argv += [
+        "--storage",
+        storage,
+        "--study-name",
+        "demo",
+        "--space",
+        "learning_rate=log:1e-4:1e-2",
+        "--space",
+        "num_envs=2,4",
+    ]
+    argv += ["--sampler", "random", "--sampler-seed", "3"]
+    assert tune.main(argv) == 0
+    out = capsys.readouterr().out
+    study = optuna.load_study(study_name="demo", storage=storage)
+    trials = study.get_trials()
+    assert [t.state.name for t in trials] == ["COMPLETE"] * 4
+    assert all(set(t.params) == {"learning_rate", "num_envs"} and t.value > 0 for t in trials)
+    # one run directory (one program) per num_envs drawn, each trial a combination of it
+    groups = {t.params["num_envs"] for t in trials}
+    batch_dirs = sorted((tmp_path / "runs" / "demo").iterdir())
+    assert len(batch_dirs) == len(groups)
+    for t in trials:
+        run = load_run(t.user_attrs["run_dir"])
+        assert run.combination == {"learning_rate": pytest.approx(t.params["learning_rate"])}
+        scores = make_entry(run, Score("auc")).scores
+        np.testing.assert_allclose(scores, t.user_attrs["scores"])
+    assert len(load_runs(batch_dirs)) == 4  # compare and plot read every trial
+    # the printed command trains the best trial again, to the same per-seed scores
+    best = max(trials, key=lambda t: t.value)
+    line = next(x for x in out.splitlines() if "python -m jaxcart.train" in x)
+    words = shlex.split(line)[3:]
+    assert train.main([*words, "--quiet"]) == 0
+    again = make_entry(load_run(words[words.index("--out") + 1]), Score("auc")).scores
+    np.testing.assert_array_equal(again, best.user_attrs["scores"])
+    assert f"{best.value:.1f}" in out  # the top-trials table
+
+
+def _tuner(storage: str, out: Path, hooks: Hooks | None = None) -> search.Tuner:
+    study = search.open_study(storage, "s", sampler="random", sampler_seed=0)
+    space = search.parse_space(["learning_rate=log:1e-4:1e-2"], SMALL)
+    options = RunOptions(eval_episodes=1)
+    spec = RunSpec(SMALL, num_seeds=2)
+    return search.Tuner(study, space, spec, out, options, Score("auc"), hooks or Hooks())
+
+
+@pytest.mark.slow
+def test_interrupted_mid_batch_then_rerun_ends_with_exactly_the_trials(tmp_path):
+    storage = f"sqlite:///{tmp_path}/study.db"
+    chunks: list[int] = []
+    sent: list[int] = []
+
+    def sigterm_in_second_batch(progress) -> None:
+        if chunks and progress.iteration <= chunks[-1] and not sent:
+            os.kill(os.getpid(), signal.SIGTERM)  # the second batch's first chunk
+            sent.append(signal.SIGTERM)
+        chunks.append(progress.iteration)
+
+    tuner = _tuner(storage, tmp_path / "runs", Hooks(on_chunk=sigterm_in_second_batch))
+    tuner.options = RunOptions(eval_episodes=1, chunk_size=2)
+    with pytest.raises(search.BatchStopped) as stopped:
+        tuner.run(4, 2)
+    assert stopped.value.signum == signal.SIGTERM
+    assert sorted(_states(storage, "s")) == ["COMPLETE"] * 2 + ["FAIL"] * 2
+    _tuner(storage, tmp_path / "runs").run(4, 2)
+    states = _states(storage, "s")
+    assert states.count("COMPLETE") == 4 and states.count("RUNNING") == 0
+    study = optuna.load_study(study_name="s", storage=storage)
+    numbers = [t.number for t in study.get_trials() if t.state.name == "COMPLETE"]
+    assert len(set(numbers)) == 4
+    # each complete trial has its own run directory and scores
+    done = [t for t in study.get_trials() if t.state.name == "COMPLETE"]
+    assert len({t.user_attrs["run_dir"] for t in done}) == 4
+
+
+@pytest.mark.slow
+def test_two_processes_share_one_study_without_duplicates(tmp_path):
+    storage = f"sqlite:///{tmp_path}/study.db"
+    argv = [*BASE, "--trials", "6", "--batch-trials", "2", "--num-seeds", "1", "--storage", storage]
+    argv += ["--space", "learning_rate=log:1e-4:1e-2", "--study-name", "shared", "--quiet"]
+    # the study exists before both start, as when a first process created it
+    search.open_study(storage, "shared")
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "jaxcart.tune", *argv, "--out", str(tmp_path / f"p{i}")],
+            env=TRAIN_ENV,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    logs = [p.communicate(timeout=300)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], logs
+    states = _states(storage, "shared")
+    assert states.count("COMPLETE") == 6, states
+    assert states.count("RUNNING") == 0
+    dirs = [
+        d for i in range(2) if (tmp_path / f"p{i}").exists() for d in (tmp_path / f"p{i}").iterdir()
+    ]
+    assert sum(len(load_runs([d])) for d in dirs) == 6  # every complete trial trained once
+
+
+def test_space_from_a_config_file(tmp_path, capsys):
+    config = tmp_path / "search.toml"
+    config.write_text(
+        'preset = "fast"\nspace = ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1"]\n'
+    )
+    db = tmp_path / "study.db"
+    assert tune.main(["--config", str(config), "--storage", f"sqlite:///{db}"]) == 2
+    assert "--space clip_coef: low 0.3 must be below high 0.1" in capsys.readouterr().err
+    args = tune._parse_args(["--config", str(config), "--space", "gamma=0.9:0.99"])
+    assert args.preset == "fast"
+    assert args.space == ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1", "gamma=0.9:0.99"]
+
+
+@pytest.mark.slow
+def test_trials_of_a_killed_process_go_stale_and_are_asked_again(tmp_path, monkeypatch):
+    monkeypatch.setattr(search, "STALE_GRACE_SECONDS", 1)
+    storage = f"sqlite:///{tmp_path}/study.db"
+    tuner = _tuner(storage, tmp_path / "runs")
+    orphan = tuner._ask(1, 1)  # a process asked it, sent one heartbeat, and was killed
+    with search.Heartbeat(tuner.study, orphan):
+        pass
+    time.sleep(2.5)  # SQLite keeps heartbeats to the second
+    tuner.run(1, 1)
+    assert sorted(_states(storage, "s")) == ["COMPLETE", "FAIL"]
+
+
+def test_python_m_jaxcart_tune_is_the_tune_command(capsys):
+    from jaxcart.__main__ import main
+
+    assert main(["tune", "--space", "nope=1:2"]) == 2
+    assert capsys.readouterr().err == "error: --space nope: no such config field\n"
+
+
+@pytest.mark.slow
+def test_a_batch_of_explicit_combinations_resumes_as_it_would_have_trained(tmp_path):
+    from helpers import assert_same_run_dirs, stopped_run
+
+    from jaxcart.run import lifecycle
+
+    points = ({"learning_rate": 1e-3, "clip_coef": 0.1}, {"learning_rate": 3e-3, "clip_coef": 0.3})
+    spec = RunSpec(SMALL, num_seeds=2, combinations=points)
+    options = RunOptions(eval_episodes=1, chunk_size=2)
+    lifecycle.run_new(spec, tmp_path / "whole", options)
+    run, _ = stopped_run(spec, tmp_path / "stopped", options)
+    run.close()
+    lifecycle.resume_run(tmp_path / "stopped", options)
+    for c in range(2):
+        assert_same_run_dirs(
+            tmp_path / "whole" / f"combo-{c:03d}", tmp_path / "stopped" / f"combo-{c:03d}"
+        )
+        assert load_run(tmp_path / "stopped" / f"combo-{c:03d}").combination == points[c]
+
+
+def test_benchmark_reads_best_score_against_wall_time_from_a_study(tmp_path):
+    bench = importlib.import_module("benchmarks.tune.__main__")
+    storage = f"sqlite:///{tmp_path}/b.db"
+    study = optuna.create_study(storage=storage, study_name="b", direction="maximize")
+    for value in (10.0, 30.0, 20.0):
+        study.tell(study.ask(), value)
+    started = study.get_trials()[0].datetime_start.timestamp() - 1.0
+    curve = bench.study_curve(storage, "b", started)
+    assert [best for _, best in curve] == [10.0, 30.0, 30.0]  # the best so far, in finish order
+    assert all(seconds >= 1.0 for seconds, _ in curve)
+    # both contenders get the same space, trial budget and env steps per seed
+    args = types.SimpleNamespace(
+        space=["learning_rate=log:1e-5:1e-2"],
+        trials=8,
+        batch_trials=4,
+        num_seeds=2,
+        timesteps=4096,
+        sb3_python=tmp_path / "python",
+    )
+    jax_cmd, sb3_cmd = bench.commands(args, tmp_path).values()
+    for cmd in (jax_cmd, sb3_cmd):
+        assert "learning_rate=log:1e-5:1e-2" in cmd and "8" in cmd and "4096" in cmd
