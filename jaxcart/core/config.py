@@ -18,11 +18,15 @@ import dataclasses
 import functools
 import inspect
 import math
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import jax
 import numpy as np
+
+from jaxcart.core.metrics import METRIC_NAMES
 
 
 class ConfigError(ValueError):
@@ -118,8 +122,15 @@ class PPOConfig:
     num_actions], value [...]); None: the built-in SB3 MLP that hidden_sizes, activation,
     linear_actor and weight_init describe. Python API only: a run directory records its
     importable class and fields, and rebuilds it from them."""
+    metrics: Any = field(default=(), metadata={"cli": False})
+    """Your own per-iteration metrics: a mapping name -> fn, each fn(rollout, batch, losses)
+    returning a scalar, computed inside the compiled program after the update (kept as a
+    tuple of (name, fn) pairs). They join metrics.csv, the loggers and plot. Python API only:
+    a run directory records their names and importable functions."""
 
     def __post_init__(self) -> None:
+        if isinstance(self.metrics, Mapping):  # a dict is not hashable: the pytree needs it so
+            object.__setattr__(self, "metrics", tuple(self.metrics.items()))
         validate(self)
 
     @property
@@ -164,6 +175,11 @@ class PPOConfig:
         return _replace_unchecked(self, values)
 
     @property
+    def metric_names(self) -> tuple[str, ...]:
+        """The names of :attr:`metrics`, in order (the extra columns of metrics.csv)."""
+        return tuple(name for name, _ in self.metrics)
+
+    @property
     def is_per_run(self) -> bool:
         """Whether any traced field holds one value per run (an array) instead of a float."""
         return any(np.ndim(getattr(self, name)) for name in TRACED_FIELDS)
@@ -178,10 +194,12 @@ class PPOConfig:
         """
         if self.is_per_run:
             raise ValueError("a per-run config has no single dict; use to_dict() of each run's")
-        data = dataclasses.asdict(dataclasses.replace(self, network=None))
-        del data["network"]
+        data = dataclasses.asdict(dataclasses.replace(self, network=None, metrics=()))
+        del data["network"], data["metrics"]
         if self.network is not None:
             data["network"] = network_spec(self.network)
+        if self.metrics:
+            data["metrics"] = {name: function_path(fn) for name, fn in self.metrics}
         return data
 
     @classmethod
@@ -197,6 +215,13 @@ class PPOConfig:
             data["hidden_sizes"] = tuple(int(h) for h in data["hidden_sizes"])
         if data.get("network") is not None:
             data["network"] = build_network(data["network"])
+        if "metrics" in data:
+            recorded = data["metrics"]
+            if not isinstance(recorded, dict) or not all(
+                isinstance(v, str) for v in recorded.values()
+            ):
+                raise ConfigError(f"metrics must map names to 'module:function', got {recorded!r}")
+            data["metrics"] = {name: import_metric(path) for name, path in recorded.items()}
         return cls(**data)
 
 
@@ -267,6 +292,48 @@ def build_network(spec: Any) -> Any:
         raise ConfigError(
             f"cannot rebuild the run's network {spec['class']}: {type(exc).__name__}: {exc}{hint}"
         ) from None
+
+
+def function_path(fn: Any) -> str:
+    """How a run directory records a metric function: ``"module:QualName"``."""
+    return f"{getattr(fn, '__module__', None)}:{getattr(fn, '__qualname__', type(fn).__name__)}"
+
+
+@dataclass(frozen=True)
+class UnavailableMetric:
+    """A recorded metric function that cannot be imported here: its name still tells readers
+    (plot, compare) the column; training with it (a resume) refuses in one line."""
+
+    path: str
+    reason: str
+
+    def __call__(self, *args: Any) -> Any:
+        raise ConfigError(self.message())
+
+    def message(self) -> str:
+        return f"cannot rebuild the run's metric function {self.path}: {self.reason}"
+
+
+def import_metric(path: str) -> Any:
+    """The function :func:`function_path` recorded, or an :class:`UnavailableMetric` saying
+    why it cannot be imported (a function of a script or notebook, or of a missing module)."""
+    import importlib
+
+    module, _, name = path.partition(":")
+    if module == "__main__" or "<locals>" in name or "<lambda>" in name:
+        return UnavailableMetric(path, "define it at the top level of an importable module")
+    try:
+        fn = importlib.import_module(module)
+        for part in name.split("."):
+            fn = getattr(fn, part)
+    except Exception as exc:  # someone else's module, imported by name
+        return UnavailableMetric(path, f"{type(exc).__name__}: {exc}")
+    return fn if callable(fn) else UnavailableMetric(path, "not callable")
+
+
+def unavailable_metrics(config: PPOConfig) -> list[UnavailableMetric]:
+    """The metric functions of ``config`` that could not be rebuilt from a run directory."""
+    return [fn for _, fn in config.metrics if isinstance(fn, UnavailableMetric)]
 
 
 def _is_json(value: Any) -> bool:
@@ -399,9 +466,47 @@ def validate(config: PPOConfig) -> None:
         callable(getattr(c.network, "apply", None)) and callable(getattr(c.network, "init", None))
     ):
         raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
+    _validate_metrics(c.metrics)
     for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor"):
         if not isinstance(getattr(c, name), bool):
             raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
+
+
+MAX_CUSTOM_METRICS = 32
+"""Custom metrics per run: a bound for an untrusted config.json (each is a column per
+iteration and run in the stream, metrics.csv and every wave's file)."""
+_METRIC_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_./-]{0,63}")
+RESERVED_METRIC_NAMES = (
+    *METRIC_NAMES,
+    "time/fps",
+    "time/elapsed",
+    "seed_index",
+    "iteration",
+    "env_steps",
+)
+"""Column names a custom metric cannot take: the built-in metrics and metrics.csv's index."""
+
+
+def _validate_metrics(metrics: Any) -> None:
+    if not isinstance(metrics, tuple) or not all(
+        isinstance(m, tuple) and len(m) == 2 for m in metrics
+    ):
+        raise ConfigError(f"metrics must be a mapping of name -> function, got {metrics!r}")
+    if len(metrics) > MAX_CUSTOM_METRICS:
+        raise ConfigError(f"metrics holds {len(metrics)} metrics, at most {MAX_CUSTOM_METRICS}")
+    names = [name for name, _ in metrics]
+    for name, fn in metrics:
+        if not isinstance(name, str) or not _METRIC_NAME.fullmatch(name):
+            raise ConfigError(
+                f"metric name {name!r} must be 1-64 letters, digits or _ . / - "
+                "(it becomes a metrics.csv column), e.g. custom/pole_angle"
+            )
+        if name in RESERVED_METRIC_NAMES:
+            raise ConfigError(f"metric name {name!r} is a built-in column; choose another")
+        if names.count(name) > 1:
+            raise ConfigError(f"metric name {name!r} is given twice")
+        if not callable(fn):
+            raise ConfigError(f"metric {name!r} must be a function, got {fn!r}")
 
 
 PRESETS: dict[str, dict] = {
@@ -464,7 +569,8 @@ def field_docs(cls: type = PPOConfig) -> dict[str, str]:
 
 
 def config_fields() -> list[dataclasses.Field]:
-    """The fields of :class:`PPOConfig` the command line sets (all but ``network``), in
+    """The fields of :class:`PPOConfig` the command line sets (all but ``network`` and
+    ``metrics``), in
     declaration order."""
     return [f for f in dataclasses.fields(PPOConfig) if f.metadata.get("cli", True)]
 
@@ -475,6 +581,7 @@ __all__ = [
     "TRACED_FIELDS",
     "ConfigError",
     "PPOConfig",
+    "UnavailableMetric",
     "config_fields",
     "field_docs",
     "preset",

@@ -20,7 +20,7 @@ import numpy as np
 
 from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.metrics import EPISODE_WINDOW, METRIC_NAMES, EpisodeBuffer
+from jaxcart.core.metrics import EPISODE_WINDOW, EpisodeBuffer
 from jaxcart.core.ppo import (
     RunnerState,
     finish_iteration,
@@ -161,7 +161,7 @@ def grouped_iteration(
         before.params, before.opt_state, batch, update_key, learning_rate, config
     )
     new, metrics = jax.vmap(finish_iteration)(
-        before, rollout, batch, learning_rate, params, opt_state, losses
+        before, rollout, batch, learning_rate, params, opt_state, losses, config
     )
     return jax.vmap(guard_divergence, in_axes=(0, 0, 0, None))(runners, new, metrics, iteration)
 
@@ -229,7 +229,7 @@ def train_chunk(
         # NaN metrics of the dtypes an iteration produces (float32, or float64 under x64)
         shapes = jax.eval_shape(run, runners, iteration)[1]
         return runners, {
-            name: jnp.full((num_runs,), jnp.nan, shapes[name].dtype) for name in METRIC_NAMES
+            name: jnp.full((num_runs,), jnp.nan, shape.dtype) for name, shape in shapes.items()
         }
 
     def body(runners: RunnerState, offset: Array):

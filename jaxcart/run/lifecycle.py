@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
+from jaxcart.core.config import ConfigError, PPOConfig, float_dtype, unavailable_metrics
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed
 from jaxcart.engine.loop import (
@@ -39,6 +39,7 @@ from jaxcart.engine.loop import (
     TrainState,
     default_chunk_size,
     initial_state,
+    metric_columns,
     train,
 )
 from jaxcart.engine.signals import Stopped, StopRequest
@@ -172,6 +173,8 @@ def _resumable(directory: RunDir, info: dict) -> Run:
     check_versions(directory.path, (meta or info).get("versions", {}))
     _check_precision(directory.path, info)
     config = info.pop("config")
+    for missing in unavailable_metrics(config)[:1]:  # a run trains only with its own metrics
+        raise ConfigError(missing.message())
     if meta and meta["iteration"] >= config.num_iterations and directory.finished():
         raise RunFinished(
             f"{directory.path} already finished all {config.num_iterations} iterations; "
@@ -455,7 +458,8 @@ def wave_start_state(
                 f"{run.directory.checkpoint_path} is corrupted: chunk_size {saved.chunk_size} "
                 f"is more than the {most} iterations a chunk of this run can run"
             )
-        run.directory.open_metrics(len(runs), saved.iteration)  # rows after it are cut
+        columns = metric_columns(run.config)
+        run.directory.open_metrics(len(runs), saved.iteration, columns)  # rows after it are cut
         return dataclasses.replace(saved, chunk_seconds=adapt)
     configs = jax.tree.map(lambda x: x[runs.start : runs.stop], run_configs(run))
     fresh = initial_state(
@@ -466,7 +470,7 @@ def wave_start_state(
         seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
         on_progress=on_progress,
     )
-    run.directory.open_metrics(len(runs), 0)
+    run.directory.open_metrics(len(runs), 0, metric_columns(run.config))
     save_state(run, fresh, wave)
     return dataclasses.replace(fresh, chunk_seconds=adapt)
 

@@ -235,15 +235,16 @@ class RunDir:
         )
         self.checkpoint_meta = {**meta, "iteration": state.iteration}
 
-    def open_metrics(self, runs: int, rows: int) -> None:
-        """:attr:`stream` for the wave about to train (``runs`` runs) cut to ``rows`` rows
+    def open_metrics(self, runs: int, rows: int, columns: tuple[str, ...] = METRIC_COLUMNS) -> None:
+        """:attr:`stream` of ``columns`` (the run's :func:`~jaxcart.engine.loop.metric_columns`)
+        for the wave about to train (``runs`` runs) cut to ``rows`` rows
         (the checkpoint's iterations; 0: a new wave), which must match the digest the
         checkpoint recorded. Only the main process keeps one."""
         self.stream.close()
         if self.main_process:
             expected = (self.checkpoint_meta or {}).get(STREAM_DIGEST_KEY) if rows else None
             entry = self.dir / layout.METRICS_STREAM_FILE
-            self.stream = MetricsStream(entry, METRIC_COLUMNS, runs, rows, expected)
+            self.stream = MetricsStream(entry, columns, runs, rows, expected)
 
     def load_checkpoint(self, template: TrainState, num_runs: int) -> TrainState:
         """The checkpoint's state of ``num_runs`` runs, in the structure of ``template``."""

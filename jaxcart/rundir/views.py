@@ -32,6 +32,7 @@ class RunCurves:
     evaluation: dict | None  # evaluation.json, None if missing
     combination: dict[str, float] | None = None  # a sweep's combination: its swept values
     note: str | None = None  # "from the checkpoint at iteration 12/40: ..." when unfinished
+    custom_metrics: tuple[str, ...] = ()  # the run's own metrics (config.json's names)
 
 
 def unfinished(path: Path) -> bool:
@@ -78,6 +79,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         num_seeds=int(info.get("num_seeds", num_seeds)),
         evaluation=evaluation,
         combination=combination,
+        custom_metrics=info["config"].metric_names,
     )
 
 
@@ -114,6 +116,7 @@ def checkpoint_curves(
                 evaluation=None,
                 combination=combination,
                 note=saved.note,
+                custom_metrics=config.metric_names,
             )
         )
     return runs
