@@ -13,6 +13,7 @@ import jax
 from jaxcart import cli
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.run.greedy import evaluate_params, summarize
+from jaxcart.rundir import layout
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 from jaxcart.rundir.reader import read_run_config, recorded_combinations
 
@@ -42,6 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="C",
         help="only this combination of a sweep (needed with --gif)",
     )
+    parser.add_argument(
+        "--policy",
+        choices=list(layout.POLICY_FILES),
+        default="final",
+        help="final: the parameters at the end of training; best: each seed's best policy "
+        "by the evaluation during training (a run trained with --eval-every N --keep-best)",
+    )
     parser.add_argument("--gif", type=Path, default=None, help="also render one episode to a GIF")
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
     parser.add_argument(
@@ -68,14 +76,16 @@ def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) ->
         )
 
 
-def _sources(run_dir: Path, combination: int | None) -> list[tuple[str | None, RunParams]]:
+def _sources(
+    run_dir: Path, combination: int | None, policy: str = "final"
+) -> list[tuple[str | None, RunParams]]:
     """What to evaluate: the run, one combination, or every combination of a sweep, each
-    with its label (``0 learning_rate=0.001``) in a sweep."""
+    with its label (``0 learning_rate=0.001``) in a sweep; ``policy`` final or best."""
     combos = recorded_combinations(read_run_config(run_dir))
     if not combos:
-        return [(None, run_params(run_dir, combination))]
+        return [(None, run_params(run_dir, combination, policy))]
     chosen = range(len(combos)) if combination is None else [combination]
-    return [(_combo_label(c, combos), run_params(run_dir, c)) for c in chosen]
+    return [(_combo_label(c, combos), run_params(run_dir, c, policy)) for c in chosen]
 
 
 def _combo_label(c: int, combos: list) -> str:
@@ -90,7 +100,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
     sweep = bool(recorded_combinations(info))
     if args.gif is not None:
         _check_gif_options(args, num_seeds, sweep)
-    sources = _sources(args.run_dir, args.combination)
+    sources = _sources(args.run_dir, args.combination, args.policy)
     note = sources[0][1].note
     if note:
         print(
@@ -107,7 +117,9 @@ def _evaluate_command(argv: list[str] | None) -> int:
             for s in range(num_seeds)
         ]
     print(
-        f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
+        f"Greedy evaluation of {args.run_dir}"
+        + (" (each seed's best policy)" if args.policy == "best" else "")
+        + f", {args.episodes} episodes per seed in "
         f"gymnasium.make('CartPole-v1') (reset seeds {EVAL_SEED}..."
         f"{EVAL_SEED + args.episodes - 1}):"
     )

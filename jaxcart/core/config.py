@@ -26,7 +26,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxcart.core.metrics import METRIC_NAMES
+from jaxcart.core.metrics import EVAL_METRICS, METRIC_NAMES
 
 
 class ConfigError(ValueError):
@@ -122,6 +122,15 @@ class PPOConfig:
     num_actions], value [...]); None: the built-in SB3 MLP that hidden_sizes, activation,
     linear_actor and weight_init describe. Python API only: a run directory records its
     importable class and fields, and rebuilds it from them."""
+    eval_every: int = 0
+    """Every N iterations, play periodic_eval_episodes greedy episodes in jaxcart's env inside
+    the compiled program, from the same start states for every run (eval/mean_return and
+    eval/min_return); 0: never."""
+    periodic_eval_episodes: int = 10
+    """Greedy episodes of each evaluation during training (with eval_every)."""
+    keep_best: bool = False
+    """Keep each run's policy with the best eval/mean_return so far (ties: the later one) as
+    params_best.npz beside params.npz; needs eval_every."""
     metrics: Any = field(default=(), metadata={"cli": False})
     """Your own per-iteration metrics: a mapping name -> fn, each fn(rollout, batch, losses)
     returning a scalar, computed inside the compiled program after the update (kept as a
@@ -178,6 +187,13 @@ class PPOConfig:
     def metric_names(self) -> tuple[str, ...]:
         """The names of :attr:`metrics`, in order (the extra columns of metrics.csv)."""
         return tuple(name for name, _ in self.metrics)
+
+    @property
+    def extra_metric_names(self) -> tuple[str, ...]:
+        """The columns beyond the built-in ones: the periodic evaluation's (with eval_every),
+        then :attr:`metric_names`."""
+        evaluation = EVAL_METRICS if self.eval_every else ()
+        return (*evaluation, *self.metric_names)
 
     @property
     def is_per_run(self) -> bool:
@@ -467,7 +483,17 @@ def validate(config: PPOConfig) -> None:
     ):
         raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
     _validate_metrics(c.metrics)
-    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor"):
+    for name in ("eval_every", "periodic_eval_episodes"):
+        value = getattr(c, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
+    if c.periodic_eval_episodes == 0 or c.periodic_eval_episodes > 1024:
+        raise ConfigError(
+            f"periodic_eval_episodes must be in [1, 1024], got {c.periodic_eval_episodes}"
+        )
+    if c.keep_best and not c.eval_every:
+        raise ConfigError("keep_best needs eval_every: give the iterations between evaluations")
+    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor", "keep_best"):
         if not isinstance(getattr(c, name), bool):
             raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
 
@@ -478,6 +504,7 @@ iteration and run in the stream, metrics.csv and every wave's file)."""
 _METRIC_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_./-]{0,63}")
 RESERVED_METRIC_NAMES = (
     *METRIC_NAMES,
+    *EVAL_METRICS,
     "time/fps",
     "time/elapsed",
     "seed_index",

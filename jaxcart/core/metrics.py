@@ -33,6 +33,9 @@ METRIC_NAMES = (
     "train/learning_rate",
 )
 """Per-iteration metrics computed in the compiled step (``time/fps`` is added by the host)."""
+EVAL_METRICS = ("eval/mean_return", "eval/min_return")
+"""The columns a periodic evaluation (``PPOConfig.eval_every``) adds: NaN on the iterations
+between evaluations."""
 
 
 @struct.dataclass
@@ -201,6 +204,7 @@ def custom_metrics(
 
 __all__ = [
     "EPISODE_WINDOW",
+    "EVAL_METRICS",
     "METRIC_NAMES",
     "EpisodeBuffer",
     "custom_metrics",

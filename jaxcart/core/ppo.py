@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
@@ -68,6 +68,7 @@ class RunnerState:
     episodes: EpisodeBuffer  # the last finished episodes, for the logged means
     key: Array
     diverged_at: Array  # int32: -1 while healthy, else the (1-based) iteration that went non-finite
+    best: Any = None  # with keep_best: the best policy so far (core.evaluation.BestPolicy)
 
 
 class Transition(NamedTuple):

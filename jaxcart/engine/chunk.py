@@ -20,10 +20,12 @@ import numpy as np
 
 from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
+from jaxcart.core.evaluation import BestPolicy, periodic_evaluation
 from jaxcart.core.metrics import EPISODE_WINDOW, EpisodeBuffer
 from jaxcart.core.ppo import (
     RunnerState,
     finish_iteration,
+    make_network,
     make_optimizer,
     prepare_update,
     train_iteration,
@@ -73,6 +75,13 @@ def initial_runners(
         ),
         key=keys,
         diverged_at=np.full((num_runs,), -1, np.int32),
+        best=None
+        if not config.keep_best
+        else BestPolicy(  # none yet: score -inf
+            params=jax.tree.map(np.copy, params),
+            score=np.full((num_runs,), -np.inf, np.float32),
+            iteration=np.zeros((num_runs,), np.int32),
+        ),
     )
 
 
@@ -166,6 +175,32 @@ def grouped_iteration(
     return jax.vmap(guard_divergence, in_axes=(0, 0, 0, None))(runners, new, metrics, iteration)
 
 
+def evaluate_runs(
+    runners: RunnerState,
+    metrics: dict[str, Array],
+    config: PPOConfig,
+    iteration: Array,
+    env_params: cartpole.EnvParams,
+) -> tuple[RunnerState, dict[str, Array]]:
+    """:func:`~jaxcart.core.evaluation.periodic_evaluation` of every run ``[R]`` after an
+    iteration: its metrics join the iteration's, its best policy the runners."""
+    network = make_network(config)
+
+    def one_run(runner: RunnerState, run_config: PPOConfig):
+        return periodic_evaluation(
+            runner.params,
+            runner.best,
+            runner.diverged_at < 0,
+            run_config,
+            iteration,
+            network,
+            env_params,
+        )
+
+    best, evaluated = jax.vmap(one_run)(runners, config)
+    return runners.replace(best=best), {**metrics, **evaluated}
+
+
 def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
     """``end``, except that every run marked diverged (``diverged_at >= 0``, leaves ``[R]``)
     gets its ``start`` state back, with its ``diverged_at`` kept.
@@ -223,7 +258,10 @@ def train_chunk(
         runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, None))
 
     def run(runners: RunnerState, iteration: Array):
-        return runs_iteration(runners, config, iteration, env_params)
+        runners, metrics = runs_iteration(runners, config, iteration, env_params)
+        if config.eval_every:  # nothing is added to the program without it
+            runners, metrics = evaluate_runs(runners, metrics, config, iteration, env_params)
+        return runners, metrics
 
     def skip(runners: RunnerState, iteration: Array):
         # NaN metrics of the dtypes an iteration produces (float32, or float64 under x64)

@@ -142,8 +142,8 @@ METRIC_COLUMNS = (*METRIC_NAMES, "time/fps", "time/elapsed")
 
 def metric_columns(config: PPOConfig) -> tuple[str, ...]:
     """Every per-iteration metric a run of ``config`` records: :data:`METRIC_COLUMNS`, then
-    the config's own metrics (``config.metric_names``)."""
-    return (*METRIC_COLUMNS, *config.metric_names)
+    the periodic evaluation's and the config's own metrics (``config.extra_metric_names``)."""
+    return (*METRIC_COLUMNS, *config.extra_metric_names)
 
 
 @dataclass

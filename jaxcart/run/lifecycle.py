@@ -631,6 +631,11 @@ def _one_wave(
             run.directory.write_metrics(run.config.batch_size)
         return None
     params = distributed.gather(result.params)
+    best_params = best = None
+    if run.config.keep_best:
+        kept = distributed.gather(result.state.runners.best)
+        best_params = files.flatten(kept.params)
+        best = {"best_iteration": np.asarray(kept.iteration), "best_score": np.asarray(kept.score)}
     evaluation = Evaluation(
         options.eval_episodes, np.zeros((len(runs), 0)), np.zeros((len(runs), 0)), 0.0
     )
@@ -638,6 +643,9 @@ def _one_wave(
         try:
             stop.check()
             evaluation = evaluate_wave(run, params, options.eval_episodes, runs, stop)
+            if best is not None:  # the Gymnasium verdict of the best policies too
+                verdict = evaluate_wave(run, kept.params, options.eval_episodes, runs, stop)
+                best["best_gym_returns"] = verdict.gym_returns
         except Stopped:
             return None
     timing = {
@@ -654,6 +662,8 @@ def _one_wave(
         evaluation.gym_returns,
         evaluation.jax_returns,
         timing,
+        best_params,
+        best,
     )
 
 
@@ -706,4 +716,6 @@ def _write_outputs(run: Run, blocks: list, episodes: int, timing: dict) -> None:
         where = c if run.grid.is_sweep else None
         batch = run.config.batch_size
         span = range(runs.start, runs.stop)
-        run.directory.write_outputs(where, blocks, span, episodes, timing, batch, record)
+        run.directory.write_outputs(
+            where, blocks, span, episodes, timing, batch, record, best=run.config.keep_best
+        )

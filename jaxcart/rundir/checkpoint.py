@@ -31,6 +31,7 @@ from jaxcart.rundir.reader import (
     MAX_RUNS,
     bounded_int,
     finite_number,
+    no_best_policy,
     params_dtype,
     params_headers,
     read_run_config,
@@ -189,7 +190,9 @@ class CheckpointRuns:
         return f"{where}: the run did not finish"
 
 
-def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -> CheckpointRuns:
+def read_checkpoint_runs(
+    run_dir: str | os.PathLike, info: dict | None = None, policy: str = "final"
+) -> CheckpointRuns:
     """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
     optimizer or env state is restored), refusing crafted files: the metadata must match the
     run's ``config.json``, every array header is checked before anything is read, the whole
@@ -215,6 +218,10 @@ def read_checkpoint_runs(run_dir: str | os.PathLike, info: dict | None = None) -
     ):
         raise RunDirError(f"{path} does not belong to this run's config.json")
     params_prefix = layout.CHECKPOINT_PARAMS
+    if policy == "best":  # the best policies so far (keep_best)
+        if not config.keep_best:
+            raise RunDirError(no_best_policy(run_dir))
+        params_prefix = layout.CHECKPOINT_BEST_PARAMS
     headers = params_headers(config, runs, params_dtype(info))
     expected = {params_prefix + name: header for name, header in headers.items()}
     limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64

@@ -259,7 +259,12 @@ class RunDir:
         """Removes a finished run's top-level outputs before it is trained further, so that
         until the extension finishes every reader says the run is unfinished (and reads its
         checkpoint) instead of presenting the old outputs as the run's."""
-        names = (layout.SWEEP_FILE, layout.EVALUATION_FILE, layout.PARAMS_FILE)
+        names = (
+            layout.SWEEP_FILE,
+            layout.EVALUATION_FILE,
+            layout.PARAMS_FILE,
+            layout.PARAMS_BEST_FILE,
+        )
         for name in names:
             self.dir.unlink(name)
         self.manifest.forget(*names)
@@ -312,9 +317,11 @@ class RunDir:
         timing: dict,
         batch_size: int,
         record: tuple[dict, PPOConfig] | None = None,
+        best: bool = False,
     ) -> None:
         """metrics.csv, params.npz and evaluation.json of ``runs`` from the blocks: in the run
-        directory, or in combination ``combo``'s, with its own config.json ``record``."""
+        directory, or in combination ``combo``'s, with its own config.json ``record``; with
+        ``best``, params_best.npz too."""
         directory, manifest = self.dir, self.manifest  # never recreated once deleted
         if combo is not None:
             directory = self.dir.sub(layout.combo_dir(".", combo).name, create=True)
@@ -329,6 +336,11 @@ class RunDir:
             manifest.write(
                 layout.PARAMS_FILE, lambda e, d: outputs.write_params(e, blocks, runs, d)
             )
+            if best:
+                manifest.write(
+                    layout.PARAMS_BEST_FILE,
+                    lambda e, d: outputs.write_params(e, blocks, runs, d, best=True),
+                )
             manifest.write(
                 layout.EVALUATION_FILE,
                 lambda e, d: outputs.write_evaluation(e, blocks, runs, episodes, timing, d),

@@ -193,10 +193,14 @@ class RunParams:
     are not a finished run's; None for ``params.npz``."""
 
 
-def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> RunParams:
+def run_params(
+    run_dir: str | os.PathLike, combination: int | None = None, policy: str = "final"
+) -> RunParams:
     """Every seed's parameters of a run directory: ``params.npz`` when the run finished,
     else its checkpoint (:attr:`RunParams.note` says so). A sweep needs ``combination``
     (its ``combo-NNN/`` directory, or its runs in the sweep's checkpoint if unfinished).
+    ``policy="best"`` takes each seed's best policy of the periodic evaluation instead
+    (``params_best.npz``; a run trained with ``keep_best``).
 
     Raises:
         RunDirError: not a run directory, nothing usable in it, or a bad ``combination``.
@@ -217,13 +221,14 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
             )
         if layout.is_sweep(run_dir):  # finished: each combination is a run directory
             name = layout.combo_dir(".", int(combination)).name
-            return run_params(files.subdir(run_dir, name))  # a link is refused
+            return run_params(files.subdir(run_dir, name), policy=policy)  # a link is refused
     elif combination is not None:
         raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
     num_seeds = int(info.get("num_seeds", 1))
     if not combos and layout.present(run_dir / layout.PARAMS_FILE):
-        return RunParams(reader.load_params(run_dir), info["config"], num_seeds)
-    saved = read_checkpoint_runs(run_dir, info)  # unfinished
+        return RunParams(reader.load_params(run_dir, policy), info["config"], num_seeds)
+    reader.policy_file(policy)
+    saved = read_checkpoint_runs(run_dir, info, policy)  # unfinished
     first = (combination or 0) * num_seeds
     params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
     return RunParams(params, _combo_config(info, combination), num_seeds, saved.note)
@@ -265,6 +270,7 @@ def load_policy(
     combination: int | None = None,
     deterministic: bool = True,
     rng: np.random.Generator | int | None = None,
+    policy: str = "final",
 ) -> Policy:
     """A policy of a trained run, usable in any Gymnasium loop.
 
@@ -276,6 +282,8 @@ def load_policy(
         combination: a sweep's combination (required for a sweep directory).
         deterministic: argmax actions (as evaluated); False samples from the policy.
         rng: the NumPy ``Generator`` (or its seed) that samples when not ``deterministic``.
+        policy: ``"final"`` (the parameters training ended with) or ``"best"`` (each seed's
+            best by the periodic evaluation: a run trained with ``keep_best``).
 
     Returns:
         A callable mapping a float32 observation ``(4,)`` to an ``int`` action, or ``(N, 4)``
@@ -287,7 +295,7 @@ def load_policy(
         obs, _ = env.reset()
         obs, reward, terminated, truncated, _ = env.step(policy(obs))
     """
-    trained = run_params(run_dir, combination)
+    trained = run_params(run_dir, combination, policy)
     stacked = seed_index == "all"
     params = trained.params if stacked else seed_params(trained, seed_index, allow_all=True)
     try:

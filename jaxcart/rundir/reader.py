@@ -407,22 +407,24 @@ def params_dtype(info: dict) -> np.dtype:
     return np.dtype(np.float64 if info.get(X64_KEY) else np.float32)
 
 
-def load_params(run_dir: str | os.PathLike) -> dict:
-    """Every seed's parameters from ``params.npz``, leaves ``[num_seeds, ...]``."""
-    path = Path(run_dir) / layout.PARAMS_FILE
+def load_params(run_dir: str | os.PathLike, policy: str = "final") -> dict:
+    """Every seed's parameters from ``params.npz`` (``policy="best"``: the best policies of
+    the periodic evaluation, ``params_best.npz``), leaves ``[num_seeds, ...]``."""
+    name = policy_file(policy)
+    path = Path(run_dir) / name
     if layout.is_sweep(run_dir):
         raise RunDirError(
             f"{run_dir} is a sweep: each combination is a run directory of its own, "
             f"e.g. {layout.combo_dir(run_dir, 0)}"
         )
-    if files.refuse_link(path) is None:
-        raise RunDirError(
-            f"{run_dir} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
-        )
     info = read_run_config(run_dir)
+    if files.refuse_link(path) is None:
+        if policy == "best" and not info["config"].keep_best:
+            raise RunDirError(no_best_policy(run_dir))
+        raise RunDirError(f"{run_dir} has no {name}: the run did not finish saving parameters")
     expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
-    path = files.inside(run_dir, layout.PARAMS_FILE)
-    manifest.verify(run_dir, layout.PARAMS_FILE, info)
+    path = files.inside(run_dir, name)
+    manifest.verify(run_dir, name, info)
     found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
     if found != expected:
         raise RunDirError(
@@ -431,6 +433,25 @@ def load_params(run_dir: str | os.PathLike) -> dict:
     arrays, _ = files.load_tree(path)
     files.check_finite(arrays, path)
     return files.unflatten(arrays)
+
+
+def no_best_policy(run_dir: str | os.PathLike) -> str:
+    """What to say of a run asked for a best policy it never kept."""
+    return (
+        f"{run_dir}: no best policy was kept (train with --eval-every N --keep-best); "
+        "use its final policy (--policy final)"
+    )
+
+
+def policy_file(policy: str) -> str:
+    """The file of ``policy``: ``final`` (params.npz) or ``best`` (params_best.npz).
+
+    Raises:
+        RunDirError: another name.
+    """
+    if policy not in layout.POLICY_FILES:
+        raise RunDirError(f"policy must be 'final' or 'best', got {policy!r}")
+    return layout.POLICY_FILES[policy]
 
 
 def _difference(found: dict[str, files.Header], expected: dict[str, files.Header]) -> str:
@@ -458,14 +479,19 @@ def check_block(
         RunDirError: a link, torn, crafted, edited or of another shape.
     """
     n = len(runs)
+    headers = params_headers(config, n, dtype).items()
+    prefixes = (layout.BLOCK_PARAMS, layout.BLOCK_BEST_PARAMS)
     expected = {
-        layout.BLOCK_PARAMS + name: header
-        for name, header in params_headers(config, n, dtype).items()
+        prefix + name: header
+        for prefix in prefixes[: 2 if config.keep_best else 1]
+        for name, header in headers
     }
     found = files.read_headers(path, max_bytes=2 * _block_bytes(config, n, episodes))
     found.pop(files.META_KEY, None)
     iterations = config.num_iterations
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
+    if config.keep_best:
+        fixed |= {"best_gym_returns": (n, episodes), "best_iteration": (n,), "best_score": (n,)}
     wrong = [name for name, header in expected.items() if found.get(name) != header]
     wrong += [name for name, shape in fixed.items() if found.get(name, ((), None))[0] != shape]
     wrong += [
@@ -483,11 +509,11 @@ def check_block(
             f"{path} does not match its digest: edited or corrupted; delete it to "
             "train that wave again"
         )
-    files.check_finite({n: a for n, a in arrays.items() if n.startswith(layout.BLOCK_PARAMS)}, path)
+    files.check_finite({n: a for n, a in arrays.items() if n in expected}, path)
 
 
 def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
     """A generous bound on a wave file of ``n`` runs."""
-    params = _bytes(params_headers(config, n))
-    metrics = 64 * config.num_iterations * n * 8
+    params = _bytes(params_headers(config, n)) * (2 if config.keep_best else 1)
+    metrics = (64 + len(config.extra_metric_names)) * config.num_iterations * n * 8
     return params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20)
