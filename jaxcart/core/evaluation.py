@@ -17,6 +17,7 @@ from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import EVAL_METRICS
 from jaxcart.core.networks import ActorCritic
+from jaxcart.core.solved import NUM_EVAL_EPISODES
 
 Array = jax.Array
 
@@ -38,7 +39,7 @@ def greedy_returns(
     params: dict,
     key: Array,
     network: Any = None,
-    num_episodes: int = 20,
+    num_episodes: int = NUM_EVAL_EPISODES,
     env_params: cartpole.EnvParams | None = None,
 ) -> Array:
     """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able.
