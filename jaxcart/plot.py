@@ -216,7 +216,9 @@ def _run_dir(run: RunCurves) -> Path:
     """The directory a run was named by: a sweep's combinations stand for their sweep (a
     finished one's are its ``combo-NNN/`` directories, an unfinished one's the sweep itself)."""
     in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
-    return run.path.parent if run.combination is not None and in_combo_dir else run.path
+    path = run.path.parent if run.combination is not None and in_combo_dir else run.path
+    # a structural sweep's group stands for the sweep
+    return path.parent if layout.is_groups(path.parent) else path
 
 
 def draw_figure(runs: list[RunCurves]) -> Figure:

@@ -54,6 +54,10 @@ MANIFEST_FILE = "manifest.json"
 WAVES_DIR = "waves"
 SB3_PLAN_FILE = "sb3-plan.json"
 SB3_SEEDS_DIR = "sb3-seeds"
+GROUPS_FILE = "groups.json"
+"""A structural sweep's shape groups (each a run directory ``group-000/``, ...) and their
+combinations ranked together."""
+GROUP_GLOB = "group-[0-9][0-9][0-9]*"
 COMBO_GLOB = "combo-[0-9][0-9][0-9]*"
 """Matches the combination directories of a sweep (``combo-000``, ..., ``combo-1000``)."""
 DIGEST_KEY = "digest"
@@ -90,6 +94,16 @@ compared seed's learning curve, ``run,seed,env_steps,ep_rew_mean``)."""
 def combo_dir(sweep_dir: str | os.PathLike, combo: int) -> Path:
     """The run directory of one combination of a sweep."""
     return Path(sweep_dir) / f"combo-{combo:03d}"
+
+
+def group_dir(sweep_dir: str | os.PathLike, group: int) -> Path:
+    """The run directory of one shape group of a structural sweep."""
+    return Path(sweep_dir) / f"group-{group:03d}"
+
+
+def is_groups(run_dir: str | os.PathLike) -> bool:
+    """Whether ``run_dir`` is a structural sweep: shape groups, each a run directory."""
+    return present(Path(run_dir) / GROUPS_FILE)
 
 
 def wave_file(run_dir: str | os.PathLike, wave: int) -> Path:

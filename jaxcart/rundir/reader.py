@@ -195,6 +195,35 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     return combos
 
 
+def group_label(group: dict) -> str:
+    """``{"num_envs": 4, "hidden_sizes": (64, 64)}`` -> ``num_envs=4,hidden_sizes=64x64``."""
+    show = lambda v: "x".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)
+    return ",".join(f"{name}={show(value)}" for name, value in group.items())
+
+
+def read_groups(sweep_dir: str | os.PathLike) -> list[tuple[str, Path]]:
+    """A structural sweep's shape groups (``groups.json``) as ``(label, run directory)``, in
+    group order (``num_envs=4,hidden_sizes=64x64``, ``SWEEP/group-000``).
+
+    Raises:
+        RunDirError: ``groups.json`` unreadable, or a group directory missing or a link.
+    """
+    data = read_json(sweep_dir, layout.GROUPS_FILE)
+    groups = data.get("groups")
+    if not isinstance(groups, list) or not groups or len(groups) > MAX_RUNS:
+        raise RunDirError(f"{Path(sweep_dir) / layout.GROUPS_FILE} is corrupted: no groups")
+    out = []
+    for g, group in enumerate(groups):
+        if not isinstance(group, dict):
+            raise RunDirError(f"{Path(sweep_dir) / layout.GROUPS_FILE} is corrupted: group {g}")
+        values = {k: v for k, v in group.items() if k not in ("group", "directory")}
+        path = Path(sweep_dir) / layout.group_dir(".", g).name
+        if files.refuse_link(path) is None:
+            raise RunDirError(f"{sweep_dir} has no {path.name}/: the sweep did not finish it")
+        out.append((group_label(values), files.subdir(sweep_dir, path.name)))
+    return out
+
+
 def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
     """The run directories of a sweep's combinations, in combination order.
 

@@ -148,7 +148,11 @@ def load_runs(
     runs: list[RunCurves] = []
     for i, path in enumerate(Path(p) for p in run_dirs):
         label = labels[i] if labels is not None else None
-        if layout.is_sweep(path):
+        if layout.is_groups(path):  # a structural sweep: every group's runs, labelled by it
+            for name, group in reader.read_groups(path):
+                prefix = name if label is None else f"{label} {name}"
+                runs += load_runs([group], [prefix])
+        elif layout.is_sweep(path):
             reader.read_run_config(path)  # a clear error for a broken sweep
             for combo in reader.combo_dirs(path):
                 run = load_run(combo)
