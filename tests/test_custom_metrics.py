@@ -13,7 +13,7 @@ from custom_metrics import mean_abs_pole_angle, not_a_scalar, value_loss_again
 from helpers import TINY, assert_same_run_dirs, stopped_run
 from test_loggers import read_tfrecords
 
-from jaxcart.core.config import ConfigError, PPOConfig, UnavailableMetric
+from jaxcart.core.config import ConfigError, PPOConfig, RecordedMetric, rebuild_metrics
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.engine.loop import METRIC_COLUMNS, train
 from jaxcart.run.lifecycle import resume_run, run_new
@@ -32,18 +32,26 @@ def test_metrics_are_recorded_by_name_and_rebuilt():
         "custom/pole_angle": "custom_metrics:mean_abs_pole_angle",
         "custom/value_loss": "custom_metrics:value_loss_again",
     }
-    assert PPOConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    recorded = PPOConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert recorded.metric_names == config.metric_names  # readers: names, nothing imported
+    assert all(isinstance(fn, RecordedMetric) for _, fn in recorded.metrics)
+    assert recorded.to_dict() == config.to_dict()
+    assert rebuild_metrics(recorded) == config  # a resume imports them
     assert "metrics" not in SMALL.to_dict()  # the default config.json is unchanged
 
 
-def test_a_function_that_cannot_be_imported_keeps_its_name_and_refuses_to_run():
-    data = {**SMALL.to_dict(), "metrics": {"custom/x": "__main__:f", "custom/y": "nowhere:g"}}
-    config = PPOConfig.from_dict(data)
-    assert config.metric_names == ("custom/x", "custom/y")
-    fn = dict(config.metrics)["custom/y"]
-    assert isinstance(fn, UnavailableMetric)
-    with pytest.raises(ConfigError, match="cannot rebuild the run's metric function nowhere:g"):
-        fn(None, None, None)
+@pytest.mark.parametrize(
+    ("path", "message"),
+    [
+        ("__main__:f", "__main__:f: define it at the top level of an importable module"),
+        ("nowhere:g", "nowhere:g: ModuleNotFoundError"),
+    ],
+)
+def test_a_function_that_cannot_be_imported_keeps_its_name_and_refuses_to_resume(path, message):
+    config = PPOConfig.from_dict({**SMALL.to_dict(), "metrics": {"custom/x": path}})
+    assert config.metric_names == ("custom/x",)
+    with pytest.raises(ConfigError, match=f"cannot rebuild the run's metric function {message}"):
+        rebuild_metrics(config)
 
 
 @pytest.mark.parametrize(

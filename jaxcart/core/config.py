@@ -221,7 +221,10 @@ class PPOConfig:
     @classmethod
     def from_dict(cls, data: dict) -> PPOConfig:
         """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`, and
-        rebuilds a recorded network (:func:`build_network`)."""
+        rebuilds a recorded network (:func:`build_network`). Recorded metrics keep their
+        names but not their functions (:class:`RecordedMetric`): readers need the columns
+        only, and nothing is imported from a run directory until training resumes it
+        (:func:`rebuild_metrics`)."""
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
@@ -237,7 +240,7 @@ class PPOConfig:
                 isinstance(v, str) for v in recorded.values()
             ):
                 raise ConfigError(f"metrics must map names to 'module:function', got {recorded!r}")
-            data["metrics"] = {name: import_metric(path) for name, path in recorded.items()}
+            data["metrics"] = {name: RecordedMetric(path) for name, path in recorded.items()}
         return cls(**data)
 
 
@@ -312,44 +315,59 @@ def build_network(spec: Any) -> Any:
 
 def function_path(fn: Any) -> str:
     """How a run directory records a metric function: ``"module:QualName"``."""
+    if isinstance(fn, RecordedMetric):
+        return fn.path
     return f"{getattr(fn, '__module__', None)}:{getattr(fn, '__qualname__', type(fn).__name__)}"
 
 
 @dataclass(frozen=True)
-class UnavailableMetric:
-    """A recorded metric function that cannot be imported here: its name still tells readers
-    (plot, compare) the column; training with it (a resume) refuses in one line."""
+class RecordedMetric:
+    """A metric function as a run directory records it, not imported: its name tells readers
+    (plot, compare) the column; :func:`rebuild_metrics` imports it to train."""
 
     path: str
-    reason: str
 
     def __call__(self, *args: Any) -> Any:
-        raise ConfigError(self.message())
-
-    def message(self) -> str:
-        return f"cannot rebuild the run's metric function {self.path}: {self.reason}"
+        raise ConfigError(f"the run's metric function {self.path} was not imported")
 
 
 def import_metric(path: str) -> Any:
-    """The function :func:`function_path` recorded, or an :class:`UnavailableMetric` saying
-    why it cannot be imported (a function of a script or notebook, or of a missing module)."""
+    """The function :func:`function_path` recorded.
+
+    Raises:
+        ConfigError: it cannot be imported (a function of a script or notebook, or of a
+            missing module), saying why.
+    """
     import importlib
 
     module, _, name = path.partition(":")
+    where = f"cannot rebuild the run's metric function {path}"
     if module == "__main__" or "<locals>" in name or "<lambda>" in name:
-        return UnavailableMetric(path, "define it at the top level of an importable module")
+        raise ConfigError(f"{where}: define it at the top level of an importable module")
     try:
         fn = importlib.import_module(module)
         for part in name.split("."):
             fn = getattr(fn, part)
     except Exception as exc:  # someone else's module, imported by name
-        return UnavailableMetric(path, f"{type(exc).__name__}: {exc}")
-    return fn if callable(fn) else UnavailableMetric(path, "not callable")
+        raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None
+    if not callable(fn):
+        raise ConfigError(f"{where}: not callable")
+    return fn
 
 
-def unavailable_metrics(config: PPOConfig) -> list[UnavailableMetric]:
-    """The metric functions of ``config`` that could not be rebuilt from a run directory."""
-    return [fn for _, fn in config.metrics if isinstance(fn, UnavailableMetric)]
+def rebuild_metrics(config: PPOConfig) -> PPOConfig:
+    """``config`` with its recorded metric functions imported (to resume training).
+
+    Raises:
+        ConfigError: one cannot be imported (:func:`import_metric`).
+    """
+    if not any(isinstance(fn, RecordedMetric) for _, fn in config.metrics):
+        return config
+    rebuilt = tuple(
+        (name, import_metric(fn.path) if isinstance(fn, RecordedMetric) else fn)
+        for name, fn in config.metrics
+    )
+    return _replace_unchecked(config, {"metrics": rebuilt})
 
 
 def _is_json(value: Any) -> bool:
@@ -608,7 +626,7 @@ __all__ = [
     "TRACED_FIELDS",
     "ConfigError",
     "PPOConfig",
-    "UnavailableMetric",
+    "RecordedMetric",
     "config_fields",
     "field_docs",
     "preset",

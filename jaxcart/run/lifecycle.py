@@ -29,7 +29,7 @@ import jax
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core.config import ConfigError, PPOConfig, float_dtype, unavailable_metrics
+from jaxcart.core.config import ConfigError, PPOConfig, float_dtype, rebuild_metrics
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed
 from jaxcart.engine.loop import (
@@ -172,9 +172,7 @@ def _resumable(directory: RunDir, info: dict) -> Run:
     meta = directory.read_checkpoint_meta()
     check_versions(directory.path, (meta or info).get("versions", {}))
     _check_precision(directory.path, info)
-    config = info.pop("config")
-    for missing in unavailable_metrics(config)[:1]:  # a run trains only with its own metrics
-        raise ConfigError(missing.message())
+    config = rebuild_metrics(info.pop("config"))  # a run trains only with its own metrics
     if meta and meta["iteration"] >= config.num_iterations and directory.finished():
         raise RunFinished(
             f"{directory.path} already finished all {config.num_iterations} iterations; "
