@@ -43,6 +43,7 @@ from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
 from jaxcart.results import scores as runs
 from jaxcart.results.scores import CompareError, Comparison
+from jaxcart.rundir import layout
 
 ESTIMATE_NAMES = {
     "iqm": "IQM",
@@ -212,6 +213,7 @@ def compare_runs(
     score: Score | str = "eval",
     adjust: str = "none",
     arms: Sequence[tuple[str, Sequence[str | os.PathLike]]] | None = None,
+    policy: str = "final",
 ) -> CompareResult:
     """Compares run directories; writes ``compare.json``, ``compare.png`` and ``curves.csv``.
 
@@ -225,6 +227,8 @@ def compare_runs(
         score: ``"eval"``, ``"auc"``, ``"return-at:STEPS"`` or a :class:`Score`.
         adjust: ``"none"`` or ``"bonferroni"``.
         arms: ``[(name, [run_dir per configuration]), ...]`` instead of ``run_dirs``.
+        policy: whose Gymnasium evaluation scores ``eval`` and counts solved seeds: the
+            ``final`` policies, or the ``best`` ones runs kept (``--keep-best``).
 
     Raises:
         RunDirError: an unusable run directory; CompareError: a comparison that cannot be made.
@@ -237,12 +241,13 @@ def compare_runs(
     if arms:
         if run_dirs:
             raise CompareError("give either RUN_DIRs or --arm, not both")
-        entries, grouped = runs.load_arms(arms, None if baseline is None else str(baseline), score)
+        named = None if baseline is None else str(baseline)
+        entries, grouped = runs.load_arms(arms, named, score, policy)
         index = 0
     else:
         if not run_dirs:
             raise CompareError("nothing to compare: give RUN_DIRs or --arm NAME=DIR,DIR")
-        entries, index = runs.load_entries(run_dirs, baseline, score)
+        entries, index = runs.load_entries(run_dirs, baseline, score, policy)
         grouped = None
     out = runs.prepare_out(None if out is None else Path(out), entries)
     comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, grouped)
@@ -302,6 +307,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="each seed's score: eval (mean greedy Gymnasium return), auc (mean of "
         "rollout/ep_rew_mean over the run) or return-at:STEPS (rollout/ep_rew_mean at STEPS "
         "env steps, e.g. return-at:1e5) (default: eval)",
+    )
+    parser.add_argument(
+        "--policy",
+        choices=list(layout.POLICY_FILES),
+        default="final",
+        help="whose Gymnasium evaluation --score eval and the solved counts read: the final "
+        "policies, or the best ones each run kept (--eval-every N --keep-best)",
     )
     parser.add_argument(
         "--baseline",
@@ -364,6 +376,7 @@ def _compare_command(argv: list[str] | None) -> int:
         args.score,
         args.adjust,
         arms,
+        args.policy,
     )
     print(report_text(result.comparison))
     paths = (result.json_path, result.figure_path, result.curves_path)

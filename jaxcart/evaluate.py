@@ -15,6 +15,7 @@ from jaxcart import cli
 from jaxcart.core import physics
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.run.greedy import evaluate_params, summarize
+from jaxcart.rundir import layout
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 from jaxcart.rundir.reader import read_run_config, recorded_combinations
 
@@ -53,6 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
         "(repeatable; default: the physics the run trained on, a randomised field at its "
         "nominal value)",
     )
+    parser.add_argument(
+        "--policy",
+        choices=list(layout.POLICY_FILES),
+        default="final",
+        help="final: the parameters at the end of training; best: each seed's best policy "
+        "by the evaluation during training (a run trained with --eval-every N --keep-best)",
+    )
     parser.add_argument("--gif", type=Path, default=None, help="also render one episode to a GIF")
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
     parser.add_argument(
@@ -79,14 +87,16 @@ def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) ->
         )
 
 
-def _sources(run_dir: Path, combination: int | None) -> list[tuple[str | None, RunParams]]:
+def _sources(
+    run_dir: Path, combination: int | None, policy: str = "final"
+) -> list[tuple[str | None, RunParams]]:
     """What to evaluate: the run, one combination, or every combination of a sweep, each
-    with its label (``0 learning_rate=0.001``) in a sweep."""
+    with its label (``0 learning_rate=0.001``) in a sweep; ``policy`` final or best."""
     combos = recorded_combinations(read_run_config(run_dir))
     if not combos:
-        return [(None, run_params(run_dir, combination))]
+        return [(None, run_params(run_dir, combination, policy))]
     chosen = range(len(combos)) if combination is None else [combination]
-    return [(_combo_label(c, combos), run_params(run_dir, c)) for c in chosen]
+    return [(_combo_label(c, combos), run_params(run_dir, c, policy)) for c in chosen]
 
 
 def _combo_label(c: int, combos: list) -> str:
@@ -125,7 +135,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
         _check_gif_options(args, num_seeds, sweep)
     sources = [
         (label, _with_env_params(trained, args.env_param))
-        for label, trained in _sources(args.run_dir, args.combination)
+        for label, trained in _sources(args.run_dir, args.combination, args.policy)
     ]
     note = sources[0][1].note
     if note:
@@ -143,8 +153,10 @@ def _evaluate_command(argv: list[str] | None) -> int:
             for s in range(num_seeds)
         ]
     print(
-        f"Greedy evaluation of {args.run_dir}, {args.episodes} episodes per seed in "
-        f"gymnasium.make('CartPole-v1'){_physics_text(sources, bool(args.env_param))} (reset seeds {EVAL_SEED}..."
+        f"Greedy evaluation of {args.run_dir}"
+        + (" (each seed's best policy)" if args.policy == "best" else "")
+        + f", {args.episodes} episodes per seed in gymnasium.make('CartPole-v1')"
+        f"{_physics_text(sources, bool(args.env_param))} (reset seeds {EVAL_SEED}..."
         f"{EVAL_SEED + args.episodes - 1}):"
     )
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))

@@ -66,11 +66,6 @@ class ExportOptions:
             raise cli.UsageError(f"--out {opts.out} must end in {suffix} for --to {opts.to}")
         if not opts.out.parent.is_dir():
             raise cli.UsageError(f"--out {opts.out}: directory {opts.out.parent} does not exist")
-        if opts.policy == "best":
-            raise cli.UsageError(
-                f"--policy best: no best policy was kept in {opts.run_dir}; export its final "
-                "policy (--policy final)"
-            )
         return opts
 
 
@@ -82,7 +77,7 @@ def export(opts: ExportOptions) -> str:
     from jaxcart.rundir.files import atomic_file
     from jaxcart.rundir.policy import run_params, seed_params
 
-    trained = run_params(opts.run_dir, opts.combination)
+    trained = run_params(opts.run_dir, opts.combination, opts.policy)
     if trained.note:
         print(f"note: {opts.run_dir}: parameters {trained.note}", file=sys.stderr)
     if not 0 <= opts.seed_index < trained.num_seeds:
@@ -97,7 +92,9 @@ def export(opts: ExportOptions) -> str:
             f"{opts.run_dir} trained its own network ({type(config.network).__name__}); "
             f"--to {opts.to} exports the built-in SB3 MLP only"
         )
-    what = f"seed {opts.seed_index} of {opts.run_dir}"
+    what = f"seed {opts.seed_index} of {opts.run_dir}" + (
+        " (its best policy)" if opts.policy == "best" else ""
+    )
     if opts.to == "sb3":
         from jaxcart.results.sb3_zip import ACTIVATION_CLASSES, net_arch, sb3_zip_bytes
 

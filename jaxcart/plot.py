@@ -4,7 +4,7 @@ Panels: episode return (``rollout/ep_rew_mean``) against env steps per seed and 
 time (``time/elapsed``, seconds of training with compilation excluded), then one panel per key
 PPO metric (``train/approx_kl``, ``train/clip_fraction``, ``train/entropy_loss``,
 ``train/value_loss``, ``train/explained_variance``) against env steps, and a summary of each
-run's Gymnasium evaluation.
+run's Gymnasium evaluation; below them, one panel per metric of the run's own (``PPOConfig.metrics``).
 
 Each curve is the mean across seeds; the shaded band is a 95% percentile bootstrap confidence
 interval of that mean (:func:`jaxcart.analysis.stats.curve_band`: whole seeds resampled, a fixed seed
@@ -216,7 +216,9 @@ def _run_dir(run: RunCurves) -> Path:
     """The directory a run was named by: a sweep's combinations stand for their sweep (a
     finished one's are its ``combo-NNN/`` directories, an unfinished one's the sweep itself)."""
     in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
-    return run.path.parent if run.combination is not None and in_combo_dir else run.path
+    path = run.path.parent if run.combination is not None and in_combo_dir else run.path
+    # a structural sweep's group stands for the sweep
+    return path.parent if layout.is_groups(path.parent) else path
 
 
 def draw_figure(runs: list[RunCurves]) -> Figure:
@@ -225,9 +227,11 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(15, 11), layout="constrained")
+    custom = custom_metric_names(runs)
+    extra_rows = -(-len(custom) // 3)  # three panels a row, below the built-in ones
+    fig = Figure(figsize=(15, 11 + 3.5 * extra_rows), layout="constrained")
     FigureCanvasAgg(fig)  # a renderer to measure text with, before the figure is saved
-    grid = fig.add_gridspec(3, 6)
+    grid = fig.add_gridspec(3 + extra_rows, 6)
     ax_steps = fig.add_subplot(grid[0, 0:3])
     ax_time = fig.add_subplot(grid[0, 3:6])
     metric_axes = [
@@ -237,6 +241,10 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
     ax_summary.axis("off")
     styles = figures.run_styles(len(runs))
     _draw_curves(runs, styles, ax_steps, ax_time, metric_axes)
+    custom_axes = [
+        fig.add_subplot(grid[3 + k // 3, 2 * (k % 3) : 2 * (k % 3) + 2]) for k in range(len(custom))
+    ]
+    _draw_custom(runs, styles, custom_axes, custom)
     _draw_legend(fig, runs, styles)
     num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
     if all(run.num_seeds == 1 for run in runs):
@@ -303,6 +311,31 @@ def _draw_curves(
             _no_data(ax, f"{name} not recorded")
         else:
             ax.set_ylim(limits)  # the bands are clipped to these axes, not the axes to them
+
+
+def custom_metric_names(runs: list[RunCurves]) -> list[str]:
+    """The runs' own metrics (``PPOConfig.metrics``), each once, in the order they come."""
+    return list(dict.fromkeys(name for run in runs for name in run.custom_metrics))
+
+
+def _draw_custom(
+    runs: list[RunCurves], styles: list[figures.Style], axes: list, names: list[str]
+) -> None:
+    """One panel per custom metric, against env steps, for every run that records it."""
+    for ax, name in zip(axes, names):
+        means = [
+            _plot_metric(ax, run.env_steps, run.metrics[name], style, name)
+            for run, style in zip(runs, styles)
+            if name in run.metrics
+        ]
+        ax.set(title=name, xlabel="env steps per seed", ylabel=name)
+        ax.grid(alpha=0.3)
+        figures.step_axis(ax.xaxis)
+        limits = figures.curve_limits(means, (-math.inf, math.inf))
+        if limits is None:
+            _no_data(ax, f"{name} not recorded")
+        else:
+            ax.set_ylim(limits)
 
 
 def _draw_legend(fig, runs: list[RunCurves], styles: list[figures.Style]) -> None:

@@ -169,6 +169,33 @@ def results_text(outcome: Outcome) -> str:
     )
 
 
+def groups_text(ranking: list[dict], groups: list[dict], sweep: dict, num_seeds: int) -> str:
+    """The ranking of a structural sweep: every combination of every shape group, together."""
+    from jaxcart.rundir.reader import group_label
+
+    names = list(sweep)
+
+    def interval(e: dict) -> str:
+        return f"{e['value']:.1f} [{e['ci_low']:.1f}, {e['ci_high']:.1f}]"
+
+    rows = [
+        [
+            r["group"],
+            group_label({k: r[k] for k in groups[r["group"]]}),
+            *[f"{r[name]:g}" for name in names],
+            interval(r["iqm"]),
+            f"{r['solve_rate']:.0%}",
+            f"{r['final_return']:.1f}",
+        ]
+        for r in ranking
+    ]
+    header = ["group", "shapes", *names, "IQM gym return [95% CI]", "solved", "final ep_rew_mean"]
+    return (
+        f"\nStructural sweep ranking, {len(groups)} shape group(s) ({num_seeds} seed(s) each):\n"
+        + format_table(rows, header)
+    )
+
+
 def evaluation_columns_text(episodes: int) -> str:
     """The one line under the evaluation table that says what each column is over: the two
     greedy means start from different states, so they differ for a policy that does not

@@ -299,16 +299,18 @@ class TrainOptions:
         """The new run these options describe."""
         from jaxcart.core import physics
         from jaxcart.run import lifecycle
+        from jaxcart.run.structural import split_sweep
         from jaxcart.run.sweep import parse_sweep
 
-        sweep = parse_sweep(list(self.sweep))
+        floats, shapes = split_sweep(list(self.sweep))
+        sweep = parse_sweep(floats)
         env_values = physics.parse_env_params(self.env_param)
         for name in env_values:
             if physics.PREFIX + name in sweep:
                 raise cli.UsageError(
                     f"--env-param {name} and --sweep env.{name} both given; keep one"
                 )
-        for name in sweep:
+        for name in (*sweep, *shapes):
             if name in self.overrides:
                 raise cli.UsageError(
                     f"--{name.replace('_', '-')} and --sweep {name} both given; keep one"
@@ -323,6 +325,12 @@ class TrainOptions:
             env_params=physics.make_env_params(env_values),
             randomize=physics.parse_randomize(self.randomize),
         )
+
+    def shape_groups(self) -> list[dict]:
+        """The shape groups of a structural sweep (``--sweep num_envs=4,8``...); [] without."""
+        from jaxcart.run.structural import shape_groups, split_sweep
+
+        return shape_groups(split_sweep(list(self.sweep))[1]) if self.sweep else []
 
     def run_options(self) -> lifecycle.RunOptions:
         """How to carry the run out."""
@@ -386,7 +394,12 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if opts.resume is not None:
         opts.check_resume()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
+    groups = opts.shape_groups() if spec is not None else []
     run_options = opts.run_options()
+    if len(groups) > 1 or any(groups):
+        if opts.distributed:
+            raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
+        return _train_groups(opts, spec, groups, run_options, console, wall_start)
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
     if not distributed.is_main_process():
@@ -422,6 +435,60 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     finally:
         console.close()
     return _report(outcome, console, time.perf_counter() - wall_start)
+
+
+def _train_groups(
+    opts: TrainOptions,
+    spec: lifecycle.RunSpec,
+    groups: list[dict],
+    run_options: lifecycle.RunOptions,
+    console: report.ConsoleReport,
+    wall_start: float,
+) -> int:
+    """A structural sweep: one program and run directory per shape group, ranked together."""
+    from jaxcart import report
+    from jaxcart.run import lifecycle, structural
+    from jaxcart.rundir import layout
+    from jaxcart.rundir.reader import group_label
+
+    specs = structural.group_specs(spec, groups)  # every group checked before anything runs
+    console.print(
+        f"structural sweep: {len(groups)} shape groups, so {len(groups)} programs compile "
+        f"(one each; the float axes stay vmapped inside each): "
+        + "; ".join(group_label(g) for g in groups)
+    )
+    if opts.dry_run:
+        for group, group_spec in zip(groups, specs):
+            plan = lifecycle.plan_run(group_spec, run_options)
+            console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
+        return 0
+    out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
+    stop = StopRequest(on_signal=console.on_signal)
+    command = ["python -m jaxcart.train", *opts.argv]
+
+    def train_group(group_spec: lifecycle.RunSpec, where: Path) -> lifecycle.Outcome:
+        outcome = lifecycle.run_new(group_spec, where, run_options, console.hooks(), stop, command)
+        if not outcome.stopped and outcome.evaluation is not None:
+            console.print(report.results_text(outcome))
+        return outcome
+
+    try:
+        with stop.installed():
+            done = structural.run_groups(spec, groups, out, train_group)
+    finally:
+        console.close()
+    stopped = next((o for o in done.outcomes if o.stopped), None)
+    if stopped is not None:
+        console.print(report.stopped_text(stopped, report.resume_command(stopped.run.out)))
+        return 128 + stopped.signum
+    console.print(report.groups_text(done.ranking, groups, spec.sweep, spec.num_seeds))
+    console.print(
+        f"wall {time.perf_counter() - wall_start:.1f} s | structural sweep directory: {out} "
+        f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
+        f"  python -m jaxcart.plot {out}      # every group's curves, into its curves.png\n"
+        f"  python -m jaxcart.compare {out}   # statistics of every combination"
+    )
+    return 0
 
 
 def _start_or_resume(

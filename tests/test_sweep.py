@@ -133,7 +133,7 @@ def test_rank_by_another_score():
     [
         (["learning_rate"], "malformed"),
         (["learning_rate=a,b"], "must be numbers"),
-        (["num_envs=1,2"], "only float hyperparameters"),
+        (["activation=1,2"], "only float hyperparameters"),  # shapes: test_structural_sweep
         (["gamma=0.9,1.5"], None),
         (["clip_coef=0.1", "clip_coef=0.2"], "given twice"),
     ],

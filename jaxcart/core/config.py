@@ -18,11 +18,15 @@ import dataclasses
 import functools
 import inspect
 import math
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import jax
 import numpy as np
+
+from jaxcart.core.metrics import EVAL_METRICS, METRIC_NAMES
 
 
 class ConfigError(ValueError):
@@ -118,8 +122,24 @@ class PPOConfig:
     num_actions], value [...]); None: the built-in SB3 MLP that hidden_sizes, activation,
     linear_actor and weight_init describe. Python API only: a run directory records its
     importable class and fields, and rebuilds it from them."""
+    eval_every: int = 0
+    """Every N iterations, play periodic_eval_episodes greedy episodes in jaxcart's env inside
+    the compiled program, from the same start states for every run (eval/mean_return and
+    eval/min_return); 0: never."""
+    periodic_eval_episodes: int = 10
+    """Greedy episodes of each evaluation during training (with eval_every)."""
+    keep_best: bool = False
+    """Keep each run's policy with the best eval/mean_return so far (ties: the later one) as
+    params_best.npz beside params.npz; needs eval_every."""
+    metrics: Any = field(default=(), metadata={"cli": False})
+    """Your own per-iteration metrics: a mapping name -> fn, each fn(rollout, batch, losses)
+    returning a scalar, computed inside the compiled program after the update (kept as a
+    tuple of (name, fn) pairs). They join metrics.csv, the loggers and plot. Python API only:
+    a run directory records their names and importable functions."""
 
     def __post_init__(self) -> None:
+        if isinstance(self.metrics, Mapping):  # a dict is not hashable: the pytree needs it so
+            object.__setattr__(self, "metrics", tuple(self.metrics.items()))
         validate(self)
 
     @property
@@ -164,6 +184,18 @@ class PPOConfig:
         return _replace_unchecked(self, values)
 
     @property
+    def metric_names(self) -> tuple[str, ...]:
+        """The names of :attr:`metrics`, in order (the extra columns of metrics.csv)."""
+        return tuple(name for name, _ in self.metrics)
+
+    @property
+    def extra_metric_names(self) -> tuple[str, ...]:
+        """The columns beyond the built-in ones: the periodic evaluation's (with eval_every),
+        then :attr:`metric_names`."""
+        evaluation = EVAL_METRICS if self.eval_every else ()
+        return (*evaluation, *self.metric_names)
+
+    @property
     def is_per_run(self) -> bool:
         """Whether any traced field holds one value per run (an array) instead of a float."""
         return any(np.ndim(getattr(self, name)) for name in TRACED_FIELDS)
@@ -178,16 +210,21 @@ class PPOConfig:
         """
         if self.is_per_run:
             raise ValueError("a per-run config has no single dict; use to_dict() of each run's")
-        data = dataclasses.asdict(dataclasses.replace(self, network=None))
-        del data["network"]
+        data = dataclasses.asdict(dataclasses.replace(self, network=None, metrics=()))
+        del data["network"], data["metrics"]
         if self.network is not None:
             data["network"] = network_spec(self.network)
+        if self.metrics:
+            data["metrics"] = {name: function_path(fn) for name, fn in self.metrics}
         return data
 
     @classmethod
     def from_dict(cls, data: dict) -> PPOConfig:
         """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`, and
-        rebuilds a recorded network (:func:`build_network`)."""
+        rebuilds a recorded network (:func:`build_network`). Recorded metrics keep their
+        names but not their functions (:class:`RecordedMetric`): readers need the columns
+        only, and nothing is imported from a run directory until training resumes it
+        (:func:`rebuild_metrics`)."""
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
@@ -197,6 +234,13 @@ class PPOConfig:
             data["hidden_sizes"] = tuple(int(h) for h in data["hidden_sizes"])
         if data.get("network") is not None:
             data["network"] = build_network(data["network"])
+        if "metrics" in data:
+            recorded = data["metrics"]
+            if not isinstance(recorded, dict) or not all(
+                isinstance(v, str) for v in recorded.values()
+            ):
+                raise ConfigError(f"metrics must map names to 'module:function', got {recorded!r}")
+            data["metrics"] = {name: RecordedMetric(path) for name, path in recorded.items()}
         return cls(**data)
 
 
@@ -267,6 +311,63 @@ def build_network(spec: Any) -> Any:
         raise ConfigError(
             f"cannot rebuild the run's network {spec['class']}: {type(exc).__name__}: {exc}{hint}"
         ) from None
+
+
+def function_path(fn: Any) -> str:
+    """How a run directory records a metric function: ``"module:QualName"``."""
+    if isinstance(fn, RecordedMetric):
+        return fn.path
+    return f"{getattr(fn, '__module__', None)}:{getattr(fn, '__qualname__', type(fn).__name__)}"
+
+
+@dataclass(frozen=True)
+class RecordedMetric:
+    """A metric function as a run directory records it, not imported: its name tells readers
+    (plot, compare) the column; :func:`rebuild_metrics` imports it to train."""
+
+    path: str
+
+    def __call__(self, *args: Any) -> Any:
+        raise ConfigError(f"the run's metric function {self.path} was not imported")
+
+
+def import_metric(path: str) -> Any:
+    """The function :func:`function_path` recorded.
+
+    Raises:
+        ConfigError: it cannot be imported (a function of a script or notebook, or of a
+            missing module), saying why.
+    """
+    import importlib
+
+    module, _, name = path.partition(":")
+    where = f"cannot rebuild the run's metric function {path}"
+    if module == "__main__" or "<locals>" in name or "<lambda>" in name:
+        raise ConfigError(f"{where}: define it at the top level of an importable module")
+    try:
+        fn = importlib.import_module(module)
+        for part in name.split("."):
+            fn = getattr(fn, part)
+    except Exception as exc:  # someone else's module, imported by name
+        raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None
+    if not callable(fn):
+        raise ConfigError(f"{where}: not callable")
+    return fn
+
+
+def rebuild_metrics(config: PPOConfig) -> PPOConfig:
+    """``config`` with its recorded metric functions imported (to resume training).
+
+    Raises:
+        ConfigError: one cannot be imported (:func:`import_metric`).
+    """
+    if not any(isinstance(fn, RecordedMetric) for _, fn in config.metrics):
+        return config
+    rebuilt = tuple(
+        (name, import_metric(fn.path) if isinstance(fn, RecordedMetric) else fn)
+        for name, fn in config.metrics
+    )
+    return _replace_unchecked(config, {"metrics": rebuilt})
 
 
 def _is_json(value: Any) -> bool:
@@ -399,9 +500,58 @@ def validate(config: PPOConfig) -> None:
         callable(getattr(c.network, "apply", None)) and callable(getattr(c.network, "init", None))
     ):
         raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
-    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor"):
+    _validate_metrics(c.metrics)
+    for name in ("eval_every", "periodic_eval_episodes"):
+        value = getattr(c, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
+    if c.periodic_eval_episodes == 0 or c.periodic_eval_episodes > 1024:
+        raise ConfigError(
+            f"periodic_eval_episodes must be in [1, 1024], got {c.periodic_eval_episodes}"
+        )
+    if c.keep_best and not c.eval_every:
+        raise ConfigError("keep_best needs eval_every: give the iterations between evaluations")
+    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor", "keep_best"):
         if not isinstance(getattr(c, name), bool):
             raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
+
+
+MAX_CUSTOM_METRICS = 32
+"""Custom metrics per run: a bound for an untrusted config.json (each is a column per
+iteration and run in the stream, metrics.csv and every wave's file)."""
+_METRIC_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_./-]{0,63}")
+RESERVED_METRIC_NAMES = (
+    *METRIC_NAMES,
+    *EVAL_METRICS,
+    "time/fps",
+    "time/elapsed",
+    "seed_index",
+    "iteration",
+    "env_steps",
+)
+"""Column names a custom metric cannot take: the built-in metrics and metrics.csv's index."""
+
+
+def _validate_metrics(metrics: Any) -> None:
+    if not isinstance(metrics, tuple) or not all(
+        isinstance(m, tuple) and len(m) == 2 for m in metrics
+    ):
+        raise ConfigError(f"metrics must be a mapping of name -> function, got {metrics!r}")
+    if len(metrics) > MAX_CUSTOM_METRICS:
+        raise ConfigError(f"metrics holds {len(metrics)} metrics, at most {MAX_CUSTOM_METRICS}")
+    names = [name for name, _ in metrics]
+    for name, fn in metrics:
+        if not isinstance(name, str) or not _METRIC_NAME.fullmatch(name):
+            raise ConfigError(
+                f"metric name {name!r} must be 1-64 letters, digits or _ . / - "
+                "(it becomes a metrics.csv column), e.g. custom/pole_angle"
+            )
+        if name in RESERVED_METRIC_NAMES:
+            raise ConfigError(f"metric name {name!r} is a built-in column; choose another")
+        if names.count(name) > 1:
+            raise ConfigError(f"metric name {name!r} is given twice")
+        if not callable(fn):
+            raise ConfigError(f"metric {name!r} must be a function, got {fn!r}")
 
 
 PRESETS: dict[str, dict] = {
@@ -464,7 +614,8 @@ def field_docs(cls: type = PPOConfig) -> dict[str, str]:
 
 
 def config_fields() -> list[dataclasses.Field]:
-    """The fields of :class:`PPOConfig` the command line sets (all but ``network``), in
+    """The fields of :class:`PPOConfig` the command line sets (all but ``network`` and
+    ``metrics``), in
     declaration order."""
     return [f for f in dataclasses.fields(PPOConfig) if f.metadata.get("cli", True)]
 
@@ -475,6 +626,7 @@ __all__ = [
     "TRACED_FIELDS",
     "ConfigError",
     "PPOConfig",
+    "RecordedMetric",
     "config_fields",
     "field_docs",
     "preset",

@@ -7,6 +7,9 @@ changes what is learned. Everything describes one run; arrays are as in ``ppo.py
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -30,6 +33,9 @@ METRIC_NAMES = (
     "train/learning_rate",
 )
 """Per-iteration metrics computed in the compiled step (``time/fps`` is added by the host)."""
+EVAL_METRICS = ("eval/mean_return", "eval/min_return")
+"""The columns a periodic evaluation (``PPOConfig.eval_every``) adds: NaN on the iterations
+between evaluations."""
 
 
 @struct.dataclass
@@ -169,10 +175,39 @@ def iteration_metrics(
     }
 
 
+def custom_metrics(
+    metrics: tuple[tuple[str, Callable[..., Any]], ...],
+    rollout: Any,
+    batch: Any,
+    losses: dict[str, Array],
+) -> dict[str, Array]:
+    """A user's own metrics (``PPOConfig.metrics``) of one iteration, as float32 scalars.
+
+    Args:
+        metrics: ``(name, fn)`` pairs; each ``fn(rollout, batch, losses)`` returns a scalar.
+        rollout: the iteration's :class:`~jaxcart.core.ppo.Transition`, fields
+            ``[num_steps, num_envs, ...]`` (time-major).
+        batch: the training :class:`~jaxcart.core.ppo.Batch`, fields ``[batch_size, ...]``.
+        losses: the loss terms of every gradient step, ``[update_epochs, num_minibatches]``.
+
+    Raises:
+        ValueError: a function returned something other than one number.
+    """
+    out = {}
+    for name, fn in metrics:
+        value = jnp.asarray(fn(rollout, batch, losses))
+        if value.size != 1:
+            raise ValueError(f"metric {name!r} must return a scalar, got shape {value.shape}")
+        out[name] = value.reshape(()).astype(jnp.float32)
+    return out
+
+
 __all__ = [
     "EPISODE_WINDOW",
+    "EVAL_METRICS",
     "METRIC_NAMES",
     "EpisodeBuffer",
+    "custom_metrics",
     "explained_variance",
     "iteration_metrics",
     "update_episode_buffer",

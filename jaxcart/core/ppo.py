@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
@@ -36,7 +36,12 @@ from flax import struct
 
 from jaxcart.core import cartpole, physics
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.metrics import EpisodeBuffer, iteration_metrics, update_episode_buffer
+from jaxcart.core.metrics import (
+    EpisodeBuffer,
+    custom_metrics,
+    iteration_metrics,
+    update_episode_buffer,
+)
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.tricks import (
     categorical_entropy,
@@ -63,6 +68,7 @@ class RunnerState:
     episodes: EpisodeBuffer  # the last finished episodes, for the logged means
     key: Array
     diverged_at: Array  # int32: -1 while healthy, else the (1-based) iteration that went non-finite
+    best: Any = None  # with keep_best: the best policy so far (core.evaluation.BestPolicy)
 
 
 class Transition(NamedTuple):
@@ -401,10 +407,12 @@ def finish_iteration(
     params: dict,
     opt_state: optax.OptState,
     losses: dict[str, Array],
+    config: PPOConfig,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """The iteration after the update: the runner with the updated ``params`` and
     ``opt_state`` and its episode window, and the iteration's metrics (``losses``: the
-    update's loss terms, ``[update_epochs, num_minibatches]`` each)."""
+    update's loss terms, ``[update_epochs, num_minibatches]`` each), the config's own
+    ``metrics`` among them."""
     done = rollout.terminated | rollout.truncated
     episodes = update_episode_buffer(
         runner.episodes, done, rollout.episode_return, rollout.episode_length
@@ -418,6 +426,8 @@ def finish_iteration(
         batch.returns,
         learning_rate,
     )
+    if config.metrics:  # nothing is added to the program without them
+        metrics |= custom_metrics(config.metrics, rollout, batch, losses)
     runner = runner.replace(params=params, opt_state=opt_state, episodes=episodes)
     return runner, metrics
 
@@ -440,7 +450,7 @@ def train_iteration(
 
     Returns:
         The next runner state and scalar metrics named as in
-        :data:`~jaxcart.core.metrics.METRIC_NAMES`.
+        :data:`~jaxcart.core.metrics.METRIC_NAMES`, then ``config.metric_names``.
     """
     runner, rollout, batch, update_key, learning_rate = prepare_update(
         runner, config, iteration, env_params
@@ -448,4 +458,6 @@ def train_iteration(
     params, opt_state, losses = update_epochs(
         runner.params, runner.opt_state, batch, update_key, learning_rate, config
     )
-    return finish_iteration(runner, rollout, batch, learning_rate, params, opt_state, losses)
+    return finish_iteration(
+        runner, rollout, batch, learning_rate, params, opt_state, losses, config
+    )

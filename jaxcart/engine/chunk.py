@@ -20,10 +20,12 @@ import numpy as np
 
 from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.metrics import EPISODE_WINDOW, METRIC_NAMES, EpisodeBuffer
+from jaxcart.core.evaluation import BestPolicy, periodic_evaluation
+from jaxcart.core.metrics import EPISODE_WINDOW, EpisodeBuffer
 from jaxcart.core.ppo import (
     RunnerState,
     finish_iteration,
+    make_network,
     make_optimizer,
     prepare_update,
     train_iteration,
@@ -73,6 +75,13 @@ def initial_runners(
         ),
         key=keys,
         diverged_at=np.full((num_runs,), -1, np.int32),
+        best=None
+        if not config.keep_best
+        else BestPolicy(  # none yet: score -inf
+            params=jax.tree.map(np.copy, params),
+            score=np.full((num_runs,), -np.inf, np.float32),
+            iteration=np.zeros((num_runs,), np.int32),
+        ),
     )
 
 
@@ -161,7 +170,7 @@ def grouped_iteration(
         before.params, before.opt_state, batch, update_key, learning_rate, config
     )
     new, metrics = jax.vmap(finish_iteration)(
-        before, rollout, batch, learning_rate, params, opt_state, losses
+        before, rollout, batch, learning_rate, params, opt_state, losses, config
     )
     return jax.vmap(guard_divergence, in_axes=(0, 0, 0, None))(runners, new, metrics, iteration)
 
@@ -173,6 +182,33 @@ def env_axes(env_params: cartpole.EnvParams) -> cartpole.EnvParams | None:
     if not any(jnp.ndim(v) for v in jax.tree.leaves(env_params)):
         return None
     return jax.tree.map(lambda v: 0 if jnp.ndim(v) else None, env_params)
+
+
+def evaluate_runs(
+    runners: RunnerState,
+    metrics: dict[str, Array],
+    config: PPOConfig,
+    iteration: Array,
+    env_params: cartpole.EnvParams,
+) -> tuple[RunnerState, dict[str, Array]]:
+    """:func:`~jaxcart.core.evaluation.periodic_evaluation` of every run ``[R]`` after an
+    iteration: its metrics join the iteration's, its best policy the runners."""
+    network = make_network(config)
+
+    def one_run(runner: RunnerState, run_config: PPOConfig, run_env: cartpole.EnvParams):
+        return periodic_evaluation(
+            runner.params,
+            runner.best,
+            runner.diverged_at < 0,
+            run_config,
+            iteration,
+            network,
+            run_env,
+        )
+
+    axes = (0, 0, env_axes(env_params))  # each run on its own physics, when they differ
+    best, evaluated = jax.vmap(one_run, in_axes=axes)(runners, config, env_params)
+    return runners.replace(best=best), {**metrics, **evaluated}
 
 
 def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
@@ -235,13 +271,16 @@ def train_chunk(
         runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, env_axes(env_params)))
 
     def run(runners: RunnerState, iteration: Array):
-        return runs_iteration(runners, config, iteration, env_params)
+        runners, metrics = runs_iteration(runners, config, iteration, env_params)
+        if config.eval_every:  # nothing is added to the program without it
+            runners, metrics = evaluate_runs(runners, metrics, config, iteration, env_params)
+        return runners, metrics
 
     def skip(runners: RunnerState, iteration: Array):
         # NaN metrics of the dtypes an iteration produces (float32, or float64 under x64)
         shapes = jax.eval_shape(run, runners, iteration)[1]
         return runners, {
-            name: jnp.full((num_runs,), jnp.nan, shapes[name].dtype) for name in METRIC_NAMES
+            name: jnp.full((num_runs,), jnp.nan, shape.dtype) for name, shape in shapes.items()
         }
 
     def body(runners: RunnerState, offset: Array):

@@ -149,7 +149,13 @@ def next_chunk_length(capacity: int, previous: int, seconds: float, target: floa
 
 
 METRIC_COLUMNS = (*METRIC_NAMES, "time/fps", "time/elapsed")
-"""Every per-iteration metric a run records, leaves ``[iterations, R]``."""
+"""Every per-iteration metric a run of the default config records, leaves ``[iterations, R]``."""
+
+
+def metric_columns(config: PPOConfig) -> tuple[str, ...]:
+    """Every per-iteration metric a run of ``config`` records: :data:`METRIC_COLUMNS`, then
+    the periodic evaluation's and the config's own metrics (``config.extra_metric_names``)."""
+    return (*METRIC_COLUMNS, *config.extra_metric_names)
 
 
 @dataclass
@@ -245,7 +251,7 @@ def initial_state(
         config=config.per_run(num_runs),
         iteration=0,
         elapsed=0.0,
-        metrics={k: np.zeros((0, num_runs), np.float32) for k in METRIC_COLUMNS},
+        metrics={k: np.zeros((0, num_runs), np.float32) for k in metric_columns(config)},
         chunk_size=chunk_size or default_chunk_size(config.num_iterations, num_runs),
         # several processes must run the same chunk lengths: they keep fixed chunks
         chunk_seconds=None if chunk_size or jax.process_count() > 1 else CHUNK_SECONDS,
@@ -387,7 +393,8 @@ class _ChunkLoop:
         # every chunk's metrics when kept (after the state's own, if it has any: a state
         # loaded from a checkpoint has none, they are in its run directory's stream); else
         # none (the caller's on_chunk has them)
-        empty = {k: np.zeros((0, num_runs), np.float32) for k in METRIC_COLUMNS}
+        self.columns = metric_columns(config)
+        empty = {k: np.zeros((0, num_runs), np.float32) for k in self.columns}
         self.chunks = [state.metrics or empty] if keep else None
         self.previous_elapsed = state.elapsed  # time/elapsed of the last iteration recorded
         self.start = time.perf_counter()
@@ -429,7 +436,7 @@ class _ChunkLoop:
     def _snapshot(self, runners: RunnerState, done: int, now: float) -> TrainState:
         """The state of the real runs (device arrays with the padding sliced off)."""
         real = functools.partial(jax.tree.map, lambda x: x[: self.num_runs])
-        metrics = _concat(self.chunks) if self.chunks is not None else {}
+        metrics = _concat(self.chunks, self.columns) if self.chunks is not None else {}
         return TrainState(
             real(runners),
             real(self.config),
@@ -544,5 +551,5 @@ def rolled_back(start: RunnerState, end: RunnerState) -> RunnerState:
     return roll_back_diverged(start, end)
 
 
-def _concat(chunks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    return {k: np.concatenate([c[k] for c in chunks]) for k in METRIC_COLUMNS}
+def _concat(chunks: list[dict[str, np.ndarray]], columns: tuple[str, ...]) -> dict[str, np.ndarray]:
+    return {k: np.concatenate([c[k] for c in chunks]) for k in columns}

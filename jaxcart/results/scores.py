@@ -57,9 +57,12 @@ class Entry:
         return stats.first_at_least(best, x, stats.MAX_RETURN)
 
 
-def read_evaluation(run: RunCurves, required: bool) -> tuple[np.ndarray | None, int | None]:
-    """``(mean greedy return per seed [num_seeds], solved seeds)`` from ``evaluation.json``;
-    ``(None, None)`` when it is missing and not ``required``.
+def read_evaluation(
+    run: RunCurves, required: bool, policy: str = "final"
+) -> tuple[np.ndarray | None, int | None]:
+    """``(mean greedy return per seed [num_seeds], solved seeds)`` from ``evaluation.json``,
+    of the final policies or (``policy="best"``) of the best ones a run kept; ``(None,
+    None)`` when it is missing and not ``required``.
 
     Raises:
         RunDirError: missing (when required), unreadable or without per-seed Gymnasium means.
@@ -74,24 +77,28 @@ def read_evaluation(run: RunCurves, required: bool) -> tuple[np.ndarray | None, 
         )
     try:
         seeds = reader.read_evaluation(run.path)["seeds"]
+        kept = all(isinstance(s.get("best"), dict) for s in seeds)
+        seeds = [s["best"] for s in seeds] if policy == "best" and kept else seeds
         means = np.array([float(s["gymnasium_mean"]) for s in seeds])
         solved = sum(bool(s.get("solved")) for s in seeds)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         detail = f"no {exc} entry" if isinstance(exc, KeyError) else str(exc)
         raise RunDirError(f"{path} is corrupted: {detail}") from None
+    if policy == "best" and not kept:
+        raise RunDirError(reader.no_best_policy(run.path))
     if means.size == 0 or not np.isfinite(means).all():
         raise RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
     return means, solved
 
 
-def make_entry(run: RunCurves, score: Score) -> Entry:
+def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
     """A run scored by ``score``.
 
     Raises:
         RunDirError: an unusable ``evaluation.json``; CompareError: the run lacks what the
             score needs (e.g. it ends before ``return-at``'s steps).
     """
-    means, solved = read_evaluation(run, required=score.name == "eval")
+    means, solved = read_evaluation(run, score.name == "eval" or policy == "best", policy)
     try:
         scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps)
     except ValueError as exc:
@@ -104,6 +111,7 @@ def load_entries(
     run_dirs: Sequence[str | os.PathLike],
     baseline: str | os.PathLike | None = None,
     score: Score = summary.EVAL,
+    policy: str = "final",
 ) -> tuple[list[Entry], int]:
     """The runs to compare (sweeps expanded) and the baseline's index among them.
 
@@ -128,7 +136,7 @@ def load_entries(
         else:
             runs = load_runs([baseline, *run_dirs])
     _refuse_repeats(runs)
-    return [make_entry(run, score) for run in runs], index
+    return [make_entry(run, score, policy) for run in runs], index
 
 
 def _refuse_repeats(runs: list[RunCurves]) -> None:
@@ -166,6 +174,7 @@ def load_arms(
     arms: Sequence[tuple[str, Sequence[str | os.PathLike]]],
     baseline: str | None = None,
     score: Score = summary.EVAL,
+    policy: str = "final",
 ) -> tuple[list[Entry], Arms]:
     """The runs of every arm (arm-major), baseline arm first.
 
@@ -192,7 +201,7 @@ def load_arms(
             raise CompareError(f"--arm run {d} is a sweep; name one of its combinations")
     runs = load_runs(dirs)
     _refuse_repeats(runs)
-    entries = [make_entry(run, score) for run in runs]
+    entries = [make_entry(run, score, policy) for run in runs]
     k = counts.pop()
     index = [[a * k + t for t in range(k)] for a in range(len(arms))]
     return entries, Arms([name for name, _ in arms], index)

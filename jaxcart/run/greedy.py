@@ -7,15 +7,13 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.core import cartpole, physics
 from jaxcart.core.config import PPOConfig, float_dtype
-from jaxcart.core.networks import ActorCritic
+from jaxcart.core.evaluation import greedy_returns
 from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
@@ -208,39 +206,6 @@ def evaluate_gymnasium(
         if constants.max_episode_steps is not None and steps >= constants.max_episode_steps:
             alive[:] = False  # TimeLimit: every episode still running is truncated here
     return returns
-
-
-def greedy_returns(
-    params: dict,
-    key: jax.Array,
-    network: Any = None,
-    num_episodes: int = NUM_EVAL_EPISODES,
-    env_params: cartpole.EnvParams | None = None,
-) -> jax.Array:
-    """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able.
-
-    Args:
-        network: the flax actor-critic ``params`` belong to (default: the built-in MLP).
-    """
-    env_params = env_params or cartpole.EnvParams()
-    network = network if network is not None else ActorCritic()
-    obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
-        jax.random.split(key, num_episodes), env_params
-    )
-
-    def one_step(carry, _):
-        obs, state, alive, total = carry
-        action = jnp.argmax(network.apply(params, obs)[0], axis=-1)
-        obs, state, reward, terminated, truncated = jax.vmap(
-            cartpole.step_env, in_axes=(0, 0, None)
-        )(state, action, env_params)
-        total = total + jnp.where(alive, reward, 0.0)
-        alive = alive & ~(terminated | truncated)
-        return (obs, state, alive, total), None
-
-    init = (obs, state, jnp.ones((num_episodes,), bool), jnp.zeros((num_episodes,), obs.dtype))
-    (_, _, _, total), _ = jax.lax.scan(one_step, init, None, length=env_params.max_episode_steps)
-    return total
 
 
 def summarize(returns: np.ndarray) -> dict[str, np.ndarray]:

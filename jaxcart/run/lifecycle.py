@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
+from jaxcart.core.config import ConfigError, PPOConfig, float_dtype, rebuild_metrics
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed
 from jaxcart.engine.loop import (
@@ -40,6 +40,7 @@ from jaxcart.engine.loop import (
     TrainState,
     default_chunk_size,
     initial_state,
+    metric_columns,
     train,
 )
 from jaxcart.engine.signals import Stopped, StopRequest
@@ -189,7 +190,7 @@ def _resumable(directory: RunDir, info: dict) -> Run:
     meta = directory.read_checkpoint_meta()
     check_versions(directory.path, (meta or info).get("versions", {}))
     _check_precision(directory.path, info)
-    config = info.pop("config")
+    config = rebuild_metrics(info.pop("config"))  # a run trains only with its own metrics
     if meta and meta["iteration"] >= config.num_iterations and directory.finished():
         raise RunFinished(
             f"{directory.path} already finished all {config.num_iterations} iterations; "
@@ -494,7 +495,8 @@ def wave_start_state(
                 f"{run.directory.checkpoint_path} is corrupted: chunk_size {saved.chunk_size} "
                 f"is more than the {most} iterations a chunk of this run can run"
             )
-        run.directory.open_metrics(len(runs), saved.iteration)  # rows after it are cut
+        columns = metric_columns(run.config)
+        run.directory.open_metrics(len(runs), saved.iteration, columns)  # rows after it are cut
         return dataclasses.replace(saved, chunk_seconds=adapt)
     configs = jax.tree.map(lambda x: x[runs.start : runs.stop], run_configs(run))
     fresh = initial_state(
@@ -507,7 +509,7 @@ def wave_start_state(
         seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
         on_progress=on_progress,
     )
-    run.directory.open_metrics(len(runs), 0)
+    run.directory.open_metrics(len(runs), 0, metric_columns(run.config))
     save_state(run, fresh, wave)
     return dataclasses.replace(fresh, chunk_seconds=adapt)
 
@@ -670,6 +672,11 @@ def _one_wave(
             run.directory.write_metrics(run.config.batch_size)
         return None
     params = distributed.gather(result.params)
+    best_params = best = None
+    if run.config.keep_best:
+        kept = distributed.gather(result.state.runners.best)
+        best_params = files.flatten(kept.params)
+        best = {"best_iteration": np.asarray(kept.iteration), "best_score": np.asarray(kept.score)}
     evaluation = Evaluation(
         options.eval_episodes, np.zeros((len(runs), 0)), np.zeros((len(runs), 0)), 0.0
     )
@@ -677,6 +684,9 @@ def _one_wave(
         try:
             stop.check()
             evaluation = evaluate_wave(run, params, options.eval_episodes, runs, stop)
+            if best is not None:  # the Gymnasium verdict of the best policies too
+                verdict = evaluate_wave(run, kept.params, options.eval_episodes, runs, stop)
+                best["best_gym_returns"] = verdict.gym_returns
         except Stopped:
             return None
     timing = {
@@ -693,6 +703,8 @@ def _one_wave(
         evaluation.gym_returns,
         evaluation.jax_returns,
         timing,
+        best_params,
+        best,
     )
 
 
@@ -745,4 +757,6 @@ def _write_outputs(run: Run, blocks: list, episodes: int, timing: dict) -> None:
         where = c if run.grid.is_sweep else None
         batch = run.config.batch_size
         span = range(runs.start, runs.stop)
-        run.directory.write_outputs(where, blocks, span, episodes, timing, batch, record)
+        run.directory.write_outputs(
+            where, blocks, span, episodes, timing, batch, record, best=run.config.keep_best
+        )

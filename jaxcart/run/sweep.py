@@ -88,7 +88,8 @@ def parse_sweep(specs: list[str]) -> dict[str, list[float]]:
         elif name not in TRACED_FIELDS:
             raise ConfigError(
                 f"cannot sweep {name!r}: only float hyperparameters run in one program "
-                f"({', '.join(TRACED_FIELDS)})"
+                f"({', '.join(TRACED_FIELDS)}); num_envs, num_steps, minibatch_size, "
+                "update_epochs and hidden_sizes sweep as shape groups, one program each"
             )
         if name in sweep:
             raise ConfigError(f"--sweep {name} given twice; put all its values in one option")

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.core.config import PPOConfig
-from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
+from jaxcart.core.config import MAX_CUSTOM_METRICS, PPOConfig
+from jaxcart.engine.loop import METRIC_COLUMNS, TrainState, metric_columns
 from jaxcart.rundir import files, layout, manifest
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_STATE
@@ -31,6 +31,7 @@ from jaxcart.rundir.reader import (
     MAX_RUNS,
     bounded_int,
     finite_number,
+    no_best_policy,
     params_dtype,
     params_headers,
     read_run_config,
@@ -60,7 +61,7 @@ def save_checkpoint(
         "iteration": state.iteration,
         "elapsed": state.elapsed,
         "chunk_size": state.chunk_size,
-        "metrics_columns": list(METRIC_COLUMNS),
+        "metrics_columns": list(metric_columns(state.config)),
     }
     files.save_tree(path, state_arrays(state), meta, on_digest)
     if isinstance(path, files.Entry):
@@ -94,12 +95,23 @@ def read_checkpoint_meta(path: files.Target) -> dict:
         "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
         "versions": isinstance(meta.get("versions", {}), dict)
         and all(isinstance(v, str) for v in meta.get("versions", {}).values()),
-        "metrics_columns": meta.get("metrics_columns") == list(METRIC_COLUMNS),
+        "metrics_columns": _known_columns(meta.get("metrics_columns")),
     }
     bad = [name for name, ok in checks.items() if not ok]
     if bad:
         raise RunDirError(f"checkpoint {path} is corrupted: {', '.join(bad)} out of range")
     return meta
+
+
+def _known_columns(columns: object) -> bool:
+    """The built-in columns, then at most :data:`MAX_CUSTOM_METRICS` names of a run's own."""
+    n = len(METRIC_COLUMNS)
+    return (
+        isinstance(columns, list)
+        and columns[:n] == list(METRIC_COLUMNS)
+        and len(columns) <= n + MAX_CUSTOM_METRICS
+        and all(isinstance(c, str) for c in columns)
+    )
 
 
 def load_checkpoint(
@@ -120,6 +132,8 @@ def load_checkpoint(
     from jaxcart.engine.loop import TrainState
 
     meta = read_checkpoint_meta(path)
+    if meta["metrics_columns"] != list(metric_columns(template.config)):
+        raise RunDirError(f"checkpoint {path} records other metrics than this run's config.json")
     expected = _expected_headers(template, num_runs)
     limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
     found = files.read_headers(path, max_bytes=limit + (1 << 20))
@@ -176,7 +190,9 @@ class CheckpointRuns:
         return f"{where}: the run did not finish"
 
 
-def read_checkpoint_runs(run_dir: files.Where, info: dict | None = None) -> CheckpointRuns:
+def read_checkpoint_runs(
+    run_dir: files.Where, info: dict | None = None, policy: str = "final"
+) -> CheckpointRuns:
     """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
     optimizer or env state is restored), refusing crafted files: the metadata must match the
     run's ``config.json``, every array header is checked before anything is read, the whole
@@ -186,10 +202,10 @@ def read_checkpoint_runs(run_dir: files.Where, info: dict | None = None) -> Chec
         RunDirError: no usable checkpoint.
     """
     with files.opened(run_dir) as directory:
-        return _read_checkpoint_runs(directory, info or read_run_config(directory))
+        return _read_checkpoint_runs(directory, info or read_run_config(directory), policy)
 
 
-def _read_checkpoint_runs(directory: files.Dir, info: dict) -> CheckpointRuns:
+def _read_checkpoint_runs(directory: files.Dir, info: dict, policy: str) -> CheckpointRuns:
     config = info["config"]
     if files.refuse_link(directory / layout.CHECKPOINT_FILE) is None:
         raise RunDirError(
@@ -207,6 +223,10 @@ def _read_checkpoint_runs(directory: files.Dir, info: dict) -> CheckpointRuns:
     ):
         raise RunDirError(f"{path} does not belong to this run's config.json")
     params_prefix = layout.CHECKPOINT_PARAMS
+    if policy == "best":  # the best policies so far (keep_best)
+        if not config.keep_best:
+            raise RunDirError(no_best_policy(directory))
+        params_prefix = layout.CHECKPOINT_BEST_PARAMS
     headers = params_headers(config, runs, params_dtype(info))
     expected = {params_prefix + name: header for name, header in headers.items()}
     limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64
@@ -218,7 +238,7 @@ def _read_checkpoint_runs(directory: files.Dir, info: dict) -> CheckpointRuns:
     files.check_finite(params, path)
     stream_path = directory / layout.METRICS_STREAM_FILE
     digest = meta.get(STREAM_DIGEST_KEY)
-    streamed = read_stream(stream_path, METRIC_COLUMNS, runs, iteration, digest)
+    streamed = read_stream(stream_path, metric_columns(config), runs, iteration, digest)
     metrics = {name: a.astype(float) for name, a in streamed.items()}
     return CheckpointRuns(files.unflatten(params), metrics, iteration, config.num_iterations)
 

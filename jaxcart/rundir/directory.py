@@ -268,15 +268,16 @@ class RunDir:
         )
         self.checkpoint_meta = {**meta, "iteration": state.iteration}
 
-    def open_metrics(self, runs: int, rows: int) -> None:
-        """:attr:`stream` for the wave about to train (``runs`` runs) cut to ``rows`` rows
+    def open_metrics(self, runs: int, rows: int, columns: tuple[str, ...] = METRIC_COLUMNS) -> None:
+        """:attr:`stream` of ``columns`` (the run's :func:`~jaxcart.engine.loop.metric_columns`)
+        for the wave about to train (``runs`` runs) cut to ``rows`` rows
         (the checkpoint's iterations; 0: a new wave), which must match the digest the
         checkpoint recorded. Only the main process keeps one."""
         self.stream.close()
         if self.main_process:
             expected = (self.checkpoint_meta or {}).get(STREAM_DIGEST_KEY) if rows else None
             entry = self.dir / layout.METRICS_STREAM_FILE
-            self.stream = MetricsStream(entry, METRIC_COLUMNS, runs, rows, expected)
+            self.stream = MetricsStream(entry, columns, runs, rows, expected)
 
     def load_checkpoint(self, template: TrainState, num_runs: int) -> TrainState:
         """The checkpoint's state of ``num_runs`` runs, in the structure of ``template``."""
@@ -291,7 +292,12 @@ class RunDir:
         """Removes a finished run's top-level outputs before it is trained further, so that
         until the extension finishes every reader says the run is unfinished (and reads its
         checkpoint) instead of presenting the old outputs as the run's."""
-        names = (layout.SWEEP_FILE, layout.EVALUATION_FILE, layout.PARAMS_FILE)
+        names = (
+            layout.SWEEP_FILE,
+            layout.EVALUATION_FILE,
+            layout.PARAMS_FILE,
+            layout.PARAMS_BEST_FILE,
+        )
         for name in names:
             self.dir.unlink(name)
         self.manifest.forget(*names)
@@ -344,9 +350,11 @@ class RunDir:
         timing: dict,
         batch_size: int,
         record: tuple[dict, PPOConfig] | None = None,
+        best: bool = False,
     ) -> None:
         """metrics.csv, params.npz and evaluation.json of ``runs`` from the blocks: in the run
-        directory, or in combination ``combo``'s, with its own config.json ``record``."""
+        directory, or in combination ``combo``'s, with its own config.json ``record``; with
+        ``best``, params_best.npz too."""
         directory, manifest = self.dir, self.manifest  # never recreated once deleted
         if combo is not None:
             directory = self.dir.sub(layout.combo_dir(".", combo).name, create=True)
@@ -361,6 +369,11 @@ class RunDir:
             manifest.write(
                 layout.PARAMS_FILE, lambda e, d: outputs.write_params(e, blocks, runs, d)
             )
+            if best:
+                manifest.write(
+                    layout.PARAMS_BEST_FILE,
+                    lambda e, d: outputs.write_params(e, blocks, runs, d, best=True),
+                )
             manifest.write(
                 layout.EVALUATION_FILE,
                 lambda e, d: outputs.write_evaluation(e, blocks, runs, episodes, timing, d),

@@ -40,6 +40,10 @@ metrics so far moved out of it, into ``metrics.stream``)."""
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.csv"
 PARAMS_FILE = "params.npz"
+PARAMS_BEST_FILE = "params_best.npz"
+"""Every seed's best policy by the periodic evaluation (``PPOConfig.keep_best``)."""
+POLICY_FILES = {"final": PARAMS_FILE, "best": PARAMS_BEST_FILE}
+"""Which parameters a reader takes (``--policy final|best``)."""
 EVALUATION_FILE = "evaluation.json"
 SWEEP_FILE = "sweep.json"
 CHECKPOINT_FILE = "checkpoint.npz"
@@ -50,6 +54,10 @@ MANIFEST_FILE = "manifest.json"
 WAVES_DIR = "waves"
 SB3_PLAN_FILE = "sb3-plan.json"
 SB3_SEEDS_DIR = "sb3-seeds"
+GROUPS_FILE = "groups.json"
+"""A structural sweep's shape groups (each a run directory ``group-000/``, ...) and their
+combinations ranked together."""
+GROUP_GLOB = "group-[0-9][0-9][0-9]*"
 COMBO_GLOB = "combo-[0-9][0-9][0-9]*"
 """Matches the combination directories of a sweep (``combo-000``, ..., ``combo-1000``)."""
 DIGEST_KEY = "digest"
@@ -66,7 +74,10 @@ METRICS_INDEX_COLUMNS = ("seed_index", "iteration", "env_steps")
 CHECKPOINT_STATE = "state/"
 CHECKPOINT_PARAMS = "state/runners/params/"
 """Where a checkpoint keeps the parameters, leaves ``[R, ...]``."""
+CHECKPOINT_BEST_PARAMS = "state/runners/best/params/"
+"""Where a checkpoint keeps the best policies so far (``PPOConfig.keep_best``)."""
 BLOCK_PARAMS = "params/"
+BLOCK_BEST_PARAMS = "params_best/"
 BLOCK_METRICS = "metrics/"
 
 CURVES_FILE = "curves.png"
@@ -83,6 +94,16 @@ compared seed's learning curve, ``run,seed,env_steps,ep_rew_mean``)."""
 def combo_dir(sweep_dir: str | os.PathLike, combo: int) -> Path:
     """The run directory of one combination of a sweep."""
     return Path(sweep_dir) / f"combo-{combo:03d}"
+
+
+def group_dir(sweep_dir: str | os.PathLike, group: int) -> Path:
+    """The run directory of one shape group of a structural sweep."""
+    return Path(sweep_dir) / f"group-{group:03d}"
+
+
+def is_groups(run_dir: str | os.PathLike) -> bool:
+    """Whether ``run_dir`` is a structural sweep: shape groups, each a run directory."""
+    return present(Path(run_dir) / GROUPS_FILE)
 
 
 def wave_file(run_dir: str | os.PathLike, wave: int) -> Path:

@@ -20,10 +20,16 @@ import numpy as np
 
 from jaxcart.core.solved import SOLVED_DEFINITION, is_solved
 from jaxcart.rundir import files, layout
-from jaxcart.rundir.layout import BLOCK_METRICS, BLOCK_PARAMS
+from jaxcart.rundir.layout import BLOCK_BEST_PARAMS, BLOCK_METRICS, BLOCK_PARAMS
 
 Digest = Callable[[str], None] | None
 """Called with a finished file's digest before it is renamed into place (its manifest)."""
+
+
+BEST_ARRAYS = ("best_gym_returns", "best_iteration", "best_score")
+"""What a block of a run that keeps its best policies holds of them: their Gymnasium returns
+``[n, episodes]``, the (1-based) iteration each was evaluated at and its eval/mean_return
+``[n]``."""
 
 
 @dataclass
@@ -39,9 +45,13 @@ class Block:
     gym_returns: np.ndarray  # [n, episodes]
     jax_returns: np.ndarray  # [n, episodes]
     timing: dict[str, float]
+    best_params: dict[str, np.ndarray] | None = None  # keep_best's, flattened -> [n, ...]
+    best: dict[str, np.ndarray] | None = None  # keep_best's BEST_ARRAYS
 
     def save(self, path: files.Target) -> None:
         arrays = {BLOCK_PARAMS + k: v for k, v in self.params.items()}
+        arrays |= {BLOCK_BEST_PARAMS + k: v for k, v in (self.best_params or {}).items()}
+        arrays |= self.best or {}
         arrays |= {BLOCK_METRICS + k: np.asarray(v) for k, v in self.metrics.items()}
         arrays |= {
             "diverged_at": self.diverged_at,
@@ -67,6 +77,8 @@ class Block:
             arrays["gym_returns"],
             arrays["jax_returns"],
             timing,
+            take(BLOCK_BEST_PARAMS) or None,
+            {k: arrays[k] for k in BEST_ARRAYS if k in arrays} or None,
         )
 
 
@@ -86,20 +98,20 @@ def overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
             yield block, take
 
 
-def _param_slices(blocks: list, runs: range, name: str) -> Iterator[np.ndarray]:
-    """One parameter array of each block that holds some of ``runs``, sliced to them; a
-    block file is read for that array alone."""
+def _param_slices(blocks: list, runs: range, name: str, best: bool = False) -> Iterator[np.ndarray]:
+    """One parameter array of each block that holds some of ``runs``, sliced to them (the
+    best policies' with ``best``); a block file is read for that array alone."""
     for item in blocks:
         if isinstance(item, Block):
             take = _overlap(item.start, item.stop, runs)
             if take is not None:
-                yield item.params[name][take]
+                yield (item.best_params if best else item.params)[name][take]
             continue
         meta = files.read_meta(item)
         take = _overlap(int(meta["start"]), int(meta["stop"]), runs)
         if take is not None:
             with files.open_tree(item) as raw, np.load(raw, allow_pickle=False) as data:
-                yield data[BLOCK_PARAMS + name][take]
+                yield data[(BLOCK_BEST_PARAMS if best else BLOCK_PARAMS) + name][take]
 
 
 def metrics_csv_header(names: list[str]) -> list[str]:
@@ -147,9 +159,12 @@ def write_blocks_metrics_csv(
             writer.writerows(metrics_csv_rows(block.metrics, batch_size, first, take))
 
 
-def write_params(path: files.Target, blocks: list, runs: range, on_digest: Digest = None) -> None:
-    """``params.npz`` for ``runs``: each array's header for the whole run, then its blocks'
-    bytes in order (a leading-axis concatenation), streamed into place."""
+def write_params(
+    path: files.Target, blocks: list, runs: range, on_digest: Digest = None, best: bool = False
+) -> None:
+    """``params.npz`` for ``runs`` (``params_best.npz`` of the best policies with ``best``):
+    each array's header for the whole run, then its blocks' bytes in order (a leading-axis
+    concatenation), streamed into place."""
     first, _ = next(overlapping(blocks, runs))
     with (
         files.atomic_file(path, "wb", on_digest) as out,
@@ -164,7 +179,7 @@ def write_params(path: files.Target, blocks: list, runs: range, on_digest: Diges
                     "shape": shape,
                 }
                 np.lib.format.write_array_header_1_0(f, header)
-                for part in _param_slices(blocks, runs, name):
+                for part in _param_slices(blocks, runs, name, best):
                     f.write(np.ascontiguousarray(part).tobytes())
 
 
@@ -177,7 +192,7 @@ def write_evaluation(
     on_digest: Digest = None,
 ) -> None:
     """``evaluation.json`` for ``runs``: per-seed returns and solved flags, streamed."""
-    solved_total = 0
+    solved_total = best_solved = 0
     with files.atomic_file(path, "w", on_digest) as f:
         definition = json.dumps(SOLVED_DEFINITION.format(episodes=episodes))
         head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
@@ -201,7 +216,28 @@ def write_evaluation(
                     "final_ep_rew_mean": float(final[s]),
                     "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
                 }
+                if block.best is not None:
+                    seed |= _best_entry(block.best, take, s)
+                    best_solved += int(seed["best"]["solved"])
                 f.write(sep + "    " + json.dumps(seed))
                 sep = ",\n"
         tail = {"solved_seeds": solved_total, **extra}
+        if any(block.best is not None for block, _ in overlapping(blocks, runs)):
+            tail = {"solved_seeds": solved_total, "best_solved_seeds": best_solved, **extra}
         f.write("\n  ],\n" + json.dumps(tail, indent=2)[2:] + "\n")
+
+
+def _best_entry(best: dict[str, np.ndarray], take: slice, s: int) -> dict:
+    """A seed's best policy in ``evaluation.json``: its Gymnasium verdict and where it was."""
+    g = best["best_gym_returns"][take][s]
+    iteration = int(best["best_iteration"][take][s])
+    return {
+        "best": {
+            "iteration": iteration if iteration > 0 else None,
+            "eval_mean_return": float(best["best_score"][take][s]) if iteration > 0 else None,
+            "gymnasium_returns": g.tolist(),
+            "gymnasium_mean": float(g.mean()),
+            "gymnasium_min": float(g.min()),
+            "solved": bool(is_solved(g)),
+        }
+    }

@@ -200,11 +200,15 @@ class RunParams:
     evaluation uses (:func:`jaxcart.rundir.reader.run_env_params`)."""
 
 
-def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> RunParams:
+def run_params(
+    run_dir: str | os.PathLike, combination: int | None = None, policy: str = "final"
+) -> RunParams:
     """Every seed's parameters of a run directory: ``params.npz`` when the run finished,
     else its checkpoint (:attr:`RunParams.note` says so). A sweep needs ``combination``
-    (its ``combo-NNN/`` directory, or its runs in the sweep's checkpoint if unfinished). The
-    directory is opened once and every file read through it.
+    (its ``combo-NNN/`` directory, or its runs in the sweep's checkpoint if unfinished).
+    ``policy="best"`` takes each seed's best policy of the periodic evaluation instead
+    (``params_best.npz``; a run trained with ``keep_best``). The directory is opened once
+    and every file read through it.
 
     Raises:
         RunDirError: not a run directory, nothing usable in it, or a bad ``combination``.
@@ -232,16 +236,17 @@ def run_params(run_dir: str | os.PathLike, combination: int | None = None) -> Ru
             num_seeds = int(info.get("num_seeds", 1))
             env = _env_params(run_dir, info, combination)
             if not combos and files.present(directory / layout.PARAMS_FILE):
-                params = reader.load_params(directory)
+                params = reader.load_params(directory, policy)
                 return RunParams(params, info["config"], num_seeds, None, env)
-            saved = read_checkpoint_runs(directory, info)  # unfinished
+            reader.policy_file(policy)
+            saved = read_checkpoint_runs(directory, info, policy)  # unfinished
             first = (combination or 0) * num_seeds
             params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
             config = _combo_config(info, combination)
             return RunParams(params, config, num_seeds, saved.note, env)
     # a finished sweep: each combination is a run directory of its own (a link is refused)
     name = layout.combo_dir(".", int(combination)).name
-    return run_params(files.subdir(run_dir, name))
+    return run_params(files.subdir(run_dir, name), policy=policy)
 
 
 def _env_params(run_dir: Path, info: dict, combination: int | None) -> EnvParams:
@@ -288,6 +293,7 @@ def load_policy(
     combination: int | None = None,
     deterministic: bool = True,
     rng: np.random.Generator | int | None = None,
+    policy: str = "final",
 ) -> Policy:
     """A policy of a trained run, usable in any Gymnasium loop.
 
@@ -299,6 +305,8 @@ def load_policy(
         combination: a sweep's combination (required for a sweep directory).
         deterministic: argmax actions (as evaluated); False samples from the policy.
         rng: the NumPy ``Generator`` (or its seed) that samples when not ``deterministic``.
+        policy: ``"final"`` (the parameters training ended with) or ``"best"`` (each seed's
+            best by the periodic evaluation: a run trained with ``keep_best``).
 
     Returns:
         A callable mapping a float32 observation ``(4,)`` to an ``int`` action, or ``(N, 4)``
@@ -310,7 +318,7 @@ def load_policy(
         obs, _ = env.reset()
         obs, reward, terminated, truncated, _ = env.step(policy(obs))
     """
-    trained = run_params(run_dir, combination)
+    trained = run_params(run_dir, combination, policy)
     stacked = seed_index == "all"
     params = trained.params if stacked else seed_params(trained, seed_index, allow_all=True)
     try:

@@ -254,6 +254,35 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     return combos
 
 
+def group_label(group: dict) -> str:
+    """``{"num_envs": 4, "hidden_sizes": (64, 64)}`` -> ``num_envs=4,hidden_sizes=64x64``."""
+    show = lambda v: "x".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)
+    return ",".join(f"{name}={show(value)}" for name, value in group.items())
+
+
+def read_groups(sweep_dir: str | os.PathLike) -> list[tuple[str, Path]]:
+    """A structural sweep's shape groups (``groups.json``) as ``(label, run directory)``, in
+    group order (``num_envs=4,hidden_sizes=64x64``, ``SWEEP/group-000``).
+
+    Raises:
+        RunDirError: ``groups.json`` unreadable, or a group directory missing or a link.
+    """
+    data = read_json(sweep_dir, layout.GROUPS_FILE)
+    groups = data.get("groups")
+    if not isinstance(groups, list) or not groups or len(groups) > MAX_RUNS:
+        raise RunDirError(f"{Path(sweep_dir) / layout.GROUPS_FILE} is corrupted: no groups")
+    out = []
+    for g, group in enumerate(groups):
+        if not isinstance(group, dict):
+            raise RunDirError(f"{Path(sweep_dir) / layout.GROUPS_FILE} is corrupted: group {g}")
+        values = {k: v for k, v in group.items() if k not in ("group", "directory")}
+        path = Path(sweep_dir) / layout.group_dir(".", g).name
+        if files.refuse_link(path) is None:
+            raise RunDirError(f"{sweep_dir} has no {path.name}/: the sweep did not finish it")
+        out.append((group_label(values), files.subdir(sweep_dir, path.name)))
+    return out
+
+
 def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
     """The run directories of a sweep's combinations, in combination order.
 
@@ -475,23 +504,27 @@ def is_sweep(directory: files.Dir) -> bool:
     )
 
 
-def load_params(run_dir: files.Where) -> dict:
-    """Every seed's parameters from ``params.npz``, leaves ``[num_seeds, ...]``."""
+def load_params(run_dir: files.Where, policy: str = "final") -> dict:
+    """Every seed's parameters from ``params.npz`` (``policy="best"``: the best policies of
+    the periodic evaluation, ``params_best.npz``), leaves ``[num_seeds, ...]``."""
+    name = policy_file(policy)
     with files.opened(run_dir) as directory:
         if is_sweep(directory):
             raise RunDirError(
                 f"{directory} is a sweep: each combination is a run directory of its own, "
                 f"e.g. {layout.combo_dir(directory.path, 0)}"
             )
-        if files.refuse_link(directory / layout.PARAMS_FILE) is None:
-            raise RunDirError(
-                f"{directory} has no {layout.PARAMS_FILE}: the run did not finish saving parameters"
-            )
         info = read_run_config(directory)
+        if files.refuse_link(directory / name) is None:
+            if policy == "best" and not info["config"].keep_best:
+                raise RunDirError(no_best_policy(directory))
+            raise RunDirError(
+                f"{directory} has no {name}: the run did not finish saving parameters"
+            )
         num_seeds = int(info.get("num_seeds", 1))
         expected = params_headers(info["config"], num_seeds, params_dtype(info))
-        path = files.inside(directory, layout.PARAMS_FILE)
-        manifest.verify(directory, layout.PARAMS_FILE, info)
+        path = files.inside(directory, name)
+        manifest.verify(directory, name, info)
         found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
         if found != expected:
             raise RunDirError(
@@ -500,6 +533,25 @@ def load_params(run_dir: files.Where) -> dict:
         arrays, _ = files.load_tree(path)
     files.check_finite(arrays, path)
     return files.unflatten(arrays)
+
+
+def no_best_policy(run_dir: files.Where) -> str:
+    """What to say of a run asked for a best policy it never kept."""
+    return (
+        f"{run_dir}: no best policy was kept (train with --eval-every N --keep-best); "
+        "use its final policy (--policy final)"
+    )
+
+
+def policy_file(policy: str) -> str:
+    """The file of ``policy``: ``final`` (params.npz) or ``best`` (params_best.npz).
+
+    Raises:
+        RunDirError: another name.
+    """
+    if policy not in layout.POLICY_FILES:
+        raise RunDirError(f"policy must be 'final' or 'best', got {policy!r}")
+    return layout.POLICY_FILES[policy]
 
 
 def _difference(found: dict[str, files.Header], expected: dict[str, files.Header]) -> str:
@@ -527,14 +579,19 @@ def check_block(
         RunDirError: a link, torn, crafted, edited or of another shape.
     """
     n = len(runs)
+    headers = params_headers(config, n, dtype).items()
+    prefixes = (layout.BLOCK_PARAMS, layout.BLOCK_BEST_PARAMS)
     expected = {
-        layout.BLOCK_PARAMS + name: header
-        for name, header in params_headers(config, n, dtype).items()
+        prefix + name: header
+        for prefix in prefixes[: 2 if config.keep_best else 1]
+        for name, header in headers
     }
     found = files.read_headers(path, max_bytes=2 * _block_bytes(config, n, episodes))
     found.pop(files.META_KEY, None)
     iterations = config.num_iterations
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
+    if config.keep_best:
+        fixed |= {"best_gym_returns": (n, episodes), "best_iteration": (n,), "best_score": (n,)}
     wrong = [name for name, header in expected.items() if found.get(name) != header]
     wrong += [name for name, shape in fixed.items() if found.get(name, ((), None))[0] != shape]
     wrong += [
@@ -552,11 +609,11 @@ def check_block(
             f"{path} does not match its digest: edited or corrupted; delete it to "
             "train that wave again"
         )
-    files.check_finite({n: a for n, a in arrays.items() if n.startswith(layout.BLOCK_PARAMS)}, path)
+    files.check_finite({n: a for n, a in arrays.items() if n in expected}, path)
 
 
 def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
     """A generous bound on a wave file of ``n`` runs."""
-    params = _bytes(params_headers(config, n))
-    metrics = 64 * config.num_iterations * n * 8
+    params = _bytes(params_headers(config, n)) * (2 if config.keep_best else 1)
+    metrics = (64 + len(config.extra_metric_names)) * config.num_iterations * n * 8
     return params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20)

@@ -32,6 +32,7 @@ class RunCurves:
     evaluation: dict | None  # evaluation.json, None if missing
     combination: dict[str, float] | None = None  # a sweep's combination: its swept values
     note: str | None = None  # "from the checkpoint at iteration 12/40: ..." when unfinished
+    custom_metrics: tuple[str, ...] = ()  # the run's own metrics (config.json's names)
 
 
 def unfinished(run_dir: files.Where) -> bool:
@@ -84,6 +85,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         num_seeds=int(info.get("num_seeds", num_seeds)),
         evaluation=evaluation,
         combination=combination,
+        custom_metrics=info["config"].metric_names,
     )
 
 
@@ -123,6 +125,7 @@ def checkpoint_curves(
                 evaluation=None,
                 combination=combination,
                 note=saved.note,
+                custom_metrics=config.metric_names,
             )
         )
     return runs
@@ -172,7 +175,11 @@ def load_runs(
     runs: list[RunCurves] = []
     for i, path in enumerate(Path(p) for p in run_dirs):
         label = labels[i] if labels is not None else None
-        if layout.is_sweep(path):
+        if layout.is_groups(path):  # a structural sweep: every group's runs, labelled by it
+            for name, group in reader.read_groups(path):
+                prefix = name if label is None else f"{label} {name}"
+                runs += load_runs([group], [prefix])
+        elif layout.is_sweep(path):
             reader.read_run_config(path)  # a clear error for a broken sweep
             for combo in reader.combo_dirs(path):
                 run = load_run(combo)

@@ -1,0 +1,85 @@
+"""Structural sweeps: ``--sweep`` over settings that shape the program trains one program per
+shape group, each group a run directory inside one sweep directory, every combination ranked
+together in ``groups.json``; plot and compare read the sweep directory."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from helpers import assert_same_run_dirs
+
+from jaxcart import train
+from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.run.spec import RunSpec
+from jaxcart.run.structural import group_specs, shape_groups, split_sweep
+from jaxcart.rundir import layout, views
+
+BASE = [  # 2 envs or 4 envs x 32 steps, minibatches of 32: 4 or 8 iterations of 512 steps
+    "--num-steps", "32", "--total-timesteps", "512", "--minibatch-size", "32",
+    "--update-epochs", "2", "--eval-episodes", "2", "--num-seeds", "2", "--quiet",
+]  # fmt: skip
+SWEEP = ["--sweep", "num_envs=2,4", "--sweep", "learning_rate=1e-3,3e-3"]
+
+
+def test_shape_axes_are_split_from_the_float_axes():
+    floats, shapes = split_sweep(["learning_rate=1e-3,3e-3", "hidden_sizes=32x32,64", "num_envs=4"])
+    assert floats == ["learning_rate=1e-3,3e-3"]
+    assert shapes == {"hidden_sizes": [(32, 32), (64,)], "num_envs": [4]}
+    assert shape_groups(shapes) == [
+        {"hidden_sizes": (32, 32), "num_envs": 4},
+        {"hidden_sizes": (64,), "num_envs": 4},
+    ]
+    with pytest.raises(ConfigError, match="'wide' is not a value like 64x64"):
+        split_sweep(["hidden_sizes=wide"])
+    with pytest.raises(ConfigError, match="give distinct values"):
+        split_sweep(["num_envs=4,4"])
+    with pytest.raises(ConfigError, match="group num_steps=32: minibatch_size=64 does not divide"):
+        group_specs(RunSpec(PPOConfig(num_steps=64)), [{"num_steps": 64}, {"num_steps": 32}])
+
+
+def test_a_structural_sweep_plans_one_program_per_group(capsys):
+    assert train.main([*BASE, *SWEEP, "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "2 shape groups, so 2 programs compile" in out
+    assert "num_envs=2:" in out and "num_envs=4:" in out
+
+
+@pytest.mark.slow
+def test_shape_groups_train_into_one_directory_ranked_together(tmp_path, capsys):
+    out = tmp_path / "groups"
+    assert train.main([*BASE, *SWEEP, "--out", str(out)]) == 0
+    data = json.loads((out / layout.GROUPS_FILE).read_text())
+    assert [g["num_envs"] for g in data["groups"]] == [2, 4]
+    ranking = data["ranking"]
+    assert len(ranking) == 4  # every combination of both groups, one ranking
+    iqms = [row["iqm"]["value"] for row in ranking]
+    assert iqms == sorted(iqms, reverse=True)
+    assert {(r["num_envs"], r["learning_rate"]) for r in ranking} == {
+        (2, 1e-3), (2, 3e-3), (4, 1e-3), (4, 3e-3),
+    }  # fmt: skip
+    assert "Structural sweep ranking, 2 shape group(s)" in capsys.readouterr().out
+
+    # a group is the sweep its shapes would train on their own
+    alone = tmp_path / "alone"
+    argv = [*BASE, "--num-envs", "4", "--sweep", "learning_rate=1e-3,3e-3", "--out", str(alone)]
+    assert train.main(argv) == 0
+    for c in range(2):
+        assert_same_run_dirs(layout.combo_dir(out / "group-001", c), layout.combo_dir(alone, c))
+
+    runs = views.load_runs([out])
+    assert [r.label for r in runs] == [
+        "num_envs=2 learning_rate=0.001", "num_envs=2 learning_rate=0.003",
+        "num_envs=4 learning_rate=0.001", "num_envs=4 learning_rate=0.003",
+    ]  # fmt: skip
+    from jaxcart import compare, plot
+
+    assert plot.main([str(out)]) == 0 and (out / layout.CURVES_FILE).is_file()
+    assert compare.main([str(out), "--out", str(tmp_path / "cmp"), "--reps", "100"]) == 0
+    compared = json.loads((tmp_path / "cmp" / layout.COMPARE_FILE).read_text())
+    assert len(compared["runs"]) == 4
+
+    capsys.readouterr()
+    assert train.main([*BASE, *SWEEP, "--out", str(out)]) == 2  # not empty: one line
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is not empty" in err
