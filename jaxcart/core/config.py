@@ -216,6 +216,9 @@ class PPOConfig:
             data["network"] = network_spec(self.network)
         if self.metrics:
             data["metrics"] = {name: function_path(fn) for name, fn in self.metrics}
+        if not self.eval_every:  # off: config.json reads as it did before these options
+            for name in ("eval_every", "periodic_eval_episodes", "keep_best"):
+                del data[name]
         return data
 
     @classmethod
