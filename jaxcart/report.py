@@ -15,6 +15,7 @@ import numpy as np
 
 from jaxcart.cli import format_table
 from jaxcart.core.config import PRESETS, config_fields, preset
+from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 from jaxcart.core.solved import EVAL_SEED
 from jaxcart.run.progress import ProgressBar
 
@@ -128,17 +129,25 @@ the same per-seed scores, so they differ whenever the seeds do."""
 def results_text(outcome: Outcome) -> str:
     """The evaluation table (or the sweep ranking) after a finished run."""
     episodes, grid = outcome.evaluation.episodes, outcome.run.grid
+    env_id = outcome.run.config.env
     if grid.is_sweep:
         rows, header = sweep_rows(outcome)
+        rule = (
+            f"all {episodes} greedy Gymnasium episodes score 500"
+            if env_id == DEFAULT_ENV
+            else f"the mean of {episodes} greedy Gymnasium episodes >= {GYMNAX_ENVS[env_id]:g}"
+        )
         return (
-            f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = all {episodes} greedy "
-            f"Gymnasium episodes score 500):\n{format_table(rows, header)}\n"
+            f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = {rule}):\n"
+            f"{format_table(rows, header)}\n"
             f"{SWEEP_COLUMNS}\n"
             f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
         )
     rows, header = evaluation_rows(outcome)
     return (
-        f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('CartPole-v1'):\n"
+        f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('{env_id}')"
+        + ("" if env_id == DEFAULT_ENV else f" (solved: mean >= {GYMNAX_ENVS[env_id]:g})")
+        + ":\n"
         + format_table(rows, header)
         + "\n"
         + evaluation_columns_text(episodes)
@@ -232,6 +241,8 @@ def next_steps_text(outcome: Outcome) -> str:
                 "statistics against another run",
             ),
         ]
+    if outcome.run.config.env != DEFAULT_ENV:  # GIFs draw CartPole only
+        commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
 

@@ -24,6 +24,9 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxcart.core import envs
+from jaxcart.core.envs import DEFAULT_ENV
+
 
 class ConfigError(ValueError):
     """A configuration value a user gave is invalid; the message says what to change.
@@ -113,6 +116,9 @@ class PPOConfig:
     """Weight initialisation: orthogonal (SB3: gains sqrt(2), 0.01 for the policy head, 1 for
     the value head, zero biases) or default (PyTorch's nn.Linear: weights and biases uniform in
     +-1/sqrt(fan_in))."""
+    env: str = "CartPole-v1"
+    """The environment: CartPole-v1 (jaxcart's own), or Acrobot-v1 or MountainCar-v0 (gymnax's,
+    pip install -e '.[gymnax]'); judged in Gymnasium's env of the same id."""
     network: Any = field(default=None, metadata={"cli": False})
     """The actor-critic, a flax module mapping observations [..., obs_dim] to (logits [...,
     num_actions], value [...]); None: the built-in SB3 MLP that hidden_sizes, activation,
@@ -180,6 +186,8 @@ class PPOConfig:
             raise ValueError("a per-run config has no single dict; use to_dict() of each run's")
         data = dataclasses.asdict(dataclasses.replace(self, network=None))
         del data["network"]
+        if self.env == DEFAULT_ENV:
+            del data["env"]  # CartPole's config.json reads as it did before there were others
         if self.network is not None:
             data["network"] = network_spec(self.network)
         return data
@@ -399,6 +407,12 @@ def validate(config: PPOConfig) -> None:
         callable(getattr(c.network, "apply", None)) and callable(getattr(c.network, "init", None))
     ):
         raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
+    if not isinstance(c.env, str):
+        raise ConfigError(f"env must be an env id, got {c.env!r}")
+    try:
+        envs.make(c.env)
+    except envs.EnvError as exc:
+        raise ConfigError(str(exc), "env") from None
     for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor"):
         if not isinstance(getattr(c, name), bool):
             raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")

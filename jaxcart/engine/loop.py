@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxcart.core import cartpole
+from jaxcart.core import envs
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
@@ -69,7 +69,7 @@ def init_runners(
     config: PPOConfig,
     seed: int,
     seed_indices: np.ndarray,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
     on_progress: Callable[[int, int], None] | None = None,
 ) -> RunnerState:
     """Initial state of every run, NumPy leaves ``[R, ...]`` (the caller places them).
@@ -82,10 +82,11 @@ def init_runners(
     flax network is initialised by its own ``init``, all runs in one call. ``on_progress(done, total)`` is called every
     1024 runs (it may raise to abandon the initialisation).
     """
-    env_params = env_params or cartpole.EnvParams()
+    env = envs.make(config.env)
+    env_params = env_params or env.default_params()
     indices = np.asarray(seed_indices)
     keys = seed_index_keys(seed, indices)
-    reset_obs = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0]
+    reset_obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0), env_params)[0]
     dtype, obs_dim = reset_obs.dtype, reset_obs.shape[-1]
     network = make_network(config)
     on_host = hasattr(network, "host_init")  # the built-in MLP: SB3's initialisation in NumPy
@@ -99,7 +100,12 @@ def init_runners(
         else:
             init_seeds.append(rng.integers(0, 2**31))
         shape = (config.num_envs, obs_dim)
-        obs.append(rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype))
+        if env.is_cartpole:  # CartPole's observation is its state: drawn here, no program
+            obs.append(
+                rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype)
+            )
+        else:  # a key per env for the env's own reset
+            obs.append(rng.integers(0, 2**32, (config.num_envs, 2), dtype=np.uint32))
         run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))
     if on_host:
         stacked = jax.tree.map(lambda *xs: np.stack(xs), *params)
@@ -107,7 +113,22 @@ def init_runners(
         example = jnp.zeros((1, obs_dim), dtype)
         init = jax.jit(jax.vmap(lambda seed: network.init(jax.random.PRNGKey(seed), example)))
         stacked = jax.tree.map(np.asarray, dict(init(jnp.asarray(init_seeds, jnp.uint32))))
-    return initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    if env.is_cartpole:
+        return initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    first_obs, env_state = reset_envs(env, np.stack(obs), env_params)
+    return initial_runners(stacked, first_obs, np.stack(run_keys), config, env_state)
+
+
+def reset_envs(env: envs.Env, keys: np.ndarray, env_params: Any) -> tuple[np.ndarray, Any]:
+    """``env.reset`` of every env of every run from raw keys ``[R, num_envs, 2]``: observations
+    ``[R, num_envs, obs_dim]`` and the state pytree (leaves ``[R, num_envs]``), in NumPy."""
+    reset = jax.vmap(jax.vmap(env.reset, in_axes=(0, None)), in_axes=(0, None))
+    obs, state = jax.jit(reset)(jnp.asarray(keys), env_params)
+    # the step counters the scan carries as int32 whatever type the env's reset gave them
+    state = jax.tree.map(
+        lambda x: np.asarray(x, np.int32 if x.dtype.kind in "iu" else x.dtype), state
+    )
+    return np.asarray(obs), state
 
 
 CHUNK_SECONDS = 2.0
@@ -210,7 +231,7 @@ def initial_state(
     config: PPOConfig,
     num_runs: int,
     seed: int,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
     chunk_size: int | None = None,
     seed_indices: np.ndarray | None = None,
     on_progress: Callable[[int, int], None] | None = None,
@@ -243,7 +264,7 @@ def train(
     num_runs: int = 1,
     seed: int = 0,
     *,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
     chunk_size: int | None = None,
     devices: list | None = None,
     resume: TrainState | None = None,
@@ -274,7 +295,7 @@ def train(
         keep_metrics: keep every iteration's metrics (``TrainResult.metrics``); False: only
             ``on_chunk`` sees them, so memory does not grow with the run (they are ``{}``).
     """
-    env_params = env_params or cartpole.EnvParams()
+    env_params = env_params or envs.make(config.env).default_params()
     state = resume or initial_state(config, num_runs, seed, env_params, chunk_size, seed_indices)
     devices = _devices(devices, num_runs, runs_per_device)
     runners, run_configs = place(state, devices, num_runs, runs_per_device)
@@ -408,7 +429,7 @@ _COMPILED: dict = {}
 
 
 def compiled_chunk(
-    env_params: cartpole.EnvParams,
+    env_params: Any,
     chunk_size: int,
     runners: RunnerState,
     config: PPOConfig,
@@ -432,7 +453,7 @@ def compiled_chunk(
         for leaf in jax.tree.leaves((runners, config))
     )
     adaptive = bool(chunk_seconds)
-    key = (jax.tree.structure(config), env_params, chunk_size, adaptive, signature)
+    key = (jax.tree.structure(config), params_key(env_params), chunk_size, adaptive, signature)
     if key in _COMPILED:
         return _COMPILED[key], False
     sharding = jax.tree.leaves(runners)[0].sharding
@@ -442,8 +463,16 @@ def compiled_chunk(
     return _COMPILED[key], True
 
 
+def params_key(env_params: Any) -> tuple:
+    """A hashable stand-in for env params: their structure and every leaf's value (gymnax's
+    Acrobot keeps its torques in an array, which cannot be hashed)."""
+    leaves, structure = jax.tree.flatten(env_params)
+    values = tuple((np.shape(x), str(np.asarray(x).dtype), np.asarray(x).tobytes()) for x in leaves)
+    return structure, values
+
+
 def chunk_program(
-    env_params: cartpole.EnvParams,
+    env_params: Any,
     chunk_size: int,
     sharding: jax.sharding.Sharding,
     adaptive: bool,

@@ -1,5 +1,5 @@
-"""Greedy (argmax) evaluation of trained runs, in Gymnasium's own CartPole-v1 (the verdict,
-:mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check)."""
+"""Greedy (argmax) evaluation of trained runs, in Gymnasium's own env of the run's id (the
+verdict, :mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import cartpole
+from jaxcart.core import cartpole, envs
 from jaxcart.core.config import PPOConfig
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.ppo import make_network
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
+from jaxcart.core.solved import EPISODE_LIMITS, EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped
 from jaxcart.rundir import reader
@@ -187,18 +188,93 @@ def evaluate_gymnasium(
     return returns
 
 
+def evaluate_gymnasium_env(
+    policy: Callable[[np.ndarray], np.ndarray],
+    num_policies: int,
+    num_episodes: int = NUM_EVAL_EPISODES,
+    seed: int = EVAL_SEED,
+    env_id: str = "Acrobot-v1",
+    should_stop: Callable[[], bool] | None = None,
+) -> np.ndarray:
+    """:func:`evaluate_gymnasium` for any discrete-action Gymnasium env, stepping one
+    ``gymnasium.make(env_id)`` per policy and episode (its own ``step``, time limit included).
+
+    Episode ``e`` of every policy starts from ``reset(seed=seed + e)``; all episodes advance in
+    lockstep with one batched policy call per time step (finished episodes keep showing their
+    last observation).
+
+    Args:
+        policy: maps observations ``[num_policies, num_episodes, obs_dim]`` float32 to actions
+            ``[num_policies, num_episodes]``.
+
+    Returns:
+        Episode returns, ``[num_policies, num_episodes]`` float64.
+
+    Raises:
+        ValueError: an action outside the env's action space.
+        Stopped: ``should_stop()`` turned true.
+    """
+    import gymnasium as gym
+
+    shape = (num_policies, num_episodes)
+    games = [[gym.make(env_id) for _ in range(num_episodes)] for _ in range(num_policies)]
+    try:
+        obs = np.stack(
+            [[np.asarray(g.reset(seed=seed + e)[0]) for e, g in enumerate(row)] for row in games]
+        ).astype(np.float32)
+        num_actions = int(games[0][0].action_space.n)
+        returns = np.zeros(shape)
+        alive = np.ones(shape, bool)
+        while alive.any():
+            if should_stop is not None and should_stop():
+                raise Stopped("evaluation interrupted")
+            actions = np.asarray(policy(obs))
+            invalid = alive & ((actions < 0) | (actions >= num_actions))
+            if invalid.any():
+                raise ValueError(
+                    f"actions must be in 0..{num_actions - 1}, got {np.unique(actions[invalid])}"
+                )
+            for p, e in zip(*np.nonzero(alive)):
+                next_obs, reward, terminated, truncated, _ = games[p][e].step(int(actions[p, e]))
+                obs[p, e] = next_obs
+                returns[p, e] += float(reward)
+                alive[p, e] = not (terminated or truncated)
+    finally:
+        for row in games:
+            for g in row:
+                g.close()
+    return returns
+
+
+def evaluate_in_gymnasium(
+    policy: Callable[[np.ndarray], np.ndarray],
+    num_policies: int,
+    num_episodes: int = NUM_EVAL_EPISODES,
+    env_id: str = DEFAULT_ENV,
+    should_stop: Callable[[], bool] | None = None,
+) -> np.ndarray:
+    """Greedy returns ``[num_policies, num_episodes]`` in ``gymnasium.make(env_id)``: CartPole
+    by the batched :func:`evaluate_gymnasium`, any other env by :func:`evaluate_gymnasium_env`."""
+    evaluate = evaluate_gymnasium if env_id == DEFAULT_ENV else evaluate_gymnasium_env
+    return evaluate(policy, num_policies, num_episodes, env_id=env_id, should_stop=should_stop)
+
+
 def greedy_returns(
     params: dict,
     key: jax.Array,
     network: Any = None,
     num_episodes: int = NUM_EVAL_EPISODES,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
+    env_id: str = DEFAULT_ENV,
 ) -> jax.Array:
     """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able.
 
     Args:
         network: the flax actor-critic ``params`` belong to (default: the built-in MLP).
+        env_id: another env than CartPole-v1 plays on its :class:`~jaxcart.core.envs.Env`.
     """
+    if env_id != DEFAULT_ENV:
+        return _greedy_returns_env(params, key, network, num_episodes, env_params, env_id)
     env_params = env_params or cartpole.EnvParams()
     network = network if network is not None else ActorCritic()
     obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
@@ -220,13 +296,43 @@ def greedy_returns(
     return total
 
 
-def summarize(returns: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-policy mean, min and solved flag from returns ``[P, episodes]``."""
+def _greedy_returns_env(
+    params: dict, key: jax.Array, network: Any, num_episodes: int, env_params: Any, env_id: str
+) -> jax.Array:
+    """:func:`greedy_returns` on another env: its batched step until its time limit (the
+    episodes that end earlier reset and stop counting)."""
+    env = envs.make(env_id)
+    env_params = env_params or env.default_params()
+    network = network if network is not None else ActorCritic(num_actions=env.num_actions)
+    reset_key, step_key = jax.random.split(key)
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(
+        jax.random.split(reset_key, num_episodes), env_params
+    )
+
+    def one_step(carry, key):
+        obs, state, alive, total = carry
+        action = jnp.argmax(network.apply(params, obs)[0], axis=-1)
+        obs, state, reward, terminated, truncated, _ = env.step_batch(
+            key, state, action, env_params
+        )
+        total = total + jnp.where(alive, reward, 0.0)
+        alive = alive & ~(terminated | truncated)
+        return (obs, state, alive, total), None
+
+    init = (obs, state, jnp.ones((num_episodes,), bool), jnp.zeros((num_episodes,), obs.dtype))
+    keys = jax.random.split(step_key, EPISODE_LIMITS[env_id])
+    (_, _, _, total), _ = jax.lax.scan(one_step, init, keys)
+    return total
+
+
+def summarize(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict[str, np.ndarray]:
+    """Per-policy mean, min and solved flag (as ``env_id`` defines it) from returns
+    ``[P, episodes]``."""
     returns = np.asarray(returns)
     return {
         "mean": returns.mean(axis=-1),
         "min": returns.min(axis=-1),
-        "solved": is_solved(returns),
+        "solved": is_solved(returns, env_id),
     }
 
 
@@ -247,11 +353,15 @@ def evaluate_runs(
     """
     num_runs = len(seed_indices)
     policy = make_policy(params, config, stacked=True)
-    gym_returns = evaluate_gymnasium(policy, num_runs, episodes, should_stop=should_stop)
+    gym_returns = evaluate_in_gymnasium(
+        policy, num_runs, episodes, config.env, should_stop=should_stop
+    )
     indices = np.asarray(seed_indices)
     keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_index_keys(seed, indices))
     network = make_network(config)
-    evaluate = jax.jit(jax.vmap(lambda p, k: greedy_returns(p, k, network, episodes)))
+    evaluate = jax.jit(
+        jax.vmap(lambda p, k: greedy_returns(p, k, network, episodes, env_id=config.env))
+    )
     return gym_returns, np.asarray(evaluate(params, keys))
 
 
@@ -282,4 +392,4 @@ def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> n
         policy = make_policy(trained.params, trained.config, stacked=True)
     except (KeyError, TypeError, ValueError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
-    return evaluate_gymnasium(policy, trained.num_seeds, episodes)
+    return evaluate_in_gymnasium(policy, trained.num_seeds, episodes, trained.config.env)

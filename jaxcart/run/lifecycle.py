@@ -551,7 +551,8 @@ def evaluate_wave(
         episodes,
         should_stop=stop,
     )
-    return Evaluation(episodes, gym_returns, jax_returns, time.perf_counter() - start)
+    seconds = time.perf_counter() - start
+    return Evaluation(episodes, gym_returns, jax_returns, seconds, env=run.config.env)
 
 
 class ChunkHandler:
@@ -669,7 +670,9 @@ def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
         for k in timing:
             timing[k] += float(block.timing.get(k, 0.0))
     gym, jax_returns, div, final, reach = (np.concatenate(columns[k]) for k in columns)
-    outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"])
+    outcome.evaluation = Evaluation(
+        episodes, gym, jax_returns, timing["eval_seconds"], env=run.config.env
+    )
     outcome.diverged_at, outcome.final_return = div, final
     _write_outputs(
         run, blocks, episodes, {**timing, "devices": outcome.num_devices, "waves": len(blocks)}
@@ -702,4 +705,6 @@ def _write_outputs(run: Run, blocks: list, episodes: int, timing: dict) -> None:
         where = c if run.grid.is_sweep else None
         batch = run.config.batch_size
         span = range(runs.start, runs.stop)
-        run.directory.write_outputs(where, blocks, span, episodes, timing, batch, record)
+        run.directory.write_outputs(
+            where, blocks, span, episodes, timing, batch, record, env_id=run.config.env
+        )

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved
 from jaxcart.engine.loop import Progress, TrainResult
 from jaxcart.run import sweep as sweeps
@@ -147,13 +148,14 @@ class Evaluation:
     """Greedy evaluation of every run, returns ``[R, episodes]``."""
 
     episodes: int
-    gym_returns: np.ndarray  # in gymnasium.make("CartPole-v1")
+    gym_returns: np.ndarray  # in gymnasium.make(env)
     jax_returns: np.ndarray  # in jaxcart's env
     seconds: float
+    env: str = DEFAULT_ENV  # whose notion of solved applies
 
     @property
     def solved(self) -> np.ndarray:
-        return is_solved(self.gym_returns)
+        return is_solved(self.gym_returns, self.env)
 
 
 @dataclass

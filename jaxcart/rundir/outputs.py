@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxcart.core.solved import SOLVED_DEFINITION, is_solved
+from jaxcart.core.envs import DEFAULT_ENV
+from jaxcart.core.solved import is_solved, solved_definition
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.layout import BLOCK_METRICS, BLOCK_PARAMS
 
@@ -175,18 +176,20 @@ def write_evaluation(
     episodes: int,
     extra: dict,
     on_digest: Digest = None,
+    env_id: str = DEFAULT_ENV,
 ) -> None:
-    """``evaluation.json`` for ``runs``: per-seed returns and solved flags, streamed."""
+    """``evaluation.json`` for ``runs``: per-seed returns and solved flags (solved as
+    ``env_id`` defines it), streamed."""
     solved_total = 0
     with files.atomic_file(path, "w", on_digest) as f:
-        definition = json.dumps(SOLVED_DEFINITION.format(episodes=episodes))
+        definition = json.dumps(solved_definition(env_id).format(episodes=episodes))
         head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
         f.write(head + '  "seeds": [')
         sep = "\n"
         for block, take in overlapping(blocks, runs):
             final = block.metrics["rollout/ep_rew_mean"][-1, take]
             g, j, d = block.gym_returns[take], block.jax_returns[take], block.diverged_at[take]
-            solved = is_solved(g)
+            solved = is_solved(g, env_id)
             solved_total += int(solved.sum())
             first = block.start + take.start - runs.start
             for s in range(len(g)):
