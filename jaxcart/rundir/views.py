@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
@@ -32,6 +33,7 @@ class RunCurves:
     evaluation: dict | None  # evaluation.json, None if missing
     combination: dict[str, float] | None = None  # a sweep's combination: its swept values
     note: str | None = None  # "from the checkpoint at iteration 12/40: ..." when unfinished
+    env: str = DEFAULT_ENV  # the env it trained on (config.json's env)
 
 
 def unfinished(path: Path) -> bool:
@@ -78,6 +80,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         num_seeds=int(info.get("num_seeds", num_seeds)),
         evaluation=evaluation,
         combination=combination,
+        env=info["config"].env,
     )
 
 
