@@ -449,9 +449,8 @@ PRESETS: dict[str, dict] = {
         anneal_lr=True,
         ent_coef=0.0,
     ),
-    # Acrobot-v1 on gymnax's implementation (pip install -e '.[gymnax]'): fast's shape with a
-    # halved learning rate solved 24/24 tuning seeds and 64/64 on a held-out base seed
-    # (benchmarks/experiments/acrobot_preset.md has the search).
+    # Acrobot-v1 on gymnax's implementation (pip install -e '.[gymnax]'), chosen with sweeps
+    # and compare (benchmarks/experiments/acrobot_preset.md has the search and its checks).
     "acrobot": dict(
         env="Acrobot-v1",
         num_envs=4,
