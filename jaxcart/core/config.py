@@ -453,14 +453,14 @@ PRESETS: dict[str, dict] = {
     # and compare (benchmarks/experiments/acrobot_preset.md has the search and its checks).
     "acrobot": dict(
         env="Acrobot-v1",
-        num_envs=4,
-        num_steps=128,
-        total_timesteps=100_000,
-        minibatch_size=128,
+        num_envs=16,
+        num_steps=64,
+        total_timesteps=200_000,
+        minibatch_size=256,
         update_epochs=4,
         learning_rate=2.5e-3,
         anneal_lr=True,
-        ent_coef=0.0,
+        ent_coef=0.01,
     ),
 }
 
