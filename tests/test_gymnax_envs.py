@@ -160,7 +160,7 @@ def test_sizes_and_thresholds_are_gymnasiums(env_id):
     env, spec = envs.make(env_id), gym.spec(env_id)
     made = gym.make(env_id)
     assert env.obs_dim == made.observation_space.shape[0]
-    assert env.num_actions == made.action_space.n
+    assert env.num_actions == made.action_space.n == envs.ACTION_COUNTS[env_id]
     assert env.reward_threshold == spec.reward_threshold
     threshold = spec.reward_threshold
     assert is_solved(np.full(20, threshold), env_id)

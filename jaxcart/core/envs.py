@@ -41,6 +41,10 @@ gymnax that Gymnasium also registers, so that a policy is judged in Gymnasium's 
 
 GYMNAX_EXTRA = "pip install -e '.[gymnax]'"
 
+ACTION_COUNTS = {DEFAULT_ENV: 2, "Acrobot-v1": 3, "MountainCar-v0": 3}
+"""Each env's discrete actions, for readers of finished runs that need no gymnax import (the
+plots); :func:`make`'s :attr:`Env.num_actions` agree (tested)."""
+
 
 class EnvError(ValueError):
     """An env id the trainer cannot run; the message is one line that says why."""
@@ -189,4 +193,13 @@ def _gymnax_step_batch(
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
 
 
-__all__ = ["CARTPOLE", "DEFAULT_ENV", "GYMNAX_ENVS", "Env", "EnvError", "env_ids", "make"]
+__all__ = [
+    "ACTION_COUNTS",
+    "CARTPOLE",
+    "DEFAULT_ENV",
+    "GYMNAX_ENVS",
+    "Env",
+    "EnvError",
+    "env_ids",
+    "make",
+]
