@@ -450,7 +450,8 @@ PRESETS: dict[str, dict] = {
         ent_coef=0.0,
     ),
     # Acrobot-v1 on gymnax's implementation (pip install -e '.[gymnax]'), chosen with sweeps
-    # and compare (benchmarks/experiments/acrobot_preset.md has the search and its checks).
+    # and compare: 63/64 seeds solved on a held-out base seed
+    # (benchmarks/experiments/acrobot_preset.md has the search and its checks).
     "acrobot": dict(
         env="Acrobot-v1",
         num_envs=16,
