@@ -236,7 +236,7 @@ def test_network_and_runners_take_their_sizes_from_the_env():
 
 
 @pytest.mark.slow
-def test_acrobot_run_stops_resumes_and_reads_back(tmp_path):
+def test_acrobot_run_stops_resumes_and_reads_back(tmp_path, capsys):
     """An Acrobot run stopped after two chunks resumes bit-identical to an uninterrupted one;
     its config.json names the env and evaluate, load_policy and the reader use it."""
     from helpers import TINY, assert_same_run_dirs, stopped_run
@@ -262,3 +262,15 @@ def test_acrobot_run_stops_resumes_and_reads_back(tmp_path):
     assert read["config"].env == "Acrobot-v1" and (returns <= 0).all()
     policy = jaxcart.load_policy(tmp_path / "whole")
     assert policy.env_id == "Acrobot-v1" and policy(np.zeros(6, np.float32)) in (0, 1, 2)
+
+    from jaxcart import evaluate, export
+
+    out = str(tmp_path / "p.onnx")
+    assert export.main([str(tmp_path / "whole"), "--to", "onnx", "--out", out]) == 2
+    gif = str(tmp_path / "a.gif")
+    assert evaluate.main([str(tmp_path / "whole"), "--episodes", "1", "--gif", gif]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-2:] == [
+        f"error: --to onnx exports CartPole-v1 policies only; {tmp_path / 'whole'} trained Acrobot-v1",
+        "error: --gif renders CartPole-v1 only; this run trained Acrobot-v1",
+    ]
