@@ -260,6 +260,10 @@ def test_acrobot_run_stops_resumes_and_reads_back(tmp_path, capsys):
     returns, read = evaluate_run_dir(tmp_path / "whole", episodes=2)
     np.testing.assert_array_equal(returns, whole.evaluation.gym_returns)
     assert read["config"].env == "Acrobot-v1" and (returns <= 0).all()
+    from jaxcart.rundir import reader
+
+    evaluation = reader.read_evaluation(tmp_path / "whole", 2)  # negative returns accepted
+    assert "reward_threshold, -100" in evaluation["solved_definition"]
     policy = jaxcart.load_policy(tmp_path / "whole")
     assert policy.env_id == "Acrobot-v1" and policy(np.zeros(6, np.float32)) in (0, 1, 2)
 
@@ -274,3 +278,34 @@ def test_acrobot_run_stops_resumes_and_reads_back(tmp_path, capsys):
         f"error: --to onnx exports CartPole-v1 policies only; {tmp_path / 'whole'} trained Acrobot-v1",
         "error: --gif renders CartPole-v1 only; this run trained Acrobot-v1",
     ]
+
+
+def test_metric_bounds_follow_the_env(tmp_path):
+    """Acrobot's returns are negative: a reader refuses them for CartPole, takes them for
+    Acrobot, and refuses a positive one there."""
+    from jaxcart.rundir.files import RunDirError
+    from jaxcart.rundir.reader import check_metrics
+
+    negative = {"rollout/ep_rew_mean": np.array([[-480.0]])}
+    check_metrics(negative, tmp_path, "Acrobot-v1")
+    with pytest.raises(RunDirError, match=r"outside \[0, 500\]"):
+        check_metrics(negative, tmp_path)
+    with pytest.raises(RunDirError, match=r"outside \[-500, 0\]"):
+        check_metrics({"rollout/ep_rew_mean": np.array([[10.0]])}, tmp_path, "Acrobot-v1")
+
+
+def test_compare_states_each_envs_notion_of_solved():
+    from types import SimpleNamespace
+
+    from jaxcart.compare import solved_text
+
+    def comparison(*env_ids):
+        return SimpleNamespace(
+            entries=[SimpleNamespace(run=SimpleNamespace(env=e)) for e in env_ids]
+        )
+
+    assert solved_text(comparison("CartPole-v1")).startswith(
+        "solved: every greedy episode scored 500"
+    )
+    mixed = solved_text(comparison("CartPole-v1", "MountainCar-v0", "Acrobot-v1"))
+    assert "Acrobot-v1 >= -100, MountainCar-v0 >= -110" in mixed
