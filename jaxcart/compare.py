@@ -41,6 +41,7 @@ import numpy as np
 from jaxcart import cli
 from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
+from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 from jaxcart.results import scores as runs
 from jaxcart.results.scores import CompareError, Comparison
 from jaxcart.rundir import layout
@@ -168,9 +169,31 @@ def saturation_text(comparison: Comparison) -> str:
     )
 
 
+def solved_text(comparison: Comparison) -> str:
+    """What solved and reached 500 mean for the compared runs' envs."""
+    cartpole = "solved: every greedy episode scored 500 (Wilson interval); "
+    others = sorted({e.run.env for e in comparison.entries} - {DEFAULT_ENV})
+    if not others:
+        return (
+            cartpole + f"reached 500: {runs.REACHED_DEFINITION}; steps to 500: the median over "
+            "seeds of the env steps when that first happened (never: not in half the seeds)"
+        )
+    rules = ", ".join(f"{env_id} >= {GYMNAX_ENVS[env_id]:g}" for env_id in others)
+    return (
+        f"solved: the mean greedy return reaches the env's reward_threshold ({rules}; "
+        "CartPole-v1: every episode 500) (Wilson interval); opt. gap and reached 500 measure "
+        f"against CartPole's 500 and say nothing about {', '.join(others)}"
+    )
+
+
 def report_text(comparison: Comparison) -> str:
     """Heading, table, matrix, arms and notes, as printed."""
     reps, seed, score = comparison.reps, comparison.seed, comparison.score
+    env_ids = sorted({e.run.env for e in comparison.entries})
+    definition = score.definition
+    if env_ids != [DEFAULT_ENV]:
+        where = f"gymnasium.make('{env_ids[0]}')" if len(env_ids) == 1 else "each run's env"
+        definition = definition.replace("gymnasium.make('CartPole-v1')", where)
     baseline = comparison.entries[comparison.baseline].name
     if comparison.arms:
         baseline = f"arm {comparison.arms.names[0]} (each run against its configuration's run)"
@@ -178,15 +201,11 @@ def report_text(comparison: Comparison) -> str:
     lines = [
         wrap(
             f"Comparing {len(comparison.entries)} run(s); score = {score.label}: "
-            f"{score.definition}; {stats.CONFIDENCE:.0%} percentile bootstrap CIs ({reps} "
+            f"{definition}; {stats.CONFIDENCE:.0%} percentile bootstrap CIs ({reps} "
             f"resamples, seed {seed}); baseline {baseline}"
         ),
         table(comparison),
-        wrap(
-            "solved: every greedy episode scored 500 (Wilson interval); "
-            f"reached 500: {runs.REACHED_DEFINITION}; steps to 500: the median over seeds of "
-            "the env steps when that first happened (never: not in half the seeds)"
-        ),
+        wrap(solved_text(comparison)),
         wrap(saturation_text(comparison)),
         wrap(comparison.stats.reading_note()),
     ]

@@ -13,6 +13,7 @@ import jax
 
 from jaxcart import cli
 from jaxcart.core import physics
+from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.run.greedy import evaluate_params, summarize
 from jaxcart.rundir import layout
@@ -131,7 +132,12 @@ def _evaluate_command(argv: list[str] | None) -> int:
     info = read_run_config(args.run_dir)
     num_seeds = int(info.get("num_seeds", 1))
     sweep = bool(recorded_combinations(info))
+    env_id = info["config"].env
+    if args.env_param and env_id != DEFAULT_ENV:
+        raise cli.UsageError(f"--env-param sets CartPole's physics; this run trained {env_id}")
     if args.gif is not None:
+        if env_id != DEFAULT_ENV:
+            raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
         _check_gif_options(args, num_seeds, sweep)
     sources = [
         (label, _with_env_params(trained, args.env_param))
@@ -145,7 +151,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
         )
     rows = []
     for label, trained in sources:
-        summary = summarize(evaluate_params(args.run_dir, trained, args.episodes))
+        summary = summarize(evaluate_params(args.run_dir, trained, args.episodes), env_id)
         rows += [
             ([label] if sweep else [])
             + [s, f"{summary['mean'][s]:.1f}", f"{summary['min'][s]:.0f}"]
@@ -155,13 +161,14 @@ def _evaluate_command(argv: list[str] | None) -> int:
     print(
         f"Greedy evaluation of {args.run_dir}"
         + (" (each seed's best policy)" if args.policy == "best" else "")
-        + f", {args.episodes} episodes per seed in gymnasium.make('CartPole-v1')"
+        + f", {args.episodes} episodes per seed in gymnasium.make('{env_id}')"
         f"{_physics_text(sources, bool(args.env_param))} (reset seeds {EVAL_SEED}..."
         f"{EVAL_SEED + args.episodes - 1}):"
     )
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
     solved = sum(r[-1] == "yes" for r in rows)
-    print(f"solved {solved}/{len(rows)} seed(s)", flush=True)
+    rule = "" if env_id == DEFAULT_ENV else f" (solved: mean >= {GYMNAX_ENVS[env_id]:g})"
+    print(f"solved {solved}/{len(rows)} seed(s){rule}", flush=True)
     if args.gif is not None:
         _write_gif(args, sources[0][1])
     return 0

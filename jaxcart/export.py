@@ -92,6 +92,10 @@ def export(opts: ExportOptions) -> str:
             f"{opts.run_dir} trained its own network ({type(config.network).__name__}); "
             f"--to {opts.to} exports the built-in SB3 MLP only"
         )
+    if config.env != "CartPole-v1":  # the zip declares CartPole's spaces; ONNX's input is 4 wide
+        raise cli.UsageError(
+            f"--to {opts.to} exports CartPole-v1 policies only; {opts.run_dir} trained {config.env}"
+        )
     what = f"seed {opts.seed_index} of {opts.run_dir}" + (
         " (its best policy)" if opts.policy == "best" else ""
     )

@@ -45,6 +45,8 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import figures, stats
+from jaxcart.core.envs import ACTION_COUNTS, DEFAULT_ENV, GYMNAX_ENVS
+from jaxcart.core.solved import return_bounds
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.views import (
     ELAPSED_METRIC,
@@ -254,7 +256,8 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
             f"mean across seeds, shaded {CONFIDENCE:.0%} bootstrap confidence interval (the "
             "axes fit the means; a band may run past them)"
         )
-    fig.suptitle(f"PPO on CartPole-v1, {num}: {what}", fontsize=13)
+    env_ids = sorted({run.env for run in runs})
+    fig.suptitle(f"PPO on {', '.join(env_ids)}, {num}: {what}", fontsize=13)
     caption = _caption(ax_time, wall_time_notes(runs)) if ax_time.lines else None
     fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
     if caption is not None:
@@ -269,6 +272,7 @@ def _draw_curves(
     runs: list[RunCurves], styles: list[figures.Style], ax_steps, ax_time, metric_axes
 ) -> None:
     means: dict[str, list[np.ndarray]] = {name: [] for name, _ in KEY_METRICS}
+    env_ids = {run.env for run in runs}
     for run, style in zip(runs, styles):
         ret = run.metrics.get(RETURN_METRIC)
         if ret is not None:
@@ -295,8 +299,14 @@ def _draw_curves(
     if not ax_time.lines:
         _no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
     for ax in (ax_steps, ax_time):
-        ax.axhline(500, color="0.6", lw=0.8, ls="--")  # CartPole-v1's maximum return
-        ax.set_ylim(0, 520)  # the whole range of returns: panels of different runs compare
+        if env_ids == {DEFAULT_ENV}:
+            ax.axhline(500, color="0.6", lw=0.8, ls="--")  # CartPole-v1's maximum return
+            ax.set_ylim(0, 520)  # the whole range of returns: panels of different runs compare
+        elif len(env_ids) == 1:  # the env's range of returns, and its reward_threshold
+            (env_id,) = env_ids
+            low, high = return_bounds(env_id)
+            ax.axhline(GYMNAX_ENVS[env_id], color="0.6", lw=0.8, ls="--")
+            ax.set_ylim(low - 0.04 * (high - low), high + 0.04 * (high - low))
         ax.grid(alpha=0.3)
     figures.step_axis(ax_steps.xaxis)
     from matplotlib.ticker import MaxNLocator
@@ -306,7 +316,10 @@ def _draw_curves(
         ax.set(title=title, xlabel="env steps per seed", ylabel=name)
         ax.grid(alpha=0.3)
         figures.step_axis(ax.xaxis)
-        limits = figures.curve_limits(means[name], METRIC_BOUNDS.get(name, (-math.inf, math.inf)))
+        bounds = METRIC_BOUNDS.get(name, (-math.inf, math.inf))
+        if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
+            bounds = (-math.log(max(ACTION_COUNTS[e] for e in env_ids)), 0.0)
+        limits = figures.curve_limits(means[name], bounds)
         if limits is None:
             _no_data(ax, f"{name} not recorded")
         else:

@@ -17,6 +17,7 @@ from jaxcart.cli import format_table
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import PRESETS, config_fields, preset
+from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 from jaxcart.core.solved import EVAL_SEED
 from jaxcart.run.progress import ProgressBar
 
@@ -136,6 +137,9 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
         "reached 500",
         "diverged",
     ]
+    if outcome.run.config.env != DEFAULT_ENV:  # a 500-step episode is CartPole's best only
+        keep = [i for i, h in enumerate(header) if "500" not in h]
+        rows, header = [[r[i] for i in keep] for r in rows], [header[i] for i in keep]
     return rows, header
 
 
@@ -151,11 +155,17 @@ the same per-seed scores, so they differ whenever the seeds do."""
 def results_text(outcome: Outcome) -> str:
     """The evaluation table (or the sweep ranking) after a finished run."""
     episodes, grid = outcome.evaluation.episodes, outcome.run.grid
+    env_id = outcome.run.config.env
     if grid.is_sweep:
         rows, header = sweep_rows(outcome)
+        rule = (
+            f"all {episodes} greedy Gymnasium episodes score 500"
+            if env_id == DEFAULT_ENV
+            else f"the mean of {episodes} greedy Gymnasium episodes >= {GYMNAX_ENVS[env_id]:g}"
+        )
         return (
-            f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = all {episodes} greedy "
-            f"Gymnasium episodes score 500):\n{format_table(rows, header)}\n"
+            f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = {rule}):\n"
+            f"{format_table(rows, header)}\n"
             f"{SWEEP_COLUMNS}\n"
             f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
         )
@@ -164,8 +174,13 @@ def results_text(outcome: Outcome) -> str:
     on = f" with {physics.describe(overrides)}" if overrides else ""
     nominal = " (nominal physics)" if outcome.run.spec.randomize else ""
     return (
-        f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('CartPole-v1')"
-        f"{on}{nominal}:\n" + format_table(rows, header) + "\n" + evaluation_columns_text(episodes)
+        f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('{env_id}')"
+        + f"{on}{nominal}"
+        + ("" if env_id == DEFAULT_ENV else f" (solved: mean >= {GYMNAX_ENVS[env_id]:g})")
+        + ":\n"
+        + format_table(rows, header)
+        + "\n"
+        + evaluation_columns_text(episodes)
     )
 
 
@@ -283,6 +298,8 @@ def next_steps_text(outcome: Outcome) -> str:
                 "statistics against another run",
             ),
         ]
+    if outcome.run.config.env != DEFAULT_ENV:  # GIFs draw CartPole only
+        commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
 

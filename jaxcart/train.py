@@ -57,8 +57,10 @@ def build_parser() -> argparse.ArgumentParser:
     """The CLI: run options, then one option per config field (help from its docstring)."""
     parser = cli.Parser(
         prog="python -m jaxcart.train",
-        description="Train PPO on CartPole-v1 with JAX; every seed is evaluated for 20 greedy "
-        "episodes in Gymnasium's own CartPole-v1 (solved = all 20 score 500).",
+        description="Train PPO on CartPole-v1 (or --env Acrobot-v1, MountainCar-v0) with JAX; "
+        "every seed is evaluated for 20 greedy episodes in Gymnasium's own env of that id "
+        "(CartPole solved = all 20 score 500; the others: the mean reaches the env's "
+        "reward_threshold).",
     )
     _add_run_options(parser.add_argument_group("run"))
     _add_distributed_options(

@@ -78,7 +78,7 @@ def test_config_validation(kwargs, match):
 def test_unknown_preset():
     with pytest.raises(ConfigError, match="unknown preset"):
         preset("nope")
-    assert set(PRESETS) == {"sb3", "purejaxrl", "fast"}
+    assert set(PRESETS) == {"sb3", "purejaxrl", "fast", "acrobot"}
 
 
 def test_config_is_frozen_and_round_trips():

@@ -13,11 +13,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxcart.core import cartpole
+from jaxcart.core import cartpole, envs
 from jaxcart.core.config import PPOConfig
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.metrics import EVAL_METRICS
 from jaxcart.core.networks import ActorCritic
-from jaxcart.core.solved import NUM_EVAL_EPISODES
+from jaxcart.core.solved import EPISODE_LIMITS, NUM_EVAL_EPISODES
 
 Array = jax.Array
 
@@ -40,14 +41,18 @@ def greedy_returns(
     key: Array,
     network: Any = None,
     num_episodes: int = NUM_EVAL_EPISODES,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
+    env_id: str = DEFAULT_ENV,
 ) -> Array:
     """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able.
 
     Args:
         network: the flax actor-critic ``params`` belong to (default: the built-in MLP).
         key: draws the episodes' reset states.
+        env_id: another env than CartPole-v1 plays on its :class:`~jaxcart.core.envs.Env`.
     """
+    if env_id != DEFAULT_ENV:
+        return _greedy_returns_env(params, key, network, num_episodes, env_params, env_id)
     env_params = env_params or cartpole.EnvParams()
     network = network if network is not None else ActorCritic()
     obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
@@ -69,6 +74,35 @@ def greedy_returns(
     return total
 
 
+def _greedy_returns_env(
+    params: dict, key: Array, network: Any, num_episodes: int, env_params: Any, env_id: str
+) -> Array:
+    """:func:`greedy_returns` on another env: its batched step until its time limit (the
+    episodes that end earlier reset and stop counting)."""
+    env = envs.make(env_id)
+    env_params = env_params or env.default_params()
+    network = network if network is not None else ActorCritic(num_actions=env.num_actions)
+    reset_key, step_key = jax.random.split(key)
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(
+        jax.random.split(reset_key, num_episodes), env_params
+    )
+
+    def one_step(carry, key):
+        obs, state, alive, total = carry
+        action = jnp.argmax(network.apply(params, obs)[0], axis=-1)
+        obs, state, reward, terminated, truncated, _ = env.step_batch(
+            key, state, action, env_params
+        )
+        total = total + jnp.where(alive, reward, 0.0)
+        alive = alive & ~(terminated | truncated)
+        return (obs, state, alive, total), None
+
+    init = (obs, state, jnp.ones((num_episodes,), bool), jnp.zeros((num_episodes,), obs.dtype))
+    keys = jax.random.split(step_key, EPISODE_LIMITS[env_id])
+    (_, _, _, total), _ = jax.lax.scan(one_step, init, keys)
+    return total
+
+
 def periodic_evaluation(
     params: dict,
     best: BestPolicy | None,
@@ -76,7 +110,7 @@ def periodic_evaluation(
     config: PPOConfig,
     iteration: Array,
     network: Any,
-    env_params: cartpole.EnvParams,
+    env_params: Any,
 ) -> tuple[BestPolicy | None, dict[str, Array]]:
     """Every ``config.eval_every`` iterations, ``config.periodic_eval_episodes`` greedy episodes
     of ``params`` from the fixed start states (:data:`EVAL_KEY_SEED`); between them nothing
@@ -97,7 +131,8 @@ def periodic_evaluation(
 
     def evaluate(params: dict) -> tuple[Array, Array]:
         key = jax.random.PRNGKey(EVAL_KEY_SEED)
-        returns = greedy_returns(params, key, network, config.periodic_eval_episodes, env_params)
+        episodes = config.periodic_eval_episodes
+        returns = greedy_returns(params, key, network, episodes, env_params, config.env)
         return returns.mean().astype(dtype), returns.min().astype(dtype)
 
     nan = jnp.full((), jnp.nan, dtype)

@@ -23,6 +23,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcart.core import envs
+
 ROOT = "params"
 ACTOR = "actor"
 CRITIC = "critic"
@@ -109,9 +111,11 @@ class ActorCritic(nn.Module):
 
     @classmethod
     def from_config(cls, config: Any) -> ActorCritic:
-        """The built-in network a :class:`~jaxcart.core.config.PPOConfig` describes."""
+        """The built-in network a :class:`~jaxcart.core.config.PPOConfig` describes, with as
+        many logits as its env has actions."""
         return cls(
             hidden_sizes=tuple(int(h) for h in config.hidden_sizes),
+            num_actions=envs.make(config.env).num_actions,
             activation=config.activation,
             linear_actor=config.linear_actor,
             weight_init=config.weight_init,

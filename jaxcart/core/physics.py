@@ -250,7 +250,9 @@ def split_per_run(params: EnvParams) -> tuple[EnvParams, dict[str, Any]]:
     """``(static, per_run)``: ``params`` with every field that holds an array set back to
     CartPole-v1's default (a hashable constant for the compiled program), and those arrays
     ``[R]`` as they are (NumPy or placed JAX arrays). Without arrays, ``params`` itself and
-    ``{}``."""
+    ``{}``; another env's params (gymnax's) are always the former."""
+    if not isinstance(params, EnvParams):
+        return params, {}
     per_run = {n: getattr(params, n) for n in CONTINUOUS if np.ndim(getattr(params, n)) > 0}
     if not per_run:
         return params, {}

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from jaxcart.core import cartpole, physics
+from jaxcart.core import envs, physics
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import (
     EpisodeBuffer,
@@ -61,8 +61,10 @@ class RunnerState:
 
     params: dict
     opt_state: optax.OptState
-    env_state: cartpole.EnvState  # fields [num_envs]; physics.EpisodeState: drawn per episode
-    obs: Array  # [num_envs, 4]
+    env_state: (
+        Any  # the env's state pytree, fields [num_envs] (physics.EpisodeState: drawn per episode)
+    )
+    obs: Array  # [num_envs, obs_dim]
     episode_return: Array  # [num_envs] running return of the current episodes
     episode_length: Array  # [num_envs] int32
     episodes: EpisodeBuffer  # the last finished episodes, for the logged means
@@ -118,7 +120,7 @@ def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
 
 # 2. Rollout ----------------------------------------------------------------------------------
 def env_step(
-    runner: RunnerState, _: None, network: nn.Module, env_params: cartpole.EnvParams
+    runner: RunnerState, _: None, network: nn.Module, env: envs.Env, env_params: Any
 ) -> tuple[RunnerState, Transition]:
     """One step of every env: sample actions ``[num_envs]`` from the policy, step (finished
     episodes reset on the same step) and record a :class:`Transition` (fields ``[num_envs,
@@ -127,7 +129,9 @@ def env_step(
     logits, value = network.apply(runner.params, runner.obs)
     action = jax.random.categorical(act_key, logits)
     log_prob = categorical_log_prob(logits, action)
-    obs, env_state, reward, terminated, truncated, info = physics.step_batch(
+    # CartPole's physics may be drawn per episode: physics.step_batch is CartPole's step then
+    step_batch = physics.step_batch if env.is_cartpole else env.step_batch
+    obs, env_state, reward, terminated, truncated, info = step_batch(
         env_key, runner.env_state, action, env_params
     )
     done = terminated | truncated
@@ -156,14 +160,15 @@ def env_step(
 
 
 def collect_rollout(
-    runner: RunnerState, config: PPOConfig, env_params: cartpole.EnvParams
+    runner: RunnerState, config: PPOConfig, env_params: Any
 ) -> tuple[RunnerState, Transition]:
     """Steps ``num_envs`` envs for ``num_steps`` steps, sampling actions from the policy.
 
     Returns:
         The advanced runner and a :class:`Transition` with fields ``[num_steps, num_envs, ...]``.
     """
-    step = functools.partial(env_step, network=make_network(config), env_params=env_params)
+    network, env = make_network(config), envs.make(config.env)
+    step = functools.partial(env_step, network=network, env=env, env_params=env_params)
     return jax.lax.scan(step, runner, None, length=config.num_steps)
 
 
@@ -383,7 +388,7 @@ def prepare_update(
     runner: RunnerState,
     config: PPOConfig,
     iteration: Array,
-    env_params: cartpole.EnvParams,
+    env_params: Any,
 ) -> tuple[RunnerState, Transition, Batch, Array, Array]:
     """The iteration up to the update: rollout (2) and GAE (3) for one run.
 
@@ -436,7 +441,7 @@ def train_iteration(
     runner: RunnerState,
     config: PPOConfig,
     iteration: Array,
-    env_params: cartpole.EnvParams,
+    env_params: Any,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """One PPO iteration for one run: rollout, GAE, all epochs and minibatches, metrics.
 

@@ -1,10 +1,14 @@
-"""What "solved" means for CartPole-v1, in one place: every greedy evaluation episode in
-Gymnasium's own ``CartPole-v1`` scores 500, over :data:`NUM_EVAL_EPISODES` episodes whose
-resets are seeded from :data:`EVAL_SEED`."""
+"""What "solved" means, in one place: for CartPole-v1, every greedy evaluation episode in
+Gymnasium's own ``CartPole-v1`` scores 500; for the other envs, the mean greedy return in
+Gymnasium's env of the same id reaches that env's ``reward_threshold`` (Acrobot-v1: -100,
+MountainCar-v0: -110). Over :data:`NUM_EVAL_EPISODES` episodes whose resets are seeded from
+:data:`EVAL_SEED`."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 
 NUM_EVAL_EPISODES = 20
 
@@ -20,8 +24,13 @@ SOLVED_RETURN = 500.0
 SOLVED_DEFINITION = "all {episodes} greedy episodes score 500 in gymnasium.make('CartPole-v1')"
 
 
-def is_solved(returns: np.ndarray) -> np.ndarray:
-    """The one definition of solved: every evaluation episode scored 500.
+EPISODE_LIMITS = {DEFAULT_ENV: 500, "Acrobot-v1": 500, "MountainCar-v0": 200}
+"""Gymnasium's ``max_episode_steps`` of each env (gymnax's ``max_steps_in_episode`` agrees)."""
+
+
+def is_solved(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> np.ndarray:
+    """The one definition of solved: every evaluation episode scored 500 (CartPole-v1), or
+    the mean return reached the env's ``reward_threshold`` (the others).
 
     Args:
         returns: ``[..., episodes]``.
@@ -29,4 +38,24 @@ def is_solved(returns: np.ndarray) -> np.ndarray:
     Returns:
         ``[...]`` bool.
     """
-    return (np.asarray(returns) >= SOLVED_RETURN).all(axis=-1)
+    returns = np.asarray(returns)
+    if env_id == DEFAULT_ENV:
+        return (returns >= SOLVED_RETURN).all(axis=-1)
+    return returns.mean(axis=-1) >= GYMNAX_ENVS[env_id]
+
+
+def solved_definition(env_id: str = DEFAULT_ENV) -> str:
+    """The sentence ``evaluation.json`` records, with ``{episodes}`` left to fill in."""
+    if env_id == DEFAULT_ENV:
+        return SOLVED_DEFINITION
+    return (
+        f"the mean of {{episodes}} greedy episodes in gymnasium.make('{env_id}') is at least "
+        f"its reward_threshold, {GYMNAX_ENVS[env_id]:g}"
+    )
+
+
+def return_bounds(env_id: str = DEFAULT_ENV) -> tuple[float, float]:
+    """The least and greatest episode return of the env: CartPole pays +1 a step, Acrobot and
+    MountainCar -1 a step until the goal (Acrobot 0 on the step that reaches it)."""
+    limit = float(EPISODE_LIMITS[env_id])
+    return (0.0, limit) if env_id == DEFAULT_ENV else (-limit, 0.0)

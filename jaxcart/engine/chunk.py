@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -42,7 +43,7 @@ with 32 runs on a core the update in groups of 8 took 0.89-0.96x as long as vmap
 
 
 def initial_runners(
-    params: dict, obs: np.ndarray, keys: np.ndarray, config: PPOConfig
+    params: dict, obs: np.ndarray, keys: np.ndarray, config: PPOConfig, env_state: Any = None
 ) -> RunnerState:
     """Runners at iteration 0 from host-drawn parameters and reset observations (NumPy).
 
@@ -51,6 +52,8 @@ def initial_runners(
         obs: reset observations ``[R, num_envs, 4]`` (they are the env state: velocities and
             angles are the observation, and the step counters start at 0).
         keys: raw PRNG keys ``[R, 2]`` uint32.
+        env_state: the env's state pytree, leaves ``[R, num_envs]``; None: CartPole's, made
+            from ``obs``.
 
     Returns:
         A :class:`RunnerState` with NumPy leaves ``[R, ...]``: Adam's moments and count at 0,
@@ -64,7 +67,9 @@ def initial_runners(
     return RunnerState(
         params=params,
         opt_state=jax.tree.map(lambda s: zeros(s.shape, s.dtype), opt_shapes),
-        env_state=cartpole.EnvState(
+        env_state=env_state
+        if env_state is not None
+        else cartpole.EnvState(
             obs[..., 0], obs[..., 1], obs[..., 2], obs[..., 3], zeros((num_envs,), np.int32)
         ),
         obs=obs,
@@ -115,7 +120,7 @@ def guarded_iteration(
     runner: RunnerState,
     config: PPOConfig,
     iteration: Array,
-    env_params: cartpole.EnvParams,
+    env_params: Any,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """:func:`~jaxcart.core.ppo.train_iteration` of one run, then :func:`guard_divergence`."""
     new, metrics = train_iteration(runner, config, iteration, env_params)
@@ -156,7 +161,7 @@ def grouped_iteration(
     runners: RunnerState,
     config: PPOConfig,
     iteration: Array,
-    env_params: cartpole.EnvParams,
+    env_params: Any,
     group: int,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """``vmap(guarded_iteration)`` over runs ``[R]`` with the update in groups of at most
@@ -231,7 +236,7 @@ def train_chunk(
     runners: RunnerState,
     config: PPOConfig,
     start_iteration: Array,
-    env_params: cartpole.EnvParams,
+    env_params: Any,
     chunk_size: int,
     update_group: int | None = None,
     count: Array | None = None,

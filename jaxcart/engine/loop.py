@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxcart.core import cartpole, physics
+from jaxcart.core import envs, physics
 from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
@@ -69,7 +69,7 @@ def init_runners(
     config: PPOConfig,
     seed: int,
     seed_indices: np.ndarray,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
     on_progress: Callable[[int, int], None] | None = None,
     episode_ranges: dict[str, tuple[float, float]] | None = None,
 ) -> RunnerState:
@@ -86,10 +86,11 @@ def init_runners(
     :class:`~jaxcart.core.physics.EpisodeState` whose first values come from the run's host
     generator after everything else it draws (so the other draws are the same).
     """
-    env_params = physics.split_per_run(env_params or cartpole.EnvParams())[0]
+    env = envs.make(config.env)
+    env_params = physics.split_per_run(env_params or env.default_params())[0]
     indices = np.asarray(seed_indices)
     keys = seed_index_keys(seed, indices)
-    reset_obs = jax.eval_shape(cartpole.reset, jax.random.PRNGKey(0), env_params)[0]
+    reset_obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0), env_params)[0]
     dtype, obs_dim = reset_obs.dtype, reset_obs.shape[-1]
     network = make_network(config)
     on_host = hasattr(network, "host_init")  # the built-in MLP: SB3's initialisation in NumPy
@@ -103,7 +104,12 @@ def init_runners(
         else:
             init_seeds.append(rng.integers(0, 2**31))
         shape = (config.num_envs, obs_dim)
-        obs.append(rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype))
+        if env.is_cartpole:  # CartPole's observation is its state: drawn here, no program
+            obs.append(
+                rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype)
+            )
+        else:  # a key per env for the env's own reset
+            obs.append(rng.integers(0, 2**32, (config.num_envs, 2), dtype=np.uint32))
         run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))
         if episode_ranges:
             n = config.num_envs
@@ -114,12 +120,28 @@ def init_runners(
         example = jnp.zeros((1, obs_dim), dtype)
         init = jax.jit(jax.vmap(lambda seed: network.init(jax.random.PRNGKey(seed), example)))
         stacked = jax.tree.map(np.asarray, dict(init(jnp.asarray(init_seeds, jnp.uint32))))
-    runners = initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    if env.is_cartpole:
+        runners = initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    else:
+        first_obs, env_state = reset_envs(env, np.stack(obs), env_params)
+        runners = initial_runners(stacked, first_obs, np.stack(run_keys), config, env_state)
     if not episode_ranges:
         return runners
     values = {k: np.stack([e[k] for e in episodes]) for k in episode_ranges}
     env_state = physics.episode_state(runners.env_state, values, episode_ranges)
     return runners.replace(env_state=env_state)
+
+
+def reset_envs(env: envs.Env, keys: np.ndarray, env_params: Any) -> tuple[np.ndarray, Any]:
+    """``env.reset`` of every env of every run from raw keys ``[R, num_envs, 2]``: observations
+    ``[R, num_envs, obs_dim]`` and the state pytree (leaves ``[R, num_envs]``), in NumPy."""
+    reset = jax.vmap(jax.vmap(env.reset, in_axes=(0, None)), in_axes=(0, None))
+    obs, state = jax.jit(reset)(jnp.asarray(keys), env_params)
+    # the step counters the scan carries as int32 whatever type the env's reset gave them
+    state = jax.tree.map(
+        lambda x: np.asarray(x, np.int32 if x.dtype.kind in "iu" else x.dtype), state
+    )
+    return np.asarray(obs), state
 
 
 CHUNK_SECONDS = 2.0
@@ -228,7 +250,7 @@ def initial_state(
     config: PPOConfig,
     num_runs: int,
     seed: int,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
     chunk_size: int | None = None,
     seed_indices: np.ndarray | None = None,
     on_progress: Callable[[int, int], None] | None = None,
@@ -263,7 +285,7 @@ def train(
     num_runs: int = 1,
     seed: int = 0,
     *,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
     chunk_size: int | None = None,
     devices: list | None = None,
     resume: TrainState | None = None,
@@ -300,7 +322,7 @@ def train(
         episode_ranges: ``{field: (low, high)}``: draw these physics fields uniformly at
             every reset (:func:`init_runners`); ignored with ``resume``, whose state has them.
     """
-    env_params = env_params or cartpole.EnvParams()
+    env_params = env_params or envs.make(config.env).default_params()
     state = resume or initial_state(
         config, num_runs, seed, env_params, chunk_size, seed_indices, None, episode_ranges
     )
@@ -363,8 +385,8 @@ def place(
 
 
 def place_env_params(
-    env_params: cartpole.EnvParams, devices: list, num_runs: int, runs_per_device: int | None
-) -> cartpole.EnvParams:
+    env_params: Any, devices: list, num_runs: int, runs_per_device: int | None
+) -> Any:
     """``env_params`` with its per-run fields (arrays ``[num_runs]``, if any) in the training's
     float type, padded and placed as :func:`place` places the runs; unchanged without them."""
     static, per_run = physics.split_per_run(env_params)
@@ -455,7 +477,7 @@ _COMPILED: dict = {}
 
 
 def compiled_chunk(
-    env_params: cartpole.EnvParams,
+    env_params: Any,
     chunk_size: int,
     runners: RunnerState,
     config: PPOConfig,
@@ -482,7 +504,14 @@ def compiled_chunk(
         for leaf in jax.tree.leaves((runners, config, per_run))
     )
     adaptive = bool(chunk_seconds)
-    key = (jax.tree.structure(config), static_env, tuple(per_run), chunk_size, adaptive, signature)
+    key = (
+        jax.tree.structure(config),
+        params_key(static_env),
+        tuple(per_run),
+        chunk_size,
+        adaptive,
+        signature,
+    )
     fresh = key not in _COMPILED
     if fresh:
         sharding = jax.tree.leaves(runners)[0].sharding
@@ -502,8 +531,16 @@ def _with_env_values(
     return compiled(runners, config, *args, per_run)
 
 
+def params_key(env_params: Any) -> tuple:
+    """A hashable stand-in for env params: their structure and every leaf's value (gymnax's
+    Acrobot keeps its torques in an array, which cannot be hashed)."""
+    leaves, structure = jax.tree.flatten(env_params)
+    values = tuple((np.shape(x), str(np.asarray(x).dtype), np.asarray(x).tobytes()) for x in leaves)
+    return structure, values
+
+
 def chunk_program(
-    env_params: cartpole.EnvParams,
+    env_params: Any,
     chunk_size: int,
     sharding: jax.sharding.Sharding,
     adaptive: bool,

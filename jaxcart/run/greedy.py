@@ -1,5 +1,5 @@
-"""Greedy (argmax) evaluation of trained runs, in Gymnasium's own CartPole-v1 (the verdict,
-:mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check)."""
+"""Greedy (argmax) evaluation of trained runs, in Gymnasium's own env of the run's id (the
+verdict, :mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import numpy as np
 
 from jaxcart.core import cartpole, physics
 from jaxcart.core.config import PPOConfig, float_dtype
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.evaluation import greedy_returns
 from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
@@ -208,13 +209,92 @@ def evaluate_gymnasium(
     return returns
 
 
-def summarize(returns: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-policy mean, min and solved flag from returns ``[P, episodes]``."""
+def evaluate_gymnasium_env(
+    policy: Callable[[np.ndarray], np.ndarray],
+    num_policies: int,
+    num_episodes: int = NUM_EVAL_EPISODES,
+    seed: int = EVAL_SEED,
+    env_id: str = "Acrobot-v1",
+    should_stop: Callable[[], bool] | None = None,
+) -> np.ndarray:
+    """:func:`evaluate_gymnasium` for any discrete-action Gymnasium env, stepping one
+    ``gymnasium.make(env_id)`` per policy and episode (its own ``step``, time limit included).
+
+    Episode ``e`` of every policy starts from ``reset(seed=seed + e)``; all episodes advance in
+    lockstep with one batched policy call per time step (finished episodes keep showing their
+    last observation).
+
+    Args:
+        policy: maps observations ``[num_policies, num_episodes, obs_dim]`` float32 to actions
+            ``[num_policies, num_episodes]``.
+
+    Returns:
+        Episode returns, ``[num_policies, num_episodes]`` float64.
+
+    Raises:
+        ValueError: an action outside the env's action space.
+        Stopped: ``should_stop()`` turned true.
+    """
+    import gymnasium as gym
+
+    shape = (num_policies, num_episodes)
+    games = [[gym.make(env_id) for _ in range(num_episodes)] for _ in range(num_policies)]
+    try:
+        obs = np.stack(
+            [[np.asarray(g.reset(seed=seed + e)[0]) for e, g in enumerate(row)] for row in games]
+        ).astype(np.float32)
+        num_actions = int(games[0][0].action_space.n)
+        returns = np.zeros(shape)
+        alive = np.ones(shape, bool)
+        while alive.any():
+            if should_stop is not None and should_stop():
+                raise Stopped("evaluation interrupted")
+            actions = np.asarray(policy(obs))
+            invalid = alive & ((actions < 0) | (actions >= num_actions))
+            if invalid.any():
+                raise ValueError(
+                    f"actions must be in 0..{num_actions - 1}, got {np.unique(actions[invalid])}"
+                )
+            for p, e in zip(*np.nonzero(alive)):
+                next_obs, reward, terminated, truncated, _ = games[p][e].step(int(actions[p, e]))
+                obs[p, e] = next_obs
+                returns[p, e] += float(reward)
+                alive[p, e] = not (terminated or truncated)
+    finally:
+        for row in games:
+            for g in row:
+                g.close()
+    return returns
+
+
+def evaluate_in_gymnasium(
+    policy: Callable[[np.ndarray], np.ndarray],
+    num_policies: int,
+    num_episodes: int = NUM_EVAL_EPISODES,
+    env_id: str = DEFAULT_ENV,
+    should_stop: Callable[[], bool] | None = None,
+    env_params: cartpole.EnvParams | None = None,
+) -> np.ndarray:
+    """Greedy returns ``[num_policies, num_episodes]`` in ``gymnasium.make(env_id)``: CartPole
+    by the batched :func:`evaluate_gymnasium` (with ``env_params``' physics), any other env by
+    :func:`evaluate_gymnasium_env` (with its own)."""
+    if env_id == DEFAULT_ENV:
+        return evaluate_gymnasium(
+            policy, num_policies, num_episodes, should_stop=should_stop, env_params=env_params
+        )
+    return evaluate_gymnasium_env(
+        policy, num_policies, num_episodes, env_id=env_id, should_stop=should_stop
+    )
+
+
+def summarize(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict[str, np.ndarray]:
+    """Per-policy mean, min and solved flag (as ``env_id`` defines it) from returns
+    ``[P, episodes]``."""
     returns = np.asarray(returns)
     return {
         "mean": returns.mean(axis=-1),
         "min": returns.min(axis=-1),
-        "solved": is_solved(returns),
+        "solved": is_solved(returns, env_id),
     }
 
 
@@ -236,10 +316,13 @@ def evaluate_runs(
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
     num_runs = len(seed_indices)
-    env_params = env_params or cartpole.EnvParams()
+    if config.env == DEFAULT_ENV:
+        env_params = env_params or cartpole.EnvParams()
+    else:  # another env plays on its own default params (env_params are CartPole's physics)
+        env_params = None
     policy = make_policy(params, config, stacked=True)
-    gym_returns = evaluate_gymnasium(
-        policy, num_runs, episodes, should_stop=should_stop, env_params=env_params
+    gym_returns = evaluate_in_gymnasium(
+        policy, num_runs, episodes, config.env, should_stop=should_stop, env_params=env_params
     )
     indices = np.asarray(seed_indices)
     keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_index_keys(seed, indices))
@@ -248,7 +331,8 @@ def evaluate_runs(
     per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
 
     def one_run(p: dict, k: jax.Array, values: dict) -> jax.Array:
-        return greedy_returns(p, k, network, episodes, physics.with_values(static, values))
+        run_env = physics.with_values(static, values)
+        return greedy_returns(p, k, network, episodes, run_env, config.env)
 
     evaluate = jax.jit(jax.vmap(one_run))
     return gym_returns, np.asarray(evaluate(params, keys, per_run))
@@ -281,4 +365,6 @@ def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> n
         policy = make_policy(trained.params, trained.config, stacked=True)
     except (KeyError, TypeError, ValueError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
-    return evaluate_gymnasium(policy, trained.num_seeds, episodes, env_params=trained.env_params)
+    return evaluate_in_gymnasium(
+        policy, trained.num_seeds, episodes, trained.config.env, env_params=trained.env_params
+    )

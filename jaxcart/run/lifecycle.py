@@ -503,7 +503,7 @@ def wave_start_state(
         configs,
         len(runs),
         run.spec.seed,
-        env_params=run.spec.env_params,
+        env_params=run.spec.env_params if run.spec.is_cartpole else None,
         chunk_size=chunk_size,
         episode_ranges=run.spec.episode_ranges,
         seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
@@ -596,7 +596,8 @@ def evaluate_wave(
         should_stop=stop,
         env_params=run.spec.eval_env_params(runs),
     )
-    return Evaluation(episodes, gym_returns, jax_returns, time.perf_counter() - start)
+    seconds = time.perf_counter() - start
+    return Evaluation(episodes, gym_returns, jax_returns, seconds, env=run.config.env)
 
 
 class ChunkHandler:
@@ -724,7 +725,9 @@ def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
         for k in timing:
             timing[k] += float(block.timing.get(k, 0.0))
     gym, jax_returns, div, final, reach = (np.concatenate(columns[k]) for k in columns)
-    outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"])
+    outcome.evaluation = Evaluation(
+        episodes, gym, jax_returns, timing["eval_seconds"], env=run.config.env
+    )
     outcome.diverged_at, outcome.final_return = div, final
     _write_outputs(
         run, blocks, episodes, {**timing, "devices": outcome.num_devices, "waves": len(blocks)}
@@ -758,5 +761,13 @@ def _write_outputs(run: Run, blocks: list, episodes: int, timing: dict) -> None:
         batch = run.config.batch_size
         span = range(runs.start, runs.stop)
         run.directory.write_outputs(
-            where, blocks, span, episodes, timing, batch, record, best=run.config.keep_best
+            where,
+            blocks,
+            span,
+            episodes,
+            timing,
+            batch,
+            record,
+            best=run.config.keep_best,
+            env_id=run.config.env,
         )

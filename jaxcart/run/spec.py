@@ -18,6 +18,7 @@ import numpy as np
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved
 from jaxcart.engine.loop import Progress, TrainResult
 from jaxcart.run import sweep as sweeps
@@ -72,6 +73,13 @@ class RunSpec:
             f"must be in [0, 2**32), got {self.seed}",
         )
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
+        if not self.is_cartpole and (
+            physics.overrides(self.env_params) or self.randomize or sweeps.env_values_of(self.sweep)
+        ):
+            raise ConfigError(
+                f"--env-param, env.* sweeps and --randomize set CartPole's physics; "
+                f"{self.config.env} trains on its own (gymnax's default params)"
+            )
         physics.check_physics(self.env_params)
         for name in ("max_episode_steps", "sutton_barto_reward"):
             if name in physics.overrides(self.env_params):
@@ -126,9 +134,17 @@ class RunSpec:
             out["randomize"] = {r.name: r.to_dict() for r in self.randomize}
         return out
 
-    def run_env_params(self, runs: range) -> EnvParams:
+    @property
+    def is_cartpole(self) -> bool:
+        """Whether the runs train CartPole, the env whose physics these settings are."""
+        return self.config.env == DEFAULT_ENV
+
+    def run_env_params(self, runs: range) -> EnvParams | None:
         """The physics of ``runs`` (grid order) as they train: the run's env params, with
-        each swept or per-run randomised field an array ``[len(runs)]``."""
+        each swept or per-run randomised field an array ``[len(runs)]``; None for another
+        env than CartPole (it trains on its own default params)."""
+        if not self.is_cartpole:
+            return None
         values = {
             n: v[runs.start : runs.stop] for n, v in sweeps.grid_env_values(self.grid).items()
         }
@@ -136,9 +152,11 @@ class RunSpec:
         values.update(physics.randomized_values(self.randomize, self.seed, indices))
         return physics.with_values(self.env_params, values)
 
-    def eval_env_params(self, runs: range) -> EnvParams:
+    def eval_env_params(self, runs: range) -> EnvParams | None:
         """The physics ``runs`` are evaluated on: a sweep's own values per run, the nominal
-        physics (``env_params``) for a randomised field."""
+        physics (``env_params``) for a randomised field; None for another env than CartPole."""
+        if not self.is_cartpole:
+            return None
         values = {
             n: v[runs.start : runs.stop] for n, v in sweeps.grid_env_values(self.grid).items()
         }
@@ -168,7 +186,7 @@ class RunSpec:
 
     def combo_env_params(self, combination: int) -> EnvParams:
         """The physics of one combination (the run's env params without a physics sweep)."""
-        if not self.sweep:
+        if not self.sweep or not self.is_cartpole:
             return self.env_params
         swept = sweeps.env_values_of(self.grid.combos[combination])
         return physics.with_values(self.env_params, swept)
@@ -241,13 +259,14 @@ class Evaluation:
     """Greedy evaluation of every run, returns ``[R, episodes]``."""
 
     episodes: int
-    gym_returns: np.ndarray  # in gymnasium.make("CartPole-v1")
+    gym_returns: np.ndarray  # in gymnasium.make(env)
     jax_returns: np.ndarray  # in jaxcart's env
     seconds: float
+    env: str = DEFAULT_ENV  # whose notion of solved applies
 
     @property
     def solved(self) -> np.ndarray:
-        return is_solved(self.gym_returns)
+        return is_solved(self.gym_returns, self.env)
 
 
 @dataclass

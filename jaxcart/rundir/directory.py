@@ -16,6 +16,7 @@ from importlib import metadata
 from pathlib import Path
 
 from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
@@ -351,10 +352,12 @@ class RunDir:
         batch_size: int,
         record: tuple[dict, PPOConfig] | None = None,
         best: bool = False,
+        env_id: str = DEFAULT_ENV,
     ) -> None:
         """metrics.csv, params.npz and evaluation.json of ``runs`` from the blocks: in the run
-        directory, or in combination ``combo``'s, with its own config.json ``record``; with
-        ``best``, params_best.npz too."""
+        directory, or in combination ``combo``'s, with its own config.json ``record``
+        (``env_id``: the env whose notion of solved the evaluation records); with ``best``,
+        params_best.npz too."""
         directory, manifest = self.dir, self.manifest  # never recreated once deleted
         if combo is not None:
             directory = self.dir.sub(layout.combo_dir(".", combo).name, create=True)
@@ -376,7 +379,7 @@ class RunDir:
                 )
             manifest.write(
                 layout.EVALUATION_FILE,
-                lambda e, d: outputs.write_evaluation(e, blocks, runs, episodes, timing, d),
+                lambda e, d: outputs.write_evaluation(e, blocks, runs, episodes, timing, d, env_id),
             )
         finally:
             if directory is not self.dir:

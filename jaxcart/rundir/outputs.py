@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxcart.core.solved import SOLVED_DEFINITION, is_solved
+from jaxcart.core.envs import DEFAULT_ENV
+from jaxcart.core.solved import is_solved, solved_definition
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.layout import BLOCK_BEST_PARAMS, BLOCK_METRICS, BLOCK_PARAMS
 
@@ -190,18 +191,20 @@ def write_evaluation(
     episodes: int,
     extra: dict,
     on_digest: Digest = None,
+    env_id: str = DEFAULT_ENV,
 ) -> None:
-    """``evaluation.json`` for ``runs``: per-seed returns and solved flags, streamed."""
+    """``evaluation.json`` for ``runs``: per-seed returns and solved flags (solved as
+    ``env_id`` defines it), streamed."""
     solved_total = best_solved = 0
     with files.atomic_file(path, "w", on_digest) as f:
-        definition = json.dumps(SOLVED_DEFINITION.format(episodes=episodes))
+        definition = json.dumps(solved_definition(env_id).format(episodes=episodes))
         head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
         f.write(head + '  "seeds": [')
         sep = "\n"
         for block, take in overlapping(blocks, runs):
             final = block.metrics["rollout/ep_rew_mean"][-1, take]
             g, j, d = block.gym_returns[take], block.jax_returns[take], block.diverged_at[take]
-            solved = is_solved(g)
+            solved = is_solved(g, env_id)
             solved_total += int(solved.sum())
             first = block.start + take.start - runs.start
             for s in range(len(g)):
@@ -217,7 +220,7 @@ def write_evaluation(
                     "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
                 }
                 if block.best is not None:
-                    seed |= _best_entry(block.best, take, s)
+                    seed |= _best_entry(block.best, take, s, env_id)
                     best_solved += int(seed["best"]["solved"])
                 f.write(sep + "    " + json.dumps(seed))
                 sep = ",\n"
@@ -227,7 +230,7 @@ def write_evaluation(
         f.write("\n  ],\n" + json.dumps(tail, indent=2)[2:] + "\n")
 
 
-def _best_entry(best: dict[str, np.ndarray], take: slice, s: int) -> dict:
+def _best_entry(best: dict[str, np.ndarray], take: slice, s: int, env_id: str) -> dict:
     """A seed's best policy in ``evaluation.json``: its Gymnasium verdict and where it was."""
     g = best["best_gym_returns"][take][s]
     iteration = int(best["best_iteration"][take][s])
@@ -238,6 +241,6 @@ def _best_entry(best: dict[str, np.ndarray], take: slice, s: int) -> dict:
             "gymnasium_returns": g.tolist(),
             "gymnasium_mean": float(g.mean()),
             "gymnasium_min": float(g.min()),
-            "solved": bool(is_solved(g)),
+            "solved": bool(is_solved(g, env_id)),
         }
     }

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import networks
+from jaxcart.core import envs, networks
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.rundir import files, layout, reader
@@ -27,11 +27,13 @@ from jaxcart.rundir.files import RunDirError
 
 class Policy:
     """A trained policy for one or a stack of seeds, callable on float32 observations:
-    ``(4,) -> int``, ``(N, 4) -> (N,)``, and when stacked ``(S, N, 4) -> (S, N)``. Greedy
+    ``(obs_dim,) -> int``, ``(N, obs_dim) -> (N,)``, and when stacked ``(S, N, obs_dim) ->
+    (S, N)`` (CartPole's ``obs_dim`` is 4). Greedy
     (argmax) when ``deterministic``, else sampled from the policy's softmax with ``rng`` (a NumPy
     ``Generator``, or a seed for one). Subclasses compute :meth:`logits`."""
 
-    obs_dim = 4
+    obs_dim = 4  # the observation size of env_id
+    env_id = "CartPole-v1"  # the env whose observations it takes
 
     def __init__(
         self,
@@ -179,10 +181,14 @@ def make_policy(
     rng: np.random.Generator | int | None = None,
 ) -> Policy:
     """The policy of ``config``'s network with ``params``: the built-in MLP in NumPy
-    (:class:`NumpyPolicy`), any other network through JAX (:class:`JaxPolicy`)."""
+    (:class:`NumpyPolicy`), any other network through JAX (:class:`JaxPolicy`); it takes
+    observations of ``config.env`` (:attr:`Policy.obs_dim` values, :attr:`Policy.env_id`)."""
     if config.network is None:
-        return numpy_policy(params, config.activation, stacked, deterministic, rng)
-    return JaxPolicy(config.network, params, stacked, deterministic, rng)
+        policy: Policy = numpy_policy(params, config.activation, stacked, deterministic, rng)
+    else:
+        policy = JaxPolicy(config.network, params, stacked, deterministic, rng)
+    policy.env_id, policy.obs_dim = config.env, envs.make(config.env).obs_dim
+    return policy
 
 
 @dataclass(frozen=True)

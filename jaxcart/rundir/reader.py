@@ -22,11 +22,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from jaxcart.core import physics
+from jaxcart.core import envs, physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic, param_shapes
-from jaxcart.core.solved import is_solved
+from jaxcart.core.solved import EPISODE_LIMITS, is_solved, return_bounds
 from jaxcart.rundir import files, layout, manifest
 from jaxcart.rundir.files import RunDirError
 
@@ -349,7 +350,7 @@ def read_run_metrics(run_dir: files.Where, info: dict) -> dict[str, np.ndarray]:
         path = files.inside(directory, layout.METRICS_FILE)
         manifest.verify(directory, layout.METRICS_FILE, info)
         metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
-    check_metrics(metrics, path)
+    check_metrics(metrics, path, info["config"].env)
     return metrics
 
 
@@ -370,11 +371,21 @@ METRIC_BOUNDS = {
 diverged run's iterations, and no finished episode yet); infinities never."""
 
 
-def check_metrics(metrics: dict[str, np.ndarray], path: files.Target) -> None:
-    """Refuses metrics outside what training can produce (:data:`METRIC_BOUNDS`; any other
-    column within float32)."""
+def metric_bounds(env_id: str = DEFAULT_ENV) -> dict[str, tuple[float, float]]:
+    """:data:`METRIC_BOUNDS` with the episode statistics of ``env_id``'s returns and lengths."""
+    returns, limit = return_bounds(env_id), float(EPISODE_LIMITS[env_id])
+    episodes = {"rollout/ep_rew_mean": returns, "rollout/ep_rew_max": returns}
+    return {**METRIC_BOUNDS, **episodes, "rollout/ep_len_mean": (0.0, limit)}
+
+
+def check_metrics(
+    metrics: dict[str, np.ndarray], path: files.Target, env_id: str = DEFAULT_ENV
+) -> None:
+    """Refuses metrics outside what training on ``env_id`` can produce
+    (:func:`metric_bounds`; any other column within float32)."""
+    bounds = metric_bounds(env_id)
     for name, values in metrics.items():
-        low, high = METRIC_BOUNDS.get(name, (-FLOAT32_MAX, FLOAT32_MAX))
+        low, high = bounds.get(name, (-FLOAT32_MAX, FLOAT32_MAX))
         a = np.asarray(values, float)
         bad = np.isinf(a) | (a < low) | (a > high)
         if bad.any():
@@ -392,8 +403,9 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     with files.opened(run_dir) as directory:
         data = read_json(directory, layout.EVALUATION_FILE, _evaluation_bytes(directory))
         path = directory / layout.EVALUATION_FILE
-        info = read_json(directory, layout.CONFIG_FILE)
-        manifest.verify(directory, layout.EVALUATION_FILE, info)
+        config = read_json(directory, layout.CONFIG_FILE)
+        manifest.verify(directory, layout.EVALUATION_FILE, config)
+    env_id = _env_of(config)
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
         isinstance(s, dict)
@@ -410,7 +422,7 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     if episodes is not None and not bounded_int(episodes, 1, MAX_EVAL_EPISODES):
         raise RunDirError(f"{path} is corrupted: episodes {episodes!r}")
     for s in seeds:
-        problem = _seed_problem(s, episodes)
+        problem = _seed_problem(s, episodes, env_id)
         if problem:
             raise RunDirError(
                 f"{path}: seed {s.get('seed_index', '?')!r:.20} {problem}; refusing it"
@@ -430,40 +442,53 @@ def _return_list(values: object, episodes: int | None) -> np.ndarray | None:
     return np.asarray(values, float)
 
 
-def _seed_problem(seed: dict, episodes: int | None) -> str | None:
+def _env_of(config: object) -> str:
+    """The env id a raw ``config.json`` names (CartPole-v1 when it names none), or refuses it."""
+    inner = config.get("config") if isinstance(config, dict) else None
+    env_id = inner.get("env", DEFAULT_ENV) if isinstance(inner, dict) else DEFAULT_ENV
+    if env_id not in EPISODE_LIMITS:
+        raise RunDirError(f"config.json names env {env_id!r:.40}, which jaxcart does not train")
+    return env_id
+
+
+def _seed_problem(seed: dict, episodes: int | None, env_id: str = DEFAULT_ENV) -> str | None:
     """What is wrong with one seed's entry of ``evaluation.json`` (None: nothing): returns
-    outside the env's [0, max episode return], means and minima that are not theirs, and a
-    ``solved`` that is not what the returns say."""
+    outside the env's [least, greatest episode return], means and minima that are not theirs,
+    and a ``solved`` that is not what the returns say."""
+    low, high = return_bounds(env_id)
+    within = lambda x: low <= x <= high
+    span = f"[{low:g}, {high:g}]"
     mean = seed["gymnasium_mean"]
-    if not 0 <= mean <= MAX_RETURN:
-        return f"has gymnasium_mean {mean!r:.20}, outside [0, {MAX_RETURN}]"
+    if not within(mean):
+        return f"has gymnasium_mean {mean!r:.20}, outside {span}"
     if "gymnasium_returns" not in seed:  # another library's entry: the mean and flag alone
         return (
             "says solved with a mean under the maximum"
-            if seed["solved"] and mean < MAX_RETURN
+            if seed["solved"] and env_id == DEFAULT_ENV and mean < MAX_RETURN
             else None
         )
     returns = _return_list(seed["gymnasium_returns"], episodes)
     if returns is None:
         return "has gymnasium_returns that are not a list of one number per episode"
-    if returns.min() < 0 or returns.max() > MAX_RETURN:
-        return f"has returns outside [0, {MAX_RETURN}]"
+    if returns.min() < low or returns.max() > high:
+        return f"has returns outside {span}"
     if not math.isclose(mean, float(returns.mean()), rel_tol=1e-9, abs_tol=1e-9):
         return "has a gymnasium_mean that is not the mean of its returns"
     if "gymnasium_min" in seed and seed["gymnasium_min"] != float(returns.min()):
         return "has a gymnasium_min that is not the least of its returns"
-    if seed["solved"] != bool(is_solved(returns)):
-        return f"says solved={seed['solved']} where its returns say {bool(is_solved(returns))}"
+    solved = bool(is_solved(returns, env_id))
+    if seed["solved"] != solved:
+        return f"says solved={seed['solved']} where its returns say {solved}"
     jax_returns = seed.get("jaxcart_returns")
     if jax_returns is not None:
         values = _return_list(jax_returns, None)
-        if values is None or values.min() < 0 or values.max() > MAX_RETURN:
-            return f"has jaxcart_returns outside [0, {MAX_RETURN}]"
+        if values is None or values.min() < low or values.max() > high:
+            return f"has jaxcart_returns outside {span}"
     final = seed.get("final_ep_rew_mean")
     if final is not None and not (
-        isinstance(final, (int, float)) and (math.isnan(final) or 0 <= final <= MAX_RETURN)
+        isinstance(final, (int, float)) and (math.isnan(final) or within(final))
     ):
-        return f"has final_ep_rew_mean {final!r:.20}, outside [0, {MAX_RETURN}]"
+        return f"has final_ep_rew_mean {final!r:.20}, outside {span}"
     return None
 
 
@@ -484,11 +509,13 @@ def params_headers(
     """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes; the
     built-in network's of ``dtype`` (float64 for a run trained under x64: :func:`params_dtype`),
     another network's as its own initialisation gives them."""
+    obs_dim = envs.make(config.env).obs_dim
     if config.network is None:
         network = ActorCritic.from_config(config)
-        shapes = files.flatten(network.shapes(), is_leaf=lambda x: isinstance(x, tuple))
+        shapes = files.flatten(network.shapes(obs_dim), is_leaf=lambda x: isinstance(x, tuple))
         return {name: ((num_seeds, *shape), np.dtype(dtype)) for name, shape in shapes.items()}
-    leaves = files.flatten(param_shapes(config.network, 4), is_leaf=lambda x: isinstance(x, tuple))
+    shaped = param_shapes(config.network, obs_dim)
+    leaves = files.flatten(shaped, is_leaf=lambda x: isinstance(x, tuple))
     return {name: ((num_seeds, *shape), dt) for name, (shape, dt) in leaves.items()}
 
 

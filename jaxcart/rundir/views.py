@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
@@ -33,6 +34,7 @@ class RunCurves:
     combination: dict[str, float] | None = None  # a sweep's combination: its swept values
     note: str | None = None  # "from the checkpoint at iteration 12/40: ..." when unfinished
     custom_metrics: tuple[str, ...] = ()  # the run's own metrics (config.json's names)
+    env: str = DEFAULT_ENV  # the env it trained on (config.json's env)
 
 
 def unfinished(run_dir: files.Where) -> bool:
@@ -86,6 +88,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         evaluation=evaluation,
         combination=combination,
         custom_metrics=info["config"].metric_names,
+        env=info["config"].env,
     )
 
 

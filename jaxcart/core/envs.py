@@ -1,0 +1,205 @@
+"""The environments the trainer runs: jaxcart's CartPole-v1, and gymnax's discrete-action envs
+that Gymnasium also has (Acrobot-v1, MountainCar-v0), behind one functional protocol.
+
+An :class:`Env` is the protocol gymnax and jaxcart share, as functions of a state and a params
+pytree passed beside the config: ``reset(key, params) -> (obs, state)`` and a batched
+``step_batch(key, state, action, params)`` that keeps ``terminated`` and ``truncated`` apart
+and resets finished episodes on the same step, plus the sizes the trainer takes from it
+(``obs_dim``, ``num_actions``).
+
+gymnax's own ``step`` resets inside and merges the episode end into its bookkeeping; the
+trainer bootstraps a time-limit truncation from V(final_obs), so the adapter here calls
+gymnax's ``step_env`` (the transition alone: its ``done`` is the natural termination in gymnax
+1.x), reads the truncation from the state's step counter against the params' time limit
+(``state.time >= params.max_steps_in_episode``, gymnax's ``is_truncated``) and resets itself.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxcart.core import cartpole
+
+Array = jax.Array
+
+DEFAULT_ENV = "CartPole-v1"
+
+GYMNAX_ENVS: dict[str, float] = {
+    "Acrobot-v1": -100.0,
+    "MountainCar-v0": -110.0,
+}
+"""gymnax envs the trainer takes, each with Gymnasium's ``reward_threshold`` for its id (the
+mean greedy return that counts as solved): the discrete-action, flat-observation envs of
+gymnax that Gymnasium also registers, so that a policy is judged in Gymnasium's own env."""
+
+GYMNAX_EXTRA = "pip install -e '.[gymnax]'"
+
+ACTION_COUNTS = {DEFAULT_ENV: 2, "Acrobot-v1": 3, "MountainCar-v0": 3}
+"""Each env's discrete actions, for readers of finished runs that need no gymnax import (the
+plots); :func:`make`'s :attr:`Env.num_actions` agree (tested)."""
+
+
+class EnvError(ValueError):
+    """An env id the trainer cannot run; the message is one line that says why."""
+
+
+@dataclass(frozen=True)
+class Env:
+    """One environment as the trainer sees it.
+
+    Attributes:
+        id: the env id (Gymnasium's, which gymnax's mirrors).
+        obs_dim: observation size; observations are ``[obs_dim]`` floats.
+        num_actions: discrete actions ``0 .. num_actions - 1``.
+        default_params: the env's params pytree with its default (Gymnasium's) values.
+        reset: ``(key, params) -> (obs [obs_dim], state)`` for one env.
+        step_batch: ``(key, state [N], action [N], params) -> (obs [N, obs_dim], state [N],
+            reward [N], terminated [N], truncated [N], {"final_obs": [N, obs_dim]})``, finished
+            episodes reset on the same step (``final_obs``: the observation before the reset).
+        reward_threshold: Gymnasium's ``reward_threshold`` for this id, or None for CartPole,
+            which is judged by its own stricter rule (:mod:`jaxcart.core.solved`).
+    """
+
+    id: str
+    obs_dim: int
+    num_actions: int
+    default_params: Callable[[], Any]
+    reset: Callable[[Array, Any], tuple[Array, Any]]
+    step_batch: Callable[..., tuple]
+    reward_threshold: float | None = None
+
+    @property
+    def is_cartpole(self) -> bool:
+        """jaxcart's own CartPole-v1 (its runs draw their first states on the host)."""
+        return self.id == DEFAULT_ENV
+
+
+CARTPOLE = Env(
+    id=DEFAULT_ENV,
+    obs_dim=4,
+    num_actions=2,
+    default_params=cartpole.EnvParams,
+    reset=cartpole.reset,
+    step_batch=cartpole.step_batch,
+)
+
+
+def env_ids() -> list[str]:
+    """Every env id the trainer takes."""
+    return [DEFAULT_ENV, *GYMNAX_ENVS]
+
+
+@functools.cache
+def make(env_id: str) -> Env:
+    """The :class:`Env` of ``env_id`` (cached: the same object every call, so it can key
+    compiled programs).
+
+    Raises:
+        EnvError: an unknown id, an env this trainer cannot run (continuous actions, no
+            Gymnasium counterpart), or gymnax not installed; the message is one line.
+    """
+    if env_id == DEFAULT_ENV:
+        return CARTPOLE
+    try:
+        import gymnax
+    except ImportError:
+        if env_id in GYMNAX_ENVS:
+            raise EnvError(
+                f"env {env_id} runs on gymnax's implementation, not installed: {GYMNAX_EXTRA}"
+            ) from None
+        raise EnvError(f"unknown env {env_id!r}; choose one of: {', '.join(env_ids())}") from None
+    if env_id not in gymnax.registered_envs:
+        raise EnvError(f"unknown env {env_id!r}; choose one of: {', '.join(env_ids())}")
+    env, params = gymnax.make(env_id)
+    refusal = _refusal(env_id, env, params)
+    if refusal:
+        raise EnvError(f"env {env_id} {refusal}")
+    return _gymnax_env(env_id, env, params)
+
+
+def _refusal(env_id: str, env: Any, params: Any) -> str | None:
+    """Why the trainer cannot take this gymnax env, or None."""
+    from gymnax.environments import spaces
+
+    if not isinstance(env.action_space(params), spaces.Discrete):
+        return (
+            "has continuous actions; jaxcart's PPO samples discrete actions "
+            f"(it trains {', '.join(env_ids())})"
+        )
+    if env_id not in GYMNAX_ENVS:
+        return (
+            "is not one jaxcart trains: runs are judged in Gymnasium's env of the same id, "
+            f"which Gymnasium lacks for it (it trains {', '.join(env_ids())})"
+        )
+    return None
+
+
+def _gymnax_env(env_id: str, env: Any, params: Any) -> Env:
+    shape = env.observation_space(params).shape
+    return Env(
+        id=env_id,
+        obs_dim=int(math.prod(shape)),
+        num_actions=int(env.action_space(params).n),
+        default_params=lambda: env.default_params,
+        reset=functools.partial(_gymnax_reset, env),
+        step_batch=functools.partial(_gymnax_step_batch, env),
+        reward_threshold=GYMNAX_ENVS[env_id],
+    )
+
+
+def _flat_obs(obs: Array, batch_dims: int) -> Array:
+    """Observations as floats of the training dtype, flattened to ``[..., obs_dim]``."""
+    obs = jnp.asarray(obs, cartpole.float_dtype())
+    return obs.reshape(obs.shape[:batch_dims] + (-1,))
+
+
+def _gymnax_reset(env: Any, key: Array, params: Any) -> tuple[Array, Any]:
+    obs, state = env.reset_env(key, params)
+    return _flat_obs(obs, 0), state
+
+
+def _gymnax_step_batch(
+    env: Any, key: Array, state: Any, action: Array, params: Any
+) -> tuple[Array, Any, Array, Array, Array, dict[str, Array]]:
+    """gymnax's transition for ``N`` envs, with truncation read apart and same-step resets."""
+    num_envs = action.shape[0]
+    step_key, reset_key = jax.random.split(key)
+    step_keys = jax.random.split(step_key, num_envs)
+    final_obs, next_state, reward, terminated, _ = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
+        step_keys, state, action, params
+    )
+    truncated = next_state.time >= params.max_steps_in_episode
+    terminated = jnp.asarray(terminated, bool)
+    done = terminated | truncated
+    reset_obs, reset_state = jax.vmap(env.reset_env, in_axes=(0, None))(
+        jax.random.split(reset_key, num_envs), params
+    )
+
+    def pick(reset_leaf: Array, step_leaf: Array) -> Array:
+        where = done.reshape(done.shape + (1,) * (step_leaf.ndim - 1))
+        return jnp.where(where, reset_leaf, step_leaf)
+
+    final_obs = _flat_obs(final_obs, 1)
+    obs = pick(_flat_obs(reset_obs, 1), final_obs)
+    state_out = jax.tree.map(pick, reset_state, next_state)
+    reward = jnp.asarray(reward, final_obs.dtype)
+    return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
+
+
+__all__ = [
+    "ACTION_COUNTS",
+    "CARTPOLE",
+    "DEFAULT_ENV",
+    "GYMNAX_ENVS",
+    "Env",
+    "EnvError",
+    "env_ids",
+    "make",
+]
