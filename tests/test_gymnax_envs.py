@@ -235,6 +235,15 @@ def test_network_and_runners_take_their_sizes_from_the_env():
     assert logits.shape == (3, 3) and value.shape == (3,)
 
 
+def test_gymnax_params_are_constants_of_the_program():
+    """gymnax's params may hold arrays (Acrobot's ``available_torque [3]``): not a run axis,
+    which training 2 seeds on 2 devices once took them for (a vmap size error)."""
+    from jaxcart.engine.chunk import env_axes
+
+    for env_id in ("Acrobot-v1", "MountainCar-v0"):
+        assert env_axes(envs.make(env_id).default_params()) is None
+
+
 @pytest.mark.slow
 def test_acrobot_run_stops_resumes_and_reads_back(tmp_path, capsys):
     """An Acrobot run stopped after two chunks resumes bit-identical to an uninterrupted one;

@@ -183,7 +183,11 @@ def grouped_iteration(
 def env_axes(env_params: cartpole.EnvParams) -> cartpole.EnvParams | None:
     """The vmap axes of ``env_params`` over runs: None when every field is one number for all
     runs (the default, a constant of the program), else 0 for each field that holds an array
-    ``[R]`` (a swept or randomised physics field) and None for the others."""
+    ``[R]`` (a swept or randomised physics field) and None for the others. Another env's
+    params (gymnax's) are constants whatever their shapes: Acrobot's ``available_torque``
+    ``[3]`` is not a run axis."""
+    if not isinstance(env_params, cartpole.EnvParams):
+        return None
     if not any(jnp.ndim(v) for v in jax.tree.leaves(env_params)):
         return None
     return jax.tree.map(lambda v: 0 if jnp.ndim(v) else None, env_params)
