@@ -100,3 +100,42 @@ def test_time_to_solve_table(ts):
     sbx_line = next(line for line in lines if line.startswith("| sbx"))
     assert "| in training |" in sbx_line and "1,500†" in sbx_line and "2 at a time" in sbx_line
     assert sbx_line.endswith("| 0.12x |")
+
+
+def test_acrobot_contenders_run_only_when_named(ts):
+    only = "jaxcart-acrobot,rejax-acrobot"
+    argv = ["--only", only, "--seeds", "64"]
+    for mode in ([], ["--time-to-solve"]):
+        assert ts.selected(names(ts, mode + argv), only) == [
+            "jaxcart-acrobot-x64",
+            "rejax-acrobot-x64",
+        ]
+    # a tool's name and its seed counts stand for its CartPole groups only
+    assert not [n for n in names(ts, ["--only", "jaxcart"]) if "acrobot" in n]
+    assert not [n for n in names(ts, ["--seeds-for", "rejax=1"]) if "acrobot" in n]
+    assert not [n for n in names(ts, ["--time-to-solve"]) if "acrobot" in n]
+    assert ts.env_of("rejax-acrobot-x64") == "Acrobot-v1"
+    assert ts.env_of("rejax-cartpole-x64") == "CartPole-v1"
+
+
+def test_acrobot_rows_compare_with_rejax_on_acrobot_not_with_sb3(ts):
+    acrobot = {"env_id": "Acrobot-v1", "eval_mean": [-80.0] * 64}
+    results = [
+        made_up_row(ts, "sb3", 60.0),
+        made_up_row(ts, "jaxcart-acrobot-x64", 30.0, 64, **acrobot),
+        made_up_row(ts, "rejax-acrobot-x64", 60.0, 64, **acrobot),
+    ]
+    settings = {"quick": False, "time_to_solve": True, "slow": False, "warm_cache": False}
+    settings |= {"rejax_python": "r", "sbx_python": "s"}
+    report = {"settings": settings, "results": results, "command": "c", "load_average_end": None}
+    report["machine"] = ts.lib.machine_info()
+    text = ts.markdown(report)
+    assert text.startswith("# PPO time to solve on CartPole-v1 and Acrobot-v1")
+    table = text[text.index("## Time to solve") : text.index("## Training speed")]
+    lines = [line for line in table.splitlines() if line.startswith("| ")][2:]
+    assert [line.split(" | ")[0] for line in lines] == ["| SB3 (PyTorch)", "| jaxcart", "| rejax"]
+    assert [line.endswith("| - |") for line in lines] == [False, True, True]
+    # the speed-up table's row (the last of the two): no SB3 ratios, and rejax's Acrobot row
+    # at the same seeds as the reference (setup + train 58 s against 28 s)
+    ratio = [line for line in text.splitlines() if line.startswith("| jaxcart acrobot x64")][-1]
+    assert ratio.split(" | ")[1:5] == ["-", "-", "-", ts.lib.format_ratio(58 / 28)]

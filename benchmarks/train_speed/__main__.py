@@ -1,4 +1,5 @@
-"""PPO training speed on CartPole-v1: jaxcart against Stable-Baselines3, sbx and rejax.
+"""PPO training speed on CartPole-v1 (and Acrobot-v1): jaxcart against Stable-Baselines3, sbx
+and rejax.
 
 Contenders, each in a fresh subprocess (clean compile caches and memory):
 
@@ -25,13 +26,19 @@ Contenders, each in a fresh subprocess (clean compile caches and memory):
   a ``vmap`` over ``train`` sharded over the CPU devices like jaxcart's. rejax 0.1.3 needs
   gymnax 0.0.x, so it runs in its own virtualenv (``--rejax-python``, default
   ``benchmarks/.venv-rejax/bin/python``).
+- Acrobot-v1, only when ``--only`` or ``--seeds-for`` names them: ``jaxcart-acrobot-xS``,
+  jaxcart's ``acrobot`` preset (``--env Acrobot-v1``, on gymnax 1.x's Acrobot), and
+  ``rejax-acrobot-xS``, rejax's PPO at its own Acrobot configuration
+  (``configs/gymnax/acrobot.yaml``: 5 envs x 100 steps, 100k steps, observations
+  normalised), seeds as for ``rejax-cartpole``.
 
 Per contender: setup (construction, initialisation and, for JAX, compilation) and training
 wall time, their sum ("including compile"), env steps/s, the whole process's wall time
 (imports and evaluation included), peak memory (max RSS of the subprocess, from ``wait4``),
 CPU time / wall time during training and over the process, and the solve rate: every seed's
 greedy policy plays 20 episodes of Gymnasium's own ``CartPole-v1`` (solved = all 20 reach
-500). JAX's persistent compilation cache is off, so compile times are cold; ``--warm-cache``
+500), or of ``Acrobot-v1`` for the Acrobot contenders (solved = the mean reaches its
+``reward_threshold``, -100). JAX's persistent compilation cache is off, so compile times are cold; ``--warm-cache``
 adds a second run of each JAX contender reading a cache written by the first.
 
 ``--time-to-solve`` runs every tool at its own CartPole configurations with 1 and 64 seeds
@@ -45,6 +52,7 @@ and evaluation included, against SB3's one-seed time. SB3 and sbx above one seed
     python -m benchmarks.train_speed --time-to-solve --seeds 1          # N = 1
     python -m benchmarks.train_speed --time-to-solve --seeds 64 --slow  # N = 64
     python -m benchmarks.train_speed --seeds-for sbx-zoo=1,8 --only sbx
+    python -m benchmarks.train_speed --time-to-solve --only jaxcart-acrobot,rejax-acrobot --seeds 64
 
 Writes ``train_speed.json``, ``.md`` and ``.png`` (``time_to_solve.*`` with
 ``--time-to-solve``; and ``logs/``) to ``--out`` (default ``benchmarks/results/scratch``, not
@@ -69,9 +77,12 @@ from benchmarks import lib
 from benchmarks.train_speed.common import (
     EVAL_EPISODES,
     GROUPS,
+    OPT_IN_GROUPS,
     ChildUnavailable,
     contender_names,
     default_groups,
+    env_of,
+    opt_in_groups_named,
     parse_name,
     time_to_solve_groups,
 )
@@ -102,14 +113,17 @@ RUNNERS = {
 # Child side: one contender, in its own process
 
 
-def evaluate_policy(policy, num_policies: int) -> dict:
-    """Gymnasium evaluation with jaxcart's evaluator: per-seed mean/min and solved flags."""
-    from jaxcart.run.greedy import evaluate_gymnasium, summarize
+def evaluate_policy(policy, num_policies: int, env_id: str) -> dict:
+    """Gymnasium evaluation of every contender alike, with jaxcart's evaluator: greedy episodes
+    in ``gymnasium.make(env_id)``, per-seed mean/min and solved flags (``env_id``'s
+    definition: all 500 for CartPole-v1, the mean at least the ``reward_threshold`` else)."""
+    from jaxcart.run.greedy import evaluate_in_gymnasium, summarize
 
     start = time.perf_counter()
-    returns = evaluate_gymnasium(policy, num_policies, EVAL_EPISODES)
-    summary = summarize(returns)
+    returns = evaluate_in_gymnasium(policy, num_policies, EVAL_EPISODES, env_id)
+    summary = summarize(returns, env_id)
     return {
+        "env_id": env_id,
         "eval_seconds": time.perf_counter() - start,
         "eval_mean": [float(v) for v in summary["mean"]],
         "eval_min": [float(v) for v in summary["min"]],
@@ -124,7 +138,7 @@ def child_main(args: argparse.Namespace) -> int:
         if kind not in RUNNERS:
             raise ValueError(f"unknown contender {args.child!r}")
         data, policy = RUNNERS[kind](preset_name, num_seeds, args.quick, args.cache_dir)
-        data.update(evaluate_policy(policy, data["num_seeds"]))
+        data.update(evaluate_policy(policy, data["num_seeds"], env_of(args.child)))
         data["status"] = "ok"
         code = 0
     except ChildUnavailable as e:
@@ -279,7 +293,9 @@ def parse_seeds_for(text: str) -> tuple[list[str], list[int]]:
         raise argparse.ArgumentTypeError(
             f"expected GROUP=N[,N...] (e.g. sbx-zoo=1,64), got {text!r}"
         )
-    groups = [g for g in GROUPS if g == key or (g.startswith(key + "-") and g != "sb3-1thread")]
+    # A tool's name stands for its CartPole groups; an opt-in group is named in full.
+    skip = ("sb3-1thread", *OPT_IN_GROUPS)
+    groups = [g for g in GROUPS if g == key or (g.startswith(key + "-") and g not in skip)]
     if not groups:
         raise argparse.ArgumentTypeError(
             f"unknown contender group {key!r}; choose a tool or one of: {', '.join(GROUPS)}"
@@ -297,7 +313,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--only",
         default=None,
         help="comma-separated contender names or prefixes (sb3, jaxcart, jaxcart-fast, "
-        "rejax-sb3-x8, sbx, ...)",
+        "rejax-sb3-x8, sbx, ...); the Acrobot-v1 groups jaxcart-acrobot and rejax-acrobot run "
+        "only when named in full (at --seeds)",
     )
     parser.add_argument(
         "--time-to-solve",
@@ -362,15 +379,19 @@ def selected(names: list[str], only: str | None) -> list[str]:
 
 
 def seeds_by_group(args: argparse.Namespace) -> dict[str, list[int]]:
-    """Each contender group's seed counts: the mode's defaults, then ``--seeds-for``."""
+    """Each contender group's seed counts: the mode's defaults (with the opt-in groups that
+    ``--only`` names, at the mode's seeds), then ``--seeds-for``."""
     if args.time_to_solve:
-        groups = time_to_solve_groups(args.seeds or list(TIME_TO_SOLVE_SEEDS), args.slow)
+        seeds = args.seeds or list(TIME_TO_SOLVE_SEEDS)
+        groups = time_to_solve_groups(seeds, args.slow)
         if args.fast_seeds:
             groups["jaxcart-fast"] = args.fast_seeds
     else:
         seeds = args.seeds or list(QUICK_SEEDS if args.quick else FULL_SEEDS)
         fast = args.fast_seeds or list(QUICK_SEEDS if args.quick else FULL_SEEDS[:2])
         groups = default_groups(seeds, fast)
+    if args.only:
+        groups.update(dict.fromkeys(opt_in_groups_named(lib.split_list(args.only)), seeds))
     for names, counts in args.seeds_for:
         groups.update(dict.fromkeys(names, counts))
     if args.time_to_solve:  # SB3's one-seed row is the table's reference

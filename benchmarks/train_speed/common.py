@@ -1,6 +1,6 @@
 """What train_speed and its contender modules share: run lengths, contender names and
-groups, the peers' published configurations, and the child-side set-up common to the JAX
-contenders.
+groups, the env each group trains and is evaluated on, the peers' published configurations,
+and the child-side set-up common to the JAX contenders.
 
 Imports nothing heavy: the child process sets JAX's device count before importing JAX.
 """
@@ -9,8 +9,17 @@ from __future__ import annotations
 
 SB3_TIMESTEPS = 80_000
 # Per seed, with --quick (whole iterations of each configuration; nothing gets solved).
-QUICK_TIMESTEPS = {"sb3": 4096, "fast": 1024, "purejaxrl": 1024, "zoo": 2048, "cartpole": 1000}
+QUICK_TIMESTEPS = {
+    "sb3": 4096,
+    "fast": 1024,
+    "purejaxrl": 1024,
+    "zoo": 2048,
+    "cartpole": 1000,
+    "acrobot": 1024,  # jaxcart's `acrobot` preset: one iteration of 16 envs x 64 steps
+    "acrobot-rejax": 1000,  # rejax's Acrobot config: two iterations of 5 envs x 100 steps
+}
 EVAL_EPISODES = 20
+DEFAULT_ENV = "CartPole-v1"
 
 # rl-zoo3's tuned PPO for CartPole-v1 (DLR-RM/rl-baselines3-zoo, hyperparams/ppo.yml, the
 # "# Tuned" CartPole-v1 entry). "lin_X" there is rl_zoo3.utils.linear_schedule(X): X times
@@ -43,7 +52,15 @@ GROUPS = (
     "jaxcart-purejaxrl",
     "rejax-sb3",
     "rejax-cartpole",
+    "jaxcart-acrobot",
+    "rejax-acrobot",
 )
+# Groups on another env than CartPole-v1 (trained there and evaluated in Gymnasium's env of
+# the same id); every other group is CartPole-v1's.
+ENV_IDS = {"jaxcart-acrobot": "Acrobot-v1", "rejax-acrobot": "Acrobot-v1"}
+# Groups that run only when asked for by name (``--only jaxcart-acrobot``, ``--seeds-for
+# rejax-acrobot=64``), so the CartPole tables and ``--only jaxcart`` stay as they were.
+OPT_IN_GROUPS = tuple(ENV_IDS)
 # One-seed trainings run as separate processes, one per core, for S > 1 seeds (slow: SB3 at
 # its defaults takes about 25 minutes for 64 seeds on 2 cores).
 PROCESS_KINDS = ("sb3", "sbx")
@@ -65,11 +82,28 @@ DESCRIPTIONS = {
         "rejax",
         "rejax's CartPole config (configs/gymnax/cartpole.yaml), 100k steps",
     ),
+    "jaxcart-acrobot": ("jaxcart", "Acrobot-v1: `acrobot` preset, 300k steps"),
+    "rejax-acrobot": (
+        "rejax",
+        "Acrobot-v1: rejax's Acrobot config (configs/gymnax/acrobot.yaml), 100k steps",
+    ),
 }
 
 
 class ChildUnavailable(Exception):
     """The contender's packages are missing in this interpreter."""
+
+
+def env_of(name: str) -> str:
+    """The Gymnasium id of the env contender ``name`` (or group) trains and is evaluated on."""
+    group = name if name in GROUPS else group_of(name)
+    return ENV_IDS.get(group, DEFAULT_ENV)
+
+
+def opt_in_groups_named(only: list[str]) -> list[str]:
+    """The opt-in groups that ``--only``'s words name: the group itself or one of its
+    contenders (``rejax-acrobot``, ``rejax-acrobot-x64``), not a prefix (``rejax``)."""
+    return [g for g in OPT_IN_GROUPS if any(w == g or w.startswith(g + "-") for w in only)]
 
 
 def name_of(group: str, seeds: int) -> str:
@@ -104,11 +138,13 @@ def default_groups(seeds: list[int], fast_seeds: list[int]) -> dict[str, list[in
 
 
 def time_to_solve_groups(seeds: list[int], slow: bool) -> dict[str, list[int]]:
-    """The time-to-solve table's contenders: every group at ``seeds``; SB3 and sbx (one
+    """The time-to-solve table's contenders: every CartPole group at ``seeds``; SB3 and sbx (one
     process per seed) above one seed only when ``slow``. SB3's one-seed rows always run: they
     are the table's reference."""
     groups = {}
     for group in GROUPS:
+        if group in OPT_IN_GROUPS:
+            continue
         if group in ("sb3-default", "sb3-1thread"):
             counts = {1} | (set(seeds) if slow and group == "sb3-default" else set())
         elif group.split("-")[0] in PROCESS_KINDS and not slow:

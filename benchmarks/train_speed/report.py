@@ -6,6 +6,7 @@ from pathlib import Path
 
 from benchmarks import lib
 from benchmarks.train_speed.common import (
+    DEFAULT_ENV,
     DESCRIPTIONS,
     EVAL_EPISODES,
     GROUPS,
@@ -13,6 +14,7 @@ from benchmarks.train_speed.common import (
     QUICK_TIMESTEPS,
     SB3_TIMESTEPS,
     ZOO_SOURCE,
+    env_of,
     group_of,
     label,
     parse_name,
@@ -85,6 +87,29 @@ def row_label(r: dict) -> str:
     return label(r["contender"]) + (" (warm cache)" if r["warm_cache"] else "")
 
 
+def row_env(r: dict) -> str:
+    """The env a row trained and was evaluated on (rows saved before there was a choice
+    carry no ``env_id``: their group says it)."""
+    return r.get("env_id") or env_of(r["contender"])
+
+
+def envs_of(rows: list[dict]) -> list[str]:
+    """The envs of ``rows``, CartPole-v1 first."""
+    return sorted({row_env(r) for r in rows}, key=lambda e: (e != DEFAULT_ENV, e))
+
+
+def solved_note(envs: list[str]) -> str:
+    """What *solved* means for each of ``envs``."""
+    parts = [
+        f"all {EVAL_EPISODES} greedy episodes in Gymnasium's `CartPole-v1` reached 500"
+        if env == DEFAULT_ENV
+        else f"the mean of {EVAL_EPISODES} greedy episodes in Gymnasium's `{env}` reached its "
+        "`reward_threshold` (Acrobot-v1: -100)"
+        for env in envs
+    ]
+    return "; or, on another env, ".join(parts)
+
+
 def fmt_s(v: float | None) -> str:
     return "-" if v is None else f"{v:,.2f}"
 
@@ -124,14 +149,19 @@ def table_row(r: dict) -> list:
 
 
 def ratio_rows(rows: list[dict], sb3: dict | None) -> list[list[str]]:
-    """Speed-ups of every non-SB3 row over SB3 and over rejax with the same seeds."""
+    """Speed-ups of every non-SB3 row over SB3 (CartPole rows) and over rejax with the same
+    seeds on the same env (``rejax-sb3`` on CartPole, ``rejax-acrobot`` on Acrobot)."""
     out = []
     for r in rows:
         if r.get("status") != "ok" or r["contender"].startswith("sb3"):
             continue
         kind, _, seeds = parse_name(r["contender"])
-        rejax = None if kind == "rejax" else find(rows, f"rejax-sb3-x{seeds}", r["warm_cache"])
-        out.append([row_label(r), *ratio_cells(r, sb3), *ratio_cells(r, rejax)])
+        cartpole = row_env(r) == DEFAULT_ENV
+        rejax_group = "rejax-sb3" if cartpole else f"rejax-{parse_name(r['contender'])[1]}"
+        rejax = None if kind == "rejax" else find(rows, f"{rejax_group}-x{seeds}", r["warm_cache"])
+        out.append(
+            [row_label(r), *ratio_cells(r, sb3 if cartpole else None), *ratio_cells(r, rejax)]
+        )
     return out
 
 
@@ -170,29 +200,42 @@ def time_to_solve_row(r: dict, ref: dict | None) -> list:
         rss,
         f"{r['process_cpu_ratio']:.2f}",
         f"{r['solved']}/{r['num_seeds']}",
-        lib.format_ratio(ref["process_wall_seconds"] / wall) if ref else "-",
+        # SB3 ran CartPole-v1 only: no reference for another env's rows
+        lib.format_ratio(ref["process_wall_seconds"] / wall)
+        if ref and row_env(r) == DEFAULT_ENV
+        else "-",
     ]
 
 
 def time_to_solve_section(report: dict) -> list[str]:
     """The time-to-solve table (cold runs, by seed count then tool) and its notes."""
     rows = [r for r in report["results"] if r.get("status") == "ok" and not r["warm_cache"]]
-    rows.sort(key=lambda r: (r["num_seeds"], GROUPS.index(group_of(r["contender"]))))
+    # CartPole rows first, then each other env's, each by seed count then tool
+    rows.sort(
+        key=lambda r: (
+            row_env(r) != DEFAULT_ENV,
+            row_env(r),
+            r["num_seeds"],
+            GROUPS.index(group_of(r["contender"])),
+        )
+    )
     ref = sb3_one_seed_wall(rows)
     s = report["settings"]
+    envs = envs_of(rows) or [DEFAULT_ENV]
     out = [
         "## Time to solve",
         "",
         "Wall time of each contender's whole process, from its start to its exit: Python's "
         "start, imports, construction, compilation, training, and the evaluation of every "
-        f"seed's greedy policy for {EVAL_EPISODES} episodes of Gymnasium's `CartPole-v1` by "
-        "the harness's one evaluator (*of which eval s*); *solved* = seeds whose "
-        f"{EVAL_EPISODES} episodes all reached 500. Every contender had every core: jaxcart and "
+        f"seed's greedy policy for {EVAL_EPISODES} episodes of Gymnasium's "
+        + " or ".join(f"`{e}`" for e in envs)
+        + " (the env the row trained on) by the harness's one evaluator (*of which eval s*); "
+        f"*solved* = seeds for which {solved_note(envs)}. Every contender had every core: jaxcart and "
         "rejax train the N seeds in one program sharded over the cores; SB3 and sbx train one "
         "seed per process, N > 1 seeds as one process per core at a time. The last column is "
         "SB3's one-seed wall time (its defaults, the faster of its two thread settings"
         + (f": {row_label(ref)}, {ref['process_wall_seconds']:,.1f} s" if ref else "")
-        + ") divided by the row's (higher = faster).",
+        + ") divided by the row's (higher = faster; CartPole-v1 rows only).",
         "",
         lib.markdown_table(
             TIME_TO_SOLVE_HEADERS, [time_to_solve_row(r, ref) for r in rows], align="llr" + "r" * 7
@@ -210,6 +253,23 @@ def time_to_solve_section(report: dict) -> list[str]:
         "- rejax's CartPole configuration: keraJLi/rejax `configs/gymnax/cartpole.yaml`, ppo: "
         "5 envs x 100 steps, 100,000 steps, 5 epochs, 5 minibatches, lr 7.5e-4, grad norm 0.5, "
         "gamma 0.99, lambda 0.95, clip 0.2, entropy 0.01, value coef 0.5, 64-64 tanh.",
+    ]
+    if any(group_of(r["contender"]) == "rejax-acrobot" for r in rows):
+        out.append(
+            "- rejax's Acrobot configuration: keraJLi/rejax `configs/gymnax/acrobot.yaml`, ppo: "
+            "the CartPole values above on gymnax's Acrobot-v1, with observations normalised "
+            "by a running mean and variance (`normalize_observations`), which its greedy "
+            "policy applies before the network in the Gymnasium evaluation; that policy is "
+            "checked against rejax's own actor on sampled observations inside the timed "
+            "process (under a second; `policy_check_seconds` in the JSON)."
+        )
+    if any(group_of(r["contender"]) == "jaxcart-acrobot" for r in rows):
+        out.append(
+            "- jaxcart's `acrobot` preset: `python -m jaxcart.train --env Acrobot-v1 --preset "
+            "acrobot` (16 envs x 64 steps, 300,032 steps, lr 2.5e-3 annealed, entropy 0.01), "
+            "on gymnax's Acrobot-v1."
+        )
+    out += [
         "- *jaxcart running PureJaxRL's configuration* is jaxcart's `purejaxrl` preset "
         "(PureJaxRL's CartPole hyperparameters on jaxcart's trainer), not PureJaxRL's "
         "`ppo.py`: PureJaxRL is a script in a GitHub repository, not a package on PyPI, and "
@@ -260,15 +320,16 @@ def markdown(report: dict) -> str:
     failed = [r for r in rows if r.get("status") != "ok"]
     s = report["settings"]
     title = "time to solve" if s.get("time_to_solve") else "training speed"
+    envs = envs_of(ok) or [DEFAULT_ENV]
     out = [
-        f"# PPO {title} on CartPole-v1",
+        f"# PPO {title} on {' and '.join(envs)}",
         "",
         "Each contender ran in a fresh subprocess. *setup* = construction + initialisation + "
         "compilation (JAX) before the first training step; *train* = the training loop; "
         "*total* = setup + train; *process* = the whole subprocess (imports and the Gymnasium "
         "evaluation included). Peak RSS and process CPU time come from `wait4` on the "
-        "subprocess. *solved* = seeds whose greedy policy scored 500 in all "
-        f"{EVAL_EPISODES} episodes of Gymnasium's `CartPole-v1`. Compile times are cold "
+        f"subprocess. *solved* = seeds for which {solved_note(envs)}. Compile "
+        "times are cold "
         "(JAX's persistent compilation cache off)"
         + (
             "; with `--warm-cache` the cold run writes a fresh cache and the *warm cache* run "
@@ -282,8 +343,8 @@ def markdown(report: dict) -> str:
         "Speed-ups (higher = that row is faster). Wall time is compared per trained agent "
         "(SB3 trains one agent per process; S seeds count as S agents), steps/s as measured. "
         "SB3 = the faster of its two rows"
-        + (f" ({row_label(sb3)})" if sb3 else "")
-        + "; rejax = the rejax row with the same number of seeds:",
+        + (f" ({row_label(sb3)}; CartPole-v1 rows only)" if sb3 else "")
+        + "; rejax = the rejax row with the same number of seeds on the same env:",
         "",
         lib.markdown_table(RATIO_HEADERS, ratio_rows(rows, sb3)),
         "",
@@ -316,6 +377,8 @@ PLOT_GROUPS = [
     ("sbx", "default", "C6"),
     ("sbx", "zoo", "C7"),
     ("sb3", "zoo", "C8"),
+    ("jaxcart", "acrobot", "C9"),
+    ("rejax", "acrobot", "k"),
 ]
 
 
@@ -356,7 +419,7 @@ def plot(report: dict, path: Path) -> None:
     for r in (r for r in sb3_processes if r["num_seeds"] > 1):
         ax.plot([r["num_seeds"]], [r[key]], "s", color="C3", mfc="none", label=row_label(r))
     what = "whole-process wall time (time to solve)" if tts else "wall time"
-    title = f"PPO on CartPole-v1: {what} vs seeds"
+    title = f"PPO on {' and '.join(envs_of(rows) or [DEFAULT_ENV])}: {what} vs seeds"
     if report["settings"]["quick"]:
         title += " (--quick: shortened runs)"
     title = lib.machine_title(title, report["machine"])

@@ -1,5 +1,7 @@
 """train_speed's jaxcart contenders (``jaxcart-PRESET-xS``): S seeds of a jaxcart preset
-trained together in one compiled program, sharded over the CPU devices."""
+trained together in one compiled program, sharded over the CPU devices, on the preset's env
+(``acrobot``: gymnax's Acrobot-v1, as ``python -m jaxcart.train --env Acrobot-v1 --preset
+acrobot`` trains it)."""
 
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
     configure_jax_cache(cache_dir)
     from jaxcart.core.config import preset
     from jaxcart.engine.loop import train
-    from jaxcart.rundir.policy import numpy_policy
+    from jaxcart.rundir.policy import make_policy
 
     overrides = {"total_timesteps": QUICK_TIMESTEPS[preset_name]} if quick else {}
     config = preset(preset_name, **overrides)
@@ -47,4 +49,5 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
         "devices_used": result.num_devices,
         "config": config.to_dict(),
     }
-    return data, numpy_policy(params, config.activation, stacked=True)
+    # make_policy: the NumPy actor, taking the observations of config.env (6 for Acrobot)
+    return data, make_policy(params, config, stacked=True)

@@ -4,16 +4,22 @@ devices like jaxcart's:
 - ``rejax-sb3-xS``: rejax's PPO at SB3's hyperparameters;
 - ``rejax-cartpole-xS``: rejax's PPO at its own CartPole-v1 configuration, the ``ppo`` entry of
   ``configs/gymnax/cartpole.yaml`` in rejax's repository (``REJAX_CARTPOLE``; the pip package
-  ships no configs).
+  ships no configs);
+- ``rejax-acrobot-xS``: rejax's PPO at its own Acrobot-v1 configuration, the ``ppo`` entry of
+  ``configs/gymnax/acrobot.yaml`` (``REJAX_ACROBOT``), which normalises observations: its
+  greedy policy applies the learned running mean and variance before the network.
 
 rejax 0.1.3 needs gymnax 0.0.x, so these run in their own virtualenv (``--rejax-python``).
 """
 
 from __future__ import annotations
 
+import copy
 import os
 import sys
 import time
+
+import numpy as np
 
 from benchmarks.train_speed.common import (
     QUICK_TIMESTEPS,
@@ -21,6 +27,11 @@ from benchmarks.train_speed.common import (
     ChildUnavailable,
     configure_jax_cache,
 )
+
+# The greedy policy taken out of rejax's train state must pick rejax's own actions on at least
+# this share of sampled observations (an exact tie in the logits may break either way).
+CHECK_OBSERVATIONS = 64  # per seed; few, as the check runs inside the timed process
+CHECK_AGREEMENT = 0.99
 
 # Where rejax's PPO differs from SB3's at these settings (it has no options for them).
 REJAX_DIFFERENCES = (
@@ -49,16 +60,34 @@ REJAX_CARTPOLE = dict(
 )
 
 
+# keraJLi/rejax configs/gymnax/acrobot.yaml, ppo: the CartPole entry's values, on
+# Acrobot-v1, with observations normalised by a running mean and variance; its eval_freq
+# (1000) is left out as for CartPole.
+REJAX_ACROBOT = dict(REJAX_CARTPOLE, normalize_observations=True)
+
+
+def own_config(values: dict, env: str, total: int) -> dict:
+    """rejax ``PPO.create`` arguments: one of rejax's own configurations on ``env``, run for
+    ``total`` steps with its periodic evaluation out of the way."""
+    return dict(
+        copy.deepcopy(values),  # PPO.create pops from agent_kwargs
+        env=env,
+        total_timesteps=total,
+        eval_freq=total,  # one evaluation period, and the evaluation a no-op (see run)
+        skip_initial_evaluation=True,
+    )
+
+
 def rejax_cartpole_config(quick: bool) -> dict:
     """rejax ``PPO.create`` arguments of rejax's own CartPole-v1 configuration."""
     total = QUICK_TIMESTEPS["cartpole"] if quick else REJAX_CARTPOLE["total_timesteps"]
-    return dict(
-        REJAX_CARTPOLE,
-        env="CartPole-v1",
-        total_timesteps=total,
-        eval_freq=total,  # one evaluation period, and the evaluation a no-op (see below)
-        skip_initial_evaluation=True,
-    )
+    return own_config(REJAX_CARTPOLE, "CartPole-v1", total)
+
+
+def rejax_acrobot_config(quick: bool) -> dict:
+    """rejax ``PPO.create`` arguments of rejax's own Acrobot-v1 configuration."""
+    total = QUICK_TIMESTEPS["acrobot-rejax"] if quick else REJAX_ACROBOT["total_timesteps"]
+    return own_config(REJAX_ACROBOT, "Acrobot-v1", total)
 
 
 def rejax_config(quick: bool) -> dict:
@@ -87,21 +116,87 @@ def rejax_config(quick: bool) -> dict:
     )
 
 
-def greedy_policy(p: dict):
-    """jaxcart's NumPy policy over the seeds' stacked rejax actor parameters (``params``)."""
+class NormalizedPolicy:
+    """A stacked greedy policy whose observations are first normalised as rejax's
+    ``NormalizeObservationsMixin.normalize_obs`` does, ``(obs - mean) / sqrt(var + 1e-8)``,
+    with each seed's running ``mean`` and ``var`` ``[S, obs_dim]`` from its train state."""
+
+    def __init__(self, policy, mean: np.ndarray, var: np.ndarray) -> None:
+        self.policy = policy  # a stacked jaxcart NumpyPolicy over the seeds' actors
+        # [S, obs_dim] -> [S, 1, obs_dim]: broadcast over each seed's N observations
+        self.mean = np.asarray(mean, np.float32)[:, None, :]
+        self.scale = np.sqrt(np.asarray(var, np.float32) + np.float32(1e-8))[:, None, :]
+
+    @property
+    def num_seeds(self) -> int:
+        return self.policy.num_seeds
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """Greedy actions ``[S, N]`` for observations ``[S, N, obs_dim]``."""
+        return self.policy((np.asarray(obs, np.float32) - self.mean) / self.scale)
+
+
+def greedy_policy(ts, env_id: str, obs_dim: int, normalized: bool):
+    """jaxcart's NumPy greedy policy over the seeds' stacked rejax train states ``ts`` (on
+    the host): the actor's layers, after rejax's observation normalisation when the run
+    ``normalized`` (its train state holds the running statistics either way)."""
     from jaxcart.rundir.policy import NumpyPolicy
 
+    p = ts.actor_ts.params["params"]
     layers = {
         "hidden_0": p["features"]["Dense_0"],
         "hidden_1": p["features"]["Dense_1"],
         "out": p["action_logits"],
     }
-    return NumpyPolicy(layers, "tanh", stacked=True)
+    policy = NumpyPolicy(layers, "tanh", stacked=True)
+    policy.env_id, policy.obs_dim = env_id, obs_dim
+    if not normalized:
+        return policy
+    return NormalizedPolicy(policy, ts.obs_rms_state.mean, ts.obs_rms_state.var)
+
+
+def sample_observations(env_id: str, num_seeds: int) -> np.ndarray:
+    """Plausible observations ``[num_seeds, CHECK_OBSERVATIONS, obs_dim]`` float32 of the env,
+    within its observation bounds (random, seeded)."""
+    rng = np.random.default_rng(0)
+    shape = (num_seeds, CHECK_OBSERVATIONS)
+    if env_id == "Acrobot-v1":  # cos, sin of both angles, then the two angular velocities
+        t1, t2 = rng.uniform(-np.pi, np.pi, (2, *shape))
+        v1 = rng.uniform(-4 * np.pi, 4 * np.pi, shape)
+        v2 = rng.uniform(-9 * np.pi, 9 * np.pi, shape)
+        obs = np.stack([np.cos(t1), np.sin(t1), np.cos(t2), np.sin(t2), v1, v2], axis=-1)
+    else:  # CartPole-v1: position, velocity, angle, angular velocity
+        scale = np.array([2.4, 3.0, 0.21, 3.0])
+        obs = rng.uniform(-1, 1, (*shape, 4)) * scale
+    return obs.astype(np.float32)
+
+
+def check_policy(algo, ts, policy, env_id: str) -> float:
+    """The share of sampled observations on which ``policy`` picks the action of rejax's own
+    actor (the mode of its action distribution) applied after rejax's own ``normalize_obs``;
+    raises when under :data:`CHECK_AGREEMENT`."""
+    import jax
+
+    def rejax_greedy(seed_ts, obs):
+        if algo.normalize_observations:
+            obs = algo.normalize_obs(seed_ts.obs_rms_state, obs)
+        mode = lambda actor, x: actor._action_dist(x).mode()
+        return algo.actor.apply(seed_ts.actor_ts.params, obs, method=mode)
+
+    obs = sample_observations(env_id, policy.num_seeds)
+    theirs = np.asarray(jax.vmap(rejax_greedy)(ts, obs))  # no jit: one call, no compile
+    agree = float(np.mean(policy(obs) == theirs))
+    if agree < CHECK_AGREEMENT:
+        raise RuntimeError(f"the NumPy policy agrees with rejax's actor on only {agree:.1%}")
+    return agree
 
 
 def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
     """Trains ``num_seeds`` rejax PPO agents at SB3's settings (``preset_name`` ``sb3``) or at
-    rejax's own CartPole configuration (``cartpole``).
+    rejax's own CartPole or Acrobot configuration (``cartpole``, ``acrobot``), and checks the
+    normalised greedy policy taken out of them (Acrobot's) against rejax's own actor
+    (:func:`check_policy`, timed apart as ``policy_check_seconds``, inside the process's wall
+    time).
 
     Returns:
         ``(data, policy)``: the timings and settings, and the seeds' stacked greedy policy
@@ -114,14 +209,17 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
     try:
         import jax
         import jax.numpy as jnp
-        import numpy as np
         from jax.sharding import Mesh, NamedSharding, PartitionSpec
         from rejax import PPO
     except ImportError as e:
         raise ChildUnavailable(f"rejax not installed in {sys.executable} ({e})") from None
     configure_jax_cache(cache_dir)
 
-    configs = {"sb3": rejax_config, "cartpole": rejax_cartpole_config}
+    configs = {
+        "sb3": rejax_config,
+        "cartpole": rejax_cartpole_config,
+        "acrobot": rejax_acrobot_config,
+    }
     if preset_name not in configs:
         raise ValueError(f"unknown rejax configuration {preset_name!r}")
     config = configs[preset_name](quick)
@@ -141,6 +239,13 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
     ts, _ = compiled(keys)
     jax.block_until_ready(ts)
     t2, cpu2 = time.perf_counter(), time.process_time()
+    normalized = bool(getattr(algo, "normalize_observations", False))
+    obs_dim = int(ts.last_obs.shape[-1])
+    policy = greedy_policy(jax.device_get(ts), config["env"], obs_dim, normalized)
+    # Only the normalised policy is checked (its NumPy normalisation is this module's own);
+    # the others keep the wall times they were published with.
+    agree = check_policy(algo, ts, policy, config["env"]) if normalized else None
+    t3 = time.perf_counter()
 
     data = {
         "num_seeds": num_seeds,
@@ -152,6 +257,9 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
         "jax_devices": [str(d) for d in devs],
         "devices_used": count,
         "config": {k: v for k, v in config.items() if k != "env"},
+        **(
+            {"policy_check_agreement": agree, "policy_check_seconds": t3 - t2} if normalized else {}
+        ),
         **({"differences_from_sb3": REJAX_DIFFERENCES} if preset_name == "sb3" else {}),
     }
-    return data, greedy_policy(jax.device_get(ts.actor_ts.params["params"]))
+    return data, policy
