@@ -184,7 +184,8 @@ def check_policy(algo, ts, policy, env_id: str) -> float:
         return algo.actor.apply(seed_ts.actor_ts.params, obs, method=mode)
 
     obs = sample_observations(env_id, policy.num_seeds)
-    theirs = np.asarray(jax.vmap(rejax_greedy)(ts, obs))  # no jit: one call, no compile
+    # not jitted: a few small ops, and no whole program to compile inside the timed process
+    theirs = np.asarray(jax.vmap(rejax_greedy)(ts, obs))
     agree = float(np.mean(policy(obs) == theirs))
     if agree < CHECK_AGREEMENT:
         raise RuntimeError(f"the NumPy policy agrees with rejax's actor on only {agree:.1%}")
