@@ -170,7 +170,7 @@ BAD_OPTIONS = [
     (["--hidden-sizes", "64,,x"], "comma-separated integers"),
     (["--sweep", "learning_rate"], "malformed --sweep"),
     (["--sweep", "learning_rate=fast"], "values must be numbers"),
-    (["--sweep", "num_envs=1,2"], "cannot sweep 'num_envs'"),
+    (["--sweep", "activation=tanh,relu"], "cannot sweep 'activation'"),
     (["--sweep", "gamma=0.9,2"], "out of range"),
     (["--eval-episodes", "0"], "--eval-episodes must be a positive integer"),
     (["--checkpoint-every", "0"], "--checkpoint-every must be in (0, 31536000] seconds"),

@@ -403,7 +403,7 @@ def carry_out(
         with stop.installed():
             return _carry_out(run, options, hooks, stop)
     except Exception:
-        if _nothing_trained(run):  # a new run that failed starting: nothing worth keeping
+        if _nothing_trained(run):  # a new run that failed before its first chunk trained
             run.directory.discard()
         raise
     finally:
@@ -415,7 +415,7 @@ def carry_out(
 def _nothing_trained(run: Run) -> bool:
     """Whether ``run`` is a new run, owned by this process, none of whose iterations trained
     (its only checkpoint, if any, is the one written before the first iteration)."""
-    if run.resumed_from is not None or not run.main_process:
+    if run.resumed_from is not None or not run.main_process or run.trained_chunks:
         return False
     meta = run.directory.checkpoint_meta or {}
     return int(meta.get("iteration", 0)) == 0 and int(meta.get("wave", 0)) == 0
@@ -624,6 +624,7 @@ class ChunkHandler:
 
     def __call__(self, progress: Progress) -> None:
         run = self.run
+        run.trained_chunks += 1
         new = [
             int(r) for r in np.flatnonzero(progress.diverged_at >= 0) if int(r) not in self.reported
         ]

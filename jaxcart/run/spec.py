@@ -301,6 +301,8 @@ class Run:
     """The iteration of the checkpoint a resume continues from (None for a new run)."""
     resume_wave: int = 0
     """The wave a resume continues with."""
+    trained_chunks: int = 0
+    """Chunks this process has trained (a new run that fails with none is discarded)."""
 
     @property
     def out(self) -> Path:
