@@ -23,18 +23,20 @@ def _cmd(*args: str) -> list[str]:
 
 
 @pytest.mark.slow
-def test_two_processes_match_one_process(tmp_path):
+@pytest.mark.parametrize("extra", [[], ["--eval-every", "2", "--keep-best"]], ids=["", "best"])
+def test_two_processes_match_one_process(tmp_path, extra):
     single = tmp_path / "single"
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
     env["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    args = [*ARGS, *extra]  # with the periodic evaluation, the best policies are gathered too
     done = subprocess.run(
-        _cmd(*ARGS, "--out", str(single)), env=env, capture_output=True, text=True, timeout=300
+        _cmd(*args, "--out", str(single)), env=env, capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0, done.stdout + done.stderr
 
     multi = tmp_path / "multi"
     procs = launch_local(
-        [*ARGS, "--out", str(multi)],
+        [*args, "--out", str(multi)],
         wait=False,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -48,6 +50,8 @@ def test_two_processes_match_one_process(tmp_path):
 
     assert_same_run_dirs(single, multi)
     assert sorted(p.name for p in multi.iterdir()) == sorted(p.name for p in single.iterdir())
+    if extra:
+        assert (multi / "params_best.npz").is_file()
 
 
 def test_distributed_needs_out_and_even_split(tmp_path, capsys):

@@ -138,3 +138,26 @@ def test_best_policies_survive_waves_and_a_resume_and_reach_every_reader(tmp_pat
     assert evaluate.main([str(tmp_path / "plain"), "--policy", "best"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no best policy was kept" in err
+
+
+def test_a_sweep_keeps_each_combinations_best_policies(tmp_path):
+    """--eval-every and --keep-best in a sweep: every combination's directory holds its own
+    best policies, evaluated, and its metrics record the evaluations (iterations 3 and 6)."""
+    from jaxcart.run import lifecycle
+    from jaxcart.run.spec import RunOptions, RunSpec
+    from jaxcart.rundir.policy import load_policy
+
+    spec = RunSpec(EVERY, num_seeds=2, sweep={"learning_rate": [1e-3, 3e-3]})
+    lifecycle.run_new(spec, tmp_path / "sweep", RunOptions(eval_episodes=2))
+    for c in range(2):
+        combo = layout.combo_dir(tmp_path / "sweep", c)
+        info = reader.read_run_config(combo)
+        assert info["config"].learning_rate == [1e-3, 3e-3][c] and info["config"].keep_best
+        data = json.loads((combo / layout.EVALUATION_FILE).read_text())
+        assert {s["best"]["iteration"] for s in data["seeds"]} <= {3, 6}
+        assert data["best_solved_seeds"] == sum(s["best"]["solved"] for s in data["seeds"])
+        metrics = reader.read_run_metrics(combo, info)
+        evaluated = np.isfinite(metrics["eval/mean_return"]).all(axis=1)
+        assert list(np.flatnonzero(evaluated) + 1) == [3, 6]
+        policy = load_policy(combo, seed_index=1, policy="best")
+        assert policy(np.zeros(4, np.float32)) in (0, 1)
