@@ -301,7 +301,11 @@ def test_benchmark_reads_best_score_against_wall_time_from_a_study(tmp_path):
         num_seeds=2,
         timesteps=4096,
         sb3_python=tmp_path / "python",
+        pruner="median",
+        sampler_seed=3,
     )
     jax_cmd, sb3_cmd = bench.commands(args, tmp_path).values()
     for cmd in (jax_cmd, sb3_cmd):
         assert "learning_rate=log:1e-5:1e-2" in cmd and "8" in cmd and "4096" in cmd
+    assert jax_cmd[jax_cmd.index("--pruner") + 1] == "median"  # jaxcart's side only
+    assert jax_cmd[jax_cmd.index("--sampler-seed") + 1] == "3" and "--pruner" not in sb3_cmd

@@ -45,6 +45,15 @@ def parse_args():
     parser.add_argument("--space", action="append", default=None, help=f"default: {SPACE}")
     parser.add_argument("--sb3-python", type=Path, default=SB3_VENV)
     parser.add_argument("--quick", action="store_true", help=f"a smoke test: {QUICK}")
+    parser.add_argument(
+        "--pruner",
+        default="none",
+        choices=["none", "median", "halving"],
+        help="jaxcart's pruner (run once with none and once with one to measure what it saves)",
+    )
+    parser.add_argument(
+        "--sampler-seed", type=int, default=None, help="seed of jaxcart's TPE sampler"
+    )
     lib.add_output_options(parser)
     return parser.parse_args()
 
@@ -74,6 +83,9 @@ def commands(args, out: Path) -> dict[str, list[str]]:
             "jaxcart",
             "--out",
             str(out / "jaxcart-runs"),
+            "--pruner",
+            args.pruner,
+            *(["--sampler-seed", str(args.sampler_seed)] if args.sampler_seed is not None else []),
             *space,
         ],
         "sb3-zoo": [
