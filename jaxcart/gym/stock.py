@@ -13,18 +13,9 @@ from __future__ import annotations
 from typing import Any
 
 from jaxcart.core.cartpole import EnvParams, observation_space
+from jaxcart.core.physics import CONTINUOUS
 
-PHYSICS = (
-    "gravity",
-    "masscart",
-    "masspole",
-    "length",
-    "force_mag",
-    "tau",
-    "x_threshold",
-    "theta_threshold_radians",
-    "kinematics_integrator",
-)
+PHYSICS = (*CONTINUOUS, "kinematics_integrator")
 """The ``CartPoleEnv`` attributes an :class:`EnvParams` sets (same names)."""
 
 
