@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -209,3 +210,21 @@ def _text(value: object) -> str:
     if isinstance(value, (list, tuple)):
         return ",".join(_text(v) for v in value)
     return repr(value) if isinstance(value, float) else str(value)
+
+
+def parse_with_config(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """``argv`` parsed after the ``--config`` file's options when it names one, so that the
+    command line's override the file's; the file's ignored keys are printed, a line each, and
+    a bad value in the file is named as coming from it."""
+    tokens = cli.join_negative_values(argv)
+    args = parser.parse_args(tokens)
+    if args.config is None:
+        return args
+    from_file = read_config_file(args.config, parser)
+    for note in from_file.notes:
+        print(note, file=sys.stderr)
+    try:
+        parser.parse_args(from_file.tokens)  # a bad value names the file it came from
+    except cli.UsageError as exc:
+        raise cli.UsageError(f"--config {args.config}: {exc}") from None
+    return parser.parse_args(from_file.tokens + tokens)

@@ -611,19 +611,7 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     the command line's override the file's); the file's ignored keys are printed, a line each."""
     from jaxcart import configfile
 
-    parser = build_parser()
-    tokens = cli.join_negative_values(argv)
-    args = parser.parse_args(tokens)
-    if args.config is None:
-        return args
-    from_file = configfile.read_config_file(args.config, parser)
-    for note in from_file.notes:
-        print(note, file=sys.stderr)
-    try:
-        parser.parse_args(from_file.tokens)  # a bad value names the file it came from
-    except cli.UsageError as exc:
-        raise cli.UsageError(f"--config {args.config}: {exc}") from None
-    return parser.parse_args(from_file.tokens + tokens)
+    return configfile.parse_with_config(build_parser(), argv)
 
 
 def main_on_all_cores(argv: list[str] | None = None) -> int:

@@ -334,15 +334,7 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     """The command line, after the ``--config`` file's options (the command line's win)."""
     from jaxcart import configfile
 
-    parser = build_parser()
-    tokens = cli.join_negative_values(argv)
-    args = parser.parse_args(tokens)
-    if args.config is None:
-        return args
-    from_file = configfile.read_config_file(args.config, parser)
-    for note in from_file.notes:
-        print(note, file=sys.stderr)
-    return parser.parse_args(from_file.tokens + tokens)
+    return configfile.parse_with_config(build_parser(), argv)
 
 
 def main_on_all_cores(argv: list[str] | None = None) -> int:
