@@ -112,17 +112,6 @@ STARTING_FILES = (
 """What a run directory holds before its first iteration has trained (besides its lock)."""
 
 
-def _remove_failed_start(directory: files.Dir, created: bool) -> None:
-    """Removes what a start that failed before its ``config.json`` left: the lock and the
-    manifest, and the directory when this start created it (a rerun then starts afresh)."""
-    with contextlib.suppress(OSError):
-        if directory.lstat(layout.CONFIG_FILE) is None:
-            directory.unlink(layout.MANIFEST_FILE)
-            directory.unlink(layout.LOCK_FILE)
-            if created:
-                directory.path.rmdir()
-
-
 class RunDir:
     """One run directory, locked by the main process from :meth:`create`/:meth:`open` to
     :meth:`close`. Only the main process writes; the others hold no lock.
@@ -157,7 +146,7 @@ class RunDir:
         (``info`` and ``config``)."""
         directory = cls(path, main_process)
         if main_process:
-            created = directory.created = not directory.path.exists()
+            directory.created = not directory.path.exists()
             opened = prepare_out_dir(directory.path)
             try:
                 directory._take(opened, verified=True)
@@ -167,8 +156,7 @@ class RunDir:
             try:
                 directory.write_config(info, config)
             except BaseException:
-                _remove_failed_start(opened, created)  # while holding the lock
-                directory.close()
+                directory.discard()  # while holding the lock; the directory too if created here
                 raise
         return directory
 
