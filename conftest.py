@@ -18,6 +18,7 @@ empty``) instead of in a reader's folder. It is removed when the tests end.
 from __future__ import annotations
 
 import atexit
+import importlib.util
 import os
 import re
 import shlex
@@ -155,6 +156,9 @@ def shared_workdir() -> str:
 def enter_workdir(namespace: dict) -> None:
     """Before a document: the shared working directory for its blocks."""
     namespace["workdir"] = shared_workdir()
+    # For `<!-- skip: next if(not GYMNAX, reason="...") -->`: gymnax is an optional extra that
+    # the main test venv does not install (.ci/run tests it in a venv of its own).
+    namespace["GYMNAX"] = importlib.util.find_spec("gymnax") is not None
     namespace["previous_cwd"] = os.getcwd()
     os.chdir(namespace["workdir"])
 
