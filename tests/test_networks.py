@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxcart.core import networks
 from jaxcart.core.networks import ActorCritic, actor_params, mlp, orthogonal
 from jaxcart.rundir.policy import NumpyPolicy
 
@@ -88,6 +90,31 @@ def test_jax_forward_matches_a_hand_written_mlp(activation):
         value, by_hand(params["params"]["critic"])[:, 0], rtol=1e-5, atol=1e-5
     )
     assert logits.shape == (10, 2) and value.shape == (10,)
+
+
+@pytest.mark.parametrize(
+    "network",
+    [
+        ActorCritic(),
+        ActorCritic(hidden_sizes=(16, 8, 4), activation="relu"),
+        ActorCritic(linear_actor=True, num_actions=3),
+    ],
+    ids=["sb3", "relu-3-layers", "linear-actor-3-actions"],
+)
+def test_the_training_programs_forward_pass_is_flaxs_bit_for_bit(network):
+    """networks.apply computes the built-in network as plain functions; the same bits as
+    flax's apply, jitted and vmapped over runs as the training program calls it."""
+    rng = np.random.default_rng(5)
+    params = jax.vmap(lambda k: network.init(k, jnp.zeros((1, 6))))(
+        jax.random.split(jax.random.PRNGKey(0), 3)
+    )
+    params = jax.tree.map(lambda p: p + rng.normal(size=p.shape).astype(p.dtype), params)
+    obs = jnp.asarray(rng.normal(size=(3, 32, 6)).astype(np.float32))
+    ours = jax.jit(jax.vmap(lambda p, o: networks.apply(network, p, o)))(params, obs)
+    flaxs = jax.jit(jax.vmap(network.apply))(params, obs)
+    assert ours[0].shape == (3, 32, network.num_actions) and ours[1].shape == (3, 32)
+    for a, b in zip(ours, flaxs, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_numpy_policy_matches_jax_logits_single_and_stacked():

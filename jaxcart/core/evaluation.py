@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxcart.core import cartpole, envs
+from jaxcart.core import cartpole, envs, networks
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.metrics import EVAL_METRICS
@@ -61,7 +61,7 @@ def greedy_returns(
 
     def one_step(carry, _):
         obs, state, alive, total = carry
-        action = jnp.argmax(network.apply(params, obs)[0], axis=-1)
+        action = jnp.argmax(networks.apply(network, params, obs)[0], axis=-1)
         obs, state, reward, terminated, truncated = jax.vmap(
             cartpole.step_env, in_axes=(0, 0, None)
         )(state, action, env_params)
@@ -89,7 +89,7 @@ def _greedy_returns_env(
 
     def one_step(carry, key):
         obs, state, alive, total = carry
-        action = jnp.argmax(network.apply(params, obs)[0], axis=-1)
+        action = jnp.argmax(networks.apply(network, params, obs)[0], axis=-1)
         obs, state, reward, terminated, truncated, _ = env.step_batch(
             key, state, action, env_params
         )

@@ -182,6 +182,23 @@ class ActorCritic(nn.Module):
         return self.apply(params, obs)[1]
 
 
+def apply(network: nn.Module, params: dict, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``network.apply(params, obs)``: ``(logits [..., num_actions], value [...])`` for ``obs
+    [..., obs_dim]``, the way the training program calls every network.
+
+    The built-in :class:`ActorCritic` is computed as the plain functions of its NumPy twin
+    (:func:`mlp`): the same operations on the same parameter tree, so the same bits
+    (tests/test_networks.py), which JAX traces without flax's module machinery, about a tenth
+    of a second less per compiled program (``benchmarks/RESULTS.md``, "Cold compile"). Any
+    other module runs through flax's ``apply``.
+    """
+    if type(network) is not ActorCritic:
+        return network.apply(params, obs)
+    layers = params[ROOT]
+    value = mlp(layers[CRITIC], obs, network.activation)[..., 0]
+    return mlp(layers[ACTOR], obs, network.activation), value
+
+
 def param_shapes(network: nn.Module, obs_dim: int) -> dict:
     """A flax network's parameter tree with ``(shape, dtype)`` leaves, as its ``init`` makes
     them, without computing anything (the built-in network's: :meth:`ActorCritic.shapes`)."""

@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from jaxcart.core import envs, physics
+from jaxcart.core import envs, networks, physics
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.metrics import (
     EpisodeBuffer,
@@ -126,7 +126,7 @@ def env_step(
     episodes reset on the same step) and record a :class:`Transition` (fields ``[num_envs,
     ...]``)."""
     key, act_key, env_key = jax.random.split(runner.key, 3)
-    logits, value = network.apply(runner.params, runner.obs)
+    logits, value = networks.apply(network, runner.params, runner.obs)
     action = jax.random.categorical(act_key, logits)
     log_prob = categorical_log_prob(logits, action)
     # CartPole's physics may be drawn per episode: physics.step_batch is CartPole's step then
@@ -219,7 +219,7 @@ def training_batch(params: dict, rollout: Transition, config: PPOConfig) -> Batc
     """GAE over ``rollout`` (fields ``[num_steps, num_envs, ...]``), bootstrapping from the
     values of its true next observations under ``params``, and the transitions flattened into
     one training batch, fields ``[batch_size, ...]``."""
-    next_value = make_network(config).apply(params, rollout.final_obs)[1]
+    next_value = networks.apply(make_network(config), params, rollout.final_obs)[1]
     advantages, returns = compute_gae(
         rollout.reward,
         rollout.value,
@@ -269,7 +269,7 @@ def ppo_loss(
         ``(loss, aux)``: the scalar loss and the scalars ``policy_gradient_loss, value_loss,
         entropy_loss, approx_kl, clip_fraction, loss``.
     """
-    logits, value = network.apply(params, batch.obs)
+    logits, value = networks.apply(network, params, batch.obs)
     log_prob = categorical_log_prob(logits, batch.action)
     advantage = batch.advantage
     if config.norm_adv and advantage.shape[0] > 1:
