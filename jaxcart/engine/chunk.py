@@ -20,9 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.core import cartpole
-from jaxcart.core.config import PPOConfig
+from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.evaluation import BestPolicy, periodic_evaluation
-from jaxcart.core.metrics import EPISODE_WINDOW, EpisodeBuffer
+from jaxcart.core.metrics import EPISODE_WINDOW, METRIC_NAMES, EpisodeBuffer
 from jaxcart.core.ppo import (
     RunnerState,
     finish_iteration,
@@ -279,18 +279,19 @@ def train_chunk(
     else:  # exactly the program of a plain vmap (the grouped one differs in the last bits)
         runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, env_axes(env_params)))
 
+    # Every metric leaves an iteration in the training's float type (float32; float64 under
+    # x64), so the skipped iteration's NaNs are known without tracing the iteration again.
+    dtype = float_dtype()
+    names = (*METRIC_NAMES, *config.extra_metric_names)
+
     def run(runners: RunnerState, iteration: Array):
         runners, metrics = runs_iteration(runners, config, iteration, env_params)
         if config.eval_every:  # nothing is added to the program without it
             runners, metrics = evaluate_runs(runners, metrics, config, iteration, env_params)
-        return runners, metrics
+        return runners, {name: value.astype(dtype) for name, value in metrics.items()}
 
     def skip(runners: RunnerState, iteration: Array):
-        # NaN metrics of the dtypes an iteration produces (float32, or float64 under x64)
-        shapes = jax.eval_shape(run, runners, iteration)[1]
-        return runners, {
-            name: jnp.full((num_runs,), jnp.nan, shape.dtype) for name, shape in shapes.items()
-        }
+        return runners, {name: jnp.full((num_runs,), jnp.nan, dtype) for name in names}
 
     def body(runners: RunnerState, offset: Array):
         iteration = start_iteration + offset
