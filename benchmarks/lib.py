@@ -46,16 +46,22 @@ PACKAGES = (
 
 def command_line() -> str:
     """The command that is running, as it could be typed again from the repository root:
-    ``python -m benchmarks.GROUP.NAME ...`` when it was started with ``-m``."""
+    ``python -m benchmarks.GROUP.NAME ...`` when it was started with ``-m``. Another source
+    tree given as ``--before PATH`` (a path of this machine only) reads ``BEFORE_TREE``; this
+    tree (``.``) stays as it is."""
     exe = sys.executable
     try:
         exe = os.path.relpath(exe, Path.cwd())
     except ValueError:
         pass
+    args = [
+        "BEFORE_TREE" if previous == "--before" and arg != "." else arg
+        for previous, arg in zip(["", *sys.argv[1:]], sys.argv[1:])
+    ]
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     if spec is None:  # started as a file (or interactively): argv[0] says what ran
-        return shlex.join([exe, *sys.argv])
-    return shlex.join([exe, "-m", spec.name.removesuffix(".__main__"), *sys.argv[1:]])
+        return shlex.join([exe, sys.argv[0], *args])
+    return shlex.join([exe, "-m", spec.name.removesuffix(".__main__"), *args])
 
 
 def module_command(module: str, python: str | os.PathLike = sys.executable) -> list[str]:

@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.out = lib.output_dir(args.out)
     report = {
-        "command": lib.command_line().replace(str(args.before), "BEFORE_TREE"),
+        "command": lib.command_line(),
         "machine": lib.machine_info(),
         "args": args.args,
         "seconds": args.seconds,

@@ -12,6 +12,10 @@ round alike, so the per-round ratio is the figure to read.
     python -m benchmarks.ablations.process_pairs --before OLD_TREE --after . --pairs 3 \\
         --args "--preset fast --num-seeds 64" --stem process_pairs_fast
 
+``--after-args`` gives the after side other arguments (one tree, two commands: what an option
+costs), for example ``--before . --after . --args "--num-seeds 64" --after-args "--num-seeds 64
+--eval-every 10 --keep-best"``.
+
 Writes ``STEM.json`` and ``.md`` to ``--out`` (default ``benchmarks/results/scratch``).
 """
 
@@ -53,14 +57,19 @@ def one_process(tree: Path, args: list[str], workdir: Path) -> dict:
     }
 
 
-def measure(before: Path, after: Path, args: list[str], pairs: int) -> dict[str, list[dict]]:
-    """``pairs`` rounds of one process per tree, alternating which goes first."""
+def measure(
+    before: Path, after: Path, args: list[str], pairs: int, after_args: list[str] | None = None
+) -> dict[str, list[dict]]:
+    """``pairs`` rounds of one process per tree, alternating which goes first; the after side
+    runs ``after_args`` when given, else ``args``."""
     rows: dict[str, list[dict]] = {"before": [], "after": []}
+    sides = {"before": (before, args), "after": (after, args if after_args is None else after_args)}
     with tempfile.TemporaryDirectory() as workdir:
         for i in range(pairs):
-            order = (("before", before), ("after", after))
-            for side, tree in order if i % 2 == 0 else order[::-1]:
-                rows[side].append(one_process(tree, args, Path(workdir)))
+            order = ("before", "after") if i % 2 == 0 else ("after", "before")
+            for side in order:
+                tree, side_args = sides[side]
+                rows[side].append(one_process(tree, side_args, Path(workdir)))
                 print(f"round {i + 1} {side}: {rows[side][-1]}", flush=True)
     return rows
 
@@ -72,7 +81,8 @@ def medians(rows: list[dict]) -> dict[str, float]:
 def markdown(report: dict) -> str:
     rows = report["rows"]
     lines = [
-        f"# Whole processes before and after: `python -m jaxcart.train {report['args']}`",
+        f"# Whole processes before and after: `python -m jaxcart.train {report['args']}`"
+        + (f", after: `{report['after_args']}`" if report.get("after_args") else ""),
         "",
         f"{report['pairs']} interleaved rounds; seconds (wall and CPU of the process; compile, "
         "train and evaluation as its `evaluation.json` reports them, wall).",
@@ -96,7 +106,9 @@ def markdown(report: dict) -> str:
         f"Median per-round ratio after/before: CPU {report['cpu_ratio']:.3f}, train (wall) "
         f"{report['train_ratio']:.3f}, process wall {report['wall_ratio']:.3f}.",
         "",
-        f"Before (BEFORE_TREE): {report['before']}; after: {report['after']}. Load average "
+        f"Before (BEFORE_TREE): {report['before']}; after: {report['after']}"
+        + (", with `--after-args`" if report.get("after_args") else "")
+        + ". Load average "
         "(1, 5, 15 min) at the end of each process: "
         + "; ".join(f"{s} {[r['load'] for r in rows[s]]}" for s in ("before", "after"))
         + ".",
@@ -111,19 +123,23 @@ def main(argv: list[str] | None = None) -> int:
     parser = lib.arg_parser(__doc__)
     lib.add_tree_options(parser)
     parser.add_argument("--args", default="--num-seeds 64", help="jaxcart.train arguments")
+    parser.add_argument(
+        "--after-args", help="the after side's jaxcart.train arguments (default: --args)"
+    )
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--stem", default="process_pairs")
     lib.add_out_option(parser)
     args = parser.parse_args(argv)
     args.out = lib.output_dir(args.out)
-    rows = measure(args.before, args.after, shlex.split(args.args), args.pairs)
+    after_args = shlex.split(args.after_args) if args.after_args is not None else None
+    rows = measure(args.before, args.after, shlex.split(args.args), args.pairs, after_args)
     per_round = list(zip(rows["before"], rows["after"]))
     label = args.before_label or str(args.before)
     report = {
-        # the before tree's path is of this machine only: its label stands in for it
-        "command": lib.command_line().replace(str(args.before), "BEFORE_TREE"),
+        "command": lib.command_line(),
         "machine": lib.machine_info(),
         "args": args.args,
+        "after_args": args.after_args,
         "pairs": args.pairs,
         "before": label,
         "after": str(args.after),
