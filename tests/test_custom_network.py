@@ -7,6 +7,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import jax
@@ -66,6 +68,23 @@ def test_a_custom_network_trains_and_a_fresh_process_rebuilds_it(tmp_path):
     actions, returns = fresh_python(code, env).splitlines()
     assert json.loads(actions) == expected.tolist()
     assert json.loads(returns) == [seed["gymnasium_returns"] for seed in trained["seeds"]]
+
+    # where the network's module cannot be imported, the readers say so in one line, and how
+    # to reach it: the run directory itself is sound
+    unreachable = {k: v for k, v in env.items() if k != "PYTHONPATH"}
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxcart.evaluate", str(out), "--episodes", "1"],
+        env=unreachable,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 2, done.stderr
+    (line,) = done.stderr.strip().splitlines()
+    assert "cannot rebuild the run's network custom_networks:GeluLayerNorm" in line
+    assert "ModuleNotFoundError" in line and "PYTHONPATH" in line
+    assert "corrupted" not in line
 
 
 def test_two_networks_in_one_process_get_their_own_programs():

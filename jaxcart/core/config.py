@@ -290,12 +290,30 @@ def _same(value: Any, default: Any) -> bool:
         return False
 
 
+class RebuildError(ConfigError):
+    """A run's network class or metric function, recorded as ``module:name``, cannot be
+    imported or built in this process: the run directory is sound, its code is out of reach."""
+
+
+def _unreachable_code_hint(exc: Exception, module: str) -> str:
+    """What to do when a recorded module is not importable from here."""
+    if module == "__main__":
+        return ""
+    if isinstance(exc, ModuleNotFoundError):
+        return (
+            " (run from the folder the run was trained in, or add the module's folder to "
+            "PYTHONPATH)"
+        )
+    return ""
+
+
 def build_network(spec: Any) -> Any:
     """The network :func:`network_spec` recorded: its class imported by name and called with
     its fields (lists become tuples).
 
     Raises:
-        ConfigError: not a recorded network, or its class cannot be imported or built.
+        ConfigError: not a recorded network; :class:`RebuildError` when its class cannot be
+            imported or built here.
     """
     import importlib
 
@@ -316,9 +334,9 @@ def build_network(spec: Any) -> Any:
             " (a class defined in a script or notebook can only be rebuilt there; define it in "
             "an importable module)"
             if module == "__main__" or "<locals>" in name
-            else ""
+            else _unreachable_code_hint(exc, module)
         )
-        raise ConfigError(
+        raise RebuildError(
             f"cannot rebuild the run's network {spec['class']}: {type(exc).__name__}: {exc}{hint}"
         ) from None
 
@@ -345,7 +363,7 @@ def import_metric(path: str) -> Any:
     """The function :func:`function_path` recorded.
 
     Raises:
-        ConfigError: it cannot be imported (a function of a script or notebook, or of a
+        RebuildError: it cannot be imported (a function of a script or notebook, or of a
             missing module), saying why.
     """
     import importlib
@@ -353,13 +371,14 @@ def import_metric(path: str) -> Any:
     module, _, name = path.partition(":")
     where = f"cannot rebuild the run's metric function {path}"
     if module == "__main__" or "<locals>" in name or "<lambda>" in name:
-        raise ConfigError(f"{where}: define it at the top level of an importable module")
+        raise RebuildError(f"{where}: define it at the top level of an importable module")
     try:
         fn = importlib.import_module(module)
         for part in name.split("."):
             fn = getattr(fn, part)
     except Exception as exc:  # someone else's module, imported by name
-        raise ConfigError(f"{where}: {type(exc).__name__}: {exc}") from None
+        hint = _unreachable_code_hint(exc, module)
+        raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
     if not callable(fn):
         raise ConfigError(f"{where}: not callable")
     return fn
@@ -656,6 +675,7 @@ __all__ = [
     "TRACED_FIELDS",
     "ConfigError",
     "PPOConfig",
+    "RebuildError",
     "RecordedMetric",
     "config_fields",
     "field_docs",

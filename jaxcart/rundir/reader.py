@@ -24,7 +24,7 @@ import numpy as np
 
 from jaxcart.core import envs, physics
 from jaxcart.core.cartpole import EnvParams
-from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.config import ConfigError, PPOConfig, RebuildError
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic, param_shapes
 from jaxcart.core.solved import EPISODE_LIMITS, is_solved, return_bounds
@@ -117,6 +117,8 @@ def _read_run_config(directory: files.Dir, verify: bool) -> dict:
     try:
         data["config"] = PPOConfig.from_dict(data["config"])
         _check_run_fields(data)
+    except RebuildError as exc:  # the run is sound; its network's code is out of reach here
+        raise RunDirError(f"{path}: {exc}") from None
     except (KeyError, TypeError, ValueError, OverflowError, ConfigError) as exc:
         raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
     return data
