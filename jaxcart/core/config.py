@@ -295,10 +295,9 @@ class RebuildError(ConfigError):
     imported or built in this process: the run directory is sound, its code is out of reach."""
 
 
-def _unreachable_code_hint(exc: Exception, module: str) -> str:
-    """What to do when a recorded module is not importable from here."""
-    if module == "__main__":
-        return ""
+def _unreachable_code_hint(exc: Exception) -> str:
+    """What to do when a recorded module is not importable from here (its callers refuse
+    ``__main__`` and local definitions with hints of their own first)."""
     if isinstance(exc, ModuleNotFoundError):
         return (
             " (run from the folder the run was trained in, or add the module's folder to "
@@ -334,7 +333,7 @@ def build_network(spec: Any) -> Any:
             " (a class defined in a script or notebook can only be rebuilt there; define it in "
             "an importable module)"
             if module == "__main__" or "<locals>" in name
-            else _unreachable_code_hint(exc, module)
+            else _unreachable_code_hint(exc)
         )
         raise RebuildError(
             f"cannot rebuild the run's network {spec['class']}: {type(exc).__name__}: {exc}{hint}"
@@ -377,10 +376,10 @@ def import_metric(path: str) -> Any:
         for part in name.split("."):
             fn = getattr(fn, part)
     except Exception as exc:  # someone else's module, imported by name
-        hint = _unreachable_code_hint(exc, module)
+        hint = _unreachable_code_hint(exc)
         raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
     if not callable(fn):
-        raise ConfigError(f"{where}: not callable")
+        raise RebuildError(f"{where}: not callable")
     return fn
 
 

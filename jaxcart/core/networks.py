@@ -188,9 +188,9 @@ def apply(network: nn.Module, params: dict, obs: jax.Array) -> tuple[jax.Array, 
 
     The built-in :class:`ActorCritic` is computed as the plain functions of its NumPy twin
     (:func:`mlp`): the same operations on the same parameter tree, so the same bits
-    (tests/test_networks.py), which JAX traces without flax's module machinery, about a tenth
-    of a second less per compiled program (``benchmarks/RESULTS.md``, "Cold compile"). Any
-    other module runs through flax's ``apply``.
+    (tests/test_networks.py), which JAX traces without flax's module machinery, about 0.05 s
+    less per compiled program (``benchmarks/RESULTS.md``, "Default path"). Any other module
+    runs through flax's ``apply``.
     """
     if type(network) is not ActorCritic:
         return network.apply(params, obs)
