@@ -347,6 +347,18 @@ def add_logger_arguments(group: argparse._ActionsContainer) -> None:
     )
 
 
+def add_trust_code_argument(parser: argparse._ActionsContainer) -> None:
+    """``--trust-code``: the opt-in to import the code a run directory names (the commands
+    that run a policy or train share it)."""
+    parser.add_argument(
+        "--trust-code",
+        action="store_true",
+        help="import and run the code the run directory names (its own network class and "
+        "metric functions, from its config.json): only for runs you trust; without it such "
+        "a run is refused, and the rest of jaxcart never imports a run's code",
+    )
+
+
 def join_negative_values(argv: list[str]) -> list[str]:
     """``["--learning-rate", "-3e-4"]`` -> ``["--learning-rate=-3e-4"]``: argparse reads a
     value like ``-3e-4`` as an unknown option, which would hide the real problem (a negative

@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
+import stat
 import sys
 import tomllib
 from dataclasses import dataclass, field
@@ -87,17 +89,23 @@ def read_config_file(path: Path, parser: argparse.ArgumentParser) -> FileOptions
 
 
 def _load(path: Path) -> object:
-    """The file's data, by its suffix (a directory: its ``config.json``)."""
-    if path.is_dir():
+    """The file's data, by its suffix (a directory: its ``config.json``, read as every file of
+    a run directory is: no link followed, a regular file only)."""
+    raw = _run_config_bytes(path) if path.is_dir() else None
+    if raw is not None:
         path = path / "config.json"
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".yml", ".yaml", ".json"):
         raise cli.UsageError(f"--config {path}: expected a .toml, .yml, .yaml or .json file")
-    try:
-        with open(path, "rb") as f:
+    if raw is None:
+        try:  # O_NONBLOCK: a FIFO is refused below instead of blocking the open
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError as exc:
+            raise cli.UsageError(f"--config {path}: {exc.strerror or exc}") from None
+        with os.fdopen(fd, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                raise cli.UsageError(f"--config {path}: not a regular file")
             raw = f.read(MAX_FILE_BYTES + 1)
-    except OSError as exc:
-        raise cli.UsageError(f"--config {path}: {exc.strerror or exc}") from None
     if len(raw) > MAX_FILE_BYTES:
         raise cli.UsageError(f"--config {path}: larger than {MAX_FILE_BYTES:,} bytes")
     try:
@@ -117,6 +125,17 @@ def _load(path: Path) -> object:
     except Exception as exc:  # each parser has its own error class: all mean "not readable"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise cli.UsageError(f"--config {path}: not valid {suffix[1:].upper()}: {first}") from None
+
+
+def _run_config_bytes(run_dir: Path) -> bytes:
+    """A run directory's ``config.json`` through the run directory's own reader."""
+    from jaxcart.rundir import files, layout
+
+    try:
+        with files.opened(run_dir) as directory:
+            return files.read_bytes(directory / layout.CONFIG_FILE, MAX_FILE_BYTES)
+    except files.RunDirError as exc:
+        raise cli.UsageError(f"--config {run_dir}: {exc}") from None
 
 
 def _zoo_values(entry: dict, path: Path, options: FileOptions) -> dict:

@@ -62,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="final: the parameters at the end of training; best: each seed's best policy "
         "by the evaluation during training (a run trained with --eval-every N --keep-best)",
     )
+    cli.add_trust_code_argument(parser)
     parser.add_argument("--gif", type=Path, default=None, help="also render one episode to a GIF")
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
     parser.add_argument(
@@ -89,15 +90,18 @@ def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) ->
 
 
 def _sources(
-    run_dir: Path, combination: int | None, policy: str = "final"
+    run_dir: Path, combination: int | None, policy: str = "final", trust_code: bool = False
 ) -> list[tuple[str | None, RunParams]]:
     """What to evaluate: the run, one combination, or every combination of a sweep, each
     with its label (``0 learning_rate=0.001``) in a sweep; ``policy`` final or best."""
     combos = recorded_combinations(read_run_config(run_dir))
     if not combos:
-        return [(None, run_params(run_dir, combination, policy))]
+        return [(None, run_params(run_dir, combination, policy, trust_code=trust_code))]
     chosen = range(len(combos)) if combination is None else [combination]
-    return [(_combo_label(c, combos), run_params(run_dir, c, policy)) for c in chosen]
+    return [
+        (_combo_label(c, combos), run_params(run_dir, c, policy, trust_code=trust_code))
+        for c in chosen
+    ]
 
 
 def _combo_label(c: int, combos: list) -> str:
@@ -141,7 +145,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
         _check_gif_options(args, num_seeds, sweep)
     sources = [
         (label, _with_env_params(trained, args.env_param))
-        for label, trained in _sources(args.run_dir, args.combination, args.policy)
+        for label, trained in _sources(args.run_dir, args.combination, args.policy, args.trust_code)
     ]
     note = sources[0][1].note
     if note:

@@ -76,7 +76,14 @@ def export(opts: ExportOptions) -> str:
     from jaxcart.core import networks
     from jaxcart.rundir.files import atomic_file
     from jaxcart.rundir.policy import run_params, seed_params
+    from jaxcart.rundir.reader import read_run_config
 
+    recorded = read_run_config(opts.run_dir)["config"].network  # refused before any params
+    if recorded is not None:
+        raise cli.UsageError(
+            f"{opts.run_dir} trained its own network ({recorded.class_path}); "
+            f"--to {opts.to} exports the built-in SB3 MLP only"
+        )
     trained = run_params(opts.run_dir, opts.combination, opts.policy)
     if trained.note:
         print(f"note: {opts.run_dir}: parameters {trained.note}", file=sys.stderr)
@@ -87,11 +94,6 @@ def export(opts: ExportOptions) -> str:
         )
     params = seed_params(trained, opts.seed_index)
     config = trained.config
-    if config.network is not None:
-        raise cli.UsageError(
-            f"{opts.run_dir} trained its own network ({type(config.network).__name__}); "
-            f"--to {opts.to} exports the built-in SB3 MLP only"
-        )
     if config.env != "CartPole-v1":  # the zip declares CartPole's spaces; ONNX's input is 4 wide
         raise cli.UsageError(
             f"--to {opts.to} exports CartPole-v1 policies only; {opts.run_dir} trained {config.env}"

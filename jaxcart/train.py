@@ -184,6 +184,7 @@ def _add_resume_options(run: argparse._ArgumentGroup) -> None:
         help="with --resume: continue on another device count than the run trained on "
         "(the numbers then differ from an uninterrupted run; config.json records it)",
     )
+    cli.add_trust_code_argument(run)
     run.add_argument(
         "--checkpoint-every",
         type=float,
@@ -253,6 +254,7 @@ class TrainOptions:
     randomize: tuple[str, ...] = ()
     resume: Path | None = None
     allow_device_change: bool = False
+    trust_code: bool = False
     checkpoint_every: float = 30.0
     eval_episodes: int | None = None
     loggers: tuple[str, ...] = ()
@@ -282,6 +284,7 @@ class TrainOptions:
             randomize=tuple(args.randomize),
             resume=args.resume,
             allow_device_change=args.allow_device_change,
+            trust_code=args.trust_code,
             checkpoint_every=args.checkpoint_every,
             eval_episodes=args.eval_episodes,
             loggers=tuple(args.logger),
@@ -393,6 +396,8 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     opts.check_distributed()
     if opts.allow_device_change and opts.resume is None:
         raise cli.UsageError("--allow-device-change goes with --resume RUN_DIR")
+    if opts.trust_code and opts.resume is None:
+        raise cli.UsageError("--trust-code goes with --resume RUN_DIR (a new run names its code)")
     if opts.resume is not None:
         opts.check_resume()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
@@ -510,7 +515,13 @@ def _start_or_resume(
     extend_to = opts.overrides.get("total_timesteps")
     try:
         return lifecycle.resume_run(
-            opts.resume, run_options, hooks, stop, extend_to, opts.allow_device_change
+            opts.resume,
+            run_options,
+            hooks,
+            stop,
+            extend_to,
+            opts.allow_device_change,
+            trust_code=opts.trust_code,
         )
     except RunDirError as exc:
         finished = isinstance(exc, lifecycle.RunFinished) and extend_to is None

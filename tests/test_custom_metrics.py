@@ -110,7 +110,7 @@ def test_a_custom_metric_reaches_metrics_csv_tensorboard_plot_and_resume(tmp_pat
     # interrupted after two chunks and resumed: bit-identical, the extra columns included
     run, _ = stopped_run(spec, tmp_path / "resumed", options)
     run.close()
-    resume_run(tmp_path / "resumed", options)
+    resume_run(tmp_path / "resumed", options, trust_code=True)
     again = reader.read_metrics_csv(tmp_path / "resumed" / layout.METRICS_FILE)
     for name in (*METRIC_NAMES, *MINE):
         np.testing.assert_array_equal(again[name], mine[name], err_msg=name)

@@ -17,7 +17,15 @@ import pytest
 from custom_networks import GeluLayerNorm, ReluMLP
 from helpers import TINY, assert_same_run_dirs, fresh_python
 
-from jaxcart.core.config import ConfigError, PPOConfig, build_network, network_spec
+from jaxcart.core.config import (
+    ConfigError,
+    PPOConfig,
+    RecordedNetwork,
+    UntrustedCodeError,
+    build_network,
+    network_spec,
+    resolve_code,
+)
 from jaxcart.engine import loop
 from jaxcart.engine.loop import train
 from jaxcart.run.lifecycle import run_new
@@ -32,8 +40,15 @@ def test_a_network_is_recorded_by_class_and_changed_fields():
     spec = network_spec(GeluLayerNorm(width=64))
     assert spec == {"class": "custom_networks:GeluLayerNorm", "fields": {"width": 64}}
     assert build_network(spec) == GeluLayerNorm(width=64)
+    assert build_network(spec, GeluLayerNorm) == GeluLayerNorm(width=64)
     config = dataclasses.replace(TINY, network=GeluLayerNorm(width=64))
-    assert PPOConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    recorded = PPOConfig.from_dict(json.loads(json.dumps(config.to_dict())))
+    assert isinstance(recorded.network, RecordedNetwork)  # read back as data: nothing imported
+    assert recorded.to_dict() == config.to_dict()
+    with pytest.raises(UntrustedCodeError, match="--trust-code"):
+        resolve_code(recorded)
+    assert resolve_code(recorded, network=GeluLayerNorm) == config
+    assert resolve_code(recorded, trust_code=True) == config
     assert "network" not in TINY.to_dict()  # the built-in network's config.json is unchanged
     with pytest.raises(ConfigError, match="cannot rebuild the run's network nowhere:Net"):
         build_network({"class": "nowhere:Net", "fields": {}})
@@ -56,12 +71,12 @@ def test_a_custom_network_trains_and_a_fresh_process_rebuilds_it(tmp_path):
     code = (
         "import json, sys, numpy as np, jaxcart\n"
         "from jaxcart.rundir.policy import JaxPolicy\n"
-        f"policy = jaxcart.load_policy({str(out)!r}, seed_index=1)\n"
+        f"policy = jaxcart.load_policy({str(out)!r}, seed_index=1, trust_code=True)\n"
         "assert isinstance(policy, JaxPolicy)\n"
         f"obs = np.random.default_rng(3).normal(size=(16, 4)).astype(np.float32)\n"
         "print(json.dumps(policy(obs).tolist()))\n"
         "from jaxcart.run.greedy import evaluate_run_dir\n"
-        f"returns, _ = evaluate_run_dir({str(out)!r}, episodes=3)\n"
+        f"returns, _ = evaluate_run_dir({str(out)!r}, episodes=3, trust_code=True)\n"
         "print(json.dumps(returns.tolist()))\n"
     )
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(TESTS)}
@@ -73,7 +88,7 @@ def test_a_custom_network_trains_and_a_fresh_process_rebuilds_it(tmp_path):
     # to reach it: the run directory itself is sound
     unreachable = {k: v for k, v in env.items() if k != "PYTHONPATH"}
     done = subprocess.run(
-        [sys.executable, "-m", "jaxcart.evaluate", str(out), "--episodes", "1"],
+        [sys.executable, "-m", "jaxcart.evaluate", str(out), "--episodes", "1", "--trust-code"],
         env=unreachable,
         cwd=tmp_path,
         capture_output=True,
@@ -127,6 +142,8 @@ def test_a_stopped_run_of_a_custom_network_resumes_bit_identically(tmp_path):
     run_new(spec, out=tmp_path / "whole", options=options)
     run, _ = stopped_run(spec, tmp_path / "part", options, chunks=2)
     run.close()
-    resumed = resume_run(tmp_path / "part", options)
+    with pytest.raises(UntrustedCodeError):  # the run's code runs only when asked
+        resume_run(tmp_path / "part", options)
+    resumed = resume_run(tmp_path / "part", options, network=ReluMLP)
     assert resumed.run.config.network == ReluMLP(width=16) and resumed.run.resumed_from == 8
     assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")

@@ -17,6 +17,7 @@ import ast
 import dataclasses
 import functools
 import inspect
+import json
 import math
 import re
 from collections.abc import Mapping
@@ -219,7 +220,9 @@ class PPOConfig:
         del data["network"], data["metrics"]
         if self.env == DEFAULT_ENV:
             del data["env"]  # CartPole's config.json reads as it did before there were others
-        if self.network is not None:
+        if isinstance(self.network, RecordedNetwork):
+            data["network"] = self.network.spec()
+        elif self.network is not None:
             data["network"] = network_spec(self.network)
         if self.metrics:
             data["metrics"] = {name: function_path(fn) for name, fn in self.metrics}
@@ -230,11 +233,12 @@ class PPOConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> PPOConfig:
-        """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`, and
-        rebuilds a recorded network (:func:`build_network`). Recorded metrics keep their
-        names but not their functions (:class:`RecordedMetric`): readers need the columns
-        only, and nothing is imported from a run directory until training resumes it
-        (:func:`rebuild_metrics`)."""
+        """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`.
+
+        Nothing is imported: a recorded network stays data (:class:`RecordedNetwork`) and
+        recorded metrics keep their names but not their functions (:class:`RecordedMetric`).
+        Readers need neither; running the policy or training needs the code, which
+        :func:`resolve_code` brings in only when the caller passes it or opts in."""
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
@@ -243,7 +247,7 @@ class PPOConfig:
         if "hidden_sizes" in data:
             data["hidden_sizes"] = tuple(int(h) for h in data["hidden_sizes"])
         if data.get("network") is not None:
-            data["network"] = build_network(data["network"])
+            data["network"] = RecordedNetwork.from_spec(data["network"])
         if "metrics" in data:
             recorded = data["metrics"]
             if not isinstance(recorded, dict) or not all(
@@ -306,38 +310,128 @@ def _unreachable_code_hint(exc: Exception) -> str:
     return ""
 
 
-def build_network(spec: Any) -> Any:
-    """The network :func:`network_spec` recorded: its class imported by name and called with
-    its fields (lists become tuples).
+class UntrustedCodeError(RebuildError):
+    """A run directory names code (a network class, metric functions) that the caller did
+    not pass and did not opt in to import: nothing from the directory runs unless asked."""
+
+
+@dataclass(frozen=True)
+class RecordedNetwork:
+    """A network as a run directory records it, not imported: the class as
+    ``"module:QualName"`` and its fields as canonical JSON. Plots and comparisons need no
+    more; :func:`resolve_code` turns it into the module when the policy must run."""
+
+    class_path: str
+    fields_json: str = "{}"
+
+    @classmethod
+    def from_spec(cls, spec: Any) -> RecordedNetwork:
+        """Checks the shape of what :func:`network_spec` wrote; imports nothing.
+
+        Raises:
+            ConfigError: not ``{"class": "module:Name", "fields": {JSON}}``.
+        """
+        fields = spec.get("fields") or {} if isinstance(spec, dict) else None
+        path = spec.get("class") if isinstance(spec, dict) else None
+        module, _, name = path.partition(":") if isinstance(path, str) else ("", "", "")
+        if (
+            not module
+            or not name
+            or not isinstance(fields, dict)
+            or not _is_json(fields)
+            or set(spec) - {"class", "fields"}
+        ):
+            raise ConfigError(
+                f"network must be a recorded network ({{'class': 'module:Name', 'fields': "
+                f"{{...}}}}), got {spec!r:.200}"
+            )
+        return cls(path, json.dumps(fields, sort_keys=True))
+
+    def spec(self) -> dict:
+        """The ``{"class", "fields"}`` object it was read from."""
+        return {"class": self.class_path, "fields": json.loads(self.fields_json)}
+
+    def __repr__(self) -> str:
+        return f"RecordedNetwork({self.class_path})"
+
+
+def build_network(spec: Any, cls: type | None = None) -> Any:
+    """The network :func:`network_spec` recorded, called with its fields (lists become
+    tuples): with ``cls`` that class, else the recorded class imported by name. Either must
+    be a ``flax.linen.Module`` subclass, checked before anything is called.
 
     Raises:
         ConfigError: not a recorded network; :class:`RebuildError` when its class cannot be
-            imported or built here.
+            imported, is not a flax module, or cannot be built with the recorded fields.
     """
     import importlib
 
-    if not isinstance(spec, dict) or not isinstance(spec.get("class"), str):
-        raise ConfigError(
-            f"network must be a recorded network ({{'class', 'fields'}}), got {spec!r}"
-        )
-    module, _, name = spec["class"].partition(":")
-    fields = spec.get("fields") or {}
+    import flax.linen as nn
+
+    recorded = spec if isinstance(spec, RecordedNetwork) else RecordedNetwork.from_spec(spec)
+    module, _, name = recorded.class_path.partition(":")
+    where = f"cannot rebuild the run's network {recorded.class_path}"
+    if cls is None:
+        if module == "__main__" or "<locals>" in name:
+            raise RebuildError(
+                f"{where}: a class defined in a script or notebook can only be rebuilt there; "
+                "pass it (network=...) or define it in an importable module"
+            )
+        try:
+            cls = importlib.import_module(module)
+            for part in name.split("."):
+                cls = getattr(cls, part)
+        except Exception as exc:  # someone else's module, imported by name on request
+            hint = _unreachable_code_hint(exc)
+            raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
+    if not (isinstance(cls, type) and issubclass(cls, nn.Module)):
+        raise RebuildError(f"{where}: {cls!r:.80} is not a flax.linen.Module subclass")
+    fields = json.loads(recorded.fields_json)
     try:
-        cls = importlib.import_module(module)
-        for part in name.split("."):
-            cls = getattr(cls, part)
-        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in dict(fields).items()}
-        return cls(**kwargs)
-    except Exception as exc:  # an import or a constructor of someone else's code
-        hint = (
-            " (a class defined in a script or notebook can only be rebuilt there; define it in "
-            "an importable module)"
-            if module == "__main__" or "<locals>" in name
-            else _unreachable_code_hint(exc)
-        )
-        raise RebuildError(
-            f"cannot rebuild the run's network {spec['class']}: {type(exc).__name__}: {exc}{hint}"
-        ) from None
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+    except Exception as exc:  # a constructor of someone else's code
+        raise RebuildError(f"{where}: {type(exc).__name__}: {exc}") from None
+
+
+def recorded_code(config: PPOConfig) -> list[str]:
+    """What of ``config`` is code named by a run directory and not yet imported:
+    ``module:Name`` of its network and of each metric function."""
+    named = [config.network.class_path] if isinstance(config.network, RecordedNetwork) else []
+    return named + [fn.path for _, fn in config.metrics if isinstance(fn, RecordedMetric)]
+
+
+def untrusted_code(paths: list[str], where: str = "") -> UntrustedCodeError:
+    """The one-line refusal to run ``paths`` (``module:Name``) that a run directory names."""
+    return UntrustedCodeError(
+        f"{where}{': ' if where else ''}the run was trained with code of its own "
+        f"({', '.join(paths)}), and a run directory runs no code unless you say so: pass "
+        "the network class (network=MyNet in Python) or opt in to import it with "
+        "--trust-code (trust_code=True)"
+    )
+
+
+def resolve_code(
+    config: PPOConfig, network: type | None = None, trust_code: bool = False, where: str = ""
+) -> PPOConfig:
+    """``config`` ready to run: a recorded network built from ``network`` (the class, passed
+    by the caller) or, with ``trust_code``, imported by its recorded name; recorded metric
+    functions imported with ``trust_code``. A config that names no code is returned as is.
+
+    Raises:
+        UntrustedCodeError: the run names code and the caller neither passed it nor opted
+            in; the message names both ways in.
+        RebuildError: the code cannot be imported or built (see :func:`build_network`).
+    """
+    needs_import = [
+        path
+        for path in recorded_code(config)
+        if not (network is not None and path == getattr(config.network, "class_path", None))
+    ]
+    if needs_import and not trust_code:
+        raise untrusted_code(needs_import, where)
+    if isinstance(config.network, RecordedNetwork):
+        config = _replace_unchecked(config, {"network": build_network(config.network, network)})
+    return rebuild_metrics(config)
 
 
 def function_path(fn: Any) -> str:
@@ -524,8 +618,13 @@ def validate(config: PPOConfig) -> None:
         raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")
     if c.weight_init not in ("orthogonal", "default"):
         raise ConfigError(f"weight_init must be 'orthogonal' or 'default', got {c.weight_init!r}")
-    if c.network is not None and not (
-        callable(getattr(c.network, "apply", None)) and callable(getattr(c.network, "init", None))
+    if (
+        c.network is not None
+        and not isinstance(c.network, RecordedNetwork)
+        and not (
+            callable(getattr(c.network, "apply", None))
+            and callable(getattr(c.network, "init", None))
+        )
     ):
         raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
     if not isinstance(c.env, str):

@@ -35,7 +35,7 @@ import optax
 from flax import struct
 
 from jaxcart.core import envs, networks, physics
-from jaxcart.core.config import PPOConfig
+from jaxcart.core.config import PPOConfig, RecordedNetwork, recorded_code, untrusted_code
 from jaxcart.core.metrics import (
     EpisodeBuffer,
     custom_metrics,
@@ -104,7 +104,11 @@ def make_network(config: PPOConfig) -> nn.Module:
     """The actor-critic of ``config``: its ``network``, or the built-in SB3 MLP its
     ``hidden_sizes``, ``activation``, ``linear_actor`` and ``weight_init`` describe. Maps
     observations ``[..., obs_dim]`` to ``(logits [..., num_actions], value [...])``."""
-    return config.network if config.network is not None else ActorCritic.from_config(config)
+    if config.network is None:
+        return ActorCritic.from_config(config)
+    if isinstance(config.network, RecordedNetwork):  # read from a run, not resolved
+        raise untrusted_code(recorded_code(config))
+    return config.network
 
 
 def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:

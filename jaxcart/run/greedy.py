@@ -339,13 +339,19 @@ def evaluate_runs(
 
 
 def evaluate_run_dir(
-    run_dir: str | Path, episodes: int = NUM_EVAL_EPISODES, combination: int | None = None
+    run_dir: str | Path,
+    episodes: int = NUM_EVAL_EPISODES,
+    combination: int | None = None,
+    network: type | None = None,
+    trust_code: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """Evaluates every seed of a run directory in Gymnasium's CartPole-v1: a finished run's
     ``params.npz``, or the last checkpoint of one that did not finish.
 
     Args:
         combination: for a sweep directory, which combination.
+        network, trust_code: for a run trained with its own network, as
+            :func:`~jaxcart.rundir.policy.load_policy` takes them.
 
     Returns:
         ``(returns [num_seeds, episodes], info)`` with ``info`` the run's ``config.json``
@@ -356,7 +362,7 @@ def evaluate_run_dir(
         RunDirError: not a usable run (or a sweep without ``combination``).
     """
     info = reader.read_run_config(run_dir)
-    trained = run_params(run_dir, combination)
+    trained = run_params(run_dir, combination, network=network, trust_code=trust_code)
     return evaluate_params(run_dir, trained, episodes), {**info, "note": trained.note}
 
 

@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core.config import ConfigError, PPOConfig, float_dtype, rebuild_metrics
+from jaxcart.core.config import ConfigError, PPOConfig, float_dtype, resolve_code
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed
 from jaxcart.engine.loop import (
@@ -118,9 +118,15 @@ def open_run(
     main_process: bool = True,
     extend_to: int | None = None,
     allow_device_change: bool = False,
+    network: type | None = None,
+    trust_code: bool = False,
 ) -> Run:
     """An existing, unfinished run directory, to resume; or, with ``extend_to`` env steps
     per seed, an interrupted or finished one to train further.
+
+    A run trained with code of its own (a network, metric functions) needs it: ``network``
+    passed, or its recorded names imported with ``trust_code``; either only after every
+    other check of the directory passed (:func:`~jaxcart.core.config.resolve_code`).
 
     A run continues on the device layout it trained on (a different one gives other
     numbers): another device count is refused unless ``allow_device_change``, which
@@ -143,7 +149,7 @@ def open_run(
         if extend_to is not None:
             meta = directory.read_checkpoint_meta()
             info = _extend(out, info, extend_to, int(meta["iteration"]) if meta else 0)
-        run = _resumable(directory, dict(info))
+        run = _resumable(directory, dict(info), network, trust_code)
         if extend_to is not None and main_process:
             directory.mark_unfinished()  # until the extension finishes, readers say so
         if (extend_to is not None or changed) and main_process:
@@ -184,18 +190,22 @@ def _check_precision(out: Path, info: dict) -> None:
         )
 
 
-def _resumable(directory: RunDir, info: dict) -> Run:
+def _resumable(
+    directory: RunDir, info: dict, network: type | None = None, trust_code: bool = False
+) -> Run:
     """The run a directory's ``info`` (its config.json) and checkpoint describe, at the wave
-    and iteration it continues from."""
+    and iteration it continues from; its code (:func:`resolve_code`) resolved last."""
     meta = directory.read_checkpoint_meta()
     check_versions(directory.path, (meta or info).get("versions", {}))
     _check_precision(directory.path, info)
-    config = rebuild_metrics(info.pop("config"))  # a run trains only with its own metrics
+    config = info.pop("config")
     if meta and meta["iteration"] >= config.num_iterations and directory.finished():
         raise RunFinished(
             f"{directory.path} already finished all {config.num_iterations} iterations; "
             "nothing to resume"
         )
+    # the run's own code, only now that the directory is checked, and only if asked
+    config = resolve_code(config, network, trust_code, str(directory.path))
     spec = RunSpec.from_record({**info, "config": config})
     num_runs = spec.grid.num_runs
     plan = WavePlan(num_runs, info.get("wave_size") or num_runs, 0, 0)
@@ -248,18 +258,26 @@ def _extend(out: Path, info: dict, total_timesteps: int, from_iteration: int) ->
     return info
 
 
-def replay_seed(run_dir: str | Path, seed_index: int, combination: int = 0) -> TrainResult:
+def replay_seed(
+    run_dir: str | Path,
+    seed_index: int,
+    combination: int = 0,
+    network: type | None = None,
+    trust_code: bool = False,
+) -> TrainResult:
     """Trains one seed of a run again, alone, bit-identical to how it trained in its batch:
     the seed is padded to the per-device batch width it had (the padding is discarded).
 
     Needs the run's device count (``XLA_FLAGS=--xla_force_host_platform_device_count=N``)
-    and package versions; costs that width's compute, not one seed's.
+    and package versions; costs that width's compute, not one seed's. A run trained with
+    its own code needs ``network`` or ``trust_code`` (:func:`open_run`).
 
     Raises:
         RunDirError: not a run, or another device count.
         ConfigError: a seed index or combination out of range.
     """
     info = reader.read_run_config(run_dir)
+    info["config"] = resolve_code(info["config"], network, trust_code, str(run_dir))
     spec = RunSpec.from_record(info)
     grid, devices_now = spec.grid, jax.device_count()
     if info.get("device_count") != devices_now:
@@ -355,6 +373,8 @@ def resume_run(
     total_timesteps: int | None = None,
     allow_device_change: bool = False,
     progress: bool = False,
+    network: type | None = None,
+    trust_code: bool = False,
 ) -> Outcome:
     """Continues an interrupted run from its last checkpoint, bit-identically; with
     ``total_timesteps``, extends an interrupted or finished run to that many env steps per
@@ -362,14 +382,22 @@ def resume_run(
     anneals over the new total from the checkpoint on (recorded as ``lr_schedule`` in
     ``config.json``).
     ``allow_device_change`` continues on another device count (see :func:`open_run`);
-    ``progress`` as for :func:`run_new`.
+    ``progress`` as for :func:`run_new`. A run trained with its own network or metrics
+    needs ``network`` (the class) or ``trust_code`` to import them (:func:`open_run`).
     """
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
     if stop is not None:
         stop.check()
-    run = open_run(out, distributed.is_main_process(), total_timesteps, allow_device_change)
+    run = open_run(
+        out,
+        distributed.is_main_process(),
+        total_timesteps,
+        allow_device_change,
+        network,
+        trust_code,
+    )
     recorded = run.info.get("eval_episodes")
     if recorded and options.eval_episodes and options.eval_episodes != recorded:
         run.close()

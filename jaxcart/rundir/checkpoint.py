@@ -191,21 +191,27 @@ class CheckpointRuns:
 
 
 def read_checkpoint_runs(
-    run_dir: files.Where, info: dict | None = None, policy: str = "final"
+    run_dir: files.Where, info: dict | None = None, policy: str = "final", params: bool = True
 ) -> CheckpointRuns:
     """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
     optimizer or env state is restored), refusing crafted files: the metadata must match the
     run's ``config.json``, every array header is checked before anything is read, the whole
     file is bounded by what this config's checkpoint can hold, and parameters must be finite.
+    With ``params=False`` (curves only) the parameters are neither read nor checked, so a run
+    whose network's code is not imported here (:class:`~jaxcart.core.config.RecordedNetwork`)
+    still plots.
 
     Raises:
         RunDirError: no usable checkpoint.
     """
     with files.opened(run_dir) as directory:
-        return _read_checkpoint_runs(directory, info or read_run_config(directory), policy)
+        info = info or read_run_config(directory)
+        return _read_checkpoint_runs(directory, info, policy, params)
 
 
-def _read_checkpoint_runs(directory: files.Dir, info: dict, policy: str) -> CheckpointRuns:
+def _read_checkpoint_runs(
+    directory: files.Dir, info: dict, policy: str, with_params: bool = True
+) -> CheckpointRuns:
     config = info["config"]
     if files.refuse_link(directory / layout.CHECKPOINT_FILE) is None:
         raise RunDirError(
@@ -227,15 +233,17 @@ def _read_checkpoint_runs(directory: files.Dir, info: dict, policy: str) -> Chec
         if not config.keep_best:
             raise RunDirError(no_best_policy(directory))
         params_prefix = layout.CHECKPOINT_BEST_PARAMS
-    headers = params_headers(config, runs, params_dtype(info))
-    expected = {params_prefix + name: header for name, header in headers.items()}
-    limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64
-    found = files.read_headers(path, max_bytes=limit)
-    if any(found.get(name) != header for name, header in expected.items()):
-        raise RunDirError(f"{path} does not hold this run's network")
-    arrays, _ = files.load_tree(path, max_bytes=limit)
-    params = {name[len(params_prefix) :]: arrays[name] for name in expected}
-    files.check_finite(params, path)
+    params = {}
+    if with_params:
+        headers = params_headers(config, runs, params_dtype(info))
+        expected = {params_prefix + name: header for name, header in headers.items()}
+        limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64
+        found = files.read_headers(path, max_bytes=limit)
+        if any(found.get(name) != header for name, header in expected.items()):
+            raise RunDirError(f"{path} does not hold this run's network")
+        arrays, _ = files.load_tree(path, max_bytes=limit)
+        params = {name[len(params_prefix) :]: arrays[name] for name in expected}
+        files.check_finite(params, path)
     stream_path = directory / layout.METRICS_STREAM_FILE
     digest = meta.get(STREAM_DIGEST_KEY)
     streamed = read_stream(stream_path, metric_columns(config), runs, iteration, digest)

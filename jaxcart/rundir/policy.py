@@ -7,6 +7,7 @@ Parameters come from ``params.npz`` of a finished run, or, for a run that did no
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -19,7 +20,7 @@ import numpy as np
 
 from jaxcart.core import envs, networks
 from jaxcart.core.cartpole import EnvParams
-from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.config import ConfigError, PPOConfig, resolve_code
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
@@ -207,21 +208,29 @@ class RunParams:
 
 
 def run_params(
-    run_dir: str | os.PathLike, combination: int | None = None, policy: str = "final"
+    run_dir: str | os.PathLike,
+    combination: int | None = None,
+    policy: str = "final",
+    network: type | None = None,
+    trust_code: bool = False,
 ) -> RunParams:
     """Every seed's parameters of a run directory: ``params.npz`` when the run finished,
     else its checkpoint (:attr:`RunParams.note` says so). A sweep needs ``combination``
     (its ``combo-NNN/`` directory, or its runs in the sweep's checkpoint if unfinished).
     ``policy="best"`` takes each seed's best policy of the periodic evaluation instead
     (``params_best.npz``; a run trained with ``keep_best``). The directory is opened once
-    and every file read through it.
+    and every file read through it. A run trained with its own network needs its class:
+    ``network`` passed, or imported by its recorded name with ``trust_code``
+    (:func:`~jaxcart.core.config.resolve_code`).
 
     Raises:
         RunDirError: not a run directory, nothing usable in it, or a bad ``combination``.
+        ConfigError: the run's network is code not passed or trusted (one line naming both).
     """
     run_dir = Path(run_dir)
     with files.opened(run_dir) as directory:
         info = reader.read_run_config(directory)
+        info["config"] = resolve_code(info["config"], network, trust_code, str(run_dir))
         combos = reader.recorded_combinations(info)
         sweep = reader.is_sweep(directory)
         if combos or sweep:
@@ -242,7 +251,7 @@ def run_params(
             num_seeds = int(info.get("num_seeds", 1))
             env = _env_params(run_dir, info, combination)
             if not combos and files.present(directory / layout.PARAMS_FILE):
-                params = reader.load_params(directory, policy)
+                params = reader.load_params(directory, policy, info)
                 return RunParams(params, info["config"], num_seeds, None, env)
             reader.policy_file(policy)
             saved = read_checkpoint_runs(directory, info, policy)  # unfinished
@@ -252,7 +261,7 @@ def run_params(
             return RunParams(params, config, num_seeds, saved.note, env)
     # a finished sweep: each combination is a run directory of its own (a link is refused)
     name = layout.combo_dir(".", int(combination)).name
-    return run_params(files.subdir(run_dir, name), policy=policy)
+    return run_params(files.subdir(run_dir, name), None, policy, network, trust_code)
 
 
 def _env_params(run_dir: Path, info: dict, combination: int | None) -> EnvParams:
@@ -288,7 +297,7 @@ def _combo_config(info: dict, combination: int | None) -> PPOConfig:
     values = reader.recorded_combinations(info)[combination]
     values = {k: v for k, v in values.items() if not k.startswith("env.")}
     try:
-        return PPOConfig.from_dict({**info["config"].to_dict(), **values})
+        return dataclasses.replace(info["config"], **values)  # keeps its resolved network
     except (ConfigError, TypeError, ValueError) as exc:
         raise RunDirError(f"config.json: combination {combination} is unusable: {exc}") from None
 
@@ -300,6 +309,8 @@ def load_policy(
     deterministic: bool = True,
     rng: np.random.Generator | int | None = None,
     policy: str = "final",
+    network: type | None = None,
+    trust_code: bool = False,
 ) -> Policy:
     """A policy of a trained run, usable in any Gymnasium loop.
 
@@ -313,6 +324,11 @@ def load_policy(
         rng: the NumPy ``Generator`` (or its seed) that samples when not ``deterministic``.
         policy: ``"final"`` (the parameters training ended with) or ``"best"`` (each seed's
             best by the periodic evaluation: a run trained with ``keep_best``).
+        network: the ``flax.linen.Module`` subclass of a run trained with its own network,
+            built with the fields the run recorded. Without it such a run is refused, unless
+        trust_code: imports the network class the run names (its module's code runs); only a
+            ``flax.linen.Module`` subclass is then built. Run directories from others: pass
+            ``network`` instead.
 
     Returns:
         A callable mapping a float32 observation ``(4,)`` to an ``int`` action, or ``(N, 4)``
@@ -324,7 +340,7 @@ def load_policy(
         obs, _ = env.reset()
         obs, reward, terminated, truncated, _ = env.step(policy(obs))
     """
-    trained = run_params(run_dir, combination, policy)
+    trained = run_params(run_dir, combination, policy, network, trust_code)
     stacked = seed_index == "all"
     params = trained.params if stacked else seed_params(trained, seed_index, allow_all=True)
     try:

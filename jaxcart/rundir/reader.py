@@ -24,7 +24,13 @@ import numpy as np
 
 from jaxcart.core import envs, physics
 from jaxcart.core.cartpole import EnvParams
-from jaxcart.core.config import ConfigError, PPOConfig, RebuildError
+from jaxcart.core.config import (
+    ConfigError,
+    PPOConfig,
+    RecordedNetwork,
+    recorded_code,
+    untrusted_code,
+)
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic, param_shapes
 from jaxcart.core.solved import EPISODE_LIMITS, is_solved, return_bounds
@@ -117,8 +123,6 @@ def _read_run_config(directory: files.Dir, verify: bool) -> dict:
     try:
         data["config"] = PPOConfig.from_dict(data["config"])
         _check_run_fields(data)
-    except RebuildError as exc:  # the run is sound; its network's code is out of reach here
-        raise RunDirError(f"{path}: {exc}") from None
     except (KeyError, TypeError, ValueError, OverflowError, ConfigError) as exc:
         raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
     return data
@@ -512,6 +516,8 @@ def params_headers(
     built-in network's of ``dtype`` (float64 for a run trained under x64: :func:`params_dtype`),
     another network's as its own initialisation gives them."""
     obs_dim = envs.make(config.env).obs_dim
+    if isinstance(config.network, RecordedNetwork):  # its shapes need its code
+        raise untrusted_code(recorded_code(config))
     if config.network is None:
         network = ActorCritic.from_config(config)
         shapes = files.flatten(network.shapes(obs_dim), is_leaf=lambda x: isinstance(x, tuple))
@@ -533,9 +539,10 @@ def is_sweep(directory: files.Dir) -> bool:
     )
 
 
-def load_params(run_dir: files.Where, policy: str = "final") -> dict:
+def load_params(run_dir: files.Where, policy: str = "final", info: dict | None = None) -> dict:
     """Every seed's parameters from ``params.npz`` (``policy="best"``: the best policies of
-    the periodic evaluation, ``params_best.npz``), leaves ``[num_seeds, ...]``."""
+    the periodic evaluation, ``params_best.npz``), leaves ``[num_seeds, ...]``. ``info`` is
+    the run's config as already read (its network resolved: :func:`resolve_code`)."""
     name = policy_file(policy)
     with files.opened(run_dir) as directory:
         if is_sweep(directory):
@@ -543,7 +550,7 @@ def load_params(run_dir: files.Where, policy: str = "final") -> dict:
                 f"{directory} is a sweep: each combination is a run directory of its own, "
                 f"e.g. {layout.combo_dir(directory.path, 0)}"
             )
-        info = read_run_config(directory)
+        info = info or read_run_config(directory)
         if files.refuse_link(directory / name) is None:
             if policy == "best" and not info["config"].keep_best:
                 raise RunDirError(no_best_policy(directory))

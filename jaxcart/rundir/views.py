@@ -104,7 +104,7 @@ def checkpoint_curves(
     Raises:
         RunDirError: no usable checkpoint, or no iteration finished yet.
     """
-    saved = read_checkpoint_runs(directory or path, info)
+    saved = read_checkpoint_runs(directory or path, info, params=False)
     if saved.iteration == 0:
         raise RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
     config, num_seeds = info["config"], int(info.get("num_seeds", 1))
