@@ -86,7 +86,7 @@ def test_a_custom_network_trains_and_a_fresh_process_rebuilds_it(tmp_path):
 
     # where the network's module cannot be imported, the readers say so in one line, and how
     # to reach it: the run directory itself is sound
-    unreachable = {k: v for k, v in env.items() if k != "PYTHONPATH"}
+    unreachable = {**env, "PYTHONPATH": str(TESTS.parent)}  # jaxcart, not tests/
     done = subprocess.run(
         [sys.executable, "-m", "jaxcart.evaluate", str(out), "--episodes", "1", "--trust-code"],
         env=unreachable,

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxcart.core.config import RecordedNetwork
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.checkpoint import read_checkpoint_runs
@@ -104,7 +105,9 @@ def checkpoint_curves(
     Raises:
         RunDirError: no usable checkpoint, or no iteration finished yet.
     """
-    saved = read_checkpoint_runs(directory or path, info, params=False)
+    # a network recorded as data has no shapes to check its parameters against: curves only
+    known = not isinstance(info["config"].network, RecordedNetwork)
+    saved = read_checkpoint_runs(directory or path, info, params=known)
     if saved.iteration == 0:
         raise RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
     config, num_seeds = info["config"], int(info.get("num_seeds", 1))
