@@ -198,7 +198,7 @@ def _add(
             continue
         try:
             options.tokens += _tokens(action, value)
-        except ValueError as exc:
+        except (ValueError, cli.UsageError) as exc:
             raise cli.UsageError(f"--config {path}: {exc}") from None
     if unknown:
         raise cli.UsageError("\nerror: ".join(f"--config {path}: {u}" for u in unknown))
@@ -225,8 +225,15 @@ def _truth(value: object, flag: str) -> bool:
 
 
 def _text(value: object) -> str:
-    """A value as the command line spells it (lists comma-separated)."""
+    """A value as the command line spells it (lists comma-separated).
+
+    Raises:
+        cli.UsageError: a list in a list (``[[1, 2], [3]]``): no option takes one, and
+            flattening it would train something the file did not say.
+    """
     if isinstance(value, (list, tuple)):
+        if any(isinstance(v, (list, tuple, dict)) for v in value):
+            raise cli.UsageError(f"a list of lists is no option value, got {value!r}")
         return ",".join(_text(v) for v in value)
     return repr(value) if isinstance(value, float) else str(value)
 

@@ -76,6 +76,12 @@ def check_backend() -> None:
             _refuse(problem)
     if {p.strip() for p in platforms.split(",") if p.strip()} - {"cpu"}:
         failure = _probe_backend()
+        if failure is not None and failure.isidentifier():  # a bare exception: no plugin
+            _refuse(
+                f"JAX_PLATFORMS={platforms!r}: this JAX cannot start that backend (it says only "
+                f"{failure}); install JAX for it (cuda: pip install -U 'jax[cuda12]') or unset "
+                "JAX_PLATFORMS to run on the CPU"
+            )
         if failure is not None:
             _refuse(f"JAX_PLATFORMS={platforms!r}: {failure}; fix or unset JAX_PLATFORMS")
 

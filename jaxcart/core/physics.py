@@ -22,7 +22,7 @@ from flax import struct
 
 from jaxcart.core import cartpole
 from jaxcart.core.cartpole import EnvParams, EnvState
-from jaxcart.core.config import ConfigError
+from jaxcart.core.config import ConfigError, float_dtype
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EnvParams))
 """Every field of :class:`EnvParams`, the names ``--env-param`` takes."""
@@ -96,20 +96,47 @@ def parse_env_params(specs: list[str] | tuple[str, ...]) -> dict[str, Any]:
     return values
 
 
-def check_physics(params: EnvParams) -> None:
+def check_physics(params: EnvParams, dtype: np.dtype | None = None) -> None:
     """Raises :class:`ConfigError` (one line) for params outside physical sense: masses,
     length, ``tau`` and thresholds must be positive, gravity and the force not negative,
     every number finite, the episode limit a positive integer and the reset bounds ordered.
+    Numbers are checked in the float type the env runs in (``dtype``, default
+    :func:`~jaxcart.core.config.float_dtype`: float32, float64 under x64), and so are the
+    quantities the step derives from them alone (total mass, pole mass x length, the pole's
+    angular acceleration when pushed from rest): a value that overflows there, or a positive
+    one that rounds to 0, would make every run diverge at its first iteration.
     Fields may hold arrays (one value per run); every value is checked."""
+    dtype = np.dtype(float_dtype() if dtype is None else dtype)
     positive = ("masscart", "masspole", "length", "tau", "x_threshold", "theta_threshold_radians")
+    ran: dict[str, np.ndarray] = {}  # each number as the env holds it
     for name in (*positive, "gravity", "force_mag", "reset_low", "reset_high"):
         value = np.asarray(getattr(params, name), np.float64)
-        if not np.all(np.isfinite(value)):
-            raise ConfigError(f"env param {name} must be a finite number, got {_shown(value)}")
-        if name in positive and np.any(value <= 0):
-            raise ConfigError(f"env param {name} must be > 0, got {_shown(value)}")
+        with np.errstate(over="ignore"):  # an overflow is what is checked
+            ran[name] = value.astype(dtype)
+        if not np.all(np.isfinite(ran[name])):
+            raise ConfigError(
+                f"env param {name} must be a finite number (in {dtype}, as the env runs), "
+                f"got {_shown(value)}"
+            )
+        if name in positive and np.any(ran[name] <= 0):
+            raise ConfigError(f"env param {name} must be > 0 (in {dtype}), got {_shown(value)}")
         if name in ("gravity", "force_mag") and np.any(value < 0):
             raise ConfigError(f"env param {name} must be >= 0, got {_shown(value)}")
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        total_mass = ran["masspole"] + ran["masscart"]
+        derived = {
+            "total mass": total_mass,
+            "pole mass x length": ran["masspole"] * ran["length"],
+            "pole's angular acceleration from rest": ran["force_mag"]
+            / total_mass
+            / (ran["length"] * (dtype.type(4 / 3) - ran["masspole"] / total_mass)),
+        }
+    for what, value in derived.items():
+        if not np.all(np.isfinite(value)):
+            raise ConfigError(
+                f"env params give a {what} that overflows {dtype}, the float type the env "
+                "runs in; choose values of a more moderate size"
+            )
     steps = params.max_episode_steps
     if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps <= 0:
         raise ConfigError(f"env param max_episode_steps must be a positive integer, got {steps!r}")
@@ -129,8 +156,9 @@ def _shown(value: np.ndarray) -> str:
     return f"{bad[0]:g}" if bad.size == 1 else f"values down to {np.nanmin(bad):g}"
 
 
-def make_env_params(values: dict[str, Any]) -> EnvParams:
-    """:class:`EnvParams` with ``values`` over the defaults, checked.
+def make_env_params(values: dict[str, Any], dtype: np.dtype | None = None) -> EnvParams:
+    """:class:`EnvParams` with ``values`` over the defaults, checked (in ``dtype``, as
+    :func:`check_physics`).
 
     Raises:
         ConfigError: an unknown field, a wrong type or a value outside sense.
@@ -144,7 +172,7 @@ def make_env_params(values: dict[str, Any]) -> EnvParams:
         params = EnvParams(**values)
     except ValueError as exc:  # the integrator's own check
         raise ConfigError(f"env param {exc}") from None
-    check_physics(params)
+    check_physics(params, dtype)
     return params
 
 

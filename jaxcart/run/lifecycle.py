@@ -30,7 +30,7 @@ import jax
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core.config import ConfigError, PPOConfig, float_dtype, resolve_code
+from jaxcart.core.config import ConfigError, float_dtype, resolve_code
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed
 from jaxcart.engine.loop import (
@@ -484,11 +484,6 @@ def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -
 
 
 # One wave: its start state, training in chunks with checkpoints and logging, evaluation --
-def run_configs(run: Run) -> PPOConfig:
-    """Every run's config, its traced fields ``[R]``."""
-    return sweeps.grid_config(run.config, run.grid)
-
-
 def wave_start_state(
     run: Run,
     runs: range,
@@ -526,15 +521,14 @@ def wave_start_state(
         columns = metric_columns(run.config)
         run.directory.open_metrics(len(runs), saved.iteration, columns)  # rows after it are cut
         return dataclasses.replace(saved, chunk_seconds=adapt)
-    configs = jax.tree.map(lambda x: x[runs.start : runs.stop], run_configs(run))
     fresh = initial_state(
-        configs,
+        sweeps.grid_config(run.config, run.grid, runs),
         len(runs),
         run.spec.seed,
         env_params=run.spec.env_params if run.spec.is_cartpole else None,
         chunk_size=chunk_size,
         episode_ranges=run.spec.episode_ranges,
-        seed_indices=run.grid.seed_indices()[runs.start : runs.stop],
+        seed_indices=run.grid.seed_indices(runs),
         on_progress=on_progress,
     )
     run.directory.open_metrics(len(runs), 0, metric_columns(run.config))
@@ -619,7 +613,7 @@ def evaluate_wave(
         params,
         run.config,
         run.spec.seed,
-        run.grid.seed_indices()[runs.start : runs.stop],
+        run.grid.seed_indices(runs),
         episodes,
         should_stop=stop,
         env_params=run.spec.eval_env_params(runs),

@@ -9,6 +9,7 @@ Nothing here trains or touches files: :mod:`jaxcart.run.lifecycle` does, through
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +26,7 @@ from jaxcart.run import sweep as sweeps
 from jaxcart.run.loggers import LoggerUnavailable, check_available
 from jaxcart.run.waves import WavePlan
 from jaxcart.rundir.directory import RunDir
-from jaxcart.rundir.reader import sweep_combinations
+from jaxcart.rundir.reader import check_num_runs, sweep_combinations
 
 
 def check_option(ok: bool, option: str, problem: str) -> None:
@@ -72,6 +73,8 @@ class RunSpec:
             "seed",
             f"must be in [0, 2**32), got {self.seed}",
         )
+        combos = len(self.combinations) or math.prod(len(v) for v in self.sweep.values())
+        check_num_runs(self.num_seeds, combos)  # what the readers accept, before any list
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
         if not self.is_cartpole and (
             physics.overrides(self.env_params) or self.randomize or sweeps.env_values_of(self.sweep)
@@ -145,10 +148,8 @@ class RunSpec:
         env than CartPole (it trains on its own default params)."""
         if not self.is_cartpole:
             return None
-        values = {
-            n: v[runs.start : runs.stop] for n, v in sweeps.grid_env_values(self.grid).items()
-        }
-        indices = self.grid.seed_indices()[runs.start : runs.stop]
+        values = sweeps.grid_env_values(self.grid, runs)
+        indices = self.grid.seed_indices(runs)
         values.update(physics.randomized_values(self.randomize, self.seed, indices))
         return physics.with_values(self.env_params, values)
 
@@ -157,10 +158,7 @@ class RunSpec:
         physics (``env_params``) for a randomised field; None for another env than CartPole."""
         if not self.is_cartpole:
             return None
-        values = {
-            n: v[runs.start : runs.stop] for n, v in sweeps.grid_env_values(self.grid).items()
-        }
-        return physics.with_values(self.env_params, values)
+        return physics.with_values(self.env_params, sweeps.grid_env_values(self.grid, runs))
 
     @property
     def episode_ranges(self) -> dict[str, tuple[float, float]]:

@@ -51,9 +51,17 @@ class RunGrid:
     def seed_index_of(self, run: int) -> int:
         return run % self.num_seeds
 
-    def seed_indices(self) -> np.ndarray:
-        """Each run's seed index, ``[num_runs]``."""
-        return np.tile(np.arange(self.num_seeds), self.num_combos)
+    def seed_indices(self, runs: range | None = None) -> np.ndarray:
+        """Each run's seed index, ``[len(runs)]`` (default: every run, ``[num_runs]``)."""
+        return self._runs(runs) % self.num_seeds
+
+    def combo_indices(self, runs: range | None = None) -> np.ndarray:
+        """Each run's combination, ``[len(runs)]`` (default: every run, ``[num_runs]``)."""
+        return self._runs(runs) // self.num_seeds
+
+    def _runs(self, runs: range | None) -> np.ndarray:
+        runs = range(self.num_runs) if runs is None else runs
+        return np.arange(runs.start, runs.stop)
 
     def runs_of(self, combo: int) -> slice:
         """The runs of one combination, as a slice of the seed axis."""
@@ -157,25 +165,24 @@ def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
     return dataclasses.replace(config, **fields)
 
 
-def grid_env_values(grid: RunGrid) -> dict[str, np.ndarray]:
-    """Each swept physics field's value for every run in ``grid`` order, float64
-    ``[num_runs]`` (``{}`` when the sweep has none)."""
+def grid_env_values(grid: RunGrid, runs: range) -> dict[str, np.ndarray]:
+    """Each swept physics field's value for ``runs`` (in ``grid`` order), float64
+    ``[len(runs)]`` (``{}`` when the sweep has none): a wave's, never every seed's."""
     names = sorted({k for c in grid.combos for k in env_values_of(c)})
-    return {
-        n: np.repeat([env_values_of(c)[n] for c in grid.combos], grid.num_seeds).astype(float)
-        for n in names
-    }
+    combos = grid.combo_indices(runs)
+    return {n: np.array([env_values_of(c)[n] for c in grid.combos], float)[combos] for n in names}
 
 
-def grid_config(config: PPOConfig, grid: RunGrid) -> PPOConfig:
-    """The config of every run in ``grid`` order, its traced fields ``[num_runs]`` (float32, or
-    float64 under x64):
-    each combination's values (``config``'s own where it sweeps nothing), once per seed."""
+def grid_config(config: PPOConfig, grid: RunGrid, runs: range) -> PPOConfig:
+    """The config of ``runs`` (in ``grid`` order; a wave's, never every seed's), its traced
+    fields ``[len(runs)]`` (float32, or float64 under x64): each run's combination's values
+    (``config``'s own where it sweeps nothing)."""
+    combos = grid.combo_indices(runs)
     leaves = {}
     for name in TRACED_FIELDS:
         base = getattr(config, name)
         per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], float_dtype())
-        leaves[name] = np.repeat(per_combo, grid.num_seeds)
+        leaves[name] = per_combo[combos]
     return dataclasses.replace(config, **leaves)
 
 

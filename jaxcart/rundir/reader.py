@@ -147,6 +147,19 @@ def bounded_int(value: object, low: int, high: int) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
 
 
+def check_num_runs(num_seeds: int, num_combos: int) -> None:
+    """Raises :class:`ConfigError` (a ValueError) when ``num_seeds`` x ``num_combos`` (0 or 1:
+    no sweep) runs are more than :data:`MAX_RUNS`: the one bound of a run directory, for a new
+    run as for one read back, checked before any list of runs is built."""
+    if num_seeds * max(1, num_combos) > MAX_RUNS:
+        what = f" x {num_combos:,} combinations" if num_combos > 1 else ""
+        raise ConfigError(
+            f"num_seeds: {num_seeds:,} seeds{what} is over the {MAX_RUNS:,} runs a run "
+            "directory holds; train fewer",
+            option="num_seeds",
+        )
+
+
 def _check_run_fields(data: dict) -> None:
     num_seeds, seed = data.get("num_seeds", 1), data.get("seed", 0)
     if not bounded_int(num_seeds, 1, MAX_RUNS):
@@ -178,13 +191,10 @@ def _check_run_fields(data: dict) -> None:
     combination = data.get("combination") or {}
     if not isinstance(combination, dict) or not all(finite_number(v) for v in combination.values()):
         raise ValueError("combination is not a {name: value} object")
-    num_combos = math.prod(len(v) for v in sweep.values()) if sweep else 0
-    if num_seeds * max(1, num_combos) > MAX_RUNS:  # checked before any list is built
-        raise ValueError(f"{num_seeds} seeds x {num_combos} combinations is over {MAX_RUNS:,} runs")
+    check_num_runs(num_seeds, math.prod(len(v) for v in sweep.values()) if sweep else 0)
     _check_physics_fields(data)
     if not sweep and data.get("combinations"):  # explicit points (a search's trials)
-        if num_seeds * len(recorded_combinations(data)) > MAX_RUNS:
-            raise ValueError(f"{num_seeds} seeds x its combinations is over {MAX_RUNS:,} runs")
+        check_num_runs(num_seeds, len(recorded_combinations(data)))
         return
     derived = sweep_combinations(sweep)
     if "combinations" in data and recorded_combinations(data) != derived:  # older runs
@@ -198,7 +208,8 @@ def _check_physics_fields(data: dict) -> None:
     env = data.get("env_params") or {}
     if not isinstance(env, dict):
         raise ValueError("env_params is not a {field: value} object")
-    params = physics.make_env_params(env)
+    dtype = params_dtype(data)  # what the run trained in
+    params = physics.make_env_params(env, dtype)
     randomize = data.get("randomize") or {}
     if not isinstance(randomize, dict) or not all(
         isinstance(r, dict)
@@ -213,7 +224,8 @@ def _check_physics_fields(data: dict) -> None:
     for name in (*data.get("sweep", {}), *(data.get("combination") or {})):
         if name.startswith(physics.PREFIX):
             physics.check_continuous(name[len(physics.PREFIX) :], "config.json: sweep")
-    physics.check_physics(physics.with_values(params, env_values(data.get("combination") or {})))
+    combination = env_values(data.get("combination") or {})
+    physics.check_physics(physics.with_values(params, combination), dtype)
 
 
 def env_values(combination: dict) -> dict:
