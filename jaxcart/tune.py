@@ -277,6 +277,15 @@ def _tune(opts: TuneOptions) -> int:
         None if opts.base.quiet else (lambda out, results: _print_batch(out, results, started))
     )
 
+    def on_wait(running: int) -> None:
+        expiry = time.strftime("%H:%M:%S", time.localtime(time.time() + search.STALE_GRACE_SECONDS))
+        print(
+            f"note: waiting for {running} trial(s) running elsewhere: another process's finish; "
+            f"a killed process's are marked failed by about {expiry} and asked again",
+            file=sys.stderr,
+            flush=True,
+        )
+
     def on_signal(signum: int) -> None:
         print(
             f"\n{signal.Signals(signum).name}: stopping; this batch's trials are marked failed",
@@ -293,6 +302,7 @@ def _tune(opts: TuneOptions) -> int:
         score,
         Hooks(on_signal=on_signal),
         on_batch,
+        on_wait,
     )
     print(
         f"jaxcart tune | study {opts.study_name!r} in {opts.storage} | {opts.trials} trials, "
@@ -300,22 +310,23 @@ def _tune(opts: TuneOptions) -> int:
         f"sampler {opts.sampler}, pruner {opts.pruner} | out {opts.base.out}",
         flush=True,
     )
-    try:
-        tuner.run(opts.trials, opts.batch_trials)
-    except search.BatchStopped as exc:
-        print(
-            f"stopped by {signal.Signals(exc.signum).name}; run the same command again to continue the study",
-            file=sys.stderr,
-        )
-        return 128 + exc.signum
-    except KeyboardInterrupt:
-        print("interrupted; run the same command again to continue the study", file=sys.stderr)
-        return 130
-    if tuner.pruned_seconds_saved:
-        print(
-            f"pruning stopped groups early: about {tuner.pruned_seconds_saved:.1f} s of training saved"
-        )
-    _print_summary(opts, study, space)
+    with search.storage_errors(opts.storage):  # a read-only database, a lost server
+        try:
+            tuner.run(opts.trials, opts.batch_trials)
+        except search.BatchStopped as exc:
+            print(
+                f"stopped by {signal.Signals(exc.signum).name}; run the same command again to continue the study",
+                file=sys.stderr,
+            )
+            return 128 + exc.signum
+        except KeyboardInterrupt:
+            print("interrupted; run the same command again to continue the study", file=sys.stderr)
+            return 130
+        if tuner.pruned_seconds_saved:
+            print(
+                f"pruning stopped groups early: about {tuner.pruned_seconds_saved:.1f} s of training saved"
+            )
+        _print_summary(opts, study, space)
     return 0
 
 

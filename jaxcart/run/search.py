@@ -18,7 +18,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
+import shutil
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -44,6 +46,8 @@ HEARTBEAT_SECONDS = 60
 """How often a running trial tells the storage it is alive (Optuna's heartbeat)."""
 STALE_GRACE_SECONDS = 300
 """A trial silent this long belonged to a process that died; it is marked failed."""
+WAIT_SECONDS = 5
+"""How often a study whose last trials run elsewhere is checked while this process waits."""
 
 
 DEFAULT_SPACE = (
@@ -250,6 +254,32 @@ def require_optuna() -> Any:
     return optuna
 
 
+def _root_line(exc: BaseException) -> str:
+    """The first line of what the driver said (``attempt to write a readonly database``):
+    Optuna and SQLAlchemy wrap it in generic messages."""
+    while exc.__cause__ is not None:
+        exc = exc.__cause__
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+@contextlib.contextmanager
+def storage_errors(storage: str, also: tuple[type[Exception], ...] = ()) -> Iterator[None]:
+    """Optuna's storage errors (SQLAlchemy's and the drivers', and ``also``) in the block as
+    one :class:`ConfigError` line naming ``storage``.
+
+    Raises:
+        ConfigError: a storage read or write failed (a read-only database, a lost server).
+    """
+    import optuna
+    import sqlalchemy
+
+    try:
+        yield
+    except (optuna.exceptions.StorageInternalError, sqlalchemy.exc.SQLAlchemyError, *also) as exc:
+        raise ConfigError(f"--storage {storage}: {_root_line(exc)}") from None
+
+
 def open_study(
     storage: str,
     study_name: str,
@@ -260,20 +290,28 @@ def open_study(
     """Opens (or creates) a study in ``storage`` (any URL Optuna's RDB storage accepts).
 
     Raises:
-        ConfigError: Optuna missing, a storage that cannot be opened, or a study that exists
-            with another direction.
+        ConfigError: Optuna missing, an in-memory SQLite database (the study would end with the
+            process), a storage that cannot be opened or written, or a study that exists with
+            another direction.
     """
     optuna = require_optuna()
-    if storage.startswith("sqlite:///"):
-        Path(storage.removeprefix("sqlite:///")).parent.mkdir(parents=True, exist_ok=True)
-    try:
-        with _heartbeat_warnings_off():
-            rdb = optuna.storages.RDBStorage(
-                storage, heartbeat_interval=HEARTBEAT_SECONDS, grace_period=STALE_GRACE_SECONDS
+    if storage.startswith("sqlite:"):
+        from sqlalchemy.engine import make_url
+
+        with storage_errors(storage):
+            url = make_url(storage)
+        path = (url.database or "").removeprefix("file:")
+        if path in ("", ":memory:") or url.query.get("mode") == "memory":
+            raise ConfigError(
+                f"--storage {storage}: an in-memory database ends with this process, so the "
+                "study could not be continued; give a file, e.g. sqlite:///runs/study.db"
             )
-    except Exception as exc:  # SQLAlchemy's and the drivers' many errors: all "cannot open"
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ConfigError(f"--storage {storage}: cannot open it: {first}") from None
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+    # SQLAlchemy's and the drivers' many errors (a closed port, a missing driver): all one line
+    with storage_errors(storage, also=(Exception,)), _heartbeat_warnings_off():
+        rdb = optuna.storages.RDBStorage(
+            storage, heartbeat_interval=HEARTBEAT_SECONDS, grace_period=STALE_GRACE_SECONDS
+        )
     samplers = {
         # constant_liar: trials asked together (a batch, or another process) spread out
         "tpe": lambda: optuna.samplers.TPESampler(seed=sampler_seed, constant_liar=True),
@@ -284,17 +322,41 @@ def open_study(
         "median": lambda: optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=1),
         "halving": optuna.pruners.SuccessiveHalvingPruner,
     }
-    try:
-        return optuna.create_study(
-            storage=rdb,
-            study_name=study_name,
-            sampler=samplers[sampler](),
-            pruner=pruners[pruner](),
-            direction="maximize",
-            load_if_exists=True,
-        )
-    except ValueError as exc:
-        raise ConfigError(f"--study-name {study_name}: {exc}") from None
+    with storage_errors(storage):  # a read-only database fails here
+        try:
+            return optuna.create_study(
+                storage=rdb,
+                study_name=study_name,
+                sampler=samplers[sampler](),
+                pruner=pruners[pruner](),
+                direction="maximize",
+                load_if_exists=True,
+            )
+        except ValueError as exc:
+            raise ConfigError(f"--study-name {study_name}: {exc}") from None
+
+
+def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
+    """Refuses a space that draws a field the study's trials drew from another kind of
+    distribution (a choice where they drew a float, another log setting or choices): Optuna
+    would refuse each new trial's draw, after creating it.
+
+    Raises:
+        ConfigError: the first such field (one line).
+    """
+    import optuna
+
+    new = {name: d.distribution() for name, d in space.items()}
+    for trial in study.get_trials(deepcopy=False):
+        for name, old in trial.distributions.items():
+            try:
+                if name in new:
+                    optuna.distributions.check_distribution_compatibility(old, new[name])
+            except ValueError as exc:
+                raise ConfigError(
+                    f"--space {name}: study {study.study_name!r} draws it from {old} ({exc}); "
+                    "search it so, or give another --study-name"
+                ) from None
 
 
 @dataclass
@@ -341,6 +403,8 @@ class Tuner:
         out: the folder that holds one run directory per batch group.
         score: what a trial is told (over its seeds: the IQM).
         on_batch: told each group's run directory and its trial results.
+        on_wait: told the number of trials running elsewhere when this process starts
+            waiting for them (and again when that number changes).
     """
 
     study: Any
@@ -351,30 +415,70 @@ class Tuner:
     score: Score = field(default_factory=lambda: Score("auc"))
     hooks: Hooks = field(default_factory=Hooks)
     on_batch: Callable[[Path, list[TrialResult]], None] | None = None
+    on_wait: Callable[[int], None] | None = None
     pruned_seconds_saved: float = 0.0
 
     def run(self, n_trials: int, batch_trials: int) -> int:
-        """Asks, trains and tells batches until the study has ``n_trials`` finished trials
-        (trials other processes are running count as finishing). Returns the trials this
-        process finished.
+        """Asks, trains and tells batches until the study has ``n_trials`` finished trials.
+        When the trials running elsewhere would finish it, waits for them: another process's
+        finish, and a killed process's are marked failed after :data:`STALE_GRACE_SECONDS`
+        and asked again. Returns the trials this process finished.
 
         Raises:
+            ConfigError: the space draws a field the study drew otherwise
+                (:func:`check_study_space`).
             BatchStopped: a signal stopped a batch (its trials are marked failed, so that a
                 later call finishes the study without them).
         """
-        optuna = require_optuna()
-        done = 0
+        check_study_space(self.study, self.space)
+        done, waited_for = 0, 0
         while True:
-            with _heartbeat_warnings_off():
-                optuna.storages.fail_stale_trials(self.study)
+            self._fail_stale_trials()
             finished, running = counts(self.study)
+            if finished >= n_trials:
+                return done
             remaining = n_trials - finished - running
             if remaining <= 0:
-                return done
+                if self.on_wait and running != waited_for:
+                    self.on_wait(running)
+                waited_for = running
+                time.sleep(WAIT_SECONDS)
+                continue
             trials = self._ask(min(batch_trials, remaining), n_trials)
-            if not trials:
-                return done
-            done += self._run_batch(trials)
+            if trials:
+                done += self._run_batch(trials)
+
+    def _fail_stale_trials(self) -> None:
+        """Marks failed the trials of a process that died (Optuna's heartbeat), and removes
+        their group's half-trained run directory when it is under :attr:`out` and holds no
+        told trial's runs: it would stop ``compare`` and ``plot`` reading the folder, and its
+        trials are asked again."""
+        import optuna
+
+        fail, running = optuna.trial.TrialState.FAIL, optuna.trial.TrialState.RUNNING
+        before = {t.number: t.state for t in self.study.get_trials(deepcopy=False)}
+        with _heartbeat_warnings_off():
+            optuna.storages.fail_stale_trials(self.study)
+        trials = self.study.get_trials(deepcopy=False)
+        dirs = {
+            t.number: Path(t.user_attrs["run_dir"]).resolve()
+            for t in trials
+            if "run_dir" in t.user_attrs
+        }
+        stale = {
+            dirs[t.number]
+            for t in trials
+            if t.number in dirs and t.state == fail and before.get(t.number) == running
+        }
+        kept = {
+            d
+            for t in trials
+            if t.number in dirs and t.state != fail
+            for d in (dirs[t.number], *dirs[t.number].parents)
+        }
+        for run_dir in stale - kept:
+            if self.out.resolve() in run_dir.parents:
+                shutil.rmtree(run_dir, ignore_errors=True)
 
     def _ask(self, k: int, n_trials: int) -> list[Any]:
         """``k`` new trials; one asked past the study's ``n_trials`` (another process asked at
@@ -387,6 +491,9 @@ class Tuner:
         for _ in range(k):
             with _heartbeat_warnings_off():
                 trial = self.study.ask(fixed_distributions=distributions)
+            # at once, not when the batch starts: a process killed while asking leaves trials
+            # that go stale, rather than trials that run forever
+            self.study._storage.record_heartbeat(trial._trial_id)
             ahead = sum(
                 t.number < trial.number and t.state != states.FAIL
                 for t in self.study.get_trials(deepcopy=False)
