@@ -1,8 +1,9 @@
-"""``python -m jaxcart.export RUN --to sb3|onnx --out FILE``: one seed's trained policy as a
+"""``python -m jaxcart.export RUN --to sb3|onnx [--out FILE]``: one seed's trained policy as a
 Stable-Baselines3 ``PPO`` zip (``stable_baselines3.PPO.load`` opens it: rl-zoo3,
 ``huggingface_sb3`` and ``evaluate_policy`` take it from there) or as an ONNX model
-(``onnxruntime`` runs it). Neither needs PyTorch; ONNX needs the ``onnx`` package
-(``pip install -e '.[export]'``)."""
+(``onnxruntime`` runs it), by default into the run directory (``RUN/policy-seed0.zip``:
+:func:`jaxcart.rundir.layout.export_file`). Neither needs PyTorch; ONNX needs the ``onnx``
+package (``pip install -e '.[export]'``)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from jaxcart import cli
+from jaxcart.rundir import layout
 
 FORMATS = {"sb3": ".zip", "onnx": ".onnx"}
 """Each export format and the suffix its file takes."""
@@ -31,7 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--to", required=True, choices=list(FORMATS), help="the format")
     parser.add_argument(
-        "--out", type=Path, required=True, help="the file to write (.zip for sb3, .onnx for onnx)"
+        "--out",
+        type=Path,
+        default=None,
+        help="the file to write (.zip for sb3, .onnx for onnx; default: in RUN_DIR, "
+        "policy-seed0.zip for seed 0, policy-best-seed0.zip for --policy best, "
+        "policy-combo003-seed0.zip for --combination 3)",
     )
     parser.add_argument("--seed-index", type=int, default=0, help="which seed of the run")
     parser.add_argument(
@@ -60,11 +67,14 @@ class ExportOptions:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ExportOptions:
-        opts = cls(args.run_dir, args.to, args.out, args.seed_index, args.combination, args.policy)
-        suffix = FORMATS[opts.to]
+        suffix = FORMATS[args.to]
+        out = args.out or layout.export_file(
+            args.run_dir, suffix, args.seed_index, args.combination, args.policy
+        )
+        opts = cls(args.run_dir, args.to, out, args.seed_index, args.combination, args.policy)
         if opts.out.suffix.lower() != suffix:
             raise cli.UsageError(f"--out {opts.out} must end in {suffix} for --to {opts.to}")
-        if not opts.out.parent.is_dir():
+        if args.out is not None and not opts.out.parent.is_dir():  # RUN_DIR: run_params checks
             raise cli.UsageError(f"--out {opts.out}: directory {opts.out.parent} does not exist")
         return opts
 

@@ -24,7 +24,8 @@ directory (``sweep.json`` and ``combo-000/``, ``combo-001/``, ...) stands for it
 each labelled by its hyperparameter values (``learning_rate=0.001,clip_coef=0.2``). One run is
 drawn into ``RUN_DIR/curves.png`` by default (a sweep directory is one run directory), several
 into ``comparison.png`` in the current directory, or ``comparison-2.png``, ... when that exists
-(never overwritten). From Python, :func:`plot_runs` returns the matplotlib ``Figure``.
+(never overwritten); the command prints the full path it wrote. From Python,
+:func:`plot_runs` returns the matplotlib ``Figure``.
 
 Uses matplotlib's object API (no pyplot), so it never changes the caller's backend.
 """
@@ -250,7 +251,8 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
     _draw_legend(fig, runs, styles)
     num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
     if all(run.num_seeds == 1 for run in runs):
-        what = "one seed each: no confidence band (train several seeds for one)"
+        num += ", 1 seed" if len(runs) == 1 else ", 1 seed per run"
+        what = "no confidence band (train several seeds for one)"
     else:
         what = (
             f"mean across seeds, shaded {CONFIDENCE:.0%} bootstrap confidence interval (the "
@@ -520,7 +522,7 @@ def _plot_command(argv: list[str] | None) -> int:
             f"note: {COMPARISON} exists and is kept: drew into {out} (--out FILE to choose)",
             file=sys.stderr,
         )
-    print(out)
+    print(out.absolute())  # the full path: several runs' figure goes to the current folder
     return 0
 
 

@@ -180,7 +180,7 @@ def test_baseline_option(runs, tmp_path, capsys):
     assert "baseline learning_rate=0.01" in printed(capsys)
 
 
-def test_sb3_format_and_single_seed(runs, tmp_path, capsys):
+def test_sb3_format_and_single_seed(runs, tmp_path, capsys, no_warnings):
     a, _ = runs
     single = sb3_run(tmp_path / "sb3-torch", num_seeds=1)
     assert compare.main([str(a), str(single), "--out", str(tmp_path / "cmp")]) == 0
@@ -354,7 +354,9 @@ def test_help_defines_every_statistic(capsys):
     assert "median over seeds" in text and "--score" in text and "--arm" in text
 
 
-def test_figure_panels_share_one_score_axis_and_show_small_differences_small(runs, tmp_path):
+def test_figure_panels_share_one_score_axis_and_show_small_differences_small(
+    runs, tmp_path, no_warnings
+):
     from jaxcart.results import figure
 
     a, sweep = runs
@@ -373,3 +375,34 @@ def test_figure_panels_share_one_score_axis_and_show_small_differences_small(run
     close = [stats.Estimate(498.4, 497.0, 499.5), stats.Estimate(500.0, 499.0, 500.0)]
     low, high = figure._limits(close, 0.0, 500.0, include=498.4)
     assert high - low >= figure.MIN_SPAN and high < 500 + 0.05 * figure.MIN_SPAN + 1
+
+
+@pytest.mark.parametrize(
+    ("seeds", "scores"),
+    [(1, (500.0, 480.0)), (8, (500.0, 500.0)), (8, (500.0, None))],
+    ids=["one-seed-each", "eight-seeds-all-500", "saturated-and-not"],
+)
+def test_the_courses_comparisons_draw_cleanly(tmp_path, seeds, scores, no_warnings):
+    """The course's comparisons, long run names included, lay out (no matplotlib warning) and
+    write every number inside its panel, with no panel's labels running into another's."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.transforms import Bbox
+
+    from jaxcart.results import figure
+
+    names = ("course-base", "course-linear")
+    dirs = [sb3_run(tmp_path / name, seeds, score) for name, score in zip(names, scores)]
+    result = compare.compare_runs(dirs, out=tmp_path / "cmp", reps=200)
+    assert_png(result.figure_path)
+    fig = figure.draw_comparison(result.comparison)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw_without_rendering()
+    boxes = [ax.get_tightbbox(renderer) for ax in fig.axes]
+    for ax, box in zip(fig.axes, boxes):
+        inside = ax.get_window_extent(renderer)
+        for text in ax.texts:  # value [low, high] and notes: within the panel
+            extent = text.get_window_extent(renderer)
+            assert inside.x0 - 1 <= extent.x0 and extent.x1 <= inside.x1 + 1, text.get_text()
+        for other in boxes[: fig.axes.index(ax)]:  # titles, tick and axis labels apart
+            common = Bbox.intersection(box, other)
+            assert common is None or min(common.width, common.height) < 2, ax.get_title()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import io
 import json
 import pickle
+import shutil
 import zipfile
 from pathlib import Path
 
@@ -27,7 +28,9 @@ from jaxcart.core.networks import ActorCritic
 from jaxcart.results.sb3_zip import sb3_zip_bytes
 from jaxcart.run import lifecycle
 from jaxcart.run.spec import RunOptions, RunSpec
+from jaxcart.rundir import layout, reader
 from jaxcart.rundir.policy import NumpyPolicy
+from jaxcart.rundir.views import load_runs
 
 SB3_FILES = {"data", "policy.pth", "policy.optimizer.pth", "_stable_baselines3_version"}
 CONFIGS = {
@@ -200,6 +203,28 @@ def test_export_command_writes_the_runs_seed(run, tmp_path, capsys):
     obs = np.random.default_rng(2).normal(size=(50, 4)).astype(np.float32)
     logits = sb3_forward(state, "policy_net", "action_net", obs, TINY.activation)
     np.testing.assert_allclose(logits, policy.logits(obs), rtol=1e-5, atol=1e-6)
+
+
+def test_export_defaults_to_a_file_per_seed_in_the_run_directory(run, tmp_path, capsys):
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    assert export.main([str(copy), "--to", "sb3"]) == 0
+    assert export.main([str(copy), "--to", "sb3", "--seed-index", "1"]) == 0
+    printed = capsys.readouterr().out
+    for seed in (0, 1):
+        out = layout.export_file(copy, ".zip", seed)
+        assert out == copy / f"policy-seed{seed}.zip" and f"wrote {out}: seed {seed}" in printed
+        _, state, _ = read_sb3_zip(out.read_bytes())
+        obs = np.random.default_rng(2).normal(size=(5, 4)).astype(np.float32)
+        logits = sb3_forward(state, "policy_net", "action_net", obs, TINY.activation)
+        expected = load_policy(copy, seed_index=seed).logits(obs)  # the run still reads
+        np.testing.assert_allclose(logits, expected, rtol=1e-5, atol=1e-6)
+    reader.read_run_config(copy, verify=True)  # its manifest is not confused either
+    assert load_runs([copy])[0].num_seeds == 2
+    assert layout.export_file(copy, ".onnx", 2, 3, "best").name == "policy-best-combo003-seed2.onnx"
+    missing = tmp_path / "missing"
+    assert export.main([str(missing), "--to", "sb3"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1 and not missing.exists()
 
 
 @pytest.mark.quick

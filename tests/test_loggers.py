@@ -95,7 +95,7 @@ def test_tensorboard_one_run_per_seed_with_env_step_axis(tmp_path):
         assert any("learning_rate" in t for t in texts)
 
 
-def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypatch):
+def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypatch, capsys):
     pytest.importorskip("swanlab")
     monkeypatch.setenv("CI", "true")
     monkeypatch.setenv("SWANLAB_WEBHOOK", "http://127.0.0.1:9/hook")  # must not be called
@@ -110,6 +110,7 @@ def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypa
             logger.log(*chunk)
 
     assert network == []
+    assert capsys.readouterr().out.count("`swanlab ") == 1  # its sync/watch hint, once
     run_dirs = list((tmp_path / "swanlog").glob("run-*"))  # ./swanlog, SwanLab's default
     assert len(run_dirs) == 1
     records_file = next(run_dirs[0].glob("*.swanlab"))

@@ -92,18 +92,22 @@ def test_mean_and_band_ignores_nan_needs_two_seeds_and_stays_in_range():
     assert plot.METRIC_BOUNDS["train/approx_kl"][0] == 0.0
 
 
-def test_plot_one_run_default_path(tiny_run, capsys):
+def test_plot_one_run_default_path(tiny_run, capsys, no_warnings):
     assert plot.main([str(tiny_run)]) == 0
     out = tiny_run / "curves.png"
     assert capsys.readouterr().out.strip() == str(out)
     assert_nontrivial_png(out, min_size=(1000, 700))
 
 
-def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path, monkeypatch):
+def test_plot_overlay_and_single_seed(
+    tiny_run, single_seed_run, tmp_path, monkeypatch, capsys, no_warnings
+):
     # The single-seed run (no band, NaN returns at first) overlaid on the two-seed one; several
-    # runs go to comparison.png in the current directory, not into a run directory.
+    # runs go to comparison.png in the current directory, not into a run directory, and the
+    # command prints its full path.
     monkeypatch.chdir(tmp_path)
     assert plot.main([str(single_seed_run), str(tiny_run), "--dpi", "50"]) == 0
+    assert capsys.readouterr().out.strip() == str(Path.cwd() / "comparison.png")
     assert_nontrivial_png(tmp_path / "comparison.png")
     assert not (single_seed_run / "comparison.png").exists()
     runs = load_runs([single_seed_run, tiny_run])
@@ -115,7 +119,10 @@ def test_plot_overlay_and_single_seed(tiny_run, single_seed_run, tmp_path, monke
     before = sorted(tmp_path.iterdir())
     alone = plot.plot_runs([single_seed_run])  # a notebook's figure: no file written
     assert sorted(tmp_path.iterdir()) == before
-    assert "no confidence band" in alone._suptitle.get_text()
+    assert "1 seed: no confidence band" in alone._suptitle.get_text()
+    labels = ["course-base", "course-linear"]  # the course's single-seed runs, side by side
+    both = plot.plot_runs([single_seed_run, single_seed_run], tmp_path / "two.png", labels)
+    assert "2 runs, 1 seed per run: no confidence band" in both._suptitle.get_text()
     with Image.open(out) as image:
         pixels = np.asarray(image.convert("RGB"), float)
     orange = (np.abs(pixels - [230, 159, 0]).sum(-1) < 30).sum()  # the second run's colour
@@ -219,7 +226,7 @@ def test_axes_fit_the_curves_and_bands_run_past_them():
     assert panel(fig, "episode return vs env steps").get_ylim() == (0, 520)
 
 
-def test_notes_legend_and_ticks_stay_readable(tmp_path):
+def test_notes_legend_and_ticks_stay_readable(tmp_path, no_warnings):
     note = "from the checkpoint at iteration 245/977: the run did not finish"
     runs = [synthetic_run("stopped-" + "x" * 80, note=note, iterations=245)]
     runs += [synthetic_run(f"run-{i}", seeds=1 + i % 3) for i in range(11)]
@@ -271,7 +278,7 @@ def test_a_comparison_never_overwrites_an_earlier_one(
     for expected in ("comparison-2.png", "comparison-3.png"):
         assert plot.main([str(tiny_run), str(single_seed_run), "--dpi", "50"]) == 0
         captured = capsys.readouterr()
-        assert captured.out.strip() == expected
+        assert captured.out.strip() == str(Path.cwd() / expected)  # the full path
         assert f"comparison.png exists and is kept: drew into {expected}" in captured.err
         assert_nontrivial_png(tmp_path / expected, min_size=(400, 300))
     assert (tmp_path / "comparison.png").read_bytes() == b"an earlier comparison"

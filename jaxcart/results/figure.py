@@ -66,21 +66,31 @@ def _tick_label(name: str, width: int = 14) -> str:
     return textwrap.fill(name, width, break_on_hyphens=True) or name
 
 
-def _intervals(ax, rows: list[tuple[int, str, stats.Estimate]], title: str, xlabel: str) -> None:
+def _intervals(
+    ax,
+    rows: list[tuple[int, str, stats.Estimate]],
+    title: str,
+    xlabel: str,
+    xlim: tuple[float, float],
+) -> None:
     """One point with its interval per ``(colour index, name, estimate)``, top to bottom, each
     written out as ``value [low, high]`` above its bar; the run names are the y labels (the
-    panel's legend)."""
+    panel's legend). The text starts at its point and runs towards the panel's middle, so
+    that a value at either end (500, a gap of 0) stays inside the panel instead of spilling
+    over the next one and squeezing the constrained layout."""
     n = len(rows)
+    ax.set_xlim(*xlim)
     for k, (i, _, e) in enumerate(rows):
         y = n - 1 - k
         ax.plot([e.ci_low, e.ci_high], [y, y], color=_colour(i), lw=6, alpha=0.45)
         ax.plot([e.value], [y], "|", color=_colour(i), ms=16, mew=2)
+        right = e.value > (xlim[0] + xlim[1]) / 2
         ax.annotate(
             e.format(1 if abs(e.value) >= 2 else 2),
             (e.value, y),
-            xytext=(0, 9),
+            xytext=(-4 if right else 4, 9),
             textcoords="offset points",
-            ha="center",
+            ha="right" if right else "left",
             fontsize=9,
         )
     names = [_tick_label(name) for _, name, _ in reversed(rows)]
@@ -127,14 +137,15 @@ def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
         ax.set(title=title)
         _no_data(ax, "one run: nothing to compare")
         return
-    _intervals(ax, rows, title, xlabel)
+    span = stats.MAX_RETURN  # a difference of scores in [0, 500]
+    xlim = (
+        (-0.02, 1.02)
+        if kind == "improvement"
+        else _limits([e for _, _, e in rows], -span, span, include=0.0)
+    )
+    _intervals(ax, rows, title, xlabel, xlim)
     ax.axvline(zero, color="0.5", ls="--", lw=0.8, label="no difference")
     ax.legend(fontsize=8, loc="lower right")
-    if kind == "improvement":
-        ax.set_xlim(-0.02, 1.02)
-    else:  # a difference of scores in [0, 500]
-        span = stats.MAX_RETURN
-        ax.set_xlim(*_limits([e for _, _, e in rows], -span, span, include=0.0))
 
 
 def _profile_panel(ax, comparison: Comparison) -> None:
@@ -249,12 +260,12 @@ def draw_comparison(comparison: Comparison) -> Figure:
             (i, e.name, comparison.stats.runs[i].estimates[name])
             for i, e in enumerate(comparison.entries)
         ]
-        _intervals(ax, rows, title, f"score ({score.label})")
-        if name == "optimality_gap":  # 500 - score: as wide as the other panels
-            gaps = [e for _, _, e in rows]
-            ax.set_xlim(*_limits(gaps, 0.0, stats.MAX_RETURN, include=0.0))
-        else:  # one score axis for IQM, median and mean, so that they read alike
-            ax.set_xlim(*shared)
+        # One score axis for IQM, median and mean, so that they read alike; the gap
+        # (500 - score) gets its own, as wide as theirs.
+        xlim = shared
+        if name == "optimality_gap":
+            xlim = _limits([e for _, _, e in rows], 0.0, stats.MAX_RETURN, include=0.0)
+        _intervals(ax, rows, title, f"score ({score.label})", xlim)
     _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference")
     _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "improvement")
     _profile_panel(fig.add_subplot(grid[1, 8:12]), comparison)

@@ -41,7 +41,9 @@ NaN values (``rollout/ep_rew_mean`` before the first episode ends) are skipped, 
 from __future__ import annotations
 
 import atexit
+import contextlib
 import importlib.util
+import io
 import json
 import os
 import queue
@@ -269,7 +271,14 @@ class SwanLabBackend:
 
     def close(self) -> None:
         if self.run is not None:
-            self.run.finish()
+            # SwanLab prints its sync/watch hint when the run starts and again here: one is
+            # enough. What else finish prints (its warnings and errors) is passed on. The
+            # caller waits in Logger.close meanwhile, so nothing else is printing.
+            printed = io.StringIO()
+            with contextlib.redirect_stdout(printed):
+                self.run.finish()
+            if "WARNING" in printed.getvalue() or "ERROR" in printed.getvalue():
+                sys.stdout.write(printed.getvalue())
             self.run = None
 
 

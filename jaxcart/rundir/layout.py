@@ -17,6 +17,8 @@ Layout of ``RUN_DIR``:
 - ``manifest.json``: the digest of every finished file, checked by every reader
   (:mod:`jaxcart.rundir.manifest`);
 - ``.lock``: held by the process that trains it (:mod:`jaxcart.rundir.lock`);
+- ``policy-seed0.zip`` / ``.onnx``: one seed's policy, where ``python -m jaxcart.export``
+  puts it without ``--out`` (:func:`export_file`); no reader looks at it;
 - ``sb3-plan.json`` and ``sb3-seeds/seed-314159.npz``: while ``python -m jaxcart.sb3`` trains,
   what it was asked for and each seed it has finished (removed once the run is written);
 - a sweep's directory holds ``config.json``, ``sweep.json`` and one run directory per
@@ -89,6 +91,21 @@ COMPARE_FIGURE_FILE = "compare.png"
 COMPARE_CURVES_FILE = "curves.csv"
 """``python -m jaxcart.compare`` writes all three into its ``--out`` directory (the CSV: every
 compared seed's learning curve, ``run,seed,env_steps,ep_rew_mean``)."""
+
+
+def export_file(
+    run_dir: str | os.PathLike,
+    suffix: str,
+    seed_index: int,
+    combination: int | None = None,
+    policy: str = "final",
+) -> Path:
+    """Where ``python -m jaxcart.export`` writes without ``--out``: into the run directory,
+    one file per seed, combination and policy, so that no export replaces another's:
+    ``RUN_DIR/policy-seed0.zip``, ``policy-best-combo003-seed1.onnx``."""
+    best = "-best" if policy == "best" else ""
+    combo = "" if combination is None else f"-combo{combination:03d}"
+    return Path(run_dir) / f"policy{best}{combo}-seed{seed_index}{suffix}"
 
 
 def combo_dir(sweep_dir: str | os.PathLike, combo: int) -> Path:
