@@ -1,6 +1,8 @@
 """Every code block of README.md and docs/*.md runs in the test suite (with Sybil).
 
-- ``python`` blocks run in this process, each document's blocks in one namespace, in order.
+- ``python`` blocks run in this process, each document's blocks in one namespace, in order. A
+  block that starts with ``>>>`` is a doctest: what it prints must match the output written
+  under it (for numbers that hold on every CPU; training's do not).
 - ``bash`` blocks run through :func:`run_shell_block`: each block in one ``bash`` process,
   with two CPU devices as the tests' training subprocesses have (tests/helpers.py
   ``TRAIN_ENV``) and a timeout. Only ``python -m jaxcart...`` commands are run, so a block

@@ -13,7 +13,8 @@ REPO = Path(__file__).resolve().parent.parent
 README = REPO / "README.md"
 DOCS = sorted([README, *(REPO / "docs").glob("*.md")])
 
-INSTALL_AND_TRAIN = "pip install -e . && python -m jaxcart.train"
+# the run directory named, so that the course path reuses this run (runs/sb3 is its step 2)
+INSTALL_AND_TRAIN = "pip install -e . && python -m jaxcart.train --out runs/sb3"
 TEST_COMMAND = (
     "pip install -e '.[test]' && ruff check . && ruff format --check . && python -m pytest -q"
 )

@@ -133,7 +133,8 @@ def env_step(
     logits, value = networks.apply(network, runner.params, runner.obs)
     action = jax.random.categorical(act_key, logits)
     log_prob = categorical_log_prob(logits, action)
-    # CartPole's physics may be drawn per episode: physics.step_batch is CartPole's step then
+    # CartPole steps through physics.step_batch, which also draws a finished episode's next
+    # physics when they are randomised per episode; the other envs step themselves.
     step_batch = physics.step_batch if env.is_cartpole else env.step_batch
     obs, env_state, reward, terminated, truncated, info = step_batch(
         env_key, runner.env_state, action, env_params
