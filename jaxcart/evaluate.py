@@ -1,24 +1,36 @@
 """Greedy (argmax) evaluation, in jaxcart's JAX env and in Gymnasium's own CartPole-v1.
 
 "Solved" means every one of the evaluation episodes (20 by default) scores 500.
+``--env-param`` evaluates on other physics and ``--sweep env.NAME=V1,V2`` at each value;
+``--out DIR`` writes the evaluation as a run directory without training
+(:mod:`jaxcart.rundir.layout`), which ``python -m jaxcart.compare`` reads like any run, and
+with ``--sweep`` draws ``robustness.png``: the return against the value, one curve per run.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
+import io
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
+import numpy as np
 
 from jaxcart import cli
+from jaxcart.analysis import stats
 from jaxcart.core import physics
 from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
+from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.run.greedy import evaluate_params, summarize
-from jaxcart.rundir import layout
+from jaxcart.run.sweep import parse_sweep
+from jaxcart.rundir import files, layout, outputs
+from jaxcart.rundir.directory import package_versions
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
-from jaxcart.rundir.reader import read_run_config, recorded_combinations
+from jaxcart.rundir.reader import X64_KEY, is_evaluation, read_run_config, recorded_combinations
+from jaxcart.rundir.views import default_label, physics_label
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,7 +43,11 @@ def build_parser() -> argparse.ArgumentParser:
         "checkpoint (and says so); a sweep directory, every combination.",
     )
     parser.add_argument(
-        "run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run (or sweep) directory"
+        "run_dirs",
+        type=Path,
+        nargs="+",
+        metavar="RUN_DIR",
+        help="jaxcart run (or sweep) directories",
     )
     parser.add_argument(
         "--episodes",
@@ -54,6 +70,24 @@ def build_parser() -> argparse.ArgumentParser:
         help="evaluate on other physics: this field of CartPole's params over the run's own "
         "(repeatable; default: the physics the run trained on, a randomised field at its "
         "nominal value)",
+    )
+    parser.add_argument(
+        "--sweep",
+        action="append",
+        default=[],
+        metavar="env.NAME=V1,V2,...",
+        help="evaluate at each value of one continuous physics field (over the run's physics "
+        "and --env-param) and print the IQM over seeds with its 95%% bootstrap interval per "
+        "value; with --out, one evaluation per value and robustness.png",
+    )
+    parser.add_argument(
+        "--out",
+        type=cli.out_dir,
+        default=None,
+        metavar="DIR",
+        help="write the evaluation into this new directory for python -m jaxcart.compare: "
+        "every seed's greedy returns, the physics, the run it came from (a sweep of them with "
+        "--sweep; one subdirectory per RUN_DIR when there are several)",
     )
     parser.add_argument(
         "--policy",
@@ -109,11 +143,12 @@ def _combo_label(c: int, combos: list) -> str:
     return f"{c} " + ",".join(f"{k}={v:g}" for k, v in values.items())
 
 
-def _with_env_params(trained: RunParams, specs: list[str]) -> RunParams:
-    """``trained`` evaluated on its own physics with the ``--env-param`` fields over them."""
-    if not specs:
+def _with_env_params(trained: RunParams, chosen: dict) -> RunParams:
+    """``trained`` evaluated on its own physics with the ``chosen`` fields over them (checked:
+    a value outside physical sense is one line)."""
+    if not chosen:
         return trained
-    values = {**physics.overrides(trained.env_params), **physics.parse_env_params(specs)}
+    values = {**physics.overrides(trained.env_params), **chosen}
     return dataclasses.replace(trained, env_params=physics.make_env_params(values))
 
 
@@ -130,52 +165,293 @@ def _physics_text(sources: list[tuple[str | None, RunParams]], chosen: bool) -> 
     return f" with {text}"
 
 
-def _evaluate_command(argv: list[str] | None) -> int:
-    args = build_parser().parse_args(argv)
-    physics.parse_env_params(args.env_param)  # a bad --env-param before anything is read
-    info = read_run_config(args.run_dir)
-    num_seeds = int(info.get("num_seeds", 1))
-    sweep = bool(recorded_combinations(info))
+def _physics_sweep(specs: list[str], chosen: dict) -> tuple[str | None, list[float]]:
+    """``["env.length=0.5,1"]`` -> ``("env.length", [0.5, 1.0])``; ``(None, [])`` without.
+
+    Raises:
+        UsageError, ConfigError: not one continuous physics field, or one --env-param sets.
+    """
+    if not specs:
+        return None, []
+    if len(specs) > 1 or not specs[0].strip().startswith(physics.PREFIX):
+        raise cli.UsageError(
+            "--sweep evaluates on other physics, one field: env.NAME=V1,V2,... (e.g. "
+            f"env.length=0.25,0.5,1), got {' '.join(specs)}"
+        )
+    ((name, values),) = parse_sweep(specs).items()
+    if name[len(physics.PREFIX) :] in chosen:
+        raise cli.UsageError(f"{name} is both swept and set by --env-param; keep one")
+    return name, values
+
+
+def _check_out(out: Path, chosen: dict) -> None:
+    if layout.present(out):
+        raise cli.UsageError(
+            f"--out {out} exists; evaluate writes a new directory, so that nothing is overwritten"
+        )
+    scoring = sorted(set(chosen) & {"max_episode_steps", "sutton_barto_reward"})
+    if scoring:
+        raise cli.UsageError(
+            f"--env-param {scoring[0]} changes what an episode scores, and an evaluation "
+            "directory judges 500 as solved; evaluate without --out"
+        )
+
+
+Sources = list[tuple[str | None, list[RunParams]]]
+"""Per source (the run, or each combination of a sweep): its label and its parameters on
+each physics evaluated (each swept value, or the one chosen)."""
+
+
+def _read_run(
+    run_dir: Path, args: argparse.Namespace, chosen: dict, field: str | None, values: list
+) -> tuple[dict, Sources]:
+    """A run's ``config.json`` and what to evaluate of it, every physics checked before
+    anything is evaluated."""
+    info = read_run_config(run_dir)
+    if is_evaluation(info):
+        source = info[layout.EVALUATION_OF_KEY]["run"]
+        raise cli.UsageError(f"{run_dir} is an evaluation of {source}; evaluate that run")
     env_id = info["config"].env
-    if args.env_param and env_id != DEFAULT_ENV:
-        raise cli.UsageError(f"--env-param sets CartPole's physics; this run trained {env_id}")
+    if (chosen or field) and env_id != DEFAULT_ENV:
+        option = "--sweep" if field else "--env-param"
+        raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
     if args.gif is not None:
         if env_id != DEFAULT_ENV:
             raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
-        _check_gif_options(args, num_seeds, sweep)
-    sources = [
-        (label, _with_env_params(trained, args.env_param))
-        for label, trained in _sources(args.run_dir, args.combination, args.policy, args.trust_code)
-    ]
-    note = sources[0][1].note
-    if note:
-        print(
-            f"note: parameters {note} (resume with: python -m jaxcart.train --resume "
-            f"{args.run_dir})"
+        _check_gif_options(args, int(info.get("num_seeds", 1)), bool(recorded_combinations(info)))
+    sources = _sources(run_dir, args.combination, args.policy, args.trust_code)
+    if (field or args.out is not None) and len(sources) > 1:
+        raise cli.UsageError(
+            f"{run_dir} is a sweep: --sweep and --out evaluate one run; choose --combination C"
         )
-    rows = []
-    for label, trained in sources:
-        summary = summarize(evaluate_params(args.run_dir, trained, args.episodes), env_id)
+    points = [{**chosen, field[len(physics.PREFIX) :]: v} for v in values] if field else [chosen]
+    return info, [(label, [_with_env_params(t, p) for p in points]) for label, t in sources]
+
+
+def _print_note(run_dir: Path, trained: RunParams) -> None:
+    if trained.note:
+        print(
+            f"note: parameters {trained.note} (resume with: python -m jaxcart.train --resume "
+            f"{run_dir})"
+        )
+
+
+def _policy_text(args: argparse.Namespace) -> str:
+    return " (each seed's best policy)" if args.policy == "best" else ""
+
+
+def _evaluate_run(
+    run_dir: Path, info: dict, sources: Sources, args: argparse.Namespace
+) -> list[np.ndarray]:
+    """Prints the per-seed table of every source on its one physics; returns each source's
+    Gymnasium returns ``[num_seeds, episodes]``."""
+    env_id = info["config"].env
+    num_seeds = int(info.get("num_seeds", 1))
+    sweep = bool(recorded_combinations(info))
+    _print_note(run_dir, sources[0][1][0])
+    rows, returns = [], []
+    for label, (trained,) in sources:
+        returns.append(evaluate_params(run_dir, trained, args.episodes))
+        summary = summarize(returns[-1], env_id)
         rows += [
             ([label] if sweep else [])
             + [s, f"{summary['mean'][s]:.1f}", f"{summary['min'][s]:.0f}"]
             + ["yes" if summary["solved"][s] else "no"]
             for s in range(num_seeds)
         ]
+    on = [(label, trained) for label, (trained,) in sources]
     print(
-        f"Greedy evaluation of {args.run_dir}"
-        + (" (each seed's best policy)" if args.policy == "best" else "")
-        + f", {args.episodes} episodes per seed in gymnasium.make('{env_id}')"
-        f"{_physics_text(sources, bool(args.env_param))} (reset seeds {EVAL_SEED}..."
-        f"{EVAL_SEED + args.episodes - 1}):"
+        f"Greedy evaluation of {run_dir}{_policy_text(args)}, {args.episodes} episodes per seed "
+        f"in gymnasium.make('{env_id}'){_physics_text(on, bool(args.env_param))} (reset seeds "
+        f"{EVAL_SEED}...{EVAL_SEED + args.episodes - 1}):"
     )
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
     solved = sum(r[-1] == "yes" for r in rows)
     rule = "" if env_id == DEFAULT_ENV else f" (solved: mean >= {GYMNAX_ENVS[env_id]:g})"
     print(f"solved {solved}/{len(rows)} seed(s){rule}", flush=True)
+    return returns
+
+
+IQM_TEXT = (
+    f"IQM over seeds of each seed's mean return, {stats.CONFIDENCE:.0%} percentile bootstrap "
+    f"interval ({stats.DEFAULT_REPS:,} resamples, seed {stats.DEFAULT_SEED})"
+)
+
+
+def _evaluate_sweep(
+    runs: list[tuple[Path, dict, Sources]], field: str, values: list, args: argparse.Namespace
+) -> tuple[list[list[np.ndarray]], list[list[stats.Estimate]]]:
+    """Every run at every value: prints one row per run and value (the IQM over seeds of each
+    seed's mean return with its interval, as ``compare`` computes it); returns per run, per
+    value, the returns ``[num_seeds, episodes]`` and that IQM."""
+    rows, returns, iqms = [], [], []
+    for run_dir, _, [(_, trained)] in runs:
+        _print_note(run_dir, trained[0])
+        returns.append([evaluate_params(run_dir, t, args.episodes) for t in trained])
+        iqms.append([stats.bootstrap_ci(r.mean(-1), stats.iqm) for r in returns[-1]])
+        for value, r, iqm in zip(values, returns[-1], iqms[-1]):
+            solved = is_solved(r)
+            rows.append(
+                [run_dir, f"{value:g}", f"{solved.sum()}/{solved.size}", iqm.format(1)]
+                + [f"{r.mean():.1f}", f"{r.mean(-1).min():.1f}"]
+            )
+    chosen = physics.describe(physics.parse_env_params(args.env_param))
+    print(
+        f"Greedy evaluation at each {field}{_policy_text(args)}, {args.episodes} episodes per "
+        f"seed in gymnasium.make('{DEFAULT_ENV}') with each run's physics"
+        + (f" and {chosen}" if chosen else "")
+        + f" (reset seeds {EVAL_SEED}...{EVAL_SEED + args.episodes - 1}):"
+    )
+    header = ["run", field, "solved", "IQM [95% CI]", "mean", "worst seed"]
+    print(cli.format_table(rows, header, cli.TABLE_WIDTH))
+    print(cli.wrap(f"IQM [95% CI]: {IQM_TEXT}, as python -m jaxcart.compare computes it"))
+    return returns, iqms
+
+
+def _evaluate_command(argv: list[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    chosen = physics.parse_env_params(args.env_param)  # a bad --env-param before anything is read
+    field, values = _physics_sweep(args.sweep, chosen)
+    if args.out is not None:
+        _check_out(args.out, chosen)
+    if args.gif is not None and (len(args.run_dirs) > 1 or field):
+        raise cli.UsageError("--gif renders one run on one physics: one RUN_DIR, no --sweep")
+    runs = [(d, *_read_run(d, args, chosen, field, values)) for d in args.run_dirs]
+    # per run, its returns [num_seeds, episodes] per source (one with --out) or swept value
+    if field is None:
+        returns = [_evaluate_run(d, info, sources, args) for d, info, sources in runs]
+        iqms = None
+    else:
+        returns, iqms = _evaluate_sweep(runs, field, values, args)
+    if args.out is not None:
+        _write(args, runs, returns, field, values, iqms)
     if args.gif is not None:
-        _write_gif(args, sources[0][1])
+        (_, _, [(_, [trained])]) = runs[0]  # one run, one source, one physics
+        _write_gif(args, trained)
     return 0
+
+
+def _write(
+    args: argparse.Namespace,
+    runs: list[tuple[Path, dict, Sources]],
+    returns: list[list[np.ndarray]],
+    field: str | None,
+    values: list,
+    iqms: list[list[stats.Estimate]] | None,
+) -> None:
+    """The evaluations into ``--out``, a new directory (several runs: one subdirectory
+    each, named after the run), and ``robustness.png`` in it after a sweep."""
+    png = None if iqms is None else _robustness_png(runs, field, values, iqms, args.episodes)
+    args.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
+    written = []
+    for k, (run_dir, info, [(_, trained)]) in enumerate(runs):
+        path = args.out
+        if len(runs) > 1:
+            path = layout.fresh_dir(args.out / Path(run_dir).resolve().name)  # run-2: a twin
+            path.mkdir()
+        record = functools.partial(_record, run_dir, info, args)
+        with files.opened(path) as directory:
+            if iqms is None:
+                outputs.write_evaluation_dir(directory, record(trained[0]), returns[k][0])
+            else:
+                _write_sweep(directory, record, trained, returns[k], field, values, iqms[k])
+        written.append(path)
+    if png is not None:
+        files.atomic_write_bytes(args.out / layout.ROBUSTNESS_FIGURE_FILE, png)
+    _print_written(args.out, written, field)
+
+
+def _record(
+    run_dir: Path, info: dict, args: argparse.Namespace, trained: RunParams, **extra
+) -> dict:
+    """An evaluation's ``config.json``: the seeds' config as the run trained them, the
+    physics they are evaluated on (``env_params``) and the run they came from."""
+    return {
+        "format_version": layout.FORMAT_VERSION,
+        "preset": info.get("preset", ""),
+        "num_seeds": trained.num_seeds,
+        "seed": info.get("seed", 0),
+        X64_KEY: info.get(X64_KEY, False),
+        "config": trained.config.to_dict(),
+        "env_params": physics.overrides(trained.env_params),
+        "eval_episodes": args.episodes,
+        "versions": package_versions(),
+        layout.EVALUATION_OF_KEY: {
+            "run": str(run_dir),
+            "combination": args.combination,
+            "policy": args.policy,
+            "trained_physics": physics_label(info),
+            "note": trained.note,
+        },
+        **extra,
+    }
+
+
+def _write_sweep(
+    directory: files.Dir,
+    record: Callable[..., dict],
+    trained: list[RunParams],
+    returns: list[np.ndarray],
+    field: str,
+    values: list,
+    iqms: list[stats.Estimate],
+) -> None:
+    """A sweep of evaluations: ``combo-NNN/`` per value, then the sweep's ``config.json``
+    and ``sweep.json`` (the IQM at each value)."""
+    for c, (value, t, r) in enumerate(zip(values, trained, returns)):
+        sub = directory.sub(layout.combo_dir(".", c).name, create=True)
+        try:
+            outputs.write_evaluation_dir(sub, record(t, combination={field: value}), r)
+        finally:
+            sub.close()
+    points = [
+        {field: v, "iqm": e.to_dict(), "solved_seeds": int(is_solved(r).sum())}
+        for v, e, r in zip(values, iqms, returns)
+    ]
+    ranking = {"sweep": {field: values}, "score": "eval", "statistic": IQM_TEXT, "values": points}
+    swept = field[len(physics.PREFIX) :]
+    base = {k: v for k, v in physics.overrides(trained[0].env_params).items() if k != swept}
+    top = record(trained[0], sweep={field: values}, env_params=base)
+    outputs.write_evaluation_dir(directory, top, others={layout.SWEEP_FILE: ranking})
+
+
+def _robustness_png(
+    runs: list[tuple[Path, dict, Sources]],
+    field: str,
+    values: list,
+    iqms: list[list[stats.Estimate]],
+    episodes: int,
+) -> bytes:
+    from jaxcart.results.figure import draw_robustness  # matplotlib: only when drawn
+
+    curves = [
+        (
+            default_label(Path(run_dir), info),
+            *np.array([[e.value, e.ci_low, e.ci_high] for e in iqm]).T,
+        )
+        for (run_dir, info, _), iqm in zip(runs, iqms)
+    ]
+    title = (
+        f"Greedy return in Gymnasium's CartPole-v1 ({episodes} episodes per seed) against "
+        f"{field}: {IQM_TEXT}; band: that interval"
+    )
+    buf = io.BytesIO()
+    draw_robustness(field, values, curves, title).savefig(buf, format="png", dpi=100)
+    return buf.getvalue()
+
+
+def _print_written(out: Path, written: list[Path], field: str | None) -> None:
+    """Where the evaluations went, and the ``compare`` command that reads them."""
+    listed = " ".join(map(str, written))
+    if field is None:
+        other = " OTHER_EVALUATION" if len(written) == 1 else ""
+        print(f"wrote {listed}; compare: python -m jaxcart.compare {listed}{other}")
+        return
+    runs = " ".join(f"--arm {p.name}={p}" for p in written) if len(written) > 1 else str(out)
+    print(
+        f"wrote {listed} (one evaluation per {field}: combo-000/, ...) and "
+        f"{out / layout.ROBUSTNESS_FIGURE_FILE}; per value: python -m jaxcart.compare {runs}"
+    )
 
 
 def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
@@ -191,8 +467,10 @@ def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m jaxcart.evaluate RUN_DIR``: prints the per-seed Gymnasium evaluation table
-    and, with ``--gif``, renders seed ``--seed-index``. Returns 0, or 2 for bad input."""
+    """``python -m jaxcart.evaluate RUN_DIR [RUN_DIR ...]``: prints the per-seed Gymnasium
+    evaluation table (with ``--sweep``, the IQM over seeds at each value); with ``--out``,
+    writes the evaluation; with ``--gif``, renders seed ``--seed-index``. Returns 0, or 2 for
+    bad input."""
     return cli.run_command(lambda: _evaluate_command(argv), also=(ValueError, ImportError))
 
 

@@ -511,6 +511,12 @@ def _plot_command(argv: list[str] | None) -> int:
         )
     cli.check_dpi(args.dpi)
     runs = load_runs(args.run_dirs, args.label)
+    for run in runs:
+        if not run.metrics:
+            raise cli.UsageError(
+                f"{run.path} is an evaluation (python -m jaxcart.evaluate --out): no learning "
+                "curves to plot; python -m jaxcart.compare reads it"
+            )
     try:
         out, _ = draw_runs(runs, args.out, dpi=args.dpi)
     except OSError as exc:

@@ -8,16 +8,21 @@ Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the perfor
 efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction of seeds whose training
 had produced a 500 episode by env steps, and the all-pairs ``P(X > Y)`` matrix. Wall time is
 left out: it depends on the machine and its load (``python -m jaxcart.plot`` draws it).
+
+Also ``robustness.png`` (:func:`draw_robustness`), ``python -m jaxcart.evaluate --sweep``'s
+return against a physics value.
 """
 
 from __future__ import annotations
 
 import textwrap
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from jaxcart.analysis import stats
+from jaxcart.analysis.figures import run_styles
 from jaxcart.results.scores import RETURN_METRIC, Comparison
 
 if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
@@ -282,4 +287,34 @@ def draw_comparison(comparison: Comparison) -> Figure:
             "so this score cannot tell the runs apart (try --score auc)"
         )
     fig.suptitle("\n".join(textwrap.fill(line, 160) for line in title.splitlines()), fontsize=12)
+    return fig
+
+
+def draw_robustness(
+    field: str,
+    values: Sequence[float],
+    curves: Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
+    title: str,
+) -> Figure:
+    """``robustness.png``: one curve per run, ``(label, point, low, high)`` each ``[V]``: a
+    statistic over seeds of each seed's greedy return at each of ``values`` of the physics
+    ``field`` (``env.length``) and its band, on a log axis when the values are positive and
+    span a factor of 4 or more."""
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import NullLocator
+
+    fig = Figure(figsize=(9, 5.5), layout="constrained")
+    ax = fig.add_subplot()
+    for style, (label, point, low, high) in zip(run_styles(len(curves)), curves):
+        ax.plot(values, point, marker="o", label=label, **style.line())
+        ax.fill_between(values, low, high, color=style.color, alpha=0.2, lw=0)
+    if min(values) > 0 and max(values) >= 4 * min(values):
+        ax.set_xscale("log", base=2)
+        ax.xaxis.set_minor_locator(NullLocator())
+    ax.set_xticks(values, [f"{v:g}" for v in values])
+    ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
+    ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return", ylim=(0, 520))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower left")
+    ax.set_title(textwrap.fill(title, 95), fontsize=10)
     return fig

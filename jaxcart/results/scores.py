@@ -176,12 +176,14 @@ def load_arms(
     score: Score = summary.EVAL,
     policy: str = "final",
 ) -> tuple[list[Entry], Arms]:
-    """The runs of every arm (arm-major), baseline arm first.
+    """The runs of every arm (arm-major), baseline arm first; a sweep stands for its
+    combinations, one configuration each (an evaluation's physics values, say).
 
     Raises:
-        CompareError: fewer than two arms, repeated names, unequal configuration counts, a
-            sweep as an arm's run, or an unknown ``baseline``; RunDirError: unusable runs.
+        CompareError: fewer than two arms, repeated names, unequal configuration counts,
+            sweeps of other values, or an unknown ``baseline``; RunDirError: unusable runs.
     """
+    arms = _expand_sweeps(arms)
     names = [name for name, _ in arms]
     if len(arms) < 2 or len(set(names)) != len(names):
         raise CompareError("--arm needs at least two arms with distinct names")
@@ -195,16 +197,32 @@ def load_arms(
             "every --arm needs one run per configuration, in the same order; got "
             + ", ".join(f"{name}: {len(dirs)}" for name, dirs in arms)
         )
-    dirs = [Path(d) for _, ds in arms for d in ds]
-    for d in dirs:
-        if layout.is_sweep(d):
-            raise CompareError(f"--arm run {d} is a sweep; name one of its combinations")
-    runs = load_runs(dirs)
+    runs = load_runs([Path(d) for _, ds in arms for d in ds])
     _refuse_repeats(runs)
     entries = [make_entry(run, score, policy) for run in runs]
     k = counts.pop()
     index = [[a * k + t for t in range(k)] for a in range(len(arms))]
     return entries, Arms([name for name, _ in arms], index)
+
+
+def _expand_sweeps(
+    arms: Sequence[tuple[str, Sequence[str | os.PathLike]]],
+) -> list[tuple[str, list[Path]]]:
+    """Each arm's runs with every sweep replaced by its combinations, in order; the sweeps
+    must sweep the same values, so that each configuration pairs like with like."""
+    out, swept = [], set()
+    for name, dirs in arms:
+        runs: list[Path] = []
+        for d in map(Path, dirs):
+            if layout.is_sweep(d):
+                swept.add(repr(reader.recorded_combinations(reader.read_run_config(d))))
+                runs += reader.combo_dirs(d)
+            else:
+                runs.append(d)
+        out.append((name, runs))
+    if len(swept) > 1:
+        raise CompareError("the --arm sweeps sweep other values; give sweeps of the same values")
+    return out
 
 
 @dataclass
@@ -346,9 +364,18 @@ def comparison_notes(entries: list[Entry]) -> list[str]:
         )
     if len(entries) == 1:
         notes.append("one run only: nothing to compare it with (no probability of improvement)")
+    evaluations = [e.name for e in entries if not e.run.metrics]  # evaluate --out's: no curves
+    if evaluations:
+        who = "every run is" if len(evaluations) == len(entries) else ", ".join(evaluations) + ":"
+        notes.append(
+            f"{who} an evaluation of a trained run (python -m jaxcart.evaluate --out): no "
+            "learning curves, so no sample efficiency and no steps to 500"
+        )
     for e in entries:
         if e.solved is None:
             notes.append(f"{e.name} has no {layout.EVALUATION_FILE}: its solve rate is unknown")
+        if not e.run.metrics:
+            continue
         if e.train_return is None or not np.isfinite(e.train_return).any():
             notes.append(f"{e.name} has no {RETURN_METRIC}: no sample-efficiency curve")
         if e.first_reached(e.run.env_steps) is None:

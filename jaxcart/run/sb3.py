@@ -32,7 +32,7 @@ import numpy as np
 
 from jaxcart.core import networks
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_DEFINITION, is_solved
+from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run.loggers import make_logger, sb3_extras
 from jaxcart.rundir import files, layout, manifest, outputs
@@ -210,27 +210,10 @@ def write_run(
         manifest.FLAG: True,
     }
     stacked = files.flatten(_stack([r.params for r in results]))
-    returns = np.stack([r.returns for r in results])
-    solved = is_solved(returns)
-    episodes = returns.shape[1]
-    seeds = [
-        {
-            "seed_index": s,
-            "gymnasium_returns": returns[s].tolist(),
-            "gymnasium_mean": float(returns[s].mean()),
-            "gymnasium_min": float(returns[s].min()),
-            "solved": bool(solved[s]),
-            "final_ep_rew_mean": float(metrics["rollout/ep_rew_mean"][-1, s]),
-            "train_seconds": results[s].seconds,
-        }
-        for s in range(num_seeds)
-    ]
-    evaluation = {
-        "episodes": episodes,
-        "solved_definition": SOLVED_DEFINITION.format(episodes=episodes),
-        "seeds": seeds,
-        "solved_seeds": int(solved.sum()),
-    }
+    evaluation = outputs.evaluation_record(np.stack([r.returns for r in results]))
+    for s, seed in enumerate(evaluation["seeds"]):
+        seed["final_ep_rew_mean"] = float(metrics["rollout/ep_rew_mean"][-1, s])
+        seed["train_seconds"] = results[s].seconds
     directory = files.Dir.open(out)  # every file through it, and recorded in its manifest
     try:
         listing = manifest.Manifest(directory)

@@ -24,6 +24,12 @@ Layout of ``RUN_DIR``:
 - a sweep's directory holds ``config.json``, ``sweep.json`` and one run directory per
   combination, ``combo-000``, ``combo-001``, ...
 
+An evaluation (``python -m jaxcart.evaluate RUN --out DIR``) is a run directory without
+training: ``config.json`` (the run's config, the physics it was evaluated on as
+``env_params``, the run itself under ``evaluation_of``), ``evaluation.json`` and
+``manifest.json``. With ``--sweep env.NAME=...`` it is a sweep of them (``sweep.json``,
+``combo-000/``, ...) and ``robustness.png``.
+
 Nothing here reads or writes a file's contents; :mod:`jaxcart.rundir.files` writes,
 :mod:`jaxcart.rundir.reader` reads.
 """
@@ -47,6 +53,9 @@ PARAMS_BEST_FILE = "params_best.npz"
 POLICY_FILES = {"final": PARAMS_FILE, "best": PARAMS_BEST_FILE}
 """Which parameters a reader takes (``--policy final|best``)."""
 EVALUATION_FILE = "evaluation.json"
+EVALUATION_OF_KEY = "evaluation_of"
+"""Of an evaluation's ``config.json``: the run evaluated (``run``, ``combination``,
+``policy``, ``trained_physics``); its presence says the directory holds no training."""
 SWEEP_FILE = "sweep.json"
 CHECKPOINT_FILE = "checkpoint.npz"
 METRICS_STREAM_FILE = "metrics.stream"
@@ -86,6 +95,8 @@ CURVES_FILE = "curves.png"
 """``python -m jaxcart.plot RUN_DIR`` draws one run into ``RUN_DIR/curves.png``..."""
 PLOT_COMPARISON_FILE = "comparison.png"
 """...and several into ``comparison.png`` in the current directory."""
+ROBUSTNESS_FIGURE_FILE = "robustness.png"
+"""``python -m jaxcart.evaluate --sweep ... --out DIR``: the return against the swept value."""
 COMPARE_FILE = "compare.json"
 COMPARE_FIGURE_FILE = "compare.png"
 COMPARE_CURVES_FILE = "curves.csv"

@@ -22,6 +22,8 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved, solved_definition
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.layout import BLOCK_BEST_PARAMS, BLOCK_METRICS, BLOCK_PARAMS
+from jaxcart.rundir.manifest import FLAG as MANIFEST_FLAG
+from jaxcart.rundir.manifest import Manifest
 
 Digest = Callable[[str], None] | None
 """Called with a finished file's digest before it is renamed into place (its manifest)."""
@@ -244,3 +246,48 @@ def _best_entry(best: dict[str, np.ndarray], take: slice, s: int, env_id: str) -
             "solved": bool(is_solved(g, env_id)),
         }
     }
+
+
+def evaluation_record(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
+    """``evaluation.json`` of greedy Gymnasium returns ``[num_seeds, episodes]``: per seed
+    its returns, their mean and least, and whether they solve ``env_id``."""
+    returns = np.asarray(returns, np.float64)
+    solved = is_solved(returns, env_id)
+    seeds = [
+        {
+            "seed_index": s,
+            "gymnasium_returns": g.tolist(),
+            "gymnasium_mean": float(g.mean()),
+            "gymnasium_min": float(g.min()),
+            "solved": bool(solved[s]),
+        }
+        for s, g in enumerate(returns)
+    ]
+    return {
+        "episodes": returns.shape[1],
+        "solved_definition": solved_definition(env_id).format(episodes=returns.shape[1]),
+        "seeds": seeds,
+        "solved_seeds": int(solved.sum()),
+    }
+
+
+def write_evaluation_dir(
+    directory: files.Dir,
+    info: dict,
+    returns: np.ndarray | None = None,
+    others: dict[str, dict] | None = None,
+) -> None:
+    """An evaluation written in one go (``python -m jaxcart.evaluate --out``, laid out as
+    :mod:`jaxcart.rundir.layout` says): ``config.json`` (``info``), ``evaluation.json`` of
+    ``returns`` ``[num_seeds, episodes]`` (a sweep's own directory has none: its
+    ``combo-NNN/`` do) and ``others`` (name -> JSON object: a sweep's ``sweep.json``), each
+    recorded in the directory's manifest as a run's files are, so that the readers check it
+    as they check a run."""
+    named = {layout.CONFIG_FILE: {**info, MANIFEST_FLAG: True}}
+    if returns is not None:
+        named[layout.EVALUATION_FILE] = evaluation_record(
+            returns, info["config"].get("env", DEFAULT_ENV)
+        )
+    listing = Manifest(directory)
+    for name, data in {**named, **(others or {})}.items():
+        listing.write(name, lambda entry, d, data=data: files.write_json(entry, data, d))

@@ -193,6 +193,9 @@ def _check_run_fields(data: dict) -> None:
         raise ValueError("combination is not a {name: value} object")
     check_num_runs(num_seeds, math.prod(len(v) for v in sweep.values()) if sweep else 0)
     _check_physics_fields(data)
+    source = data.get(layout.EVALUATION_OF_KEY)
+    if source is not None and not (isinstance(source, dict) and isinstance(source.get("run"), str)):
+        raise ValueError(f"{layout.EVALUATION_OF_KEY} is not a {{run, ...}} object")
     if not sweep and data.get("combinations"):  # explicit points (a search's trials)
         check_num_runs(num_seeds, len(recorded_combinations(data)))
         return
@@ -226,6 +229,12 @@ def _check_physics_fields(data: dict) -> None:
             physics.check_continuous(name[len(physics.PREFIX) :], "config.json: sweep")
     combination = env_values(data.get("combination") or {})
     physics.check_physics(physics.with_values(params, combination), dtype)
+
+
+def is_evaluation(info: dict) -> bool:
+    """Whether a ``config.json`` (read by :func:`read_run_config`) is an evaluation's
+    (``python -m jaxcart.evaluate --out``): per-seed returns on other physics, no training."""
+    return layout.EVALUATION_OF_KEY in info
 
 
 def env_values(combination: dict) -> dict:

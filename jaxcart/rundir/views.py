@@ -49,7 +49,8 @@ def unfinished(run_dir: files.Where) -> bool:
 
 def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     """Reads a run directory's config, metrics and evaluation; a run that did not finish,
-    its metrics so far from its checkpoint (:attr:`RunCurves.note` says so). The directory
+    its metrics so far from its checkpoint (:attr:`RunCurves.note` says so); an evaluation
+    (``python -m jaxcart.evaluate --out``), its evaluation alone (no curves). The directory
     is opened once and every file read through it (:func:`jaxcart.rundir.files.opened`).
 
     Raises:
@@ -62,20 +63,22 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         if unfinished(directory):
             labels = [label] if label is not None else None
             return checkpoint_curves(path, info, labels, directory)[0]
-        if not files.present(directory / layout.METRICS_FILE):
+        trained = not reader.is_evaluation(info)
+        if trained and not files.present(directory / layout.METRICS_FILE):
             raise RunDirError(
                 f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
                 "never started training"
             )
-        metrics = reader.read_run_metrics(directory, info)
+        # an evaluation's curves are its run's: none here, as for a run that logged none
+        metrics = reader.read_run_metrics(directory, info) if trained else {}
         evaluation = None
         if files.present(directory / layout.EVALUATION_FILE):
             evaluation = reader.read_evaluation(directory, int(info.get("num_seeds", 1)))
-    if "env_steps" not in metrics:
+    if trained and "env_steps" not in metrics:
         raise RunDirError(f"{path / layout.METRICS_FILE} has no env_steps column")
-    env_steps = _first_finite(metrics["env_steps"])
+    env_steps = _first_finite(metrics["env_steps"]) if trained else np.empty(0)
     elapsed = _first_finite(metrics[ELAPSED_METRIC]) if ELAPSED_METRIC in metrics else None
-    num_seeds = next(iter(metrics.values())).shape[1]
+    num_seeds = next(iter(metrics.values())).shape[1] if trained else 1
     combination = info.get("combination") or None
     if label is None:
         label = combination_label(combination) if combination else default_label(path, info)
