@@ -296,10 +296,10 @@ def draw_robustness(
     curves: Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
     title: str,
 ) -> Figure:
-    """``robustness.png``: one curve per run, ``(label, point, low, high)`` each ``[V]``: a
-    statistic over seeds of each seed's greedy return at each of ``values`` of the physics
-    ``field`` (``env.length``) and its band, on a log axis when the values are positive and
-    span a factor of 4 or more."""
+    """``robustness.png``: one curve per run, ``(label, iqm, low, high)`` each ``[V]``: the
+    IQM over seeds of each seed's mean greedy return at each of ``values`` of the physics
+    ``field`` (``env.length``), its interval as a band; on a log axis when the values are
+    positive and span a factor of 4 or more."""
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullLocator
 
@@ -313,7 +313,8 @@ def draw_robustness(
         ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xticks(values, [f"{v:g}" for v in values])
     ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
-    ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return", ylim=(0, 520))
+    ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return, IQM over seeds")
+    ax.set(ylim=(0, 520))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower left")
     ax.set_title(textwrap.fill(title, 95), fontsize=10)
