@@ -197,14 +197,14 @@ def _check_out(out: Path, chosen: dict) -> None:
         )
 
 
-Sources = list[tuple[str | None, list[RunParams]]]
+_Sources = list[tuple[str | None, list[RunParams]]]
 """Per source (the run, or each combination of a sweep): its label and its parameters on
 each physics evaluated (each swept value, or the one chosen)."""
 
 
 def _read_run(
     run_dir: Path, args: argparse.Namespace, chosen: dict, field: str | None, values: list
-) -> tuple[dict, Sources]:
+) -> tuple[dict, _Sources]:
     """A run's ``config.json`` and what to evaluate of it, every physics checked before
     anything is evaluated."""
     info = read_run_config(run_dir)
@@ -241,7 +241,7 @@ def _policy_text(args: argparse.Namespace) -> str:
 
 
 def _evaluate_run(
-    run_dir: Path, info: dict, sources: Sources, args: argparse.Namespace
+    run_dir: Path, info: dict, sources: _Sources, args: argparse.Namespace
 ) -> list[np.ndarray]:
     """Prints the per-seed table of every source on its one physics; returns each source's
     Gymnasium returns ``[num_seeds, episodes]``."""
@@ -279,7 +279,7 @@ IQM_TEXT = (
 
 
 def _evaluate_sweep(
-    runs: list[tuple[Path, dict, Sources]], field: str, values: list, args: argparse.Namespace
+    runs: list[tuple[Path, dict, _Sources]], field: str, values: list, args: argparse.Namespace
 ) -> tuple[list[list[np.ndarray]], list[list[stats.Estimate]]]:
     """Every run at every value: prints one row per run and value (the IQM over seeds of each
     seed's mean return with its interval, as ``compare`` computes it); returns per run, per
@@ -333,7 +333,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
 
 def _write(
     args: argparse.Namespace,
-    runs: list[tuple[Path, dict, Sources]],
+    runs: list[tuple[Path, dict, _Sources]],
     returns: list[list[np.ndarray]],
     field: str | None,
     values: list,
@@ -416,7 +416,7 @@ def _write_sweep(
 
 
 def _robustness_png(
-    runs: list[tuple[Path, dict, Sources]],
+    runs: list[tuple[Path, dict, _Sources]],
     field: str,
     values: list,
     iqms: list[list[stats.Estimate]],

@@ -206,21 +206,17 @@ def write_evaluation(
         for block, take in overlapping(blocks, runs):
             final = block.metrics["rollout/ep_rew_mean"][-1, take]
             g, j, d = block.gym_returns[take], block.jax_returns[take], block.diverged_at[take]
-            solved = is_solved(g, env_id)
-            solved_total += int(solved.sum())
             first = block.start + take.start - runs.start
             for s in range(len(g)):
                 seed = {
                     "seed_index": first + s,
-                    "gymnasium_returns": g[s].tolist(),
-                    "gymnasium_mean": float(g[s].mean()),
-                    "gymnasium_min": float(g[s].min()),
-                    "solved": bool(solved[s]),
+                    **gymnasium_entry(g[s], env_id),
                     "jaxcart_returns": j[s].tolist(),
                     "jaxcart_mean": float(j[s].mean()),
                     "final_ep_rew_mean": float(final[s]),
                     "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
                 }
+                solved_total += int(seed["solved"])
                 if block.best is not None:
                     seed |= _best_entry(block.best, take, s, env_id)
                     best_solved += int(seed["best"]["solved"])
@@ -240,34 +236,32 @@ def _best_entry(best: dict[str, np.ndarray], take: slice, s: int, env_id: str) -
         "best": {
             "iteration": iteration if iteration > 0 else None,
             "eval_mean_return": float(best["best_score"][take][s]) if iteration > 0 else None,
-            "gymnasium_returns": g.tolist(),
-            "gymnasium_mean": float(g.mean()),
-            "gymnasium_min": float(g.min()),
-            "solved": bool(is_solved(g, env_id)),
+            **gymnasium_entry(g, env_id),
         }
+    }
+
+
+def gymnasium_entry(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
+    """One seed's greedy Gymnasium episodes as ``evaluation.json`` records them: the returns
+    ``[episodes]``, their mean and least, and whether they solve ``env_id``."""
+    return {
+        "gymnasium_returns": returns.tolist(),
+        "gymnasium_mean": float(returns.mean()),
+        "gymnasium_min": float(returns.min()),
+        "solved": bool(is_solved(returns, env_id)),
     }
 
 
 def evaluation_record(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
     """``evaluation.json`` of greedy Gymnasium returns ``[num_seeds, episodes]``: per seed
     its returns, their mean and least, and whether they solve ``env_id``."""
-    returns = np.asarray(returns, np.float64)
-    solved = is_solved(returns, env_id)
-    seeds = [
-        {
-            "seed_index": s,
-            "gymnasium_returns": g.tolist(),
-            "gymnasium_mean": float(g.mean()),
-            "gymnasium_min": float(g.min()),
-            "solved": bool(solved[s]),
-        }
-        for s, g in enumerate(returns)
-    ]
+    returns = np.asarray(returns)
+    seeds = [{"seed_index": s, **gymnasium_entry(g, env_id)} for s, g in enumerate(returns)]
     return {
         "episodes": returns.shape[1],
         "solved_definition": solved_definition(env_id).format(episodes=returns.shape[1]),
         "seeds": seeds,
-        "solved_seeds": int(solved.sum()),
+        "solved_seeds": sum(seed["solved"] for seed in seeds),
     }
 
 
