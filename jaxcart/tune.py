@@ -4,7 +4,8 @@ Train's options are every trial's base (``--preset``, ``--total-timesteps``, ...
 says what the search draws. Each batch of ``--batch-trials`` trials trains as one program per
 shape (:mod:`jaxcart.run.search`) into a run directory under ``--out``; the study lives in
 ``--storage`` (SQLite by default, any URL Optuna accepts), so the same command run again, or
-in another process or on another machine, continues it to ``--trials`` finished trials::
+in another process or on another machine, continues it to ``--trials`` finished trials. It
+ends by training the top ``--heldout-top`` trials again on fresh seeds, ranked by those::
 
     python -m jaxcart.tune --trials 32 --batch-trials 8 --num-seeds 4 \\
         --space learning_rate=log:1e-5:1e-2 --space clip_coef=0.1:0.3
@@ -208,7 +209,7 @@ def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed
 
 MIN_CI_SEEDS = 5
 """Seeds an IQM's 95% bootstrap interval needs: with 4 or fewer, its percentile interval is
-the seeds' lowest and highest score, so it is shown as their range, not as a 95% CI."""
+the seeds' lowest and highest score (or nearly), so their range is shown, not a "95% CI"."""
 
 
 def _interval_name(num_seeds: int) -> str:

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 import types
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -247,26 +248,34 @@ def test_interrupted_mid_batch_then_rerun_ends_with_exactly_the_trials(tmp_path)
 
 
 @pytest.mark.slow
-def test_two_processes_share_one_study_without_duplicates(tmp_path):
-    storage = f"sqlite:///{tmp_path}/study.db"
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_two_processes_share_one_study_without_duplicates(tmp_path, backend):
+    storage, name = f"sqlite:///{tmp_path}/study.db", f"shared-{uuid.uuid4().hex[:8]}"
+    if backend == "postgresql":  # a server .ci/run starts: postgresql+psycopg://...
+        storage = os.environ.get("JAXCART_TEST_POSTGRES", "")
+        if not storage:
+            pytest.skip("JAXCART_TEST_POSTGRES not set: no PostgreSQL server to test against")
     argv = [*BASE, "--trials", "6", "--batch-trials", "2", "--num-seeds", "1", "--storage", storage]
-    argv += ["--space", "learning_rate=log:1e-4:1e-2", "--study-name", "shared", "--quiet"]
+    argv += ["--space", "learning_rate=log:1e-4:1e-2", "--study-name", name, "--quiet"]
     argv += ["--heldout-top", "0"]  # the search alone
     # the study exists before both start, as when a first process created it
-    search.open_study(storage, "shared")
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-m", "jaxcart.tune", *argv, "--out", str(tmp_path / f"p{i}")],
-            env=TRAIN_ENV,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        for i in range(2)
-    ]
-    logs = [p.communicate(timeout=300)[0] for p in procs]
-    assert [p.returncode for p in procs] == [0, 0], logs
-    states = _states(storage, "shared")
+    search.open_study(storage, name)
+    try:
+        procs = [
+            subprocess.Popen(
+                [sys.executable, "-m", "jaxcart.tune", *argv, "--out", str(tmp_path / f"p{i}")],
+                env=TRAIN_ENV,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
+            for i in range(2)
+        ]
+        logs = [p.communicate(timeout=300)[0] for p in procs]
+        assert [p.returncode for p in procs] == [0, 0], logs
+        states = _states(storage, name)
+    finally:  # a server database outlives the test
+        optuna.delete_study(study_name=name, storage=storage)
     assert states.count("COMPLETE") == 6, states
     assert states.count("RUNNING") == 0
     dirs = [
