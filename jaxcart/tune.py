@@ -4,7 +4,8 @@ Train's options are every trial's base (``--preset``, ``--total-timesteps``, ...
 says what the search draws. Each batch of ``--batch-trials`` trials trains as one program per
 shape (:mod:`jaxcart.run.search`) into a run directory under ``--out``; the study lives in
 ``--storage`` (SQLite by default, any URL Optuna accepts), so the same command run again, or
-in another process or on another machine, continues it to ``--trials`` finished trials::
+in another process or on another machine, continues it to ``--trials`` finished trials. It
+ends by training the top ``--heldout-top`` trials again on fresh seeds, ranked by those::
 
     python -m jaxcart.tune --trials 32 --batch-trials 8 --num-seeds 4 \\
         --space learning_rate=log:1e-5:1e-2 --space clip_coef=0.1:0.3
@@ -23,7 +24,7 @@ from typing import NoReturn
 
 from jaxcart import cli, train
 from jaxcart.core.config import config_fields
-from jaxcart.run.search import DEFAULT_SPACE
+from jaxcart.run.search import DEFAULT_SPACE, SPACE_PRESETS
 
 DEFAULT_STORAGE = "sqlite:///runs/study.db"
 DEFAULT_STUDY = "jaxcart"
@@ -57,8 +58,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="NAME=SPEC",
         help="a config field to search (repeatable): LOW:HIGH (uniform), log:LOW:HIGH, "
         "int:LOW:HIGH, or choices A,B,C (shape settings such as num_envs=1,4,8 or "
-        "hidden_sizes=64x64,32x32 group a batch into one program per shape); default: "
-        "rl-zoo3's PPO float ranges, " + " ".join(DEFAULT_SPACE),
+        "hidden_sizes=64x64,32x32 group a batch into one program per shape); one_minus_FIELD "
+        "draws 1 - FIELD; a named space stands for its fields: "
+        + ", ".join(SPACE_PRESETS)
+        + "; default: rl-zoo3's PPO float ranges since its v2.6, "
+        + " ".join(DEFAULT_SPACE),
     )
     search.add_argument(
         "--score",
@@ -85,6 +89,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     search.add_argument(
         "--top", type=cli.count, default=5, help="trials in the final table (default: 5)"
+    )
+    search.add_argument(
+        "--heldout-top",
+        type=int,
+        default=3,
+        metavar="K",
+        help="at the end, train the top K trials again on fresh seeds, as one batch, and rank "
+        "them by those held-out scores (0: skip; default: 3)",
     )
     run = parser.add_argument_group("every trial (as for jaxcart.train)")
     run.add_argument("--preset", default=None, help="starting config (default: sb3)")
@@ -136,6 +148,7 @@ class TuneOptions:
     sampler_seed: int | None = None
     pruner: str = "none"
     top: int = 5
+    heldout_top: int = 3
     base: train.TrainOptions = field(default_factory=train.TrainOptions)
 
     @classmethod
@@ -163,18 +176,22 @@ class TuneOptions:
             sampler_seed=args.sampler_seed,
             pruner=args.pruner,
             top=args.top,
+            heldout_top=args.heldout_top,
             base=base,
         )
 
 
-def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str) -> str:
+def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed: int) -> str:
     """The ``python -m jaxcart.train`` command that trains a trial again: the tune command's
-    base options, the trial's values, its seeds."""
+    base options, the trial's values, its number of seeds from base seed ``seed``."""
     words = ["python", "-m", "jaxcart.train"]
     base = opts.base
     if base.preset:
         words += ["--preset", base.preset]
-    values = {**base.overrides, **{k: space[k].config_value(v) for k, v in params.items()}}
+    values = {
+        **base.overrides,
+        **{space[k].name: space[k].config_value(v) for k, v in params.items()},
+    }
     for name, value in values.items():
         flag = "--" + name.replace("_", "-")
         if isinstance(value, bool):
@@ -183,11 +200,36 @@ def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str) -> s
             words.append(f"{flag}={value!r}")
         else:
             words.append(f"{flag}={train._default_text(value)}")
-    words += ["--num-seeds", str(base.num_seeds), "--seed", str(base.seed)]
+    words += ["--num-seeds", str(base.num_seeds), "--seed", str(seed)]
     if base.eval_episodes:
         words += ["--eval-episodes", str(base.eval_episodes)]
     words += ["--out", out]
     return shlex.join(words)
+
+
+MIN_CI_SEEDS = 5
+"""Seeds an IQM's 95% bootstrap interval needs: with 4 or fewer, its percentile interval is
+the seeds' lowest and highest score (or nearly), so their range is shown, not a "95% CI"."""
+
+
+def _interval_name(num_seeds: int) -> str:
+    return "95% CI" if num_seeds >= MIN_CI_SEEDS else f"range of {num_seeds} seeds"
+
+
+def _iqm_text(scores: list[float]) -> str:
+    """``412.3 [380.0, 450.5]``: the IQM of per-seed ``scores`` ``[num_seeds]`` and its 95%
+    bootstrap interval, or the seeds' range under :data:`MIN_CI_SEEDS` seeds."""
+    from jaxcart.analysis import stats
+
+    est = stats.bootstrap_ci(scores, stats.iqm)
+    if len(scores) < MIN_CI_SEEDS:
+        est = stats.Estimate(est.value, min(scores), max(scores))
+    return est.format()
+
+
+def _scores(trial: object) -> list[float]:
+    """A complete trial's per-seed scores ``[num_seeds]``, as its batch told them."""
+    return trial.user_attrs.get("scores", [trial.value])
 
 
 def _print_batch(out: Path, results: list, started: float) -> None:
@@ -197,14 +239,15 @@ def _print_batch(out: Path, results: list, started: float) -> None:
     pruned = sum(r.pruned for r in results)
     print(
         f"trials {', '.join(str(r.number) for r in results)}: best #{best.number} "
-        f"{best.iqm.format()}{f' | {pruned} pruned' if pruned else ''} | {out} | "
+        f"{_iqm_text(list(best.scores))}{f' | {pruned} pruned' if pruned else ''} | {out} | "
         f"{time.monotonic() - started:.1f} s so far",
         flush=True,
     )
 
 
-def _print_summary(opts: TuneOptions, study: object, space: dict) -> None:
-    """The top trials with their intervals over seeds, and the best one's retrain command."""
+def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
+    """The top trials with their intervals over seeds; returns every complete trial, best
+    first."""
     import optuna
 
     complete = [
@@ -216,37 +259,74 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> None:
         f"study {opts.study_name!r} in {opts.storage}: "
         + ", ".join(f"{n} {s}" for s, n in counted.items() if n)
     )
-    if not complete:
-        return
-    ranked = sorted(complete, key=lambda t: -t.value)[: opts.top]
+    ranked = sorted(complete, key=lambda t: -t.value)
     names = list(space)
     rows = []
-    for rank, t in enumerate(ranked, 1):
-        low, high = t.user_attrs.get("iqm_ci", [t.value, t.value])
+    for rank, t in enumerate(ranked[: opts.top], 1):
         shown = [
             f"{t.params[n]:.4g}" if isinstance(t.params.get(n), float) else str(t.params.get(n))
             for n in names
         ]
         rows.append(
-            [
-                rank,
-                t.number,
-                f"{t.value:.1f} [{low:.1f}, {high:.1f}]",
-                *shown,
-                t.user_attrs.get("run_dir", ""),
-            ]
+            [rank, t.number, _iqm_text(_scores(t)), *shown, t.user_attrs.get("run_dir", "")]
         )
-    print(
-        f"\nTop trials by the IQM of --score {opts.score} over {opts.base.num_seeds} seed(s), 95% bootstrap CIs:"
-    )
-    print(cli.format_table(rows, ["rank", "trial", "iqm [95% CI]", *names, "run directory"]))
-    best = ranked[0]
-    out = f"runs/{opts.study_name}-best"
-    print(f"\nbest: trial {best.number}; train it again with:")
-    print(f"  {retrain_command(opts, best.params, space, out)}")
-    print(
-        f"  python -m jaxcart.compare {best.user_attrs.get('run_dir')} {out} --score {opts.score}"
-    )
+    if rows:
+        seeds = _interval_name(opts.base.num_seeds)
+        print(
+            f"\nTop trials by the IQM of --score {opts.score} over {opts.base.num_seeds} seed(s):"
+        )
+        print(cli.format_table(rows, ["rank", "trial", f"iqm [{seeds}]", *names, "run directory"]))
+    return ranked
+
+
+def _heldout(opts: TuneOptions, tuner: object, ranked: list, space: dict) -> None:
+    """Trains the top ``--heldout-top`` trials again on fresh seeds, ranks them by those
+    scores, records the seed in the study, and prints the winner's retrain command on seeds
+    fresher still (without held-out runs: the search's best)."""
+    from jaxcart.analysis import stats
+    from jaxcart.run import search
+
+    if not ranked:
+        return
+    study, base = tuner.study, opts.base
+    seed = search.heldout_seed(study, base.seed)
+    best, out = ranked[0], f"runs/{opts.study_name}-best"
+    run_dirs = [best.user_attrs.get("run_dir")]
+    if opts.heldout_top:
+        top = ranked[: opts.heldout_top]
+        print(
+            f"\nheld-out check: the top {len(top)} trained again on {base.num_seeds} fresh "
+            f"seed(s), base seed {seed} (the search's: {base.seed}), as one batch",
+            flush=True,
+        )
+        results = sorted(tuner.heldout(top, seed), key=lambda r: -float(stats.iqm(r.scores)))
+        study.set_user_attr(
+            "heldout",
+            {
+                "seed": seed,
+                "scores": {str(r.number): [float(x) for x in r.scores] for r in results},
+            },
+        )
+        searched = {t.number: t for t in top}
+        seeds = _interval_name(base.num_seeds)
+        rows = [
+            [
+                i,
+                r.number,
+                _iqm_text(_scores(searched[r.number])),
+                _iqm_text(list(r.scores)),
+                r.run_dir,
+            ]
+            for i, r in enumerate(results, 1)
+        ]
+        header = ["rank", "trial", f"search iqm [{seeds}]", f"held-out iqm [{seeds}]"]
+        print(cli.format_table(rows, [*header, "held-out run directory"]))
+        best, run_dirs = searched[results[0].number], [str(r.run_dir) for r in results]
+        print(f"\nbest on held-out seeds: trial {best.number}; train it on other fresh seeds with:")
+    else:
+        print(f"\nbest: trial {best.number}; train it again on fresh seeds with:")
+    print(f"  {retrain_command(opts, best.params, space, out, seed + 1)}")
+    print(f"  python -m jaxcart.compare {' '.join(run_dirs)} {out} --score {opts.score}")
     print(
         f"  optuna-dashboard {opts.storage}   # the study in a browser (pip install optuna-dashboard)"
     )
@@ -257,12 +337,14 @@ def _tune(opts: TuneOptions) -> int:
     from jaxcart.run import search
     from jaxcart.run.spec import Hooks
 
+    if opts.heldout_top < 0:
+        raise cli.UsageError(f"--heldout-top must be 0 or more, got {opts.heldout_top}")
     spec = opts.base.run_spec()
     space = search.parse_space(list(opts.space), spec.config)
-    given = [n for n in space if n in opts.base.overrides]
+    given = [(d.name, p) for p, d in space.items() if d.name in opts.base.overrides]
     if given:
         raise cli.UsageError(
-            f"--{given[0].replace('_', '-')} and --space {given[0]} both given; keep one"
+            f"--{given[0][0].replace('_', '-')} and --space {given[0][1]} both given; keep one"
         )
     try:
         score = Score.parse(opts.score)
@@ -313,6 +395,11 @@ def _tune(opts: TuneOptions) -> int:
     with search.storage_errors(opts.storage):  # a read-only database, a lost server
         try:
             tuner.run(opts.trials, opts.batch_trials)
+            if tuner.pruned_seconds_saved:
+                print(
+                    f"pruning stopped groups early: about {tuner.pruned_seconds_saved:.1f} s of training saved"
+                )
+            _heldout(opts, tuner, _print_summary(opts, study, space), space)
         except search.BatchStopped as exc:
             print(
                 f"stopped by {signal.Signals(exc.signum).name}; run the same command again to continue the study",
@@ -322,11 +409,6 @@ def _tune(opts: TuneOptions) -> int:
         except KeyboardInterrupt:
             print("interrupted; run the same command again to continue the study", file=sys.stderr)
             return 130
-        if tuner.pruned_seconds_saved:
-            print(
-                f"pruning stopped groups early: about {tuner.pruned_seconds_saved:.1f} s of training saved"
-            )
-        _print_summary(opts, study, space)
     return 0
 
 

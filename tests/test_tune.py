@@ -1,10 +1,11 @@
 """``python -m jaxcart.tune``: search spaces checked before anything compiles, a study that
 finishes with exactly its trials (interrupted, resumed, or shared by two processes), trials
-grouped by shape, and the best trial's retrain command reproducing its score."""
+grouped by shape, and its top trials trained again on fresh seeds."""
 
 from __future__ import annotations
 
 import importlib
+import json
 import os
 import shlex
 import signal
@@ -12,6 +13,7 @@ import subprocess
 import sys
 import time
 import types
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +24,7 @@ optuna = pytest.importorskip("optuna")
 from helpers import TINY, TRAIN_ENV  # noqa: E402
 
 from jaxcart import train, tune  # noqa: E402
+from jaxcart.analysis.stats import iqm  # noqa: E402
 from jaxcart.analysis.summary import Score  # noqa: E402
 from jaxcart.core.config import ConfigError, preset  # noqa: E402
 from jaxcart.results.scores import make_entry  # noqa: E402
@@ -92,10 +95,38 @@ def test_space_parsing_draws_what_it_says():
     assert traced == {"learning_rate": 1e-3, "clip_coef": 0.2}
 
 
-def test_no_space_is_rl_zoo3s_float_ranges_in_one_program():
-    space = search.parse_space([], preset("sb3"))
-    assert space["learning_rate"].log and space["gamma"].high == 0.9999
+def test_no_space_is_rl_zoo3s_current_float_ranges_and_the_old_one_stays_reachable():
+    base = preset("sb3")
+    space = search.parse_space([], base)
     assert all(d.traced for d in space.values())  # every batch one program
+    assert "vf_coef" not in space and "gamma" not in space
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    dists = {name: d.distribution() for name, d in space.items()}
+    assert dists["one_minus_gamma"] == optuna.distributions.FloatDistribution(1e-4, 0.03, log=True)
+    drawn = [search.split_params(space, study.ask(dists).params)[1] for _ in range(400)]
+    values = {name: np.array([d[name] for d in drawn]) for name in drawn[0]}
+    lr, gamma, lam = values["learning_rate"], values["gamma"], values["gae_lambda"]
+    assert 1e-5 <= lr.min() and lr.max() <= 0.002 and values["max_grad_norm"].max() <= 2.0
+    assert 0.97 <= gamma.min() and gamma.max() <= 0.9999 and 0.9 <= lam.min() <= lam.max() < 1
+    # log-uniform: 1 - gamma under 1e-3 in log(10)/log(300) of the draws (uniform: 3%)
+    assert abs(np.mean(1 - gamma < 1e-3) - 1 / np.log10(300)) < 0.1
+    assert abs(np.mean(1 - lam < 1e-3) - 1 / 3) < 0.1
+    assert abs(np.mean(lr < 1e-4) - 1 / np.log10(200)) < 0.1
+    old = search.parse_space(["rl-zoo3-v2.5"], base)
+    assert old["gamma"].high == 0.9999 and old["vf_coef"].low == 0.1
+    assert old["learning_rate"].high == 1e-2 and not old["gamma"].log
+    assert tune._parse_args(["--space", "rl-zoo3-v2.5"]).space == ["rl-zoo3-v2.5"]
+
+
+def test_a_study_of_the_old_space_refuses_the_new_one(tmp_path, capsys):
+    storage = f"sqlite:///{tmp_path}/study.db"
+    study = optuna.create_study(storage=storage, study_name="old", direction="maximize")
+    old = search.parse_space(["rl-zoo3-v2.5"], preset("sb3"))
+    study.tell(study.ask({name: d.distribution() for name, d in old.items()}), 1.0)
+    assert tune.main([*BASE, "--storage", storage, "--study-name", "old"]) == 2
+    err = capsys.readouterr().err
+    assert "--space one_minus_gamma: study 'old' draws gamma as gamma" in err, err
+    assert _states(storage, "old") == ["COMPLETE"]
 
 
 def test_space_with_a_shape_combination_that_cannot_train_is_refused():
@@ -112,7 +143,7 @@ def test_explicit_combinations_and_a_sweep_are_exclusive():
 
 
 @pytest.mark.slow
-def test_study_finishes_groups_by_shape_and_the_retrain_command_reproduces(
+def test_study_finishes_groups_by_shape_then_checks_its_top_trials_on_fresh_seeds(
     tmp_path, capsys, monkeypatch
 ):
     monkeypatch.chdir(tmp_path)
@@ -138,7 +169,7 @@ def test_study_finishes_groups_by_shape_and_the_retrain_command_reproduces(
         "--space",
         "num_envs=2,4",
     ]
-    argv += ["--sampler", "random", "--sampler-seed", "3"]
+    argv += ["--sampler", "random", "--sampler-seed", "3", "--heldout-top", "2"]
     assert tune.main(argv) == 0
     out = capsys.readouterr().out
     study = optuna.load_study(study_name="demo", storage=storage)
@@ -147,7 +178,7 @@ def test_study_finishes_groups_by_shape_and_the_retrain_command_reproduces(
     assert all(set(t.params) == {"learning_rate", "num_envs"} and t.value > 0 for t in trials)
     # one run directory (one program) per num_envs drawn, each trial a combination of it
     groups = {t.params["num_envs"] for t in trials}
-    batch_dirs = sorted((tmp_path / "runs" / "demo").iterdir())
+    batch_dirs = sorted((tmp_path / "runs" / "demo").glob("trials-*"))
     assert len(batch_dirs) == len(groups)
     for t in trials:
         run = load_run(t.user_attrs["run_dir"])
@@ -155,14 +186,28 @@ def test_study_finishes_groups_by_shape_and_the_retrain_command_reproduces(
         scores = make_entry(run, Score("auc")).scores
         np.testing.assert_allclose(scores, t.user_attrs["scores"])
     assert len(load_runs(batch_dirs)) == 4  # compare and plot read every trial
-    # the printed command trains the best trial again, to the same per-seed scores
-    best = max(trials, key=lambda t: t.value)
+    # the top 2 trained again from a base seed no trial used, recorded in the study
+    heldout = study.user_attrs["heldout"]
+    top = sorted(trials, key=lambda t: -t.value)[:2]
+    assert heldout["seed"] not in (0, 1) and set(heldout["scores"]) == {str(t.number) for t in top}
+    heldout_dirs = sorted((tmp_path / "runs" / "demo").glob(f"heldout-{heldout['seed']}-*"))
+    assert len(heldout_dirs) == len({t.params["num_envs"] for t in top})  # a program per shape
+    for run in load_runs(heldout_dirs):
+        assert json.loads((run.path / "config.json").read_text())["seed"] == heldout["seed"]
+        scores = make_entry(run, Score("auc")).scores
+        assert any(np.array_equal(scores, s) for s in heldout["scores"].values())
+    assert "held-out iqm [range of 2 seeds]" in out and "95% CI" not in out
+    # ranked by the held-out IQM; the printed command trains the winner on yet other seeds
+    winner = max(top, key=lambda t: iqm(heldout["scores"][str(t.number)]))
+    assert f"best on held-out seeds: trial {winner.number};" in out
     line = next(x for x in out.splitlines() if "python -m jaxcart.train" in x)
     words = shlex.split(line)[3:]
+    assert words[words.index("--seed") + 1] == str(heldout["seed"] + 1)
+    # ... with the trial's own settings: from the held-out seed, it gives its held-out scores
+    words[words.index("--seed") + 1] = str(heldout["seed"])
     assert train.main([*words, "--quiet"]) == 0
     again = make_entry(load_run(words[words.index("--out") + 1]), Score("auc")).scores
-    np.testing.assert_array_equal(again, best.user_attrs["scores"])
-    assert f"{best.value:.1f}" in out  # the top-trials table
+    np.testing.assert_array_equal(again, heldout["scores"][str(winner.number)])
 
 
 def _tuner(storage: str, out: Path, hooks: Hooks | None = None) -> search.Tuner:
@@ -203,25 +248,34 @@ def test_interrupted_mid_batch_then_rerun_ends_with_exactly_the_trials(tmp_path)
 
 
 @pytest.mark.slow
-def test_two_processes_share_one_study_without_duplicates(tmp_path):
-    storage = f"sqlite:///{tmp_path}/study.db"
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_two_processes_share_one_study_without_duplicates(tmp_path, backend):
+    storage, name = f"sqlite:///{tmp_path}/study.db", f"shared-{uuid.uuid4().hex[:8]}"
+    if backend == "postgresql":  # a server .ci/run starts: postgresql+psycopg://...
+        storage = os.environ.get("JAXCART_TEST_POSTGRES", "")
+        if not storage:
+            pytest.skip("JAXCART_TEST_POSTGRES not set: no PostgreSQL server to test against")
     argv = [*BASE, "--trials", "6", "--batch-trials", "2", "--num-seeds", "1", "--storage", storage]
-    argv += ["--space", "learning_rate=log:1e-4:1e-2", "--study-name", "shared", "--quiet"]
+    argv += ["--space", "learning_rate=log:1e-4:1e-2", "--study-name", name, "--quiet"]
+    argv += ["--heldout-top", "0"]  # the search alone
     # the study exists before both start, as when a first process created it
-    search.open_study(storage, "shared")
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-m", "jaxcart.tune", *argv, "--out", str(tmp_path / f"p{i}")],
-            env=TRAIN_ENV,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        for i in range(2)
-    ]
-    logs = [p.communicate(timeout=300)[0] for p in procs]
-    assert [p.returncode for p in procs] == [0, 0], logs
-    states = _states(storage, "shared")
+    search.open_study(storage, name)
+    try:
+        procs = [
+            subprocess.Popen(
+                [sys.executable, "-m", "jaxcart.tune", *argv, "--out", str(tmp_path / f"p{i}")],
+                env=TRAIN_ENV,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
+            for i in range(2)
+        ]
+        logs = [p.communicate(timeout=300)[0] for p in procs]
+        assert [p.returncode for p in procs] == [0, 0], logs
+        states = _states(storage, name)
+    finally:  # a server database outlives the test
+        optuna.delete_study(study_name=name, storage=storage)
     assert states.count("COMPLETE") == 6, states
     assert states.count("RUNNING") == 0
     dirs = [

@@ -19,6 +19,7 @@ from jaxcart.rundir.views import load_runs  # noqa: E402
 
 LR = "learning_rate=log:1e-4:1e-2"
 ARGV = [*BASE, "--trials", "2", "--batch-trials", "2", "--num-seeds", "1", "--quiet"]
+ARGV += ["--heldout-top", "0"]  # the search alone
 
 
 def _study_with_one_trial(db) -> str:

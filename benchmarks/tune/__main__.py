@@ -85,6 +85,8 @@ def commands(args, out: Path) -> dict[str, list[str]]:
             str(out / "jaxcart-runs"),
             "--pruner",
             args.pruner,
+            "--heldout-top",  # the search alone, as the SB3 contender runs it
+            "0",
             *(["--sampler-seed", str(args.sampler_seed)] if args.sampler_seed is not None else []),
             *space,
         ],

@@ -22,6 +22,7 @@ import shutil
 import threading
 import time
 import warnings
+import zlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,17 +51,34 @@ WAIT_SECONDS = 5
 """How often a study whose last trials run elsewhere is checked while this process waits."""
 
 
-DEFAULT_SPACE = (
-    "learning_rate=log:1e-5:1e-2",
-    "clip_coef=0.1:0.4",
-    "ent_coef=log:1e-8:1e-1",
-    "gamma=0.9:0.9999",
-    "gae_lambda=0.8:1.0",
-    "max_grad_norm=0.3:5.0",
-    "vf_coef=0.1:1.0",
-)
-"""Without ``--space``: rl-zoo3's PPO float ranges (``sample_ppo_params``), all traced, so a
-batch is one program; its learning rate tops out at 1e-2 rather than rl-zoo3's 1."""
+SPACE_PRESETS: dict[str, tuple[str, ...]] = {
+    # rl-zoo3 v2.6+ (sample_ppo_params): 1 - gamma and 1 - lambda on a log scale, no vf_coef
+    "rl-zoo3": (
+        "learning_rate=log:1e-5:0.002",
+        "clip_coef=0.1:0.4",
+        "ent_coef=log:1e-8:1e-1",
+        "one_minus_gamma=log:1e-4:0.03",
+        "one_minus_gae_lambda=log:1e-4:0.1",
+        "max_grad_norm=0.3:2.0",
+    ),
+    # rl-zoo3 up to v2.5.0, its choices as ranges; the learning rate up to 1e-2, not 1
+    "rl-zoo3-v2.5": (
+        "learning_rate=log:1e-5:1e-2",
+        "clip_coef=0.1:0.4",
+        "ent_coef=log:1e-8:1e-1",
+        "gamma=0.9:0.9999",
+        "gae_lambda=0.8:1.0",
+        "max_grad_norm=0.3:5.0",
+        "vf_coef=0.1:1.0",
+    ),
+}
+"""Named spaces, each a ``--space`` value: rl-zoo3's PPO float ranges (``sample_ppo_params``),
+all traced, so a batch is one program. rl-zoo3's clip choices 0.1 to 0.4 are the range; its
+shape settings (n_steps, batch size, epochs, network) are left out."""
+DEFAULT_SPACE = SPACE_PRESETS["rl-zoo3"]
+"""Without ``--space``: rl-zoo3's current (v2.6 and later) PPO float ranges."""
+ONE_MINUS = "one_minus_"
+"""``one_minus_gamma=log:1e-4:0.03`` draws ``1 - gamma``: log-uniform near 1."""
 
 
 class TuneUnavailable(ConfigError):
@@ -79,6 +97,12 @@ class Dimension:
     log: bool = False
     integer: bool = False
     choices: tuple = ()
+    complement: bool = False  # drawn as 1 - the field's value (:data:`ONE_MINUS`)
+
+    @property
+    def param(self) -> str:
+        """The Optuna parameter's name: the field's, or ``one_minus_`` and the field's."""
+        return ONE_MINUS + self.name if self.complement else self.name
 
     @property
     def traced(self) -> bool:
@@ -99,6 +123,8 @@ class Dimension:
         """A drawn value as the config field takes it (``"64x64"`` -> ``(64, 64)``)."""
         if self.name == "hidden_sizes":
             return tuple(int(n) for n in str(value).split("x"))
+        if self.complement:
+            return 1.0 - float(value)
         return float(value) if self.traced else value
 
 
@@ -129,7 +155,8 @@ def _choice(name: str, kind: str, text: str) -> Any:
 
 def parse_dimension(spec: str) -> Dimension:
     """``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``, ``num_envs=1,4,8``,
-    ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``.
+    ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``; a float
+    field named ``one_minus_FIELD`` draws ``1 - FIELD`` (``one_minus_gamma=log:1e-4:0.03``).
 
     Raises:
         ConfigError: malformed, an unknown field, a low not below its high, a log range
@@ -142,20 +169,23 @@ def parse_dimension(spec: str) -> Dimension:
         raise ConfigError(
             f"malformed --space {spec!r}; expected NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
         )
-    if name not in kinds:
+    field_ = name.removeprefix(ONE_MINUS)
+    complement = field_ != name and field_ in TRACED_FIELDS
+    field_ = field_ if complement else name
+    if field_ not in kinds:
         import difflib
 
         near = difflib.get_close_matches(name, list(kinds), n=1)
         hint = f" (did you mean {near[0]}?)" if near else ""
         raise ConfigError(f"--space {name}: no such config field{hint}")
-    kind = kinds[name]
+    kind = kinds[field_]
     parts = text.strip().split(":")
     try:
         if len(parts) == 1 or "," in text:
-            choices = tuple(_choice(name, kind, c) for c in text.split(",") if c.strip())
+            choices = tuple(_choice(field_, kind, c) for c in text.split(",") if c.strip())
             if len(set(choices)) != len(choices) or not choices:
                 raise ValueError(f"give distinct choices, got {text!r}")
-            return Dimension(name, choices=choices)
+            return Dimension(field_, choices=choices, complement=complement)
         prefix = parts[0] if len(parts) == 3 else ""
         if len(parts) not in (2, 3) or prefix not in ("", "log", "int", "log-int"):
             raise ValueError(f"expected LOW:HIGH, log:LOW:HIGH, int:LOW:HIGH, got {text!r}")
@@ -163,7 +193,7 @@ def parse_dimension(spec: str) -> Dimension:
     except ValueError as exc:
         raise ConfigError(f"--space {name}: {exc}") from None
     integer = "int" in prefix or kind in ("int", "<class 'int'>")
-    if not (name in TRACED_FIELDS or integer):
+    if not (field_ in TRACED_FIELDS or integer):
         raise ConfigError(f"--space {name}: a range needs a number field; give choices A,B,C")
     if not (math.isfinite(low) and math.isfinite(high)) or low >= high:
         raise ConfigError(f"--space {name}: low {low:g} must be below high {high:g}")
@@ -172,24 +202,26 @@ def parse_dimension(spec: str) -> Dimension:
     log = prefix.startswith("log")
     if log and low <= 0:
         raise ConfigError(f"--space {name}: a log range must be above zero, got {low:g}:{high:g}")
-    return Dimension(name, low, high, log, integer)
+    return Dimension(field_, low, high, log, integer, complement=complement)
 
 
 def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]:
-    """Every ``--space`` option (none: :data:`DEFAULT_SPACE`), checked against ``config``
-    (the trials' base) before anything compiles: each range end and each choice must make a
-    valid config on its own.
+    """Every ``--space`` option (none: :data:`DEFAULT_SPACE`; a name of :data:`SPACE_PRESETS`
+    stands for its specs), checked against ``config`` (the trials' base) before anything
+    compiles: each range end and each choice must make a valid config on its own. Keyed by
+    each dimension's Optuna parameter name (:attr:`Dimension.param`).
 
     Raises:
         ConfigError: a mistake in a spec (see :func:`parse_dimension`), a field given twice,
             or a value that makes an invalid config (one line).
     """
     space: dict[str, Dimension] = {}
-    for spec in specs or DEFAULT_SPACE:
+    expanded = [s for spec in specs for s in SPACE_PRESETS.get(spec.strip(), (spec,))]
+    for spec in expanded or DEFAULT_SPACE:
         dim = parse_dimension(spec)
-        if dim.name in space:
+        if dim.name in {d.name for d in space.values()}:
             raise ConfigError(f"--space {dim.name} given twice; keep one")
-        space[dim.name] = dim
+        space[dim.param] = dim
     for dim in space.values():
         ends = dim.choices or (dim.low, dim.high)
         if dim.integer and dim.high - dim.low <= 4096:  # a shape value between may not divide
@@ -199,9 +231,9 @@ def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]
             try:
                 dataclasses.replace(config, **{dim.name: dim.config_value(value)})
             except ConfigError as exc:
-                raise ConfigError(f"--space {dim.name}={value}: {exc}") from None
+                raise ConfigError(f"--space {dim.param}={value}: {exc}") from None
             except (TypeError, ValueError) as exc:
-                raise ConfigError(f"--space {dim.name}={value}: {exc}") from None
+                raise ConfigError(f"--space {dim.param}={value}: {exc}") from None
     _check_shape_combinations(space, config)
     return space
 
@@ -228,7 +260,7 @@ def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[d
     static, traced = {}, {}
     for name, value in params.items():
         dim = space[name]
-        (traced if dim.traced else static)[name] = dim.config_value(value)
+        (traced if dim.traced else static)[dim.name] = dim.config_value(value)
     return static, traced
 
 
@@ -339,7 +371,8 @@ def open_study(
 def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
     """Refuses a space that draws a field the study's trials drew from another kind of
     distribution (a choice where they drew a float, another log setting or choices): Optuna
-    would refuse each new trial's draw, after creating it.
+    would refuse each new trial's draw, after creating it. Refuses too a field they drew
+    under another name (``gamma`` against ``one_minus_gamma``), which would mix two spaces.
 
     Raises:
         ConfigError: the first such field (one line).
@@ -347,8 +380,16 @@ def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
     import optuna
 
     new = {name: d.distribution() for name, d in space.items()}
+    drawn_as = {d.name: name for name, d in space.items()}
     for trial in study.get_trials(deepcopy=False):
         for name, old in trial.distributions.items():
+            field_ = name.removeprefix(ONE_MINUS)
+            if drawn_as.get(field_, name) != name:
+                raise ConfigError(
+                    f"--space {drawn_as[field_]}: study {study.study_name!r} draws {field_} as "
+                    f"{name} (--space rl-zoo3-v2.5: the default before rl-zoo3 v2.6's); search "
+                    "it so, or give another --study-name"
+                )
             try:
                 if name in new:
                     optuna.distributions.check_distribution_compatibility(old, new[name])
@@ -368,10 +409,6 @@ class TrialResult:
     scores: np.ndarray  # [num_seeds]
     run_dir: Path  # the trial's own run directory (a combination of its batch's sweep)
     pruned: bool = False
-
-    @property
-    def iqm(self) -> stats.Estimate:
-        return stats.bootstrap_ci(self.scores, stats.iqm)
 
 
 @dataclass
@@ -520,14 +557,21 @@ class Tuner:
                 self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
         return len(trials)
 
-    def _run_group(self, static: dict, trials: list[Any], untold: dict) -> None:
+    def _group_spec(self, static: dict, trials: list[Any], seed: int | None = None) -> RunSpec:
+        """One shape group's run: the base config with its shape settings, each trial's traced
+        floats an explicit combination, from base seed ``seed`` (None: :attr:`spec`'s)."""
         config = dataclasses.replace(self.spec.config, **static)
         points = tuple(split_params(self.space, t.params)[1] for t in trials)
-        spec = dataclasses.replace(self.spec, config=config, combinations=points)
+        seed = self.spec.seed if seed is None else seed
+        return dataclasses.replace(self.spec, config=config, combinations=points, seed=seed)
+
+    def _run_group(self, static: dict, trials: list[Any], untold: dict) -> None:
+        spec = self._group_spec(static, trials)
         # fresh: a study made anew (its numbers from 0 again) keeps the old one's directories
         out = layout.fresh_dir(self.out / f"trials-{trials[0].number:05d}-{trials[-1].number:05d}")
         for trial in trials:
             trial.set_user_attr("run_dir", str(out))
+            trial.set_user_attr("seed", spec.seed)  # what held-out seeds must avoid
         pruning = RungReporter(self.study, trials, spec, self.hooks.on_signal)
         on_chunk = _chained(self.hooks.on_chunk, pruning.on_chunk)
         hooks = dataclasses.replace(self.hooks, on_chunk=on_chunk)
@@ -567,6 +611,45 @@ class Tuner:
             untold.pop(trial.number)
             results.append(TrialResult(trial.number, trial.params, scores, run_dir, pruned))
         return results
+
+    def heldout(self, trials: list[Any], seed: int) -> list[TrialResult]:
+        """Trains finished ``trials`` again from base seed ``seed`` (fresh seeds: see
+        :func:`heldout_seed`), :attr:`spec`'s number of seeds each, as their batches trained:
+        one program per shape group, each a sweep-shaped run directory
+        ``heldout-SEED-trials-N-...`` under :attr:`out` that ``compare`` and ``plot`` read.
+        Nothing is told to the study.
+
+        Returns:
+            Each trial's result (per-seed scores ``[num_seeds]``), group by group.
+
+        Raises:
+            BatchStopped: a signal stopped the training.
+        """
+        results = []
+        for static, group in group_by_shape(self.space, trials):
+            numbers = "-".join(f"{t.number:05d}" for t in group)
+            out = layout.fresh_dir(self.out / f"heldout-{seed}-trials-{numbers}")
+            outcome = run_new(self._group_spec(static, group, seed), out, self.options, self.hooks)
+            if outcome.stopped:
+                raise BatchStopped(outcome.signum or 15)
+            per_trial = trial_scores(out, outcome, self.score, len(group))
+            results += [
+                TrialResult(t.number, t.params, scores, out / f"combo-{c:03d}")
+                for c, (t, scores) in enumerate(zip(group, per_trial))
+            ]
+        return results
+
+
+def heldout_seed(study: Any, seed: int) -> int:
+    """A base seed for held-out runs, derived from the search's base ``seed`` (the same one
+    every time), such that neither it nor the next one (for a retrain) is the base seed of
+    any of the study's trials: seed index i trains from ``fold_in(PRNGKey(base), i)``, so
+    another base gives other keys."""
+    used = {seed} | {t.user_attrs.get("seed") for t in study.get_trials(deepcopy=False)}
+    fresh = zlib.crc32(f"jaxcart heldout {seed}".encode()) % 2**31  # fresh + 1 < 2**32 too
+    while fresh in used or fresh + 1 in used:
+        fresh += 2
+    return fresh
 
 
 class Heartbeat:
@@ -720,6 +803,7 @@ __all__ = [
     "Dimension",
     "TrialResult",
     "Tuner",
+    "heldout_seed",
     "open_study",
     "parse_space",
 ]
