@@ -197,7 +197,8 @@ def _print_batch(out: Path, results: list, started: float) -> None:
     pruned = sum(r.pruned for r in results)
     print(
         f"trials {', '.join(str(r.number) for r in results)}: best #{best.number} "
-        f"{best.iqm.format()}{f' | {pruned} pruned' if pruned else ''} | {out} | "
+        f"{best.iqm.format()} ({stats.interval_label(len(best.scores))})"
+        f"{f' | {pruned} pruned' if pruned else ''} | {out} | "
         f"{time.monotonic() - started:.1f} s so far",
         flush=True,
     )
@@ -206,6 +207,8 @@ def _print_batch(out: Path, results: list, started: float) -> None:
 def _print_summary(opts: TuneOptions, study: object, space: dict) -> None:
     """The top trials with their intervals over seeds, and the best one's retrain command."""
     import optuna
+
+    from jaxcart.analysis import stats
 
     complete = [
         t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE
@@ -236,10 +239,10 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> None:
                 t.user_attrs.get("run_dir", ""),
             ]
         )
-    print(
-        f"\nTop trials by the IQM of --score {opts.score} over {opts.base.num_seeds} seed(s), 95% bootstrap CIs:"
-    )
-    print(cli.format_table(rows, ["rank", "trial", "iqm [95% CI]", *names, "run directory"]))
+    num_seeds = len(ranked[0].user_attrs.get("scores", [])) or 1
+    interval = stats.interval_label(num_seeds)  # two seeds: their range, not a 95% CI
+    print(f"\nTop trials by the IQM of --score {opts.score} over {num_seeds} seed(s):")
+    print(cli.format_table(rows, ["rank", "trial", f"iqm [{interval}]", *names, "run directory"]))
     best = ranked[0]
     out = f"runs/{opts.study_name}-best"
     print(f"\nbest: trial {best.number}; train it again with:")
