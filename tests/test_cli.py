@@ -160,6 +160,7 @@ def test_dry_run_says_what_would_train_and_writes_nothing(tmp_path, capsys, monk
     assert main(["--dry-run", "--num-seeds", "3", "--total-timesteps", "4096"]) == 0
     out = capsys.readouterr().out
     assert "3 seed(s) x 4,096 env steps (2 iterations of 1 env(s) x 2048 steps)" in out
+    assert "the time assumes an otherwise idle machine" in out  # what the estimate rests on
     assert list(tmp_path.iterdir()) == []
 
 

@@ -17,7 +17,13 @@ import pytest
 from custom_networks import GeluLayerNorm, ReluMLP
 from helpers import TINY, assert_same_run_dirs, fresh_python
 
-from jaxcart.core.config import ConfigError, PPOConfig, build_network, network_spec
+from jaxcart.core.config import (
+    BUILTIN_NETWORK_FIELDS,
+    ConfigError,
+    PPOConfig,
+    build_network,
+    network_spec,
+)
 from jaxcart.engine import loop
 from jaxcart.engine.loop import train
 from jaxcart.run.lifecycle import run_new
@@ -33,8 +39,15 @@ def test_a_network_is_recorded_by_class_and_changed_fields():
     assert spec == {"class": "custom_networks:GeluLayerNorm", "fields": {"width": 64}}
     assert build_network(spec) == GeluLayerNorm(width=64)
     config = dataclasses.replace(TINY, network=GeluLayerNorm(width=64))
-    assert PPOConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    recorded = json.loads(json.dumps(config.to_dict()))
+    assert PPOConfig.from_dict(recorded) == config
+    # the built-in MLP's fields describe a network the run does not use: not recorded, but a
+    # config.json written before (with them) reads as ever
+    assert not set(BUILTIN_NETWORK_FIELDS) & set(recorded)
+    builtin = {name: TINY.to_dict()[name] for name in BUILTIN_NETWORK_FIELDS}
+    assert PPOConfig.from_dict({**recorded, **builtin}) == config
     assert "network" not in TINY.to_dict()  # the built-in network's config.json is unchanged
+    assert set(BUILTIN_NETWORK_FIELDS) <= set(TINY.to_dict())
     with pytest.raises(ConfigError, match="cannot rebuild the run's network nowhere:Net"):
         build_network({"class": "nowhere:Net", "fields": {}})
     with pytest.raises(ConfigError, match="network must be a flax module"):
