@@ -163,6 +163,7 @@ def test_study_finishes_groups_by_shape_and_the_retrain_command_reproduces(
     again = make_entry(load_run(words[words.index("--out") + 1]), Score("auc")).scores
     np.testing.assert_array_equal(again, best.user_attrs["scores"])
     assert f"{best.value:.1f}" in out  # the top-trials table
+    assert "iqm [range of 2 seeds]" in out and "95% CI" not in out  # two seeds: no CI
 
 
 def _tuner(storage: str, out: Path, hooks: Hooks | None = None) -> search.Tuner:
