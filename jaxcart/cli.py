@@ -16,7 +16,10 @@ import textwrap
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
+
+if TYPE_CHECKING:
+    from jaxcart.analysis.summary import Score
 
 
 def check_not_shadowed() -> None:
@@ -192,6 +195,25 @@ def count(text: str) -> int:
     if value > MAX_COUNT:  # int() of 1e999999999 would take the memory of a billion digits
         raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.3g}, got {text}")
     return int(value)
+
+
+def score_steps(text: str) -> int:
+    """STEPS of ``--score return-at:STEPS``: ``100000``, ``100_000`` or ``1e5``."""
+    try:
+        return count(text)
+    except argparse.ArgumentTypeError as exc:
+        raise ValueError(f"return-at:{text}: STEPS {exc}") from None
+
+
+def score(text: str) -> Score:
+    """``--score``'s type (compare, ``train --sweep``): ``eval``, ``auc`` or
+    ``return-at:STEPS``; an unknown or malformed score is argparse's one-line error."""
+    from jaxcart.analysis.summary import Score
+
+    try:
+        return Score.parse(text, score_steps)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def seed(text: str) -> int:

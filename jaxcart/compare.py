@@ -84,10 +84,13 @@ def table(comparison: Comparison) -> str:
     if comparison.arms:
         reference = f"{comparison.arms.names[0]} same config"
     ci = f"{100 * comparison.stats.confidence:.3g}% CI"  # wider with --adjust bonferroni
+    counts = [len(entry.scores) for entry in comparison.entries]
+    if stats.interval_label(counts) != f"{stats.CONFIDENCE:.0%} CI":  # too few seeds for one
+        ci = stats.interval_label(counts)
     header = [
         "run",
         "seeds",
-        *(f"{label} [95% CI]" for label in ESTIMATE_NAMES.values()),
+        *(f"{label} [{stats.interval_label(counts, k)}]" for k, label in ESTIMATE_NAMES.items()),
         "solved [95% CI]",
         f"IQM - {reference} [{ci}]",
         f"P(> {reference}) [{ci}]",
@@ -254,7 +257,7 @@ def compare_runs(
     """
     if isinstance(score, str):
         try:
-            score = Score.parse(score, _steps)
+            score = Score.parse(score, cli.score_steps)
         except ValueError as exc:
             raise CompareError(f"score {score!r}: {exc}") from None
     if arms:
@@ -275,22 +278,6 @@ def compare_runs(
     buf = io.BytesIO()
     draw_comparison(comparison).savefig(buf, format="png", dpi=dpi)
     return CompareResult(comparison, *runs.write_outputs(comparison, out, buf.getvalue()))
-
-
-def _steps(text: str) -> int:
-    """STEPS of ``return-at:STEPS``: ``100000``, ``100_000`` or ``1e5``."""
-    try:
-        return cli.count(text)
-    except argparse.ArgumentTypeError as exc:
-        raise ValueError(f"return-at:{text}: STEPS {exc}") from None
-
-
-def _score(text: str) -> Score:
-    """``--score``'s type: an unknown or malformed score is argparse's one-line error."""
-    try:
-        return Score.parse(text, _steps)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 class _Formatter(cli.HelpFormatter):
@@ -320,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("run_dirs", nargs="*", type=Path, metavar="RUN_DIR")
     parser.add_argument(
         "--score",
-        type=_score,
+        type=cli.score,
         default=summary.EVAL,
         metavar="SCORE",
         help="each seed's score: eval (mean greedy Gymnasium return), auc (mean of "

@@ -8,8 +8,11 @@ Three kinds of file, told apart by their contents:
 - **rl-zoo3's** ``hyperparams/ppo.yml``: a mapping of env ids to hyperparameters. The
   ``CartPole-v1`` entry is read through Stable-Baselines3's names (:data:`jaxcart.cli.ALIASES`:
   ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, ``n_timesteps``, ``clip_range``, ...),
-  ``lin_X`` learning rates as ``X`` annealed linearly to 0 (``--anneal-lr``, SB3's linear
-  schedule); each key jaxcart has no equivalent for gets one line and is ignored.
+  a ``lin_X`` learning rate or clip range as ``X`` annealed linearly to 0 (``--anneal-lr``,
+  ``--anneal-clip``) on SB3's progress (``--anneal-progress sb3``: rl-zoo3's
+  ``linear_schedule(X)`` is ``progress_remaining * X``, and SB3 updates its progress after
+  each rollout, before the update); each key jaxcart has no equivalent for gets one line and
+  is ignored.
 - **a run's** ``config.json`` (or the run directory): its preset, seeds, sweep, wave width,
   evaluation episodes and every config field, so the run trains again as it did (a new
   ``--out``).
@@ -150,13 +153,9 @@ def _zoo_values(entry: dict, path: Path, options: FileOptions) -> dict:
         elif key in ("learning_rate", "clip_range") and isinstance(value, str):
             match = re.fullmatch(r"lin_(.+)", value.strip())
             values[key] = match[1] if match else value
-            if match and key == "learning_rate":
-                values["anneal_lr"] = True
-            elif match:
-                options.notes.append(
-                    f"note: --config {path}: clip_range {value!r} read as {match[1]}; jaxcart "
-                    "keeps the clip range constant"
-                )
+            if match:
+                values["anneal_lr" if key == "learning_rate" else "anneal_clip"] = True
+                values["anneal_progress"] = "sb3"
         elif key == "n_timesteps" and isinstance(value, float) and value.is_integer():
             values[key] = int(value)
         else:

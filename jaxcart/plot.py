@@ -59,6 +59,8 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
     from matplotlib.figure import Figure
 
 RETURN_METRIC = "rollout/ep_rew_mean"
+EVAL_METRIC = "eval/mean_return"
+"""The periodic greedy evaluation (``--eval-every``), drawn as dots over the return curve."""
 KEY_METRICS = (
     ("train/approx_kl", "approx KL"),
     ("train/clip_fraction", "clip fraction"),
@@ -254,9 +256,11 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
         num += ", 1 seed" if len(runs) == 1 else ", 1 seed per run"
         what = "no confidence band (train several seeds for one)"
     else:
+        band = stats.interval_label([run.num_seeds for run in runs if run.num_seeds > 1], "mean")
+        if band == f"{CONFIDENCE:.0%} CI":
+            band = f"{CONFIDENCE:.0%} bootstrap confidence interval"
         what = (
-            f"mean across seeds, shaded {CONFIDENCE:.0%} bootstrap confidence interval (the "
-            "axes fit the means; a band may run past them)"
+            f"mean across seeds, shaded {band} (the axes fit the means; a band may run past them)"
         )
     env_ids = sorted({run.env for run in runs})
     fig.suptitle(f"PPO on {', '.join(env_ids)}, {num}: {what}", fontsize=13)
@@ -281,13 +285,21 @@ def _draw_curves(
             _plot_metric(ax_steps, run.env_steps, ret, style, RETURN_METRIC)
             if run.elapsed is not None:
                 _plot_metric(ax_time, run.elapsed, ret, style, RETURN_METRIC)
+        evaluated = run.metrics.get(EVAL_METRIC, np.full((1, 1), np.nan))
+        rows = np.isfinite(evaluated).any(axis=1)  # the iterations --eval-every evaluated at
+        if rows.any():
+            mean = np.nanmean(evaluated[rows], axis=1)
+            ax_steps.plot(
+                run.env_steps[rows], mean, "o", color=style.color, ms=4, label=EVAL_METRIC
+            )
         for ax, (name, _) in zip(metric_axes, KEY_METRICS):
             if name in run.metrics:
                 mean = _plot_metric(ax, run.env_steps, run.metrics[name], style, name)
                 means[name].append(mean)
 
+    evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
     ax_steps.set(
-        title="episode return vs env steps",
+        title="episode return vs env steps" + (f" (dots: {EVAL_METRIC})" if evaluated else ""),
         xlabel="env steps per seed",
         ylabel="rollout/ep_rew_mean",
     )

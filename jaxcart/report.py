@@ -13,12 +13,15 @@ from typing import IO, TYPE_CHECKING
 
 import numpy as np
 
+from jaxcart.analysis import stats
+from jaxcart.analysis.summary import Score
 from jaxcart.cli import format_table
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 from jaxcart.core.solved import EVAL_SEED
+from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
@@ -97,9 +100,23 @@ def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
     return rows, header
 
 
+def _rank(row: dict, ranking: list[dict]) -> str:
+    """A row's rank, ``2=`` when other combinations share it (the same IQM)."""
+    tied = sum(r["rank"] == row["rank"] for r in ranking) > 1
+    return f"{row['rank']}{'=' if tied else ''}"
+
+
+def _iqm_header(ranking: list[dict], num_seeds: int) -> str:
+    """``IQM gym return [95% CI]``, ``IQM auc [range of 2 seeds]``: what ranks, and what
+    its interval is (:func:`jaxcart.analysis.stats.interval_label`)."""
+    label = ranking[0]["score"] if ranking else "eval"
+    return f"IQM {'gym return' if label == 'eval' else label} [{stats.interval_label(num_seeds)}]"
+
+
 def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
-    """The ranking table of a sweep: IQM of the seeds' greedy Gymnasium returns with its 95%
-    bootstrap interval, and the probability of improvement over combination 0."""
+    """The ranking table of a sweep: each combination's rank, the IQM of its seeds' scores
+    (``--score``, by default the mean greedy Gymnasium return) with its bootstrap interval,
+    and the probability of improvement over combination 0."""
 
     def interval(e: dict | None, digits: int) -> str:
         if e is None:
@@ -110,6 +127,7 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
     n, scores = grid.num_seeds, outcome.evaluation.gym_returns.mean(axis=-1)
     rows = [
         [
+            _rank(r, outcome.ranking),
             r["combination"],
             *[f"{r[name]:g}" for name in names],
             interval(r["iqm"], 1),
@@ -126,11 +144,12 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
         for r in outcome.ranking
     ]
     header = [
+        "rank",
         "combo",
         *names,
-        "IQM gym return [95% CI]",
+        _iqm_header(outcome.ranking, n),
         "gym mean",
-        "P(> combo 0) [95% CI]",
+        f"P(> combo 0) [{stats.interval_label(n)}]",
         "solved",
         "final ep_rew_mean",
         "median steps to a 500 episode",
@@ -144,12 +163,18 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
 
 
 SWEEP_COLUMNS = (
-    "IQM: interquartile mean (middle 50%) of the seeds' mean greedy Gymnasium returns, which "
-    "ranks the combinations; gym mean: their plain mean (the plot's 'mean return'); "
-    "final ep_rew_mean: the last 100 training episodes, mean over seeds"
+    "IQM: interquartile mean (middle 50%) of the seeds' scores ({score}), which ranks the "
+    "combinations (the same IQM, the same rank); gym mean: the plain mean of the seeds' mean "
+    "greedy Gymnasium returns (the plot's 'mean return'); final ep_rew_mean: the last 100 "
+    "training episodes, mean over seeds"
 )
-"""The line under the sweep table: the IQM and the plain mean are different statistics of
-the same per-seed scores, so they differ whenever the seeds do."""
+"""The line under the sweep table: the IQM and the plain mean are different statistics (of
+the same per-seed scores by default), so they differ whenever the seeds do."""
+
+
+def ranking_lines(ranking: list[dict]) -> str:
+    """The lines under a ranking table: what it cannot tell (saturation, ties), if any."""
+    return "".join(f"\n{line}" for line in sweeps.ranking_notes(ranking))
 
 
 def results_text(outcome: Outcome) -> str:
@@ -163,10 +188,11 @@ def results_text(outcome: Outcome) -> str:
             if env_id == DEFAULT_ENV
             else f"the mean of {episodes} greedy Gymnasium episodes >= {GYMNAX_ENVS[env_id]:g}"
         )
+        score = Score.parse(outcome.ranking[0]["score"])
         return (
             f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = {rule}):\n"
-            f"{format_table(rows, header)}\n"
-            f"{SWEEP_COLUMNS}\n"
+            f"{format_table(rows, header)}{ranking_lines(outcome.ranking)}\n"
+            f"{SWEEP_COLUMNS.format(score=score.definition)}\n"
             f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
         )
     rows, header = evaluation_rows(outcome)
@@ -195,6 +221,7 @@ def groups_text(ranking: list[dict], groups: list[dict], sweep: dict, num_seeds:
 
     rows = [
         [
+            _rank(r, ranking),
             r["group"],
             group_label({k: r[k] for k in groups[r["group"]]}),
             *[f"{r[name]:g}" for name in names],
@@ -204,10 +231,12 @@ def groups_text(ranking: list[dict], groups: list[dict], sweep: dict, num_seeds:
         ]
         for r in ranking
     ]
-    header = ["group", "shapes", *names, "IQM gym return [95% CI]", "solved", "final ep_rew_mean"]
+    iqm = _iqm_header(ranking, num_seeds)
+    header = ["rank", "group", "shapes", *names, iqm, "solved", "final ep_rew_mean"]
     return (
         f"\nStructural sweep ranking, {len(groups)} shape group(s) ({num_seeds} seed(s) each):\n"
         + format_table(rows, header)
+        + ranking_lines(ranking)
     )
 
 
@@ -317,8 +346,14 @@ def stopped_text(outcome: Outcome, resume_hint: str) -> str:
 
 
 def plan_text(plan: WavePlan, spec: RunSpec) -> str:
-    """The plan: runs, waves, memory and estimated time; then how the width was chosen."""
+    """The plan: runs, waves, memory and estimated time (and what the time assumes); then
+    how the width was chosen."""
     text = plan.describe("runs" if spec.grid.is_sweep else "seeds")
+    if plan.wave_seconds:  # a model (jaxcart.run.waves), not a measurement of this machine
+        text += (
+            "\nthe time assumes an otherwise idle machine (a busy one can be several times "
+            "slower); the run measures its own speed from its first chunks"
+        )
     return f"{text}\n{plan.why}" if plan.why else text
 
 

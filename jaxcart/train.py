@@ -27,6 +27,7 @@ from jaxcart.engine.signals import StopRequest
 
 if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
     from jaxcart import report
+    from jaxcart.analysis.summary import Score
     from jaxcart.run import lifecycle
 
 
@@ -116,6 +117,15 @@ def _add_run_options(run: argparse._ArgumentGroup) -> None:
         metavar="NAME=V1,V2",
         help="sweep a float hyperparameter, or a continuous physics field as env.NAME (e.g. "
         "env.length=0.5,1.0,2.0) (repeatable); every combination x seed trains in one program",
+    )
+    run.add_argument(
+        "--score",
+        type=cli.score,
+        default=None,
+        metavar="SCORE",
+        help="what ranks a --sweep's combinations, each seed scored as compare --score does: "
+        "eval (mean greedy Gymnasium return), auc (mean of rollout/ep_rew_mean over the run) "
+        "or return-at:STEPS (default: eval)",
     )
     run.add_argument(
         "--env-param",
@@ -250,6 +260,7 @@ class TrainOptions:
     seed: int | None = None
     out: Path | None = None
     sweep: tuple[str, ...] = ()
+    score: Score | None = None
     env_param: tuple[str, ...] = ()
     randomize: tuple[str, ...] = ()
     resume: Path | None = None
@@ -280,6 +291,7 @@ class TrainOptions:
             seed=args.seed,
             out=args.out,
             sweep=tuple(args.sweep),
+            score=args.score,
             env_param=tuple(args.env_param),
             randomize=tuple(args.randomize),
             resume=args.resume,
@@ -348,6 +360,7 @@ class TrainOptions:
             logger_dir=self.logger_dir,
             compile_cache=self.compile_cache,
             wave_size=self.wave_size,
+            score=self.score,
         )
 
     def check_resume(self) -> None:
@@ -402,6 +415,8 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         opts.check_resume()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
     groups = opts.shape_groups() if spec is not None else []
+    if spec is not None and opts.score is not None:
+        _check_score(opts.score, spec, groups)
     run_options = opts.run_options()
     if len(groups) > 1 or any(groups):
         if opts.distributed:
@@ -444,6 +459,21 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     return _report(outcome, console, time.perf_counter() - wall_start)
 
 
+def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list[dict]) -> None:
+    """Refuses, before anything trains, a ``--score`` without a sweep to rank, and a
+    ``return-at:STEPS`` past the end of the run (or of one of its shape groups)."""
+    from jaxcart.run import structural
+    from jaxcart.run.search import check_score
+
+    if not spec.grid.is_sweep and not any(groups):
+        raise cli.UsageError(
+            "--score ranks the combinations of a --sweep; without one there is nothing to rank "
+            "(python -m jaxcart.compare --score scores any run)"
+        )
+    for group_spec in structural.group_specs(spec, groups) if any(groups) else [spec]:
+        check_score(score, {}, group_spec.config)
+
+
 def _train_groups(
     opts: TrainOptions,
     spec: lifecycle.RunSpec,
@@ -481,7 +511,7 @@ def _train_groups(
 
     try:
         with stop.installed():
-            done = structural.run_groups(spec, groups, out, train_group)
+            done = structural.run_groups(spec, groups, out, train_group, run_options.score)
     finally:
         console.close()
     stopped = next((o for o in done.outcomes if o.stopped), None)

@@ -207,24 +207,12 @@ def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed
     return shlex.join(words)
 
 
-MIN_CI_SEEDS = 5
-"""Seeds an IQM's 95% bootstrap interval needs: with 4 or fewer, its percentile interval is
-the seeds' lowest and highest score (or nearly), so their range is shown, not a "95% CI"."""
-
-
-def _interval_name(num_seeds: int) -> str:
-    return "95% CI" if num_seeds >= MIN_CI_SEEDS else f"range of {num_seeds} seeds"
-
-
 def _iqm_text(scores: list[float]) -> str:
-    """``412.3 [380.0, 450.5]``: the IQM of per-seed ``scores`` ``[num_seeds]`` and its 95%
-    bootstrap interval, or the seeds' range under :data:`MIN_CI_SEEDS` seeds."""
+    """``412.3 [380.0, 450.5]``: the IQM of per-seed ``scores`` ``[num_seeds]`` and its
+    bootstrap interval (the seeds' range with too few seeds: :func:`stats.interval_label`)."""
     from jaxcart.analysis import stats
 
-    est = stats.bootstrap_ci(scores, stats.iqm)
-    if len(scores) < MIN_CI_SEEDS:
-        est = stats.Estimate(est.value, min(scores), max(scores))
-    return est.format()
+    return stats.bootstrap_ci(scores, stats.iqm).format()
 
 
 def _scores(trial: object) -> list[float]:
@@ -239,7 +227,8 @@ def _print_batch(out: Path, results: list, started: float) -> None:
     pruned = sum(r.pruned for r in results)
     print(
         f"trials {', '.join(str(r.number) for r in results)}: best #{best.number} "
-        f"{_iqm_text(list(best.scores))}{f' | {pruned} pruned' if pruned else ''} | {out} | "
+        f"{_iqm_text(list(best.scores))} ({stats.interval_label(len(best.scores))})"
+        f"{f' | {pruned} pruned' if pruned else ''} | {out} | "
         f"{time.monotonic() - started:.1f} s so far",
         flush=True,
     )
@@ -249,6 +238,8 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
     """The top trials with their intervals over seeds; returns every complete trial, best
     first."""
     import optuna
+
+    from jaxcart.analysis import stats
 
     complete = [
         t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE
@@ -271,7 +262,7 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
             [rank, t.number, _iqm_text(_scores(t)), *shown, t.user_attrs.get("run_dir", "")]
         )
     if rows:
-        seeds = _interval_name(opts.base.num_seeds)
+        seeds = stats.interval_label(opts.base.num_seeds)
         print(
             f"\nTop trials by the IQM of --score {opts.score} over {opts.base.num_seeds} seed(s):"
         )
@@ -308,7 +299,7 @@ def _heldout(opts: TuneOptions, tuner: object, ranked: list, space: dict) -> Non
             },
         )
         searched = {t.number: t for t in top}
-        seeds = _interval_name(base.num_seeds)
+        seeds = stats.interval_label(base.num_seeds)
         rows = [
             [
                 i,

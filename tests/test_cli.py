@@ -160,6 +160,7 @@ def test_dry_run_says_what_would_train_and_writes_nothing(tmp_path, capsys, monk
     assert main(["--dry-run", "--num-seeds", "3", "--total-timesteps", "4096"]) == 0
     out = capsys.readouterr().out
     assert "3 seed(s) x 4,096 env steps (2 iterations of 1 env(s) x 2048 steps)" in out
+    assert "the time assumes an otherwise idle machine" in out  # what the estimate rests on
     assert list(tmp_path.iterdir()) == []
 
 
@@ -479,17 +480,18 @@ def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, c
     sweep = ["--sweep", "learning_rate=1e-3,3e-4", "--num-seeds", "2", "--no-compile-cache"]
     assert main([*tiny_args(256, eval_episodes=2), *sweep, "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "IQM: interquartile mean (middle 50%) of the seeds' mean greedy Gymnasium" in text
+    assert "IQM: interquartile mean (middle 50%) of the seeds' scores (each seed's mean" in text
+    assert "gym mean: the plain mean of the seeds' mean greedy Gymnasium returns" in text
     table = text.split("Sweep ranking", 1)[1].splitlines()
     header = re.split(r"\s{2,}", table[1].strip())
-    column = header.index("gym mean")
+    column, combo = header.index("gym mean"), header.index("combo")
     for row in table[3:5]:
         cells = re.split(r"\s{2,}", row.strip())
-        run = load_runs([out / f"combo-{int(cells[0]):03d}"])[0]
+        run = load_runs([out / f"combo-{int(cells[combo]):03d}"])[0]
         summary = " ".join(plot._summary_lines(run))
         found = re.search(r"mean return ([\d.]+)", summary)
         assert found and found[1] == cells[column], (cells, summary)
-    best = int(table[3].split()[0])
+    best = int(table[3].split()[combo])
     commands = _next_steps(text)
     assert commands[0][3:] == [str(out), "--out", str(out / "curves.png")]
     assert commands[1][3:5] == [str(out), "--combination"] and commands[1][5] == str(best)

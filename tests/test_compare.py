@@ -87,10 +87,11 @@ def test_compare_runs_and_a_sweep(runs, tmp_path, capsys):
     assert max(len(line) for line in lines if not line.startswith("wrote ")) <= 100
     heading = " ".join(lines[:2])
     assert "baseline a" in heading and "2000 resamples, seed 0" in heading
-    first = next(i for i, line in enumerate(lines) if "IQM [95% CI]" in line)
+    # 4 seeds and 2: a 2-seed run's interval is its seeds' range, and the header says so
+    first = next(i for i, line in enumerate(lines) if "IQM [95% CI; range below 5 seeds]" in line)
     names = [line.split()[0] for line in lines[first + 2 : first + 5]]
     assert names == ["a", "learning_rate=0.001", "learning_rate=0.01"]
-    second = next(i for i, line in enumerate(lines) if "P(> baseline) [95% CI]" in line)
+    second = next(i for i, line in enumerate(lines) if "P(> baseline) [95% CI; range" in line)
     assert lines[second + 2].split()[0] == "a" and "baseline" in lines[second + 2]
     text = text.replace("\n  ", " ")  # notes wrapped to 100 columns, read as one line
     assert "note: seed counts differ (4 for a; 2 for 2 runs)" in text

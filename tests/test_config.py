@@ -38,12 +38,9 @@ def test_sb3_defaults():
 def test_purejaxrl_preset():
     c = preset("purejaxrl")
     assert (c.num_envs, c.num_steps, c.update_epochs, c.num_minibatches) == (4, 128, 4, 4)
-    assert (c.learning_rate, c.anneal_lr, c.ent_coef, c.total_timesteps) == (
-        2.5e-4,
-        True,
-        0.01,
-        500_000,
-    )
+    assert (c.learning_rate, c.anneal_lr, c.ent_coef) == (2.5e-4, True, 0.01)
+    # PureJaxRL: NUM_UPDATES = TOTAL_TIMESTEPS // NUM_STEPS // NUM_ENVS with 5e5 steps
+    assert c.num_iterations == 500_000 // 128 // 4 == 976
 
 
 def test_every_field_documented():
@@ -86,6 +83,10 @@ def test_config_is_frozen_and_round_trips():
     with pytest.raises(AttributeError):
         c.num_envs = 3
     assert PPOConfig.from_dict(c.to_dict()) == c
+    # the schedule options at their defaults leave config.json as it was before them
+    assert not {"anneal_clip", "anneal_progress"} & set(c.to_dict())
+    sb3 = dataclasses.replace(c, anneal_clip=True, anneal_progress="sb3")
+    assert PPOConfig.from_dict(sb3.to_dict()) == sb3
 
 
 def test_traced_fields_are_declared_once_on_the_config():

@@ -83,10 +83,11 @@ def test_rl_zoo3_ppo_yml_through_sb3s_names(tmp_path, capsys):
     assert config.num_envs == 8 and config.num_steps == 32 and config.minibatch_size == 256
     assert config.update_epochs == 20 and config.total_timesteps == 100_000
     assert (config.gamma, config.gae_lambda, config.ent_coef) == (0.98, 0.8, 0.0)
+    # lin_X: X annealed to 0 on SB3's progress (tests/test_ppo.py checks the schedule)
     assert (config.learning_rate, config.anneal_lr, config.clip_coef) == (1e-3, True, 0.2)
+    assert config.anneal_clip and config.anneal_progress == "sb3"
     notes = capsys.readouterr().err.splitlines()
-    assert len(notes) == 3, notes  # clip_range's schedule, normalize, policy_kwargs
-    assert any("clip_range 'lin_0.2' read as 0.2" in n for n in notes)
+    assert len(notes) == 2, notes  # normalize, policy_kwargs
     assert any("normalize is not supported by jaxcart; ignored" in n for n in notes)
     assert any("policy_kwargs is not supported by jaxcart; ignored" in n for n in notes)
 

@@ -18,6 +18,7 @@ from custom_networks import GeluLayerNorm, ReluMLP
 from helpers import TINY, assert_same_run_dirs, fresh_python
 
 from jaxcart.core.config import (
+    BUILTIN_NETWORK_FIELDS,
     ConfigError,
     PPOConfig,
     RecordedNetwork,
@@ -42,14 +43,22 @@ def test_a_network_is_recorded_by_class_and_changed_fields():
     assert build_network(spec) == GeluLayerNorm(width=64)
     assert build_network(spec, GeluLayerNorm) == GeluLayerNorm(width=64)
     config = dataclasses.replace(TINY, network=GeluLayerNorm(width=64))
-    recorded = PPOConfig.from_dict(json.loads(json.dumps(config.to_dict())))
-    assert isinstance(recorded.network, RecordedNetwork)  # read back as data: nothing imported
-    assert recorded.to_dict() == config.to_dict()
+    recorded = json.loads(json.dumps(config.to_dict()))
+    read = PPOConfig.from_dict(recorded)
+    assert isinstance(read.network, RecordedNetwork)  # read back as data: nothing imported
+    assert read.to_dict() == config.to_dict()
     with pytest.raises(UntrustedCodeError, match="--trust-code"):
-        resolve_code(recorded)
-    assert resolve_code(recorded, network=GeluLayerNorm) == config
-    assert resolve_code(recorded, trust_code=True) == config
+        resolve_code(read)
+    assert resolve_code(read, network=GeluLayerNorm) == config
+    assert resolve_code(read, trust_code=True) == config
+    # the built-in MLP's fields describe a network the run does not use: not recorded, but a
+    # config.json written before (with them) reads as ever
+    assert not set(BUILTIN_NETWORK_FIELDS) & set(recorded)
+    builtin = {name: TINY.to_dict()[name] for name in BUILTIN_NETWORK_FIELDS}
+    older = PPOConfig.from_dict({**recorded, **builtin})
+    assert resolve_code(older, network=GeluLayerNorm) == config
     assert "network" not in TINY.to_dict()  # the built-in network's config.json is unchanged
+    assert set(BUILTIN_NETWORK_FIELDS) <= set(TINY.to_dict())
     with pytest.raises(ConfigError, match="cannot rebuild the run's network nowhere:Net"):
         build_network({"class": "nowhere:Net", "fields": {}})
     with pytest.raises(ConfigError, match="network must be a flax module"):

@@ -114,7 +114,9 @@ def test_plot_overlay_and_single_seed(
     assert "different seed counts (1, 2)" in plot.wall_time_notes(runs)[0]
     out = tmp_path / "both.png"
     fig = plot.plot_runs([tiny_run, single_seed_run], out, ["a", "b"], dpi=50)
-    assert fig.axes and "confidence interval" in fig._suptitle.get_text()
+    # two seeds: the band is their range, and the title says so (not a confidence interval)
+    assert fig.axes and "shaded range of 2 seeds" in fig._suptitle.get_text()
+    assert "confidence interval" in plot.draw_figure([synthetic_run("x")])._suptitle.get_text()
     assert_nontrivial_png(out)
     before = sorted(tmp_path.iterdir())
     alone = plot.plot_runs([single_seed_run])  # a notebook's figure: no file written
@@ -211,6 +213,19 @@ def test_run_styles_differ_and_later_runs_draw_on_top():
     assert first.get_linestyle() == "-" and second.get_linestyle() != "-"
     assert second.get_zorder() > first.get_zorder()
     assert second.get_linewidth() < first.get_linewidth()
+
+
+def test_the_periodic_evaluation_is_drawn_where_it_ran():
+    run = synthetic_run("evaluated", iterations=30)
+    evaluated = np.full((30, 4), np.nan)
+    evaluated[9::10] = [[100.0, 200, 300, 400]]  # --eval-every 10
+    run.metrics[plot.EVAL_METRIC] = evaluated
+    fig = plot.draw_figure([run])
+    ax = panel(fig, f"episode return vs env steps (dots: {plot.EVAL_METRIC})")
+    (dots,) = [line for line in ax.lines if line.get_label() == plot.EVAL_METRIC]
+    np.testing.assert_array_equal(dots.get_xdata(), run.env_steps[9::10])
+    np.testing.assert_array_equal(dots.get_ydata(), [250.0] * 3)  # the mean over seeds
+    assert panel(plot.draw_figure([synthetic_run("x")]), "episode return vs env steps")
 
 
 def test_axes_fit_the_curves_and_bands_run_past_them():

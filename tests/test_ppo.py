@@ -14,7 +14,15 @@ import pytest
 from jaxcart.core.config import PPOConfig, preset
 from jaxcart.core.metrics import EpisodeBuffer, explained_variance, update_episode_buffer
 from jaxcart.core.networks import ActorCritic
-from jaxcart.core.ppo import Batch, compute_gae, make_optimizer, ppo_loss, update_epochs
+from jaxcart.core.ppo import (
+    Batch,
+    compute_gae,
+    learning_rate_at,
+    make_optimizer,
+    ppo_loss,
+    scheduled,
+    update_epochs,
+)
 from jaxcart.core.tricks import (
     categorical_entropy,
     categorical_log_prob,
@@ -436,3 +444,58 @@ def test_target_kl_stops_before_the_step_that_would_exceed_it():
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-9)
         moved = max(moved, float(np.abs(np.asarray(a) - np.asarray(c)).max()))
     assert moved > 1e-5  # the one step was taken
+
+
+def sb3_progress_remaining(iteration: np.ndarray, n_steps: int, n_envs: int, total: int):
+    """SB3's progress in iteration ``iteration`` (from 0), from ``OnPolicyAlgorithm.learn()``:
+    ``collect_rollouts()`` adds ``n_steps * n_envs`` to ``num_timesteps``, then
+    ``_update_current_progress_remaining(num_timesteps, total_timesteps)`` sets ``1 -
+    num_timesteps / total_timesteps``, then ``train()`` reads the schedules with it."""
+    num_timesteps = (iteration + 1) * n_steps * n_envs
+    return 1.0 - num_timesteps / total
+
+
+def test_lin_schedules_follow_sb3s_update_order():
+    # rl-zoo3's CartPole-v1: learning_rate lin_0.001, clip_range lin_0.2; linear_schedule(X)
+    # is `lambda progress_remaining: progress_remaining * X`
+    config = PPOConfig(
+        num_envs=8,
+        num_steps=32,
+        minibatch_size=256,
+        total_timesteps=100_000,
+        learning_rate=1e-3,
+        clip_coef=0.2,
+        anneal_lr=True,
+        anneal_clip=True,
+        anneal_progress="sb3",
+    )
+    assert config.num_iterations == 391  # SB3 collects while num_timesteps < total_timesteps
+    k = np.arange(config.num_iterations)
+    lr = jax.jit(jax.vmap(lambda i: learning_rate_at(config, i)))(k)
+    clip = jax.jit(jax.vmap(lambda i: scheduled(config, i).clip_coef))(k)
+    progress = sb3_progress_remaining(k, 32, 8, 100_000)
+    np.testing.assert_allclose(lr / 1e-3, progress, atol=1e-6)  # float32 arithmetic
+    np.testing.assert_allclose(clip / 0.2, progress, atol=1e-6)
+    assert lr[0] < 1e-3 and lr[-1] < 0  # the first update is already one rollout in
+    # PureJaxRL's and CleanRL's order (the default) starts at X: one iteration behind SB3's
+    start = dataclasses.replace(config, anneal_progress="start", total_timesteps=391 * 256)
+    lr_start = jax.vmap(lambda i: learning_rate_at(start, i))(k)
+    whole = sb3_progress_remaining(k, 32, 8, start.total_timesteps)
+    np.testing.assert_allclose(lr_start[1:] / 1e-3, whole[:-1], atol=1e-6)
+    assert lr_start[0] == 1e-3
+    with pytest.raises(ValueError, match="anneal_progress must be 'start' or 'sb3'"):
+        dataclasses.replace(config, anneal_progress="end")
+
+
+def test_an_annealed_clip_range_reaches_the_update():
+    from helpers import TINY
+
+    from jaxcart.engine.loop import train
+
+    base = dataclasses.replace(TINY, anneal_lr=False, anneal_progress="sb3")
+    constant = train(base, 1)
+    annealed = train(dataclasses.replace(base, anneal_clip=True), 1)
+    fractions = [r.metrics["train/clip_fraction"][:, 0] for r in (constant, annealed)]
+    # the last iteration clips at 0.2 x (1 - 32 x 128 / 4096) = 0: every step that moved the
+    # policy is clipped
+    assert fractions[1][-1] > 0.5 and fractions[0][-1] < 0.1, fractions

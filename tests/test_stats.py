@@ -424,6 +424,26 @@ def test_stratified_refusals():
         tasks.stratified_probability_of_improvement_ci([[1.0], [2.0]], [[1.0]])
 
 
+@pytest.mark.parametrize("name", sorted(stats.RANGE_BELOW))
+def test_below_range_below_seeds_an_interval_is_the_seeds_range(name):
+    """What :func:`stats.interval_label` says: below RANGE_BELOW seeds the bootstrap
+    interval of the estimator is the lowest and highest seed (so not labelled a 95% CI);
+    from RANGE_BELOW on it lies inside them."""
+    rng = np.random.default_rng(7)
+    below = stats.RANGE_BELOW[name]
+    for n in (below - 1, below):
+        for _ in range(20):
+            x = rng.normal(300, 50, size=n)
+            e = stats.bootstrap_ci(x, stats.ESTIMATORS[name], seed=int(rng.integers(1000)))
+            ends = sorted(stats.ESTIMATORS[name](x[[i] * n]) for i in (x.argmin(), x.argmax()))
+            is_range = np.allclose([e.ci_low, e.ci_high], ends)
+            assert is_range == (n < below), (name, n, e)
+    assert stats.interval_label(below - 1, name) == f"range of {below - 1} seeds"
+    assert stats.interval_label(below, name) == "95% CI"
+    assert stats.interval_label([below, 2], name) == f"95% CI; range below {below} seeds"
+    assert stats.interval_label(1) == "range of 1 seed"
+
+
 # --- curve scores -----------------------------------------------------------------------------
 
 
@@ -436,6 +456,28 @@ def test_auc_counts_nan_iterations_as_zero():
         curves_lib.auc(np.array([[np.inf, 1.0]]))
     with pytest.raises(ValueError, match="non-empty"):
         curves_lib.auc(np.zeros((0, 3)))
+
+
+@pytest.mark.parametrize("env_id, worst", [("Acrobot-v1", -500.0), ("MountainCar-v0", -200.0)])
+def test_an_iteration_without_a_return_scores_the_envs_worst_return(env_id, worst):
+    """On a -1-a-step env 0 is the best return: counted as 0, an iteration before the first
+    episode ends (or after a divergence) would score a slow or broken run up."""
+    rng = np.random.default_rng(5)
+    learned = np.sort(rng.uniform(worst, 0.0, size=(20, 1)), axis=0)  # [iterations, 1]
+    early = np.tile(learned, (1, 6))  # six seeds of one shape
+    for s in range(6):  # the same curve, its first episodes ending s iterations later
+        early[:s, s] = np.nan
+    diverged = learned.copy()
+    diverged[8:] = np.nan  # stopped by the trainer after iteration 8
+    auc = curves_lib.auc(np.hstack([early, diverged]), env_id)
+    assert (np.diff(auc[:6]) <= 0).all()  # a later first episode never scores higher
+    assert auc[6] < auc[:6].min()  # the diverged run ranks last
+    assert curves_lib.auc(np.full((3, 1), np.nan), env_id) == [worst]
+    at_2 = curves_lib.return_at(early, np.arange(1.0, 21), 2, env_id)  # iteration 1
+    np.testing.assert_array_equal(at_2[:3], [learned[1, 0], learned[1, 0], worst])
+    # a CartPole run with a return every iteration scores as it did: the plain mean
+    cartpole = rng.uniform(0, 500, size=(20, 3))
+    np.testing.assert_array_equal(curves_lib.auc(cartpole), cartpole.mean(axis=0))
 
 
 def test_auc_is_recomputable_from_metrics_csv(tmp_path):

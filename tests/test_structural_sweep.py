@@ -6,14 +6,16 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from helpers import assert_same_run_dirs
 
 from jaxcart import train
+from jaxcart.analysis import curves
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run.spec import RunSpec
 from jaxcart.run.structural import group_specs, shape_groups, split_sweep
-from jaxcart.rundir import layout, views
+from jaxcart.rundir import layout, reader, views
 
 BASE = [  # 2 envs or 4 envs x 32 steps, minibatches of 32: 4 or 8 iterations of 512 steps
     "--num-steps", "32", "--total-timesteps", "512", "--minibatch-size", "32",
@@ -48,13 +50,19 @@ def test_a_structural_sweep_plans_one_program_per_group(capsys):
 @pytest.mark.slow
 def test_shape_groups_train_into_one_directory_ranked_together(tmp_path, capsys):
     out = tmp_path / "groups"
-    assert train.main([*BASE, *SWEEP, "--out", str(out)]) == 0
+    assert train.main([*BASE, *SWEEP, "--score", "auc", "--out", str(out)]) == 0
     data = json.loads((out / layout.GROUPS_FILE).read_text())
     assert [g["num_envs"] for g in data["groups"]] == [2, 4]
+    assert data["score"] == "auc" and data["saturated"] is False
     ranking = data["ranking"]
     assert len(ranking) == 4  # every combination of both groups, one ranking
     iqms = [row["iqm"]["value"] for row in ranking]
     assert iqms == sorted(iqms, reverse=True)
+    for row in ranking:  # each seed scored on its own group's curve (4 or 8 iterations)
+        where = layout.combo_dir(out / f"group-{row['group']:03d}", row["group_combination"])
+        curve = reader.read_metrics_csv(where / layout.METRICS_FILE)["rollout/ep_rew_mean"]
+        np.testing.assert_allclose(row["scores"], curves.auc(curve), rtol=1e-6)
+        assert row["rank"] == 1 + sum(v > row["iqm"]["value"] for v in iqms)
     assert {(r["num_envs"], r["learning_rate"]) for r in ranking} == {
         (2, 1e-3), (2, 3e-3), (4, 1e-3), (4, 3e-3),
     }  # fmt: skip

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from helpers import tiny_args
 
-from jaxcart.analysis import stats
-from jaxcart.run.sweep import RunGrid, parse_sweep, rank
+from jaxcart.analysis import curves, stats
+from jaxcart.analysis.summary import Score
+from jaxcart.run.sweep import RunGrid, parse_sweep, rank, ranking_notes, saturated
 from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.train import main
@@ -38,6 +39,8 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
         "learning_rate=1e-4,1e-3,1e-2",
         "--sweep",
         "clip_coef=0.1,0.3",
+        "--score",
+        "auc",
         "--out",
         str(out),
     ]
@@ -48,28 +51,34 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
         and "3 combinations" not in text
         and "6 combinations x 2 seed(s)" in text
     )
-    assert "IQM gym return [95% CI]" in text and "P(> combo 0) [95% CI]" in text
+    # two seeds: the interval is their range, and the table says so
+    assert "IQM auc [range of 2 seeds]" in text and "P(> combo 0) [range of 2 seeds]" in text
+    assert "95% CI" not in text
     data = json.loads((out / "sweep.json").read_text())
-    assert data["score"] == "eval" and "greedy return" in data["score_definition"]
+    assert data["score"] == "auc" and "rollout/ep_rew_mean" in data["score_definition"]
+    assert data["saturated"] is False
     ranking = data["ranking"]
-    assert {r["score"] for r in ranking} == {"eval"}
+    assert {r["score"] for r in ranking} == {"auc"}
     assert len(ranking) == 6 and {r["learning_rate"] for r in ranking} == {1e-4, 1e-3, 1e-2}
     iqms = [r["iqm"]["value"] for r in ranking]
     assert iqms == sorted(iqms, reverse=True)
+    assert [r["rank"] for r in ranking] == [1 + iqms.index(v) for v in iqms]
 
-    def scores(c: int) -> list[float]:
-        seeds = json.loads((out / f"combo-{c:03d}" / "evaluation.json").read_text())["seeds"]
-        return [s["gymnasium_mean"] for s in seeds]
+    def scores(c: int) -> np.ndarray:  # compare --score auc's, from the combination's metrics
+        metrics = reader.read_metrics_csv(out / f"combo-{c:03d}" / "metrics.csv")
+        return curves.auc(metrics["rollout/ep_rew_mean"])
 
+    scores_of = {r["combination"]: r["scores"] for r in ranking}
     for r in ranking:
         c = r["combination"]
-        assert r["iqm"]["value"] == pytest.approx(stats.iqm(np.array(scores(c))))
+        np.testing.assert_allclose(r["scores"], scores(c), rtol=1e-6)  # csv: float32
+        assert r["iqm"]["value"] == pytest.approx(stats.iqm(np.array(r["scores"])))
         assert r["iqm"]["ci_low"] <= r["iqm"]["value"] <= r["iqm"]["ci_high"]
         poi = r["probability_of_improvement"]
         if c == 0:
             assert poi is None
         else:
-            expected = stats.probability_of_improvement(scores(c), scores(0))
+            expected = stats.probability_of_improvement(r["scores"], scores_of[0])
             assert poi["value"] == pytest.approx(expected)
     for c in range(6):
         info = json.loads((out / f"combo-{c:03d}" / "config.json").read_text())
@@ -109,23 +118,33 @@ def test_rank_by_iqm_with_probability_of_improvement():
     assert ranking == rank(grid, scores, solved, scores, np.full(12, np.inf))  # deterministic
 
 
-def test_rank_by_another_score():
-    grid = RunGrid(2, ({"learning_rate": 1e-3}, {"learning_rate": 1e-2}))
-    returns = np.array([[10, 20, np.nan, 30], [100, 200, 300, 400]], float)  # [2 its, 4 runs]
-    steps, scores = np.array([128.0, 256.0]), np.full(4, 500.0)
-    solved = np.ones(4, bool)
-    args = (grid, scores, solved, scores, np.full(4, np.inf))
-    by_auc = rank(*args, score="auc", returns=returns, env_steps=steps)
-    # AUC per run (NaN as 0): 55, 110, 150, 215 -> IQM of two seeds is their mean.
-    assert [(r["combination"], r["iqm"]["value"]) for r in by_auc] == [(1, 182.5), (0, 82.5)]
-    assert {r["score"] for r in by_auc} == {"auc"}
-    first = rank(*args, score="return-at:100", returns=returns, env_steps=steps)
-    assert [r["iqm"]["value"] for r in first] == [15.0, 15.0]  # iteration 1; NaN counts as 0
-    later = rank(*args, score="return-at:200", returns=returns, env_steps=steps)
-    assert [(r["combination"], r["iqm"]["value"]) for r in later] == [(1, 350.0), (0, 150.0)]
-    assert rank(*args)[0]["iqm"]["value"] == 500.0  # eval: the greedy scores
-    with pytest.raises(ValueError, match="never reaches"):
-        rank(*args, score="return-at:1000", returns=returns, env_steps=steps)
+def test_rank_by_another_score_states_ties_and_saturation():
+    grid = RunGrid(2, ({"learning_rate": 1e-3}, {"learning_rate": 1e-2}, {"learning_rate": 0.1}))
+    returns = np.array([[10, 20, np.nan, 30, 10, 20], [100, 200, 300, 400, 100, 200]], float)
+    steps, gym = np.array([128.0, 256.0]), np.full(6, 500.0)  # every seed solved: saturated
+    solved = np.ones(6, bool)
+
+    def ranked(score: str) -> list[dict]:  # scored as compare scores, then ranked
+        scores = Score.parse(score).compute(gym, returns, steps)
+        return rank(grid, scores, solved, gym, np.full(6, np.inf), score=score)
+
+    by_auc = ranked("auc")
+    # AUC per run (NaN as 0 on CartPole): 55, 110, 150, 215, 55, 110 -> IQM of two: the mean
+    assert [(r["combination"], r["iqm"]["value"], r["rank"]) for r in by_auc] == [
+        (1, 182.5, 1),
+        (0, 82.5, 2),
+        (2, 82.5, 2),  # tied with 0: the same rank, ordered by the tie-breakers alone
+    ]
+    assert {r["score"] for r in by_auc} == {"auc"} and not saturated(by_auc)
+    (tie,) = ranking_notes(by_auc)
+    assert "2 combinations share rank 2" in tie and "auc" in tie
+    first = ranked("return-at:100")
+    assert [r["iqm"]["value"] for r in first] == [15.0, 15.0, 15.0]  # NaN counts as 0
+    by_eval = ranked("eval")
+    assert saturated(by_eval) and {r["rank"] for r in by_eval} == {1}
+    (note,) = ranking_notes(by_eval)
+    assert note.startswith("saturated: every seed of every combination scores 500 by eval")
+    assert "--score auc" in note
 
 
 @pytest.mark.parametrize(
@@ -211,3 +230,19 @@ def test_a_sweeps_config_json_holds_no_combinations_list(tmp_path):
     assert json.loads((out / "combo-001" / "config.json").read_text())["combination"] == {
         "learning_rate": 1e-3
     }
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        ([], "--score ranks the combinations of a --sweep"),
+        (["--sweep", "learning_rate=1e-3,1e-2", "--score", "return-at:1e6"], "some trials end"),
+        (["--sweep", "learning_rate=1e-3,1e-2", "--score", "best"], "unknown score 'best'"),
+    ],
+)
+def test_a_score_that_cannot_rank_is_one_line_before_training(tmp_path, capsys, extra, message):
+    argv = [*tiny_args(2048), "--out", str(tmp_path / "x"), *(extra or ["--score", "auc"])]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()

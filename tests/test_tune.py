@@ -208,6 +208,7 @@ def test_study_finishes_groups_by_shape_then_checks_its_top_trials_on_fresh_seed
     assert train.main([*words, "--quiet"]) == 0
     again = make_entry(load_run(words[words.index("--out") + 1]), Score("auc")).scores
     np.testing.assert_array_equal(again, heldout["scores"][str(winner.number)])
+    assert "range of 2 seeds" in out and "95% CI" not in out  # two seeds: no CI
 
 
 def _tuner(storage: str, out: Path, hooks: Hooks | None = None) -> search.Tuner:
@@ -363,3 +364,33 @@ def test_benchmark_reads_best_score_against_wall_time_from_a_study(tmp_path):
         assert "learning_rate=log:1e-5:1e-2" in cmd and "8" in cmd and "4096" in cmd
     assert jax_cmd[jax_cmd.index("--pruner") + 1] == "median"  # jaxcart's side only
     assert jax_cmd[jax_cmd.index("--sampler-seed") + 1] == "3" and "--pruner" not in sb3_cmd
+
+
+def test_the_pruner_scores_a_partial_run_as_compare_scores_a_whole_one():
+    """The rung scores are curves.auc of the iterations so far (one definition): on an
+    Acrobot-like curve, an iteration before the first episode ends is -500, not 0."""
+    from jaxcart.analysis import curves, stats
+
+    class Trial:
+        number, reported = 0, []
+
+        def report(self, value: float, step: int) -> None:
+            self.reported.append((step, value))
+
+        def should_prune(self) -> bool:
+            return False
+
+    config = types.SimpleNamespace(num_iterations=8, env="Acrobot-v1")
+    spec = types.SimpleNamespace(num_seeds=2, config=config)
+    reporter = search.RungReporter(None, [Trial()], spec)
+    returns = np.linspace(-480, -100, 16).reshape(8, 2)
+    returns[:3, 1] = np.nan  # seed 1's first episode ends in iteration 4
+    for start in (0, 5):  # two chunks
+        rows = returns[start : start + 5]
+        chunk = {search.RETURN_METRIC: rows}
+        reporter.on_chunk(types.SimpleNamespace(iteration=start + len(rows), metrics=chunk))
+    for step, value in Trial.reported:
+        so_far = curves.auc(returns[: step * 8 // 1000], "Acrobot-v1")
+        assert value == pytest.approx(float(stats.iqm(so_far)))
+    assert [s for s, _ in Trial.reported] == [125 * i for i in range(1, 8)]
+    assert reporter.last_scores[0][1] < reporter.last_scores[0][0]  # the late seed is lower

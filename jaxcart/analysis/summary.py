@@ -25,13 +25,15 @@ import numpy as np
 
 from jaxcart.analysis import curves, stats, tasks
 from jaxcart.analysis import multiplicity as comparisons
+from jaxcart.core.envs import DEFAULT_ENV
 
 SCORES = {
     "eval": "each seed's mean greedy return in gymnasium.make('CartPole-v1') (evaluation.json)",
     "auc": "each seed's mean of rollout/ep_rew_mean over all iterations (area under its "
-    "learning curve / env steps; no value yet counts as 0)",
+    "learning curve / env steps; no value, before the first episode ends or after a "
+    "divergence, counts as the env's worst return)",
     "return-at": "each seed's rollout/ep_rew_mean at the first iteration at or past {steps:,} "
-    "env steps (no value yet counts as 0)",
+    "env steps (no value counts as the env's worst return)",
 }
 """Each score's one-line definition (``return-at``'s is formatted with its steps)."""
 ADJUSTMENTS = ("none", "bonferroni")
@@ -107,6 +109,7 @@ class Score:
         evaluation: np.ndarray | None,
         returns: np.ndarray | None,
         env_steps: np.ndarray | None,
+        env_id: str = DEFAULT_ENV,
     ) -> np.ndarray:
         """Each seed's score, ``[num_seeds]``.
 
@@ -114,6 +117,7 @@ class Score:
             evaluation: ``[num_seeds]`` mean greedy returns (needed by ``eval``).
             returns: ``[iterations, num_seeds]`` ``rollout/ep_rew_mean`` (``auc``, ``return-at``).
             env_steps: ``[iterations]`` env steps per seed (``return-at``).
+            env_id: the env the run trained on (its worst return stands for no value).
 
         Raises:
             ValueError: the data this score needs is missing, or the run ends before STEPS.
@@ -125,8 +129,8 @@ class Score:
         if returns is None or not np.isfinite(returns).any():
             raise ValueError("no rollout/ep_rew_mean recorded")
         if self.name == "auc":
-            return curves.auc(returns)
-        return curves.return_at(returns, env_steps, self.steps)
+            return curves.auc(returns, env_id)
+        return curves.return_at(returns, env_steps, self.steps, env_id)
 
 
 EVAL = Score()

@@ -78,7 +78,15 @@ class PPOConfig:
     learning_rate: float = traced(3e-4)
     """Adam step size (initial value when anneal_lr is on)."""
     anneal_lr: bool = False
-    """Decay the learning rate linearly to 0 over the iterations (as PureJaxRL/CleanRL do)."""
+    """Decay the learning rate linearly to 0 over the iterations (as PureJaxRL/CleanRL do;
+    SB3's lin_X with anneal_progress sb3)."""
+    anneal_clip: bool = False
+    """Decay clip_coef linearly to 0 as anneal_lr does the learning rate (rl-zoo3's lin_X
+    clip_range)."""
+    anneal_progress: str = "start"
+    """What an annealed rate measures in iteration i (from 0): start (i / num_iterations, as
+    PureJaxRL/CleanRL do) or sb3 (SB3's progress_remaining, updated after the rollout: 1 -
+    (i + 1) x num_envs x num_steps / total_timesteps, one iteration ahead)."""
     adam_eps: float = traced(1e-5)
     """Adam epsilon."""
     gamma: float = traced(0.99)
@@ -224,10 +232,15 @@ class PPOConfig:
             data["network"] = self.network.spec()
         elif self.network is not None:
             data["network"] = network_spec(self.network)
+            for name in BUILTIN_NETWORK_FIELDS:  # they describe a network this run does not use
+                del data[name]
         if self.metrics:
             data["metrics"] = {name: function_path(fn) for name, fn in self.metrics}
         if not self.eval_every:  # off: config.json reads as it did before these options
             for name in ("eval_every", "periodic_eval_episodes", "keep_best"):
+                del data[name]
+        for name, default in (("anneal_clip", False), ("anneal_progress", "start")):
+            if data[name] == default:  # likewise
                 del data[name]
         return data
 
@@ -502,6 +515,11 @@ def _is_json(value: Any) -> bool:
     return False
 
 
+BUILTIN_NETWORK_FIELDS = ("hidden_sizes", "activation", "linear_actor", "weight_init")
+"""The fields that describe the built-in MLP: a run with its own ``network`` leaves them out
+of config.json (a run directory written before may hold them; they are read as ever)."""
+
+
 TRACED_FIELDS: tuple[str, ...] = tuple(
     f.name for f in dataclasses.fields(PPOConfig) if f.metadata.get("traced")
 )
@@ -605,6 +623,8 @@ def validate(config: PPOConfig) -> None:
         )
     if c.adv_std not in ("sample", "population"):
         raise ConfigError(f"adv_std must be 'sample' or 'population', got {c.adv_std!r}")
+    if c.anneal_progress not in ("start", "sb3"):
+        raise ConfigError(f"anneal_progress must be 'start' or 'sb3', got {c.anneal_progress!r}")
     if c.value_clip not in ("off", "sb3", "purejaxrl"):
         raise ConfigError(f"value_clip must be 'off', 'sb3' or 'purejaxrl', got {c.value_clip!r}")
     if c.target_kl is not None and (
@@ -644,7 +664,8 @@ def validate(config: PPOConfig) -> None:
         )
     if c.keep_best and not c.eval_every:
         raise ConfigError("keep_best needs eval_every: give the iterations between evaluations")
-    for name in ("anneal_lr", "norm_adv", "bootstrap_truncation", "linear_actor", "keep_best"):
+    switches = ("anneal_lr", "anneal_clip", "norm_adv", "bootstrap_truncation", "linear_actor")
+    for name in (*switches, "keep_best"):
         if not isinstance(getattr(c, name), bool):
             raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
 
@@ -694,7 +715,9 @@ PRESETS: dict[str, dict] = {
     "purejaxrl": dict(
         num_envs=4,
         num_steps=128,
-        total_timesteps=500_000,
+        # PureJaxRL's NUM_UPDATES = 5e5 // 128 // 4 = 976 iterations, rounded down, where
+        # jaxcart rounds total_timesteps up (as SB3 does): 977 at 500_000
+        total_timesteps=976 * 512,
         minibatch_size=128,
         update_epochs=4,
         learning_rate=2.5e-4,

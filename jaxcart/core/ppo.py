@@ -35,7 +35,13 @@ import optax
 from flax import struct
 
 from jaxcart.core import envs, networks, physics
-from jaxcart.core.config import PPOConfig, RecordedNetwork, recorded_code, untrusted_code
+from jaxcart.core.config import (
+    TRACED_FIELDS,
+    PPOConfig,
+    RecordedNetwork,
+    recorded_code,
+    untrusted_code,
+)
 from jaxcart.core.metrics import (
     EpisodeBuffer,
     custom_metrics,
@@ -381,11 +387,36 @@ def update_epochs(
     return params, opt_state, aux
 
 
+def progress_remaining(config: PPOConfig, iteration: Array) -> Array:
+    """The fraction of an annealed schedule left in iteration ``iteration`` (0-based), by
+    ``config.anneal_progress``: ``start``, ``1 - i / num_iterations`` (PureJaxRL, CleanRL);
+    ``sb3``, SB3's ``_current_progress_remaining``, which ``learn()`` updates after the rollout
+    and before ``train()``, from the env steps collected so far: ``1 - (i + 1) x batch_size /
+    total_timesteps`` (slightly negative in a last iteration that overshoots the total, as
+    in SB3)."""
+    if config.anneal_progress == "sb3":
+        return 1.0 - (iteration + 1) * (config.batch_size / config.total_timesteps)
+    return 1.0 - iteration / config.num_iterations
+
+
 def learning_rate_at(config: PPOConfig, iteration: Array) -> Array:
-    """Constant, or linearly annealed from ``learning_rate`` towards 0 over the iterations."""
+    """Constant, or linearly annealed from ``learning_rate`` towards 0
+    (:func:`progress_remaining`; rl-zoo3's ``lin_X``: ``progress_remaining * X``)."""
     if not config.anneal_lr:
         return config.learning_rate
-    return config.learning_rate * (1.0 - iteration / config.num_iterations)
+    return config.learning_rate * progress_remaining(config, iteration)
+
+
+def scheduled(config: PPOConfig, iteration: Array) -> PPOConfig:
+    """``config`` with ``clip_coef`` annealed like the learning rate when ``anneal_clip``
+    (SB3's ``clip_range`` schedule, read once per iteration before the update)."""
+    if not config.anneal_clip:
+        return config
+    leaves, tree = jax.tree.flatten(config)  # the traced fields, unvalidated (may be tracers)
+    leaves[TRACED_FIELDS.index("clip_coef")] = config.clip_coef * progress_remaining(
+        config, iteration
+    )
+    return jax.tree.unflatten(tree, leaves)
 
 
 # 6. One training iteration -------------------------------------------------------------------
@@ -462,6 +493,7 @@ def train_iteration(
         The next runner state and scalar metrics named as in
         :data:`~jaxcart.core.metrics.METRIC_NAMES`, then ``config.metric_names``.
     """
+    config = scheduled(config, iteration)
     runner, rollout, batch, update_key, learning_rate = prepare_update(
         runner, config, iteration, env_params
     )

@@ -29,6 +29,7 @@ from jaxcart.core.ppo import (
     make_network,
     make_optimizer,
     prepare_update,
+    scheduled,
     train_iteration,
     update_epochs,
 )
@@ -167,6 +168,7 @@ def grouped_iteration(
     """``vmap(guarded_iteration)`` over runs ``[R]`` with the update in groups of at most
     ``group`` runs (:func:`in_groups`): the same arithmetic per run, but XLA compiles the update
     for the group width, so above ``group`` runs the last bits differ from a plain vmap."""
+    config = scheduled(config, iteration)
     before, rollout, batch, update_key, learning_rate = jax.vmap(
         prepare_update, in_axes=(0, 0, None, env_axes(env_params))
     )(runners, config, iteration, env_params)

@@ -100,7 +100,7 @@ def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
     """
     means, solved = read_evaluation(run, score.name == "eval" or policy == "best", policy)
     try:
-        scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps)
+        scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
     except ValueError as exc:
         raise CompareError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
     episodes = (run.evaluation or {}).get("episodes")

@@ -347,6 +347,8 @@ def run_new(
     if stop is not None:
         stop.check()
     extra = {"eval_episodes": episodes, **({"command": list(command)} if command else {})}
+    if options.score is not None and spec.grid.is_sweep:
+        extra["score"] = options.score.label  # a resumed sweep ranks by it too
     run = create_run(spec, out, distributed.is_main_process(), plan, extra)
     return carry_out(run, options, hooks, stop, progress)
 
@@ -479,7 +481,7 @@ def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -
         else:
             blocks.append(block)
     if run.main_process:
-        _finish(run, blocks, options.eval_episodes, outcome)
+        _finish(run, blocks, options.eval_episodes, outcome, options.score)
     return outcome  # signum set when a signal came while writing: the run finished all the same
 
 
@@ -732,8 +734,11 @@ def _one_wave(
     )
 
 
-def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
-    """The run directory's outputs and the outcome's per-run summary, from every block."""
+def _finish(
+    run: Run, blocks: list, episodes: int, outcome: Outcome, score: Score | None = None
+) -> None:
+    """The run directory's outputs and the outcome's per-run summary, from every block; a
+    sweep's combinations ranked by ``score`` (None: the one config.json records, else eval)."""
     config = run.config
     steps = np.arange(1, config.num_iterations + 1) * config.batch_size
     columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final", "reach")}
@@ -756,16 +761,25 @@ def _finish(run: Run, blocks: list, episodes: int, outcome: Outcome) -> None:
         run, blocks, episodes, {**timing, "devices": outcome.num_devices, "waves": len(blocks)}
     )
     if run.grid.is_sweep:
-        score, solved = outcome.evaluation.gym_returns.mean(-1), outcome.evaluation.solved
-        ranked_by = Score()  # each seed's mean greedy return (compare's --score eval)
+        ranked_by = score or Score.parse(run.info.get("score", "eval"))
+        curves = None  # [iterations, R], read only for a score that needs them
+        if ranked_by.name != "eval":
+            parts = outputs.overlapping(blocks, range(run.grid.num_runs))
+            curves = np.concatenate([b.metrics["rollout/ep_rew_mean"][:, t] for b, t in parts], 1)
+        try:
+            scores = ranked_by.compute(gym.mean(-1), curves, steps, run.config.env)
+        except ValueError as exc:  # return-at past the run's end (train checks it first)
+            raise ConfigError(f"cannot rank by --score {ranked_by.label}: {exc}") from None
+        solved = outcome.evaluation.solved
         outcome.ranking = sweeps.rank(
-            run.grid, score, solved, final, reach, div, score=ranked_by.label
+            run.grid, scores, solved, final, reach, div, score=ranked_by.label
         )
         data = {
             "sweep": run.sweep,
             "num_seeds": run.grid.num_seeds,
             "score": ranked_by.label,
             "score_definition": ranked_by.definition,
+            "saturated": sweeps.saturated(outcome.ranking),
             "ranking": outcome.ranking,
         }
         run.directory.write_ranking(data)

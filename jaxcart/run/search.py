@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxcart.analysis import stats
+from jaxcart.analysis import curves, stats
 from jaxcart.analysis.summary import Score
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, config_fields
 from jaxcart.engine.loop import Progress
@@ -711,7 +711,7 @@ def trial_scores(out: Path, outcome: Outcome, score: Score, num_trials: int) -> 
             evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
         try:
             curve = run.metrics.get(RETURN_METRIC)
-            results.append(score.compute(evaluation, curve, run.env_steps))
+            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
         except ValueError as exc:
             raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
     return results
@@ -737,9 +737,10 @@ def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) ->
 
 
 class RungReporter(StopRequest):
-    """At chunk boundaries, reports each trial's partial area under its learning curve (the
-    mean ``ep_rew_mean`` so far, IQM over its seeds) at :data:`RUNGS` evenly spaced
-    iterations, and asks the pruner. A pruned trial is marked; when every trial of the group
+    """At chunk boundaries, reports each trial's partial area under its learning curve
+    (:func:`jaxcart.analysis.curves.auc` of the iterations so far, as ``--score auc`` scores
+    a whole run; IQM over its seeds) at :data:`RUNGS` evenly spaced iterations, and asks the
+    pruner. A pruned trial is marked; when every trial of the group
     is pruned, the group stops (as this stop request, which a signal sets too) and saves the
     rest of its compute. The step reported is the per-mille of training done, so that trials
     of other shapes (other iterations) are compared at the same point."""
@@ -756,7 +757,8 @@ class RungReporter(StopRequest):
         self.num_iterations = spec.config.num_iterations
         steps = (self.num_iterations * (np.arange(RUNGS) + 1)) // RUNGS
         self.rungs = {int(i) for i in steps if 0 < i < self.num_iterations}
-        self.sums = np.zeros(len(trials) * spec.num_seeds)
+        self.env_id = spec.config.env
+        self.returns: list[np.ndarray] = []  # per chunk, [iterations, trials x seeds]
         self.iteration = 0
         self.pruned: set[int] = set()
         self.last_scores: dict[int, np.ndarray] = {}
@@ -767,17 +769,18 @@ class RungReporter(StopRequest):
         return self.signum is not None or self.all_pruned
 
     def on_chunk(self, progress: Progress) -> None:
-        """The chunk's returns added to each run's sum; each rung passed reported."""
-        returns = np.nan_to_num(np.asarray(progress.metrics[RETURN_METRIC], float), nan=0.0)
+        """The chunk's returns kept; each rung passed reported."""
+        returns = np.asarray(progress.metrics[RETURN_METRIC], float)
         first = progress.iteration - returns.shape[0]
-        for row, values in enumerate(returns):
-            self.sums += values
+        self.returns.append(returns)
+        for row in range(returns.shape[0]):
             done = first + row + 1
             if done in self.rungs:
                 self._report(done)
 
     def _report(self, iteration: int) -> None:
-        partial = (self.sums / iteration).reshape(len(self.trials), self.num_seeds)
+        so_far = np.concatenate(self.returns)[:iteration]
+        partial = curves.auc(so_far, self.env_id).reshape(len(self.trials), self.num_seeds)
         for c, trial in enumerate(self.trials):
             self.last_scores[trial.number] = partial[c]
             if trial.number in self.pruned:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxcart.analysis.summary import Score
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
@@ -210,6 +211,9 @@ class RunOptions:
     2 s, measured as the run goes)."""
     wave_size: int | None = None
     """Runs trained at once in a new run (default: the fewest that fill the devices)."""
+    score: Score | None = None
+    """What ranks a sweep's combinations, as ``compare --score`` scores a run (None: eval, or
+    the score a resumed sweep recorded in config.json)."""
 
     def __post_init__(self) -> None:
         check_option(

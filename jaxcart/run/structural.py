@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.analysis.summary import Score
+from jaxcart.analysis.summary import EVAL, Score
 from jaxcart.core.config import ConfigError
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.spec import Outcome, RunSpec
@@ -109,15 +109,18 @@ def run_groups(
     groups: list[dict],
     out: str | Path,
     train_group: Callable[[RunSpec, Path], Outcome],
+    score: Score | None = None,
 ) -> GroupsOutcome:
     """Trains every shape group into ``out/group-NNN`` (``train_group(spec, out)``, e.g.
     :func:`jaxcart.run.lifecycle.run_new`), then writes ``out/groups.json``: the groups and
-    every combination ranked together. A group stopped early stops the sweep there.
+    every combination ranked together by ``score`` (default eval; whether it is saturated, and each row's
+    rank: :func:`jaxcart.run.sweep.rank`). A group stopped early stops the sweep there.
 
     Raises:
         ConfigError: a group that does not fit together, or ``out`` not empty.
     """
     specs = group_specs(spec, groups)
+    score = score or EVAL
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"--out {out} is not empty; a structural sweep starts in a new directory")
@@ -128,7 +131,7 @@ def run_groups(
         outcomes.append(outcome)
         if outcome.stopped:
             return GroupsOutcome(out, groups, outcomes, [])
-    ranking = rank_groups(groups, outcomes, spec.num_seeds)
+    ranking = rank_groups(groups, outcomes, spec.num_seeds, score)
     data = {
         "groups": [
             {"group": g, "directory": layout.group_dir(".", g).name, **_json(group)}
@@ -136,7 +139,9 @@ def run_groups(
         ],
         "sweep": spec.sweep,
         "num_seeds": spec.num_seeds,
-        "score": ranking[0]["score"] if ranking else Score().label,
+        "score": score.label,
+        "score_definition": score.definition,
+        "saturated": sweeps.saturated(ranking),
         "ranking": ranking,
     }
     files.write_json(out / layout.GROUPS_FILE, data)
@@ -147,10 +152,14 @@ def _json(group: dict) -> dict:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
 
 
-def rank_groups(groups: list[dict], outcomes: list[Outcome], num_seeds: int) -> list[dict]:
+def rank_groups(
+    groups: list[dict], outcomes: list[Outcome], num_seeds: int, score: Score = EVAL
+) -> list[dict]:
     """Every combination of every group ranked together as one sweep's
-    (:func:`jaxcart.run.sweep.rank`: IQM of each seed's mean greedy Gymnasium return, then
-    solve rate, final return, steps to 500), each row with its group and shape values."""
+    (:func:`jaxcart.run.sweep.rank`: IQM of each seed's ``score``, by default its mean greedy
+    Gymnasium return, then solve rate, final return, steps to 500), each row with its group
+    and shape values. Each group's seeds are scored on their own curves (groups may train
+    different numbers of iterations)."""
     combos, scores, solved, final, reach, diverged, where = [], [], [], [], [], [], []
     for g, (group, outcome) in enumerate(zip(groups, outcomes)):
         run_dir = outcome.run.out
@@ -159,11 +168,15 @@ def rank_groups(groups: list[dict], outcomes: list[Outcome], num_seeds: int) -> 
             combo = grid.combos[c] if grid.is_sweep else {}
             combos.append({**combo})
             where.append((g, c if grid.is_sweep else None))
-        scores.append(outcome.evaluation.gym_returns.mean(-1))
+        metrics = _metrics(run_dir, grid)
+        steps = metrics["env_steps"][:, 0]
+        curves = metrics["rollout/ep_rew_mean"] if score.name != "eval" else None
+        gym = outcome.evaluation.gym_returns.mean(-1)
+        scores.append(score.compute(gym, curves, steps, outcome.run.config.env))
         solved.append(outcome.evaluation.solved)
         final.append(outcome.final_return)
         diverged.append(outcome.diverged_at)
-        reach.append(_steps_to_500(run_dir, grid))
+        reach.append(sweeps.first_reach(metrics["rollout/ep_rew_max"], steps))
     grid = sweeps.RunGrid(num_seeds, tuple(combos))
     rows = sweeps.rank(
         grid,
@@ -172,6 +185,7 @@ def rank_groups(groups: list[dict], outcomes: list[Outcome], num_seeds: int) -> 
         np.concatenate(final),
         np.concatenate(reach),
         np.concatenate(diverged),
+        score=score.label,
     )
     for row in rows:
         g, c = where[row["combination"]]
@@ -179,16 +193,13 @@ def rank_groups(groups: list[dict], outcomes: list[Outcome], num_seeds: int) -> 
     return rows
 
 
-def _steps_to_500(run_dir: Path, grid: sweeps.RunGrid) -> np.ndarray:
-    """Each run's env steps to a training episode of 500, from its metrics.csv."""
+def _metrics(run_dir: Path, grid: sweeps.RunGrid) -> dict[str, np.ndarray]:
+    """A group's metrics.csv columns ``[iterations, runs]``, every combination's runs side
+    by side."""
     dirs = (
         [layout.combo_dir(run_dir, c) for c in range(grid.num_combos)]
         if grid.is_sweep
         else [run_dir]
     )
-    out = []
-    for d in dirs:
-        info = reader.read_run_config(d)
-        metrics = reader.read_run_metrics(d, info)
-        out.append(sweeps.first_reach(metrics["rollout/ep_rew_max"], metrics["env_steps"][:, 0]))
-    return np.concatenate(out)
+    parts = [reader.read_run_metrics(d, reader.read_run_config(d)) for d in dirs]
+    return {k: np.concatenate([m[k] for m in parts], axis=1) for k in parts[0]}

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jaxcart.analysis import stats, summary
+from jaxcart.analysis import multiplicity, stats, summary
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
@@ -211,29 +211,30 @@ def rank(
     reps: int = stats.DEFAULT_REPS,
     seed: int = stats.DEFAULT_SEED,
     score: str = "eval",
-    returns: np.ndarray | None = None,
-    env_steps: np.ndarray | None = None,
 ) -> list[dict]:
     """Per-combination summary, best first: by the IQM of the per-seed scores (then solve
     rate, final return, steps to 500), with the statistics of :mod:`jaxcart.compare`.
 
-    Each row holds ``score`` (the score's name, as ``compare --score`` takes it), ``iqm`` and
+    Each row holds ``score`` (the score's name, as ``compare --score`` takes it), the seeds'
+    ``scores``, ``rank`` (1 + the combinations with a higher IQM: combinations tied on the
+    IQM share it, and the tie-breakers alone order them), ``iqm`` and
     ``probability_of_improvement`` over combination 0 (None for combination 0 itself) as
-    ``{value, ci_low, ci_high}`` with 95% percentile bootstrap intervals (``reps`` resamples
-    from ``seed``: deterministic).
+    ``{value, ci_low, ci_high}`` with percentile bootstrap intervals at
+    :data:`stats.CONFIDENCE` (``reps`` resamples from ``seed``: deterministic; with fewer
+    than :data:`stats.RANGE_BELOW` seeds, the range of the seeds, :func:`stats.interval_label`).
 
     Args:
-        scores: per run, ``[num_runs]``: each seed's mean greedy Gymnasium return.
+        scores: per run, ``[num_runs]``: each seed's score by ``score``
+            (:meth:`jaxcart.analysis.summary.Score.compute`, as ``compare`` scores a run).
         solved, final_return, steps_to_500, diverged_at: per run, ``[num_runs]``.
-        score: what ranks: ``"eval"`` (``scores``), ``"auc"`` or ``"return-at:STEPS"``
-            (:class:`jaxcart.analysis.summary.Score`, from ``returns`` and ``env_steps``).
-        returns: ``rollout/ep_rew_mean`` ``[iterations, num_runs]``; env_steps: ``[iterations]``.
+        score: what the scores are: ``"eval"`` (each seed's mean greedy Gymnasium return),
+            ``"auc"`` or ``"return-at:STEPS"``.
 
     Raises:
-        ValueError: an unknown score, or one without the curves it needs.
+        ValueError: an unknown score, or scores that are not finite.
     """
     ranked_by = summary.Score.parse(score)
-    scores = ranked_by.compute(np.asarray(scores, float), returns, env_steps)
+    scores = stats.check_seeds(scores)
     first = scores[grid.runs_of(0)]
     rows = []
     for c, combo in enumerate(grid.combos):
@@ -247,6 +248,7 @@ def rank(
                 "combination": c,
                 **combo,
                 "score": ranked_by.label,
+                "scores": [float(s) for s in scores[runs]],
                 "iqm": stats.bootstrap_ci(scores[runs], stats.iqm, reps, seed=seed).to_dict(),
                 "probability_of_improvement": improvement and improvement.to_dict(),
                 "solve_rate": float(np.mean(solved[runs])),
@@ -258,6 +260,8 @@ def rank(
                 "seeds_diverged": 0 if diverged_at is None else int((diverged_at[runs] >= 0).sum()),
             }
         )
+    for row in rows:
+        row["rank"] = 1 + sum(r["iqm"]["value"] > row["iqm"]["value"] for r in rows)
     return sorted(
         rows,
         key=lambda r: (
@@ -267,3 +271,38 @@ def rank(
             r["median_steps_to_500"],
         ),
     )
+
+
+TIE_BREAKERS = "solve rate, then final ep_rew_mean, then median steps to 500"
+"""What orders combinations whose IQMs tie (:func:`rank`)."""
+
+
+def saturated(ranking: list[dict]) -> bool:
+    """Whether every seed of every ranked combination has the same score
+    (:func:`jaxcart.analysis.multiplicity.saturated`): the score ranks nothing."""
+    return multiplicity.saturated([np.asarray(r["scores"]) for r in ranking])
+
+
+def ranking_notes(ranking: list[dict]) -> list[str]:
+    """What a ranking cannot tell, a line each: that its score is saturated, or which ranks
+    combinations share (the same IQM: the tie-breakers alone order them). Empty when every
+    IQM differs."""
+    if not ranking:
+        return []
+    label = ranking[0]["score"]
+    if saturated(ranking):
+        hint = "try --score auc or return-at:STEPS" if label == "eval" else "try another --score"
+        return [
+            f"saturated: every seed of every combination scores {ranking[0]['scores'][0]:g} by "
+            f"{label}: the ranking cannot tell them apart, their order is the tie-breakers' "
+            f"({TIE_BREAKERS}); {hint}"
+        ]
+    notes = []
+    for place in sorted({r["rank"] for r in ranking}):
+        tied = sum(r["rank"] == place for r in ranking)
+        if tied > 1:
+            notes.append(
+                f"tie: {tied} combinations share rank {place} (the same IQM by {label}); the "
+                f"tie-breakers alone order them ({TIE_BREAKERS})"
+            )
+    return notes

@@ -135,6 +135,7 @@ def checkpoint_curves(
                 combination=combination,
                 note=saved.note,
                 custom_metrics=config.metric_names,
+                env=config.env,
             )
         )
     return runs
