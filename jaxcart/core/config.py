@@ -232,6 +232,7 @@ class PPOConfig:
             data["network"] = self.network.spec()
         elif self.network is not None:
             data["network"] = network_spec(self.network)
+        if self.network is not None:
             for name in BUILTIN_NETWORK_FIELDS:  # they describe a network this run does not use
                 del data[name]
         if self.metrics:
