@@ -103,7 +103,9 @@ def _main(argv: list[str] | None) -> int:
 
     try:
         if args.resume is not None:
-            results = sb3.resume_run(out, args.jobs, args.threads, on_seed, on_start, **logging)
+            results = sb3.resume_run(
+                out, args.jobs, args.threads, on_seed, on_start, **logging, progress=True
+            )
         else:
             results = sb3.train_run(
                 out,
@@ -115,6 +117,7 @@ def _main(argv: list[str] | None) -> int:
                 on_seed,
                 on_start,
                 **logging,
+                progress=True,
             )
     except KeyboardInterrupt:
         kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))
