@@ -8,17 +8,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
-
-import jax
+from typing import TYPE_CHECKING
 
 from jaxcart import cli
-from jaxcart.core import physics
-from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
-from jaxcart.run.greedy import evaluate_params, summarize
+from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, GYMNAX_ENVS, NUM_EVAL_EPISODES
 from jaxcart.rundir import layout
-from jaxcart.rundir.policy import RunParams, make_policy, run_params
-from jaxcart.rundir.reader import read_run_config, recorded_combinations
+
+if TYPE_CHECKING:  # JAX loads once the command line is read: --help needs none of it
+    from jaxcart.rundir.policy import RunParams
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -94,6 +91,9 @@ def _sources(
 ) -> list[tuple[str | None, RunParams]]:
     """What to evaluate: the run, one combination, or every combination of a sweep, each
     with its label (``0 learning_rate=0.001``) in a sweep; ``policy`` final or best."""
+    from jaxcart.rundir.policy import run_params
+    from jaxcart.rundir.reader import read_run_config, recorded_combinations
+
     combos = recorded_combinations(read_run_config(run_dir))
     if not combos:
         return [(None, run_params(run_dir, combination, policy, trust_code=trust_code))]
@@ -113,6 +113,8 @@ def _with_env_params(trained: RunParams, specs: list[str]) -> RunParams:
     """``trained`` evaluated on its own physics with the ``--env-param`` fields over them."""
     if not specs:
         return trained
+    from jaxcart.core import physics
+
     values = {**physics.overrides(trained.env_params), **physics.parse_env_params(specs)}
     return dataclasses.replace(trained, env_params=physics.make_env_params(values))
 
@@ -121,6 +123,8 @@ def _physics_text(sources: list[tuple[str | None, RunParams]], chosen: bool) -> 
     """`` with length=1`` when every source runs on the same non-default physics; ``""``
     for CartPole-v1's (`` with CartPole-v1's own physics`` when ``--env-param`` chose them);
     `` with each combination's physics`` when they differ."""
+    from jaxcart.core import physics
+
     shown = {physics.describe(physics.overrides(t.env_params)) for _, t in sources}
     if len(shown) > 1:
         return " with each combination's physics"
@@ -132,6 +136,10 @@ def _physics_text(sources: list[tuple[str | None, RunParams]], chosen: bool) -> 
 
 def _evaluate_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    from jaxcart.core import physics
+    from jaxcart.run.greedy import evaluate_params, summarize
+    from jaxcart.rundir.reader import read_run_config, recorded_combinations
+
     physics.parse_env_params(args.env_param)  # a bad --env-param before anything is read
     info = read_run_config(args.run_dir)
     num_seeds = int(info.get("num_seeds", 1))
@@ -179,7 +187,10 @@ def _evaluate_command(argv: list[str] | None) -> int:
 
 
 def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
+    import jax
+
     from jaxcart.results.gif import render_gif
+    from jaxcart.rundir.policy import make_policy
 
     one = jax.tree.map(lambda x: x[args.seed_index], trained.params)
     policy = make_policy(one, trained.config)

@@ -20,10 +20,13 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import IO, TYPE_CHECKING, NoReturn
 
-from jaxcart import cli
-from jaxcart.core.config import PRESETS, config_fields, field_docs, preset
-from jaxcart.engine import devices
-from jaxcart.engine.signals import StopRequest
+from jaxcart import cli, environment
+
+environment.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
+
+from jaxcart.core.config import PRESETS, config_fields, field_docs, preset  # noqa: E402
+from jaxcart.engine import devices  # noqa: E402
+from jaxcart.engine.signals import StopRequest  # noqa: E402
 
 if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
     from jaxcart import report
