@@ -595,14 +595,14 @@ def main(argv: list[str] | None = None) -> int:
     evaluated), a first SIGINT/SIGTERM stops it at the next safe point with a checkpoint and a
     second one at once, without a traceback; before that, Ctrl-C is Python's
     :class:`KeyboardInterrupt` (one line from :func:`jaxcart.cli.command_main`)."""
-    from jaxcart import report
-
-    console = report.ConsoleReport(sys.stdout)
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
         args = _parse_args(argv_)
         opts = TrainOptions.from_args(args, argv_)
+        from jaxcart import report  # the training's modules: not for --help
+
+        console = report.ConsoleReport(sys.stdout)
         console.progress_bar = not opts.quiet
         try:
             return _train(opts, console)
