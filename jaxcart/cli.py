@@ -46,8 +46,8 @@ def check_not_shadowed() -> None:
 
 check_not_shadowed()  # before the first name taken from the package
 
-from jaxcart import __version__, environment  # noqa: E402  (first: JAX reads JAX_* on import)
-from jaxcart.core.config import ConfigError  # noqa: E402
+from jaxcart import __version__, environment  # noqa: E402
+from jaxcart.core.errors import ConfigError  # noqa: E402
 from jaxcart.engine import devices, signals  # noqa: E402
 from jaxcart.rundir.files import RunDirError  # noqa: E402
 
@@ -322,6 +322,8 @@ class Parser(argparse.ArgumentParser):
         if extras:
             argv = sys.argv[1:] if args is None else list(args)
             self.error(self.unrecognized_text(extras, argv))
+        # The command runs: JAX now (JAX_* checked), not for --help or a usage error.
+        environment.import_jax()
         return namespace
 
     def unrecognized_text(self, extras: list[str], argv: Sequence[str] = ()) -> str:

@@ -38,13 +38,16 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart import cli
-from jaxcart.analysis import stats, summary
-from jaxcart.analysis.summary import Score
-from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
-from jaxcart.results import scores as runs
-from jaxcart.results.scores import CompareError, Comparison
-from jaxcart.rundir import layout
+from jaxcart import cli, environment
+
+environment.import_jax()  # before results.scores, which imports JAX: JAX reads JAX_* then
+
+from jaxcart.analysis import stats, summary  # noqa: E402
+from jaxcart.analysis.summary import Score  # noqa: E402
+from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS  # noqa: E402
+from jaxcart.results import scores as runs  # noqa: E402
+from jaxcart.results.scores import CompareError, Comparison  # noqa: E402
+from jaxcart.rundir import layout  # noqa: E402
 
 ESTIMATE_NAMES = {
     "iqm": "IQM",

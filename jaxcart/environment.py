@@ -2,9 +2,11 @@
 cannot use becomes one line on stderr and exit code 2 (JAX raises a traceback, XLA aborts the
 process with a fatal log line).
 
-Importing this module imports JAX, and turns a value JAX refuses at import
+:func:`import_jax` imports JAX, and turns a value JAX refuses at import
 (``JAX_ENABLE_X64=junk``, ``JAX_DEFAULT_MATMUL_PRECISION=junk``, ...) into that line: every
-command imports it first, through :mod:`jaxcart.cli`. :func:`check_backend` does the same for
+command calls it before its first import of JAX, once its command line is parsed
+(:meth:`jaxcart.cli.Parser.parse_args`; ``--help`` imports no JAX) or, in a command whose own
+module imports JAX, before that import. :func:`check_backend` does the same for
 what JAX reads when it starts its backend (``JAX_PLATFORMS``, ``XLA_FLAGS``), which
 :func:`jaxcart.cli.command_main` calls before the command's ``main``.
 """
@@ -25,7 +27,8 @@ def _refuse(message: str) -> None:
     raise SystemExit(EXIT_USAGE)
 
 
-def _import_jax() -> None:
+def import_jax() -> None:
+    """Imports JAX; a JAX_* value it refuses becomes one line and exit code 2."""
     try:
         import jax  # noqa: F401  (it reads JAX_* variables as it is imported)
     except ValueError as exc:  # JAX's message names the variable or its flag
@@ -84,6 +87,3 @@ def check_backend() -> None:
             )
         if failure is not None:
             _refuse(f"JAX_PLATFORMS={platforms!r}: {failure}; fix or unset JAX_PLATFORMS")
-
-
-_import_jax()

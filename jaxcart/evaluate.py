@@ -16,21 +16,23 @@ import io
 from collections.abc import Callable
 from pathlib import Path
 
-import jax
-import numpy as np
+from jaxcart import cli, environment
 
-from jaxcart import cli
-from jaxcart.analysis import stats
-from jaxcart.core import physics
-from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
-from jaxcart.run.greedy import evaluate_params, summarize
-from jaxcart.run.sweep import parse_sweep
-from jaxcart.rundir import files, layout, outputs
-from jaxcart.rundir.directory import package_versions
-from jaxcart.rundir.policy import RunParams, make_policy, run_params
-from jaxcart.rundir.reader import X64_KEY, is_evaluation, read_run_config, recorded_combinations
-from jaxcart.rundir.views import default_label, physics_label
+environment.import_jax()  # before the imports below, which import JAX: JAX reads JAX_* then
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jaxcart.analysis import stats  # noqa: E402
+from jaxcart.core import physics  # noqa: E402
+from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, GYMNAX_ENVS, NUM_EVAL_EPISODES, is_solved  # noqa: E402
+from jaxcart.run.greedy import evaluate_params, summarize  # noqa: E402
+from jaxcart.run.sweep import parse_sweep  # noqa: E402
+from jaxcart.rundir import files, layout, outputs  # noqa: E402
+from jaxcart.rundir.directory import package_versions  # noqa: E402
+from jaxcart.rundir.policy import RunParams, make_policy, run_params  # noqa: E402
+from jaxcart.rundir.reader import X64_KEY, is_evaluation, read_run_config, recorded_combinations  # noqa: E402
+from jaxcart.rundir.views import default_label, physics_label  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -46,17 +46,13 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import figures, stats
-from jaxcart.core.envs import ACTION_COUNTS, DEFAULT_ENV, GYMNAX_ENVS
-from jaxcart.core.solved import return_bounds
+from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS, return_bounds
 from jaxcart.rundir import files, layout
-from jaxcart.rundir.views import (
-    ELAPSED_METRIC,
-    RunCurves,
-    load_runs,
-)
 
-if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
     from matplotlib.figure import Figure
+
+    from jaxcart.rundir.views import RunCurves
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 EVAL_METRIC = "eval/mean_return"
@@ -177,6 +173,8 @@ def plot_runs(
         raise ValueError("give at least one run directory")
     if labels is not None and len(labels) != len(run_dirs):
         raise ValueError(f"got {len(labels)} label(s) for {len(run_dirs)} run directories")
+    from jaxcart.rundir.views import load_runs
+
     runs = load_runs(run_dirs, labels)
     if out is None:
         return draw_figure(runs)
@@ -277,6 +275,9 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
 def _draw_curves(
     runs: list[RunCurves], styles: list[figures.Style], ax_steps, ax_time, metric_axes
 ) -> None:
+    from jaxcart.core.envs import ACTION_COUNTS
+    from jaxcart.rundir.views import ELAPSED_METRIC
+
     means: dict[str, list[np.ndarray]] = {name: [] for name, _ in KEY_METRICS}
     env_ids = {run.env for run in runs}
     for run, style in zip(runs, styles):
@@ -522,6 +523,8 @@ def _plot_command(argv: list[str] | None) -> int:
             "give one per run directory or none"
         )
     cli.check_dpi(args.dpi)
+    from jaxcart.rundir.views import load_runs
+
     runs = load_runs(args.run_dirs, args.label)
     for run in runs:
         if not run.metrics:

@@ -12,12 +12,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from jaxcart import cli
-from jaxcart.core.solved import is_solved
-from jaxcart.run import sb3
-from jaxcart.run.loggers import LoggerUnavailable
-from jaxcart.run.loggers import check_available as check_loggers
-from jaxcart.rundir import layout
+from jaxcart import cli, environment
+
+environment.import_jax()  # before run.sb3, which imports JAX: JAX reads JAX_* then
+
+from jaxcart.core.solved import is_solved  # noqa: E402
+from jaxcart.run import sb3  # noqa: E402
+from jaxcart.run.loggers import LoggerUnavailable  # noqa: E402
+from jaxcart.run.loggers import check_available as check_loggers  # noqa: E402
+from jaxcart.rundir import layout  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -103,7 +106,9 @@ def _main(argv: list[str] | None) -> int:
 
     try:
         if args.resume is not None:
-            results = sb3.resume_run(out, args.jobs, args.threads, on_seed, on_start, **logging)
+            results = sb3.resume_run(
+                out, args.jobs, args.threads, on_seed, on_start, **logging, progress=True
+            )
         else:
             results = sb3.train_run(
                 out,
@@ -115,6 +120,7 @@ def _main(argv: list[str] | None) -> int:
                 on_seed,
                 on_start,
                 **logging,
+                progress=True,
             )
     except KeyboardInterrupt:
         kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))

@@ -20,10 +20,13 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import IO, TYPE_CHECKING, NoReturn
 
-from jaxcart import cli
-from jaxcart.core.config import PRESETS, config_fields, field_docs, preset
-from jaxcart.engine import devices
-from jaxcart.engine.signals import StopRequest
+from jaxcart import cli, environment
+
+environment.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
+
+from jaxcart.core.config import PRESETS, config_fields, field_docs, preset  # noqa: E402
+from jaxcart.engine import devices  # noqa: E402
+from jaxcart.engine.signals import StopRequest  # noqa: E402
 
 if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
     from jaxcart import report
@@ -622,14 +625,14 @@ def main(argv: list[str] | None = None) -> int:
     evaluated), a first SIGINT/SIGTERM stops it at the next safe point with a checkpoint and a
     second one at once, without a traceback; before that, Ctrl-C is Python's
     :class:`KeyboardInterrupt` (one line from :func:`jaxcart.cli.command_main`)."""
-    from jaxcart import report
-
-    console = report.ConsoleReport(sys.stdout)
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
         args = _parse_args(argv_)
         opts = TrainOptions.from_args(args, argv_)
+        from jaxcart import report  # the training's modules: not for --help
+
+        console = report.ConsoleReport(sys.stdout)
         console.progress_bar = not opts.quiet
         try:
             return _train(opts, console)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -128,6 +129,30 @@ def read_swanlog(folder: Path) -> dict[str, dict[str, list[tuple[int, float]]]]:
         assert finished and name is not None, records_file
         experiments[name] = scalars
     return experiments
+
+
+def read_tfrecords(path: Path) -> list[bytes]:
+    """Payloads of a TFRecord file (length u64, masked crc u32, payload, masked crc u32)."""
+    data, records, pos = path.read_bytes(), [], 0
+    while pos < len(data):
+        (length,) = struct.unpack("<Q", data[pos : pos + 8])
+        records.append(data[pos + 12 : pos + 12 + length])
+        pos += 12 + length + 4
+    return records
+
+
+def read_tensorboard(folder: Path) -> dict[str, list[tuple[int, float]]]:
+    """The scalars of a TensorBoard run folder's event files: tag -> ``[(step, value)]``."""
+    from tensorboardX.proto.event_pb2 import Event
+
+    scalars: dict[str, list[tuple[int, float]]] = {}
+    for path in sorted(Path(folder).glob("events.out.tfevents.*")):
+        for record in read_tfrecords(path):
+            event = Event.FromString(record)
+            for value in event.summary.value:
+                if value.HasField("simple_value"):
+                    scalars.setdefault(value.tag, []).append((event.step, value.simple_value))
+    return scalars
 
 
 def seal(run_dir: Path) -> None:

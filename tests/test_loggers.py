@@ -11,6 +11,7 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
+from helpers import read_swanlog, read_tfrecords
 
 from jaxcart.run import loggers
 from jaxcart.run.loggers import LoggerError, LoggerUnavailable, MetricBatch, make_logger
@@ -52,16 +53,6 @@ def expected_points(chunks, run: int) -> dict[str, list[tuple[int, float]]]:
     return points
 
 
-def read_tfrecords(path: Path) -> list[bytes]:
-    """Payloads of a TFRecord file (length u64, masked crc u32, payload, masked crc u32)."""
-    data, records, pos = path.read_bytes(), [], 0
-    while pos < len(data):
-        (length,) = struct.unpack("<Q", data[pos : pos + 8])
-        records.append(data[pos + 12 : pos + 12 + length])
-        pos += 12 + length + 4
-    return records
-
-
 def test_tensorboard_one_run_per_seed_with_env_step_axis(tmp_path):
     pytest.importorskip("tensorboardX")
     from tensorboardX.proto.event_pb2 import Event
@@ -99,6 +90,7 @@ def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypa
     pytest.importorskip("swanlab")
     monkeypatch.setenv("CI", "true")
     monkeypatch.setenv("SWANLAB_WEBHOOK", "http://127.0.0.1:9/hook")  # must not be called
+    monkeypatch.delenv("SWANLAB_LOG_DIR", raising=False)  # SwanLab's local mode sets it
     monkeypatch.chdir(tmp_path)  # SwanLab reads ./.env and ./swanlab.yaml; keep it clean
     network = []
     monkeypatch.setattr(socket, "getaddrinfo", lambda *a, **k: network.append(a) or [])
@@ -153,6 +145,26 @@ def test_swanlab_offline_one_experiment_with_per_run_and_mean(tmp_path, monkeypa
             row = metrics["rollout/ep_rew_mean"][i]
             mean.append((int(step), float(np.nanmean(row))))
     check("rollout/ep_rew_mean", mean)
+
+
+def test_swanlab_runs_logged_apart_get_their_mean_once_every_run_has_the_step(
+    tmp_path, monkeypatch
+):
+    """SB3's seeds train apart and are logged one run at a time: each run's names at once, the
+    mean under the plain name once every run has logged that step (SwanLab keeps the first)."""
+    pytest.importorskip("swanlab")
+    monkeypatch.setenv("CI", "true")
+    monkeypatch.delenv("SWANLAB_LOG_DIR", raising=False)  # SwanLab's local mode sets it
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "out").mkdir()
+    steps = np.array([BATCH, 2 * BATCH])
+    with make_logger(["swanlab"], tmp_path / "out", RUNS) as logger:
+        logger.log(0, steps, {"rollout/ep_rew_mean": [10.0, 20.0]}, run=0)
+        logger.log(0, steps[:1], {"rollout/ep_rew_mean": [[30.0]]}, run=1)
+    logged = read_swanlog(tmp_path / "swanlog")["out"]
+    assert logged["seed0/rollout/ep_rew_mean"] == [(BATCH, 10.0), (2 * BATCH, 20.0)]
+    assert logged["seed1/rollout/ep_rew_mean"] == [(BATCH, 30.0)]
+    assert logged["rollout/ep_rew_mean"] == [(BATCH, 20.0)]  # run 1 never logged step 256
 
 
 class RecordingBackend:
@@ -362,11 +374,17 @@ def test_shapes_are_checked_when_logging(tmp_path, recording):
     steps = np.array([128, 256])
     with pytest.raises(ValueError, match="'train/loss' has shape \\(2, 3\\)"):
         logger.log(0, steps, {"train/loss": np.zeros((2, 3))})
+    with pytest.raises(ValueError, match="run 2 is not one of the 2 runs"):
+        logger.log(0, steps, {}, run=2)
+    with pytest.raises(ValueError, match="expected \\(2, 1\\)"):
+        logger.log(0, steps, {"train/loss": np.zeros((2, 2))}, run=1)
     logger.log(0, steps, {"time/fps": np.array([1.0, 2.0])})  # [n]: the same for every run
+    logger.log(0, steps, {"time/fps": np.array([3.0, 4.0])}, run=1)  # run 1's alone
     logger.close()
-    np.testing.assert_array_equal(
-        recording.instances[0].batches[0].metrics["time/fps"], [[1, 1], [2, 2]]
-    )
+    first, second = recording.instances[0].batches
+    np.testing.assert_array_equal(first.metrics["time/fps"], [[1, 1], [2, 2]])
+    assert first.runs == (0, 1) and second.runs == (1,)
+    np.testing.assert_array_equal(second.metrics["time/fps"], [[3], [4]])
     with pytest.raises(RuntimeError, match="after close"):
         logger.log(0, steps, {})
 

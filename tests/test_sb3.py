@@ -7,6 +7,8 @@ SB3's layout); the command itself trains SB3 only where SB3 and PyTorch are inst
 from __future__ import annotations
 
 import json
+import struct
+import time
 
 import numpy as np
 import pytest
@@ -146,8 +148,10 @@ def test_sb3_trains_into_a_run_directory(tmp_path, capsys):
     assert again[0].tolist() == evaluation["seeds"][0]["gymnasium_returns"]
 
 
-def fake_train_seed(seed: int, total_timesteps: int, threads: int = 1) -> sb3.SeedResult:
-    """A made-up SB3 seed, a function of its seed alone."""
+def fake_train_seed(seed: int, total_timesteps: int, threads: int = 1, on_row=None):
+    """A made-up SB3 seed, a function of its seed alone, whose log rows go to ``on_row``."""
+    for row in [{}, *fake_rows(3)] if on_row is not None else []:
+        on_row(row)
     rng = np.random.default_rng(seed)
     state = fake_state_dict(rng)
     config = PPOConfig(total_timesteps=total_timesteps)
@@ -185,11 +189,11 @@ def test_an_interrupted_run_keeps_its_finished_seeds_and_resumes(
 
     trained = []
 
-    def interrupted_after_two(seed, total, threads=1):
+    def interrupted_after_two(seed, total, threads=1, on_row=None):
         if len(trained) == 2:
             raise KeyboardInterrupt
         trained.append(seed)
-        return fake_train_seed(seed, total, threads)
+        return fake_train_seed(seed, total, threads, on_row)
 
     monkeypatch.setattr(sb3, "train_seed", interrupted_after_two)
     out = tmp_path / "cut"
@@ -208,7 +212,9 @@ def test_an_interrupted_run_keeps_its_finished_seeds_and_resumes(
 
     again = []
     monkeypatch.setattr(
-        sb3, "train_seed", lambda s, t, threads=1: again.append(s) or fake_train_seed(s, t)
+        sb3,
+        "train_seed",
+        lambda s, t, threads=1, on_row=None: again.append(s) or fake_train_seed(s, t),
     )
     assert sb3_command.main(["--resume", str(out)]) == 0
     assert "2 already kept" in capsys.readouterr().out
@@ -288,6 +294,69 @@ def test_the_chapters_swanlab_comparison_shares_one_folder(fake_sb3, monkeypatch
         assert "time/elapsed" not in scalars
     # SB3's own log, as the fake seed made it: time_elapsed 2, 4, 6 s
     assert [v for _, v in logged["sb3-torch"]["time/time_elapsed"]] == [2.0, 4.0, 6.0]
+
+
+def watch_tensorboard(monkeypatch, out, seen: list, rollouts: int = 3) -> None:
+    """Wraps ``sb3.train_seed`` (in this process: ``--jobs 1``): right after SB3 writes the row
+    of rollout ``rollouts``, waits (up to 60 s) for the TensorBoard files of the run's first
+    seed to hold the iterations before it, then appends what they hold to ``seen`` and
+    whether the run directory was finished by then."""
+    from helpers import read_tensorboard
+
+    real = sb3.train_seed
+    folder = out / "tensorboard" / "seed0"
+    wanted = [2048 * i for i in range(1, rollouts)]
+
+    def train_seed(seed, total, threads=1, on_row=None):
+        count = 0
+
+        def watched(row):
+            nonlocal count
+            on_row(row)
+            count += bool(row.get("time/total_timesteps"))
+            if count != rollouts or seen:
+                return
+            deadline = time.monotonic() + 60
+            scalars = {}
+            while time.monotonic() < deadline:
+                try:  # the writer's thread may be mid-record
+                    scalars = read_tensorboard(folder)
+                except (OSError, struct.error, ValueError):
+                    pass
+                if [s for s, _ in scalars.get("train/approx_kl", [])] == wanted:
+                    break
+                time.sleep(0.05)
+            seen.append((scalars, (out / layout.EVALUATION_FILE).exists()))
+
+        return real(seed, total, threads, watched)
+
+    monkeypatch.setattr(sb3, "train_seed", train_seed)
+
+
+@pytest.mark.parametrize("real", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_sb3s_curves_reach_tensorboard_while_it_trains(real, monkeypatch, tmp_path, capsys):
+    """After SB3's third rollout, TensorBoard already holds the first two iterations (their
+    rollout and their update), and a progress bar counts the seed's env steps."""
+    pytest.importorskip("tensorboardX")
+    if real:
+        pytest.importorskip("torch")
+        pytest.importorskip("stable_baselines3")
+    else:
+        monkeypatch.setattr(sb3, "check_available", lambda: None)
+        monkeypatch.setattr(sb3, "train_seed", fake_train_seed)
+    out, seen = tmp_path / "live", []
+    watch_tensorboard(monkeypatch, out, seen)
+    argv = ["--total-timesteps", str(4 * 2048), "--out", str(out), "--logger", "tensorboard"]
+    assert sb3_command.main(argv) == 0
+    (scalars, finished), *_ = seen
+    assert not finished
+    for key in ("rollout/ep_rew_mean", "train/approx_kl", "time/time_elapsed", "train/n_updates"):
+        assert [s for s, _ in scalars[key]] == [2048, 4096], key
+    assert [v for _, v in scalars["train/n_updates"]] == [10, 20]
+    if not real:  # the made-up log's values
+        np.testing.assert_allclose([v for _, v in scalars["train/approx_kl"]], [0.01, 0.02])
+    err = capsys.readouterr().err
+    assert "seed 0:" in err and f"/{4 * 2048}" in err and "step/s" in err
 
 
 def test_swanlab_folder_from_logger_dir_then_the_environment(fake_sb3, monkeypatch, tmp_path):

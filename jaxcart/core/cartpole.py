@@ -29,12 +29,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from flax import struct
+
+from jaxcart.core import pytree
 
 Array = jax.Array
 
 
-@struct.dataclass
+@pytree.dataclass
 class EnvParams:
     """Constants of CartPole-v1, named and valued as in Gymnasium's ``CartPoleEnv``.
 
@@ -55,7 +56,7 @@ class EnvParams:
     reset_low: float = -0.05
     reset_high: float = 0.05
     # A string selects code, so it is static: changing it recompiles.
-    kinematics_integrator: str = struct.field(pytree_node=False, default="euler")
+    kinematics_integrator: str = pytree.static_field("euler")
 
     def __post_init__(self) -> None:
         if self.kinematics_integrator not in ("euler", "semi-implicit"):
@@ -65,7 +66,7 @@ class EnvParams:
             )
 
 
-@struct.dataclass
+@pytree.dataclass
 class EnvState:
     """Physical state of one cart-pole plus the number of steps taken in this episode.
 

@@ -29,19 +29,8 @@ import numpy as np
 
 from jaxcart.core import envs
 from jaxcart.core.envs import DEFAULT_ENV
+from jaxcart.core.errors import ConfigError
 from jaxcart.core.metrics import EVAL_METRICS, METRIC_NAMES
-
-
-class ConfigError(ValueError):
-    """A configuration value a user gave is invalid; the message says what to change.
-
-    ``option`` names the setting when the message starts with it (``num_seeds must be ...``),
-    so a command line can say ``--num-seeds must be ...`` instead.
-    """
-
-    def __init__(self, message: str, option: str | None = None) -> None:
-        super().__init__(message)
-        self.option = option
 
 
 def traced(default: float) -> Any:

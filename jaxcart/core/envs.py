@@ -26,18 +26,9 @@ import jax
 import jax.numpy as jnp
 
 from jaxcart.core import cartpole
+from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS
 
 Array = jax.Array
-
-DEFAULT_ENV = "CartPole-v1"
-
-GYMNAX_ENVS: dict[str, float] = {
-    "Acrobot-v1": -100.0,
-    "MountainCar-v0": -110.0,
-}
-"""gymnax envs the trainer takes, each with Gymnasium's ``reward_threshold`` for its id (the
-mean greedy return that counts as solved): the discrete-action, flat-observation envs of
-gymnax that Gymnasium also registers, so that a policy is judged in Gymnasium's own env."""
 
 GYMNAX_EXTRA = "pip install -e '.[gymnax]'"
 

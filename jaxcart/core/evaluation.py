@@ -11,9 +11,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from flax import struct
 
-from jaxcart.core import cartpole, envs, networks
+from jaxcart.core import cartpole, envs, networks, pytree
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.metrics import EVAL_METRICS
@@ -27,7 +26,7 @@ EVAL_KEY_SEED = 2_000_000
 the same start states for every run and every evaluation, so they are compared on one test."""
 
 
-@struct.dataclass
+@pytree.dataclass
 class BestPolicy:
     """A run's best policy so far by the periodic evaluation's mean return (ties: the later)."""
 

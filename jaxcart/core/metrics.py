@@ -12,7 +12,8 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-from flax import struct
+
+from jaxcart.core import pytree
 
 Array = jax.Array
 
@@ -38,7 +39,7 @@ EVAL_METRICS = ("eval/mean_return", "eval/min_return")
 between evaluations."""
 
 
-@struct.dataclass
+@pytree.dataclass
 class EpisodeBuffer:
     """Returns and lengths of the last ``EPISODE_WINDOW`` finished episodes (``valid`` marks
     filled slots; order inside the window does not matter for the means)."""

@@ -18,9 +18,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import struct
 
-from jaxcart.core import cartpole
+from jaxcart.core import cartpole, pytree
 from jaxcart.core.cartpole import EnvParams, EnvState
 from jaxcart.core.config import ConfigError, float_dtype
 
@@ -288,7 +287,7 @@ def split_per_run(params: EnvParams) -> tuple[EnvParams, dict[str, Any]]:
     return params.replace(**{n: getattr(default, n) for n in per_run}), per_run
 
 
-@struct.dataclass
+@pytree.dataclass
 class EpisodeState:
     """The env state of envs whose physics are drawn anew at every reset: CartPole's state,
     each drawn field's value in the current episode, and the range it is drawn from (all

@@ -32,9 +32,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
-from flax import struct
 
-from jaxcart.core import envs, networks, physics
+from jaxcart.core import envs, networks, physics, pytree
 from jaxcart.core.config import (
     TRACED_FIELDS,
     PPOConfig,
@@ -60,7 +59,7 @@ from jaxcart.core.tricks import (
 Array = jax.Array
 
 
-@struct.dataclass
+@pytree.dataclass
 class RunnerState:
     """Everything one run carries from iteration to iteration (``episodes`` and ``diverged_at``
     are bookkeeping: :mod:`jaxcart.core.metrics` and the engine's divergence guard)."""

@@ -8,7 +8,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
+DEFAULT_ENV = "CartPole-v1"
+
+GYMNAX_ENVS: dict[str, float] = {
+    "Acrobot-v1": -100.0,
+    "MountainCar-v0": -110.0,
+}
+"""gymnax envs the trainer takes, each with Gymnasium's ``reward_threshold`` for its id (the
+mean greedy return that counts as solved): the discrete-action, flat-observation envs of
+gymnax that Gymnasium also registers, so that a policy is judged in Gymnasium's own env.
+(Here, not in :mod:`jaxcart.core.envs`, so that reading them imports no JAX.)"""
 
 NUM_EVAL_EPISODES = 20
 

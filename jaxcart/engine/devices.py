@@ -53,7 +53,7 @@ def check_device_count_flag(flags: str) -> None:
     Raises:
         ConfigError: the flag's value, and what it must be.
     """
-    from jaxcart.core.config import ConfigError
+    from jaxcart.core.errors import ConfigError
 
     for token in flags.split():
         if token.startswith(DEVICE_COUNT_FLAG):
@@ -85,7 +85,7 @@ def enable_compilation_cache() -> None:
     """
     import jax
 
-    from jaxcart.core.config import ConfigError
+    from jaxcart.core.errors import ConfigError
 
     path = compilation_cache_dir()
     try:

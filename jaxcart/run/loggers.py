@@ -23,7 +23,8 @@ Backends (each imported lazily, in its own thread):
   ``run-<time>-<id>/`` per experiment, named after the run directory. SwanLab allows one
   active experiment per process, so the R runs share one experiment: with R > 1 each run's
   metrics go under ``<run_name>/<metric>`` and the mean over runs (of those that have a value)
-  under the plain SB3 names; ``time/*`` is the same for every run and logged once. With R = 1
+  under the plain SB3 names, for runs logged apart (SB3's seeds) once every run has logged
+  that step; ``time/*`` is the same for every run and logged once. With R = 1
   only the plain names are logged. Mode ``offline`` by default: records for ``swanlab sync``
   (uploads; needs an account or a self-hosted server). With ``pip install
   'swanlab[dashboard]'`` the mode is ``local`` instead, which also fills the database that
@@ -95,12 +96,14 @@ class MetricBatch:
         first_iteration: iterations completed before the chunk (the first row is iteration
             ``first_iteration + 1``, counted from 1 as SB3's ``time/iterations`` is).
         env_steps: ``[n]`` env steps of each run after each iteration (the step axis).
-        metrics: name -> ``[n, R]`` float64, one column per run.
+        metrics: name -> ``[n, len(runs)]`` float64, one column per run in ``runs``.
+        runs: the runs the columns belong to (every run, or one trained apart: an SB3 seed).
     """
 
     first_iteration: int
     env_steps: np.ndarray
     metrics: dict[str, np.ndarray]
+    runs: tuple[int, ...]
 
     @property
     def iterations(self) -> np.ndarray:
@@ -173,11 +176,12 @@ class TensorBoardBackend:
 
         names = sorted(batch.metrics)
         iterations = batch.iterations
-        for r, writer in enumerate(self.writers):
+        for c, r in enumerate(batch.runs):
+            writer = self.writers[r]
             for i, step in enumerate(batch.env_steps):
                 values = [Summary.Value(tag="time/iterations", simple_value=float(iterations[i]))]
                 for name in names:
-                    value = batch.metrics[name][i, r]
+                    value = batch.metrics[name][i, c]
                     if not np.isnan(value):
                         values.append(Summary.Value(tag=name, simple_value=float(value)))
                 writer.add_summary(Summary(value=values), global_step=int(step))
@@ -224,6 +228,7 @@ class SwanLabBackend:
         self.run_names = run_names
         self.config = config
         self.run: Any = None
+        self.pending: dict[int, dict[int, dict[str, float]]] = {}  # step -> run -> name -> value
 
     def open(self) -> None:
         self.log_dir.mkdir(parents=True, exist_ok=True)
@@ -257,17 +262,33 @@ class SwanLabBackend:
         iterations = batch.iterations
         for i, step in enumerate(batch.env_steps):
             data: dict[str, float] = {"time/iterations": int(iterations[i])}
-            for name, values in batch.metrics.items():
-                row = values[i]
+            for name, row in (self._every_run(batch, i) or {}).items():
                 present = row[~np.isnan(row)]
                 if present.size:
                     data[name] = float(present.mean())
+            for name, values in batch.metrics.items():
                 if single or name.startswith("time/"):
                     continue
-                for run, value in zip(self.run_names, row):
+                for r, value in zip(batch.runs, values[i]):
                     if not np.isnan(value):
-                        data[f"{run}/{name}"] = float(value)
+                        data[f"{self.run_names[r]}/{name}"] = float(value)
             self.run.log(data, step=int(step))
+
+    def _every_run(self, batch: MetricBatch, i: int) -> dict[str, np.ndarray] | None:
+        """name -> ``[R]``: row ``i``'s values of every run, once every run has logged its
+        step (a batch of one run, an SB3 seed, waits for the others: SwanLab keeps the first
+        value logged at a step, so the mean is logged once); None while some have not."""
+        if len(batch.runs) == len(self.run_names):
+            return {name: values[i] for name, values in batch.metrics.items()}
+        step = int(batch.env_steps[i])
+        seen = self.pending.setdefault(step, {})
+        for c, r in enumerate(batch.runs):
+            seen[r] = {name: values[i, c] for name, values in batch.metrics.items()}
+        if len(seen) < len(self.run_names):
+            return None
+        del self.pending[step]
+        every = range(len(self.run_names))
+        return {n: np.array([seen[r].get(n, np.nan) for r in every]) for n in batch.metrics}
 
     def close(self) -> None:
         if self.run is not None:
@@ -334,12 +355,13 @@ class WandbBackend:
 
     def write(self, batch: MetricBatch) -> None:
         iterations = batch.iterations
-        for r, run in enumerate(self.runs):
+        for c, r in enumerate(batch.runs):
+            run = self.runs[r]
             for i, step in enumerate(batch.env_steps):
                 data: dict[str, float] = {"time/iterations": int(iterations[i])}
                 for name, values in batch.metrics.items():
-                    if not np.isnan(values[i, r]):
-                        data[name] = float(values[i, r])
+                    if not np.isnan(values[i, c]):
+                        data[name] = float(values[i, c])
                 run.log(data, step=int(step))
 
     def close(self) -> None:
@@ -426,39 +448,49 @@ class Logger:
         return {w.backend.name: w.error for w in self._workers if w.error is not None}
 
     def log(
-        self, first_iteration: int, env_steps: np.ndarray, metrics: dict[str, np.ndarray]
+        self,
+        first_iteration: int,
+        env_steps: np.ndarray,
+        metrics: dict[str, np.ndarray],
+        run: int | None = None,
     ) -> None:
         """Queues one chunk's metrics and returns at once (the arrays are copied).
 
         Args:
             first_iteration: iterations completed before this chunk.
             env_steps: ``[n]`` env steps of each run after each of the chunk's iterations.
-            metrics: name -> ``[n, R]`` (or ``[n]``, the same for every run).
+            metrics: name -> ``[n, R]`` (or ``[n]``, the same for every run); with ``run``,
+                ``[n, 1]`` or ``[n]``.
+            run: the metrics are of this run alone (runs trained apart, as SB3's seeds); the
+                other runs log nothing at these steps.
 
         Raises:
-            ValueError: a leaf's shape does not match ``[n, R]``.
+            ValueError: a leaf's shape does not match ``[n, R]``, or ``run`` is not a run.
             RuntimeError: the logger is closed.
         """
         if self._closed:
             raise RuntimeError("Logger.log() called after close()")
+        if run is not None and run not in range(self.num_runs):
+            raise ValueError(f"run {run} is not one of the {self.num_runs} runs")
         if not self._workers:
             return
+        runs = tuple(range(self.num_runs)) if run is None else (run,)
         steps = np.array(env_steps, dtype=np.int64).reshape(-1)
         n = len(steps)
         copied = {}
         for name, value in metrics.items():
             array = np.array(value, dtype=np.float64)
             if array.ndim == 1:
-                array = np.repeat(array[:, None], self.num_runs, axis=1)
-            if array.shape != (n, self.num_runs):
+                array = np.repeat(array[:, None], len(runs), axis=1)
+            if array.shape != (n, len(runs)):
                 raise ValueError(
-                    f"metric {name!r} has shape {array.shape}; expected ({n}, {self.num_runs}) "
+                    f"metric {name!r} has shape {array.shape}; expected ({n}, {len(runs)}) "
                     f"= (len(env_steps), number of runs)"
                 )
             copied[SB3_NAMES.get(name, name)] = array
         if n == 0:
             return
-        batch = MetricBatch(int(first_iteration), steps, copied)
+        batch = MetricBatch(int(first_iteration), steps, copied, runs)
         for worker in self._workers:
             worker.queue.put(batch)
 

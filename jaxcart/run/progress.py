@@ -7,6 +7,7 @@ terminal. ``run_new(..., progress=True)`` uses :class:`ProgressBar`; the command
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from typing import IO, TYPE_CHECKING, Any
 
@@ -59,17 +60,9 @@ class ProgressBar:
     def on_compiled(self, seconds: float) -> None:
         if self.bar is not None or not self.progress_bar or self.total:
             return  # a later wave (its program is cached): the bar goes on
-        from tqdm.auto import tqdm
-
         self.total = self.run.config.num_iterations * self.run.plan.num_waves
-        self.bar = tqdm(
-            total=self.total,
-            initial=self.wave_offset + (self.run.resumed_from or 0),
-            unit="it",
-            desc="training",
-            dynamic_ncols=True,
-            file=self.file or sys.stderr,
-        )
+        initial = self.wave_offset + (self.run.resumed_from or 0)
+        self.bar = new_bar(self.total, "training", "it", self.file, initial)
 
     def on_chunk(self, progress: Progress) -> None:
         if self.bar is None:
@@ -103,6 +96,58 @@ class ProgressBar:
         if self.bar is not None:
             self.bar.close()
         self.bar = None
+
+
+class SeedBars:
+    """One bar per seed trained on its own (``python -m jaxcart.sb3``): env steps, their rate,
+    the time left and the seed's latest ``rollout/ep_rew_mean``; seeds training at once get a
+    bar each, one under the other.
+
+    Args:
+        total: env steps each seed trains.
+        file, enabled: as for :class:`ProgressBar`.
+    """
+
+    def __init__(self, total: int, file: IO[str] | None = None, enabled: bool = True) -> None:
+        self.total, self.file, self.enabled = total, file, enabled
+        self.bars: dict[int, Any] = {}
+
+    def update(self, seed: int, env_steps: int, ep_rew_mean: float = float("nan")) -> None:
+        """Seed ``seed`` has trained ``env_steps`` steps (its bar starts at the first call)."""
+        if not self.enabled:
+            return
+        if seed not in self.bars:
+            self.bars[seed] = new_bar(self.total, f"seed {seed}", "step", self.file)
+        bar = self.bars[seed]
+        if ep_rew_mean == ep_rew_mean:  # not NaN: an episode has ended
+            bar.set_postfix_str(f"ep_rew_mean {ep_rew_mean:.1f}", refresh=False)
+        bar.update(env_steps - bar.n)
+
+    def close(self, seed: int | None = None) -> None:
+        """Closes seed ``seed``'s bar (None: every bar)."""
+        for s in [seed] if seed is not None else list(self.bars):
+            if (bar := self.bars.pop(s, None)) is not None:
+                bar.close()
+
+    def outside(self) -> contextlib.AbstractContextManager:
+        """A context in which to print: the bars step aside and are drawn again after."""
+        if not self.bars:
+            return contextlib.nullcontext()
+        return next(iter(self.bars.values())).external_write_mode(file=sys.stdout)
+
+
+def new_bar(total: int, desc: str, unit: str, file: IO[str] | None = None, initial: int = 0):
+    """A ``tqdm.auto`` bar of ``total`` ``unit`` on ``file`` (default stderr)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(
+        total=total,
+        initial=initial,
+        unit=unit,
+        desc=desc,
+        dynamic_ncols=True,
+        file=file or sys.stderr,
+    )
 
 
 def _both(first, second):

@@ -12,21 +12,24 @@ defaults (PyTorch, on the CPU). What it leaves becomes a run directory that ``pl
   ``model.predict(obs, deterministic=True)``, reset seeds as jaxcart's evaluation;
 - ``config.json``: the ``sb3`` preset's config (SB3's defaults), ``framework`` naming SB3.
 
+While SB3 trains, each rollout reaches the loggers and the seed's progress bar as SB3 logs it
+(:class:`LiveSeeds`).
+
 SB3 and PyTorch are optional (:data:`INSTALL_HINT`); only :func:`train_seed` imports them.
 """
 
 from __future__ import annotations
 
-import csv
 import importlib.util
 import multiprocessing
 import shutil
 import signal
-import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +37,8 @@ from jaxcart.core import networks
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.engine.loop import METRIC_COLUMNS
-from jaxcart.run.loggers import make_logger, sb3_extras
+from jaxcart.run.loggers import Logger, make_logger, sb3_extras
+from jaxcart.run.progress import SeedBars
 from jaxcart.rundir import files, layout, manifest, outputs
 from jaxcart.rundir.directory import package_versions
 from jaxcart.rundir.files import RunDirError
@@ -155,23 +159,46 @@ def greedy_returns(act: Callable[[np.ndarray], int], episodes: int) -> np.ndarra
     return np.array(returns)
 
 
-def train_seed(seed: int, total_timesteps: int, threads: int = 1) -> SeedResult:
+def train_seed(
+    seed: int,
+    total_timesteps: int,
+    threads: int = 1,
+    on_row: Callable[[dict], None] | None = None,
+) -> SeedResult:
     """``PPO("MlpPolicy", "CartPole-v1", seed=seed).learn(total_timesteps)`` on the CPU,
-    then its greedy evaluation (runs in a worker process when seeds train in parallel)."""
+    then its greedy evaluation (runs in a worker process when seeds train in parallel).
+
+    ``on_row(row)`` sees SB3's log as it is written: ``{}`` when training starts, then each
+    row of SB3's ``progress.csv`` (name -> text, as its CSV writer writes it): one per
+    rollout, then the final dump (see :func:`to_metrics`).
+    """
     import torch
     from stable_baselines3 import PPO
-    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.logger import KVWriter, Logger, filter_excluded_keys
+
+    rows: list[dict] = []
+
+    class Rows(KVWriter):
+        """SB3's CSV rows, kept in memory and passed on at once."""
+
+        def write(self, key_values: dict, key_excluded: dict, step: int = 0) -> None:
+            values = filter_excluded_keys(key_values, key_excluded, "csv")
+            rows.append({k: str(v) for k, v in values.items() if v is not None})
+            if on_row is not None:
+                on_row(rows[-1])
+
+        def close(self) -> None:
+            pass
 
     torch.set_num_threads(threads)  # 1 is fastest for this tiny MLP
-    with tempfile.TemporaryDirectory() as tmp:
-        model = PPO("MlpPolicy", "CartPole-v1", seed=seed, device="cpu")
-        model.set_logger(configure(tmp, ["csv"]))
-        start = time.perf_counter()
-        model.learn(total_timesteps)
-        seconds = time.perf_counter() - start
-        model.logger.dump(model.num_timesteps)  # the last update's train/* values
-        with open(Path(tmp) / "progress.csv", newline="") as f:
-            rows = list(csv.DictReader(f))
+    if on_row is not None:
+        on_row({})
+    model = PPO("MlpPolicy", "CartPole-v1", seed=seed, device="cpu")
+    model.set_logger(Logger(None, [Rows()]))
+    start = time.perf_counter()
+    model.learn(total_timesteps)
+    seconds = time.perf_counter() - start
+    model.logger.dump(model.num_timesteps)  # the last update's train/* values
     weights = {k: v.detach().cpu().numpy() for k, v in model.policy.state_dict().items()}
     returns = greedy_returns(
         lambda obs: int(model.predict(obs, deterministic=True)[0]), NUM_EVAL_EPISODES
@@ -228,30 +255,6 @@ def write_run(
         directory.close()
 
 
-def log_run(
-    out: Path,
-    config: PPOConfig,
-    results: list[SeedResult],
-    first_seed: int,
-    loggers: tuple[str, ...],
-    logger_dir: Path | None,
-) -> None:
-    """Logs the seeds' curves to ``loggers`` (one run per seed, ``seed<index>``)."""
-    if not loggers:
-        return
-    iterations = min(len(r.metrics["time/fps"]) for r in results)
-    metrics = {
-        k: np.stack([r.metrics[k][:iterations] for r in results], axis=1) for k in METRIC_COLUMNS
-    }
-    clip = np.full(len(results), float(config.clip_coef))
-    metrics |= sb3_extras(0, iterations, config.update_epochs, clip)
-    names = [f"seed{s}" for s in range(len(results))]  # seed indices, as jaxcart names runs
-    info = {"framework": FRAMEWORK, "preset": "sb3", "config": config.to_dict()}
-    steps = (1 + np.arange(iterations)) * config.batch_size
-    with make_logger(loggers, out, names, info, logger_dir) as logger:
-        logger.log(0, steps, metrics)
-
-
 def _stack(trees: list[dict]) -> dict:
     """Nested dicts of arrays -> the same dict with arrays stacked on a new leading axis."""
     if isinstance(trees[0], dict):
@@ -259,14 +262,21 @@ def _stack(trees: list[dict]) -> dict:
     return np.stack(trees)
 
 
-def _ignore_sigint() -> None:
-    """Worker processes leave Ctrl-C to the parent, which saves what finished and stops them."""
+_ROWS: Any = None
+"""In a worker process: the queue that takes ``(seed, row)`` to the parent."""
+
+
+def _start_worker(rows: Any) -> None:
+    """Worker processes leave Ctrl-C to the parent, which saves what finished and stops them,
+    and send SB3's rows to it as they are written."""
+    global _ROWS
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _ROWS = rows
 
 
 def _train_seed_job(job: tuple[int, int, int]) -> tuple[int, SeedResult]:
     seed, total_timesteps, threads = job
-    return seed, train_seed(seed, total_timesteps, threads)
+    return seed, train_seed(seed, total_timesteps, threads, lambda row: _ROWS.put((seed, row)))
 
 
 def save_seed(out: Path, seed: int, result: SeedResult, elapsed: float) -> None:
@@ -348,11 +358,12 @@ def train_run(
     on_start: Callable[[dict, int], None] | None = None,
     loggers: tuple[str, ...] = (),
     logger_dir: Path | None = None,
+    progress: bool = False,
 ) -> list[SeedResult]:
     """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3, ``jobs`` processes
     at once, and writes them as the run directory ``out`` (created; it must not exist). Each
     seed is kept as it finishes: an interrupted run continues with :func:`resume_run`, which
-    also describes ``on_start``.
+    also describes ``on_start``, the loggers and ``progress``.
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -363,7 +374,7 @@ def train_run(
     out.mkdir(parents=True, exist_ok=False)
     plan = {"first_seed": first_seed, "num_seeds": num_seeds, "total_timesteps": total_timesteps}
     files.write_json(out / layout.SB3_PLAN_FILE, plan)
-    return resume_run(out, jobs, threads, on_seed, on_start, loggers, logger_dir)
+    return resume_run(out, jobs, threads, on_seed, on_start, loggers, logger_dir, progress)
 
 
 def resume_run(
@@ -374,12 +385,15 @@ def resume_run(
     on_start: Callable[[dict, int], None] | None = None,
     loggers: tuple[str, ...] = (),
     logger_dir: Path | None = None,
+    progress: bool = False,
 ) -> list[SeedResult]:
     """Trains the seeds of an unfinished SB3 run ``out`` that it has not kept yet, then writes
     the run directory (and removes the plan and kept seeds). ``on_start(plan, kept)`` is
     called before training. ``loggers`` and ``logger_dir`` as for
-    :func:`jaxcart.run.loggers.make_logger`: every seed's curves are logged once all are
-    trained (SB3 trains in other processes), under the names SB3 itself logs.
+    :func:`jaxcart.run.loggers.make_logger`: each seed's curve is logged as SB3 writes its log
+    (an iteration once its update is logged, one rollout later), under the names SB3 itself
+    logs; the kept seeds' curves when training starts. ``progress=True`` shows a bar per
+    seed (:class:`jaxcart.run.progress.SeedBars`); ``on_seed`` prints above the bars.
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -393,31 +407,94 @@ def resume_run(
     kept = {s: found for s in seeds if (found := load_seed(out, s, config)) is not None}
     if on_start is not None:
         on_start(plan, len(kept))
-    offset = max((elapsed for _, elapsed in kept.values()), default=0.0)
-    start = time.perf_counter()
-    jobs_left = [(s, plan["total_timesteps"], threads) for s in seeds if s not in kept]
-    for seed, result in _train(jobs_left, jobs):
+    names = [f"seed{i}" for i in range(len(seeds))]  # seed indices, as jaxcart names runs
+    info = {"framework": FRAMEWORK, "preset": "sb3", "config": config.to_dict()}
+    bars = SeedBars(config.num_iterations * config.batch_size, enabled=progress)
+    with make_logger(loggers, out, names, info, logger_dir) as logger:
+        live = LiveSeeds(logger, config, seeds.start, bars)
+        for seed, (result, _) in kept.items():
+            live.log(seed, 0, result.metrics)
+        offset = max((elapsed for _, elapsed in kept.values()), default=0.0)
+        start = time.perf_counter()
+        jobs_left = [(s, plan["total_timesteps"], threads) for s in seeds if s not in kept]
+        try:
+            for seed, result in _train(jobs_left, jobs, live):
+                elapsed = offset + time.perf_counter() - start
+                save_seed(out, seed, result, elapsed)
+                kept[seed] = (result, elapsed)
+                if on_seed is not None:
+                    with bars.outside():
+                        on_seed(seed, result)
+        finally:
+            bars.close()
+        results = [kept[s][0] for s in seeds]
         elapsed = offset + time.perf_counter() - start
-        save_seed(out, seed, result, elapsed)
-        kept[seed] = (result, elapsed)
-        if on_seed is not None:
-            on_seed(seed, result)
-    results = [kept[s][0] for s in seeds]
-    elapsed = offset + time.perf_counter() - start
-    write_run(out, config, results, plan["first_seed"], elapsed, jobs)
-    log_run(out, config, results, plan["first_seed"], loggers, logger_dir)
-    shutil.rmtree(files.subdir(out, layout.SB3_SEEDS_DIR), ignore_errors=True)
-    (out / layout.SB3_PLAN_FILE).unlink()
+        write_run(out, config, results, plan["first_seed"], elapsed, jobs)
+        shutil.rmtree(files.subdir(out, layout.SB3_SEEDS_DIR), ignore_errors=True)
+        (out / layout.SB3_PLAN_FILE).unlink()
     return results
 
 
-def _train(jobs_left: list[tuple[int, int, int]], jobs: int) -> Iterator[tuple[int, SeedResult]]:
+class LiveSeeds:
+    """SB3's rows, seed by seed, as they are written (``on_row`` of :func:`train_seed`): each
+    finished iteration to the logger (run ``seed - first_seed``), the env steps to the bars.
+
+    A rollout's row holds its ``rollout/*`` and ``time/*`` values; its update's ``train/*``
+    come in the next row (or the final dump), so iteration ``i`` is logged then.
+    """
+
+    def __init__(self, logger: Logger, config: PPOConfig, first_seed: int, bars: SeedBars):
+        self.logger, self.config, self.first_seed, self.bars = logger, config, first_seed, bars
+        self.rows: dict[int, list[dict]] = {}
+
+    def __call__(self, seed: int, row: dict) -> None:
+        if not row:  # the seed starts (again, after an interruption)
+            self.rows[seed] = []
+            self.bars.update(seed, 0)
+            return
+        rows = self.rows[seed]
+        rows.append(row)
+        if len(rows) > 1:  # rows[-2]'s iteration is complete
+            metrics = to_metrics(rows[-2:])  # rows[-1] may be a rollout too: its own iteration
+            self.log(seed, len(rows) - 2, {k: v[:1] for k, v in metrics.items()})
+        if row.get("time/total_timesteps"):
+            ep_rew_mean = float(row.get("rollout/ep_rew_mean", "nan"))
+            self.bars.update(seed, int(row["time/total_timesteps"]), ep_rew_mean)
+        else:  # the final dump: training is over
+            self.bars.close(seed)
+
+    def log(self, seed: int, first_iteration: int, metrics: dict[str, np.ndarray]) -> None:
+        """Logs seed ``seed``'s ``metrics`` (name -> ``[n]``, as :func:`to_metrics` makes
+        them) of iterations ``first_iteration + 1 ... first_iteration + n``, with SB3's
+        ``train/n_updates`` and ``train/clip_range``."""
+        n, c = len(metrics["time/fps"]), self.config
+        extras = sb3_extras(first_iteration, n, c.update_epochs, np.full(1, float(c.clip_coef)))
+        steps = (first_iteration + 1 + np.arange(n)) * c.batch_size
+        self.logger.log(first_iteration, steps, metrics | extras, run=seed - self.first_seed)
+
+
+def _train(
+    jobs_left: list[tuple[int, int, int]], jobs: int, on_row: Callable[[int, dict], None]
+) -> Iterator[tuple[int, SeedResult]]:
     """Each seed's result as it finishes: in this process for one job, else in ``jobs``
-    spawned processes (stopped at once when the caller stops, e.g. on Ctrl-C)."""
+    spawned processes (stopped at once when the caller stops, e.g. on Ctrl-C).
+    ``on_row(seed, row)`` as :func:`train_seed`'s, from a thread of this process for jobs > 1
+    (a seed's last rows may follow its result)."""
     if jobs == 1:
-        yield from map(_train_seed_job, jobs_left)
+        for seed, total, threads in jobs_left:
+            yield seed, train_seed(seed, total, threads, lambda row, s=seed: on_row(s, row))
         return
     # spawn: a forked child would inherit the parent's threads (JAX's) in an unknown state
     context = multiprocessing.get_context("spawn")
-    with context.Pool(min(jobs, max(len(jobs_left), 1)), initializer=_ignore_sigint) as pool:
-        yield from pool.imap_unordered(_train_seed_job, jobs_left)
+    rows = context.Queue()
+    drain = threading.Thread(target=lambda: [on_row(*e) for e in iter(rows.get, None)], daemon=True)
+    drain.start()
+    try:
+        processes = min(jobs, max(len(jobs_left), 1))
+        with context.Pool(processes, initializer=_start_worker, initargs=(rows,)) as pool:
+            yield from pool.imap_unordered(_train_seed_job, jobs_left)
+            pool.close()
+            pool.join()  # every row is in the queue before the stop mark
+    finally:
+        rows.put(None)
+        drain.join(timeout=10)  # a worker killed mid-row could leave it waiting
