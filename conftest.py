@@ -42,15 +42,13 @@ from sybil.parsers.markdown.lexers import RawFencedCodeBlockLexer
 
 import jaxcart
 
-# The test session's JAX compilation cache: one new temporary directory, set before JAX is
-# imported here or in any process the tests start (they inherit the environment), so a run of
-# the tests compiles as on a fresh clone, neither reads nor fills the user's own cache
-# (~/.cache/jaxcart), and a program that several tests or subprocesses build is compiled once.
-# A test that sets JAXCART_CACHE_DIR itself (tests/test_conventions.py) still can.
+# The compilation cache of the runs that use one (not --no-compile-cache): a new temporary
+# directory for the test session, inherited by the processes the tests start, so that the
+# tests compile as on a fresh clone and neither read nor fill the user's own cache
+# (~/.cache/jaxcart). A test that sets JAXCART_CACHE_DIR itself (tests/test_conventions.py)
+# still can.
 _SESSION_CACHE = tempfile.mkdtemp(prefix="jaxcart-test-cache-")
 os.environ["JAXCART_CACHE_DIR"] = _SESSION_CACHE
-os.environ["JAX_COMPILATION_CACHE_DIR"] = _SESSION_CACHE
-os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0.5"
 atexit.register(shutil.rmtree, _SESSION_CACHE, ignore_errors=True)
 
 # Two CPU devices for the Python blocks too, as tests/conftest.py sets for the tests (the flag
