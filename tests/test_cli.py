@@ -62,6 +62,7 @@ def test_run_directory_contents(small_run, capsys):
         assert seed["solved"] == all(r == 500 for r in seed["gymnasium_returns"])
 
 
+@pytest.mark.slow
 def test_output_reports_compile_table_and_throughput(tmp_path, capsys):
     code = main([*SMALL, "--out", str(tmp_path / "r")])
     out = capsys.readouterr().out
@@ -184,6 +185,7 @@ def test_help_lists_every_config_field_with_its_docstring():
 CLI_SMALL = [*tiny_args(12800, num_seeds=2), "--no-compile-cache"]
 
 
+@pytest.mark.slow
 def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
     """SIGTERM mid-run: a checkpoint and a resume hint; --resume finishes bit-identically."""
     reference = tmp_path / "ref"
@@ -413,6 +415,7 @@ def _run_printed(command: list[str]) -> int:
     return importlib.import_module(command[2]).main(command[3:])
 
 
+@pytest.mark.slow
 def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
     """Counts in scientific notation, the evaluation table's columns explained, the next
     steps (quoted paths) runnable as printed; resuming the finished run says how to extend
@@ -469,6 +472,7 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
     assert "anneals over N from here on" in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, capsys):
     """The sweep table's plain gym mean is the plot's "mean return" (the IQM beside it is
     another statistic, and the line under the table says so); the next steps run as printed."""

@@ -374,6 +374,7 @@ def test_second_sigint_stops_at_once_and_leaves_the_checkpoint_valid(tmp_path):
 SMALL_RUN = [*tiny_args(6400, num_seeds=2), "--seed", "5", "--no-compile-cache"]
 
 
+@pytest.mark.slow
 def test_a_failing_checkpoint_write_keeps_the_last_one_and_resume_finishes(
     tmp_path, monkeypatch, capsys
 ):
@@ -558,7 +559,7 @@ CRAFTED = [
     ),
     (lambda r: (r / "params.npz").write_bytes((r / "params.npz").read_bytes()[:5000]), "corrupted"),
     (_huge_declared_entry, "params.npz"),
-    (_zip_bomb_entry, "params.npz"),
+    pytest.param(_zip_bomb_entry, "params.npz", marks=pytest.mark.slow),  # 2 GiB through deflate
     (_pickled_params, "params.npz"),
     (_symlink_out, "symbolic link"),
     (lambda r: (r / "config.json").write_text("[1, 2, 3]"), "not a JSON object"),

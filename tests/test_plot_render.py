@@ -99,6 +99,7 @@ def test_plot_one_run_default_path(tiny_run, capsys, no_warnings):
     assert_nontrivial_png(out, min_size=(1000, 700))
 
 
+@pytest.mark.slow
 def test_plot_overlay_and_single_seed(
     tiny_run, single_seed_run, tmp_path, monkeypatch, capsys, no_warnings
 ):
@@ -226,6 +227,7 @@ def test_axes_fit_the_curves_and_bands_run_past_them():
     assert panel(fig, "episode return vs env steps").get_ylim() == (0, 520)
 
 
+@pytest.mark.slow
 def test_notes_legend_and_ticks_stay_readable(tmp_path, no_warnings):
     note = "from the checkpoint at iteration 245/977: the run did not finish"
     runs = [synthetic_run("stopped-" + "x" * 80, note=note, iterations=245)]
@@ -270,6 +272,7 @@ def box_inside(label, axes_box) -> bool:
     return axes_box.x0 - 1 <= centre <= axes_box.x1 + 1
 
 
+@pytest.mark.slow
 def test_a_comparison_never_overwrites_an_earlier_one(
     tiny_run, single_seed_run, tmp_path, monkeypatch, capsys
 ):

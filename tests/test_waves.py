@@ -28,6 +28,7 @@ def memory_for(config: PPOConfig, runs: int, episodes: int = 2) -> int:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, runs", [("fast", 2), ("sb3", 2), ("purejaxrl", 4)])
 def test_estimate_is_above_xlas_own_memory_analysis(name, runs):
     """Measured once, checked always: the estimate per run covers the compiled program's
@@ -108,6 +109,7 @@ def test_a_waved_run_stopped_mid_wave_resumes_in_process(num_seeds, wave_size, t
     assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
 
 
+@pytest.mark.slow
 def test_evaluation_json_bound_scales_with_the_declared_seeds(tmp_path):
     """A 100,000-seed evaluation.json (~24 MB, over the 16 MiB bound of other JSON) reads;
     one larger than its config.json declares is refused."""
