@@ -80,6 +80,11 @@ def stopped_run(spec, out: Path, options, chunks: int = 2):
     return run, result
 
 
+WAIT_S = 600.0
+"""How long a test waits for a training subprocess to reach a point (a checkpoint written,
+say) before it fails: generous, since a load of 10 on two cores stretches seconds to minutes."""
+
+
 TRAIN_ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
 """Environment of a training subprocess: two CPU devices, as in-process tests have."""
 

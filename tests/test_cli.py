@@ -11,7 +11,7 @@ import time
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import assert_same_run_dirs, seal, start_train, tiny_args
+from helpers import WAIT_S, assert_same_run_dirs, seal, start_train, tiny_args
 
 import jaxcart
 from jaxcart.core.metrics import METRIC_NAMES
@@ -193,8 +193,9 @@ def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
 
     out = tmp_path / "interrupted"
     proc = start_train(*CLI_SMALL, "--out", str(out), "--checkpoint-every", "0.05")
-    deadline = time.monotonic() + 120
-    while not (out / "checkpoint.npz").exists() and time.monotonic() < deadline:
+    deadline = time.monotonic() + WAIT_S
+    while not (out / "checkpoint.npz").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline, f"no checkpoint in {WAIT_S:.0f} s"
         time.sleep(0.02)
     proc.send_signal(signal.SIGTERM)
     text, _ = proc.communicate(timeout=120)

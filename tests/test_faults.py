@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import FAULT_FIGURES
-from helpers import TRAIN_ENV, assert_same_run_dirs, seal, start_train, tiny_args
+from helpers import TRAIN_ENV, WAIT_S, assert_same_run_dirs, seal, start_train, tiny_args
 
 from jaxcart.rundir import layout
 from jaxcart.rundir.checkpoint import read_checkpoint_meta
@@ -86,13 +86,13 @@ def test_sigkill_at_random_moments_loses_nothing(tmp_path):
 def test_sigint_checkpoints_and_prints_resume_command(tmp_path):
     out = tmp_path / "ctrl-c"
     proc = start_train(*RUN, "--out", str(out))
-    deadline = time.monotonic() + 60
-    text = ""
-    while time.monotonic() < deadline:
+    deadline = time.monotonic() + WAIT_S
+    while proc.poll() is None:
         if (out / layout.CHECKPOINT_FILE).exists() and read_checkpoint_meta(
             out / layout.CHECKPOINT_FILE
         )["iteration"] > 0:
             break
+        assert time.monotonic() < deadline, f"no checkpoint past iteration 0 in {WAIT_S:.0f} s"
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     text, _ = proc.communicate(timeout=120)
@@ -262,7 +262,7 @@ def test_other_bad_paths(finished_run, tmp_path):
 # --- one process per run directory ------------------------------------------------------
 
 
-def _wait_for(predicate, timeout: float = 120.0) -> None:
+def _wait_for(predicate, timeout: float = WAIT_S) -> None:
     deadline = time.monotonic() + timeout
     while not predicate():
         if time.monotonic() > deadline:
@@ -720,9 +720,9 @@ def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path, monkeypatch
     out, rng, kills = tmp_path / "soaked", random.Random(64), 0
     proc = start_train(*soak, "--out", str(out))
     for _ in range(60):
-        before, deadline = _checkpoint_iteration(out), time.monotonic() + 120
+        before, deadline = _checkpoint_iteration(out), time.monotonic() + WAIT_S
         while proc.poll() is None and _checkpoint_iteration(out) <= before:
-            assert time.monotonic() < deadline, "no checkpoint progress in 120 s"
+            assert time.monotonic() < deadline, f"no checkpoint progress in {WAIT_S:.0f} s"
             time.sleep(0.05)
         try:
             proc.wait(timeout=rng.uniform(0.02, 0.5) if kills < 5 else rng.uniform(0.1, 1.0))

@@ -12,7 +12,7 @@ import time
 import jax
 import numpy as np
 import pytest
-from helpers import TINY, TRAIN_ENV, assert_same_run_dirs, tiny_args
+from helpers import TINY, TRAIN_ENV, WAIT_S, assert_same_run_dirs, tiny_args
 
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig, preset
@@ -205,8 +205,9 @@ def test_a_waved_run_stopped_mid_wave_resumes_bit_identically(waved_run, tmp_pat
         text=True,
     )
 
-    deadline = time.monotonic() + 120
-    while not (out / "waves" / "wave-00000.npz").exists() and time.monotonic() < deadline:
+    deadline = time.monotonic() + WAIT_S
+    while not (out / "waves" / "wave-00000.npz").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline, f"no first wave in {WAIT_S:.0f} s"
         time.sleep(0.01)
     proc.send_signal(signal.SIGINT)
     text, _ = proc.communicate(timeout=120)
