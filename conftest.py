@@ -11,6 +11,10 @@
 - ``text`` blocks (sample output, trees) are not code. A fence with another language, or
   none, fails, so that no block is silently left untested.
 
+Every code block is in the slow tier (``pytest.mark.slow``): ``python -m pytest -q`` leaves
+them out, ``python -m pytest -q -m slow`` (in ``.ci/run``) runs them, all of them in document
+order, since a block reads what an earlier one, in this document or another, wrote.
+
 Every document's blocks run in one shared temporary directory, as a reader who follows
 README.md, the course and the guides in one folder would: ``runs/...`` written by one block is
 read by the next, and two pages that reuse a run name collide here (``--out ... is not
@@ -31,11 +35,21 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
+import pytest
 from sybil import Document, Example, Region, Sybil
 from sybil.parsers.markdown import PythonCodeBlockParser, SkipParser
 from sybil.parsers.markdown.lexers import RawFencedCodeBlockLexer
 
 import jaxcart
+
+# The compilation cache of the runs that use one (not --no-compile-cache): a new temporary
+# directory for the test session, inherited by the processes the tests start, so that the
+# tests compile as on a fresh clone and neither read nor fill the user's own cache
+# (~/.cache/jaxcart). A test that sets JAXCART_CACHE_DIR itself (tests/test_conventions.py)
+# still can.
+_SESSION_CACHE = tempfile.mkdtemp(prefix="jaxcart-test-cache-")
+os.environ["JAXCART_CACHE_DIR"] = _SESSION_CACHE
+atexit.register(shutil.rmtree, _SESSION_CACHE, ignore_errors=True)
 
 # Two CPU devices for the Python blocks too, as tests/conftest.py sets for the tests (the flag
 # must be in place before JAX starts; a later call is then a no-op).
@@ -177,3 +191,14 @@ pytest_collect_file = Sybil(
     setup=enter_workdir,
     teardown=leave_workdir,
 ).pytest()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """The documents' code blocks join the slow tier (before ``-m`` selects): see the module's
+    docstring."""
+    from sybil.integration.pytest import SybilItem
+
+    for item in items:
+        if isinstance(item, SybilItem):
+            item.add_marker(pytest.mark.slow)

@@ -81,6 +81,11 @@ def stopped_run(spec, out: Path, options, chunks: int = 2):
     return run, result
 
 
+WAIT_S = 600.0
+"""How long a test waits for a training subprocess to reach a point (a checkpoint written,
+say) before it fails: generous, since a load of 10 on two cores stretches seconds to minutes."""
+
+
 TRAIN_ENV = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
 """Environment of a training subprocess: two CPU devices, as in-process tests have."""
 
@@ -153,6 +158,15 @@ def read_tensorboard(folder: Path) -> dict[str, list[tuple[int, float]]]:
                 if value.HasField("simple_value"):
                     scalars.setdefault(value.tag, []).append((event.step, value.simple_value))
     return scalars
+
+
+def distinct_colours(rgb) -> int:
+    """How many colours an RGB image (an ``(H, W, 3)`` array of 0-255 values) holds: each
+    pixel read as one 24-bit integer and counted (a fraction of a second where ``np.unique``
+    over rows took seconds)."""
+    c = np.asarray(rgb).astype(np.uint32)
+    packed = (c[..., 0] << 16) | (c[..., 1] << 8) | c[..., 2]
+    return int(np.count_nonzero(np.bincount(packed.ravel(), minlength=1 << 24)))
 
 
 def seal(run_dir: Path) -> None:

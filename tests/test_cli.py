@@ -11,7 +11,7 @@ import time
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import assert_same_run_dirs, seal, start_train, tiny_args
+from helpers import WAIT_S, assert_same_run_dirs, seal, start_train, tiny_args
 
 import jaxcart
 from jaxcart.core.metrics import METRIC_NAMES
@@ -62,6 +62,7 @@ def test_run_directory_contents(small_run, capsys):
         assert seed["solved"] == all(r == 500 for r in seed["gymnasium_returns"])
 
 
+@pytest.mark.slow
 def test_output_reports_compile_table_and_throughput(tmp_path, capsys):
     code = main([*SMALL, "--out", str(tmp_path / "r")])
     out = capsys.readouterr().out
@@ -185,6 +186,7 @@ def test_help_lists_every_config_field_with_its_docstring():
 CLI_SMALL = [*tiny_args(12800, num_seeds=2), "--no-compile-cache"]
 
 
+@pytest.mark.slow
 def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
     """SIGTERM mid-run: a checkpoint and a resume hint; --resume finishes bit-identically."""
     reference = tmp_path / "ref"
@@ -192,8 +194,9 @@ def test_cli_sigterm_then_resume_matches_uninterrupted(tmp_path):
 
     out = tmp_path / "interrupted"
     proc = start_train(*CLI_SMALL, "--out", str(out), "--checkpoint-every", "0.05")
-    deadline = time.monotonic() + 120
-    while not (out / "checkpoint.npz").exists() and time.monotonic() < deadline:
+    deadline = time.monotonic() + WAIT_S
+    while not (out / "checkpoint.npz").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline, f"no checkpoint in {WAIT_S:.0f} s"
         time.sleep(0.02)
     proc.send_signal(signal.SIGTERM)
     text, _ = proc.communicate(timeout=120)
@@ -414,6 +417,7 @@ def _run_printed(command: list[str]) -> int:
     return importlib.import_module(command[2]).main(command[3:])
 
 
+@pytest.mark.slow
 def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
     """Counts in scientific notation, the evaluation table's columns explained, the next
     steps (quoted paths) runnable as printed; resuming the finished run says how to extend
@@ -470,6 +474,7 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
     assert "anneals over N from here on" in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, capsys):
     """The sweep table's plain gym mean is the plot's "mean return" (the IQM beside it is
     another statistic, and the line under the table says so); the next steps run as printed."""

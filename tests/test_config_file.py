@@ -134,6 +134,7 @@ def test_missing_file_is_one_line(tmp_path, capsys):
     assert capsys.readouterr().err.count("\n") == 1
 
 
+@pytest.mark.slow
 def test_a_runs_config_json_trains_the_same_run_again(tmp_path: Path, capsys):
     first, again = tmp_path / "first", tmp_path / "again"
     argv = [*tiny_args(2048, num_seeds=2), "--learning-rate", "2e-3", "--seed", "7"]

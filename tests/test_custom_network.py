@@ -65,6 +65,7 @@ def test_a_network_is_recorded_by_class_and_changed_fields():
         PPOConfig(network="mlp")
 
 
+@pytest.mark.slow
 def test_a_custom_network_trains_and_a_fresh_process_rebuilds_it(tmp_path):
     out = tmp_path / "gelu"
     config = dataclasses.replace(TINY, network=GeluLayerNorm(width=32))
@@ -111,6 +112,7 @@ def test_a_custom_network_trains_and_a_fresh_process_rebuilds_it(tmp_path):
     assert "corrupted" not in line
 
 
+@pytest.mark.slow
 def test_two_networks_in_one_process_get_their_own_programs():
     """Training one network, then another of the same config shapes, compiles the second's
     own program: its results equal those of training it first in a clean process state."""
@@ -139,6 +141,7 @@ def test_the_policy_of_a_custom_network_is_its_logits_argmax():
     assert policy(OBS[0]) in (0, 1)
 
 
+@pytest.mark.slow
 def test_a_stopped_run_of_a_custom_network_resumes_bit_identically(tmp_path):
     """Resume rebuilds the network from config.json and finishes as an uninterrupted run."""
     from helpers import stopped_run

@@ -11,7 +11,7 @@ import threading
 import time
 
 import pytest
-from helpers import assert_same_run_dirs, tiny_args
+from helpers import WAIT_S, assert_same_run_dirs, tiny_args
 
 from jaxcart.engine.distributed import launch_local
 
@@ -86,7 +86,7 @@ def test_launch_local_forwards_sigterm_to_its_processes(tmp_path):
     returned = threading.Event()
 
     def signal_when_training_started() -> None:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + WAIT_S
         while not (out / "checkpoint.npz").exists() and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(1.0)

@@ -53,6 +53,19 @@ def test_ci_runs_the_readme_test_command():
     assert TEST_COMMAND in ci, ".ci/run must run exactly the README's test command"
 
 
+def test_the_test_command_leaves_the_slow_tier_to_ci():
+    """``python -m pytest`` deselects the slow tier (pyproject.toml's addopts); .ci/run runs it
+    after the README's command."""
+    import tomllib
+
+    pyproject = tomllib.loads((REPO / "pyproject.toml").read_text())
+    assert "-m 'not slow'" in pyproject["tool"]["pytest"]["ini_options"]["addopts"]
+    ci = (REPO / ".ci" / "run").read_text().splitlines()
+    readme_at = ci.index(TEST_COMMAND)
+    slow_at = next(i for i, line in enumerate(ci) if "python -m pytest -q -m slow" in line)
+    assert slow_at > readme_at, ".ci/run must run the slow tier after the README's command"
+
+
 @pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(REPO)))
 def test_relative_links_resolve(doc: Path):
     text = re.sub(r"```.*?```", "", doc.read_text(), flags=re.DOTALL)

@@ -7,10 +7,26 @@ The fingerprints hash the files as written (every ``metrics.csv`` column but the
 ``evaluation.json``), so they read the run directory with nothing but ``csv``, ``json`` and
 NumPy: no jaxcart reader stands between the files and the check.
 
-The golden file was written by the code before the layered renovation (commit 5621831) with
-``python -m tests.test_golden_runs --write OUTROOT`` after running :data:`COMMANDS` into
-``OUTROOT/NAME``. XLA's CPU code generation can differ between CPU models, so on another kind of
-machine the fingerprints may legitimately differ: regenerate them from a commit known to be good.
+Why the runs are pinned to AVX: left to itself, XLA:CPU compiles for the host's newest
+instruction set (AVX-512 on the Xeon these were recorded on, AVX2 on an AMD EPYC), and oneDNN,
+which computes XLA's matrix products, picks its kernels by the host's instruction set at run
+time; other instructions round floats otherwise, so a new user's EPYC failed all four runs. So
+each run is a fresh ``python -m jaxcart.train`` process (:data:`PINNED`) whose environment caps
+both at AVX, the instruction set jaxlib itself requires of an x86-64 CPU:
+``--xla_cpu_max_isa=AVX`` in ``XLA_FLAGS`` and ``ONEDNN_MAX_CPU_ISA=AVX``. Capping XLA alone is
+not enough: with it, oneDNN capped at AVX2 or at SSE4.1 still gave other fingerprints. The outer
+environment's ``XLA_*``, ``JAX_*``, ``ONEDNN_*`` and ``DNNL_*`` variables are dropped first, so
+the fingerprints depend neither on the CPU model nor on how the tests were started.
+
+The native path (nothing capped: what a user's own run computes) keeps its check:
+``tests/data/golden_runs_native.json`` holds the fingerprints written by the code before the
+layered renovation (commit 5621831) on the 2-core Xeon (AVX-512, AMX) that runs CI, with that
+CPU's model name and SIMD flags; they are checked where the host's are the same, else skipped.
+
+To re-record after a change that is meant to change the numbers (from a commit known to be
+good): ``python -m tests.test_golden_runs --write pinned`` (on any x86-64 CPU), and ``--write
+native`` on the machine the native file names (or on a new reference machine, which it then
+names).
 """
 
 from __future__ import annotations
@@ -18,15 +34,20 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import os
+import platform
+import re
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from jaxcart.train import main as train_main
-
-GOLDEN = Path(__file__).parent / "data" / "golden_runs.json"
+DATA = Path(__file__).parent / "data"
+GOLDEN = DATA / "golden_runs.json"
+GOLDEN_NATIVE = DATA / "golden_runs_native.json"
 WALL_CLOCK = ("time/",)  # metrics.csv columns that measure time, not learning
 EVAL_TIMING = ("compile_seconds", "train_seconds", "eval_seconds")
 
@@ -40,6 +61,15 @@ COMMANDS: dict[str, list[str]] = {
     "--total-timesteps 20480 --num-seeds 3".split(),
 }
 """``python -m jaxcart.train ARGS --out DIR --quiet`` for each fingerprinted run (2 CPU devices)."""
+
+TWO_DEVICES = "--xla_force_host_platform_device_count=2"
+PINNED = {"XLA_FLAGS": f"{TWO_DEVICES} --xla_cpu_max_isa=AVX", "ONEDNN_MAX_CPU_ISA": "AVX"}
+"""The environment of a pinned run: XLA's generated code and oneDNN's kernels at most AVX."""
+NATIVE = {"XLA_FLAGS": TWO_DEVICES}
+"""The environment of a native run: whatever the host's CPU offers."""
+DROPPED = ("XLA_", "JAX_", "ONEDNN_", "DNNL_")
+"""Prefixes of the outer environment's variables a golden run does not inherit."""
+SIMD_FLAG = re.compile(r"(sse|ssse|avx|fma|f16c|amx|bmi|adx|aes|pclmul|vaes|vpclmul|gfni|sha|xop)")
 
 
 def _digest(*parts: bytes) -> str:
@@ -83,19 +113,74 @@ def fingerprint(out_dir: Path) -> dict[str, dict[str, str]]:
     return {".": fingerprint_run(out_dir)}
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(COMMANDS))
-def test_run_directory_is_bit_identical_to_the_golden_one(name, tmp_path, capsys):
-    golden = json.loads(GOLDEN.read_text())[name]
-    out = tmp_path / name
-    assert train_main([*COMMANDS[name], "--out", str(out), "--quiet"]) == 0
-    capsys.readouterr()
-    found = fingerprint(out)
+def golden_env(pins: dict[str, str]) -> dict[str, str]:
+    """The outer environment without :data:`DROPPED` variables, with ``pins`` set."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(DROPPED)}
+    return {**env, **pins}
+
+
+def train_golden(name: str, out: Path, pins: dict[str, str]) -> dict[str, dict[str, str]]:
+    """Runs ``COMMANDS[name]`` into ``out`` in a fresh process with ``pins``; its fingerprints."""
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxcart.train", *COMMANDS[name], "--out", str(out), "--quiet"],
+        env=golden_env(pins),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-4000:]
+    return fingerprint(out)
+
+
+def host_cpu() -> dict[str, object] | None:
+    """The host CPU's model name and SIMD flags (from /proc/cpuinfo), or None where unknown."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return None
+    fields = dict(
+        (key.strip(), value.strip())
+        for key, _, value in (line.partition(":") for line in text.split("\n\n")[0].splitlines())
+    )
+    if "flags" not in fields:
+        return None
+    flags = sorted(f for f in fields["flags"].split() if SIMD_FLAG.match(f))
+    return {"machine": platform.machine(), "model name": fields.get("model name"), "flags": flags}
+
+
+def assert_same_as_golden(name: str, found: dict, golden: dict) -> None:
     assert sorted(found) == sorted(golden)
     for part, entries in golden.items():
         differ = sorted(k for k in entries if found[part].get(k) != entries[k])
         assert not differ, f"{name}/{part}: these differ from the golden run: {differ}"
         assert sorted(found[part]) == sorted(entries), f"{name}/{part}: other files or columns"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_run_directory_is_bit_identical_to_the_golden_one(name, tmp_path):
+    """On any x86-64 CPU: the run, capped at AVX, gives the recorded bits."""
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip("the pinned fingerprints are of x86-64 code (AVX)")
+    golden = json.loads(GOLDEN.read_text())
+    assert golden["env"] == PINNED, "the pin changed: re-record (see the module's docstring)"
+    assert_same_as_golden(name, train_golden(name, tmp_path / name, PINNED), golden["runs"][name])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_native_run_directory_is_bit_identical_on_the_reference_cpu(name, tmp_path):
+    """On the CPU the native fingerprints were written on: the run as a user starts it, with
+    nothing capped, gives the recorded bits (and other bits than the pinned run: the pin is
+    needed there)."""
+    native = json.loads(GOLDEN_NATIVE.read_text())
+    host = host_cpu()
+    if host != native["host"]:
+        pytest.skip(f"the native fingerprints are of another CPU ({native['host']['model name']})")
+    assert native["env"] == NATIVE
+    found = train_golden(name, tmp_path / name, NATIVE)
+    assert_same_as_golden(name, found, native["runs"][name])
+    assert found != json.loads(GOLDEN.read_text())["runs"][name]
 
 
 def test_the_fingerprint_sees_a_changed_bit(tmp_path):
@@ -111,11 +196,33 @@ def test_the_fingerprint_sees_a_changed_bit(tmp_path):
     assert "evaluation.json:train_seconds" not in before["."]
 
 
-if __name__ == "__main__":  # python -m tests.test_golden_runs --write OUTROOT
-    if sys.argv[1:2] != ["--write"] or len(sys.argv) != 3:
-        raise SystemExit("usage: python -m tests.test_golden_runs --write OUTROOT")
-    root = Path(sys.argv[2])
-    GOLDEN.parent.mkdir(exist_ok=True)
-    data = {name: fingerprint(root / name) for name in sorted(COMMANDS)}
-    GOLDEN.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    print(f"wrote {GOLDEN}")
+def test_a_golden_run_inherits_no_xla_jax_or_onednn_setting(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX512 --xla_cpu_enable_fast_math=true")
+    monkeypatch.setenv("JAX_ENABLE_X64", "1")
+    monkeypatch.setenv("DNNL_MAX_CPU_ISA", "AVX512_CORE")
+    monkeypatch.setenv("ONEDNN_VERBOSE", "1")
+    monkeypatch.setenv("KEEP_ME", "1")
+    env = golden_env(PINNED)
+    assert {k: env[k] for k in env if k.startswith(DROPPED)} == PINNED
+    assert env["KEEP_ME"] == "1"
+
+
+def test_the_host_cpu_is_read_from_proc_cpuinfo():
+    host = host_cpu()
+    if host is None:
+        pytest.skip("no /proc/cpuinfo here")
+    assert host["flags"] == sorted(host["flags"]) and all(SIMD_FLAG.match(f) for f in host["flags"])
+    if host["machine"] == "x86_64":
+        assert "sse2" in host["flags"]
+
+
+if __name__ == "__main__":  # python -m tests.test_golden_runs --write pinned|native
+    if sys.argv[1:2] != ["--write"] or sys.argv[2:] not in (["pinned"], ["native"]):
+        raise SystemExit("usage: python -m tests.test_golden_runs --write pinned|native")
+    native = sys.argv[2] == "native"
+    pins, path = (NATIVE, GOLDEN_NATIVE) if native else (PINNED, GOLDEN)
+    root = Path(tempfile.mkdtemp(prefix="jaxcart-golden-"))
+    runs = {name: train_golden(name, root / name, pins) for name in sorted(COMMANDS)}
+    data = {"env": pins, "runs": runs, **({"host": host_cpu()} if native else {})}
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    print(f"wrote {path}")

@@ -131,6 +131,7 @@ def copy_run(bases: dict[str, Path], base: str, to: Path) -> Path:
     return to
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sealed", [True, False], ids=["manifest-rewritten", "no-manifest"])
 def test_no_command_runs_the_code_a_run_directory_names(
     sealed, bases, place, tmp_path, monkeypatch, capsys
@@ -193,6 +194,7 @@ def test_trusting_code_builds_only_a_flax_module(payload, bases, place, tmp_path
     assert traces(outside, cwd, run) == []
 
 
+@pytest.mark.slow
 def test_a_custom_network_plots_and_compares_where_its_module_is_missing(tmp_path):
     """Trained with a network of tests/custom_networks.py, read by a process that cannot
     import it: plot and compare work; evaluate says in one line what to pass."""

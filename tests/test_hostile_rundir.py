@@ -1088,6 +1088,7 @@ def test_a_run_from_before_manifests_is_read_with_a_note_and_a_missing_one_is_re
     assert notes and all(line.startswith("note: ") for line in notes)
 
 
+@pytest.mark.slow
 def test_x64_training_is_float64_end_to_end_and_resumes_only_in_x64(tmp_path):
     args = [*"--num-envs 4 --num-steps 32 --total-timesteps 512 --eval-episodes 2".split()]
     env = {**TRAIN_ENV, "JAX_ENABLE_X64": "1"}

@@ -61,6 +61,7 @@ def test_stop_then_resume_run_matches_an_uninterrupted_run(tmp_path):
         lifecycle.resume_run(tmp_path / "part", OPTIONS)
 
 
+@pytest.mark.slow
 def test_sweep_through_the_library(tmp_path):
     spec = RunSpec(SMALL, num_seeds=2, sweep={"learning_rate": [1e-3, 3e-3]})
     outcome = lifecycle.run_new(spec, tmp_path / "sweep", OPTIONS)
@@ -97,6 +98,7 @@ def test_bad_options_and_directories(tmp_path):
         lifecycle.resume_run(tmp_path / "missing")
 
 
+@pytest.mark.slow
 def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
     """--resume RUN --total-timesteps N: a finished constant-rate run trains on to N steps
     and ends bit-identical to a run started with N (same chunking)."""
@@ -118,6 +120,7 @@ def test_a_finished_run_extends_like_a_longer_run(tmp_path, capsys):
     assert "does not extend" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_an_annealed_run_extends_against_the_new_total(tmp_path):
     """An annealed learning rate, extended from 8 to 16 iterations: iterations 0-7 trained
     at lr * (1 - i/8), the extension at lr * (1 - i/16) (SB3's progress against the new
@@ -138,6 +141,7 @@ def test_an_annealed_run_extends_against_the_new_total(tmp_path):
     np.testing.assert_allclose(rates[:, 0], expected, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_replay_one_seed_alone_bit_identical_to_its_batch(tmp_path):
     """Seed 2 of a 5-seed run (3 per device on 2 devices), trained again alone: padded to
     its width it matches bit for bit; at its own width of 1 it does not have to."""
@@ -157,6 +161,7 @@ def test_replay_one_seed_alone_bit_identical_to_its_batch(tmp_path):
         lifecycle.replay_seed(tmp_path / "five", 5)
 
 
+@pytest.mark.slow
 def test_replay_of_a_one_seed_run(tmp_path):
     """One seed on a 2-device machine trains on one device; its replay does the same."""
     lifecycle.run_new(RunSpec(SMALL, seed=2), tmp_path / "one", OPTIONS)
@@ -166,6 +171,7 @@ def test_replay_of_a_one_seed_run(tmp_path):
     np.testing.assert_array_equal(replayed.metrics["train/value_loss"], metrics["train/value_loss"])
 
 
+@pytest.mark.slow
 def test_replay_above_the_update_group_width_is_bit_identical(tmp_path):
     """17 seeds on 2 devices: 9 per device, so the update runs in groups (2 of width 5, the
     second padded in the program by a copy). Seeds from a first group, a padded group and

@@ -5,7 +5,6 @@ import socket
 import struct
 import sys
 import threading
-import time
 from pathlib import Path
 from typing import ClassVar
 
@@ -168,12 +167,13 @@ def test_swanlab_runs_logged_apart_get_their_mean_once_every_run_has_the_step(
 
 
 class RecordingBackend:
-    """Stands in for a real backend; ``delay`` makes every write slow."""
+    """Stands in for a real backend; while ``gate`` is set and closed, every write waits for
+    it to open (a writer as slow as the test wants, without a race against the clock)."""
 
     name = "recording"
     module = None
     extra = None
-    delay = 0.0
+    gate: threading.Event | None = None
     fail_in: str | None = None
     instances: ClassVar[list["RecordingBackend"]] = []
 
@@ -193,7 +193,8 @@ class RecordingBackend:
         self._call("open")
 
     def write(self, batch):
-        time.sleep(self.delay)
+        if self.gate is not None:
+            assert self.gate.wait(timeout=120), "the test never opened the gate"
         self._call("write")
         self.batches.append(batch)
 
@@ -320,14 +321,16 @@ def recording(monkeypatch):
 
 
 def test_log_returns_at_once_while_a_slow_writer_catches_up(tmp_path, recording, monkeypatch):
-    monkeypatch.setattr(recording, "delay", 0.1)
+    gate = threading.Event()
+    monkeypatch.setattr(recording, "gate", gate)
     logger = make_logger(["recording"], tmp_path, RUNS)
     chunks = synthetic_chunks(num_chunks=5)
     for chunk in chunks:
         logger.log(*chunk)
-    # log() handed the chunks over without waiting: the slow writer has not caught up
-    assert recording.instances[0].calls.count("write") < 5
+    # log() handed the chunks over without waiting for the writer, which is held at the gate
+    assert recording.instances[0].calls.count("write") == 0
     chunks[0][2]["train/approx_kl"][:] = -1.0  # the logger kept its own copy
+    gate.set()
     logger.close()
 
     backend = recording.instances[0]

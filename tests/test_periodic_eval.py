@@ -34,6 +34,7 @@ def test_keep_best_needs_eval_every():
     assert metric_columns(EVERY) == (*METRIC_COLUMNS, *EVAL_METRICS)
 
 
+@pytest.mark.slow
 def test_evaluation_every_n_iterations_keeps_the_best_policy_and_changes_no_training():
     plain = train(SMALL, 2, seed=5, chunk_size=4)
     kept = train(EVERY, 2, seed=5, chunk_size=4)
@@ -140,6 +141,7 @@ def test_best_policies_survive_waves_and_a_resume_and_reach_every_reader(tmp_pat
     assert err.count("\n") == 1 and "no best policy was kept" in err
 
 
+@pytest.mark.slow
 def test_a_sweep_keeps_each_combinations_best_policies(tmp_path):
     """--eval-every and --keep-best in a sweep: every combination's directory holds its own
     best policies, evaluated, and its metrics record the evaluations (iterations 3 and 6)."""

@@ -87,6 +87,7 @@ def test_gymnasium_env_gets_the_physics_and_its_derived_masses():
     assert (default.length, default.polemass_length) == (0.5, 0.05)
 
 
+@pytest.mark.slow
 def test_a_physics_sweep_is_one_compiled_program():
     config = TINY.__class__(**{**TINY.__dict__, "total_timesteps": 256})
     first = train_runs(config, 3, env_params=EnvParams(length=np.array([0.5, 1.0, 2.0])))
@@ -96,6 +97,7 @@ def test_a_physics_sweep_is_one_compiled_program():
     assert len(set(lengths.tolist())) == 3  # each run stepped its own pole
 
 
+@pytest.mark.slow
 def test_swept_physics_values_reach_each_run():
     """Run 0 of a length sweep trains as a run given that length as a constant would (the
     same seed index): the array is the per-run value, not a default."""

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import seal, tiny_args
+from helpers import distinct_colours, seal, tiny_args
 from PIL import Image, ImageSequence
 
 from jaxcart import evaluate, plot
@@ -64,7 +64,7 @@ def assert_nontrivial_png(path, min_size=(600, 400)):
         assert image.size[0] >= min_size[0] and image.size[1] >= min_size[1]
         pixels = np.asarray(image.convert("RGB"), float)
     assert pixels.std() > 10  # not blank
-    assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 20  # curves, bands, text
+    assert distinct_colours(pixels) > 20  # curves, bands, text
     # Curves in the first run's colour (Okabe and Ito's blue) are drawn.
     blue = (np.abs(pixels - [0, 114, 178]).sum(-1) < 30).sum()
     assert blue > 100
@@ -99,6 +99,7 @@ def test_plot_one_run_default_path(tiny_run, capsys, no_warnings):
     assert_nontrivial_png(out, min_size=(1000, 700))
 
 
+@pytest.mark.slow
 def test_plot_overlay_and_single_seed(
     tiny_run, single_seed_run, tmp_path, monkeypatch, capsys, no_warnings
 ):
@@ -241,6 +242,7 @@ def test_axes_fit_the_curves_and_bands_run_past_them():
     assert panel(fig, "episode return vs env steps").get_ylim() == (0, 520)
 
 
+@pytest.mark.slow
 def test_notes_legend_and_ticks_stay_readable(tmp_path, no_warnings):
     note = "from the checkpoint at iteration 245/977: the run did not finish"
     runs = [synthetic_run("stopped-" + "x" * 80, note=note, iterations=245)]
@@ -285,6 +287,7 @@ def box_inside(label, axes_box) -> bool:
     return axes_box.x0 - 1 <= centre <= axes_box.x1 + 1
 
 
+@pytest.mark.slow
 def test_a_comparison_never_overwrites_an_earlier_one(
     tiny_run, single_seed_run, tmp_path, monkeypatch, capsys
 ):

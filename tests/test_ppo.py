@@ -318,6 +318,7 @@ def test_probe_action_dependent_reward_policy_learns_it():
     assert abs(value.mean() - p_one.mean()) < 0.1  # V = expected reward under the policy
 
 
+@pytest.mark.slow
 def test_probe_observation_dependent_reward_policy_reads_the_observation():
     """Reward 1 when the action matches the sign of obs[0]: the policy must use its input."""
     reward = lambda obs, action: (action == (obs[..., 0] > 0)).astype(jnp.float32)
@@ -399,6 +400,7 @@ def _assert_same_loss_and_gradient(config, reference):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_the_purejaxrl_preset_loss_is_purejaxrls():
     config = preset("purejaxrl")
     assert (config.value_clip, config.adv_std, config.bootstrap_truncation) == (
@@ -421,6 +423,7 @@ def test_the_sb3_preset_loss_is_sb3s_with_and_without_clip_range_vf():
     )
 
 
+@pytest.mark.slow
 def test_target_kl_stops_before_the_step_that_would_exceed_it():
     """A tiny target_kl: the first minibatch (ratio 1, KL 0) takes its step, the second sees
     KL > 1.5 x target and stops every later step, as SB3 does."""

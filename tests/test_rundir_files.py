@@ -74,6 +74,7 @@ RUNS_UNDER_A_UMASK = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_every_file_of_a_run_directory_has_the_mode_open_gives(tmp_path):
     """Under umask 027 (neither 0600 nor 0644 is right): a finished run in waves, a sweep and
     an interrupted run's checkpoint, every file ``0o640``."""

@@ -264,6 +264,7 @@ def test_resume_refuses_a_damaged_kept_seed_and_other_settings(
     assert "drop --num-seeds" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_chapters_swanlab_comparison_shares_one_folder(fake_sb3, monkeypatch, tmp_path):
     """``python -m jaxcart.sb3 --logger swanlab`` and ``python -m jaxcart.train --logger
     swanlab`` both write into ./swanlog (the chapter's ``swanlab watch swanlog``), read back

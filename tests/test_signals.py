@@ -275,6 +275,7 @@ def check_counted(result: subprocess.CompletedProcess, out: Path | None = None) 
     FAULT_FIGURES["signals: timings"] += 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delay", [0.05, 0.3, 0.8, 1.5])
 def test_ctrl_c_while_train_starts_is_never_a_jaxcart_traceback(delay, tmp_path):
     out = tmp_path / "r"
@@ -288,6 +289,7 @@ def finished_run(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("module", "delay"), [("plot", 1.0), ("compare", 1.0), ("evaluate", 0.6)])
 def test_ctrl_c_in_the_analysis_commands_is_never_a_jaxcart_traceback(module, delay, finished_run):
     """Each signal lands after JAX's import, while the command works (they take 1 to 2 s)."""

@@ -57,6 +57,7 @@ def test_rows_append_read_back_and_are_cut_to_the_checkpoint(tmp_path):
         MetricsStream(path, COLUMNS, runs=3, rows=0).append(_chunk(0, 1, 2))
 
 
+@pytest.mark.slow
 def test_training_without_kept_metrics_holds_none_and_gives_every_chunk():
     chunks: list[dict] = []
     result = train(
@@ -68,6 +69,7 @@ def test_training_without_kept_metrics_holds_none_and_gives_every_chunk():
         np.testing.assert_array_equal(np.concatenate([c[name] for c in chunks]), kept.metrics[name])
 
 
+@pytest.mark.slow
 def test_the_checkpoint_does_not_grow_with_the_run(tmp_path):
     """A run 16 times longer writes a checkpoint of the same size (but for its metadata); its metrics are in the
     stream, one row per iteration."""

@@ -30,6 +30,7 @@ def test_run_grid_is_the_one_run_order():
     assert plain.num_runs == 2 and not plain.is_sweep and plain.run_names() == ["seed0", "seed1"]
 
 
+@pytest.mark.slow
 def test_sweep_cli_trains_every_combination(tmp_path, capsys):
     out = tmp_path / "sweep"
     argv = [

@@ -8,6 +8,7 @@ import functools
 
 import jax
 import numpy as np
+import pytest
 from helpers import TINY, assert_same_results
 
 from jaxcart.core.cartpole import EnvParams
@@ -105,6 +106,7 @@ def test_divergence_freezes_only_that_seed(tmp_path):
         np.testing.assert_array_equal(np.asarray(x)[1], np.asarray(y)[1])
 
 
+@pytest.mark.slow
 def test_chunks_that_do_not_tile_the_run():
     """A chunk size that does not divide the iterations: the guarded program skips the
     overhang, and the run matches the tiled one (same per-iteration computation)."""
@@ -117,6 +119,7 @@ def test_chunks_that_do_not_tile_the_run():
     )
 
 
+@pytest.mark.slow
 def test_configs_differing_only_in_traced_fields_compile_once():
     """The compiled-step cache keys on the static part of the config: a config with other
     learning rate, clip range, gamma, ... reuses the executable; a new shape does not."""
@@ -129,6 +132,7 @@ def test_configs_differing_only_in_traced_fields_compile_once():
     assert third.compiled
 
 
+@pytest.mark.slow
 def test_compiled_chunk_key_ignores_traced_config_values():
     state = initial_state(TINY, 2, 0)
     runners = jax.device_put(state.runners)
@@ -188,6 +192,7 @@ def test_seed_index_not_run_position_picks_the_random_stream():
         np.testing.assert_array_equal(np.asarray(x)[[2, 0]], np.asarray(y))
 
 
+@pytest.mark.slow
 def test_runs_that_do_not_divide_over_devices_are_padded_not_squeezed():
     """3 runs on 2 devices use both (padded to 4, the padding discarded); the real runs are
     bit-identical to the first 3 of a 4-run training, which has the same per-device batch."""
@@ -204,11 +209,13 @@ def test_runs_that_do_not_divide_over_devices_are_padded_not_squeezed():
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y)[:3])
 
 
+@pytest.mark.slow
 def test_fewer_runs_than_devices_use_one_device_each():
     one = train(TINY, 1, seed=4, chunk_size=8)
     assert one.num_devices == 1 and one.metrics["train/value_loss"].shape == (32, 1)
 
 
+@pytest.mark.slow
 def test_update_in_groups_computes_what_one_vmap_computes():
     """The grouped update (5 runs as 3 groups of width 2, the last padded by a copy) trains
     the same runs as the plain vmap, up to rounding (XLA compiles another width)."""
@@ -234,6 +241,7 @@ def test_update_in_groups_computes_what_one_vmap_computes():
     )
 
 
+@pytest.mark.slow
 def test_adaptive_chunks_change_no_number(monkeypatch):
     """Chunks whose length follows the wall clock (here forced to grow 1, 3, 9, ... by a
     stub) give metrics and parameters bit-identical to fixed chunks of 4, and to chunks

@@ -12,7 +12,7 @@ import time
 import jax
 import numpy as np
 import pytest
-from helpers import TINY, TRAIN_ENV, assert_same_run_dirs, tiny_args
+from helpers import TINY, TRAIN_ENV, WAIT_S, assert_same_run_dirs, tiny_args
 
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig, preset
@@ -28,6 +28,7 @@ def memory_for(config: PPOConfig, runs: int, episodes: int = 2) -> int:
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, runs", [("fast", 2), ("sb3", 2), ("purejaxrl", 4)])
 def test_estimate_is_above_xlas_own_memory_analysis(name, runs):
     """Measured once, checked always: the estimate per run covers the compiled program's
@@ -108,6 +109,7 @@ def test_a_waved_run_stopped_mid_wave_resumes_in_process(num_seeds, wave_size, t
     assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
 
 
+@pytest.mark.slow
 def test_evaluation_json_bound_scales_with_the_declared_seeds(tmp_path):
     """A 100,000-seed evaluation.json (~24 MB, over the 16 MiB bound of other JSON) reads;
     one larger than its config.json declares is refused."""
@@ -203,8 +205,9 @@ def test_a_waved_run_stopped_mid_wave_resumes_bit_identically(waved_run, tmp_pat
         text=True,
     )
 
-    deadline = time.monotonic() + 120
-    while not (out / "waves" / "wave-00000.npz").exists() and time.monotonic() < deadline:
+    deadline = time.monotonic() + WAIT_S
+    while not (out / "waves" / "wave-00000.npz").exists() and proc.poll() is None:
+        assert time.monotonic() < deadline, f"no first wave in {WAIT_S:.0f} s"
         time.sleep(0.01)
     proc.send_signal(signal.SIGINT)
     text, _ = proc.communicate(timeout=120)
