@@ -9,10 +9,12 @@ NumPy: no jaxcart reader stands between the files and the check.
 
 Why the runs are pinned to AVX: left to itself, XLA:CPU compiles for the host's newest
 instruction set (AVX-512 on the Xeon these were recorded on, AVX2 on an AMD EPYC), and oneDNN,
-which computes XLA's matrix products, picks its kernels by the host's instruction set at run
-time; other instructions round floats otherwise, so a new user's EPYC failed all four runs. So
-each run is a fresh ``python -m jaxcart.train`` process (:data:`PINNED`) whose environment caps
-both at AVX, the instruction set jaxlib itself requires of an x86-64 CPU:
+linked into jaxlib, picks its kernels by the host's instruction set at run time (capping it with
+``ONEDNN_MAX_CPU_ISA`` changes the bits, so the training uses it: most of its matrix products
+are not XLA-generated kernels); other instructions round floats otherwise, so a new user's EPYC
+failed all four runs. So each run is a fresh ``python -m jaxcart.train`` process
+(:data:`PINNED`) whose environment caps both at AVX, the instruction set jaxlib itself requires
+of an x86-64 CPU:
 ``--xla_cpu_max_isa=AVX`` in ``XLA_FLAGS`` and ``ONEDNN_MAX_CPU_ISA=AVX``. Capping XLA alone is
 not enough: with it, oneDNN capped at AVX2 or at SSE4.1 still gave other fingerprints. The outer
 environment's ``XLA_*``, ``JAX_*``, ``ONEDNN_*`` and ``DNNL_*`` variables are dropped first, so
