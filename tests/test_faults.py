@@ -293,7 +293,7 @@ def test_concurrent_use_of_a_run_is_refused_and_a_killed_holder_never_blocks(tmp
 
 def _signal_when(proc, ready, sig: int, then: float = 0.0) -> str:
     _wait_for(lambda: ready() or proc.poll() is not None)
-    if proc.poll() is not None:  # it ended before its moment came: say how, not "timed out"
+    if not ready():  # it ended before its moment came: say how, not "timed out"
         raise AssertionError(f"exited {proc.returncode} first:\n{proc.communicate()[0][-2000:]}")
     time.sleep(then)
     proc.send_signal(sig)
