@@ -391,6 +391,7 @@ def test_header_names_what_overrides_the_preset(tmp_path):
     assert "| 2 combinations x 2 seed(s) x" in two
 
 
+@pytest.mark.slow
 def test_run_header_shows_the_overrides(tmp_path, capsys):
     assert main([*SMALL, "--learning-rate", "1e-3", "--out", str(tmp_path / "r")]) == 0
     first = capsys.readouterr().out.splitlines()[0]

@@ -133,6 +133,7 @@ def test_two_networks_in_one_process_get_their_own_programs():
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_the_policy_of_a_custom_network_is_its_logits_argmax():
     network = ReluMLP(width=8)
     params = network.init(jax.random.PRNGKey(0), OBS[:1])

@@ -95,8 +95,10 @@ def test_jax_forward_matches_a_hand_written_mlp(activation):
 @pytest.mark.parametrize(
     "network",
     [
-        ActorCritic(),
-        ActorCritic(hidden_sizes=(16, 8, 4), activation="relu"),
+        pytest.param(ActorCritic(), marks=pytest.mark.slow),
+        pytest.param(
+            ActorCritic(hidden_sizes=(16, 8, 4), activation="relu"), marks=pytest.mark.slow
+        ),
         ActorCritic(linear_actor=True, num_actions=3),
     ],
     ids=["sb3", "relu-3-layers", "linear-actor-3-actions"],

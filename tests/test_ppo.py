@@ -120,6 +120,7 @@ def _config(**kw):
     return PPOConfig(**kw)
 
 
+@pytest.mark.slow
 def test_loss_at_ratio_one():
     """Fresh data from the same params: ratio 1, KL 0, nothing clipped, pg loss = -mean(A)."""
     network, params, batch, value = _setup_loss()
@@ -147,6 +148,7 @@ def _actor_grad(params, network, batch, hp):
     return jax.grad(pg_only)(params)["params"]["actor"]
 
 
+@pytest.mark.slow
 def test_zero_policy_gradient_where_clipped():
     """ratio = e > 1 + clip with positive advantages: every sample clipped, zero gradient;
     with negative advantages the unclipped branch is the minimum and the gradient is not zero."""
@@ -239,6 +241,7 @@ def test_episode_window_is_bit_identical_to_the_scatter_version(steps, envs):
             buffer, done = a, jnp.roll(done, 1, axis=0)
 
 
+@pytest.mark.slow
 def test_categorical_helpers_match_distrax():
     import distrax
 
@@ -414,6 +417,7 @@ def test_the_purejaxrl_preset_loss_is_purejaxrls():
     )
 
 
+@pytest.mark.slow
 def test_the_sb3_preset_loss_is_sb3s_with_and_without_clip_range_vf():
     config = preset("sb3", ent_coef=0.01)
     _assert_same_loss_and_gradient(config, lambda p, n, b: _sb3_loss(p, n, b, 0.2, 0.5, 0.01))

@@ -25,6 +25,7 @@ from jaxcart.rundir import checkpoint
 from jaxcart.rundir.checkpoint import load_checkpoint
 
 
+@pytest.mark.slow
 def test_resume_from_checkpoint_is_bit_identical(tmp_path):
     full = train(TINY, num_runs=2, seed=3, chunk_size=2)
     assert not full.stopped and full.state.iteration == TINY.num_iterations == 32
@@ -53,6 +54,7 @@ def test_resume_from_checkpoint_is_bit_identical(tmp_path):
     assert_same_results(tail, resumed.metrics, full.params, resumed.params)
 
 
+@pytest.mark.slow
 def test_new_hyperparameter_values_do_not_recompile():
     """Float hyperparameters are traced: a second run with other values compiles nothing and
     the new values take effect."""
@@ -146,6 +148,7 @@ def test_compiled_chunk_key_ignores_traced_config_values():
     assert compiled_chunk(env, 4, runners, wider)[0] is not exe_a  # a static field: recompiled
 
 
+@pytest.mark.slow
 def test_a_swept_value_reaches_the_compiled_update():
     """Two runs with other learning rates and clip ranges in one program: each run trains
     bit for bit as the same values do when every run has them, and the update's logged

@@ -57,6 +57,7 @@ def test_a_storage_error_is_one_line_and_leaves_no_trial_running(tmp_path, capsy
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.slow
 def test_a_stale_trials_directory_goes_unless_a_told_trial_or_another_folder_holds_it(
     tmp_path, monkeypatch
 ):
