@@ -19,12 +19,12 @@ from pathlib import Path
 
 import pytest
 from custom_networks import ReluMLP
-from helpers import TINY, seal
+from helpers import TINY, seal, stopped_run
 
 from jaxcart import compare, evaluate, export, plot, train
 from jaxcart.core.config import ConfigError
 from jaxcart.run import lifecycle
-from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout, manifest, policy
 
 SMALL = dataclasses.replace(TINY, total_timesteps=256, anneal_lr=False)  # 2 iterations
@@ -50,12 +50,7 @@ def bases(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("code-bases")
     lifecycle.run_new(RunSpec(SMALL, num_seeds=1), root / "finished", OPTIONS)
     longer = RunSpec(dataclasses.replace(SMALL, total_timesteps=512), num_seeds=1)
-    run = lifecycle.create_run(longer, root / "interrupted")
-    chunks: list[int] = []
-    hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
-    result = lifecycle.train_wave(run, OPTIONS, hooks, should_stop=lambda: len(chunks) == 1)
-    lifecycle.save_state(run, result.state)
-    run.close()
+    stopped_run(longer, root / "interrupted", OPTIONS, chunks=1)[0].close()
     return {"finished": root / "finished", "interrupted": root / "interrupted"}
 
 

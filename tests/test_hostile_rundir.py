@@ -27,13 +27,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import FAULT_FIGURES
-from helpers import TINY, TRAIN_ENV
+from helpers import TINY, TRAIN_ENV, stopped_run
 
 from jaxcart import train
 from jaxcart.core.config import ConfigError
 from jaxcart.results import scores as comparison
 from jaxcart.run import lifecycle, loggers, waves
-from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout, policy, reader
 from jaxcart.rundir import views as runs
 from jaxcart.rundir.directory import RunDir
@@ -52,12 +52,7 @@ def bases(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("hostile-bases")
     lifecycle.run_new(RunSpec(SMALL, num_seeds=2), root / "finished", OPTIONS)
     longer = RunSpec(dataclasses.replace(SMALL, total_timesteps=512), num_seeds=2)
-    run = lifecycle.create_run(longer, root / "interrupted")
-    chunks: list[int] = []
-    hooks = Hooks(on_chunk=lambda p: chunks.append(p.iteration))
-    result = lifecycle.train_wave(run, OPTIONS, hooks, should_stop=lambda: len(chunks) == 1)
-    lifecycle.save_state(run, result.state)
-    run.close()
+    stopped_run(longer, root / "interrupted", OPTIONS, chunks=1)[0].close()
     sweep = RunSpec(SMALL, num_seeds=1, sweep={"learning_rate": [1e-3, 2e-3]})
     lifecycle.run_new(sweep, root / "sweep", OPTIONS)
     two = waves.PROCESS_RESERVE_BYTES + 2 * waves.bytes_per_run(SMALL, 2) / waves.USABLE_FRACTION
