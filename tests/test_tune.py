@@ -344,26 +344,73 @@ def test_benchmark_reads_best_score_against_wall_time_from_a_study(tmp_path):
     study = optuna.create_study(storage=storage, study_name="b", direction="maximize")
     for value in (10.0, 30.0, 20.0):
         study.tell(study.ask(), value)
+    pruned = study.ask()
+    pruned.report(99.0, 1)  # a pruned trial's value is its last report: never the best
+    study.tell(pruned, state=optuna.trial.TrialState.PRUNED)
     started = study.get_trials()[0].datetime_start.timestamp() - 1.0
     curve = bench.study_curve(storage, "b", started)
     assert [best for _, best in curve] == [10.0, 30.0, 30.0]  # the best so far, in finish order
     assert all(seconds >= 1.0 for seconds, _ in curve)
-    # both contenders get the same space, trial budget and env steps per seed
-    args = types.SimpleNamespace(
-        space=["learning_rate=log:1e-5:1e-2"],
-        trials=8,
-        batch_trials=4,
-        num_seeds=2,
-        timesteps=4096,
-        sb3_python=tmp_path / "python",
-        pruner="median",
-        sampler_seed=3,
-    )
-    jax_cmd, sb3_cmd = bench.commands(args, tmp_path).values()
-    for cmd in (jax_cmd, sb3_cmd):
-        assert "learning_rate=log:1e-5:1e-2" in cmd and "8" in cmd and "4096" in cmd
-    assert jax_cmd[jax_cmd.index("--pruner") + 1] == "median"  # jaxcart's side only
-    assert jax_cmd[jax_cmd.index("--sampler-seed") + 1] == "3" and "--pruner" not in sb3_cmd
+    trials = bench.study_trials(storage, "b", started)
+    assert [t["state"] for t in trials] == ["complete"] * 3 + ["pruned"]
+    best = bench.best_curve(trials)
+    assert [(score, number) for _, score, number in best] == [(10.0, 0), (30.0, 1)]
+    assert bench.best_as_of(best, best[0][0]) == {
+        "trial": 0,
+        "score": 10.0,
+        "found_at": best[0][0],
+    }
+    assert bench.best_as_of(best, best[0][0] - 0.01) is None
+    assert bench.best_as_of(best, float("inf"))["trial"] == 1
+
+
+def test_benchmark_runs_rl_zoo3_itself_with_the_same_budget(tmp_path):
+    bench = importlib.import_module("benchmarks.tune.__main__")
+    args = bench.parse_args(["--trials", "8", "--sb3-python", str(tmp_path / "python")])
+    jax_cmd, zoo_cmd = bench.commands(args, tmp_path).values()
+    assert jax_cmd[jax_cmd.index("--trials") + 1] == zoo_cmd[zoo_cmd.index("--n-trials") + 1]
+    assert zoo_cmd[:3] == [str(tmp_path / "python"), "-m", "rl_zoo3.train"]
+    zoo_flags = {"--sampler": "tpe", "--pruner": "median", "--study-name": "rl-zoo3"}
+    for flag, value in zoo_flags.items():
+        assert zoo_cmd[zoo_cmd.index(flag) + 1] == value
+    assert "--optimize" in zoo_cmd and "--no-optim-plots" in zoo_cmd
+    assert "-n" not in zoo_cmd  # rl-zoo3's own CartPole budget, 100k steps
+    assert jax_cmd[jax_cmd.index("--total-timesteps") + 1] == "100000"
+    assert jax_cmd[jax_cmd.index("--space") + 1] == "rl-zoo3"
+    assert jax_cmd[jax_cmd.index("--heldout-top") + 1] == "0"
+    quick = bench.parse_args(["--quick"])
+    zoo_quick = bench.commands(quick, tmp_path)["rl-zoo3"]
+    assert zoo_quick[zoo_quick.index("-n") + 1] == str(bench.QUICK["timesteps"])
+    # a jaxcart trial trained again: its values, rl-zoo3's shape, the held-out seeds
+    params = {"learning_rate": 1e-3, "one_minus_gamma": 0.02, "clip_coef": 0.3}
+    words = bench.jaxcart_train_command(quick, params, tmp_path / "h")
+    assert words[1:3] == ["-m", "jaxcart.train"]
+    assert "--gamma=0.98" in words and "--learning-rate=0.001" in words
+    assert "--num-envs=8" in words and "--no-anneal-lr" in words
+    assert words[words.index("--num-seeds") + 1] == str(quick.heldout_seeds)
+    assert words[words.index("--seed") + 1] == str(quick.heldout_seed)
+
+
+def test_rl_zoo3_heldout_params_read_back_as_rl_zoo3_converts_them():
+    """``-params`` words evaluate (rl-zoo3's StoreDict: ``eval``, ``nn`` torch.nn) to the
+    values its converter gave; the greedy episodes start where jaxcart's evaluation's do."""
+    from jaxcart.core.solved import EVAL_SEED
+
+    zoo = importlib.import_module("benchmarks.tune.zoo_heldout")
+    assert zoo.EVAL_SEED == EVAL_SEED
+
+    class Tanh:
+        pass
+
+    converted = {
+        "policy_kwargs": {"net_arch": {"pi": [64], "vf": [64]}, "activation_fn": Tanh},
+        "gamma": 0.9876,
+        "n_steps": 256,
+    }
+    nn = types.SimpleNamespace(Tanh=Tanh)
+    for name, value in converted.items():
+        key, _, text = zoo.param_text(name, value).partition(":")
+        assert key == name and eval(text, {"nn": nn}) == value
 
 
 def test_the_pruner_scores_a_partial_run_as_compare_scores_a_whole_one():
