@@ -2,8 +2,8 @@
 # Creates the three virtualenvs the benchmarks run in (from the repository root or anywhere):
 #
 #   benchmarks/.venv-bench  jaxcart + gymnax 1.x, EnvPool, Gymnasium, Stable-Baselines3 (PyTorch,
-#                           CPU build), matplotlib: runs benchmarks.env.throughput and
-#                           benchmarks.train_speed.
+#                           CPU build), rl-zoo3, matplotlib: runs benchmarks.env.throughput and
+#                           benchmarks.train_speed, and rl-zoo3 for benchmarks.tune.
 #   benchmarks/.venv-rejax  jaxcart + rejax 0.1.3, which needs gymnax 0.0.x (gymnax 1.x changed
 #                           step() to return terminated and truncated separately):
 #                           benchmarks.train_speed starts its rejax contenders with it.
@@ -30,6 +30,7 @@ BENCH_PKGS=(
   "envpool>=1.2; sys_platform == 'linux'"
   "gymnasium>=1.0"
   "stable-baselines3>=2.3"
+  "rl_zoo3[plots]>=2.6"
   "matplotlib>=3.8"
 )
 SBX_PKGS=(

@@ -225,6 +225,25 @@ def best_as_of(curve: list, seconds: float) -> dict | None:
     return {"trial": number, "score": score, "found_at": found_at}
 
 
+ZOO_PACKAGES = ("rl_zoo3", "stable-baselines3", "torch", "optuna", "gymnasium", "pandas")
+ZOO_CHECK = (
+    "import json, importlib.metadata as m, rl_zoo3.train, pandas; "
+    f"print(json.dumps({{p: m.version(p) for p in {ZOO_PACKAGES!r}}}))"
+)
+
+
+def zoo_versions(python: Path) -> dict | str:
+    """The SB3 venv's package versions, or why it cannot run rl-zoo3's ``--optimize``
+    (which ends by writing its report with pandas, rl_zoo3's ``plots`` extra)."""
+    if not python.exists():
+        return f"{python} not found (benchmarks/setup_venvs.sh)"
+    done = subprocess.run([str(python), "-c", ZOO_CHECK], capture_output=True, text=True)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["?"])[-1]
+        return f"{python}: {last} (pip install 'rl_zoo3[plots]')"
+    return json.loads(done.stdout)
+
+
 def run_contender(name: str, command: list[str], out: Path) -> dict:
     db = out / f"{name}.db"
     db.unlink(missing_ok=True)  # a fresh study, and no earlier run directories or logs
@@ -402,6 +421,8 @@ def markdown(report: dict) -> str:
             ]
         )
     cutoff = report.get("cutoff_seconds")
+    packages = report.get("zoo_packages")
+    zoo = [f"- SB3 venv: {', '.join(f'{k} {v}' for k, v in packages.items())}"] if packages else []
     table = lib.markdown_table(
         [
             "contender",
@@ -439,7 +460,7 @@ def markdown(report: dict) -> str:
         "",
         *[f"- {r['contender']}: `{r['command']}`" for r in report["results"] if "command" in r],
         "",
-        *lib.provenance_markdown(report),
+        *lib.provenance_markdown(report, zoo),
     ]
     return "\n".join(lines) + "\n"
 
@@ -501,6 +522,13 @@ def main() -> None:
     report = lib.new_report("tune", settings, args.only)
     every = commands(args, out)
     for name in args.only:
+        if name == "rl-zoo3":
+            versions = zoo_versions(args.sb3_python)
+            if isinstance(versions, str):
+                print(f"rl-zoo3: skipped: {versions}", flush=True)
+                report["results"].append({"contender": name, "error": [versions]})
+                continue
+            report["zoo_packages"] = versions
         print(f"{name}: {shlex.join(every[name])}", flush=True)
         report["results"].append(run_contender(name, every[name], out))
     report["cutoff_seconds"] = heldout_check(args, out, report["results"])
