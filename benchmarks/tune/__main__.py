@@ -473,21 +473,29 @@ def plot(report: dict, path: Path) -> None:
             xs = [c[0] for c in r["curve"]] + [r["wall_seconds"]]
             ys = [c[1] for c in r["curve"]] + [r["curve"][-1][1]]
             (line,) = ax.step(xs, ys, where="post", label=f"{r['contender']} (search score)")
-            held = (r.get("heldout") or {}).get("cutoff")
-            if held is not None:
+            heldout = r.get("heldout") or {}
+            marks = {"cutoff": ("o", report.get("cutoff_seconds")), "finish": ("s", xs[-1])}
+            for when, (marker, x) in marks.items():
+                held = heldout.get(when)
+                if held is None or x is None:
+                    continue
                 ax.errorbar(
-                    [report["cutoff_seconds"]],
+                    [x],
                     [held["mean"]],
                     yerr=[[held["mean"] - held["min"]], [held["max"] - held["mean"]]],
-                    fmt="o",
+                    fmt=marker,
+                    mfc="white" if when == "finish" else line.get_color(),
                     color=line.get_color(),
                     capsize=3,
-                    label=f"{r['contender']} held-out at cut-off",
+                    label=f"{r['contender']} held-out, best at {'cut-off' if when == 'cutoff' else 'finish'}",
                 )
     if report.get("cutoff_seconds") is not None:
         ax.axvline(report["cutoff_seconds"], color="gray", linestyle=":", linewidth=1)
+    ax.set_xlim(left=0)
+    ax.set_ylim(0, 520)
     ax.set_xlabel("wall seconds (whole process)")
-    ax.set_ylabel("best complete trial's score")
+    ax.set_ylabel("greedy mean return")
+    ax.set_title("best complete trial so far (lines); held-out mean [min-max]", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
