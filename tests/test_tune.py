@@ -378,6 +378,7 @@ def test_benchmark_runs_rl_zoo3_itself_with_the_same_budget(tmp_path):
     assert jax_cmd[jax_cmd.index("--total-timesteps") + 1] == "100000"
     assert jax_cmd[jax_cmd.index("--space") + 1] == "rl-zoo3"
     assert jax_cmd[jax_cmd.index("--heldout-top") + 1] == "0"
+    assert "--no-compile-cache" in jax_cmd  # a cold compile, timed, unless --warm-cache
     quick = bench.parse_args(["--quick"])
     zoo_quick = bench.commands(quick, tmp_path)["rl-zoo3"]
     assert zoo_quick[zoo_quick.index("-n") + 1] == str(bench.QUICK["timesteps"])

@@ -14,7 +14,8 @@ time, and the best trial at an equal wall time scored again on held-out seeds.
   default ``--space rl-zoo3``) over rl-zoo3's CartPole-v1 shape settings (8 envs x 32 steps,
   minibatch 256, 20 epochs, 100k steps; constant learning rate and clip, as rl-zoo3's trials
   train), ``--batch-trials`` trials x ``--num-seeds`` seeds per compiled program, TPE; the
-  score the IQM over its seeds of each seed's greedy mean return over 20 episodes.
+  score the IQM over its seeds of each seed's greedy mean return over 20 episodes; every
+  compile timed (``--no-compile-cache``; ``--warm-cache`` lets it use its cache).
 
 What differs, by design: rl-zoo3 also samples shape settings (n_steps 32-4096, batch size
 4-1024, epochs 1-20, the network and its activation) that jaxcart's default space leaves at
@@ -34,8 +35,8 @@ CartPole-v1 episodes (reset seeds 1,000,000 + e)::
     .venv/bin/python -m benchmarks.tune --sb3-python benchmarks/.venv-bench/bin/python
     .venv/bin/python -m benchmarks.tune --only jaxcart --trials 32 --num-seeds 4
 
-The SB3 venv needs ``rl_zoo3`` and ``optuna`` (``benchmarks/.venv-bench/bin/pip install
-rl_zoo3``).
+The SB3 venv needs rl-zoo3 with pandas, which its ``--optimize`` writes its report with
+(``benchmarks/setup_venvs.sh`` installs ``rl_zoo3[plots]``); the harness checks that first.
 """
 
 from __future__ import annotations
@@ -102,6 +103,12 @@ def parse_args(argv: list[str] | None = None):
     parser.add_argument(
         "--sampler-seed", type=int, default=0, help="both samplers' seed (rl-zoo3's --seed)"
     )
+    parser.add_argument(
+        "--warm-cache",
+        action="store_true",
+        help="let jaxcart use its persistent compilation cache (default: --no-compile-cache, "
+        "every compile timed, whatever ran before)",
+    )
     parser.add_argument("--sb3-python", type=Path, default=SB3_VENV)
     parser.add_argument(
         "--zoo-n-jobs", type=int, default=cores(), help="rl-zoo3's --n-jobs (default: cores)"
@@ -157,6 +164,7 @@ def commands(args, out: Path) -> dict[str, list[str]]:
             *("--out", str(out / "jaxcart-runs"), "--pruner", args.pruner),
             *("--sampler-seed", str(args.sampler_seed)),
             *("--heldout-top", "0"),  # the search alone: the harness runs its own check
+            *([] if args.warm_cache else ["--no-compile-cache"]),
             *space,
         ],
         "rl-zoo3": [
@@ -445,8 +453,13 @@ def markdown(report: dict) -> str:
         f"{s['pruner']}, score the IQM of each seed's greedy mean over 20 episodes; rl-zoo3's "
         f"sample_ppo_params, TPE, pruner {s['zoo_pruner']}, --n-jobs {s['zoo_n_jobs']}, "
         f"--num-threads {s['zoo_num_threads']}, score its 5-episode greedy evaluation at the "
-        f"end of training; sampler seed {s['sampler_seed']}. Whole processes, timed from "
-        "outside, one after the other.",
+        f"end of training; sampler seed {s['sampler_seed']}"
+        + (
+            f"; jaxcart's compilation cache {'on' if s['warm_cache'] else 'off'}"
+            if "warm_cache" in s
+            else ""
+        )
+        + ". Whole processes, timed from outside, one after the other.",
         "",
         f"Held-out: each contender's best complete trial as of the cut-off "
         f"({cutoff:.1f} s, the earlier finish unless --cutoff) and as of its own finish, "
@@ -522,6 +535,7 @@ def main() -> None:
             "zoo_n_jobs",
             "zoo_num_threads",
             "zoo_pruner",
+            "warm_cache",
             "heldout_seeds",
             "heldout_seed",
             "cutoff",
