@@ -131,6 +131,12 @@ def parse_args(argv: list[str] | None = None):
         default=cores(),
         help="rl-zoo3 held-out seeds trained at a time",
     )
+    parser.add_argument(
+        "--heldout-from",
+        type=Path,
+        default=None,
+        help="only the held-out check again, of an earlier run's tune.json (its studies beside it)",
+    )
     parser.add_argument("--quick", action="store_true", help=f"a smoke test: {QUICK}")
     lib.add_output_options(parser)
     args = parser.parse_args(argv)
@@ -383,7 +389,13 @@ def heldout_check(args, out: Path, results: list[dict]) -> float | None:
             number = pick["trial"]
             if number not in done:
                 print(f"{r['contender']}: held-out seeds for trial {number}", flush=True)
-                scores = HELDOUT[r["contender"]](args, out, number)
+                try:
+                    scores = HELDOUT[r["contender"]](args, out, number)
+                except (RuntimeError, OSError, ValueError) as exc:  # the searches stay reported
+                    print(f"  failed: {exc}", flush=True)
+                    done[number] = {"error": str(exc)}
+                    r["heldout"][when] = {**pick, **done[number]}
+                    continue
                 s = scores["scores"]
                 done[number] = {
                     **scores,
@@ -402,6 +414,8 @@ def heldout_check(args, out: Path, results: list[dict]) -> float | None:
 def _heldout_text(entry: dict | None) -> str:
     if entry is None:
         return "no complete trial"
+    if "error" in entry:
+        return f"failed (trial {entry['trial']}; see the JSON)"
     return (
         f"{entry['mean']:.1f} [{entry['min']:.1f}-{entry['max']:.1f}] "
         f"(trial {entry['trial']}, search {entry['score']:.1f} at {entry['found_at']:.0f} s)"
@@ -520,6 +534,9 @@ def main() -> None:
     if args.from_json:
         lib.rerender(args.from_json, "tune", markdown, plot)
         return
+    if args.heldout_from:
+        heldout_again(args)
+        return
     out = lib.output_dir(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     settings = {
@@ -553,8 +570,24 @@ def main() -> None:
             report["zoo_packages"] = versions
         print(f"{name}: {shlex.join(every[name])}", flush=True)
         report["results"].append(run_contender(name, every[name], out))
+    lib.write_json(out / "tune.json", report)  # the searches, should the held-out check fail
     report["cutoff_seconds"] = heldout_check(args, out, report["results"])
     lib.save_report(report, out, "tune", markdown, plot)
+
+
+def heldout_again(args) -> None:
+    """``--heldout-from OUT/tune.json``: the held-out check of an earlier run's searches
+    again (its studies are read from the JSON's folder), with this command's held-out options."""
+    path = args.heldout_from.resolve()
+    report = json.loads(path.read_text())
+    for key in ("timesteps", "space"):  # the retrains train what the searches trained
+        setattr(args, key, report["settings"][key])
+    report["settings"].update(
+        {k: getattr(args, k) for k in ("heldout_seeds", "heldout_seed", "cutoff")}
+    )
+    report["heldout_command"] = lib.command_line()
+    report["cutoff_seconds"] = heldout_check(args, path.parent, report["results"])
+    lib.save_report(report, path.parent, "tune", markdown, plot)
 
 
 if __name__ == "__main__":
