@@ -101,16 +101,15 @@ def _summary_lines(run: RunCurves) -> list[str]:
         final = f"final ep_rew_mean {np.nanmean(ret[-1]):.1f}"
     steps = f"{int(run.env_steps[-1]):,} steps/seed" if np.isfinite(run.env_steps[-1]) else ""
     line = ", ".join(p for p in (f"{run.num_seeds} seed(s)", steps, final) if p)
-    ev = run.evaluation
+    from jaxcart.results.scores import read_evaluation
+
+    means, solved = read_evaluation(run, required=False)  # the final policies'
     if run.note:
         eval_line = f"not evaluated: {run.note}"
-    elif ev and ev.get("seeds"):
-        seeds = ev["seeds"]
-        solved = sum(bool(s.get("solved")) for s in seeds)
-        mean = np.mean([s.get("gymnasium_mean", np.nan) for s in seeds])
+    elif means is not None:
         eval_line = (
-            f"Gymnasium: solved {solved}/{len(seeds)}, mean return {mean:.1f} "
-            f"({ev.get('episodes', '?')} greedy episodes per seed)"
+            f"Gymnasium: solved {solved}/{means.size}, mean return {means.mean():.1f} "
+            f"({run.evaluation.get('episodes', '?')} greedy episodes per seed)"
         )
     else:
         eval_line = "no evaluation.json"
@@ -188,7 +187,9 @@ def draw_runs(
 ) -> tuple[Path, Figure]:
     """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`; default
     :func:`default_out`); returns the path written and the figure."""
-    out = default_out(list(dict.fromkeys(_run_dir(run) for run in runs))) if out is None else out
+    from jaxcart.results.scores import named_dir
+
+    out = default_out(list(dict.fromkeys(named_dir(run) for run in runs))) if out is None else out
     out = Path(out)
     fmt = out.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
@@ -202,15 +203,6 @@ def draw_runs(
     fig.savefig(buf, format=fmt, dpi=dpi)
     files.atomic_write_bytes(out, buf.getvalue())
     return out, fig
-
-
-def _run_dir(run: RunCurves) -> Path:
-    """The directory a run was named by: a sweep's combinations stand for their sweep (a
-    finished one's are its ``combo-NNN/`` directories, an unfinished one's the sweep itself)."""
-    in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
-    path = run.path.parent if run.combination is not None and in_combo_dir else run.path
-    # a structural sweep's group stands for the sweep
-    return path.parent if layout.is_groups(path.parent) else path
 
 
 def draw_figure(runs: list[RunCurves]) -> Figure:

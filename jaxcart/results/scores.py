@@ -521,20 +521,24 @@ def curves_csv(entries: list[Entry]) -> bytes:
     return buf.getvalue().encode()
 
 
+def named_dir(run: RunCurves) -> Path:
+    """The directory a run was named by: a sweep's combinations stand for their sweep (a
+    finished one's are its ``combo-NNN/`` directories, an unfinished one's the sweep itself),
+    and so do a structural sweep's groups."""
+    in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
+    path = run.path.parent if run.combination is not None and in_combo_dir else run.path
+    return path.parent if layout.is_groups(path.parent) else path
+
+
 def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
     """Creates the output directory (default: a new ``compare-<time>`` beside the first
     compared run, e.g. in ``runs/``); refuses one inside a compared run (or its sweep)."""
     if out is None:
-        first = entries[0].run
-        # a combination's sweep directory is a run directory too
-        run_dir = first.path.parent if first.combination else first.path
-        out = layout.default_compare_dir(run_dir.parent)
+        out = layout.default_compare_dir(named_dir(entries[0].run).parent)
     out = Path(out)
     target = out.resolve()
     for entry in entries:
-        owner = entry.run.path.resolve()
-        if entry.run.combination:
-            owner = owner.parent
+        owner = named_dir(entry.run).resolve()
         if target == owner or owner in target.parents:
             raise CompareError(
                 f"--out {out} is inside the run directory {owner}; write the comparison elsewhere"
