@@ -86,7 +86,7 @@ def table(comparison: Comparison) -> str:
     reference = "baseline"
     if comparison.arms:
         reference = f"{comparison.arms.names[0]} same config"
-    ci = f"{100 * comparison.stats.confidence:.3g}% CI"  # wider with --adjust bonferroni
+    ci = f"{100 * comparison.confidence:.3g}% CI"  # wider with --adjust bonferroni
     counts = [len(entry.scores) for entry in comparison.entries]
     if stats.interval_label(counts) != f"{stats.CONFIDENCE:.0%} CI":  # too few seeds for one
         ci = stats.interval_label(counts)
@@ -102,7 +102,7 @@ def table(comparison: Comparison) -> str:
     ]
     names, legend = _row_names([entry.name for entry in comparison.entries])
     rows = []
-    for name, entry, st in zip(names, comparison.entries, comparison.stats.runs):
+    for name, entry, st in zip(names, comparison.entries, comparison.runs):
         n = len(entry.scores)
         steps = entry.first_reached(entry.run.env_steps)
         rows.append(
@@ -123,7 +123,7 @@ def table(comparison: Comparison) -> str:
 
 def matrix_text(comparison: Comparison) -> str | None:
     """``P(row > column)`` for every pair of runs, None with two runs or fewer."""
-    matrix = comparison.stats.matrix
+    matrix = comparison.matrix
     if matrix is None:
         return None
     names = [e.name for e in comparison.entries]
@@ -152,7 +152,7 @@ def arms_text(comparison: Comparison) -> str | None:
                 st.improvement.format(2) if st.improvement else "baseline",
             ]
         )
-    ci = f"{100 * comparison.stats.confidence:.3g}% CI"
+    ci = f"{100 * comparison.confidence:.3g}% CI"
     header = ["arm", "configs", "IQM [95% CI]", f"IQM - {arms.names[0]} [{ci}]", f"P(>) [{ci}]"]
     return (
         f"Arms over {len(arms.runs[0])} configuration(s) (stratified bootstrap: seeds "
@@ -163,7 +163,7 @@ def arms_text(comparison: Comparison) -> str | None:
 
 def saturation_text(comparison: Comparison) -> str:
     """One line: whether the score can tell the runs apart at all."""
-    if not comparison.stats.saturated:
+    if not comparison.saturated:
         return "saturated: no (the scores differ between seeds or runs)"
     value = comparison.entries[0].scores[0]
     hint = "compare with --score auc (or return-at:STEPS)"
@@ -213,7 +213,7 @@ def report_text(comparison: Comparison) -> str:
         table(comparison),
         wrap(solved_text(comparison)),
         wrap(saturation_text(comparison)),
-        wrap(comparison.stats.reading_note()),
+        wrap(comparison.reading_note()),
     ]
     lines += [text for text in (matrix_text(comparison), arms_text(comparison)) if text]
     lines += [wrap(f"note: {note}") for note in comparison.notes]
@@ -374,19 +374,9 @@ def _compare_command(argv: list[str] | None) -> int:
     if not 0 <= args.seed < 2**32:
         raise cli.UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
     cli.check_dpi(args.dpi)
-    arms = [runs.parse_arm(text) for text in args.arm]
-    result = compare_runs(
-        args.run_dirs,
-        args.baseline,
-        args.out,
-        args.reps,
-        args.seed,
-        args.dpi,
-        args.score,
-        args.adjust,
-        arms,
-        args.policy,
-    )
+    options = vars(args)  # compare_runs's parameters, by name
+    options["arms"] = [runs.parse_arm(text) for text in options.pop("arm")]
+    result = compare_runs(**options)
     print(report_text(result.comparison))
     paths = (result.json_path, result.figure_path, result.curves_path)
     print(f"wrote {', '.join(map(str, paths))}", flush=True)

@@ -37,7 +37,6 @@ import io
 import math
 import os
 import sys
-import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -76,44 +75,21 @@ METRIC_BOUNDS: dict[str, tuple[float, float]] = {
 }
 """Each metric's range; confidence bands are clipped to it."""
 FORMATS = ("png", "svg", "pdf")
-CONFIDENCE = stats.CONFIDENCE
 COMPARISON = layout.PLOT_COMPARISON_FILE
 """Where several runs are drawn by default (or comparison-2.png, ... if it exists)."""
 SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
 """The summary panel's font sizes, tried largest first until every run's block fits."""
 
 
-def mean_and_band(
-    values: np.ndarray,
-    bounds: tuple[float, float] = (-math.inf, math.inf),
-    confidence: float = CONFIDENCE,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """NaN-aware mean across seeds and its percentile bootstrap confidence interval
-    (:func:`jaxcart.analysis.stats.curve_band`, deterministic), clipped to ``bounds``.
-
-    Args:
-        values: ``[iterations, num_seeds]``, NaN where a seed has no value.
-
-    Returns:
-        ``(mean, low, high)``, each ``[iterations]``. ``mean`` is NaN where no seed has a value;
-        ``low``/``high`` are NaN where fewer than two seeds do.
-    """
-    return stats.curve_band(values, "mean", confidence=confidence, bounds=bounds)
-
-
 def _plot_metric(
     ax, x: np.ndarray, values: np.ndarray, style: figures.Style, name: str
 ) -> np.ndarray:
-    """Draws the mean curve and its band; returns the mean ``[iterations]``."""
-    mean, low, high = mean_and_band(values, METRIC_BOUNDS.get(name, (-math.inf, math.inf)))
-    ax.plot(x, mean, **style.line())
-    if np.isfinite(low).any():
-        ax.fill_between(x, low, high, color=style.color, alpha=0.18, lw=0)
+    """Draws the mean across seeds and its bootstrap band (:func:`stats.curve_band`, clipped
+    to :data:`METRIC_BOUNDS`); returns the mean ``[iterations]``."""
+    bounds = METRIC_BOUNDS.get(name, (-math.inf, math.inf))
+    mean, low, high = stats.curve_band(values, "mean", bounds=bounds)
+    figures.band(ax, x, mean, low, high, alpha=0.18, **style.line())
     return mean
-
-
-def _no_data(ax, text: str) -> None:
-    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
 def _summary_lines(run: RunCurves) -> list[str]:
@@ -125,16 +101,15 @@ def _summary_lines(run: RunCurves) -> list[str]:
         final = f"final ep_rew_mean {np.nanmean(ret[-1]):.1f}"
     steps = f"{int(run.env_steps[-1]):,} steps/seed" if np.isfinite(run.env_steps[-1]) else ""
     line = ", ".join(p for p in (f"{run.num_seeds} seed(s)", steps, final) if p)
-    ev = run.evaluation
+    from jaxcart.results.scores import read_evaluation
+
+    means, solved = read_evaluation(run, required=False)  # the final policies'
     if run.note:
         eval_line = f"not evaluated: {run.note}"
-    elif ev and ev.get("seeds"):
-        seeds = ev["seeds"]
-        solved = sum(bool(s.get("solved")) for s in seeds)
-        mean = np.mean([s.get("gymnasium_mean", np.nan) for s in seeds])
+    elif means is not None:
         eval_line = (
-            f"Gymnasium: solved {solved}/{len(seeds)}, mean return {mean:.1f} "
-            f"({ev.get('episodes', '?')} greedy episodes per seed)"
+            f"Gymnasium: solved {solved}/{means.size}, mean return {means.mean():.1f} "
+            f"({run.evaluation.get('episodes', '?')} greedy episodes per seed)"
         )
     else:
         eval_line = "no evaluation.json"
@@ -168,17 +143,30 @@ def plot_runs(
         ValueError: bad ``labels``/``out``.
     """
 
-    run_dirs = [Path(p) for p in run_dirs]
-    if not run_dirs:
-        raise ValueError("give at least one run directory")
-    if labels is not None and len(labels) != len(run_dirs):
-        raise ValueError(f"got {len(labels)} label(s) for {len(run_dirs)} run directories")
-    from jaxcart.rundir.views import load_runs
-
-    runs = load_runs(run_dirs, labels)
+    runs = _load_runs(run_dirs, labels)
     if out is None:
         return draw_figure(runs)
     return draw_runs(runs, out, dpi)[1]
+
+
+def _load_runs(
+    run_dirs: Sequence[str | os.PathLike], labels: Sequence[str] | None
+) -> list[RunCurves]:
+    """:func:`jaxcart.rundir.views.load_runs`, with one label per run directory or none.
+
+    Raises:
+        ValueError: no run directory, or another number of labels.
+    """
+    if not run_dirs:
+        raise ValueError("give at least one run directory")
+    if labels is not None and len(labels) != len(run_dirs):
+        raise ValueError(
+            f"got {len(labels)} label(s) (--label) for {len(run_dirs)} run directories; "
+            "give one per run directory or none"
+        )
+    from jaxcart.rundir.views import load_runs
+
+    return load_runs([Path(p) for p in run_dirs], labels)
 
 
 def default_out(run_dirs: Sequence[str | os.PathLike]) -> Path:
@@ -199,7 +187,9 @@ def draw_runs(
 ) -> tuple[Path, Figure]:
     """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`; default
     :func:`default_out`); returns the path written and the figure."""
-    out = default_out(list(dict.fromkeys(_run_dir(run) for run in runs))) if out is None else out
+    from jaxcart.results.scores import named_dir
+
+    out = default_out(list(dict.fromkeys(named_dir(run) for run in runs))) if out is None else out
     out = Path(out)
     fmt = out.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
@@ -215,39 +205,29 @@ def draw_runs(
     return out, fig
 
 
-def _run_dir(run: RunCurves) -> Path:
-    """The directory a run was named by: a sweep's combinations stand for their sweep (a
-    finished one's are its ``combo-NNN/`` directories, an unfinished one's the sweep itself)."""
-    in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
-    path = run.path.parent if run.combination is not None and in_combo_dir else run.path
-    # a structural sweep's group stands for the sweep
-    return path.parent if layout.is_groups(path.parent) else path
-
-
 def draw_figure(runs: list[RunCurves]) -> Figure:
     """The whole figure, laid out: return vs steps and vs wall time, the key metrics, the
     summary, and the legend below the panels."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    custom = custom_metric_names(runs)
-    extra_rows = -(-len(custom) // 3)  # three panels a row, below the built-in ones
+    # the key metrics, then the runs' own (PPOConfig.metrics), each once, three panels a row;
+    # slot 5 (row 2, right) is the summary's
+    custom = dict.fromkeys(name for run in runs for name in run.custom_metrics)
+    panels = [*KEY_METRICS, *((name, name) for name in custom)]
+    extra_rows = -(-len(custom) // 3)  # below the built-in ones
     fig = Figure(figsize=(15, 11 + 3.5 * extra_rows), layout="constrained")
     FigureCanvasAgg(fig)  # a renderer to measure text with, before the figure is saved
     grid = fig.add_gridspec(3 + extra_rows, 6)
     ax_steps = fig.add_subplot(grid[0, 0:3])
     ax_time = fig.add_subplot(grid[0, 3:6])
-    metric_axes = [
-        fig.add_subplot(grid[1 + k // 3, 2 * (k % 3) : 2 * (k % 3) + 2]) for k in range(5)
-    ]
+    slots = [k + (k >= 5) for k in range(len(panels))]
+    metric_axes = [fig.add_subplot(grid[1 + j // 3, 2 * (j % 3) : 2 * (j % 3) + 2]) for j in slots]
     ax_summary = fig.add_subplot(grid[2, 4:6])
     ax_summary.axis("off")
     styles = figures.run_styles(len(runs))
-    _draw_curves(runs, styles, ax_steps, ax_time, metric_axes)
-    custom_axes = [
-        fig.add_subplot(grid[3 + k // 3, 2 * (k % 3) : 2 * (k % 3) + 2]) for k in range(len(custom))
-    ]
-    _draw_custom(runs, styles, custom_axes, custom)
+    _draw_returns(runs, styles, ax_steps, ax_time)
+    _draw_metrics(runs, styles, metric_axes, panels)
     _draw_legend(fig, runs, styles)
     num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
     if all(run.num_seeds == 1 for run in runs):
@@ -255,8 +235,8 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
         what = "no confidence band (train several seeds for one)"
     else:
         band = stats.interval_label([run.num_seeds for run in runs if run.num_seeds > 1], "mean")
-        if band == f"{CONFIDENCE:.0%} CI":
-            band = f"{CONFIDENCE:.0%} bootstrap confidence interval"
+        if band == f"{stats.CONFIDENCE:.0%} CI":
+            band = f"{stats.CONFIDENCE:.0%} bootstrap confidence interval"
         what = (
             f"mean across seeds, shaded {band} (the axes fit the means; a band may run past them)"
         )
@@ -272,13 +252,13 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
     return fig
 
 
-def _draw_curves(
-    runs: list[RunCurves], styles: list[figures.Style], ax_steps, ax_time, metric_axes
-) -> None:
-    from jaxcart.core.envs import ACTION_COUNTS
+def _draw_returns(runs: list[RunCurves], styles: list[figures.Style], ax_steps, ax_time) -> None:
+    """The return against env steps (with ``--eval-every``'s greedy evaluations as dots)
+    and against wall time."""
+    from matplotlib.ticker import MaxNLocator
+
     from jaxcart.rundir.views import ELAPSED_METRIC
 
-    means: dict[str, list[np.ndarray]] = {name: [] for name, _ in KEY_METRICS}
     env_ids = {run.env for run in runs}
     for run, style in zip(runs, styles):
         ret = run.metrics.get(RETURN_METRIC)
@@ -293,10 +273,6 @@ def _draw_curves(
             ax_steps.plot(
                 run.env_steps[rows], mean, "o", color=style.color, ms=4, label=EVAL_METRIC
             )
-        for ax, (name, _) in zip(metric_axes, KEY_METRICS):
-            if name in run.metrics:
-                mean = _plot_metric(ax, run.env_steps, run.metrics[name], style, name)
-                means[name].append(mean)
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
     ax_steps.set(
@@ -310,9 +286,9 @@ def _draw_curves(
         ylabel="rollout/ep_rew_mean",
     )
     if not ax_steps.lines:
-        _no_data(ax_steps, f"{RETURN_METRIC} not recorded")
+        figures.no_data(ax_steps, f"{RETURN_METRIC} not recorded")
     if not ax_time.lines:
-        _no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
+        figures.no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
     for ax in (ax_steps, ax_time):
         if env_ids == {DEFAULT_ENV}:
             ax.axhline(500, color="0.6", lw=0.8, ls="--")  # CartPole-v1's maximum return
@@ -324,44 +300,35 @@ def _draw_curves(
             ax.set_ylim(low - 0.04 * (high - low), high + 0.04 * (high - low))
         ax.grid(alpha=0.3)
     figures.step_axis(ax_steps.xaxis)
-    from matplotlib.ticker import MaxNLocator
-
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
-    for ax, (name, title) in zip(metric_axes, KEY_METRICS):
-        ax.set(title=title, xlabel="env steps per seed", ylabel=name)
-        ax.grid(alpha=0.3)
-        figures.step_axis(ax.xaxis)
-        bounds = METRIC_BOUNDS.get(name, (-math.inf, math.inf))
-        if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
-            bounds = (-math.log(max(ACTION_COUNTS[e] for e in env_ids)), 0.0)
-        limits = figures.curve_limits(means[name], bounds)
-        if limits is None:
-            _no_data(ax, f"{name} not recorded")
-        else:
-            ax.set_ylim(limits)  # the bands are clipped to these axes, not the axes to them
 
 
-def custom_metric_names(runs: list[RunCurves]) -> list[str]:
-    """The runs' own metrics (``PPOConfig.metrics``), each once, in the order they come."""
-    return list(dict.fromkeys(name for run in runs for name in run.custom_metrics))
-
-
-def _draw_custom(
-    runs: list[RunCurves], styles: list[figures.Style], axes: list, names: list[str]
+def _draw_metrics(
+    runs: list[RunCurves],
+    styles: list[figures.Style],
+    axes: list,
+    panels: list[tuple[str, str]],
 ) -> None:
-    """One panel per custom metric, against env steps, for every run that records it."""
-    for ax, name in zip(axes, names):
+    """One panel per ``(metric, title)`` against env steps, for every run that records it;
+    the y axis fits the means within the metric's range (the bands are clipped to the axes,
+    not the axes to them)."""
+    from jaxcart.core.envs import ACTION_COUNTS
+
+    for ax, (name, title) in zip(axes, panels):
         means = [
             _plot_metric(ax, run.env_steps, run.metrics[name], style, name)
             for run, style in zip(runs, styles)
             if name in run.metrics
         ]
-        ax.set(title=name, xlabel="env steps per seed", ylabel=name)
+        ax.set(title=title, xlabel="env steps per seed", ylabel=name)
         ax.grid(alpha=0.3)
         figures.step_axis(ax.xaxis)
-        limits = figures.curve_limits(means, (-math.inf, math.inf))
+        bounds = METRIC_BOUNDS.get(name, (-math.inf, math.inf))
+        if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
+            bounds = (-math.log(max(ACTION_COUNTS[run.env] for run in runs)), 0.0)
+        limits = figures.curve_limits(means, bounds)
         if limits is None:
-            _no_data(ax, f"{name} not recorded")
+            figures.no_data(ax, f"{name} not recorded")
         else:
             ax.set_ylim(limits)
 
@@ -403,38 +370,24 @@ def wall_time_notes(runs: list[RunCurves]) -> list[str]:
     return notes
 
 
-def draw_notes(ax, notes: list[str], fontsize: float = 8.5, width: int = 60) -> None:
-    """Notes in the top left corner of a panel, over a white background."""
-    if notes:
-        ax.text(
-            0.02,
-            0.98,
-            "\n".join(textwrap.fill(note, width) for note in notes),
-            transform=ax.transAxes,
-            va="top",
-            fontsize=fontsize,
-            bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
-        )
+def _text_below(ax, text: str, xy, xycoords, below: float, **style):
+    """``text`` from ``xy`` down, ``below`` points under it, left-aligned; left out of the
+    layout (the panel is laid out already, or will be once the text is wrapped to it)."""
+    offset = {"xytext": (0.0, -below), "textcoords": "offset points"}
+    text = ax.annotate(text, xy, xycoords=xycoords, va="top", ha="left", **offset, **style)
+    text.set_in_layout(False)
+    return text
 
 
 def _caption(ax, notes: list[str]):
     """Notes under a panel's x label, off the data; None without notes. Left out of the layout
-    until :func:`_wrap_to_axes` has wrapped them (unwrapped, they would squeeze the panel)."""
+    until :func:`figures.wrap_to_axes` has wrapped them (unwrapped, they would squeeze the
+    panel)."""
     if not notes:
         return None
-    text = ax.annotate(
-        "\n".join(f"note: {note}" for note in notes),
-        xy=(0.0, 0.0),
-        xycoords=("axes fraction", ax.xaxis.label),
-        xytext=(0.0, -4.0),
-        textcoords="offset points",
-        va="top",
-        ha="left",
-        fontsize=8.5,
-        color="0.3",
-    )
-    text.set_in_layout(False)
-    return text
+    text = "\n".join(f"note: {note}" for note in notes)
+    where = ("axes fraction", ax.xaxis.label)
+    return _text_below(ax, text, (0.0, 0.0), where, 4.0, fontsize=8.5, color="0.3")
 
 
 def _draw_summary(ax, runs: list[RunCurves], styles: list[figures.Style]) -> None:
@@ -467,19 +420,8 @@ def _draw_summary(ax, runs: list[RunCurves], styles: list[figures.Style]) -> Non
 
 def _summary_text(ax, block: str, colour: str, size: float, top: float):
     """One block of the summary, ``top`` points below the panel's top, wrapped to its width."""
-    text = ax.annotate(
-        block,
-        xy=(0.0, 1.0),
-        xycoords="axes fraction",
-        xytext=(0.0, -top),
-        textcoords="offset points",
-        va="top",
-        ha="left",
-        family="monospace",
-        fontsize=size,
-        color=colour,
-    )
-    text.set_in_layout(False)  # the panel is laid out already: the text fits it, not it the text
+    style = {"family": "monospace", "fontsize": size, "color": colour}
+    text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, **style)
     figures.wrap_to_axes(text, ax)
     return text
 
@@ -517,15 +459,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _plot_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
-    if args.label is not None and len(args.label) != len(args.run_dirs):
-        raise cli.UsageError(
-            f"got {len(args.label)} --label(s) for {len(args.run_dirs)} RUN_DIR(s); "
-            "give one per run directory or none"
-        )
     cli.check_dpi(args.dpi)
-    from jaxcart.rundir.views import load_runs
-
-    runs = load_runs(args.run_dirs, args.label)
+    runs = _load_runs(args.run_dirs, args.label)
     for run in runs:
         if not run.metrics:
             raise cli.UsageError(

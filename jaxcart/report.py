@@ -9,6 +9,7 @@ from __future__ import annotations
 import shlex
 import signal
 import sys
+from collections.abc import Callable
 from typing import IO, TYPE_CHECKING
 
 import numpy as np
@@ -17,7 +18,6 @@ from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
 from jaxcart.cli import format_table
 from jaxcart.core import physics
-from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 from jaxcart.core.solved import EVAL_SEED
@@ -62,7 +62,7 @@ def physics_text(run: Run) -> str:
     """`` | physics length=1, randomized masspole in [0.05, 0.2] per run``: the run's physics
     where it is not CartPole-v1's (``""`` otherwise)."""
     spec = getattr(run, "spec", run)
-    overrides = physics.overrides(getattr(spec, "env_params", EnvParams()))
+    overrides = physics.overrides(spec.env_params) if hasattr(spec, "env_params") else {}
     parts = [physics.describe(overrides)] if overrides else []
     parts += [
         f"randomized {r.name} in [{r.low:g}, {r.high:g}] per {r.per}"
@@ -106,6 +106,13 @@ def _rank(row: dict, ranking: list[dict]) -> str:
     return f"{row['rank']}{'=' if tied else ''}"
 
 
+def _interval(e: dict | None, digits: int = 1) -> str:
+    """A ranking's ``{value, ci_low, ci_high}`` as ``412.3 [380.0, 450.5]`` (``-``: none)."""
+    return (
+        "-" if e is None else stats.Estimate(e["value"], e["ci_low"], e["ci_high"]).format(digits)
+    )
+
+
 def _iqm_header(ranking: list[dict], num_seeds: int) -> str:
     """``IQM gym return [95% CI]``, ``IQM auc [range of 2 seeds]``: what ranks, and what
     its interval is (:func:`jaxcart.analysis.stats.interval_label`)."""
@@ -113,53 +120,49 @@ def _iqm_header(ranking: list[dict], num_seeds: int) -> str:
     return f"IQM {'gym return' if label == 'eval' else label} [{stats.interval_label(num_seeds)}]"
 
 
+Column = tuple[str, Callable[[dict], object]]
+"""A ranking table's column: its header and its cell of a ranking row."""
+
+
+def _ranking_columns(ranking: list[dict], names: list[str], num_seeds: int) -> list[Column]:
+    """The columns every ranking shows: the swept values and the IQM with its interval."""
+    values = [(name, lambda r, name=name: f"{r[name]:g}") for name in names]
+    return [*values, (_iqm_header(ranking, num_seeds), lambda r: _interval(r["iqm"]))]
+
+
+def _table(ranking: list[dict], columns: list[Column]) -> tuple[list[list], list[str]]:
+    """``(rows, header)`` of a ranking: one row per ranked combination."""
+    return [[cell(r) for _, cell in columns] for r in ranking], [h for h, _ in columns]
+
+
 def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
     """The ranking table of a sweep: each combination's rank, the IQM of its seeds' scores
     (``--score``, by default the mean greedy Gymnasium return) with its bootstrap interval,
     and the probability of improvement over combination 0."""
-
-    def interval(e: dict | None, digits: int) -> str:
-        if e is None:
-            return "-"
-        return f"{e['value']:.{digits}f} [{e['ci_low']:.{digits}f}, {e['ci_high']:.{digits}f}]"
-
-    names, grid = list(outcome.run.sweep), outcome.run.grid
+    ranking, grid = outcome.ranking, outcome.run.grid
     n, scores = grid.num_seeds, outcome.evaluation.gym_returns.mean(axis=-1)
-    rows = [
-        [
-            _rank(r, outcome.ranking),
-            r["combination"],
-            *[f"{r[name]:g}" for name in names],
-            interval(r["iqm"], 1),
-            f"{scores[grid.runs_of(r['combination'])].mean():.1f}",
-            interval(r["probability_of_improvement"], 2),
-            f"{r['solve_rate']:.0%}",
-            f"{r['final_return']:.1f}",
-            "never"
-            if not np.isfinite(r["median_steps_to_500"])
-            else f"{r['median_steps_to_500']:,.0f}",
-            f"{r['seeds_reaching_500']}/{n}",
-            f"{r['seeds_diverged']}/{n}",
-        ]
-        for r in outcome.ranking
-    ]
-    header = [
-        "rank",
-        "combo",
-        *names,
-        _iqm_header(outcome.ranking, n),
-        "gym mean",
-        f"P(> combo 0) [{stats.interval_label(n)}]",
-        "solved",
-        "final ep_rew_mean",
-        "median steps to a 500 episode",
-        "reached 500",
-        "diverged",
+    steps = "median_steps_to_500"
+    columns = [
+        ("rank", lambda r: _rank(r, ranking)),
+        ("combo", lambda r: r["combination"]),
+        *_ranking_columns(ranking, list(outcome.run.sweep), n),
+        ("gym mean", lambda r: f"{scores[grid.runs_of(r['combination'])].mean():.1f}"),
+        (
+            f"P(> combo 0) [{stats.interval_label(n)}]",
+            lambda r: _interval(r["probability_of_improvement"], 2),
+        ),
+        ("solved", lambda r: f"{r['solve_rate']:.0%}"),
+        ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
+        (
+            "median steps to a 500 episode",
+            lambda r: f"{r[steps]:,.0f}" if np.isfinite(r[steps]) else "never",
+        ),
+        ("reached 500", lambda r: f"{r['seeds_reaching_500']}/{n}"),
+        ("diverged", lambda r: f"{r['seeds_diverged']}/{n}"),
     ]
     if outcome.run.config.env != DEFAULT_ENV:  # a 500-step episode is CartPole's best only
-        keep = [i for i, h in enumerate(header) if "500" not in h]
-        rows, header = [[r[i] for i in keep] for r in rows], [header[i] for i in keep]
-    return rows, header
+        columns = [c for c in columns if "500" not in c[0]]
+    return _table(ranking, columns)
 
 
 SWEEP_COLUMNS = (
@@ -214,25 +217,15 @@ def groups_text(ranking: list[dict], groups: list[dict], sweep: dict, num_seeds:
     """The ranking of a structural sweep: every combination of every shape group, together."""
     from jaxcart.rundir.reader import group_label
 
-    names = list(sweep)
-
-    def interval(e: dict) -> str:
-        return f"{e['value']:.1f} [{e['ci_low']:.1f}, {e['ci_high']:.1f}]"
-
-    rows = [
-        [
-            _rank(r, ranking),
-            r["group"],
-            group_label({k: r[k] for k in groups[r["group"]]}),
-            *[f"{r[name]:g}" for name in names],
-            interval(r["iqm"]),
-            f"{r['solve_rate']:.0%}",
-            f"{r['final_return']:.1f}",
-        ]
-        for r in ranking
+    columns = [
+        ("rank", lambda r: _rank(r, ranking)),
+        ("group", lambda r: r["group"]),
+        ("shapes", lambda r: group_label({k: r[k] for k in groups[r["group"]]})),
+        *_ranking_columns(ranking, list(sweep), num_seeds),
+        ("solved", lambda r: f"{r['solve_rate']:.0%}"),
+        ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
     ]
-    iqm = _iqm_header(ranking, num_seeds)
-    header = ["rank", "group", "shapes", *names, iqm, "solved", "final ep_rew_mean"]
+    rows, header = _table(ranking, columns)
     return (
         f"\nStructural sweep ranking, {len(groups)} shape group(s) ({num_seeds} seed(s) each):\n"
         + format_table(rows, header)
@@ -291,13 +284,13 @@ def next_steps_text(outcome: Outcome) -> str:
     policy (the first solved seed, else seed 0; a sweep's best-ranked combination) and a
     comparison (with another run; a sweep's combinations with each other). Paths are quoted
     for the shell."""
-    out = outcome.run.out
-    q = shlex.quote
-    if outcome.run.grid.is_sweep:
-        best = outcome.ranking[0]["combination"] if outcome.ranking else 0
-        solved = np.flatnonzero(outcome.evaluation.solved[outcome.run.grid.runs_of(best)])
-        seed = int(solved[0]) if len(solved) else 0
-        pick = f" --seed-index {seed}" if seed else ""
+    out, grid, q = outcome.run.out, outcome.run.grid, shlex.quote
+    best = (outcome.ranking[0]["combination"] if outcome.ranking else 0) if grid.is_sweep else 0
+    solved = outcome.evaluation.solved
+    solved = np.flatnonzero(solved[grid.runs_of(best)] if grid.is_sweep else solved)
+    seed = int(solved[0]) if len(solved) else 0
+    pick = f" --seed-index {seed}" if seed else ""
+    if grid.is_sweep:
         gif = out / f"combo-{best:03d}" / f"seed{seed}.gif"
         commands = [
             (
@@ -312,9 +305,6 @@ def next_steps_text(outcome: Outcome) -> str:
             (f"python -m jaxcart.compare {q(str(out))}", "the combinations' statistics"),
         ]
     else:
-        solved = np.flatnonzero(outcome.evaluation.solved)
-        seed = int(solved[0]) if len(solved) else 0
-        pick = f" --seed-index {seed}" if seed else ""
         gif = out / f"seed{seed}.gif"
         commands = [
             (f"python -m jaxcart.plot {q(str(out))}", "learning curves, into its curves.png"),

@@ -16,7 +16,7 @@ from PIL import Image
 from scipy.stats import trim_mean
 
 from jaxcart import compare
-from jaxcart.analysis import stats, summary, tasks
+from jaxcart.analysis import stats, summary
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.networks import ActorCritic
 from jaxcart.engine.loop import METRIC_COLUMNS
@@ -326,12 +326,12 @@ def test_arms_over_configurations(tmp_path, capsys):
     assert data["baseline"] == "q" and [a["name"] for a in data["arms"]] == ["q", "p"]
     scores = {r["name"]: r["scores"] for r in data["runs"]}
     p_tasks, q_tasks = [scores["p0"], scores["p1"]], [scores["q0"], scores["q1"]]
-    assert data["arms"][1]["iqm"] == tasks.stratified_bootstrap_ci(p_tasks).to_dict()
+    assert data["arms"][1]["iqm"] == stats.bootstrap_ci(p_tasks, stats.iqm).to_dict()
     # 2 runs against their configuration's q run + 1 arm against arm q: 3 comparisons.
     assert data["comparisons"]["count"] == 3
     assert data["comparisons"]["confidence_each"] == pytest.approx(1 - 0.05 / 3)
     confidence = data["comparisons"]["confidence_each"]
-    expected = tasks.stratified_difference_ci(p_tasks, q_tasks, confidence=confidence)
+    expected = stats.difference_ci(p_tasks, q_tasks, confidence=confidence)
     assert data["arms"][1]["difference_iqm"] == pytest.approx(expected.to_dict())
     assert {r["name"]: r["reference"] for r in data["runs"]}["p1"] == "q1"
     assert data["probability_of_improvement_matrix"] is None

@@ -14,7 +14,7 @@ from helpers import distinct_colours, seal, tiny_args
 from PIL import Image, ImageSequence
 
 from jaxcart import evaluate, plot
-from jaxcart.analysis import figures
+from jaxcart.analysis import figures, stats
 from jaxcart.results import gif as render
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.views import RunCurves, load_runs
@@ -70,23 +70,28 @@ def assert_nontrivial_png(path, min_size=(600, 400)):
     assert blue > 100
 
 
+def mean_and_band(values, bounds=(-np.inf, np.inf)):
+    """What the plot draws: the mean across seeds and its band, clipped to the metric's range."""
+    return stats.curve_band(values, "mean", bounds=bounds)
+
+
 def test_mean_and_band_ignores_nan_needs_two_seeds_and_stays_in_range():
     values = np.array([[np.nan, np.nan], [1.0, 3.0], [2.0, np.nan], [5.0, 5.0]])
-    mean, low, high = plot.mean_and_band(values)
+    mean, low, high = mean_and_band(values)
     np.testing.assert_allclose(mean, [np.nan, 2.0, 2.0, 5.0])
     # Bootstrap of two seeds {1, 3}: resampled means 1, 2, 3 (P = 1/4, 1/2, 1/4), so the 95%
     # interval is [1, 3] (a Student-t interval would be 2 ± 12.7).
     np.testing.assert_allclose([low[1], high[1]], [1.0, 3.0])
     assert np.isnan(low[[0, 2]]).all() and np.isnan(high[[0, 2]]).all()
     np.testing.assert_allclose([low[3], high[3]], [5.0, 5.0])
-    again = plot.mean_and_band(values)  # deterministic
+    again = mean_and_band(values)  # deterministic
     np.testing.assert_array_equal(np.nan_to_num(again[1]), np.nan_to_num(low))
     # A metric's range clips the band: explained variance <= 1, clip fraction in [0, 1].
     rng = np.random.default_rng(0)
     ev = np.stack([rng.uniform(-20, 1, 8), np.ones(8)])
-    _, low, high = plot.mean_and_band(ev, plot.METRIC_BOUNDS["train/explained_variance"])
+    _, low, high = mean_and_band(ev, plot.METRIC_BOUNDS["train/explained_variance"])
     assert (high <= 1).all() and low[0] < -5
-    _, low, high = plot.mean_and_band(np.array([[0.5, 3.0]]), (0.0, 1.0))
+    _, low, high = mean_and_band(np.array([[0.5, 3.0]]), (0.0, 1.0))
     assert low[0] == 0.5 and high[0] == 1.0
     assert plot.METRIC_BOUNDS["rollout/ep_rew_mean"] == (0.0, 500.0)
     assert plot.METRIC_BOUNDS["train/approx_kl"][0] == 0.0
@@ -233,7 +238,7 @@ def test_axes_fit_the_curves_and_bands_run_past_them():
     run = synthetic_run("spiky")
     fig = plot.draw_figure([run])
     ax = panel(fig, "approx KL")
-    mean, _, high = plot.mean_and_band(run.metrics["train/approx_kl"], (0.0, np.inf))
+    mean, _, high = mean_and_band(run.metrics["train/approx_kl"], (0.0, np.inf))
     assert np.nanmax(high) > 2 * np.nanmax(mean)  # the band reaches far above the curve
     pad = 0.08 * np.ptp(mean)
     assert ax.get_ylim() == pytest.approx((mean.min() - pad, mean.max() + pad))

@@ -10,7 +10,7 @@ from scipy.stats import mannwhitneyu, trim_mean
 
 from jaxcart.analysis import curves as curves_lib
 from jaxcart.analysis import multiplicity as comparisons
-from jaxcart.analysis import stats, tasks
+from jaxcart.analysis import stats
 
 SAMPLE = np.array([0.0, 10, 20, 30, 40, 50, 60, 500])
 
@@ -334,19 +334,17 @@ def brute_force_pooled(tasks, reps, rng):
 def test_stratified_bootstrap_ci_resamples_within_tasks():
     reps = 300
     for statistic in (stats.iqm, stats.mean, stats.optimality_gap):
-        e = tasks.stratified_bootstrap_ci(TASKS_X, statistic, reps=reps, seed=4)
+        e = stats.bootstrap_ci(TASKS_X, statistic, reps=reps, seed=4)
         assert e.value == pytest.approx(float(statistic(np.concatenate(TASKS_X))))
         pooled = brute_force_pooled(TASKS_X, reps, np.random.default_rng(4))
         boot = [float(statistic(p)) for p in pooled]
         assert (e.ci_low, e.ci_high) == pytest.approx(brute_force_interval(boot))
-        assert e == tasks.stratified_bootstrap_ci(TASKS_X, statistic, reps=reps, seed=4)
-    assert tasks.stratified_bootstrap_ci(TASKS_X, stats.mean) != tasks.stratified_bootstrap_ci(
+        assert e == stats.bootstrap_ci(TASKS_X, statistic, reps=reps, seed=4)
+    assert stats.bootstrap_ci(TASKS_X, stats.mean) != stats.bootstrap_ci(
         TASKS_X, stats.mean, seed=5
     )
     # Seeds never move between tasks: every resample keeps three 0s and three 100s.
-    assert tasks.stratified_bootstrap_ci([[0.0] * 3, [100.0] * 3], stats.mean) == stats.Estimate(
-        50, 50, 50
-    )
+    assert stats.bootstrap_ci([[0.0] * 3, [100.0] * 3], stats.mean) == stats.Estimate(50, 50, 50)
     assert stats.bootstrap_ci([0.0] * 3 + [100.0] * 3, stats.mean).ci_low < 50  # pooled: moves
 
 
@@ -355,7 +353,7 @@ def test_stratified_statistics_match_rliables_aggregates():
     # probability_of_improvement = mean over tasks of Mann-Whitney U / (n m).
     rng = np.random.default_rng(8)
     x, y = rng.integers(0, 6, size=(5, 3)) * 100.0, rng.integers(0, 6, size=(7, 3)) * 100.0
-    e = tasks.stratified_bootstrap_ci(list(x.T), stats.iqm, reps=50)
+    e = stats.bootstrap_ci(list(x.T), stats.iqm, reps=50)
     assert e.value == pytest.approx(trim_mean(x, 0.25, axis=None))
     expected = np.mean(
         [
@@ -365,38 +363,36 @@ def test_stratified_statistics_match_rliables_aggregates():
             for m in range(3)
         ]
     )
-    assert tasks.stratified_probability_of_improvement(list(x.T), list(y.T)) == pytest.approx(
-        expected
-    )
+    assert stats.probability_of_improvement(list(x.T), list(y.T)) == pytest.approx(expected)
 
 
 def test_one_task_is_the_single_run_statistic_on_the_same_resamples():
     x, y = TASKS_X[0], TASKS_Y[0]
-    assert tasks.stratified_bootstrap_ci([x], stats.iqm, reps=200) == stats.bootstrap_ci(
+    assert stats.bootstrap_ci([x], stats.iqm, reps=200) == stats.bootstrap_ci(
         x, stats.iqm, reps=200
     )
-    assert tasks.stratified_difference_ci([x], [y], reps=200) == stats.difference_ci(x, y, reps=200)
-    assert tasks.stratified_probability_of_improvement_ci(
+    assert stats.difference_ci([x], [y], reps=200) == stats.difference_ci(x, y, reps=200)
+    assert stats.probability_of_improvement_ci(
         [x], [y], reps=200
     ) == stats.probability_of_improvement_ci(x, y, reps=200)
 
 
 def test_stratified_difference_and_improvement_by_brute_force():
     reps = 200
-    e = tasks.stratified_difference_ci(TASKS_X, TASKS_Y, stats.mean, reps=reps, seed=6)
+    e = stats.difference_ci(TASKS_X, TASKS_Y, stats.mean, reps=reps, seed=6)
     assert e.value == pytest.approx(np.concatenate(TASKS_X).mean() - np.concatenate(TASKS_Y).mean())
     rng = np.random.default_rng(6)
     px, py = brute_force_pooled(TASKS_X, reps, rng), brute_force_pooled(TASKS_Y, reps, rng)
     boot = [a.mean() - b.mean() for a, b in zip(px, py)]
     assert (e.ci_low, e.ci_high) == pytest.approx(brute_force_interval(boot))
 
-    p = tasks.stratified_probability_of_improvement_ci(TASKS_X, TASKS_Y, reps=reps, seed=6)
+    p = stats.probability_of_improvement_ci(TASKS_X, TASKS_Y, reps=reps, seed=6)
     # Pairs X wins per task (ties half), by X's seed: task 0, X 0/10/20/30 against Y 5, 10, 10:
     # 0 + 2 + 3 + 3 = 8 of 12; task 1, X 100/300/500 against 500, 200: 0 + 1 + 1.5 = 2.5 of 6;
     # task 2, X 50/60 against 40, 60, 70, 80: 1 + 1.5 = 2.5 of 8.
     by_hand = np.mean([8 / 12, 2.5 / 6, 2.5 / 8])
     assert p.value == pytest.approx(by_hand)
-    assert tasks.stratified_probability_of_improvement(TASKS_X, TASKS_Y) == pytest.approx(by_hand)
+    assert stats.probability_of_improvement(TASKS_X, TASKS_Y) == pytest.approx(by_hand)
     rng = np.random.default_rng(6)
     dx = [rng.integers(0, len(t), size=(reps, len(t))) for t in TASKS_X]  # all X draws first
     dy = [rng.integers(0, len(t), size=(reps, len(t))) for t in TASKS_Y]
@@ -410,18 +406,18 @@ def test_stratified_difference_and_improvement_by_brute_force():
         for r in range(reps)
     ]
     assert (p.ci_low, p.ci_high) == pytest.approx(brute_force_interval(boot))
-    assert p == tasks.stratified_probability_of_improvement_ci(TASKS_X, TASKS_Y, reps=reps, seed=6)
+    assert p == stats.probability_of_improvement_ci(TASKS_X, TASKS_Y, reps=reps, seed=6)
 
 
 def test_stratified_refusals():
-    with pytest.raises(ValueError, match="tasks holds no task"):
-        tasks.stratified_bootstrap_ci([], stats.iqm)
-    with pytest.raises(ValueError, match=r"tasks_x\[1\] holds 1 NaN"):
-        tasks.stratified_difference_ci([[1.0], [np.nan, 2]], [[1.0]])
-    with pytest.raises(ValueError, match=r"tasks_y\[0\] is empty"):
-        tasks.stratified_probability_of_improvement([[1.0]], [[]])
-    with pytest.raises(ValueError, match="tasks_x has 2 tasks and tasks_y 1"):
-        tasks.stratified_probability_of_improvement_ci([[1.0], [2.0]], [[1.0]])
+    with pytest.raises(ValueError, match="scores is empty"):
+        stats.bootstrap_ci([], stats.iqm)
+    with pytest.raises(ValueError, match=r"^x\[1\] holds 1 NaN"):
+        stats.difference_ci([[1.0], [np.nan, 2]], [[1.0]])
+    with pytest.raises(ValueError, match=r"^y\[0\] is empty"):
+        stats.probability_of_improvement([[1.0]], [[]])
+    with pytest.raises(ValueError, match="x has 2 tasks and y 1"):
+        stats.probability_of_improvement_ci([[1.0], [2.0]], [[1.0]])
 
 
 @pytest.mark.parametrize("name", sorted(stats.RANGE_BELOW))

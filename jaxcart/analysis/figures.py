@@ -5,7 +5,8 @@
 - :func:`curve_limits`: y-axis limits that fit the mean curves, not their confidence bands;
 - :func:`step_axis`: few ticks labelled ``250k``, ``1.25M``;
 - :func:`wrap_to_width` and :func:`wrap_to_axes`: text wrapped to the width of a laid-out
-  panel, measured in the font it is drawn in.
+  panel, measured in the font it is drawn in;
+- :func:`band`: a curve with its confidence band; :func:`no_data`: a panel's "not recorded".
 """
 
 from __future__ import annotations
@@ -78,6 +79,19 @@ def curve_limits(
     low = lo - pad if lo <= bounds[0] else max(lo - pad, bounds[0])
     high = hi + pad if hi >= bounds[1] else min(hi + pad, bounds[1])
     return low, high
+
+
+def band(ax, x, point, low, high, color: str, alpha: float = 0.2, **line) -> None:
+    """A curve ``point`` and, where it has finite values, its band ``[low, high]`` (each
+    ``[len(x)]``) in ``color``; ``line``: ``Axes.plot``'s keywords (``lw``, ``label``)."""
+    ax.plot(x, point, color=color, **line)
+    if np.isfinite(low).any():
+        ax.fill_between(x, low, high, color=color, alpha=alpha, lw=0)
+
+
+def no_data(ax, text: str) -> None:
+    """``text`` in grey in the middle of an empty panel."""
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
 def step_axis(axis) -> None:

@@ -18,11 +18,26 @@ seed's mean greedy Gymnasium return). Over them:
 - :func:`curve_band`: a statistic across seeds of a learning curve ``[iterations, seeds]``
   with a bootstrap band per iteration (whole curves are resampled, as rliable does).
 
-Beside this module: :mod:`jaxcart.analysis.tasks` aggregates several configurations
-(rliable's *tasks*, the stratified bootstrap), :mod:`jaxcart.analysis.curves` turns learning
-curves into per-seed scores (area under the curve, return at a budget), and
-:mod:`jaxcart.analysis.multiplicity` says what a set of comparisons can still tell (saturation,
-many intervals at once).
+**Tasks.** A run measured on several tasks (here: CartPole configurations, e.g. different
+environment parameters) has one score array per task, ``[scores_task_0 [n_0], scores_task_1
+[n_1], ...]`` (:data:`Scores`), and :func:`bootstrap_ci`, :func:`difference_ci`,
+:func:`probability_of_improvement` and its ``_ci`` take it in place of ``[n]``. rliable
+(``rliable/library.py`` ``StratifiedBootstrap`` and ``get_interval_estimates``) resamples the
+runs (seeds) *within each task*, independently across tasks, and never resamples the tasks
+themselves (its default ``task_bootstrap=False``): the interval is the uncertainty of
+repeating the experiment with new seeds on the same tasks. Its aggregates reduce all ``runs x
+tasks`` scores at once: ``aggregate_iqm`` is ``scipy.stats.trim_mean(scores, 0.25,
+axis=None)``, the IQM of every score pooled, and ``aggregate_optimality_gap`` likewise pools;
+``probability_of_improvement`` is the mean over tasks of each task's ``P(X_m > Y_m)``. Here
+too, every resample at once. Scores must be on one scale across tasks (rliable normalises each
+task's scores first, e.g. by its maximum return; CartPole configurations share the maximum of
+500, so nothing needs normalising). rliable's score matrix gives every task the same number of
+seeds; here tasks may differ, and the pooled statistic then weighs each task by its seed
+count. One task is the ordinary bootstrap over seeds, on the same resamples.
+
+Beside this module: :mod:`jaxcart.analysis.curves` turns learning curves into per-seed scores
+(area under the curve, return at a budget), and :mod:`jaxcart.analysis.multiplicity` says what
+a set of comparisons can still tell (saturation, many intervals at once).
 
 **NaN.** Scores are refused when they hold NaN (or infinity) or are empty: every function
 over scores raises ``ValueError`` naming the argument and counting the NaN, because a NaN
@@ -73,6 +88,11 @@ _CHUNK_ELEMENTS = 1 << 22  # resampled curve values held at once (32 MiB of floa
 
 Statistic = Callable[..., np.ndarray]
 """``statistic(values, axis=-1)``: reduces the last axis, e.g. ``np.mean`` or :func:`iqm`."""
+Scores = np.ndarray | Sequence[np.ndarray]
+"""One run's scores: ``[n]`` (one per seed), or per task ``[n_m]`` each (:func:`check_tasks`).
+Every interval below takes either: on several tasks, seeds are resampled within each task and
+the tasks never (rliable's stratified bootstrap, see the module docstring); on one task that is
+the ordinary bootstrap over seeds."""
 
 
 @dataclass(frozen=True)
@@ -125,6 +145,19 @@ def check_seeds(values: np.ndarray, name: str = "scores") -> np.ndarray:
     if values.ndim != 1:
         raise ValueError(f"{name} must be a 1-D array of per-seed scores, got shape {values.shape}")
     return check_scores(values, name)
+
+
+def check_tasks(scores: Scores, name: str = "scores") -> list[np.ndarray]:
+    """One run's scores per task (rliable's *tasks*, :mod:`jaxcart.analysis.stats`'s module
+    docstring), each :func:`check_seeds`-checked: an array, or a sequence of numbers, is one
+    task (``name``); a sequence of arrays is one per task (``name[0]``, ``name[1]``, ...).
+
+    Args:
+        scores: ``[n]``, or per task ``[n_m]``.
+    """
+    if isinstance(scores, np.ndarray) or len(scores) == 0 or np.ndim(scores[0]) == 0:
+        return [check_seeds(scores, name)]
+    return [check_seeds(t, f"{name}[{m}]") for m, t in enumerate(scores)]
 
 
 def iqm(scores: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -221,17 +254,26 @@ def percentile_interval(
     return low, high
 
 
+def _resampled(tasks: list[np.ndarray], reps: int, rng: np.random.Generator) -> np.ndarray:
+    """``[reps, sum n_m]``: each task's seeds resampled within the task, tasks side by side."""
+    return np.concatenate([t[resample_indices(t.size, reps, rng)] for t in tasks], axis=-1)
+
+
 def bootstrap_ci(
-    scores: np.ndarray,
+    scores: Scores,
     statistic: Statistic,
     reps: int = DEFAULT_REPS,
     confidence: float = CONFIDENCE,
     seed: int = DEFAULT_SEED,
 ) -> Estimate:
-    """``statistic(scores)`` and its percentile bootstrap confidence interval.
+    """``statistic(scores)`` and its percentile bootstrap confidence interval; on several
+    tasks, ``statistic`` of all their scores pooled (rliable's ``get_interval_estimates``
+    with ``aggregate_iqm``: ``scipy.stats.trim_mean(scores, 0.25, axis=None)``).
 
     Args:
-        scores: ``[n]``, one per seed; ``statistic(values, axis=-1)`` reduces ``[reps, n]``.
+        scores: ``[n]``, one per seed, or per task ``[n_m]`` (each task's seeds resampled
+            within it, task 0's indices first); ``statistic(values, axis=-1)`` reduces
+            ``[reps, n]``.
 
     Returns:
         The estimate; with one seed the interval is that one value (degenerate).
@@ -240,26 +282,27 @@ def bootstrap_ci(
 
 
 def bootstrap_cis(
-    scores: np.ndarray,
+    scores: Scores,
     statistics: dict[str, Statistic],
     reps: int = DEFAULT_REPS,
     confidence: float = CONFIDENCE,
     seed: int = DEFAULT_SEED,
 ) -> dict[str, Estimate]:
-    """Several statistics of ``scores`` ``[n]`` (finite, non-empty) over one shared set of
+    """Several statistics of ``scores`` (:func:`bootstrap_ci`'s) over one shared set of
     resamples."""
-    scores = check_seeds(scores, "scores")
-    resampled = scores[resample_indices(scores.size, reps, np.random.default_rng(seed))]
+    tasks = check_tasks(scores, "scores")
+    resampled = _resampled(tasks, reps, np.random.default_rng(seed))
+    pooled = np.concatenate(tasks)
     out = {}
     for name, statistic in statistics.items():
         low, high = percentile_interval(statistic(resampled, axis=-1), confidence)
-        out[name] = Estimate(float(statistic(scores, axis=-1)), float(low), float(high))
+        out[name] = Estimate(float(statistic(pooled, axis=-1)), float(low), float(high))
     return out
 
 
 def difference_ci(
-    x: np.ndarray,
-    y: np.ndarray,
+    x: Scores,
+    y: Scores,
     statistic: Statistic = iqm,
     reps: int = DEFAULT_REPS,
     confidence: float = CONFIDENCE,
@@ -267,23 +310,25 @@ def difference_ci(
 ) -> Estimate:
     """``statistic(x) - statistic(y)`` with a percentile bootstrap interval.
 
-    Each resample draws X's seeds with replacement from X and, independently, Y's from Y (X's
-    indices first, then Y's, from one generator), as :func:`probability_of_improvement_ci`
-    does; all resamples are reduced at once (``statistic`` reduces ``[reps, n]`` along -1).
-    An interval that excludes 0 says the difference is larger than seed-to-seed noise.
+    Each resample draws X's seeds with replacement from X and, independently, Y's from Y
+    (X's indices first, then Y's, from one generator; on several tasks within each task), as
+    :func:`probability_of_improvement_ci` does; all resamples are reduced at once
+    (``statistic`` reduces ``[reps, n]`` along -1). An interval that excludes 0 says the
+    difference is larger than seed-to-seed noise.
 
     Args:
-        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y (finite, non-empty).
+        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y (finite, non-empty); or each
+            per task (:data:`Scores`), the statistic of each run's tasks pooled.
 
     Returns:
         The difference (positive: X higher) and its interval.
     """
-    x, y = check_seeds(x, "x"), check_seeds(y, "y")
+    x, y = check_tasks(x, "x"), check_tasks(y, "y")
     rng = np.random.default_rng(seed)
-    ix, iy = resample_indices(x.size, reps, rng), resample_indices(y.size, reps, rng)
-    boot = statistic(x[ix], axis=-1) - statistic(y[iy], axis=-1)  # [reps]
+    boot_x = statistic(_resampled(x, reps, rng), axis=-1)
+    boot = boot_x - statistic(_resampled(y, reps, rng), axis=-1)  # [reps]
     low, high = percentile_interval(boot, confidence)
-    value = statistic(x, axis=-1) - statistic(y, axis=-1)
+    value = statistic(np.concatenate(x), axis=-1) - statistic(np.concatenate(y), axis=-1)
     return Estimate(float(value), float(low), float(high))
 
 
@@ -319,9 +364,20 @@ def pair_wins(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return (x > y) + 0.5 * (x == y)
 
 
-def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
+def _task_wins(x: Scores, y: Scores) -> list[np.ndarray]:
+    """Per task, the ``[n_m, k_m]`` pair wins of X's seeds over Y's (the tasks in one order)."""
+    x, y = check_tasks(x, "x"), check_tasks(y, "y")
+    if len(x) != len(y):
+        raise ValueError(
+            f"x has {len(x)} tasks and y {len(y)}: P(X > Y) compares the two runs task by task"
+        )
+    return [pair_wins(a, b) for a, b in zip(x, y)]
+
+
+def probability_of_improvement(x: Scores, y: Scores) -> float:
     """``P(X > Y) + 0.5 P(X = Y)`` for a random seed of X and a random seed of Y: the share of
-    the ``n * m`` seed pairs that X wins, ties counting half (Mann-Whitney ``U / (n m)``).
+    the ``n * m`` seed pairs that X wins, ties counting half (Mann-Whitney ``U / (n m)``); on
+    several tasks, the mean over tasks of each task's (rliable's ``probability_of_improvement``).
 
     This is the effect size the comparison should print (0.5: no difference), beside
     :func:`difference_ci` for the size in returns. A standardised mean difference (Cohen's d)
@@ -330,32 +386,34 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
     499 among 63 at 500, against 64 at 500, gives the same d = -0.18, so it adds nothing here.
 
     Args:
-        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y (finite, non-empty).
+        x: ``[n]`` scores of run X; y: ``[m]`` scores of run Y (finite, non-empty); or each
+            per task, the same tasks in the same order.
     """
-    return float(pair_wins(x, y).mean())
+    return float(np.mean([wins.mean() for wins in _task_wins(x, y)]))
 
 
 def probability_of_improvement_ci(
-    x: np.ndarray,
-    y: np.ndarray,
+    x: Scores,
+    y: Scores,
     reps: int = DEFAULT_REPS,
     confidence: float = CONFIDENCE,
     seed: int = DEFAULT_SEED,
 ) -> Estimate:
     """:func:`probability_of_improvement` with a bootstrap interval; X's and Y's seeds are
-    resampled independently (rliable's ``StratifiedIndependentBootstrap``).
+    resampled independently, within each task (rliable's ``StratifiedIndependentBootstrap``),
+    X's draws for all tasks first, then Y's.
 
     Args:
-        x: ``[n]``; y: ``[m]``.
+        x: ``[n]``; y: ``[m]``; or each per task.
     """
-    wins = pair_wins(x, y)  # [n, m]
-    n, m = wins.shape
+    wins = _task_wins(x, y)
     rng = np.random.default_rng(seed)
-    cx, cy = resample_counts(n, reps, rng), resample_counts(m, reps, rng)  # [reps, n], [reps, m]
-    # A resample's pairs: x_i drawn cx_i times, y_j drawn cy_j times -> cx_i cy_j pairs.
-    boot = ((cx @ wins) * cy).sum(-1) / (n * m)
+    cx = [resample_counts(w.shape[0], reps, rng) for w in wins]  # [reps, n_m] each
+    cy = [resample_counts(w.shape[1], reps, rng) for w in wins]  # [reps, k_m] each
+    # A resample's pairs in task m: x_i drawn cx_i times, y_j drawn cy_j times -> cx_i cy_j.
+    boot = np.mean([((a @ w) * b).sum(-1) / w.size for w, a, b in zip(wins, cx, cy)], axis=0)
     low, high = percentile_interval(boot, confidence)
-    return Estimate(float(wins.mean()), float(low), float(high))
+    return Estimate(float(np.mean([w.mean() for w in wins])), float(low), float(high))
 
 
 def _above(scores: np.ndarray, taus: np.ndarray, at_least: bool) -> np.ndarray:

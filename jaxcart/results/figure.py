@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.analysis import stats
-from jaxcart.analysis.figures import run_styles
+from jaxcart.analysis.figures import band, no_data, run_styles
 from jaxcart.results.scores import RETURN_METRIC, Comparison
 
 if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
@@ -49,10 +49,6 @@ def _colour(i: int) -> str:
     return f"C{i % 10}"
 
 
-def _no_data(ax, text: str) -> None:
-    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
-
-
 def _note(ax, text: str) -> None:
     ax.text(
         0.02,
@@ -63,6 +59,17 @@ def _note(ax, text: str) -> None:
         fontsize=7.5,
         bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
     )
+
+
+def _finish(ax, loc: str, empty: str) -> bool:
+    """A grid, and a legend of the runs drawn (at ``loc``) or ``empty`` written in the
+    middle; whether any run was drawn."""
+    ax.grid(alpha=0.3)
+    if not ax.lines:
+        no_data(ax, empty)
+        return False
+    ax.legend(fontsize=7, loc=loc)
+    return True
 
 
 def _tick_label(name: str, width: int = 14) -> str:
@@ -123,7 +130,7 @@ def _limits(
 
 
 def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
-    runs = comparison.stats.runs
+    runs = comparison.runs
     rows = [
         (i, e.name, getattr(runs[i], kind))
         for i, e in enumerate(comparison.entries)
@@ -140,7 +147,7 @@ def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
         title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
     if not rows:
         ax.set(title=title)
-        _no_data(ax, "one run: nothing to compare")
+        no_data(ax, "one run: nothing to compare")
         return
     span = stats.MAX_RETURN  # a difference of scores in [0, 500]
     xlim = (
@@ -159,8 +166,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
         profile, low, high = stats.performance_profile_band(
             entry.scores, TAUS, comparison.reps, seed=comparison.seed, at_least=True
         )
-        ax.plot(TAUS, profile, color=_colour(i), lw=1.6, label=entry.name)
-        ax.fill_between(TAUS, low, high, color=_colour(i), alpha=0.2, lw=0)
+        band(ax, TAUS, profile, low, high, _colour(i), lw=1.6, label=entry.name)
         ax.plot([TAUS[-1]], [profile[-1]], "o", color=_colour(i), ms=6)
     ax.set(
         title=f"performance profile ({score}); dot: fraction at 500",
@@ -169,12 +175,10 @@ def _profile_panel(ax, comparison: Comparison) -> None:
         xlim=(0, stats.MAX_RETURN * 1.02),
         ylim=(-0.02, 1.02),
     )
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower left")
+    _finish(ax, "lower left", "")
 
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
-    drawn = False
     for i, entry in enumerate(comparison.entries):
         values = entry.train_return
         if values is None or not np.isfinite(values).any():
@@ -184,21 +188,15 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
             values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=(0.0, 500.0)
         )
         x = entry.run.env_steps[points]
-        drawn = True
-        ax.plot(x, iqm, color=_colour(i), lw=1.6, label=entry.name)
-        ax.fill_between(x, low, high, color=_colour(i), alpha=0.2, lw=0)
+        band(ax, x, iqm, low, high, _colour(i), lw=1.6, label=entry.name)
     ax.set(
         title="sample efficiency: IQM over seeds of the training return",
         xlabel="env steps per seed",
         ylabel=RETURN_METRIC,
         ylim=(0, 520),
     )
+    _finish(ax, "lower right", f"{RETURN_METRIC} not recorded")
     ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
-    ax.grid(alpha=0.3)
-    if drawn:
-        ax.legend(fontsize=7, loc="lower right")
-    else:
-        _no_data(ax, f"{RETURN_METRIC} not recorded")
 
 
 def _reached_panel(ax, comparison: Comparison) -> None:
@@ -220,22 +218,17 @@ def _reached_panel(ax, comparison: Comparison) -> None:
         ylabel="fraction of seeds",
         ylim=(-0.02, 1.02),
     )
-    ax.grid(alpha=0.3)
-    if not ax.lines:
-        _no_data(ax, "not recorded")
-        return
-    ax.legend(fontsize=7, loc="lower right")
-    if not reached_any:
+    if _finish(ax, "lower right", "not recorded") and not reached_any:
         _note(ax, "no seed's training reached 500")
 
 
 def _matrix_panel(ax, comparison: Comparison) -> None:
-    matrix = comparison.stats.matrix
+    matrix = comparison.matrix
     ax.set_title("P(row > column) over seed pairs")
     if matrix is None:
         ax.set_axis_off()
         why = "arms: see the table" if comparison.arms else "two runs: see P(run > ...) above"
-        _no_data(ax, why)
+        no_data(ax, why)
         return
     names = [_tick_label(e.name) for e in comparison.entries]
     image = ax.imshow(matrix, vmin=0, vmax=1, cmap="RdBu")
@@ -255,14 +248,12 @@ def draw_comparison(comparison: Comparison) -> Figure:
     fig = Figure(figsize=(18, 13 + 0.25 * n), layout="constrained")
     grid = fig.add_gridspec(3, 12, height_ratios=[0.6 + 0.12 * n, 1, 1])
     score = comparison.score
-    location = [
-        r.estimates[name] for r in comparison.stats.runs for name in ("iqm", "median", "mean")
-    ]
+    location = [r.estimates[name] for r in comparison.runs for name in ("iqm", "median", "mean")]
     shared = _limits(location, 0.0, stats.MAX_RETURN, include=location[0].value)
     for k, (name, title) in enumerate(ESTIMATE_TITLES.items()):
         ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
         rows = [
-            (i, e.name, comparison.stats.runs[i].estimates[name])
+            (i, e.name, comparison.runs[i].estimates[name])
             for i, e in enumerate(comparison.entries)
         ]
         # One score axis for IQM, median and mean, so that they read alike; the gap
@@ -281,7 +272,7 @@ def draw_comparison(comparison: Comparison) -> Figure:
         f"CartPole-v1, {n} run(s); score = {score.label}: {score.definition}; "
         f"{stats.CONFIDENCE:.0%} percentile bootstrap intervals over seeds"
     )
-    if comparison.stats.saturated:
+    if comparison.saturated:
         title += (
             f"\nSATURATED: every seed of every run scores {comparison.entries[0].scores[0]:g}, "
             "so this score cannot tell the runs apart (try --score auc)"
@@ -306,8 +297,7 @@ def draw_robustness(
     fig = Figure(figsize=(9, 5.5), layout="constrained")
     ax = fig.add_subplot()
     for style, (label, point, low, high) in zip(run_styles(len(curves)), curves):
-        ax.plot(values, point, marker="o", label=label, **style.line())
-        ax.fill_between(values, low, high, color=style.color, alpha=0.2, lw=0)
+        band(ax, values, point, low, high, marker="o", label=label, **style.line())
     if min(values) > 0 and max(values) >= 4 * min(values):
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())

@@ -1,6 +1,6 @@
 """Runs read for a comparison: each run's per-seed scores by the chosen
 :class:`~jaxcart.analysis.summary.Score`, their statistics
-(:func:`jaxcart.analysis.summary.summarise`), arms over several configurations, and what
+(:func:`build_comparison`), arms over several configurations, and what
 ``python -m jaxcart.compare`` writes (``compare.json`` and the per-seed ``curves.csv``).
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.analysis import stats, summary
+from jaxcart.analysis import multiplicity, stats, summary
 from jaxcart.analysis.summary import Score
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.files import RunDirError
@@ -60,35 +60,35 @@ class Entry:
 def read_evaluation(
     run: RunCurves, required: bool, policy: str = "final"
 ) -> tuple[np.ndarray | None, int | None]:
-    """``(mean greedy return per seed [num_seeds], solved seeds)`` from ``evaluation.json``,
-    of the final policies or (``policy="best"``) of the best ones a run kept; ``(None,
-    None)`` when it is missing and not ``required``.
+    """``(mean greedy return per seed [num_seeds], solved seeds)`` from the run's
+    ``evaluation.json`` (as :func:`jaxcart.rundir.views.load_run` read and checked it), of the
+    final policies or (``policy="best"``) of the best ones a run kept; ``(None, None)`` when
+    it is missing and not ``required``.
 
     Raises:
-        RunDirError: missing (when required), unreadable or without per-seed Gymnasium means.
+        RunDirError: missing (when required), or without the best policies' evaluation.
     """
     path = run.path / layout.EVALUATION_FILE
-    if not path.is_file() or run.note is not None:
+    if run.evaluation is None or run.note is not None:
         if not required:
             return None, None
         raise RunDirError(
             f"{run.path} has no {layout.EVALUATION_FILE}: --score eval needs each seed's "
             "greedy evaluation, which training writes when it finishes (--score auc does not)"
         )
+    seeds = run.evaluation["seeds"]
+    if policy == "best":
+        if not all(isinstance(s.get("best"), dict) for s in seeds):
+            raise RunDirError(reader.no_best_policy(run.path))
+        seeds = [s["best"] for s in seeds]
     try:
-        seeds = reader.read_evaluation(run.path)["seeds"]
-        kept = all(isinstance(s.get("best"), dict) for s in seeds)
-        seeds = [s["best"] for s in seeds] if policy == "best" and kept else seeds
         means = np.array([float(s["gymnasium_mean"]) for s in seeds])
-        solved = sum(bool(s.get("solved")) for s in seeds)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
         detail = f"no {exc} entry" if isinstance(exc, KeyError) else str(exc)
         raise RunDirError(f"{path} is corrupted: {detail}") from None
-    if policy == "best" and not kept:
-        raise RunDirError(reader.no_best_policy(run.path))
     if means.size == 0 or not np.isfinite(means).all():
         raise RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
-    return means, solved
+    return means, sum(bool(s.get("solved")) for s in seeds)
 
 
 def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
@@ -225,19 +225,98 @@ def _expand_sweeps(
     return out
 
 
+@dataclass(frozen=True)
+class RunStats:
+    """One run's statistics.
+
+    Attributes:
+        estimates: :data:`stats.ESTIMATORS` name -> estimate with its bootstrap interval.
+        solved: fraction of seeds solved with its Wilson interval (None: not known).
+        difference: IQM of this run minus its reference's (None for a reference itself).
+        improvement: ``P(this run > reference)`` (None for a reference itself).
+    """
+
+    estimates: dict[str, stats.Estimate]
+    solved: stats.Estimate | None
+    difference: stats.Estimate | None
+    improvement: stats.Estimate | None
+
+
+@dataclass(frozen=True)
+class ArmStats:
+    """One arm over every configuration (task): stratified estimates
+    (:data:`jaxcart.analysis.stats.Scores`: seeds resampled within each configuration,
+    configurations never).
+
+    Attributes:
+        iqm: IQM of all its tasks' scores pooled, stratified bootstrap interval.
+        difference: its pooled IQM minus the baseline arm's (None for the baseline).
+        improvement: mean over tasks of ``P(X_m > Y_m)`` against the baseline arm (None for
+            the baseline).
+    """
+
+    iqm: stats.Estimate
+    difference: stats.Estimate | None
+    improvement: stats.Estimate | None
+
+    def to_dict(self) -> dict:
+        return {
+            "iqm": self.iqm.to_dict(),
+            "difference_iqm": self.difference and self.difference.to_dict(),
+            "probability_of_improvement": self.improvement and self.improvement.to_dict(),
+        }
+
+
 @dataclass
 class Comparison:
-    """Every run's statistics, the score, the baseline and what the reader should know."""
+    """Every run's statistics, the score, the baseline and what the reader should know.
+
+    Attributes:
+        runs: one per entry, in order.
+        references: per run, the index of the run it is compared with (itself: a baseline).
+        matrix: ``[R, R]`` ``P(row > column)`` point values, None with two runs or fewer
+            (or arms: across configurations, pairs of runs compare unlike things).
+        saturated: every seed of every run has the same score.
+        comparisons: differences read against a reference (each with a ``P(X > Y)``), the
+            arms' included.
+        confidence: of each difference and ``P(X > Y)`` interval (Bonferroni-widened with
+            ``adjust="bonferroni"``).
+        adjust: ``"none"`` or ``"bonferroni"``.
+    """
 
     entries: list[Entry]
     score: Score
-    stats: summary.Summary
     baseline: int
     reps: int
     seed: int
+    runs: list[RunStats]
+    references: list[int]
+    matrix: np.ndarray | None
+    saturated: bool
+    comparisons: int
+    confidence: float
+    adjust: str
     arms: Arms | None = None
-    arm_stats: list[summary.ArmStats] | None = None
+    arm_stats: list[ArmStats] | None = None
     notes: list[str] = field(default_factory=list)
+
+    def reading_note(self) -> str:
+        """One line: how many comparisons, and what that means for reading the intervals."""
+        n = self.comparisons
+        if n == 0:
+            return "no comparison made (one run, or only baselines)"
+        if self.adjust == "bonferroni":
+            return (
+                f"{n} comparison(s) against a baseline; each difference and P(X > Y) "
+                f"interval is widened to {self.confidence:.2%} (Bonferroni) so that all {n} "
+                f"hold together with probability at least {stats.CONFIDENCE:.0%}"
+            )
+        miss = multiplicity.familywise_miss_bound(n)
+        return (
+            f"{n} comparison(s) against a baseline; each interval is "
+            f"{stats.CONFIDENCE:.0%} on its own, so up to {miss:.0%} chance that at least one "
+            "misses its true value (--adjust bonferroni widens them to hold together)"
+        )
 
     def run_dict(self, i: int) -> dict:
         """``compare.json``'s entry of run ``i``."""
@@ -245,7 +324,7 @@ class Comparison:
         def seeds(x: np.ndarray | None) -> list | None:
             return None if x is None else [float(v) if np.isfinite(v) else None for v in x]
 
-        entry, run = self.entries[i], self.stats.runs[i]
+        entry, run = self.entries[i], self.runs[i]
         return {
             "name": entry.name,
             "path": str(entry.run.path),
@@ -255,7 +334,7 @@ class Comparison:
             **{name: run.estimates[name].to_dict() for name in stats.ESTIMATORS},
             "solved": run.solved and run.solved.to_dict(),
             "solved_seeds": entry.solved,
-            "reference": self.entries[self.stats.references[i]].name,
+            "reference": self.entries[self.references[i]].name,
             "difference_iqm": run.difference and run.difference.to_dict(),
             "probability_of_improvement": run.improvement and run.improvement.to_dict(),
             "evaluation_episodes": entry.episodes,
@@ -264,7 +343,7 @@ class Comparison:
         }
 
     def to_dict(self) -> dict:
-        s, names = self.stats, [e.name for e in self.entries]
+        s, names = self, [e.name for e in self.entries]
         matrix = None
         if s.matrix is not None:
             matrix = {"runs": names, "values": s.matrix.tolist()}
@@ -306,33 +385,72 @@ def build_comparison(
     adjust: str = "none",
     arms: Arms | None = None,
 ) -> Comparison:
-    """Statistics of every run, each against the baseline (with ``arms``: against the
-    baseline arm's run on the same configuration), and the arms aggregated."""
+    """Statistics of every run from its per-seed scores, each against the baseline (with
+    ``arms``: against the baseline arm's run on the same configuration), and the arms
+    aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration); ``adjust=
+    "bonferroni"`` widens every difference and ``P(X > Y)`` interval to
+    :func:`multiplicity.bonferroni_confidence` of the number of comparisons."""
+    if adjust not in summary.ADJUSTMENTS:
+        raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {adjust!r}")
     references = [baseline] * len(entries)
-    references[baseline] = baseline
     if arms is not None:
         references = list(range(len(entries)))
-        for runs in arms.runs[1:]:
-            for task, i in enumerate(runs):
+        for indices in arms.runs[1:]:
+            for task, i in enumerate(indices):
                 references[i] = arms.runs[0][task]
-    scores = [e.scores for e in entries]
-    extra = 0 if arms is None else len(arms.names) - 1
-    result = summary.summarise(
-        scores,
-        [e.solved for e in entries],
-        references,
+    scores = [stats.check_seeds(e.scores, f"scores[{i}]") for i, e in enumerate(entries)]
+    count = sum(r != i for i, r in enumerate(references))
+    count += 0 if arms is None else len(arms.names) - 1
+    confidence = stats.CONFIDENCE
+    if adjust == "bonferroni" and count:
+        confidence = multiplicity.bonferroni_confidence(count)
+
+    def against(x: stats.Scores, y: stats.Scores) -> tuple[stats.Estimate, stats.Estimate]:
+        """The IQM difference and ``P(X > Y)``, each with its interval."""
+        return (
+            stats.difference_ci(x, y, stats.iqm, reps, confidence, seed),
+            stats.probability_of_improvement_ci(x, y, reps, confidence, seed),
+        )
+
+    runs = []
+    for i, (x, e, ref) in enumerate(zip(scores, entries, references)):
+        solved = None if e.solved is None else stats.wilson_interval(int(e.solved), x.size)
+        estimates = stats.bootstrap_cis(x, stats.ESTIMATORS, reps, seed=seed)
+        runs.append(
+            RunStats(estimates, solved, *(against(x, scores[ref]) if ref != i else [None] * 2))
+        )
+    matrix = arm_stats = None
+    if arms is None and len(scores) > 2:
+        matrix = np.array(
+            [[stats.probability_of_improvement(x, y) for y in scores] for x in scores]
+        )
+    if arms is not None:
+        per_arm = [[scores[i] for i in indices] for indices in arms.runs]
+        arm_stats = [
+            ArmStats(
+                stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed),
+                *(against(arm, per_arm[0]) if a else [None] * 2),
+            )
+            for a, arm in enumerate(per_arm)
+        ]
+    saturated = multiplicity.saturated(scores)
+    return Comparison(
+        entries,
+        score,
+        baseline,
         reps,
         seed,
+        runs,
+        references,
+        matrix,
+        saturated,
+        count,
+        confidence,
         adjust,
-        extra_comparisons=extra,
-        matrix=arms is None,  # across configurations, pairs of runs compare unlike things
+        arms,
+        arm_stats,
+        comparison_notes(entries),
     )
-    arm_stats = None
-    if arms is not None:
-        per_arm = [[scores[i] for i in runs] for runs in arms.runs]
-        arm_stats = summary.summarise_arms(per_arm, 0, reps, seed, result.confidence)
-    notes = comparison_notes(entries)
-    return Comparison(entries, score, result, baseline, reps, seed, arms, arm_stats, notes)
 
 
 def comparison_notes(entries: list[Entry]) -> list[str]:
@@ -403,20 +521,24 @@ def curves_csv(entries: list[Entry]) -> bytes:
     return buf.getvalue().encode()
 
 
+def named_dir(run: RunCurves) -> Path:
+    """The directory a run was named by: a sweep's combinations stand for their sweep (a
+    finished one's are its ``combo-NNN/`` directories, an unfinished one's the sweep itself),
+    and so do a structural sweep's groups."""
+    in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
+    path = run.path.parent if run.combination is not None and in_combo_dir else run.path
+    return path.parent if layout.is_groups(path.parent) else path
+
+
 def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
     """Creates the output directory (default: a new ``compare-<time>`` beside the first
     compared run, e.g. in ``runs/``); refuses one inside a compared run (or its sweep)."""
     if out is None:
-        first = entries[0].run
-        # a combination's sweep directory is a run directory too
-        run_dir = first.path.parent if first.combination else first.path
-        out = layout.default_compare_dir(run_dir.parent)
+        out = layout.default_compare_dir(named_dir(entries[0].run).parent)
     out = Path(out)
     target = out.resolve()
     for entry in entries:
-        owner = entry.run.path.resolve()
-        if entry.run.combination:
-            owner = owner.parent
+        owner = named_dir(entry.run).resolve()
         if target == owner or owner in target.parents:
             raise CompareError(
                 f"--out {out} is inside the run directory {owner}; write the comparison elsewhere"
