@@ -1,11 +1,14 @@
-"""The environments the trainer runs: jaxcart's CartPole-v1, and gymnax's discrete-action envs
-that Gymnasium also has (Acrobot-v1, MountainCar-v0), behind one functional protocol.
+"""The environments the trainer runs: jaxcart's CartPole-v1, gymnax's discrete-action envs
+that Gymnasium also has (Acrobot-v1, MountainCar-v0), and any env a user registers
+(:func:`register`), behind one functional protocol.
 
 An :class:`Env` is the protocol gymnax and jaxcart share, as functions of a state and a params
 pytree passed beside the config: ``reset(key, params) -> (obs, state)`` and a batched
 ``step_batch(key, state, action, params)`` that keeps ``terminated`` and ``truncated`` apart
 and resets finished episodes on the same step, plus the sizes the trainer takes from it
-(``obs_dim``, ``num_actions``).
+(``obs_dim``, ``num_actions``). Nothing outside an env's own module asks which env it is: what
+differs (CartPole's first states drawn on the host, its physics that may differ between runs:
+:func:`~jaxcart.core.pytree.per_run_field`) is a member of the protocol or of the params.
 
 gymnax's own ``step`` resets inside and merges the episode end into its bookkeeping; the
 trainer bootstraps a time-limit truncation from V(final_obs), so the adapter here calls
@@ -24,8 +27,9 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from jaxcart.core import cartpole
+from jaxcart.core import cartpole, physics
 from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS
 
 Array = jax.Array
@@ -56,6 +60,10 @@ class Env:
             episodes reset on the same step (``final_obs``: the observation before the reset).
         reward_threshold: Gymnasium's ``reward_threshold`` for this id, or None for CartPole,
             which is judged by its own stricter rule (:mod:`jaxcart.core.solved`).
+        host_reset: ``(rng, params, num_envs, dtype) -> (obs [num_envs, obs_dim], state
+            [num_envs])`` in NumPy from a run's ``numpy.random.Generator``: the first episodes
+            drawn on the host, no program to compile (CartPole's); None: ``reset`` with keys
+            the generator draws.
     """
 
     id: str
@@ -65,11 +73,7 @@ class Env:
     reset: Callable[[Array, Any], tuple[Array, Any]]
     step_batch: Callable[..., tuple]
     reward_threshold: float | None = None
-
-    @property
-    def is_cartpole(self) -> bool:
-        """jaxcart's own CartPole-v1 (its runs draw their first states on the host)."""
-        return self.id == DEFAULT_ENV
+    host_reset: Callable[[np.random.Generator, Any, int, np.dtype], tuple] | None = None
 
 
 CARTPOLE = Env(
@@ -78,13 +82,31 @@ CARTPOLE = Env(
     num_actions=2,
     default_params=cartpole.EnvParams,
     reset=cartpole.reset,
-    step_batch=cartpole.step_batch,
+    # steps an EpisodeState too: physics drawn anew at every reset (--randomize ...:episode)
+    step_batch=physics.step_batch,
+    host_reset=cartpole.host_reset,
 )
+
+_REGISTERED: dict[str, Env] = {}
+
+
+def register(env: Env) -> Env:
+    """Makes ``env`` one the trainer takes by its id in this process (``PPOConfig(env=env.id)``,
+    :func:`~jaxcart.engine.loop.train`, ``run_new``), as ``jaxcart.register_env``; returns it.
+
+    Raises:
+        EnvError: the id is one of jaxcart's own envs.
+    """
+    if env.id in (DEFAULT_ENV, *GYMNAX_ENVS):
+        raise EnvError(f"env {env.id} is one of jaxcart's own; register yours under another id")
+    _REGISTERED[env.id] = env
+    make.cache_clear()
+    return env
 
 
 def env_ids() -> list[str]:
     """Every env id the trainer takes."""
-    return [DEFAULT_ENV, *GYMNAX_ENVS]
+    return [DEFAULT_ENV, *GYMNAX_ENVS, *_REGISTERED]
 
 
 @functools.cache
@@ -98,6 +120,8 @@ def make(env_id: str) -> Env:
     """
     if env_id == DEFAULT_ENV:
         return CARTPOLE
+    if env_id in _REGISTERED:
+        return _REGISTERED[env_id]
     try:
         import gymnax
     except ImportError:
@@ -147,7 +171,7 @@ def _gymnax_env(env_id: str, env: Any, params: Any) -> Env:
 
 def _flat_obs(obs: Array, batch_dims: int) -> Array:
     """Observations as floats of the training dtype, flattened to ``[..., obs_dim]``."""
-    obs = jnp.asarray(obs, cartpole.float_dtype())
+    obs = jnp.asarray(obs, jnp.zeros(()).dtype)
     return obs.reshape(obs.shape[:batch_dims] + (-1,))
 
 
@@ -193,4 +217,5 @@ __all__ = [
     "EnvError",
     "env_ids",
     "make",
+    "register",
 ]

@@ -23,6 +23,7 @@ from jaxcart.core import envs, physics
 from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
+from jaxcart.core.pytree import split_per_run, with_values
 from jaxcart.engine import distributed
 from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, roll_back_diverged, train_chunk
 from jaxcart.engine.signals import wait_interruptibly
@@ -77,9 +78,10 @@ def init_runners(
 
     Run r draws from ``fold_in(PRNGKey(seed), seed_indices[r])``: seed index i starts the same
     whatever runs beside it, and a sweep repeats the seed indices for every combination so
-    combinations share random numbers. The built-in network and the resets are drawn on the
-    host (:meth:`ActorCritic.host_init <jaxcart.core.networks.ActorCritic.host_init>` and
-    uniform in the reset bounds), so there is no initialisation program to compile; another
+    combinations share random numbers. The built-in network and, for an env with a
+    ``host_reset`` (CartPole), the first episodes are drawn on the host (:meth:`ActorCritic.host_init
+    <jaxcart.core.networks.ActorCritic.host_init>`), so there is no initialisation program to
+    compile; another env resets in one compiled call; another
     flax network is initialised by its own ``init``, all runs in one call. ``on_progress(done, total)`` is called every
     1024 runs (it may raise to abandon the initialisation). With ``episode_ranges``
     (``{field: (low, high)}``), every env's physics are drawn per episode: the env state is a
@@ -87,14 +89,14 @@ def init_runners(
     generator after everything else it draws (so the other draws are the same).
     """
     env = envs.make(config.env)
-    env_params = physics.split_per_run(env_params or env.default_params())[0]
+    env_params = split_per_run(env_params or env.default_params())[0]
     indices = np.asarray(seed_indices)
     keys = seed_index_keys(seed, indices)
     reset_obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0), env_params)[0]
     dtype, obs_dim = reset_obs.dtype, reset_obs.shape[-1]
     network = make_network(config)
     on_host = hasattr(network, "host_init")  # the built-in MLP: SB3's initialisation in NumPy
-    params, init_seeds, obs, run_keys, episodes = [], [], [], [], []
+    params, init_seeds, starts, run_keys, episodes = [], [], [], [], []
     for i, key in enumerate(keys):
         if on_progress is not None and i % 1024 == 0:
             on_progress(i, len(keys))
@@ -103,33 +105,29 @@ def init_runners(
             params.append(network.host_init(rng, obs_dim, dtype))  # float64 under x64, as the env
         else:
             init_seeds.append(rng.integers(0, 2**31))
-        shape = (config.num_envs, obs_dim)
-        if env.is_cartpole:  # CartPole's observation is its state: drawn here, no program
-            obs.append(
-                rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype)
-            )
+        if env.host_reset is not None:  # the env draws its first episodes here: no program
+            starts.append(env.host_reset(rng, env_params, config.num_envs, dtype))
         else:  # a key per env for the env's own reset
-            obs.append(rng.integers(0, 2**32, (config.num_envs, 2), dtype=np.uint32))
+            starts.append(rng.integers(0, 2**32, (config.num_envs, 2), dtype=np.uint32))
         run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))
         if episode_ranges:
             n = config.num_envs
             episodes.append({k: rng.uniform(lo, hi, n) for k, (lo, hi) in episode_ranges.items()})
+    stack = functools.partial(jax.tree.map, lambda *xs: np.stack(xs))
     if on_host:
-        stacked = jax.tree.map(lambda *xs: np.stack(xs), *params)
+        stacked = stack(*params)
     else:  # flax's own initialisation, every run's in one compiled call
         example = jnp.zeros((1, obs_dim), dtype)
         init = jax.jit(jax.vmap(lambda seed: network.init(jax.random.PRNGKey(seed), example)))
         stacked = jax.tree.map(np.asarray, dict(init(jnp.asarray(init_seeds, jnp.uint32))))
-    if env.is_cartpole:
-        runners = initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    if env.host_reset is not None:
+        first_obs, env_state = stack(*starts)
     else:
-        first_obs, env_state = reset_envs(env, np.stack(obs), env_params)
-        runners = initial_runners(stacked, first_obs, np.stack(run_keys), config, env_state)
-    if not episode_ranges:
-        return runners
-    values = {k: np.stack([e[k] for e in episodes]) for k in episode_ranges}
-    env_state = physics.episode_state(runners.env_state, values, episode_ranges)
-    return runners.replace(env_state=env_state)
+        first_obs, env_state = reset_envs(env, np.stack(starts), env_params)
+    if episode_ranges:
+        values = {k: np.stack([e[k] for e in episodes]) for k in episode_ranges}
+        env_state = physics.episode_state(env_state, values, episode_ranges, first_obs.dtype)
+    return initial_runners(stacked, first_obs, np.stack(run_keys), config, env_state)
 
 
 def reset_envs(env: envs.Env, keys: np.ndarray, env_params: Any) -> tuple[np.ndarray, Any]:
@@ -304,9 +302,10 @@ def train(
             arrays ``[num_runs]`` with one value per run (a sweep: :meth:`PPOConfig.per_run`).
         num_runs: independent runs, a vmap axis sharded over ``devices``.
         seed: base seed; run r uses ``fold_in(PRNGKey(seed), seed_indices[r])``.
-        env_params: CartPole's params (default CartPole-v1's); a continuous field may hold
-            an array ``[num_runs]``, one value per run (a physics sweep or randomisation),
-            which the program takes as an argument: other values reuse the executable.
+        env_params: the env's params (default its ``default_params()``); a
+            :func:`~jaxcart.core.pytree.per_run_field` may hold an array ``[num_runs]``, one
+            value per run (a physics sweep or randomisation), which the program takes as an
+            argument: other values reuse the executable.
         chunk_size: iterations per compiled call between progress reports (default: calls
             that adapt to take about :data:`CHUNK_SECONDS` each).
         resume: continue from this state (e.g. a loaded checkpoint), bit-identically.
@@ -389,7 +388,7 @@ def place_env_params(
 ) -> Any:
     """``env_params`` with its per-run fields (arrays ``[num_runs]``, if any) in the training's
     float type, padded and placed as :func:`place` places the runs; unchanged without them."""
-    static, per_run = physics.split_per_run(env_params)
+    static, per_run = split_per_run(env_params)
     if not per_run:
         return env_params
     for name, values in per_run.items():
@@ -398,7 +397,7 @@ def place_env_params(
     padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
     arrays = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
     placed = distributed.to_global(pad_runs(arrays, padded), run_sharding(devices))
-    return physics.with_values(static, placed)
+    return with_values(static, placed)
 
 
 class _ChunkLoop:
@@ -498,7 +497,7 @@ def compiled_chunk(
     Returns:
         ``(compiled, fresh)`` where ``fresh`` says whether it was compiled just now.
     """
-    static_env, per_run = physics.split_per_run(env_params)
+    static_env, per_run = split_per_run(env_params)
     signature = tuple(
         (leaf.shape, str(leaf.dtype), str(leaf.sharding))
         for leaf in jax.tree.leaves((runners, config, per_run))
@@ -565,7 +564,7 @@ def chunk_program(
         per_run: dict | None = None,
     ):
         count = count if adaptive else None
-        env = physics.with_values(env_params, per_run or {})
+        env = with_values(env_params, per_run or {})
         return train_chunk(runners, config, start, env, chunk_size, update_group, count)
 
     if isinstance(sharding, NamedSharding) and sharding.mesh.size > 1:
