@@ -89,7 +89,8 @@ CARTPOLE = Env(
     host_reset=cartpole.host_reset,
 )
 
-_REGISTERED: dict[str, Env] = {}
+_ENVS: dict[str, Env] = {DEFAULT_ENV: CARTPOLE}
+"""jaxcart's own env and those registered in this process (gymnax's are made on demand)."""
 
 
 def register(env: Env) -> Env:
@@ -99,16 +100,16 @@ def register(env: Env) -> Env:
     Raises:
         EnvError: the id is one of jaxcart's own envs.
     """
-    if env.id in (DEFAULT_ENV, *GYMNAX_ENVS):
+    if env.id in ACTION_COUNTS:
         raise EnvError(f"env {env.id} is one of jaxcart's own; register yours under another id")
-    _REGISTERED[env.id] = env
+    _ENVS[env.id] = env
     make.cache_clear()
     return env
 
 
 def env_ids() -> list[str]:
     """Every env id the trainer takes."""
-    return [DEFAULT_ENV, *GYMNAX_ENVS, *_REGISTERED]
+    return [*_ENVS, *GYMNAX_ENVS]
 
 
 @functools.cache
@@ -120,10 +121,8 @@ def make(env_id: str) -> Env:
         EnvError: an unknown id, an env this trainer cannot run (continuous actions, no
             Gymnasium counterpart), or gymnax not installed; the message is one line.
     """
-    if env_id == DEFAULT_ENV:
-        return CARTPOLE
-    if env_id in _REGISTERED:
-        return _REGISTERED[env_id]
+    if env_id in _ENVS:
+        return _ENVS[env_id]
     try:
         import gymnax
     except ImportError:

@@ -29,19 +29,18 @@ from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, roll_back_diverg
 from jaxcart.engine.signals import wait_interruptibly
 
 
-def seed_keys(seed: int, num_seeds: int) -> jax.Array:
-    """One PRNG key per seed index: ``fold_in(PRNGKey(seed), i)``, so seed index i's run does
-    not depend on how many seeds train beside it."""
-    base = jax.random.PRNGKey(seed)
-    return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(num_seeds, dtype=jnp.uint32))
-
-
 def seed_index_keys(seed: int, indices: np.ndarray) -> np.ndarray:
-    """``seed_keys(seed, n)[indices]`` without drawing the keys of the other indices (a wave
-    far into a million seeds draws only its own), as NumPy ``[len(indices), 2]`` uint32."""
+    """One PRNG key per seed index, ``fold_in(PRNGKey(seed), i)``, as NumPy ``[len(indices),
+    2]`` uint32: seed index i's run does not depend on how many seeds train beside it, and a
+    wave far into a million seeds draws only its own keys."""
     base = jax.random.PRNGKey(seed)
     fold = jax.vmap(lambda i: jax.random.fold_in(base, i))
     return np.asarray(fold(jnp.asarray(np.asarray(indices), dtype=jnp.uint32)))
+
+
+def seed_keys(seed: int, num_seeds: int) -> np.ndarray:
+    """:func:`seed_index_keys` of seed indices ``0 .. num_seeds - 1``."""
+    return seed_index_keys(seed, np.arange(num_seeds))
 
 
 def padded_runs(num_runs: int, num_devices: int) -> int:
@@ -447,7 +446,8 @@ class _ChunkLoop:
             self.chunks.append(metrics)
         self.done += take
         diverged = np.asarray(distributed.gather(end.diverged_at))
-        runners = rolled_back(start, end) if (diverged >= 0).any() else end
+        # rolled back on the host, only once a run has diverged: the chunk carries no rollback
+        runners = roll_back_diverged(start, end) if (diverged >= 0).any() else end
         snapshot = functools.partial(self._snapshot, runners, self.done, now)
         done, diverged = self.done, diverged[:num_runs]
         return runners, Progress(
@@ -551,7 +551,7 @@ def chunk_program(
     differ between runs, ``{name: [R]}``, placed as the runners.
 
     The runners are not donated: a run that diverges is rolled back to them
-    (:func:`rolled_back`)."""
+    (:func:`~jaxcart.engine.chunk.roll_back_diverged`)."""
     # Groups keep a CPU core's working set in its cache; a GPU wants the widest vmap instead.
     on_cpu = all(d.platform == "cpu" for d in sharding.device_set)
     update_group = UPDATE_GROUP if on_cpu else None
@@ -579,12 +579,6 @@ def chunk_program(
             check_vma=False,  # per-run metrics vs the skip branch's constants
         )
     return jax.jit(training_chunk)  # XLA's module: jit_training_chunk
-
-
-def rolled_back(start: RunnerState, end: RunnerState) -> RunnerState:
-    """:func:`~jaxcart.engine.chunk.roll_back_diverged`, called on the host only once a run
-    has diverged (so the chunk program itself carries no rollback)."""
-    return roll_back_diverged(start, end)
 
 
 def _concat(chunks: list[dict[str, np.ndarray]], columns: tuple[str, ...]) -> dict[str, np.ndarray]:
