@@ -84,5 +84,37 @@ def test_training_is_reproducible_and_per_seed():
 
 
 def test_own_ids_cannot_be_taken():
+    import dataclasses
+
     with pytest.raises(EnvError, match="CartPole-v1 is one of jaxcart's own"):
-        jaxcart.register_env(POINT_MASS.__class__(**{**POINT_MASS.__dict__, "id": "CartPole-v1"}))
+        jaxcart.register_env(dataclasses.replace(POINT_MASS, id="CartPole-v1"))
+
+
+def test_an_env_registered_again_under_its_id_trains_anew():
+    """The compiled program is the env's: one registered again under the same id (here paying
+    2 a step) is not run by the program compiled for the first."""
+    import dataclasses
+
+    def step_paying_two(key, state, action, params):
+        obs, state, reward, terminated, truncated = step(key, state, action, params)
+        return obs, state, 2 * reward, terminated, truncated
+
+    config = dataclasses.replace(CONFIG, total_timesteps=128)
+    first = jaxcart.train_runs(config, num_runs=1, seed=0, devices=DEVICE).runners
+    assert np.all(first.episode_return == first.episode_length)
+    try:
+        jaxcart.register_env(
+            jaxcart.env_from_step(
+                "PointMass-v0",
+                obs_dim=2,
+                num_actions=3,
+                reset=reset,
+                step=step_paying_two,
+                max_episode_steps=LIMIT,
+                reward_threshold=90.0,
+            )
+        )
+        again = jaxcart.train_runs(config, num_runs=1, seed=0, devices=DEVICE).runners
+        assert np.all(again.episode_return == 2 * again.episode_length)
+    finally:
+        jaxcart.register_env(POINT_MASS)

@@ -95,7 +95,9 @@ _ENVS: dict[str, Env] = {DEFAULT_ENV: CARTPOLE}
 
 def register(env: Env) -> Env:
     """Makes ``env`` one the trainer takes by its id in this process (``PPOConfig(env=env.id)``,
-    :func:`~jaxcart.engine.loop.train`, ``run_new``), as ``jaxcart.register_env``; returns it.
+    :func:`~jaxcart.engine.loop.train`, :func:`~jaxcart.core.evaluation.greedy_returns`), as
+    ``jaxcart.register_env``; returns it. A run directory judges its runs in Gymnasium's env of
+    the same id, so ``run_new`` takes the built-in ids only.
 
     Raises:
         EnvError: the id is one of jaxcart's own envs.

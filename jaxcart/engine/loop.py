@@ -485,7 +485,7 @@ def compiled_chunk(
     """The compiled :func:`~jaxcart.engine.chunk.train_chunk` for these shapes and devices.
 
     Kept per process, keyed by what shapes the program: the config's pytree structure (its
-    static fields), the env constants, the chunk size and the array shapes and shardings of
+    static fields), the env and its constants, the chunk size and the array shapes and shardings of
     the runners and of the config's traced fields (``[R]``). The traced values are not part
     of the key (nor of the program): new learning rates, clip ranges, ... reuse the same
     executable. So are env params that differ between runs (arrays ``[R]`` on
@@ -504,6 +504,7 @@ def compiled_chunk(
     )
     adaptive = bool(chunk_seconds)
     key = (
+        envs.make(config.env),  # an env registered again under its id is another program
         jax.tree.structure(config),
         params_key(static_env),
         tuple(per_run),
