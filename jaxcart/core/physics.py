@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.core import cartpole, pytree
-from jaxcart.core.cartpole import EnvParams, float_dtype
+from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.errors import ConfigError
 from jaxcart.core.pytree import split_per_run, with_values
 
@@ -44,7 +44,9 @@ def check_physics(params: EnvParams, dtype: np.dtype | None = None) -> None:
     angular acceleration when pushed from rest): a value that overflows there, or a positive
     one that rounds to 0, would make every run diverge at its first iteration.
     Fields may hold arrays (one value per run); every value is checked."""
-    dtype = np.dtype(float_dtype() if dtype is None else dtype)
+    if dtype is None:  # the flag, not a JAX array: no backend starts here
+        dtype = np.float64 if jax.config.jax_enable_x64 else np.float32
+    dtype = np.dtype(dtype)
     positive = ("masscart", "masspole", "length", "tau", "x_threshold", "theta_threshold_radians")
     ran: dict[str, np.ndarray] = {}  # each number as the env holds it
     for name in (*positive, "gravity", "force_mag", "reset_low", "reset_high"):
