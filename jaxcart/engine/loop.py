@@ -519,16 +519,10 @@ def compiled_chunk(
         extra = (per_run,) if per_run else ()
         lowered = program.lower(runners, config, jnp.int32(0), jnp.int32(1), *extra)
         _COMPILED[key] = lowered.compile()
-    if per_run:
-        return functools.partial(_with_env_values, _COMPILED[key], per_run), fresh
-    return _COMPILED[key], fresh
-
-
-def _with_env_values(
-    compiled: Callable, per_run: dict, runners: RunnerState, config: PPOConfig, *args: jax.Array
-) -> tuple[RunnerState, dict]:
-    """The compiled chunk called with the runs' own env param values ``[R]``."""
-    return compiled(runners, config, *args, per_run)
+    compiled = _COMPILED[key]
+    if per_run:  # called with the runs' own env param values [R]
+        return lambda *args: compiled(*args, per_run), fresh
+    return compiled, fresh
 
 
 def params_key(env_params: Any) -> tuple:
