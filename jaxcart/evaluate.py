@@ -24,8 +24,8 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxcart.analysis import stats  # noqa: E402
-from jaxcart.core import physics  # noqa: E402
 from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, GYMNAX_ENVS, NUM_EVAL_EPISODES, is_solved  # noqa: E402
+from jaxcart.run import physics  # noqa: E402
 from jaxcart.run.greedy import evaluate_params, summarize  # noqa: E402
 from jaxcart.run.sweep import parse_sweep  # noqa: E402
 from jaxcart.rundir import files, layout, outputs  # noqa: E402

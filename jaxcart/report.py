@@ -17,10 +17,10 @@ import numpy as np
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
 from jaxcart.cli import format_table
-from jaxcart.core import physics
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
 from jaxcart.core.solved import EVAL_SEED
+from jaxcart.run import physics
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar
 

@@ -13,13 +13,12 @@ from helpers import TINY, assert_same_run_dirs, stopped_run, tiny_args
 
 import jaxcart
 from jaxcart import evaluate, train
-from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.solved import EVAL_SEED
 from jaxcart.engine.loop import train as train_runs
 from jaxcart.gym.stock import make_cartpole
-from jaxcart.run import lifecycle
+from jaxcart.run import lifecycle, physics
 from jaxcart.run.spec import RunSpec
 from jaxcart.rundir import layout, reader
 
@@ -257,13 +256,13 @@ def test_per_episode_draws_happen_at_resets_only():
     import jax.numpy as jnp
 
     from jaxcart.core.cartpole import state_from_obs
+    from jaxcart.core.physics import episode_state, step_batch
 
     env = state_from_obs(np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.5, 0.0]], np.float32))
-    state = physics.episode_state(
-        env, {"length": np.array([0.3, 0.4], np.float32)}, {"length": (0.25, 1.0)}
-    )
+    lengths = {"length": np.array([0.3, 0.4], np.float32)}
+    state = episode_state(env, lengths, {"length": (0.25, 1.0)}, np.float32)
     key = jnp.array([1, 2], jnp.uint32)
-    _, new, _, terminated, _, _ = physics.step_batch(key, state, jnp.array([1, 1]), EnvParams())
+    _, new, _, terminated, _, _ = step_batch(key, state, jnp.array([1, 1]), EnvParams())
     assert terminated.tolist() == [False, True]  # the second pole is past 12 degrees
     poles = np.asarray(new.values["length"])
     assert poles[0] == np.float32(0.3) and poles[1] != np.float32(0.4)

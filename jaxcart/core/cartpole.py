@@ -29,6 +29,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxcart.core import pytree
 
@@ -41,16 +42,20 @@ class EnvParams:
 
     Derived quantities (total mass, pole mass times length) are computed in :func:`step_env`
     from these, so changing ``masspole`` or ``length`` changes the dynamics consistently.
+    The float fields that enter the step as numbers may differ between runs
+    (:func:`~jaxcart.core.pytree.per_run_field`: ``--sweep env.NAME``, ``--randomize``); the
+    others shape the program (the integrator, the episode limit, the reward mode) or are
+    drawn on the host (the reset bounds), so they are one value for a whole run.
     """
 
-    gravity: float = 9.8
-    masscart: float = 1.0
-    masspole: float = 0.1
-    length: float = 0.5  # half the pole's length, as in Gymnasium
-    force_mag: float = 10.0
-    tau: float = 0.02  # seconds between state updates
-    x_threshold: float = 2.4
-    theta_threshold_radians: float = 12 * 2 * math.pi / 360
+    gravity: float = pytree.per_run_field(9.8)
+    masscart: float = pytree.per_run_field(1.0)
+    masspole: float = pytree.per_run_field(0.1)
+    length: float = pytree.per_run_field(0.5)  # half the pole's length, as in Gymnasium
+    force_mag: float = pytree.per_run_field(10.0)
+    tau: float = pytree.per_run_field(0.02)  # seconds between state updates
+    x_threshold: float = pytree.per_run_field(2.4)
+    theta_threshold_radians: float = pytree.per_run_field(12 * 2 * math.pi / 360)
     max_episode_steps: int = 500
     sutton_barto_reward: bool = False
     reset_low: float = -0.05
@@ -116,6 +121,17 @@ def reset(key: Array, params: EnvParams) -> tuple[Array, EnvState]:
         x=s[0], x_dot=s[1], theta=s[2], theta_dot=s[3], step_count=jnp.zeros((), jnp.int32)
     )
     return get_obs(state), state
+
+
+def host_reset(
+    rng: np.random.Generator, params: EnvParams, num_envs: int, dtype: np.dtype
+) -> tuple[np.ndarray, EnvState]:
+    """``num_envs`` first episodes drawn on the host from ``rng`` (no program to compile): the
+    observations ``[num_envs, 4]`` (each state variable uniform in ``[reset_low,
+    reset_high)``, in ``dtype``) and their states (fields ``[num_envs]``, step counters 0)."""
+    obs = rng.uniform(params.reset_low, params.reset_high, (num_envs, 4)).astype(dtype)
+    steps = np.zeros((num_envs,), np.int32)
+    return obs, EnvState(obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3], steps)
 
 
 def step_env(
@@ -295,7 +311,6 @@ def step_batch(
 
 def observation_space(params: EnvParams | None = None):
     """Gymnasium's ``Box`` for CartPole observations (twice the termination thresholds)."""
-    import numpy as np
     from gymnasium import spaces
 
     p = params or EnvParams()

@@ -1,11 +1,14 @@
-"""The environments the trainer runs: jaxcart's CartPole-v1, and gymnax's discrete-action envs
-that Gymnasium also has (Acrobot-v1, MountainCar-v0), behind one functional protocol.
+"""The environments the trainer runs: jaxcart's CartPole-v1, gymnax's discrete-action envs
+that Gymnasium also has (Acrobot-v1, MountainCar-v0), and any env a user registers
+(:func:`register`), behind one functional protocol.
 
 An :class:`Env` is the protocol gymnax and jaxcart share, as functions of a state and a params
 pytree passed beside the config: ``reset(key, params) -> (obs, state)`` and a batched
 ``step_batch(key, state, action, params)`` that keeps ``terminated`` and ``truncated`` apart
 and resets finished episodes on the same step, plus the sizes the trainer takes from it
-(``obs_dim``, ``num_actions``).
+(``obs_dim``, ``num_actions``). Nothing outside an env's own module asks which env it is: what
+differs (CartPole's first states drawn on the host, its physics that may differ between runs:
+:func:`~jaxcart.core.pytree.per_run_field`) is a member of the protocol or of the params.
 
 gymnax's own ``step`` resets inside and merges the episode end into its bookkeeping; the
 trainer bootstraps a time-limit truncation from V(final_obs), so the adapter here calls
@@ -24,9 +27,10 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from jaxcart.core import cartpole
-from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS
+from jaxcart.core import cartpole, physics
+from jaxcart.core.solved import DEFAULT_ENV, EPISODE_LIMITS, GYMNAX_ENVS
 
 Array = jax.Array
 
@@ -56,6 +60,11 @@ class Env:
             episodes reset on the same step (``final_obs``: the observation before the reset).
         reward_threshold: Gymnasium's ``reward_threshold`` for this id, or None for CartPole,
             which is judged by its own stricter rule (:mod:`jaxcart.core.solved`).
+        max_episode_steps: the time limit (CartPole's default; its params may set another).
+        host_reset: ``(rng, params, num_envs, dtype) -> (obs [num_envs, obs_dim], state
+            [num_envs])`` in NumPy from a run's ``numpy.random.Generator``: the first episodes
+            drawn on the host, no program to compile (CartPole's); None: ``reset`` with keys
+            the generator draws.
     """
 
     id: str
@@ -65,11 +74,8 @@ class Env:
     reset: Callable[[Array, Any], tuple[Array, Any]]
     step_batch: Callable[..., tuple]
     reward_threshold: float | None = None
-
-    @property
-    def is_cartpole(self) -> bool:
-        """jaxcart's own CartPole-v1 (its runs draw their first states on the host)."""
-        return self.id == DEFAULT_ENV
+    max_episode_steps: int = 500
+    host_reset: Callable[[np.random.Generator, Any, int, np.dtype], tuple] | None = None
 
 
 CARTPOLE = Env(
@@ -78,13 +84,34 @@ CARTPOLE = Env(
     num_actions=2,
     default_params=cartpole.EnvParams,
     reset=cartpole.reset,
-    step_batch=cartpole.step_batch,
+    # steps an EpisodeState too: physics drawn anew at every reset (--randomize ...:episode)
+    step_batch=physics.step_batch,
+    host_reset=cartpole.host_reset,
 )
+
+_ENVS: dict[str, Env] = {DEFAULT_ENV: CARTPOLE}
+"""jaxcart's own env and those registered in this process (gymnax's are made on demand)."""
+
+
+def register(env: Env) -> Env:
+    """Makes ``env`` one the trainer takes by its id in this process (``PPOConfig(env=env.id)``,
+    :func:`~jaxcart.engine.loop.train`, :func:`~jaxcart.core.evaluation.greedy_returns`), as
+    ``jaxcart.register_env``; returns it. A run directory judges its runs in Gymnasium's env of
+    the same id, so ``run_new`` takes the built-in ids only.
+
+    Raises:
+        EnvError: the id is one of jaxcart's own envs.
+    """
+    if env.id in ACTION_COUNTS:
+        raise EnvError(f"env {env.id} is one of jaxcart's own; register yours under another id")
+    _ENVS[env.id] = env
+    make.cache_clear()
+    return env
 
 
 def env_ids() -> list[str]:
     """Every env id the trainer takes."""
-    return [DEFAULT_ENV, *GYMNAX_ENVS]
+    return [*_ENVS, *GYMNAX_ENVS]
 
 
 @functools.cache
@@ -96,8 +123,8 @@ def make(env_id: str) -> Env:
         EnvError: an unknown id, an env this trainer cannot run (continuous actions, no
             Gymnasium counterpart), or gymnax not installed; the message is one line.
     """
-    if env_id == DEFAULT_ENV:
-        return CARTPOLE
+    if env_id in _ENVS:
+        return _ENVS[env_id]
     try:
         import gymnax
     except ImportError:
@@ -134,42 +161,77 @@ def _refusal(env_id: str, env: Any, params: Any) -> str | None:
 
 def _gymnax_env(env_id: str, env: Any, params: Any) -> Env:
     shape = env.observation_space(params).shape
-    return Env(
-        id=env_id,
+
+    def step(key: Array, state: Any, action: Array, params: Any) -> tuple:
+        # gymnax 1.x's done is the natural termination; truncation is its time limit's
+        obs, state, reward, terminated, _ = env.step_env(key, state, action, params)
+        return obs, state, reward, terminated, state.time >= params.max_steps_in_episode
+
+    return from_step(
+        env_id,
         obs_dim=int(math.prod(shape)),
         num_actions=int(env.action_space(params).n),
+        reset=env.reset_env,
+        step=step,
         default_params=lambda: env.default_params,
-        reset=functools.partial(_gymnax_reset, env),
-        step_batch=functools.partial(_gymnax_step_batch, env),
+        max_episode_steps=EPISODE_LIMITS[env_id],
         reward_threshold=GYMNAX_ENVS[env_id],
+    )
+
+
+def from_step(
+    id: str,
+    *,
+    obs_dim: int,
+    num_actions: int,
+    reset: Callable[[Array, Any], tuple[Array, Any]],
+    step: Callable[[Array, Any, Array, Any], tuple],
+    max_episode_steps: int,
+    reward_threshold: float,
+    default_params: Callable[[], Any] = lambda: None,
+) -> Env:
+    """An :class:`Env` from the functions of one env, gymnax's style: ``reset(key, params) ->
+    (obs, state)`` and ``step(key, state, action, params) -> (obs, state, reward, terminated,
+    truncated)`` (no reset inside; ``truncated``: the time limit). Its ``step_batch`` vmaps
+    ``step`` over ``N`` envs and resets the finished ones on the same step (their last
+    observation in ``final_obs``); observations are flattened to ``[obs_dim]`` floats of the
+    training dtype."""
+
+    def flat_reset(key: Array, params: Any) -> tuple[Array, Any]:
+        obs, state = reset(key, params)
+        return _flat_obs(obs, 0), state
+
+    return Env(
+        id=id,
+        obs_dim=obs_dim,
+        num_actions=num_actions,
+        default_params=default_params,
+        reset=flat_reset,
+        step_batch=functools.partial(_step_batch, reset, step),
+        max_episode_steps=max_episode_steps,
+        reward_threshold=reward_threshold,
     )
 
 
 def _flat_obs(obs: Array, batch_dims: int) -> Array:
     """Observations as floats of the training dtype, flattened to ``[..., obs_dim]``."""
-    obs = jnp.asarray(obs, cartpole.float_dtype())
+    obs = jnp.asarray(obs, jnp.zeros(()).dtype)
     return obs.reshape(obs.shape[:batch_dims] + (-1,))
 
 
-def _gymnax_reset(env: Any, key: Array, params: Any) -> tuple[Array, Any]:
-    obs, state = env.reset_env(key, params)
-    return _flat_obs(obs, 0), state
-
-
-def _gymnax_step_batch(
-    env: Any, key: Array, state: Any, action: Array, params: Any
+def _step_batch(
+    reset: Callable, step: Callable, key: Array, state: Any, action: Array, params: Any
 ) -> tuple[Array, Any, Array, Array, Array, dict[str, Array]]:
-    """gymnax's transition for ``N`` envs, with truncation read apart and same-step resets."""
+    """One env's ``step`` for ``N`` envs, with same-step resets (:func:`from_step`)."""
     num_envs = action.shape[0]
     step_key, reset_key = jax.random.split(key)
     step_keys = jax.random.split(step_key, num_envs)
-    final_obs, next_state, reward, terminated, _ = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))(
+    final_obs, next_state, reward, terminated, truncated = jax.vmap(step, in_axes=(0, 0, 0, None))(
         step_keys, state, action, params
     )
-    truncated = next_state.time >= params.max_steps_in_episode
-    terminated = jnp.asarray(terminated, bool)
+    terminated, truncated = jnp.asarray(terminated, bool), jnp.asarray(truncated, bool)
     done = terminated | truncated
-    reset_obs, reset_state = jax.vmap(env.reset_env, in_axes=(0, None))(
+    reset_obs, reset_state = jax.vmap(reset, in_axes=(0, None))(
         jax.random.split(reset_key, num_envs), params
     )
 
@@ -192,5 +254,7 @@ __all__ = [
     "Env",
     "EnvError",
     "env_ids",
+    "from_step",
     "make",
+    "register",
 ]

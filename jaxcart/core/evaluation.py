@@ -17,7 +17,7 @@ from jaxcart.core.config import PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.metrics import EVAL_METRICS
 from jaxcart.core.networks import ActorCritic
-from jaxcart.core.solved import EPISODE_LIMITS, NUM_EVAL_EPISODES
+from jaxcart.core.solved import NUM_EVAL_EPISODES
 
 Array = jax.Array
 
@@ -97,7 +97,7 @@ def _greedy_returns_env(
         return (obs, state, alive, total), None
 
     init = (obs, state, jnp.ones((num_episodes,), bool), jnp.zeros((num_episodes,), obs.dtype))
-    keys = jax.random.split(step_key, EPISODE_LIMITS[env_id])
+    keys = jax.random.split(step_key, env.max_episode_steps)
     (_, _, _, total), _ = jax.lax.scan(one_step, init, keys)
     return total
 

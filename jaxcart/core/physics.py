@@ -1,18 +1,18 @@
-"""CartPole's physics as a user sets it: ``NAME=VALUE`` settings of
-:class:`~jaxcart.core.cartpole.EnvParams`, the checks that keep them physical, and per-run
-values (a sweep's ``env.NAME`` or a ``--randomize`` draw) as arrays ``[R]``.
+"""CartPole's physics settings: the checks that keep :class:`~jaxcart.core.cartpole.EnvParams`
+physical (for a new run's settings and for a ``config.json`` read back alike), and the JAX
+side of physics drawn per episode (:class:`EpisodeState`, :func:`step_batch`).
 
-The env file (:mod:`jaxcart.core.cartpole`) stays physics and nothing else; parsing and
-checking live here. A value given for every run is a Python number on ``EnvParams``: it is a
-constant of the compiled program, exactly as the defaults are. Only a field that differs
-between runs travels as an array ``[R]`` (:func:`split_per_run`), so a run that sweeps and
-randomises nothing compiles the very program it always did.
+Parsing what a user types (``NAME=VALUE``, ``--randomize``) and the per-run draws live with
+the run's spec (:mod:`jaxcart.run.physics`). A value given for every run is a Python number
+on ``EnvParams``: it is a constant of the compiled program, exactly as the defaults are. Only
+a field that differs between runs travels as an array ``[R]``
+(:func:`~jaxcart.core.pytree.split_per_run`), so a run that sweeps and randomises nothing
+compiles the very program it always did.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -20,79 +20,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.core import cartpole, pytree
-from jaxcart.core.cartpole import EnvParams, EnvState
-from jaxcart.core.config import ConfigError, float_dtype
+from jaxcart.core.cartpole import EnvParams
+from jaxcart.core.errors import ConfigError
+from jaxcart.core.pytree import split_per_run, with_values
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EnvParams))
 """Every field of :class:`EnvParams`, the names ``--env-param`` takes."""
 
-CONTINUOUS: tuple[str, ...] = (
-    "gravity",
-    "masscart",
-    "masspole",
-    "length",
-    "force_mag",
-    "tau",
-    "x_threshold",
-    "theta_threshold_radians",
-)
-"""The float fields that may differ between runs (``--sweep env.NAME``, ``--randomize``):
-they enter the step as numbers. The others shape the program (the integrator, the episode
-limit, the reward mode) or are drawn on the host (the reset bounds), so they are one value
-for a whole run."""
+CONTINUOUS: tuple[str, ...] = pytree.per_run_names(EnvParams())
+"""The float fields that may differ between runs (``--sweep env.NAME``, ``--randomize``)."""
 
 PREFIX = "env."
 """How a sweep or a randomisation names a physics field: ``env.length``."""
-
-_KINDS = {f.name: f.type for f in dataclasses.fields(EnvParams)}
-
-
-def parse_value(name: str, text: str) -> Any:
-    """``text`` as field ``name``'s type (float, int, bool or the integrator's string).
-
-    Raises:
-        ConfigError: not a field of CartPole's params, or not a value of its type.
-    """
-    if name not in FIELDS:
-        raise ConfigError(f"CartPole has no env param {name!r}; choose one of: {', '.join(FIELDS)}")
-    kind, text = str(_KINDS[name]), text.strip()
-    try:
-        if kind == "bool":
-            if text.lower() not in ("true", "false", "on", "off", "1", "0"):
-                raise ValueError
-            return text.lower() in ("true", "on", "1")
-        if kind == "int":
-            value = float(text)
-            if not value.is_integer():
-                raise ValueError
-            return int(value)
-        if kind == "str":
-            return text
-        return float(text)
-    except ValueError:
-        raise ConfigError(f"env param {name}: {text!r} is not a {kind}") from None
-
-
-def parse_env_params(specs: list[str] | tuple[str, ...]) -> dict[str, Any]:
-    """``["length=1.0", "masspole=0.2"]`` -> ``{"length": 1.0, "masspole": 0.2}``.
-
-    Raises:
-        ConfigError: malformed, unknown, repeated or of the wrong type.
-    """
-    values: dict[str, Any] = {}
-    for spec in specs:
-        name, sep, text = spec.partition("=")
-        name = name.strip().replace("-", "_")
-        if name.startswith(PREFIX):
-            name = name[len(PREFIX) :]
-        if not sep or not name or not text.strip():
-            raise ConfigError(
-                f"malformed --env-param {spec!r}; expected NAME=VALUE, e.g. length=1.0"
-            )
-        if name in values:
-            raise ConfigError(f"--env-param {name} given twice; keep one")
-        values[name] = parse_value(name, text)
-    return values
 
 
 def check_physics(params: EnvParams, dtype: np.dtype | None = None) -> None:
@@ -105,7 +44,9 @@ def check_physics(params: EnvParams, dtype: np.dtype | None = None) -> None:
     angular acceleration when pushed from rest): a value that overflows there, or a positive
     one that rounds to 0, would make every run diverge at its first iteration.
     Fields may hold arrays (one value per run); every value is checked."""
-    dtype = np.dtype(float_dtype() if dtype is None else dtype)
+    if dtype is None:  # the flag, not a JAX array: no backend starts here
+        dtype = np.float64 if jax.config.jax_enable_x64 else np.float32
+    dtype = np.dtype(dtype)
     positive = ("masscart", "masspole", "length", "tau", "x_threshold", "theta_threshold_radians")
     ran: dict[str, np.ndarray] = {}  # each number as the env holds it
     for name in (*positive, "gravity", "force_mag", "reset_low", "reset_high"):
@@ -186,53 +127,6 @@ def overrides(params: EnvParams) -> dict[str, Any]:
     }
 
 
-@dataclass(frozen=True)
-class Randomization:
-    """A physics field drawn uniformly in ``[low, high]``: once per run (``per="run"``), from
-    the run's base seed and seed index, or at every reset (``per="episode"``)."""
-
-    name: str
-    low: float
-    high: float
-    per: str = "run"
-
-    def to_dict(self) -> dict:
-        return {"low": self.low, "high": self.high, "per": self.per}
-
-
-def parse_randomize(specs: list[str] | tuple[str, ...]) -> tuple[Randomization, ...]:
-    """``["env.length=0.5:1.5", "env.masspole=0.05:0.2:episode"]`` -> randomisations.
-
-    Raises:
-        ConfigError: malformed, not a continuous physics field, ``low > high``, repeated.
-    """
-    out: dict[str, Randomization] = {}
-    for spec in specs:
-        name, sep, text = spec.partition("=")
-        name = name.strip().replace("-", "_")
-        parts = text.split(":")
-        if not sep or not name.startswith(PREFIX) or len(parts) not in (2, 3):
-            raise ConfigError(
-                f"malformed --randomize {spec!r}; expected env.NAME=LOW:HIGH[:episode], "
-                "e.g. env.length=0.5:1.5"
-            )
-        name = name[len(PREFIX) :]
-        check_continuous(name, "--randomize")
-        per = parts[2].strip() if len(parts) == 3 else "run"
-        if per not in ("run", "episode"):
-            raise ConfigError(f"--randomize {spec!r}: the third part must be run or episode")
-        try:
-            low, high = float(parts[0]), float(parts[1])
-        except ValueError:
-            raise ConfigError(f"--randomize {spec!r}: LOW and HIGH must be numbers") from None
-        if not low <= high:
-            raise ConfigError(f"--randomize env.{name}: low {low:g} is above high {high:g}")
-        if name in out:
-            raise ConfigError(f"--randomize env.{name} given twice; keep one")
-        out[name] = Randomization(name, low, high, per)
-    return tuple(out.values())
-
-
 def check_continuous(name: str, option: str) -> None:
     """Raises :class:`ConfigError` unless ``name`` is a field that may differ between runs."""
     if name in FIELDS and name not in CONTINUOUS:
@@ -247,77 +141,36 @@ def check_continuous(name: str, option: str) -> None:
         )
 
 
-def randomized_values(
-    randomize: tuple[Randomization, ...], seed: int, seed_indices: np.ndarray
-) -> dict[str, np.ndarray]:
-    """Each per-run randomisation's value for every run, float64 ``[R]``: uniform in
-    ``[low, high]`` from ``default_rng([seed, seed_index, field number])``, so a seed index
-    draws the same physics whatever runs beside it (a replay of one seed draws its own)."""
-    values = {}
-    for r in randomize:
-        if r.per != "run":
-            continue
-        tag = FIELDS.index(r.name)
-        values[r.name] = np.array(
-            [
-                np.random.default_rng([seed, int(i), tag]).uniform(r.low, r.high)
-                for i in np.asarray(seed_indices)
-            ],
-            np.float64,
-        )
-    return values
-
-
-def with_values(params: EnvParams, values: dict[str, Any]) -> EnvParams:
-    """``params`` with some fields replaced (numbers, or arrays ``[R]`` one per run)."""
-    return params.replace(**values) if values else params
-
-
-def split_per_run(params: EnvParams) -> tuple[EnvParams, dict[str, Any]]:
-    """``(static, per_run)``: ``params`` with every field that holds an array set back to
-    CartPole-v1's default (a hashable constant for the compiled program), and those arrays
-    ``[R]`` as they are (NumPy or placed JAX arrays). Without arrays, ``params`` itself and
-    ``{}``; another env's params (gymnax's) are always the former."""
-    if not isinstance(params, EnvParams):
-        return params, {}
-    per_run = {n: getattr(params, n) for n in CONTINUOUS if np.ndim(getattr(params, n)) > 0}
-    if not per_run:
-        return params, {}
-    default = EnvParams()
-    return params.replace(**{n: getattr(default, n) for n in per_run}), per_run
-
-
 @pytree.dataclass
 class EpisodeState:
     """The env state of envs whose physics are drawn anew at every reset: CartPole's state,
     each drawn field's value in the current episode, and the range it is drawn from (all
     ``[num_envs]``, so the draw needs nothing static and a checkpoint holds it all)."""
 
-    env: EnvState
+    env: Any
     values: dict[str, jax.Array]
     low: dict[str, jax.Array]
     high: dict[str, jax.Array]
 
 
 def episode_state(
-    env: EnvState, values: dict[str, np.ndarray], ranges: dict[str, tuple[float, float]]
+    env: Any,
+    values: dict[str, np.ndarray],
+    ranges: dict[str, tuple[float, float]],
+    dtype: np.dtype,
 ) -> EpisodeState:
     """An :class:`EpisodeState` around ``env`` (NumPy fields ``[..., num_envs]``) whose first
-    episodes have ``values`` (of the same shape) and draw later ones from ``ranges``."""
-    shape, dtype = np.shape(env.x), np.asarray(env.x).dtype
+    episodes have ``values`` (of the same shape) and draw later ones from ``ranges``, all in
+    ``dtype`` (the observations')."""
+    shape = np.shape(next(iter(values.values())))
     low = {n: np.full(shape, lo, dtype) for n, (lo, _) in ranges.items()}
     high = {n: np.full(shape, hi, dtype) for n, (_, hi) in ranges.items()}
     return EpisodeState(env, {n: np.asarray(values[n], dtype) for n in ranges}, low, high)
 
 
-def episode_ranges(randomize: tuple[Randomization, ...]) -> dict[str, tuple[float, float]]:
-    """The per-episode randomisations as ``{name: (low, high)}`` (``{}`` when none)."""
-    return {r.name: (r.low, r.high) for r in randomize if r.per == "episode"}
-
-
 def step_batch(
-    key: jax.Array, state: EnvState | EpisodeState, action: jax.Array, params: EnvParams
-) -> tuple[jax.Array, EnvState | EpisodeState, jax.Array, jax.Array, jax.Array, dict]:
+    key: jax.Array, state: Any, action: jax.Array, params: EnvParams
+) -> tuple[jax.Array, Any, jax.Array, jax.Array, jax.Array, dict]:
     """:func:`jaxcart.core.cartpole.step_batch`, itself for an :class:`EnvState`. For an
     :class:`EpisodeState`, each env steps with its episode's physics, and an env whose
     episode ends draws its next episode's values uniformly in their ranges, from ``key`` (the
@@ -337,27 +190,16 @@ def step_batch(
     return obs, state.replace(env=env, values=values), reward, terminated, truncated, info
 
 
-def describe(values: dict[str, Any]) -> str:
-    """``length=1 masspole=0.2``: a run's physics as a label (``""`` for the defaults)."""
-    return " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
-
-
 __all__ = [
     "CONTINUOUS",
     "FIELDS",
     "PREFIX",
     "EpisodeState",
-    "Randomization",
     "check_continuous",
     "check_physics",
-    "describe",
-    "episode_ranges",
     "episode_state",
     "make_env_params",
     "overrides",
-    "parse_env_params",
-    "parse_randomize",
-    "randomized_values",
     "split_per_run",
     "step_batch",
     "with_values",

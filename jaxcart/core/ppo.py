@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxcart.core import envs, networks, physics, pytree
+from jaxcart.core import envs, networks, pytree
 from jaxcart.core.config import (
     TRACED_FIELDS,
     PPOConfig,
@@ -66,9 +66,7 @@ class RunnerState:
 
     params: dict
     opt_state: optax.OptState
-    env_state: (
-        Any  # the env's state pytree, fields [num_envs] (physics.EpisodeState: drawn per episode)
-    )
+    env_state: Any  # the env's state pytree, fields [num_envs]
     obs: Array  # [num_envs, obs_dim]
     episode_return: Array  # [num_envs] running return of the current episodes
     episode_length: Array  # [num_envs] int32
@@ -138,10 +136,7 @@ def env_step(
     logits, value = networks.apply(network, runner.params, runner.obs)
     action = jax.random.categorical(act_key, logits)
     log_prob = categorical_log_prob(logits, action)
-    # CartPole steps through physics.step_batch, which also draws a finished episode's next
-    # physics when they are randomised per episode; the other envs step themselves.
-    step_batch = physics.step_batch if env.is_cartpole else env.step_batch
-    obs, env_state, reward, terminated, truncated, info = step_batch(
+    obs, env_state, reward, terminated, truncated, info = env.step_batch(
         env_key, runner.env_state, action, env_params
     )
     done = terminated | truncated

@@ -8,6 +8,7 @@ import dataclasses
 from typing import Any, TypeVar
 
 import jax
+import numpy as np
 
 T = TypeVar("T")
 
@@ -28,3 +29,37 @@ def static_field(default: Any) -> Any:
     """A field that is not a leaf (flax's ``struct.field(pytree_node=False)``): a change to
     it is a new pytree structure, so a compiled program is specialised to its value."""
     return dataclasses.field(default=default, metadata={"static": True})
+
+
+def per_run_field(default: Any) -> Any:
+    """A leaf that may hold one value per run, an array ``[R]`` (a sweep's or a
+    randomisation's), passed to the compiled program as an argument; the other leaves are
+    one value for every run, constants of the program (:func:`split_per_run`)."""
+    return dataclasses.field(default=default, metadata={"per_run": True})
+
+
+def per_run_names(params: Any) -> tuple[str, ...]:
+    """The fields of ``params`` declared with :func:`per_run_field` (none for a params pytree
+    that declares none, e.g. gymnax's: its arrays, such as Acrobot's torques ``[3]``, are
+    constants)."""
+    if not dataclasses.is_dataclass(params):
+        return ()
+    return tuple(f.name for f in dataclasses.fields(params) if f.metadata.get("per_run"))
+
+
+def split_per_run(params: T) -> tuple[T, dict[str, Any]]:
+    """``(static, per_run)``: ``params`` with every :func:`per_run_field` that holds an array
+    ``[R]`` set back to its default (a hashable constant for the compiled program), and
+    those arrays as they are (NumPy or placed JAX arrays). Without arrays: ``params`` itself
+    and ``{}``."""
+    per_run = {n: getattr(params, n) for n in per_run_names(params)}
+    per_run = {n: v for n, v in per_run.items() if np.ndim(v) > 0}
+    if not per_run:
+        return params, {}
+    defaults = {f.name: f.default for f in dataclasses.fields(params) if f.name in per_run}
+    return dataclasses.replace(params, **defaults), per_run
+
+
+def with_values(params: T, values: dict[str, Any]) -> T:
+    """``params`` with some fields replaced (numbers, or arrays ``[R]`` one per run)."""
+    return dataclasses.replace(params, **values) if values else params

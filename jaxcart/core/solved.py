@@ -30,16 +30,25 @@ SOLVED_RETURN = 500.0
 """CartPole-v1's maximum return: an episode that lasts until the 500-step time limit."""
 
 
-SOLVED_DEFINITION = "all {episodes} greedy episodes score 500 in gymnasium.make('CartPole-v1')"
-
-
 EPISODE_LIMITS = {DEFAULT_ENV: 500, "Acrobot-v1": 500, "MountainCar-v0": 200}
 """Gymnasium's ``max_episode_steps`` of each env (gymnax's ``max_steps_in_episode`` agrees)."""
 
 
+SOLVED_BY = {DEFAULT_ENV: ("every", SOLVED_RETURN)} | {
+    k: ("mean", v) for k, v in GYMNAX_ENVS.items()
+}
+"""Each env's rule: every episode's return (CartPole-v1: 500) or the mean return (the others:
+Gymnasium's ``reward_threshold``) reaches the threshold."""
+
+
+REWARD_SIGN = {DEFAULT_ENV: 1.0, "Acrobot-v1": -1.0, "MountainCar-v0": -1.0}
+"""CartPole pays +1 a step; Acrobot and MountainCar -1 a step until the goal (Acrobot 0 on the
+step that reaches it)."""
+
+
 def is_solved(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> np.ndarray:
-    """The one definition of solved: every evaluation episode scored 500 (CartPole-v1), or
-    the mean return reached the env's ``reward_threshold`` (the others).
+    """The one definition of solved (:data:`SOLVED_BY`): every evaluation episode scored 500
+    (CartPole-v1), or the mean return reached the env's ``reward_threshold`` (the others).
 
     Args:
         returns: ``[..., episodes]``.
@@ -47,24 +56,25 @@ def is_solved(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> np.ndarray:
     Returns:
         ``[...]`` bool.
     """
+    rule, threshold = SOLVED_BY[env_id]
     returns = np.asarray(returns)
-    if env_id == DEFAULT_ENV:
-        return (returns >= SOLVED_RETURN).all(axis=-1)
-    return returns.mean(axis=-1) >= GYMNAX_ENVS[env_id]
+    if rule == "every":
+        return (returns >= threshold).all(axis=-1)
+    return returns.mean(axis=-1) >= threshold
 
 
 def solved_definition(env_id: str = DEFAULT_ENV) -> str:
     """The sentence ``evaluation.json`` records, with ``{episodes}`` left to fill in."""
-    if env_id == DEFAULT_ENV:
-        return SOLVED_DEFINITION
+    rule, threshold = SOLVED_BY[env_id]
+    if rule == "every":
+        return f"all {{episodes}} greedy episodes score {threshold:g} in gymnasium.make('{env_id}')"
     return (
         f"the mean of {{episodes}} greedy episodes in gymnasium.make('{env_id}') is at least "
-        f"its reward_threshold, {GYMNAX_ENVS[env_id]:g}"
+        f"its reward_threshold, {threshold:g}"
     )
 
 
 def return_bounds(env_id: str = DEFAULT_ENV) -> tuple[float, float]:
-    """The least and greatest episode return of the env: CartPole pays +1 a step, Acrobot and
-    MountainCar -1 a step until the goal (Acrobot 0 on the step that reaches it)."""
-    limit = float(EPISODE_LIMITS[env_id])
-    return (0.0, limit) if env_id == DEFAULT_ENV else (-limit, 0.0)
+    """The least and greatest episode return of the env (:data:`REWARD_SIGN` times the
+    episode limit, and 0)."""
+    return tuple(sorted((0.0, REWARD_SIGN[env_id] * EPISODE_LIMITS[env_id])))

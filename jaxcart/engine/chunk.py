@@ -19,7 +19,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import cartpole
 from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.evaluation import BestPolicy, periodic_evaluation
 from jaxcart.core.metrics import EPISODE_WINDOW, METRIC_NAMES, EpisodeBuffer
@@ -33,6 +32,7 @@ from jaxcart.core.ppo import (
     train_iteration,
     update_epochs,
 )
+from jaxcart.core.pytree import split_per_run
 
 Array = jax.Array
 
@@ -44,17 +44,15 @@ with 32 runs on a core the update in groups of 8 took 0.89-0.96x as long as vmap
 
 
 def initial_runners(
-    params: dict, obs: np.ndarray, keys: np.ndarray, config: PPOConfig, env_state: Any = None
+    params: dict, obs: np.ndarray, keys: np.ndarray, config: PPOConfig, env_state: Any
 ) -> RunnerState:
     """Runners at iteration 0 from host-drawn parameters and reset observations (NumPy).
 
     Args:
         params: network parameters with a leading run axis, leaves ``[R, ...]``.
-        obs: reset observations ``[R, num_envs, 4]`` (they are the env state: velocities and
-            angles are the observation, and the step counters start at 0).
+        obs: reset observations ``[R, num_envs, obs_dim]``.
         keys: raw PRNG keys ``[R, 2]`` uint32.
-        env_state: the env's state pytree, leaves ``[R, num_envs]``; None: CartPole's, made
-            from ``obs``.
+        env_state: the env's state pytree, leaves ``[R, num_envs]``.
 
     Returns:
         A :class:`RunnerState` with NumPy leaves ``[R, ...]``: Adam's moments and count at 0,
@@ -68,11 +66,7 @@ def initial_runners(
     return RunnerState(
         params=params,
         opt_state=jax.tree.map(lambda s: zeros(s.shape, s.dtype), opt_shapes),
-        env_state=env_state
-        if env_state is not None
-        else cartpole.EnvState(
-            obs[..., 0], obs[..., 1], obs[..., 2], obs[..., 3], zeros((num_envs,), np.int32)
-        ),
+        env_state=env_state,
         obs=obs,
         episode_return=zeros((num_envs,), obs.dtype),
         episode_length=zeros((num_envs,), np.int32),
@@ -182,15 +176,13 @@ def grouped_iteration(
     return jax.vmap(guard_divergence, in_axes=(0, 0, 0, None))(runners, new, metrics, iteration)
 
 
-def env_axes(env_params: cartpole.EnvParams) -> cartpole.EnvParams | None:
-    """The vmap axes of ``env_params`` over runs: None when every field is one number for all
+def env_axes(env_params: Any) -> Any:
+    """The vmap axes of ``env_params`` over runs: None when every field is one value for all
     runs (the default, a constant of the program), else 0 for each field that holds an array
-    ``[R]`` (a swept or randomised physics field) and None for the others. Another env's
-    params (gymnax's) are constants whatever their shapes: Acrobot's ``available_torque``
-    ``[3]`` is not a run axis."""
-    if not isinstance(env_params, cartpole.EnvParams):
-        return None
-    if not any(jnp.ndim(v) for v in jax.tree.leaves(env_params)):
+    ``[R]`` (a swept or randomised :func:`~jaxcart.core.pytree.per_run_field`) and None for
+    the others. Fields not declared per run are constants whatever their shapes: gymnax's
+    Acrobot's ``available_torque`` ``[3]`` is not a run axis."""
+    if not split_per_run(env_params)[1]:
         return None
     return jax.tree.map(lambda v: 0 if jnp.ndim(v) else None, env_params)
 
@@ -200,13 +192,13 @@ def evaluate_runs(
     metrics: dict[str, Array],
     config: PPOConfig,
     iteration: Array,
-    env_params: cartpole.EnvParams,
+    env_params: Any,
 ) -> tuple[RunnerState, dict[str, Array]]:
     """:func:`~jaxcart.core.evaluation.periodic_evaluation` of every run ``[R]`` after an
     iteration: its metrics join the iteration's, its best policy the runners."""
     network = make_network(config)
 
-    def one_run(runner: RunnerState, run_config: PPOConfig, run_env: cartpole.EnvParams):
+    def one_run(runner: RunnerState, run_config: PPOConfig, run_env: Any):
         return periodic_evaluation(
             runner.params,
             runner.best,

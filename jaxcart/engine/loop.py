@@ -23,24 +23,24 @@ from jaxcart.core import envs, physics
 from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.core.ppo import RunnerState, make_network
+from jaxcart.core.pytree import split_per_run, with_values
 from jaxcart.engine import distributed
 from jaxcart.engine.chunk import UPDATE_GROUP, initial_runners, roll_back_diverged, train_chunk
 from jaxcart.engine.signals import wait_interruptibly
 
 
-def seed_keys(seed: int, num_seeds: int) -> jax.Array:
-    """One PRNG key per seed index: ``fold_in(PRNGKey(seed), i)``, so seed index i's run does
-    not depend on how many seeds train beside it."""
-    base = jax.random.PRNGKey(seed)
-    return jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.arange(num_seeds, dtype=jnp.uint32))
-
-
 def seed_index_keys(seed: int, indices: np.ndarray) -> np.ndarray:
-    """``seed_keys(seed, n)[indices]`` without drawing the keys of the other indices (a wave
-    far into a million seeds draws only its own), as NumPy ``[len(indices), 2]`` uint32."""
+    """One PRNG key per seed index, ``fold_in(PRNGKey(seed), i)``, as NumPy ``[len(indices),
+    2]`` uint32: seed index i's run does not depend on how many seeds train beside it, and a
+    wave far into a million seeds draws only its own keys."""
     base = jax.random.PRNGKey(seed)
     fold = jax.vmap(lambda i: jax.random.fold_in(base, i))
     return np.asarray(fold(jnp.asarray(np.asarray(indices), dtype=jnp.uint32)))
+
+
+def seed_keys(seed: int, num_seeds: int) -> np.ndarray:
+    """:func:`seed_index_keys` of seed indices ``0 .. num_seeds - 1``."""
+    return seed_index_keys(seed, np.arange(num_seeds))
 
 
 def padded_runs(num_runs: int, num_devices: int) -> int:
@@ -77,9 +77,10 @@ def init_runners(
 
     Run r draws from ``fold_in(PRNGKey(seed), seed_indices[r])``: seed index i starts the same
     whatever runs beside it, and a sweep repeats the seed indices for every combination so
-    combinations share random numbers. The built-in network and the resets are drawn on the
-    host (:meth:`ActorCritic.host_init <jaxcart.core.networks.ActorCritic.host_init>` and
-    uniform in the reset bounds), so there is no initialisation program to compile; another
+    combinations share random numbers. The built-in network and, for an env with a
+    ``host_reset`` (CartPole), the first episodes are drawn on the host (:meth:`ActorCritic.host_init
+    <jaxcart.core.networks.ActorCritic.host_init>`), so there is no initialisation program to
+    compile; another env resets in one compiled call; another
     flax network is initialised by its own ``init``, all runs in one call. ``on_progress(done, total)`` is called every
     1024 runs (it may raise to abandon the initialisation). With ``episode_ranges``
     (``{field: (low, high)}``), every env's physics are drawn per episode: the env state is a
@@ -87,14 +88,14 @@ def init_runners(
     generator after everything else it draws (so the other draws are the same).
     """
     env = envs.make(config.env)
-    env_params = physics.split_per_run(env_params or env.default_params())[0]
+    env_params = split_per_run(env_params or env.default_params())[0]
     indices = np.asarray(seed_indices)
     keys = seed_index_keys(seed, indices)
     reset_obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0), env_params)[0]
     dtype, obs_dim = reset_obs.dtype, reset_obs.shape[-1]
     network = make_network(config)
     on_host = hasattr(network, "host_init")  # the built-in MLP: SB3's initialisation in NumPy
-    params, init_seeds, obs, run_keys, episodes = [], [], [], [], []
+    params, init_seeds, starts, run_keys, episodes = [], [], [], [], []
     for i, key in enumerate(keys):
         if on_progress is not None and i % 1024 == 0:
             on_progress(i, len(keys))
@@ -103,33 +104,29 @@ def init_runners(
             params.append(network.host_init(rng, obs_dim, dtype))  # float64 under x64, as the env
         else:
             init_seeds.append(rng.integers(0, 2**31))
-        shape = (config.num_envs, obs_dim)
-        if env.is_cartpole:  # CartPole's observation is its state: drawn here, no program
-            obs.append(
-                rng.uniform(env_params.reset_low, env_params.reset_high, shape).astype(dtype)
-            )
+        if env.host_reset is not None:  # the env draws its first episodes here: no program
+            starts.append(env.host_reset(rng, env_params, config.num_envs, dtype))
         else:  # a key per env for the env's own reset
-            obs.append(rng.integers(0, 2**32, (config.num_envs, 2), dtype=np.uint32))
+            starts.append(rng.integers(0, 2**32, (config.num_envs, 2), dtype=np.uint32))
         run_keys.append(rng.integers(0, 2**32, 2, dtype=np.uint32))
         if episode_ranges:
             n = config.num_envs
             episodes.append({k: rng.uniform(lo, hi, n) for k, (lo, hi) in episode_ranges.items()})
+    stack = functools.partial(jax.tree.map, lambda *xs: np.stack(xs))
     if on_host:
-        stacked = jax.tree.map(lambda *xs: np.stack(xs), *params)
+        stacked = stack(*params)
     else:  # flax's own initialisation, every run's in one compiled call
         example = jnp.zeros((1, obs_dim), dtype)
         init = jax.jit(jax.vmap(lambda seed: network.init(jax.random.PRNGKey(seed), example)))
         stacked = jax.tree.map(np.asarray, dict(init(jnp.asarray(init_seeds, jnp.uint32))))
-    if env.is_cartpole:
-        runners = initial_runners(stacked, np.stack(obs), np.stack(run_keys), config)
+    if env.host_reset is not None:
+        first_obs, env_state = stack(*starts)
     else:
-        first_obs, env_state = reset_envs(env, np.stack(obs), env_params)
-        runners = initial_runners(stacked, first_obs, np.stack(run_keys), config, env_state)
-    if not episode_ranges:
-        return runners
-    values = {k: np.stack([e[k] for e in episodes]) for k in episode_ranges}
-    env_state = physics.episode_state(runners.env_state, values, episode_ranges)
-    return runners.replace(env_state=env_state)
+        first_obs, env_state = reset_envs(env, np.stack(starts), env_params)
+    if episode_ranges:
+        values = {k: np.stack([e[k] for e in episodes]) for k in episode_ranges}
+        env_state = physics.episode_state(env_state, values, episode_ranges, first_obs.dtype)
+    return initial_runners(stacked, first_obs, np.stack(run_keys), config, env_state)
 
 
 def reset_envs(env: envs.Env, keys: np.ndarray, env_params: Any) -> tuple[np.ndarray, Any]:
@@ -304,9 +301,10 @@ def train(
             arrays ``[num_runs]`` with one value per run (a sweep: :meth:`PPOConfig.per_run`).
         num_runs: independent runs, a vmap axis sharded over ``devices``.
         seed: base seed; run r uses ``fold_in(PRNGKey(seed), seed_indices[r])``.
-        env_params: CartPole's params (default CartPole-v1's); a continuous field may hold
-            an array ``[num_runs]``, one value per run (a physics sweep or randomisation),
-            which the program takes as an argument: other values reuse the executable.
+        env_params: the env's params (default its ``default_params()``); a
+            :func:`~jaxcart.core.pytree.per_run_field` may hold an array ``[num_runs]``, one
+            value per run (a physics sweep or randomisation), which the program takes as an
+            argument: other values reuse the executable.
         chunk_size: iterations per compiled call between progress reports (default: calls
             that adapt to take about :data:`CHUNK_SECONDS` each).
         resume: continue from this state (e.g. a loaded checkpoint), bit-identically.
@@ -389,7 +387,7 @@ def place_env_params(
 ) -> Any:
     """``env_params`` with its per-run fields (arrays ``[num_runs]``, if any) in the training's
     float type, padded and placed as :func:`place` places the runs; unchanged without them."""
-    static, per_run = physics.split_per_run(env_params)
+    static, per_run = split_per_run(env_params)
     if not per_run:
         return env_params
     for name, values in per_run.items():
@@ -398,7 +396,7 @@ def place_env_params(
     padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
     arrays = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
     placed = distributed.to_global(pad_runs(arrays, padded), run_sharding(devices))
-    return physics.with_values(static, placed)
+    return with_values(static, placed)
 
 
 class _ChunkLoop:
@@ -448,7 +446,8 @@ class _ChunkLoop:
             self.chunks.append(metrics)
         self.done += take
         diverged = np.asarray(distributed.gather(end.diverged_at))
-        runners = rolled_back(start, end) if (diverged >= 0).any() else end
+        # rolled back on the host, only once a run has diverged: the chunk carries no rollback
+        runners = roll_back_diverged(start, end) if (diverged >= 0).any() else end
         snapshot = functools.partial(self._snapshot, runners, self.done, now)
         done, diverged = self.done, diverged[:num_runs]
         return runners, Progress(
@@ -486,7 +485,7 @@ def compiled_chunk(
     """The compiled :func:`~jaxcart.engine.chunk.train_chunk` for these shapes and devices.
 
     Kept per process, keyed by what shapes the program: the config's pytree structure (its
-    static fields), the env constants, the chunk size and the array shapes and shardings of
+    static fields), the env and its constants, the chunk size and the array shapes and shardings of
     the runners and of the config's traced fields (``[R]``). The traced values are not part
     of the key (nor of the program): new learning rates, clip ranges, ... reuse the same
     executable. So are env params that differ between runs (arrays ``[R]`` on
@@ -498,13 +497,14 @@ def compiled_chunk(
     Returns:
         ``(compiled, fresh)`` where ``fresh`` says whether it was compiled just now.
     """
-    static_env, per_run = physics.split_per_run(env_params)
+    static_env, per_run = split_per_run(env_params)
     signature = tuple(
         (leaf.shape, str(leaf.dtype), str(leaf.sharding))
         for leaf in jax.tree.leaves((runners, config, per_run))
     )
     adaptive = bool(chunk_seconds)
     key = (
+        envs.make(config.env),  # an env registered again under its id is another program
         jax.tree.structure(config),
         params_key(static_env),
         tuple(per_run),
@@ -519,16 +519,10 @@ def compiled_chunk(
         extra = (per_run,) if per_run else ()
         lowered = program.lower(runners, config, jnp.int32(0), jnp.int32(1), *extra)
         _COMPILED[key] = lowered.compile()
-    if per_run:
-        return functools.partial(_with_env_values, _COMPILED[key], per_run), fresh
-    return _COMPILED[key], fresh
-
-
-def _with_env_values(
-    compiled: Callable, per_run: dict, runners: RunnerState, config: PPOConfig, *args: jax.Array
-) -> tuple[RunnerState, dict]:
-    """The compiled chunk called with the runs' own env param values ``[R]``."""
-    return compiled(runners, config, *args, per_run)
+    compiled = _COMPILED[key]
+    if per_run:  # called with the runs' own env param values [R]
+        return lambda *args: compiled(*args, per_run), fresh
+    return compiled, fresh
 
 
 def params_key(env_params: Any) -> tuple:
@@ -552,7 +546,7 @@ def chunk_program(
     differ between runs, ``{name: [R]}``, placed as the runners.
 
     The runners are not donated: a run that diverges is rolled back to them
-    (:func:`rolled_back`)."""
+    (:func:`~jaxcart.engine.chunk.roll_back_diverged`)."""
     # Groups keep a CPU core's working set in its cache; a GPU wants the widest vmap instead.
     on_cpu = all(d.platform == "cpu" for d in sharding.device_set)
     update_group = UPDATE_GROUP if on_cpu else None
@@ -565,7 +559,7 @@ def chunk_program(
         per_run: dict | None = None,
     ):
         count = count if adaptive else None
-        env = physics.with_values(env_params, per_run or {})
+        env = with_values(env_params, per_run or {})
         return train_chunk(runners, config, start, env, chunk_size, update_group, count)
 
     if isinstance(sharding, NamedSharding) and sharding.mesh.size > 1:
@@ -580,12 +574,6 @@ def chunk_program(
             check_vma=False,  # per-run metrics vs the skip branch's constants
         )
     return jax.jit(training_chunk)  # XLA's module: jit_training_chunk
-
-
-def rolled_back(start: RunnerState, end: RunnerState) -> RunnerState:
-    """:func:`~jaxcart.engine.chunk.roll_back_diverged`, called on the host only once a run
-    has diverged (so the chunk program itself carries no rollback)."""
-    return roll_back_diverged(start, end)
 
 
 def _concat(chunks: list[dict[str, np.ndarray]], columns: tuple[str, ...]) -> dict[str, np.ndarray]:
