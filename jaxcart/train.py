@@ -406,6 +406,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     from jaxcart.engine import distributed
     from jaxcart.engine.signals import Stopped
     from jaxcart.run import lifecycle
+    from jaxcart.rundir import layout
 
     wall_start = time.perf_counter()
     opts.check_distributed()
@@ -420,7 +421,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups)
     run_options = opts.run_options()
-    if len(groups) > 1 or any(groups):
+    if len(groups) > 1 or any(groups) or (opts.resume and layout.is_groups(opts.resume)):
         if opts.distributed:
             raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
         return _train_groups(opts, spec, groups, run_options, console, wall_start)
@@ -484,7 +485,56 @@ def _train_groups(
     console: report.ConsoleReport,
     wall_start: float,
 ) -> int:
-    """A structural sweep: one program and run directory per shape group, ranked together."""
+    """A structural sweep: one program and run directory per shape group, ranked together;
+    ``spec`` None: ``--resume`` of one, which trains the groups that have not finished."""
+    from jaxcart import report
+    from jaxcart.run import structural
+    from jaxcart.rundir import layout
+
+    stop = StopRequest(on_signal=console.on_signal)
+
+    def on_group(outcome: lifecycle.Outcome) -> None:
+        if not outcome.stopped and outcome.evaluation is not None:
+            console.print(report.results_text(outcome))
+
+    try:
+        with stop.installed():
+            if spec is None:  # --resume of the sweep: every group that has not finished
+                out = opts.resume
+                done = structural.finish_groups(out, run_options, console.hooks(), stop, on_group)
+            else:
+                out = _start_groups(opts, spec, groups, run_options, console)
+                if out is None:  # --dry-run
+                    return 0
+                command = ["python -m jaxcart.train", *opts.argv]
+                done = structural.run_groups(
+                    spec, groups, out, run_options, console.hooks(), stop, command, on_group
+                )
+    finally:
+        console.close()
+    if done.stopped:
+        last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
+        hint = report.resume_command(out)
+        console.print(report.stopped_text(last, hint) if last else f"stopped; resume with: {hint}")
+        return 128 + done.signum
+    console.print(report.groups_text(done.ranking, done.groups, done.sweep, done.num_seeds))
+    console.print(
+        f"wall {time.perf_counter() - wall_start:.1f} s | structural sweep directory: {out} "
+        f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
+        f"  python -m jaxcart.plot {out}      # every group's curves, into its curves.png\n"
+        f"  python -m jaxcart.compare {out}   # statistics of every combination"
+    )
+    return 0
+
+
+def _start_groups(
+    opts: TrainOptions,
+    spec: lifecycle.RunSpec,
+    groups: list[dict],
+    run_options: lifecycle.RunOptions,
+    console: report.ConsoleReport,
+) -> Path | None:
+    """A new structural sweep's plan printed; its directory, None for ``--dry-run``."""
     from jaxcart import report
     from jaxcart.run import lifecycle, structural
     from jaxcart.rundir import layout
@@ -500,34 +550,8 @@ def _train_groups(
         for group, group_spec in zip(groups, specs):
             plan = lifecycle.plan_run(group_spec, run_options)
             console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
-        return 0
-    out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
-    stop = StopRequest(on_signal=console.on_signal)
-    command = ["python -m jaxcart.train", *opts.argv]
-
-    def train_group(group_spec: lifecycle.RunSpec, where: Path) -> lifecycle.Outcome:
-        outcome = lifecycle.run_new(group_spec, where, run_options, console.hooks(), stop, command)
-        if not outcome.stopped and outcome.evaluation is not None:
-            console.print(report.results_text(outcome))
-        return outcome
-
-    try:
-        with stop.installed():
-            done = structural.run_groups(spec, groups, out, train_group, run_options.score)
-    finally:
-        console.close()
-    stopped = next((o for o in done.outcomes if o.stopped), None)
-    if stopped is not None:
-        console.print(report.stopped_text(stopped, report.resume_command(stopped.run.out)))
-        return 128 + stopped.signum
-    console.print(report.groups_text(done.ranking, groups, spec.sweep, spec.num_seeds))
-    console.print(
-        f"wall {time.perf_counter() - wall_start:.1f} s | structural sweep directory: {out} "
-        f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
-        f"  python -m jaxcart.plot {out}      # every group's curves, into its curves.png\n"
-        f"  python -m jaxcart.compare {out}   # statistics of every combination"
-    )
-    return 0
+        return None
+    return opts.out or layout.default_run_dir(f"{spec.preset}-groups")
 
 
 def _start_or_resume(

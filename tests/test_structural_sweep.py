@@ -5,6 +5,7 @@ together in ``groups.json``; plot and compare read the sweep directory."""
 from __future__ import annotations
 
 import json
+import signal
 
 import numpy as np
 import pytest
@@ -91,3 +92,65 @@ def test_shape_groups_train_into_one_directory_ranked_together(tmp_path, capsys)
     assert train.main([*BASE, *SWEEP, "--out", str(out)]) == 2  # not empty: one line
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "is not empty" in err
+
+
+def _stopped_sweep(out, stop_in_group: int, groups: list[dict]):
+    """A structural sweep through the library, stopped after the first chunk of group
+    ``stop_in_group`` (as a signal would stop it): ``(spec, outcome)``."""
+    from jaxcart.engine.signals import StopRequest
+    from jaxcart.run import structural
+    from jaxcart.run.spec import Hooks, RunOptions
+
+    spec = RunSpec(
+        PPOConfig(num_steps=32, total_timesteps=512, minibatch_size=32, update_epochs=2),
+        num_seeds=2,
+        sweep={"learning_rate": [1e-3, 3e-3]},
+    )
+    stop, chunks = StopRequest(), []
+
+    def on_chunk(progress) -> None:
+        chunks.append(progress.iteration)
+        if progress.iteration == 1 and len(chunks) > 8 * stop_in_group:
+            stop.request(signal.SIGTERM)
+
+    hooks = Hooks(on_chunk=on_chunk)
+    options = RunOptions(eval_episodes=2, chunk_size=1)
+    return structural.run_groups(spec, groups, out, options, hooks, stop)
+
+
+@pytest.mark.slow
+def test_a_sweep_stopped_mid_group_resumes_as_a_whole_and_reads_at_any_stage(tmp_path, capsys):
+    from jaxcart import compare, plot
+
+    out = tmp_path / "groups"
+    done = _stopped_sweep(out, 1, [{"num_envs": 2}, {"num_envs": 4}, {"num_envs": 8}])
+    assert done.stopped and done.ranking == [] and not (out / layout.GROUPS_FILE).exists()
+    # mid-sweep: group 0 finished, group 1 from its checkpoint, group 2 not started yet
+    assert [r.label for r in views.load_runs([out])] == [
+        "num_envs=2 learning_rate=0.001", "num_envs=2 learning_rate=0.003",
+        "num_envs=4 learning_rate=0.001", "num_envs=4 learning_rate=0.003",
+    ]  # fmt: skip
+    assert plot.main([str(out)]) == 0
+
+    assert train.main(["--resume", str(out), "--quiet"]) == 0  # finishes every group
+    assert "Structural sweep ranking, 3 shape group(s)" in capsys.readouterr().out
+    data = json.loads((out / layout.GROUPS_FILE).read_text())
+    assert [g["num_envs"] for g in data["groups"]] == [2, 4, 8]
+    assert {(r["num_envs"], r["learning_rate"]) for r in data["ranking"]} == {
+        (e, lr) for e in (2, 4, 8) for lr in (1e-3, 3e-3)
+    }
+    assert plot.main([str(out)]) == 0 and (out / layout.CURVES_FILE).is_file()
+    assert compare.main([str(out), "--out", str(tmp_path / "cmp"), "--reps", "100"]) == 0
+    compared = json.loads((tmp_path / "cmp" / layout.COMPARE_FILE).read_text())
+    assert len(compared["runs"]) == 6
+
+    # labels come from each group's own config.json, not from groups.json's free text
+    data["groups"][0]["num_envs"] = 4096
+    del data["groups"][2]
+    (out / layout.GROUPS_FILE).write_text(json.dumps(data))
+    labels = [r.label for r in views.load_runs([out])]
+    assert labels[0] == "num_envs=2 learning_rate=0.001" and len(labels) == 6
+    assert not any("4096" in label for label in labels)
+    assert compare.main([str(out), "--out", str(tmp_path / "cmp2"), "--reps", "100"]) == 0
+    compared = json.loads((tmp_path / "cmp2" / layout.COMPARE_FILE).read_text())
+    assert len(compared["runs"]) == 6 and "4096" not in json.dumps(compared)

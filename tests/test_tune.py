@@ -442,3 +442,18 @@ def test_the_pruner_scores_a_partial_run_as_compare_scores_a_whole_one():
         assert value == pytest.approx(float(stats.iqm(so_far)))
     assert [s for s, _ in Trial.reported] == [125 * i for i in range(1, 8)]
     assert reporter.last_scores[0][1] < reporter.last_scores[0][0]  # the late seed is lower
+
+
+@pytest.mark.slow
+def test_a_space_of_shape_settings_alone_completes_its_trials(tmp_path, capsys):
+    storage = f"sqlite:///{tmp_path}/study.db"
+    argv = [*BASE[1:3], "--minibatch-size=32", *BASE[4:], "--trials", "2", "--num-seeds", "1"]
+    argv += ["--batch-trials", "2", "--space", "num_envs=2,4", "--heldout-top", "0"]
+    argv += ["--storage", storage, "--out", str(tmp_path / "runs"), "--quiet"]
+    argv += ["--sampler", "random", "--sampler-seed", "0"]
+    assert tune.main(argv) == 0
+    assert _states(storage, "jaxcart") == ["COMPLETE"] * 2
+    study = optuna.load_study(study_name="jaxcart", storage=storage)
+    for t in study.get_trials():  # each trial a combination of no float values
+        run = load_run(t.user_attrs["run_dir"])
+        np.testing.assert_allclose(make_entry(run, Score("auc")).scores, t.user_attrs["scores"])

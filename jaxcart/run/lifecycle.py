@@ -338,19 +338,42 @@ def run_new(
     ``progress=True`` shows a progress bar (``tqdm.auto``: a widget in a notebook, text on a
     terminal; see :class:`jaxcart.run.progress.ProgressBar`), besides ``hooks``.
     """
+    options = _with_defaults(options)
+    if stop is not None:
+        stop.check()
+    run = new_run(spec, out, options, command)
+    return carry_out(run, options, hooks, stop, progress)
+
+
+def _with_defaults(options: RunOptions | None) -> RunOptions:
+    """``options`` with the evaluation episodes defaulted (and the compilation cache on when
+    asked)."""
     options = options or RunOptions()
     if options.compile_cache:
         devices.enable_compilation_cache()
     episodes = options.eval_episodes or NUM_EVAL_EPISODES
-    options = dataclasses.replace(options, eval_episodes=episodes)
+    return dataclasses.replace(options, eval_episodes=episodes)
+
+
+def new_run(
+    spec: RunSpec,
+    out: str | Path | None,
+    options: RunOptions | None = None,
+    command: list[str] | None = None,
+    extra: dict | None = None,
+) -> Run:
+    """A new run directory for ``spec``, planned (:func:`plan_run`), its ``config.json``
+    recording the evaluation episodes, ``command`` and ``extra``; not yet trained
+    (:func:`carry_out` trains it, or :func:`resume_run` once it is closed)."""
+    options = _with_defaults(options)
     plan = plan_run(spec, options)
-    if stop is not None:
-        stop.check()
-    extra = {"eval_episodes": episodes, **({"command": list(command)} if command else {})}
-    if options.score is not None and spec.grid.is_sweep:
-        extra["score"] = options.score.label  # a resumed sweep ranks by it too
-    run = create_run(spec, out, distributed.is_main_process(), plan, extra)
-    return carry_out(run, options, hooks, stop, progress)
+    extra = {
+        "eval_episodes": options.eval_episodes,
+        **({"command": list(command)} if command else {}),
+        **({"score": options.score.label} if options.score and spec.grid.is_sweep else {}),
+        **(extra or {}),
+    }  # a resumed sweep ranks by its score too
+    return create_run(spec, out, distributed.is_main_process(), plan, extra)
 
 
 def plan_run(spec: RunSpec, options: RunOptions | None = None) -> WavePlan:
@@ -791,7 +814,7 @@ def _write_outputs(run: Run, blocks: list, episodes: int, timing: dict) -> None:
     for c, combo in enumerate(run.grid.combos or ({},)):
         runs = run.grid.runs_of(c)
         record = None
-        if combo:
+        if run.grid.is_sweep:  # a combination of no float values too (tune's shape trials)
             info = {**run.info, "combination": combo, "sweep": {}, "combinations": []}
             record = (info, run.spec.combo_config(c))
         where = c if run.grid.is_sweep else None

@@ -37,10 +37,10 @@ from jaxcart.engine.loop import Progress
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
+from jaxcart.run.structural import RETURN_METRIC, by_shape, group_spec, run_scores
 from jaxcart.rundir import layout
 from jaxcart.rundir.views import load_runs
 
-RETURN_METRIC = "rollout/ep_rew_mean"
 RUNGS = 8
 """Intermediate scores reported to the pruner per trial, at evenly spaced iterations."""
 HEARTBEAT_SECONDS = 60
@@ -550,23 +550,27 @@ class Tuner:
         untold = {t.number: t for t in trials}
         try:
             with Heartbeat(self.study, trials):
-                for static, group in group_by_shape(self.space, trials):
-                    self._run_group(static, group, untold)
+                for spec, group in self._groups(trials):
+                    self._run_group(spec, group, untold)
         finally:
             for trial in untold.values():
                 self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
         return len(trials)
 
-    def _group_spec(self, static: dict, trials: list[Any], seed: int | None = None) -> RunSpec:
-        """One shape group's run: the base config with its shape settings, each trial's traced
-        floats an explicit combination, from base seed ``seed`` (None: :attr:`spec`'s)."""
-        config = dataclasses.replace(self.spec.config, **static)
-        points = tuple(split_params(self.space, t.params)[1] for t in trials)
+    def _groups(self, trials: list[Any], seed: int | None = None) -> list[tuple[RunSpec, list]]:
+        """The trials grouped by their shape settings (:func:`by_shape`), each group's run the
+        base config with its shape settings, each trial's traced floats an explicit
+        combination, from base seed ``seed`` (None: :attr:`spec`'s)."""
+        points = [split_params(self.space, t.params) for t in trials]
         seed = self.spec.seed if seed is None else seed
-        return dataclasses.replace(self.spec, config=config, combinations=points, seed=seed)
+        groups = []
+        for shape, members in by_shape([{**static, **traced} for static, traced in points]):
+            combos = tuple(points[i][1] for i in members)
+            spec = group_spec(self.spec, shape, combinations=combos, seed=seed)
+            groups.append((spec, [trials[i] for i in members]))
+        return groups
 
-    def _run_group(self, static: dict, trials: list[Any], untold: dict) -> None:
-        spec = self._group_spec(static, trials)
+    def _run_group(self, spec: RunSpec, trials: list[Any], untold: dict) -> None:
         # fresh: a study made anew (its numbers from 0 again) keeps the old one's directories
         out = layout.fresh_dir(self.out / f"trials-{trials[0].number:05d}-{trials[-1].number:05d}")
         for trial in trials:
@@ -597,7 +601,7 @@ class Tuner:
                 scores = pruning.last_scores[trial.number]
                 results.append(TrialResult(trial.number, trial.params, scores, out, pruned=True))
             return results
-        per_trial = trial_scores(out, outcome, self.score, len(trials))
+        per_trial = run_scores(load_runs([out]), self.score)
         for c, trial in enumerate(trials):
             scores = per_trial[c]
             est = stats.bootstrap_ci(scores, stats.iqm)
@@ -626,13 +630,13 @@ class Tuner:
             BatchStopped: a signal stopped the training.
         """
         results = []
-        for static, group in group_by_shape(self.space, trials):
+        for spec, group in self._groups(trials, seed):
             numbers = "-".join(f"{t.number:05d}" for t in group)
             out = layout.fresh_dir(self.out / f"heldout-{seed}-trials-{numbers}")
-            outcome = run_new(self._group_spec(static, group, seed), out, self.options, self.hooks)
+            outcome = run_new(spec, out, self.options, self.hooks)
             if outcome.stopped:
                 raise BatchStopped(outcome.signum or 15)
-            per_trial = trial_scores(out, outcome, self.score, len(group))
+            per_trial = run_scores(load_runs([out]), self.score)
             results += [
                 TrialResult(t.number, t.params, scores, out / f"combo-{c:03d}")
                 for c, (t, scores) in enumerate(zip(group, per_trial))
@@ -685,36 +689,6 @@ def _chained(first: Callable | None, second: Callable) -> Callable:
     if first is None:
         return second
     return lambda progress: (first(progress), second(progress))
-
-
-def group_by_shape(space: dict[str, Dimension], trials: list[Any]) -> list[tuple[dict, list]]:
-    """The trials grouped by their shape settings (one compiled program per group), in the
-    order of each group's first trial."""
-    groups: dict[tuple, tuple[dict, list]] = {}
-    for trial in trials:
-        static = split_params(space, trial.params)[0]
-        key = tuple(sorted((k, repr(v)) for k, v in static.items()))
-        groups.setdefault(key, (static, []))[1].append(trial)
-    return list(groups.values())
-
-
-def trial_scores(out: Path, outcome: Outcome, score: Score, num_trials: int) -> list[np.ndarray]:
-    """Each trial's per-seed scores ``[num_seeds]``, read back from the group's run
-    directory as ``compare`` reads it (``eval``: each seed's mean greedy return)."""
-    runs = load_runs([out])
-    if len(runs) != num_trials:
-        raise RuntimeError(f"{out} holds {len(runs)} combinations, expected {num_trials}")
-    results = []
-    for run in runs:
-        evaluation = None
-        if run.evaluation is not None:
-            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
-        try:
-            curve = run.metrics.get(RETURN_METRIC)
-            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
-        except ValueError as exc:
-            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
-    return results
 
 
 def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:

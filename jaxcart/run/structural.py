@@ -3,9 +3,12 @@
 
 Each shape group is one compiled program and one run directory of its own
 (``OUT/group-000/``, ...), where the float axes of the sweep stay one vmapped program as in
-any sweep; ``OUT/groups.json`` records every group's shape values and ranks every
-combination of every group together by the sweep's score. Plot and compare read ``OUT`` as
-the runs of its groups.
+any sweep. Every group's directory is created (its ``config.json`` naming the sweep's shape
+axes) before the first trains, so the sweep directory is the run directories of its groups
+at any stage: ``train --resume OUT`` finishes every group, and ``OUT/groups.json`` ranks
+every combination of every group together, derived from the groups' own directories. Plot
+and compare read ``OUT`` as the runs of its groups. Tune's batches group their trials by
+shape with the same routine (:func:`by_shape`).
 """
 
 from __future__ import annotations
@@ -13,23 +16,24 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from jaxcart.analysis.summary import EVAL, Score
-from jaxcart.core.config import ConfigError
+from jaxcart.core.config import TRACED_FIELDS, ConfigError
+from jaxcart.engine.signals import StopRequest
+from jaxcart.run import lifecycle
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.spec import Outcome, RunSpec
-from jaxcart.rundir import files, layout, reader
-from jaxcart.rundir.reader import group_label
+from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
+from jaxcart.rundir import files, layout, reader, views
+from jaxcart.rundir.reader import AXES_KEY, SHAPE_FIELDS, group_label, group_values
 
-SHAPE_FIELDS = ("num_envs", "num_steps", "minibatch_size", "update_epochs", "hidden_sizes")
-"""Settings a structural sweep groups by: each value changes the program's shapes."""
 MAX_GROUPS = 64
 """Shape groups per structural sweep: each compiles a program of its own."""
+RETURN_METRIC = "rollout/ep_rew_mean"
 
 
 def parse_shape_value(name: str, text: str) -> int | tuple[int, ...]:
@@ -77,129 +81,198 @@ def shape_groups(shapes: dict[str, list]) -> list[dict]:
     return [dict(zip(shapes, values)) for values in itertools.product(*shapes.values())]
 
 
-def group_specs(spec: RunSpec, groups: list[dict]) -> list[RunSpec]:
-    """Each group's run: the spec with the group's shape values (checked before any runs).
+def by_shape(points: Sequence[dict]) -> list[tuple[dict, list[int]]]:
+    """Points (config values by field name) grouped by their shape settings (every field
+    that is not a traced float: one compiled program per group), as ``(shape settings,
+    indices of the group's points)`` in the order of each group's first point."""
+    groups: dict[str, tuple[dict, list[int]]] = {}
+    for i, point in enumerate(points):
+        shape = {k: v for k, v in point.items() if k not in TRACED_FIELDS}
+        groups.setdefault(repr(sorted(shape.items())), (shape, []))[1].append(i)
+    return list(groups.values())
+
+
+def group_spec(spec: RunSpec, shape: dict, **changes: object) -> RunSpec:
+    """One shape group's run: ``spec`` with the group's shape settings (and ``changes`` to
+    the spec, e.g. explicit ``combinations``).
 
     Raises:
-        ConfigError: a group whose shapes do not fit together (e.g. a minibatch that does not
-            divide the rollout), naming the group.
+        ConfigError: shapes that do not fit together (a minibatch that does not divide the
+            rollout), naming the group.
     """
-    out = []
-    for group in groups:
-        try:
-            config = dataclasses.replace(spec.config, **group)
-            out.append(dataclasses.replace(spec, config=config))
-        except ConfigError as exc:
-            raise ConfigError(f"--sweep group {group_label(group)}: {exc}") from None
-    return out
+    try:
+        config = dataclasses.replace(spec.config, **shape)
+    except ConfigError as exc:
+        raise ConfigError(f"--sweep group {group_label(shape)}: {exc}") from None
+    return dataclasses.replace(spec, config=config, **changes)
+
+
+def group_specs(spec: RunSpec, groups: list[dict]) -> list[RunSpec]:
+    """Each group's run (:func:`group_spec`), every group checked before any runs."""
+    return [group_spec(spec, group) for group in groups]
 
 
 @dataclass
 class GroupsOutcome:
-    """What a structural sweep did: each group's outcome, and every combination ranked."""
+    """What a structural sweep did: the outcome of each group trained by this call, and,
+    once every group finished, every combination ranked (``[]`` until then)."""
 
     out: Path
-    groups: list[dict]
-    outcomes: list[Outcome]
-    ranking: list[dict]
+    groups: list[dict]  # each group's shape values, from its config.json
+    sweep: dict
+    num_seeds: int
+    outcomes: list[Outcome] = field(default_factory=list)
+    ranking: list[dict] = field(default_factory=list)
+    signum: int | None = None  # the signal that stopped it
+
+    @property
+    def stopped(self) -> bool:
+        return self.signum is not None
 
 
 def run_groups(
     spec: RunSpec,
     groups: list[dict],
     out: str | Path,
-    train_group: Callable[[RunSpec, Path], Outcome],
-    score: Score | None = None,
+    options: RunOptions | None = None,
+    hooks: Hooks | None = None,
+    stop: StopRequest | None = None,
+    command: list[str] | None = None,
+    on_group: Callable[[Outcome], None] | None = None,
 ) -> GroupsOutcome:
-    """Trains every shape group into ``out/group-NNN`` (``train_group(spec, out)``, e.g.
-    :func:`jaxcart.run.lifecycle.run_new`), then writes ``out/groups.json``: the groups and
-    every combination ranked together by ``score`` (default eval; whether it is saturated, and each row's
-    rank: :func:`jaxcart.run.sweep.rank`). A group stopped early stops the sweep there.
+    """Creates every shape group's run directory (``out/group-NNN``, each ``config.json``
+    naming the shape axes), then trains them (:func:`finish_groups`).
 
     Raises:
         ConfigError: a group that does not fit together, or ``out`` not empty.
     """
+    options = options or RunOptions()
     specs = group_specs(spec, groups)
-    score = score or EVAL
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"--out {out} is not empty; a structural sweep starts in a new directory")
-    out.mkdir(parents=True, exist_ok=True)
-    outcomes = []
-    for g, group_spec in enumerate(specs):
-        outcome = train_group(group_spec, layout.group_dir(out, g))
-        outcomes.append(outcome)
+    extra = {AXES_KEY: list(groups[0]), "score": (options.score or EVAL).label}
+    for g, group in enumerate(specs):
+        lifecycle.new_run(group, layout.group_dir(out, g), options, command, extra).close()
+    return finish_groups(out, options, hooks, stop, on_group)
+
+
+def finish_groups(
+    out: str | Path,
+    options: RunOptions | None = None,
+    hooks: Hooks | None = None,
+    stop: StopRequest | None = None,
+    on_group: Callable[[Outcome], None] | None = None,
+) -> GroupsOutcome:
+    """Trains every group of the structural sweep ``out`` that has not finished, in order
+    (:func:`jaxcart.run.lifecycle.resume_run`: from its checkpoint, or from the start); a
+    group stopped stops the sweep there (``train --resume OUT`` goes on). Then writes
+    ``out/groups.json``: every combination ranked (:func:`rank_groups`) by the score the
+    groups record.
+
+    Raises:
+        RunDirError: ``out`` is not a structural sweep, or a group directory is unusable.
+    """
+    out, stop = Path(out), stop or StopRequest()
+    options = options or RunOptions()
+    groups = reader.read_groups(out)
+    done = GroupsOutcome(out, [], {}, 1)
+    for _, path in groups:
+        if stop():
+            done.signum = stop.signum
+            return done
+        try:
+            outcome = lifecycle.resume_run(path, options, hooks, stop)
+        except lifecycle.RunFinished:
+            continue
+        done.outcomes.append(outcome)
+        if on_group:
+            on_group(outcome)
         if outcome.stopped:
-            return GroupsOutcome(out, groups, outcomes, [])
-    ranking = rank_groups(groups, outcomes, spec.num_seeds, score)
+            done.signum = outcome.signum
+            return done
+    infos = [reader.read_run_config(path) for _, path in groups]
+    score = Score.parse(infos[0].get("score", "eval"))
+    done.groups = [group_values(info) for info in infos]
+    done.sweep, done.num_seeds = infos[0].get("sweep", {}), int(infos[0]["num_seeds"])
+    done.ranking = rank_groups([path for _, path in groups], done.groups, score)
     data = {
         "groups": [
-            {"group": g, "directory": layout.group_dir(".", g).name, **_json(group)}
-            for g, group in enumerate(groups)
+            {"group": g, "directory": path.name, **_json(shape)}
+            for g, (shape, (_, path)) in enumerate(zip(done.groups, groups))
         ],
-        "sweep": spec.sweep,
-        "num_seeds": spec.num_seeds,
+        "sweep": done.sweep,
+        "num_seeds": done.num_seeds,
         "score": score.label,
         "score_definition": score.definition,
-        "saturated": sweeps.saturated(ranking),
-        "ranking": ranking,
+        "saturated": sweeps.saturated(done.ranking),
+        "ranking": done.ranking,
     }
     files.write_json(out / layout.GROUPS_FILE, data)
-    return GroupsOutcome(out, groups, outcomes, ranking)
+    return done
 
 
 def _json(group: dict) -> dict:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
 
 
-def rank_groups(
-    groups: list[dict], outcomes: list[Outcome], num_seeds: int, score: Score = EVAL
-) -> list[dict]:
-    """Every combination of every group ranked together as one sweep's
-    (:func:`jaxcart.run.sweep.rank`: IQM of each seed's ``score``, by default its mean greedy
-    Gymnasium return, then solve rate, final return, steps to 500), each row with its group
+def run_scores(runs: list[views.RunCurves], score: Score) -> list[np.ndarray]:
+    """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
+    ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
+
+    Raises:
+        ConfigError: a score the run cannot give (``return-at`` past its end).
+    """
+    results = []
+    for run in runs:
+        evaluation = None
+        if run.evaluation is not None:
+            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
+        try:
+            curve = run.metrics.get(RETURN_METRIC)
+            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    return results
+
+
+def rank_groups(dirs: list[Path], groups: list[dict], score: Score = EVAL) -> list[dict]:
+    """Every combination of every finished group (run directories ``dirs``, shape values
+    ``groups``) ranked together as one sweep's (:func:`jaxcart.run.sweep.rank`: IQM of each
+    seed's ``score``, then solve rate, final return, steps to 500), each row with its group
     and shape values. Each group's seeds are scored on their own curves (groups may train
-    different numbers of iterations)."""
-    combos, scores, solved, final, reach, diverged, where = [], [], [], [], [], [], []
-    for g, (group, outcome) in enumerate(zip(groups, outcomes)):
-        run_dir = outcome.run.out
-        grid = outcome.run.grid
-        for c in range(grid.num_combos):
-            combo = grid.combos[c] if grid.is_sweep else {}
-            combos.append({**combo})
-            where.append((g, c if grid.is_sweep else None))
-        metrics = _metrics(run_dir, grid)
-        steps = metrics["env_steps"][:, 0]
-        curves = metrics["rollout/ep_rew_mean"] if score.name != "eval" else None
-        gym = outcome.evaluation.gym_returns.mean(-1)
-        scores.append(score.compute(gym, curves, steps, outcome.run.config.env))
-        solved.append(outcome.evaluation.solved)
-        final.append(outcome.final_return)
-        diverged.append(outcome.diverged_at)
-        reach.append(sweeps.first_reach(metrics["rollout/ep_rew_max"], steps))
-    grid = sweeps.RunGrid(num_seeds, tuple(combos))
+    different numbers of iterations), read from the group's directory."""
+    columns: dict[str, list] = {k: [] for k in ("score", "solved", "final", "reach", "div")}
+    combos, where = [], []
+    for g, path in enumerate(dirs):
+        runs = views.load_runs([path])
+        columns["score"] += run_scores(runs, score)
+        for c, run in enumerate(runs):
+            combos.append(dict(run.combination or {}))
+            where.append((g, c if layout.is_sweep(path) else None))
+            seeds = run.evaluation["seeds"]
+            columns["solved"].append([bool(s["solved"]) for s in seeds])
+            columns["div"].append(
+                [
+                    -1 if s.get("diverged_at_iteration") is None else s["diverged_at_iteration"]
+                    for s in seeds
+                ]
+            )
+            columns["final"].append(run.metrics[RETURN_METRIC][-1])
+            reached = sweeps.first_reach(run.metrics["rollout/ep_rew_max"], run.env_steps)
+            columns["reach"].append(reached)
+    num_seeds = len(columns["solved"][0])
+    stacked = {k: np.concatenate([np.asarray(v) for v in vs]) for k, vs in columns.items()}
     rows = sweeps.rank(
-        grid,
-        np.concatenate(scores),
-        np.concatenate(solved),
-        np.concatenate(final),
-        np.concatenate(reach),
-        np.concatenate(diverged),
+        sweeps.RunGrid(num_seeds, tuple(combos)),
+        stacked["score"],
+        stacked["solved"],
+        stacked["final"],
+        stacked["reach"],
+        stacked["div"],
         score=score.label,
     )
     for row in rows:
         g, c = where[row["combination"]]
         row.update({"group": g, **_json(groups[g]), "group_combination": c})
     return rows
-
-
-def _metrics(run_dir: Path, grid: sweeps.RunGrid) -> dict[str, np.ndarray]:
-    """A group's metrics.csv columns ``[iterations, runs]``, every combination's runs side
-    by side."""
-    dirs = (
-        [layout.combo_dir(run_dir, c) for c in range(grid.num_combos)]
-        if grid.is_sweep
-        else [run_dir]
-    )
-    parts = [reader.read_run_metrics(d, reader.read_run_config(d)) for d in dirs]
-    return {k: np.concatenate([m[k] for m in parts], axis=1) for k in parts[0]}

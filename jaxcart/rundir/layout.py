@@ -131,7 +131,7 @@ def group_dir(sweep_dir: str | os.PathLike, group: int) -> Path:
 
 def is_groups(run_dir: str | os.PathLike) -> bool:
     """Whether ``run_dir`` is a structural sweep: shape groups, each a run directory."""
-    return present(Path(run_dir) / GROUPS_FILE)
+    return present(group_dir(run_dir, 0))
 
 
 def wave_file(run_dir: str | os.PathLike, wave: int) -> Path:

@@ -282,32 +282,40 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     return combos
 
 
+SHAPE_FIELDS = ("num_envs", "num_steps", "minibatch_size", "update_epochs", "hidden_sizes")
+"""Settings a structural sweep groups by: each value changes the program's shapes."""
+AXES_KEY = "shape_axes"
+"""Of a structural sweep group's ``config.json``: the names of the sweep's shape axes."""
+
+
 def group_label(group: dict) -> str:
     """``{"num_envs": 4, "hidden_sizes": (64, 64)}`` -> ``num_envs=4,hidden_sizes=64x64``."""
     show = lambda v: "x".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)
     return ",".join(f"{name}={show(value)}" for name, value in group.items())
 
 
+def group_values(info: dict) -> dict:
+    """A shape group's values of the sweep's shape axes, from its own config (``info``, its
+    ``config.json`` as read): ``{"num_envs": 4}``."""
+    axes = info.get(AXES_KEY) or []
+    return {name: getattr(info["config"], name) for name in SHAPE_FIELDS if name in axes}
+
+
 def read_groups(sweep_dir: str | os.PathLike) -> list[tuple[str, Path]]:
-    """A structural sweep's shape groups (``groups.json``) as ``(label, run directory)``, in
-    group order (``num_envs=4,hidden_sizes=64x64``, ``SWEEP/group-000``).
+    """A structural sweep's shape groups (its ``group-NNN/`` run directories) as ``(label,
+    run directory)`` in group order, each labelled from its own ``config.json``
+    (``num_envs=4,hidden_sizes=64x64``, ``SWEEP/group-000``).
 
     Raises:
-        RunDirError: ``groups.json`` unreadable, or a group directory missing or a link.
+        RunDirError: a group directory that is a link or not a run directory.
     """
-    data = read_json(sweep_dir, layout.GROUPS_FILE)
-    groups = data.get("groups")
-    if not isinstance(groups, list) or not groups or len(groups) > MAX_RUNS:
-        raise RunDirError(f"{Path(sweep_dir) / layout.GROUPS_FILE} is corrupted: no groups")
+    names = sorted(p.name for p in Path(sweep_dir).glob(layout.GROUP_GLOB))
+    if not names or len(names) > MAX_RUNS:
+        raise RunDirError(f"{sweep_dir} is not a structural sweep: no group-000/")
     out = []
-    for g, group in enumerate(groups):
-        if not isinstance(group, dict):
-            raise RunDirError(f"{Path(sweep_dir) / layout.GROUPS_FILE} is corrupted: group {g}")
-        values = {k: v for k, v in group.items() if k not in ("group", "directory")}
-        path = Path(sweep_dir) / layout.group_dir(".", g).name
-        if files.refuse_link(path) is None:
-            raise RunDirError(f"{sweep_dir} has no {path.name}/: the sweep did not finish it")
-        out.append((group_label(values), files.subdir(sweep_dir, path.name)))
+    for name in names:
+        path = files.subdir(sweep_dir, name)  # a link is refused
+        out.append((group_label(group_values(read_run_config(path))) or name, path))
     return out
 
 

@@ -47,6 +47,12 @@ def unfinished(run_dir: files.Where) -> bool:
         )
 
 
+def started(run_dir: Path) -> bool:
+    """Whether a run has trained (or is training): it has outputs or a checkpoint."""
+    names = (layout.METRICS_FILE, layout.SWEEP_FILE, layout.CHECKPOINT_FILE)
+    return any(files.present(run_dir / name) for name in names)
+
+
 def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     """Reads a run directory's config, metrics and evaluation; a run that did not finish,
     its metrics so far from its checkpoint (:attr:`RunCurves.note` says so); an evaluation
@@ -186,7 +192,13 @@ def load_runs(
     for i, path in enumerate(Path(p) for p in run_dirs):
         label = labels[i] if labels is not None else None
         if layout.is_groups(path):  # a structural sweep: every group's runs, labelled by it
-            for name, group in reader.read_groups(path):
+            groups = [(name, group) for name, group in reader.read_groups(path) if started(group)]
+            if not groups:
+                raise RunDirError(
+                    f"{path}: no shape group has trained yet; python -m jaxcart.train --resume "
+                    f"{path} trains them"
+                )
+            for name, group in groups:
                 prefix = name if label is None else f"{label} {name}"
                 runs += load_runs([group], [prefix])
         elif layout.is_sweep(path):
