@@ -20,6 +20,13 @@ def mode_of(path: Path) -> int:
     return stat.S_IMODE(path.stat().st_mode)
 
 
+def umask_mode() -> int:
+    """``0o666 & ~umask``: the mode ``open()`` gives a new file."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def test_atomic_file_gives_the_mode_open_gives(tmp_path):
     with open(tmp_path / "plain", "w") as f:
         f.write("x")
@@ -28,8 +35,8 @@ def test_atomic_file_gives_the_mode_open_gives(tmp_path):
     files.atomic_write_bytes(tmp_path / "data.bin", b"\x00\x01")
     assert (tmp_path / "text.csv").read_bytes() == b"a,b\n1,2\n"  # no newline translation
     assert (tmp_path / "data.bin").read_bytes() == b"\x00\x01"
-    assert mode_of(tmp_path / "text.csv") == mode_of(tmp_path / "plain") == files.file_mode()
-    assert mode_of(tmp_path / "data.bin") == files.file_mode()
+    assert mode_of(tmp_path / "text.csv") == mode_of(tmp_path / "plain") == umask_mode()
+    assert mode_of(tmp_path / "data.bin") == umask_mode()
 
 
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path):

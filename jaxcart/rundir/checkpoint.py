@@ -18,13 +18,12 @@ import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from jaxcart.core.config import MAX_CUSTOM_METRICS, PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState, metric_columns
-from jaxcart.rundir import files, layout, manifest
+from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_STATE
 from jaxcart.rundir.reader import (
@@ -63,11 +62,7 @@ def save_checkpoint(
         "chunk_size": state.chunk_size,
         "metrics_columns": list(metric_columns(state.config)),
     }
-    files.save_tree(path, state_arrays(state), meta, on_digest)
-    if isinstance(path, files.Entry):
-        path.dir.fsync()
-    else:
-        files.fsync_directory(Path(path).parent)
+    files.save_tree(path, state_arrays(state), meta, on_digest)  # the rename made durable
 
 
 MAX_ELAPSED = 1e10
@@ -213,12 +208,8 @@ def _read_checkpoint_runs(
     directory: files.Dir, info: dict, policy: str, with_params: bool = True
 ) -> CheckpointRuns:
     config = info["config"]
-    if files.refuse_link(directory / layout.CHECKPOINT_FILE) is None:
-        raise RunDirError(
-            f"{directory} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}"
-        )
-    path = files.inside(directory, layout.CHECKPOINT_FILE)
-    manifest.verify(directory, layout.CHECKPOINT_FILE, info)
+    missing = f"{directory} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}"
+    path = files.verified(directory, layout.CHECKPOINT_FILE, info, missing)
     meta = read_checkpoint_meta(path)
     runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
     iteration = meta.get("iteration")

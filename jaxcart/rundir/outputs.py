@@ -22,8 +22,6 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved, solved_definition
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.layout import BLOCK_BEST_PARAMS, BLOCK_METRICS, BLOCK_PARAMS
-from jaxcart.rundir.manifest import FLAG as MANIFEST_FLAG
-from jaxcart.rundir.manifest import Manifest
 
 Digest = Callable[[str], None] | None
 """Called with a finished file's digest before it is renamed into place (its manifest)."""
@@ -277,11 +275,9 @@ def write_evaluation_dir(
     ``combo-NNN/`` do) and ``others`` (name -> JSON object: a sweep's ``sweep.json``), each
     recorded in the directory's manifest as a run's files are, so that the readers check it
     as they check a run."""
-    named = {layout.CONFIG_FILE: {**info, MANIFEST_FLAG: True}}
+    named = {layout.CONFIG_FILE: {**info, files.MANIFEST_FLAG: True}}
     if returns is not None:
         named[layout.EVALUATION_FILE] = evaluation_record(
             returns, info["config"].get("env", DEFAULT_ENV)
         )
-    listing = Manifest(directory)
-    for name, data in {**named, **(others or {})}.items():
-        listing.write(name, lambda entry, d, data=data: files.write_json(entry, data, d))
+    files.record_json(directory, {**named, **(others or {})})

@@ -18,7 +18,6 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,11 +33,8 @@ from jaxcart.core.config import (
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic, param_shapes
 from jaxcart.core.solved import EPISODE_LIMITS, is_solved, return_bounds
-from jaxcart.rundir import files, layout, manifest
+from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
-
-if TYPE_CHECKING:  # the trainer (and JAX) load when a checkpoint is restored
-    pass
 
 MAX_JSON_BYTES = 16 << 20
 EVAL_JSON_BYTES_PER_EPISODE = 64  # two returns per episode, as JSON, with room to spare
@@ -117,7 +113,7 @@ def _read_run_config(directory: files.Dir, verify: bool) -> dict:
     for name in CLASSIFYING_FILES:  # what the directory is: never decided through a link
         files.refuse_link(directory / name)
     data = read_json(directory, layout.CONFIG_FILE)
-    manifest.verify(directory, layout.CONFIG_FILE, data)
+    files.verified(directory, layout.CONFIG_FILE, data)
     if verify:
         _check_digest(path, data)
     try:
@@ -374,8 +370,7 @@ def read_run_metrics(run_dir: files.Where, info: dict) -> dict[str, np.ndarray]:
     ``config.json``) trains; leaves ``[iterations, S]``."""
     num_seeds, iterations = int(info.get("num_seeds", 1)), info["config"].num_iterations
     with files.opened(run_dir) as directory:
-        path = files.inside(directory, layout.METRICS_FILE)
-        manifest.verify(directory, layout.METRICS_FILE, info)
+        path = files.verified(directory, layout.METRICS_FILE, info)
         metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
     check_metrics(metrics, path, info["config"].env)
     return metrics
@@ -428,10 +423,9 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB).
     """
     with files.opened(run_dir) as directory:
-        data = read_json(directory, layout.EVALUATION_FILE, _evaluation_bytes(directory))
-        path = directory / layout.EVALUATION_FILE
         config = read_json(directory, layout.CONFIG_FILE)
-        manifest.verify(directory, layout.EVALUATION_FILE, config)
+        data = read_json(directory, layout.EVALUATION_FILE, _evaluation_bytes(config))
+        path = files.verified(directory, layout.EVALUATION_FILE, config)
     env_id = _env_of(config)
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
@@ -519,10 +513,10 @@ def _seed_problem(seed: dict, episodes: int | None, env_id: str = DEFAULT_ENV) -
     return None
 
 
-def _evaluation_bytes(run_dir: files.Where) -> int:
-    """The largest ``evaluation.json`` the run's ``config.json`` allows: its declared seeds x
-    combinations x episodes (read as declared, within the reader's bounds)."""
-    info = read_json(run_dir, layout.CONFIG_FILE)
+def _evaluation_bytes(info: dict) -> int:
+    """The largest ``evaluation.json`` the run's ``config.json`` (``info``, as read) allows:
+    its declared seeds x combinations x episodes (read as declared, within the reader's
+    bounds)."""
     seeds, episodes = info.get("num_seeds", 1), info.get("eval_episodes", 20)
     seeds = seeds if bounded_int(seeds, 1, MAX_RUNS) else 1
     episodes = episodes if bounded_int(episodes, 1, MAX_EVAL_EPISODES) else 20
@@ -572,16 +566,11 @@ def load_params(run_dir: files.Where, policy: str = "final", info: dict | None =
                 f"e.g. {layout.combo_dir(directory.path, 0)}"
             )
         info = info or read_run_config(directory)
-        if files.refuse_link(directory / name) is None:
-            if policy == "best" and not info["config"].keep_best:
-                raise RunDirError(no_best_policy(directory))
-            raise RunDirError(
-                f"{directory} has no {name}: the run did not finish saving parameters"
-            )
-        num_seeds = int(info.get("num_seeds", 1))
-        expected = params_headers(info["config"], num_seeds, params_dtype(info))
-        path = files.inside(directory, name)
-        manifest.verify(directory, name, info)
+        missing = f"{directory} has no {name}: the run did not finish saving parameters"
+        if policy == "best" and not info["config"].keep_best:
+            missing = no_best_policy(directory)
+        path = files.verified(directory, name, info, missing)
+        expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
         found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
         if found != expected:
             raise RunDirError(
