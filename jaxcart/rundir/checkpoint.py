@@ -131,23 +131,10 @@ def load_checkpoint(
         raise RunDirError(f"checkpoint {path} records other metrics than this run's config.json")
     expected = _expected_headers(template, num_runs)
     limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
-    found = files.read_headers(path, max_bytes=limit + (1 << 20))
-    found.pop(files.META_KEY, None)
-    if set(found) != set(expected):
-        raise RunDirError(
-            f"checkpoint {path} does not match this version's training state (different structure)"
-        )
-    for name, (shape, dtype) in expected.items():
-        if found[name] != (shape, dtype):
-            raise RunDirError(
-                f"checkpoint {path}: {name} has shape/dtype {found[name][0]}/{found[name][1]}, "
-                f"expected {shape}/{dtype}"
-            )
-    arrays, _ = files.load_tree(path, max_bytes=limit + (1 << 20))
-    state_names = [n for n in expected if n.startswith(layout.CHECKPOINT_STATE)]
-    files.check_finite({n: arrays[n] for n in state_names}, path)
+    what = "this version's training state"
+    arrays, _ = files.load_tree(path, limit + (1 << 20), expected, what)
     tree = {"runners": template.runners, "hyperparams": template.config}
-    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
+    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in expected])
     return TrainState(
         runners=restored["runners"],
         config=restored["hyperparams"],
@@ -229,12 +216,8 @@ def _read_checkpoint_runs(
         headers = params_headers(config, runs, params_dtype(info))
         expected = {params_prefix + name: header for name, header in headers.items()}
         limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64
-        found = files.read_headers(path, max_bytes=limit)
-        if any(found.get(name) != header for name, header in expected.items()):
-            raise RunDirError(f"{path} does not hold this run's network")
-        arrays, _ = files.load_tree(path, max_bytes=limit)
+        arrays, _ = files.load_tree(path, limit, expected, exact=False)
         params = {name[len(params_prefix) :]: arrays[name] for name in expected}
-        files.check_finite(params, path)
     stream_path = directory / layout.METRICS_STREAM_FILE
     digest = meta.get(STREAM_DIGEST_KEY)
     streamed = read_stream(stream_path, metric_columns(config), runs, iteration, digest)

@@ -749,17 +749,43 @@ def read_headers(path: Target, max_bytes: int) -> dict[str, Header]:
     return headers
 
 
-def load_tree(path: Target, max_bytes: int = 1 << 34) -> tuple[dict[str, np.ndarray], dict | None]:
+def load_tree(
+    path: Target,
+    max_bytes: int = 1 << 34,
+    expected: dict[str, Header] | None = None,
+    what: str = "this run's network",
+    exact: bool = True,
+) -> tuple[dict[str, np.ndarray], dict | None]:
     """Every named array of a tree file and its metadata (None when it has none), reading
-    at most ``max_bytes`` (checked against the headers before any array is read).
+    at most ``max_bytes`` (checked against the headers before any array is read). With
+    ``expected`` (name -> shape and dtype; a dtype None takes any), the headers must hold
+    exactly those arrays (at least those, unless ``exact``; ``what`` says what they are, in
+    the error) and those of a given dtype must be finite.
 
     Raises:
-        RunDirError: the file is missing, not an ``.npz``, torn, too large or holds objects.
+        RunDirError: the file is missing, not an ``.npz``, torn, too large, holds objects,
+            or not the ``expected`` arrays.
     """
-    read_headers(path, max_bytes)
+    found = read_headers(path, max_bytes)
+    if expected is not None:
+        found.pop(META_KEY, None)
+        missing = sorted(set(expected) - set(found))
+        extra = sorted(set(found) - set(expected)) if exact else []
+        if missing or extra:
+            raise RunDirError(
+                f"{path} does not hold {what} (different structure): missing {missing[:3]}, "
+                f"unexpected {extra[:3]}"
+            )
+        for name, (shape, dtype) in expected.items():
+            if found[name][0] != shape or (dtype is not None and found[name][1] != dtype):
+                raise RunDirError(
+                    f"{path} does not hold {what}: {name} has another shape/dtype "
+                    f"{found[name][0]}/{found[name][1]}, expected {shape}/{dtype}"
+                )
     with _reading(path), open_tree(path) as raw, np.load(raw, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files if k != META_KEY}
         meta = _meta(data) if META_KEY in data.files else None
+    check_finite({n: arrays[n] for n, (_, dt) in (expected or {}).items() if dt is not None}, path)
     return arrays, meta
 
 

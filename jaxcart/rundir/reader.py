@@ -571,13 +571,7 @@ def load_params(run_dir: files.Where, policy: str = "final", info: dict | None =
             missing = no_best_policy(directory)
         path = files.verified(directory, name, info, missing)
         expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
-        found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
-        if found != expected:
-            raise RunDirError(
-                f"{path} does not hold this run's network: {_difference(found, expected)}"
-            )
-        arrays, _ = files.load_tree(path)
-    files.check_finite(arrays, path)
+        arrays, _ = files.load_tree(path, 4 * _bytes(expected) + (1 << 16), expected)
     return files.unflatten(arrays)
 
 
@@ -598,15 +592,6 @@ def policy_file(policy: str) -> str:
     if policy not in layout.POLICY_FILES:
         raise RunDirError(f"policy must be 'final' or 'best', got {policy!r}")
     return layout.POLICY_FILES[policy]
-
-
-def _difference(found: dict[str, files.Header], expected: dict[str, files.Header]) -> str:
-    missing, extra = sorted(set(expected) - set(found)), sorted(set(found) - set(expected))
-    if missing or extra:
-        return f"missing {missing[:3]}, unexpected {extra[:3]}"
-    name = next(n for n in expected if found[n] != expected[n])
-    (shape, dtype), (want_shape, want_dtype) = found[name], expected[name]
-    return f"{name} is {shape} {dtype}, expected {want_shape} {want_dtype}"
 
 
 def _bytes(headers: dict[str, files.Header]) -> int:
@@ -632,22 +617,15 @@ def check_block(
         for prefix in prefixes[: 2 if config.keep_best else 1]
         for name, header in headers
     }
-    found = files.read_headers(path, max_bytes=2 * _block_bytes(config, n, episodes))
-    found.pop(files.META_KEY, None)
-    iterations = config.num_iterations
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
     if config.keep_best:
         fixed |= {"best_gym_returns": (n, episodes), "best_iteration": (n,), "best_score": (n,)}
-    wrong = [name for name, header in expected.items() if found.get(name) != header]
-    wrong += [name for name, shape in fixed.items() if found.get(name, ((), None))[0] != shape]
-    wrong += [
-        name
-        for name, (shape, _) in found.items()
-        if name.startswith(layout.BLOCK_METRICS) and shape != (iterations, n)
-    ]
-    if wrong:
-        raise RunDirError(f"{path} does not hold this wave's results: {wrong[0]} has another shape")
-    arrays, meta = files.load_tree(path, max_bytes=2 * _block_bytes(config, n, episodes))
+    expected |= {name: (shape, None) for name, shape in fixed.items()}
+    limit, what = 2 * _block_bytes(config, n, episodes), "this wave's results"
+    arrays, meta = files.load_tree(path, limit, expected, what, exact=False)
+    shapes = {name: a.shape for name, a in arrays.items() if name.startswith(layout.BLOCK_METRICS)}
+    if any(shape != (config.num_iterations, n) for shape in shapes.values()):
+        raise RunDirError(f"{path} does not hold this wave's results: metrics of another shape")
     if meta is None or (meta.get("start"), meta.get("stop")) != (runs.start, runs.stop):
         raise RunDirError(f"{path} is not the file of runs [{runs.start}, {runs.stop})")
     if meta.get(layout.DIGEST_KEY) != files.arrays_digest(arrays):
@@ -655,7 +633,6 @@ def check_block(
             f"{path} does not match its digest: edited or corrupted; delete it to "
             "train that wave again"
         )
-    files.check_finite({n: a for n, a in arrays.items() if n in expected}, path)
 
 
 def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
