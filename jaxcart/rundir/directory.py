@@ -122,9 +122,13 @@ class RunDir:
         self._waves: files.Dir | None = None
 
     def _take(self, directory: files.Dir, verified: bool) -> None:
+        """Locks the opened ``directory`` (closed when that fails) and keeps it."""
+        try:
+            self.lock = RunLock(directory).acquire()
+        except BaseException:
+            directory.close()
+            raise
         self.dir = directory
-        self.lock = RunLock(directory)
-        self.lock.acquire()
         # a run from before manifests keeps none: it stays a run that cannot be verified
         self.manifest = Manifest(directory, kept=verified)
 
@@ -137,12 +141,7 @@ class RunDir:
         directory = cls(path, main_process)
         if main_process:
             directory.created = not directory.path.exists()
-            opened = prepare_out_dir(directory.path)
-            try:
-                directory._take(opened, verified=True)
-            except BaseException:
-                opened.close()
-                raise
+            directory._take(prepare_out_dir(directory.path), verified=True)
             try:
                 directory.write_config(info, config)
             except BaseException:
@@ -157,11 +156,7 @@ class RunDir:
         directory = cls(path, main_process)
         if main_process:
             opened = files.Dir.open(directory.path)
-            try:
-                directory._take(opened, files.present(opened / layout.MANIFEST_FILE))
-            except BaseException:
-                opened.close()
-                raise
+            directory._take(opened, files.present(opened / layout.MANIFEST_FILE))
         return directory
 
     def _present(self, name: str, directory: files.Dir | None = None) -> bool:

@@ -49,6 +49,7 @@ from jaxcart.rundir import layout
 META_KEY = "__meta__"
 MANIFEST_FORMAT = 1
 MANIFEST_MAX_BYTES = 1 << 20
+MAX_JSON_BYTES = 16 << 20
 MANIFEST_FLAG = "manifest"
 """Of ``config.json``: true in a run that keeps ``manifest.json``."""
 
@@ -388,21 +389,29 @@ def _check_digest(path: Target, listed: list[str] | None) -> None:
         )
 
 
+def read_json(run_dir: Where, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
+    """A JSON object from a run directory, refusing links, non-regular files, files over
+    ``max_bytes`` and anything but an object."""
+    with opened(run_dir) as directory:
+        path = directory / name
+        text = read_bytes(path, max_bytes)
+    try:
+        data = json.loads(text.decode())
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
+        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
+    if not isinstance(data, dict):
+        raise RunDirError(f"{path} is corrupted: not a JSON object")
+    return data
+
+
 def read_manifest(run_dir: Where) -> dict[str, list[str]]:
     """The digests ``RUN_DIR/manifest.json`` lists, file name -> accepted digests.
 
     Raises:
         RunDirError: missing, a link, or not a manifest.
     """
-    with opened(run_dir) as directory:
-        path = directory / layout.MANIFEST_FILE
-        try:
-            data = json.loads(read_bytes(path, MANIFEST_MAX_BYTES).decode(errors="replace"))
-        except ValueError as exc:  # JSON errors (RunDirError is one too, and passes as it is)
-            if isinstance(exc, RunDirError):
-                raise
-            raise RunDirError(f"{path} is corrupted: {str(exc)[:120]}") from None
-    listed = data.get("files") if isinstance(data, dict) else None
+    data = read_json(run_dir, layout.MANIFEST_FILE, MANIFEST_MAX_BYTES)
+    listed = data.get("files")
     if (
         not isinstance(listed, dict)
         or data.get("format") != MANIFEST_FORMAT
@@ -410,7 +419,7 @@ def read_manifest(run_dir: Where) -> dict[str, list[str]]:
             isinstance(v, list) and all(isinstance(d, str) for d in v) for v in listed.values()
         )
     ):
-        raise RunDirError(f"{path} is corrupted: not a jaxcart manifest")
+        raise RunDirError(f"{run_dir}/{layout.MANIFEST_FILE} is corrupted: not a jaxcart manifest")
     return listed
 
 

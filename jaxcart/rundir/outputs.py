@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import zipfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,11 +115,6 @@ def _param_slices(blocks: list, runs: range, name: str, best: bool = False) -> I
                 yield data[(BLOCK_BEST_PARAMS if best else BLOCK_PARAMS) + name][take]
 
 
-def metrics_csv_header(names: list[str]) -> list[str]:
-    """The columns of ``metrics.csv``."""
-    return [*layout.METRICS_INDEX_COLUMNS, *names]
-
-
 def metrics_csv_rows(
     metrics: dict[str, np.ndarray], batch_size: int, first_seed: int = 0, runs: slice = slice(None)
 ) -> Iterator[list]:
@@ -134,15 +129,23 @@ def metrics_csv_rows(
             yield [first_seed + s, i + 1, (i + 1) * batch_size, *row]
 
 
+def _write_csv(path: files.Target, parts: Iterable, batch_size: int, on_digest: Digest) -> None:
+    """``metrics.csv`` from ``(metrics [iterations, R], first seed index, runs)`` parts."""
+    with files.atomic_file(path, "w", on_digest) as f:
+        writer, header = csv.writer(f, lineterminator="\n"), None
+        for metrics, first, take in parts:
+            if header is None:
+                header = [*layout.METRICS_INDEX_COLUMNS, *metrics]
+                writer.writerow(header)
+            writer.writerows(metrics_csv_rows(metrics, batch_size, first, take))
+
+
 def write_metrics_csv(
     path: files.Target, metrics: dict[str, np.ndarray], batch_size: int, on_digest: Digest = None
 ) -> None:
     """Rows ``seed_index, iteration, env_steps, <metrics...>`` from leaves ``[iterations, S]``
     (a run's metrics in memory: a stopped run's so far, or another library's log)."""
-    with files.atomic_file(path, "w", on_digest) as f:
-        writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(metrics_csv_header(list(metrics)))
-        writer.writerows(metrics_csv_rows(metrics, batch_size))
+    _write_csv(path, [(metrics, 0, slice(None))], batch_size, on_digest)
 
 
 def write_blocks_metrics_csv(
@@ -150,14 +153,8 @@ def write_blocks_metrics_csv(
 ) -> None:
     """Rows ``seed_index, iteration, env_steps, <metrics...>`` for ``runs`` (seed index
     counted from ``runs.start``), streamed block by block and renamed into place."""
-    with files.atomic_file(path, "w", on_digest) as f:
-        writer, header = csv.writer(f, lineterminator="\n"), None
-        for block, take in overlapping(blocks, runs):
-            if header is None:
-                header = metrics_csv_header(list(block.metrics))
-                writer.writerow(header)
-            first = block.start + take.start - runs.start
-            writer.writerows(metrics_csv_rows(block.metrics, batch_size, first, take))
+    parts = ((b.metrics, b.start + t.start - runs.start, t) for b, t in overlapping(blocks, runs))
+    _write_csv(path, parts, batch_size, on_digest)
 
 
 def write_params(

@@ -14,7 +14,6 @@ import csv
 import fnmatch
 import io
 import itertools
-import json
 import math
 import os
 from pathlib import Path
@@ -34,9 +33,8 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic, param_shapes
 from jaxcart.core.solved import EPISODE_LIMITS, is_solved, return_bounds
 from jaxcart.rundir import files, layout
-from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.files import MAX_JSON_BYTES, RunDirError, read_json
 
-MAX_JSON_BYTES = 16 << 20
 EVAL_JSON_BYTES_PER_EPISODE = 64  # two returns per episode, as JSON, with room to spare
 EVAL_JSON_BYTES_PER_SEED = 1024  # a seed's entry besides its returns
 MAX_CSV_BYTES_PER_ROW = 4096
@@ -56,21 +54,6 @@ MAX_EVAL_EPISODES = 100_000
 CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FILE)
 """Whether these exist says whether a directory is a sweep, a finished or an unfinished run
 (:func:`~jaxcart.rundir.layout.is_sweep`): :func:`read_run_config` refuses each as a link."""
-
-
-def read_json(run_dir: files.Where, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
-    """A JSON object from a run directory, refusing links, non-regular files, files over
-    ``max_bytes`` and anything but an object."""
-    with files.opened(run_dir) as directory:
-        path = directory / name
-        data = files.read_bytes(path, max_bytes)
-    try:
-        data = json.loads(data.decode())
-    except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
-        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
-    if not isinstance(data, dict):
-        raise RunDirError(f"{path} is corrupted: not a JSON object")
-    return data
 
 
 def read_run_config(run_dir: files.Where, verify: bool = False) -> dict:
