@@ -14,7 +14,6 @@ built from the run's config, checking that every name, shape and dtype matches.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -130,7 +129,7 @@ def load_checkpoint(
     if meta["metrics_columns"] != list(metric_columns(template.config)):
         raise RunDirError(f"checkpoint {path} records other metrics than this run's config.json")
     expected = _expected_headers(template, num_runs)
-    limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
+    limit = files.nbytes(expected)
     what = "this version's training state"
     arrays, _ = files.load_tree(path, limit + (1 << 20), expected, what)
     tree = {"runners": template.runners, "hyperparams": template.config}
@@ -228,8 +227,6 @@ def _read_checkpoint_runs(
 def _checkpoint_bytes(config: PPOConfig, runs: int) -> int:
     """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
     two moments, per-env state and episode statistics (whatever the run's length)."""
-    params = sum(
-        math.prod(shape) * dtype.itemsize for shape, dtype in params_headers(config, runs).values()
-    )
+    params = files.nbytes(params_headers(config, runs))
     per_run = config.num_envs * 256 + (1 << 14)
     return 4 * params + runs * per_run + (1 << 20)

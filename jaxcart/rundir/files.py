@@ -14,7 +14,7 @@ and optionally a JSON metadata entry ``__meta__``.
 The manifest: a run records each file's ``sha256:<hex>`` before the file is renamed into
 place (the manifest then lists the old and the new digest, so a crash between the two renames
 leaves a file the manifest accepts) and keeps only the new one once it is. Every reader checks
-a file against it before trusting anything in it (:func:`verify`). The checkpoint counts too;
+a file against it before trusting anything in it (:func:`verified`). The checkpoint counts too;
 the metrics stream, appended chunk by chunk, is covered by the digest its checkpoint records
 (:mod:`jaxcart.rundir.stream`), and a finished wave's file by the digest it carries. A digest
 proves integrity, not authorship. A directory whose ``config.json`` has no ``manifest`` flag
@@ -369,12 +369,6 @@ def verified(run_dir: Dir, name: str, info: dict | None, missing: str = "") -> E
     return entry
 
 
-def verify(run_dir: Where, name: str, info: dict | None) -> None:
-    """:func:`verified`, for a directory given by path."""
-    with opened(run_dir) as directory:
-        verified(directory, name, info)
-
-
 def _check_digest(path: Target, listed: list[str] | None) -> None:
     """Refuses the file at ``path`` unless its digest is one of ``listed``."""
     fd = open_regular(path)
@@ -711,6 +705,13 @@ def _reading(path: str | os.PathLike) -> Iterator[None]:
 
 Header = tuple[tuple[int, ...], np.dtype]
 """An array's shape and dtype, read from its ``.npy`` header."""
+
+
+def nbytes(headers: dict[str, Header]) -> int:
+    """The bytes of the arrays these headers describe."""
+    return sum(math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in headers.values())
+
+
 MAX_META_BYTES = 1 << 20
 
 

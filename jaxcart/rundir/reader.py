@@ -554,7 +554,7 @@ def load_params(run_dir: files.Where, policy: str = "final", info: dict | None =
             missing = no_best_policy(directory)
         path = files.verified(directory, name, info, missing)
         expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
-        arrays, _ = files.load_tree(path, 4 * _bytes(expected) + (1 << 16), expected)
+        arrays, _ = files.load_tree(path, 4 * files.nbytes(expected) + (1 << 16), expected)
     return files.unflatten(arrays)
 
 
@@ -575,10 +575,6 @@ def policy_file(policy: str) -> str:
     if policy not in layout.POLICY_FILES:
         raise RunDirError(f"policy must be 'final' or 'best', got {policy!r}")
     return layout.POLICY_FILES[policy]
-
-
-def _bytes(headers: dict[str, files.Header]) -> int:
-    return sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in headers.values())
 
 
 def check_block(
@@ -620,6 +616,6 @@ def check_block(
 
 def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
     """A generous bound on a wave file of ``n`` runs."""
-    params = _bytes(params_headers(config, n)) * (2 if config.keep_best else 1)
+    params = files.nbytes(params_headers(config, n)) * (2 if config.keep_best else 1)
     metrics = (64 + len(config.extra_metric_names)) * config.num_iterations * n * 8
     return params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20)
