@@ -371,11 +371,8 @@ def verified(run_dir: Dir, name: str, info: dict | None, missing: str = "") -> E
 
 def _check_digest(path: Target, listed: list[str] | None) -> None:
     """Refuses the file at ``path`` unless its digest is one of ``listed``."""
-    fd = open_regular(path)
-    try:
-        digest = fd_digest(fd)
-    finally:
-        os.close(fd)
+    with open_tree(path) as f:
+        digest = fd_digest(f.fileno())
     if not listed or digest not in listed:
         raise RunDirError(
             f"{path} is not the file the run wrote: its digest is not the one "
