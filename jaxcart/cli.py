@@ -475,7 +475,7 @@ def command_main(
 
 def _note_line(shown: Callable, message, category, *args, **kwargs) -> None:
     """A run that cannot be verified is one ``note:`` line, not a warning with its source."""
-    from jaxcart.rundir.manifest import UnverifiedRunWarning
+    from jaxcart.rundir.files import UnverifiedRunWarning
 
     if issubclass(category, UnverifiedRunWarning):
         print(f"note: {message}", file=sys.stderr)

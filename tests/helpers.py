@@ -171,7 +171,7 @@ def distinct_colours(rgb) -> int:
 
 def seal(run_dir: Path) -> None:
     """Rewrites ``run_dir``'s manifest to list every file it holds as it is now: a run
-    directory crafted by someone who recomputes the digests (:mod:`jaxcart.rundir.manifest`)."""
+    directory crafted by someone who recomputes the digests (:class:`jaxcart.rundir.files.Manifest`)."""
     import hashlib
     import json
 

@@ -25,7 +25,7 @@ from jaxcart import compare, evaluate, export, plot, train
 from jaxcart.core.config import ConfigError
 from jaxcart.run import lifecycle
 from jaxcart.run.spec import RunOptions, RunSpec
-from jaxcart.rundir import files, layout, manifest, policy
+from jaxcart.rundir import files, layout, policy
 
 SMALL = dataclasses.replace(TINY, total_timesteps=256, anneal_lr=False)  # 2 iterations
 OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=1)
@@ -83,7 +83,7 @@ def craft(run: Path, entry: dict, sealed: bool) -> None:
     data = json.loads(path.read_text())
     data["config"].update(entry)
     if not sealed:
-        data.pop(manifest.FLAG, None)
+        data.pop(files.MANIFEST_FLAG, None)
     data.pop(layout.DIGEST_KEY)
     data[layout.DIGEST_KEY] = files.json_digest(data)
     path.write_text(json.dumps(data))

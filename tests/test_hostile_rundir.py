@@ -37,8 +37,7 @@ from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout, policy, reader
 from jaxcart.rundir import views as runs
 from jaxcart.rundir.directory import RunDir
-from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.lock import RunLock
+from jaxcart.rundir.files import RunDirError, RunLock
 
 SMALL = dataclasses.replace(TINY, total_timesteps=256, anneal_lr=False)  # 2 iterations
 OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=1)

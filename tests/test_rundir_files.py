@@ -20,6 +20,13 @@ def mode_of(path: Path) -> int:
     return stat.S_IMODE(path.stat().st_mode)
 
 
+def umask_mode() -> int:
+    """``0o666 & ~umask``: the mode ``open()`` gives a new file."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def test_atomic_file_gives_the_mode_open_gives(tmp_path):
     with open(tmp_path / "plain", "w") as f:
         f.write("x")
@@ -28,8 +35,8 @@ def test_atomic_file_gives_the_mode_open_gives(tmp_path):
     files.atomic_write_bytes(tmp_path / "data.bin", b"\x00\x01")
     assert (tmp_path / "text.csv").read_bytes() == b"a,b\n1,2\n"  # no newline translation
     assert (tmp_path / "data.bin").read_bytes() == b"\x00\x01"
-    assert mode_of(tmp_path / "text.csv") == mode_of(tmp_path / "plain") == files.file_mode()
-    assert mode_of(tmp_path / "data.bin") == files.file_mode()
+    assert mode_of(tmp_path / "text.csv") == mode_of(tmp_path / "plain") == umask_mode()
+    assert mode_of(tmp_path / "data.bin") == umask_mode()
 
 
 def test_a_failed_write_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
@@ -105,3 +112,29 @@ def test_every_file_of_a_run_directory_has_the_mode_open_gives(tmp_path):
     assert not wrong, wrong
     assert not [name for name in found if layout.is_temporary(name)]
     assert not os.path.exists(tmp_path / "stopped" / layout.PARAMS_FILE)
+
+
+def test_a_file_written_through_the_store_is_recorded_and_checked(tmp_path):
+    """``record_json`` (a structural sweep's ``groups.json``) writes a file into the
+    directory's manifest, as a run's files are; ``verified`` then refuses it once edited, and
+    refuses a link or a FIFO in its place."""
+    files.record_json(tmp_path, {layout.GROUPS_FILE: {"groups": [{"num_envs": 4}]}})
+    listed = files.read_manifest(tmp_path)
+    assert list(listed) == [layout.GROUPS_FILE] and len(listed[layout.GROUPS_FILE]) == 1
+    info = {files.MANIFEST_FLAG: True}
+    with files.opened(tmp_path) as directory:
+        files.verified(directory, layout.GROUPS_FILE, info)
+        assert files.read_json(directory, layout.GROUPS_FILE)["groups"] == [{"num_envs": 4}]
+    path = tmp_path / layout.GROUPS_FILE
+    path.write_text(path.read_text() + " ")
+    with pytest.raises(files.RunDirError, match="not the file the run wrote"):
+        with files.opened(tmp_path) as directory:
+            files.verified(directory, layout.GROUPS_FILE, info)
+    path.unlink()
+    os.mkfifo(path)
+    with pytest.raises(files.RunDirError, match="not a regular file"), files.opened(tmp_path) as d:
+        files.verified(d, layout.GROUPS_FILE, info)
+    path.unlink()
+    path.symlink_to(tmp_path / layout.MANIFEST_FILE)
+    with pytest.raises(files.RunDirError, match="symbolic link"), files.opened(tmp_path) as d:
+        files.read_json(d, layout.GROUPS_FILE)

@@ -60,8 +60,7 @@ from jaxcart.run.spec import (
 from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
 from jaxcart.rundir import files, layout, outputs, reader
 from jaxcart.rundir.directory import RunDir, check_versions, package_versions
-from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.manifest import UnverifiedRunWarning
+from jaxcart.rundir.files import RunDirError, UnverifiedRunWarning
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
 

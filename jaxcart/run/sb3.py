@@ -39,7 +39,7 @@ from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
 from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run.loggers import Logger, make_logger, sb3_extras
 from jaxcart.run.progress import SeedBars
-from jaxcart.rundir import files, layout, manifest, outputs
+from jaxcart.rundir import files, layout, outputs
 from jaxcart.rundir.directory import package_versions
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import bounded_int, finite_number, params_headers, read_json
@@ -234,7 +234,7 @@ def write_run(
         "wall_seconds": wall_seconds,
         "config": config.to_dict(),
         "versions": package_versions(),
-        manifest.FLAG: True,
+        files.MANIFEST_FLAG: True,
     }
     stacked = files.flatten(_stack([r.params for r in results]))
     evaluation = outputs.evaluation_record(np.stack([r.returns for r in results]))
@@ -243,7 +243,7 @@ def write_run(
         seed["train_seconds"] = results[s].seconds
     directory = files.Dir.open(out)  # every file through it, and recorded in its manifest
     try:
-        listing = manifest.Manifest(directory)
+        listing = files.Manifest(directory)
         listing.write(layout.CONFIG_FILE, lambda e, d: files.write_json(e, info, d))
         listing.write(
             layout.METRICS_FILE,
@@ -297,7 +297,7 @@ def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, floa
     files.subdir(out, layout.SB3_SEEDS_DIR)
     if files.refuse_link(path) is None:
         return None
-    arrays, meta = files.load_tree(files.inside(path.parent, path.name), max_bytes=1 << 24)
+    arrays, meta = files.load_tree(path, max_bytes=1 << 24)
     expected = {f"params/{k}": h for k, h in _seed_param_headers(config).items()}
     expected |= {f"metrics/{k}": None for k in METRIC_COLUMNS} | {"returns": None}
     params = {k: arrays[k] for k in arrays if k.startswith("params/")}

@@ -14,17 +14,15 @@ built from the run's config, checking that every name, shape and dtype matches.
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from jaxcart.core.config import MAX_CUSTOM_METRICS, PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState, metric_columns
-from jaxcart.rundir import files, layout, manifest
+from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.layout import CHECKPOINT_FORMAT, CHECKPOINT_STATE
 from jaxcart.rundir.reader import (
@@ -63,11 +61,7 @@ def save_checkpoint(
         "chunk_size": state.chunk_size,
         "metrics_columns": list(metric_columns(state.config)),
     }
-    files.save_tree(path, state_arrays(state), meta, on_digest)
-    if isinstance(path, files.Entry):
-        path.dir.fsync()
-    else:
-        files.fsync_directory(Path(path).parent)
+    files.save_tree(path, state_arrays(state), meta, on_digest)  # the rename made durable
 
 
 MAX_ELAPSED = 1e10
@@ -135,24 +129,11 @@ def load_checkpoint(
     if meta["metrics_columns"] != list(metric_columns(template.config)):
         raise RunDirError(f"checkpoint {path} records other metrics than this run's config.json")
     expected = _expected_headers(template, num_runs)
-    limit = sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in expected.values())
-    found = files.read_headers(path, max_bytes=limit + (1 << 20))
-    found.pop(files.META_KEY, None)
-    if set(found) != set(expected):
-        raise RunDirError(
-            f"checkpoint {path} does not match this version's training state (different structure)"
-        )
-    for name, (shape, dtype) in expected.items():
-        if found[name] != (shape, dtype):
-            raise RunDirError(
-                f"checkpoint {path}: {name} has shape/dtype {found[name][0]}/{found[name][1]}, "
-                f"expected {shape}/{dtype}"
-            )
-    arrays, _ = files.load_tree(path, max_bytes=limit + (1 << 20))
-    state_names = [n for n in expected if n.startswith(layout.CHECKPOINT_STATE)]
-    files.check_finite({n: arrays[n] for n in state_names}, path)
+    limit = files.nbytes(expected)
+    what = "this version's training state"
+    arrays, _ = files.load_tree(path, limit + (1 << 20), expected, what)
     tree = {"runners": template.runners, "hyperparams": template.config}
-    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in state_names])
+    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in expected])
     return TrainState(
         runners=restored["runners"],
         config=restored["hyperparams"],
@@ -213,12 +194,8 @@ def _read_checkpoint_runs(
     directory: files.Dir, info: dict, policy: str, with_params: bool = True
 ) -> CheckpointRuns:
     config = info["config"]
-    if files.refuse_link(directory / layout.CHECKPOINT_FILE) is None:
-        raise RunDirError(
-            f"{directory} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}"
-        )
-    path = files.inside(directory, layout.CHECKPOINT_FILE)
-    manifest.verify(directory, layout.CHECKPOINT_FILE, info)
+    missing = f"{directory} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}"
+    path = files.verified(directory, layout.CHECKPOINT_FILE, info, missing)
     meta = read_checkpoint_meta(path)
     runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
     iteration = meta.get("iteration")
@@ -238,12 +215,8 @@ def _read_checkpoint_runs(
         headers = params_headers(config, runs, params_dtype(info))
         expected = {params_prefix + name: header for name, header in headers.items()}
         limit = 2 * _checkpoint_bytes(config, runs)  # float64 under x64
-        found = files.read_headers(path, max_bytes=limit)
-        if any(found.get(name) != header for name, header in expected.items()):
-            raise RunDirError(f"{path} does not hold this run's network")
-        arrays, _ = files.load_tree(path, max_bytes=limit)
+        arrays, _ = files.load_tree(path, limit, expected, exact=False)
         params = {name[len(params_prefix) :]: arrays[name] for name in expected}
-        files.check_finite(params, path)
     stream_path = directory / layout.METRICS_STREAM_FILE
     digest = meta.get(STREAM_DIGEST_KEY)
     streamed = read_stream(stream_path, metric_columns(config), runs, iteration, digest)
@@ -254,8 +227,6 @@ def _read_checkpoint_runs(
 def _checkpoint_bytes(config: PPOConfig, runs: int) -> int:
     """A generous bound on the bytes of a checkpoint of ``runs`` runs: parameters and Adam's
     two moments, per-env state and episode statistics (whatever the run's length)."""
-    params = sum(
-        math.prod(shape) * dtype.itemsize for shape, dtype in params_headers(config, runs).values()
-    )
+    params = files.nbytes(params_headers(config, runs))
     per_run = config.num_envs * 256 + (1 << 14)
     return 4 * params + runs * per_run + (1 << 20)

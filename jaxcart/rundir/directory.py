@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
-import stat
 from importlib import metadata
 from pathlib import Path
 
@@ -20,10 +19,7 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
 from jaxcart.rundir import checkpoint, files, layout, outputs, reader
 from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
-from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.lock import RunLock
-from jaxcart.rundir.manifest import FLAG as MANIFEST_FLAG
-from jaxcart.rundir.manifest import Manifest, NoManifest
+from jaxcart.rundir.files import Manifest, RunDirError, RunLock
 from jaxcart.rundir.stream import STREAM_DIGEST_KEY, MetricsStream, NoStream
 
 VERSIONED_PACKAGES = ("jaxcart", "jax", "jaxlib", "flax", "optax", "distrax", "gymnasium", "numpy")
@@ -87,14 +83,8 @@ def prepare_out_dir(out: Path) -> files.Dir:
         directory = files.Dir.open(out)
     except OSError as exc:
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
-    try:  # the probe is created through the directory's descriptor: never through a link
-        fd = os.open(
-            layout.WRITE_PROBE,
-            os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW,
-            0o600,
-            dir_fd=directory.fd,
-        )
-        os.close(fd)
+    try:  # the probe is written through the directory's descriptor: never through a link
+        files.atomic_write_bytes(directory / layout.WRITE_PROBE, b"")
         directory.unlink(layout.WRITE_PROBE)
     except OSError as exc:
         directory.close()
@@ -125,18 +115,22 @@ class RunDir:
         self.path, self.main_process = Path(path), main_process
         self.dir: files.Dir | None = None
         self.lock = RunLock(self.path)
-        self.manifest: Manifest | NoManifest = NoManifest()
+        self.manifest = Manifest(None, kept=False)
         self.checkpoint_meta: dict | None = None  # of the checkpoint on disk, when there is one
         self.created = False  # by this process's create(): discard() may remove it
         self.stream: MetricsStream | NoStream = NoStream()  # the metrics of the wave training
         self._waves: files.Dir | None = None
 
     def _take(self, directory: files.Dir, verified: bool) -> None:
+        """Locks the opened ``directory`` (closed when that fails) and keeps it."""
+        try:
+            self.lock = RunLock(directory).acquire()
+        except BaseException:
+            directory.close()
+            raise
         self.dir = directory
-        self.lock = RunLock(directory)
-        self.lock.acquire()
         # a run from before manifests keeps none: it stays a run that cannot be verified
-        self.manifest = Manifest(directory) if verified else NoManifest(directory)
+        self.manifest = Manifest(directory, kept=verified)
 
     @classmethod
     def create(
@@ -147,12 +141,7 @@ class RunDir:
         directory = cls(path, main_process)
         if main_process:
             directory.created = not directory.path.exists()
-            opened = prepare_out_dir(directory.path)
-            try:
-                directory._take(opened, verified=True)
-            except BaseException:
-                opened.close()
-                raise
+            directory._take(prepare_out_dir(directory.path), verified=True)
             try:
                 directory.write_config(info, config)
             except BaseException:
@@ -167,20 +156,13 @@ class RunDir:
         directory = cls(path, main_process)
         if main_process:
             opened = files.Dir.open(directory.path)
-            try:
-                directory._take(opened, opened.lstat(layout.MANIFEST_FILE) is not None)
-            except BaseException:
-                opened.close()
-                raise
+            directory._take(opened, files.present(opened / layout.MANIFEST_FILE))
         return directory
 
     def _present(self, name: str, directory: files.Dir | None = None) -> bool:
         """Whether ``name`` exists (a link is refused, never followed)."""
         directory = directory or self.dir
-        st = directory.lstat(name) if directory is not None else None
-        if st is not None and stat.S_ISLNK(st.st_mode):
-            raise RunDirError(f"{directory.path / name} is {files.LINK_REASON}")
-        return st is not None
+        return directory is not None and files.refuse_link(directory / name) is not None
 
     def _verified(self, name: str) -> files.Entry:
         """``name`` checked against the manifest (a run from before manifests: unchecked)."""
@@ -235,10 +217,11 @@ class RunDir:
             data.pop("combinations", None)
         data["config"] = config.to_dict()
         manifest = manifest or self.manifest
-        if isinstance(manifest, Manifest):
-            data[MANIFEST_FLAG] = True
-        body = {**data, layout.DIGEST_KEY: files.json_digest(data)}
-        manifest.write(layout.CONFIG_FILE, lambda entry, d: files.write_json(entry, body, d))
+        if manifest.kept:
+            data[files.MANIFEST_FLAG] = True
+        manifest.write_json(
+            layout.CONFIG_FILE, {**data, layout.DIGEST_KEY: files.json_digest(data)}
+        )
 
     @property
     def checkpoint_path(self) -> Path:
@@ -375,4 +358,4 @@ class RunDir:
 
     def write_ranking(self, data: dict) -> None:
         """``sweep.json``: a sweep's combinations, ranked."""
-        self.manifest.write(layout.SWEEP_FILE, lambda entry, d: files.write_json(entry, data, d))
+        self.manifest.write_json(layout.SWEEP_FILE, data)

@@ -1,21 +1,42 @@
-"""Writing files so that a crash never leaves a torn one, and the one ``.npz`` format for trees.
+"""The store: the one module that opens a file of a run directory, for reading or writing.
+
+Every byte of a run directory goes through here. Reading: :func:`open_regular` (no link
+followed, a regular file only), :func:`read_bytes` (bounded by what such a file can hold)
+and :func:`verified` (its digest is the one ``manifest.json`` records). Writing:
+:func:`atomic_file` (a temporary beside the target, fsynced and renamed into place, so a crash
+never leaves a torn file) and :class:`Manifest` (each finished file's ``sha256`` recorded).
+The lock (:class:`RunLock`) is here too. Nothing read is ever imported or unpickled.
 
 A tree file (parameters, checkpoints) is an uncompressed ``.npz``: every array leaf under its
 tree path joined with ``/`` (``params/actor/hidden_0/kernel``, ``runners/opt_state/1/mu/...``)
-and optionally a JSON metadata entry ``__meta__``. Nothing is ever unpickled.
+and optionally a JSON metadata entry ``__meta__``.
+
+The manifest: a run records each file's ``sha256:<hex>`` before the file is renamed into
+place (the manifest then lists the old and the new digest, so a crash between the two renames
+leaves a file the manifest accepts) and keeps only the new one once it is. Every reader checks
+a file against it before trusting anything in it (:func:`verified`). The checkpoint counts too;
+the metrics stream, appended chunk by chunk, is covered by the digest its checkpoint records
+(:mod:`jaxcart.rundir.stream`), and a finished wave's file by the digest it carries. A digest
+proves integrity, not authorship. A directory whose ``config.json`` has no ``manifest`` flag
+was written before manifests: it is read with a one-line :class:`UnverifiedRunWarning`; one
+whose ``config.json`` says it has a manifest and has none is refused.
+
+The lock: one process at a time per run directory, an advisory ``flock`` on ``RUN_DIR/.lock``
+held for the whole run and released by the operating system when its holder exits, however it
+exits. The file keeps the holder's PID, so a refused process can say who holds it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
-import functools
 import hashlib
 import json
 import math
 import os
 import secrets
 import stat
+import warnings
 import zipfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -26,34 +47,29 @@ import numpy as np
 from jaxcart.rundir import layout
 
 META_KEY = "__meta__"
+MANIFEST_FORMAT = 1
+MANIFEST_MAX_BYTES = 1 << 20
+MAX_JSON_BYTES = 16 << 20
+MANIFEST_FLAG = "manifest"
+"""Of ``config.json``: true in a run that keeps ``manifest.json``."""
 
 
 class RunDirError(ValueError):
     """A file or directory is not a usable jaxcart run (directory); the message says why."""
 
 
-def _read_umask() -> int:
-    """The process's umask, read without changing it when the kernel reports it
-    (``os.umask`` can only read it by setting it, and a file another thread creates meanwhile
-    would get the wrong mode)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    umask = os.umask(0o022)
-    os.umask(umask)
-    return umask
+class RunInUse(RunDirError):
+    """Another process holds the run directory's lock."""
 
 
-@functools.cache
-def file_mode() -> int:
-    """The permissions ``open()`` would give a new file: ``0o666 & ~umask`` (0644 under the
-    usual umask 022), read once. ``mkstemp`` creates 0600 files, which colleagues sharing a
-    machine could not read."""
-    return 0o666 & ~_read_umask()
+class UnverifiedRunWarning(UserWarning):
+    """A run directory from before manifests: its files cannot be checked against one."""
+
+
+LINK_REASON = "a symbolic link; jaxcart never follows links in a run directory"
+WRITE_FAILURES = (errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM)
+"""Errors of a disk or mount that refuses writes: reported as failed writes (exit 1), not as a
+bad run directory."""
 
 
 class Dir:
@@ -80,10 +96,9 @@ class Dir:
             fd = os.open(path, flags, dir_fd=parent.fd if parent is not None else None)
         except OSError as exc:
             if exc.errno in (errno.ELOOP, errno.ENOTDIR):  # Linux says ENOTDIR for a link
-                with contextlib.suppress(OSError):
-                    st = os.stat(path, dir_fd=parent.fd if parent else None, follow_symlinks=False)
-                    if stat.S_ISLNK(st.st_mode):
-                        raise RunDirError(f"{shown} is {LINK_REASON}") from None
+                st = _lstat(parent / os.fspath(path) if parent else path, quiet=True)
+                if st is not None and stat.S_ISLNK(st.st_mode):
+                    raise RunDirError(f"{shown} is {LINK_REASON}") from None
                 raise RunDirError(f"{shown} is not a directory; refusing it") from None
             raise
         return cls(shown, fd)
@@ -109,13 +124,6 @@ class Dir:
     def names(self) -> list[str]:
         """The names inside this directory (``os.listdir`` of its descriptor)."""
         return os.listdir(self.fd)
-
-    def lstat(self, name: str) -> os.stat_result | None:
-        """``name``'s own status (a link is not followed), None when it does not exist."""
-        try:
-            return os.stat(name, dir_fd=self.fd, follow_symlinks=False)
-        except FileNotFoundError:
-            return None
 
     def unlink(self, name: str) -> None:
         with contextlib.suppress(FileNotFoundError):
@@ -182,22 +190,6 @@ def opened(run_dir: Where) -> Iterator[Dir]:
         directory.close()
 
 
-def present(target: Target) -> bool:
-    """Whether ``target`` exists, by ``lstat`` (see :func:`jaxcart.rundir.layout.present`),
-    relative to its directory's descriptor when it is an :class:`Entry`."""
-    name, dir_fd = _located(target)
-    try:
-        os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
-    except FileNotFoundError:
-        return False
-    except OSError:
-        return True  # there, but not readable: its reader says why
-    return True
-
-
-LINK_REASON = "a symbolic link; jaxcart never follows links in a run directory"
-
-
 def _located(target: Target) -> tuple[str, int | None]:
     """The name to pass to ``os.open`` and the directory descriptor it is relative to."""
     if isinstance(target, Entry):
@@ -205,22 +197,243 @@ def _located(target: Target) -> tuple[str, int | None]:
     return os.fspath(target), None
 
 
+def _lstat(target: Target, quiet: bool = False) -> os.stat_result | None:
+    """``target``'s own status (a link is not followed), None when it does not exist (or,
+    ``quiet``, cannot be read); otherwise an unreadable one is a :class:`RunDirError`."""
+    name, dir_fd = _located(target)
+    try:
+        return os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        if quiet:
+            return None
+        raise RunDirError(f"{target} cannot be read: {exc.strerror or exc}") from None
+
+
+def present(target: Target) -> bool:
+    """Whether ``target`` exists, by ``lstat``: a link counts as present whatever it points
+    to, so that what a directory is never depends on a link's target (its reader then refuses
+    the link by name)."""
+    try:
+        return _lstat(target) is not None
+    except RunDirError:
+        return True  # there, but not readable: its reader says why
+
+
+def refuse_link(path: Target) -> os.stat_result | None:
+    """``lstat(path)``, refusing a symbolic link (a run directory someone else made may hold
+    anything: a link would make jaxcart read or write outside the directory). None when
+    ``path`` does not exist.
+
+    Raises:
+        RunDirError: ``path`` is a symbolic link.
+    """
+    st = _lstat(path)
+    if st is not None and stat.S_ISLNK(st.st_mode):
+        raise RunDirError(f"{path} is {LINK_REASON}")
+    return st
+
+
+def subdir(directory: str | os.PathLike, name: str, create: bool = False) -> Path:
+    """``directory / name`` checked to be a real directory (not a link) when it exists;
+    created (its parent must exist: a deleted run directory is never recreated) when
+    ``create``.
+
+    Raises:
+        RunDirError: a link or something other than a directory.
+        OSError: it could not be created.
+    """
+    path = Path(directory) / name
+    if create and refuse_link(path) is None:
+        with contextlib.suppress(FileExistsError):
+            path.mkdir()
+    st = refuse_link(path)
+    if st is not None and not stat.S_ISDIR(st.st_mode):
+        raise RunDirError(f"{path} is not a directory; refusing it")
+    return path
+
+
+# ---- reading: the one opener ----
+
+
+def open_regular(
+    path: Target, flags: int = os.O_RDONLY, mode: int = 0o666, in_place: bool = False
+) -> int:
+    """A descriptor of ``path`` opened without following a link, checked to be a regular
+    file (never a FIFO, device or directory: ``O_NONBLOCK`` keeps a FIFO from blocking the
+    open, and it is cleared once the file is known to be regular). ``in_place``: a file
+    jaxcart changes where it lies (the lock, the metrics stream) must have one link, else
+    truncating or appending to it would change a hard-linked file outside the run.
+
+    Raises:
+        RunDirError: ``path`` is missing (opened for reading), a link, not a regular file,
+            or (``in_place``) hard-linked.
+        OSError: the disk refuses an open for writing (:data:`WRITE_FAILURES`).
+    """
+    name, dir_fd = _located(path)
+    writing = flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT)
+    try:
+        fd = os.open(
+            name, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode, dir_fd=dir_fd
+        )
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise RunDirError(f"{path} is {LINK_REASON}") from None
+        if isinstance(exc, FileNotFoundError) and not writing:
+            raise RunDirError(f"{path} does not exist") from None
+        if isinstance(exc, FileNotFoundError) or (writing and exc.errno in WRITE_FAILURES):
+            raise  # a disk that refuses writes: the caller's write failure
+        raise RunDirError(f"{path} cannot be opened: {exc.strerror or exc}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise RunDirError(f"{path} is not a regular file; refusing it")
+        if in_place and st.st_nlink != 1:
+            raise RunDirError(
+                f"{path} has {st.st_nlink} hard links; jaxcart changes it in place and "
+                "refuses a file that is also elsewhere (remove it and resume)"
+            )
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+@contextlib.contextmanager
+def open_tree(path: Target) -> Iterator[IO[bytes]]:
+    """``path`` opened for reading in binary through :func:`open_regular`."""
+    with os.fdopen(open_regular(path), "rb") as f:
+        yield f
+
+
+def read_bytes(path: Target, max_bytes: int) -> bytes:
+    """A regular file's bytes (no link followed), refusing one larger than ``max_bytes``.
+
+    Raises:
+        RunDirError: missing, a link, not a regular file, or too large.
+    """
+    with open_tree(path) as f:
+        if (
+            os.fstat(f.fileno()).st_size > max_bytes
+            or len(data := f.read(max_bytes + 1)) > max_bytes
+        ):
+            raise RunDirError(f"{path} is larger than any such file jaxcart writes")
+    return data
+
+
+def hash_fd(fd: int, size: int | None = None) -> Any:
+    """sha256 of the first ``size`` bytes (all, when None) of ``fd`` from its start (the
+    offset is kept): the hash object, for a caller that appends more."""
+    h, offset = hashlib.sha256(), 0
+    while size is None or offset < size:
+        chunk = os.pread(fd, 1 << 20 if size is None else min(1 << 20, size - offset), offset)
+        if not chunk:
+            break
+        h.update(chunk)
+        offset += len(chunk)
+    return h
+
+
+def fd_digest(fd: int) -> str:
+    """``sha256:<hex>`` of an open file's bytes, read from its start (the offset is kept)."""
+    return "sha256:" + hash_fd(fd).hexdigest()
+
+
+def verified(run_dir: Dir, name: str, info: dict | None, missing: str = "") -> Entry:
+    """``RUN_DIR/name`` after refusing it unless it is a regular file (no link followed)
+    whose bytes are those its manifest records; ``info`` (the run's ``config.json``, None
+    while that file itself is checked) says whether the run keeps a manifest. A run from
+    before manifests gets an :class:`UnverifiedRunWarning`. The check every reader makes.
+
+    Raises:
+        RunDirError: missing (``missing`` says why, when given), the manifest is missing or
+            broken, or the file is not listed or differs.
+    """
+    entry = run_dir / name
+    if missing and refuse_link(entry) is None:
+        raise RunDirError(missing)
+    manifest = run_dir / layout.MANIFEST_FILE
+    if info is not None and not info.get(MANIFEST_FLAG) and not present(manifest):
+        warnings.warn(
+            f"{run_dir} was written before jaxcart kept a manifest: its files cannot be "
+            "verified, only checked for sense",
+            UnverifiedRunWarning,
+            stacklevel=3,
+        )
+        return entry
+    if not present(manifest):
+        raise RunDirError(f"{manifest} is missing: the run's files cannot be verified")
+    _check_digest(entry, read_manifest(run_dir).get(name))
+    return entry
+
+
+def _check_digest(path: Target, listed: list[str] | None) -> None:
+    """Refuses the file at ``path`` unless its digest is one of ``listed``."""
+    with open_tree(path) as f:
+        digest = fd_digest(f.fileno())
+    if not listed or digest not in listed:
+        raise RunDirError(
+            f"{path} is not the file the run wrote: its digest is not the one "
+            f"{layout.MANIFEST_FILE} records"
+        )
+
+
+def read_json(run_dir: Where, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
+    """A JSON object from a run directory, refusing links, non-regular files, files over
+    ``max_bytes`` and anything but an object."""
+    with opened(run_dir) as directory:
+        path = directory / name
+        text = read_bytes(path, max_bytes)
+    try:
+        data = json.loads(text.decode())
+    except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
+        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
+    if not isinstance(data, dict):
+        raise RunDirError(f"{path} is corrupted: not a JSON object")
+    return data
+
+
+def read_manifest(run_dir: Where) -> dict[str, list[str]]:
+    """The digests ``RUN_DIR/manifest.json`` lists, file name -> accepted digests.
+
+    Raises:
+        RunDirError: missing, a link, or not a manifest.
+    """
+    data = read_json(run_dir, layout.MANIFEST_FILE, MANIFEST_MAX_BYTES)
+    listed = data.get("files")
+    if (
+        not isinstance(listed, dict)
+        or data.get("format") != MANIFEST_FORMAT
+        or not all(
+            isinstance(v, list) and all(isinstance(d, str) for d in v) for v in listed.values()
+        )
+    ):
+        raise RunDirError(f"{run_dir}/{layout.MANIFEST_FILE} is corrupted: not a jaxcart manifest")
+    return listed
+
+
+# ---- writing: the one writer, and the manifest that records what it wrote ----
+
+
 @contextlib.contextmanager
 def atomic_file(
     target: Target, mode: str = "w", on_digest: Callable[[str], None] | None = None
 ) -> Iterator[IO]:
     """A file to write ``target`` through: a temporary beside it (``.<name>.<random>.tmp``),
-    fsynced and renamed into place when the block ends without an exception, so a crash
-    mid-write leaves either the old file or the new one. The one writer of every file jaxcart
-    writes. The temporary is created, renamed and removed through the directory's descriptor
-    (``target`` a path: its parent, opened for the write), never through a link.
+    fsynced and renamed into place (the rename made durable) when the block ends without an
+    exception, so a crash mid-write leaves either the old file or the new one. The one writer
+    of every file jaxcart writes. The temporary is created, renamed and removed through the
+    directory's descriptor (``target`` a path: its parent, opened for the write), never
+    through a link; it gets ``0o666`` less the umask, the mode ``open()`` gives.
 
     Args:
         target: the file to (re)place.
         mode: ``"w"`` (UTF-8 text, ``newline=""``: what is written is what lands) or
             ``"wb"``.
         on_digest: called with the ``sha256:<hex>`` of the finished bytes before they are
-            renamed into place (a manifest records it first: :mod:`jaxcart.rundir.manifest`).
+            renamed into place (a :class:`Manifest` records it first).
 
     Raises:
         OSError: the write failed (a full or read-only disk, no permission); ``filename`` is
@@ -259,6 +472,7 @@ def atomic_file(
             if on_digest is not None:
                 on_digest(fd_digest(f.fileno()))
         os.replace(tmp, name, src_dir_fd=directory.fd, dst_dir_fd=directory.fd)
+        directory.fsync()
     except BaseException as exc:
         if tmp is not None:
             with contextlib.suppress(OSError):
@@ -266,15 +480,6 @@ def atomic_file(
         if isinstance(exc, OSError):
             raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from None
         raise
-
-
-def fd_digest(fd: int) -> str:
-    """``sha256:<hex>`` of an open file's bytes, read from its start (the offset is kept)."""
-    h, offset = hashlib.sha256(), 0
-    while chunk := os.pread(fd, 1 << 20, offset):
-        h.update(chunk)
-        offset += len(chunk)
-    return "sha256:" + h.hexdigest()
 
 
 def atomic_write_bytes(
@@ -285,18 +490,123 @@ def atomic_write_bytes(
         f.write(data)
 
 
-def fsync_directory(path: str | os.PathLike) -> None:
-    """Makes the renames inside ``path`` durable."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def write_json(target: Target, data: dict, on_digest: Callable[[str], None] | None = None) -> None:
     """Atomic, indented JSON."""
     atomic_write_bytes(target, (json.dumps(data, indent=2) + "\n").encode(), on_digest)
+
+
+Writer = Callable[[Entry, Callable[[str], None] | None], None]
+"""Writes one file: ``writer(entry, on_digest)``, through :func:`atomic_file`."""
+
+
+class Manifest:
+    """The manifest a run writes in one of its directories (opened :class:`Dir`); ``kept``
+    False: a run from before manifests (or a process that writes nothing), whose files are
+    written alone and never checked."""
+
+    def __init__(self, directory: Dir | None, kept: bool = True) -> None:
+        self.dir, self.kept = directory, kept
+        self.digests: dict[str, list[str]] = {}
+        if kept:
+            with contextlib.suppress(RunDirError):  # a resumed run keeps what it recorded
+                self.digests = read_manifest(directory)
+
+    def write(self, name: str, writer: Writer) -> None:
+        """Writes ``name`` with ``writer(entry, on_digest)`` and records it: its new digest
+        beside the old before it is renamed into place, only the new one after."""
+        if not self.kept:
+            return writer(self.dir / name, None)
+
+        def stage(digest: str) -> None:
+            self.digests[name] = [*self.digests.get(name, [])[-1:], digest]
+            self._write()
+
+        writer(self.dir / name, stage)
+        self.digests[name] = self.digests[name][-1:]
+        self._write()
+
+    def write_json(self, name: str, data: dict) -> None:
+        """``name`` as indented JSON (:func:`write_json`), recorded."""
+        self.write(name, lambda entry, digest: write_json(entry, data, digest))
+
+    def forget(self, *names: str) -> None:
+        if self.kept:
+            for name in names:
+                self.digests.pop(name, None)
+            self._write()
+
+    def verify(self, name: str) -> None:
+        """Refuses ``name`` unless its bytes are those recorded for it."""
+        if self.kept:
+            _check_digest(self.dir / name, self.digests.get(name))
+
+    def _write(self) -> None:
+        data = {"format": MANIFEST_FORMAT, "files": dict(sorted(self.digests.items()))}
+        write_json(self.dir / layout.MANIFEST_FILE, data)
+
+
+def record_json(run_dir: Where, named: dict[str, dict]) -> None:
+    """Writes each ``name -> JSON object`` into ``run_dir`` and records it in the
+    directory's ``manifest.json`` (created when it has none), as a run's files are: an
+    evaluation's ``config.json``, a structural sweep's ``groups.json``."""
+    with opened(run_dir) as directory:
+        listing = Manifest(directory)
+        for name, data in named.items():
+            listing.write_json(name, data)
+
+
+class RunLock:
+    """An exclusive lock on a run directory; :meth:`acquire` fails at once if it is held."""
+
+    def __init__(self, run_dir: str | os.PathLike | Dir) -> None:
+        self.dir = run_dir if isinstance(run_dir, Dir) else None
+        self.path = (run_dir.path if isinstance(run_dir, Dir) else Path(run_dir)) / layout.LOCK_FILE
+        self._fd: int | None = None
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def acquire(self) -> RunLock:
+        """Takes the lock, or raises :class:`RunInUse` naming the holder's PID."""
+        import fcntl
+
+        if self._fd is not None:
+            return self
+        # 0o666 less the umask, as every file of a run directory; a link (symbolic or hard)
+        # is refused, not followed: truncating it would truncate whatever it points to
+        target = self.dir / layout.LOCK_FILE if self.dir is not None else self.path
+        fd = open_regular(target, os.O_RDWR | os.O_CREAT, 0o666, in_place=True)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise RunInUse(
+                f"{self.path.parent} is in use by another jaxcart process (PID {holder}); "
+                "wait for it to finish or stop it first"
+            ) from None
+        except BaseException:
+            os.close(fd)
+            raise
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing the descriptor releases the flock
+            self._fd = None
+
+    def __enter__(self) -> RunLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+# ---- tree files (.npz) ----
 
 
 def json_digest(data: dict) -> str:
@@ -392,142 +702,14 @@ def _reading(path: str | os.PathLike) -> Iterator[None]:
 
 Header = tuple[tuple[int, ...], np.dtype]
 """An array's shape and dtype, read from its ``.npy`` header."""
+
+
+def nbytes(headers: dict[str, Header]) -> int:
+    """The bytes of the arrays these headers describe."""
+    return sum(math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in headers.values())
+
+
 MAX_META_BYTES = 1 << 20
-
-
-def refuse_link(path: Target) -> os.stat_result | None:
-    """``lstat(path)``, refusing a symbolic link (a run directory someone else made may hold
-    anything: a link would make jaxcart read or write outside the directory). None when
-    ``path`` does not exist.
-
-    Raises:
-        RunDirError: ``path`` is a symbolic link.
-    """
-    name, dir_fd = _located(path)
-    try:
-        st = os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
-    except FileNotFoundError:
-        return None
-    except OSError as exc:
-        raise RunDirError(f"{path} cannot be read: {exc.strerror or exc}") from None
-    if stat.S_ISLNK(st.st_mode):
-        raise RunDirError(f"{path} is {LINK_REASON}")
-    return st
-
-
-WRITE_FAILURES = (errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM)
-"""Errors of a disk or mount that refuses writes: reported as failed writes (exit 1), not as a
-bad run directory."""
-
-
-def open_regular(
-    path: Target, flags: int = os.O_RDONLY, mode: int = 0o666, in_place: bool = False
-) -> int:
-    """A descriptor of ``path`` opened without following a link, checked to be a regular
-    file (never a FIFO, device or directory: ``O_NONBLOCK`` keeps a FIFO from blocking the
-    open, and it is cleared once the file is known to be regular). ``in_place``: a file
-    jaxcart changes where it lies (the lock, the metrics stream) must have one link, else
-    truncating or appending to it would change a hard-linked file outside the run.
-
-    Raises:
-        RunDirError: ``path`` is a link, not a regular file, or (``in_place``) hard-linked.
-        FileNotFoundError: it does not exist (and ``flags`` do not create it).
-        OSError: the disk refuses an open for writing (:data:`WRITE_FAILURES`).
-    """
-    name, dir_fd = _located(path)
-    try:
-        fd = os.open(
-            name, flags | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, mode, dir_fd=dir_fd
-        )
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise RunDirError(f"{path} is {LINK_REASON}") from None
-        writing = flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT)
-        if isinstance(exc, FileNotFoundError) or (writing and exc.errno in WRITE_FAILURES):
-            raise  # a missing file; or a disk that refuses writes: the caller's write failure
-        raise RunDirError(f"{path} cannot be opened: {exc.strerror or exc}") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise RunDirError(f"{path} is not a regular file; refusing it")
-        if in_place and st.st_nlink != 1:
-            raise RunDirError(
-                f"{path} has {st.st_nlink} hard links; jaxcart changes it in place and "
-                "refuses a file that is also elsewhere (remove it and resume)"
-            )
-        os.set_blocking(fd, True)
-    except BaseException:
-        os.close(fd)
-        raise
-    return fd
-
-
-def read_bytes(path: Target, max_bytes: int) -> bytes:
-    """A regular file's bytes (no link followed), refusing one larger than ``max_bytes``.
-
-    Raises:
-        RunDirError: missing, a link, not a regular file, or too large.
-    """
-    try:
-        fd = open_regular(path)
-    except FileNotFoundError:
-        raise RunDirError(f"{path} does not exist") from None
-    with os.fdopen(fd, "rb") as f:
-        if os.fstat(f.fileno()).st_size > max_bytes:
-            raise RunDirError(f"{path} is larger than any such file jaxcart writes")
-        data = f.read(max_bytes + 1)
-    if len(data) > max_bytes:
-        raise RunDirError(f"{path} is larger than any such file jaxcart writes")
-    return data
-
-
-def subdir(directory: str | os.PathLike, name: str, create: bool = False) -> Path:
-    """``directory / name`` checked to be a real directory (not a link) when it exists;
-    created (its parent must exist: a deleted run directory is never recreated) when
-    ``create``.
-
-    Raises:
-        RunDirError: a link or something other than a directory.
-        OSError: it could not be created.
-    """
-    path = Path(directory) / name
-    st = refuse_link(path)
-    if st is None and create:
-        try:
-            path.mkdir()
-        except FileExistsError:
-            pass
-        st = refuse_link(path)
-    if st is not None and not stat.S_ISDIR(st.st_mode):
-        raise RunDirError(f"{path} is not a directory; refusing it")
-    return path
-
-
-def inside(directory: Where, name: str) -> Target:
-    """``directory / name`` after checking that it is a regular file there, not a link (a
-    run directory someone else made may hold anything).
-
-    Raises:
-        RunDirError: missing, a link, or not a regular file.
-    """
-    path = directory / name if isinstance(directory, Dir) else Path(directory) / name
-    st = refuse_link(path)
-    if st is None:
-        raise RunDirError(f"{path} does not exist")
-    if not stat.S_ISREG(st.st_mode):
-        raise RunDirError(f"{path} is not a regular file; refusing it")
-    return path
-
-
-@contextlib.contextmanager
-def open_tree(path: Target) -> Iterator[IO[bytes]]:
-    """A tree file opened for reading without following a link (see :func:`open_regular`)."""
-    try:
-        fd = open_regular(path)
-    except FileNotFoundError:
-        raise RunDirError(f"{path} does not exist") from None
-    with os.fdopen(fd, "rb") as f:
-        yield f
 
 
 def read_headers(path: Target, max_bytes: int) -> dict[str, Header]:
@@ -574,17 +756,43 @@ def read_headers(path: Target, max_bytes: int) -> dict[str, Header]:
     return headers
 
 
-def load_tree(path: Target, max_bytes: int = 1 << 34) -> tuple[dict[str, np.ndarray], dict | None]:
+def load_tree(
+    path: Target,
+    max_bytes: int = 1 << 34,
+    expected: dict[str, Header] | None = None,
+    what: str = "this run's network",
+    exact: bool = True,
+) -> tuple[dict[str, np.ndarray], dict | None]:
     """Every named array of a tree file and its metadata (None when it has none), reading
-    at most ``max_bytes`` (checked against the headers before any array is read).
+    at most ``max_bytes`` (checked against the headers before any array is read). With
+    ``expected`` (name -> shape and dtype; a dtype None takes any), the headers must hold
+    exactly those arrays (at least those, unless ``exact``; ``what`` says what they are, in
+    the error) and those of a given dtype must be finite.
 
     Raises:
-        RunDirError: the file is missing, not an ``.npz``, torn, too large or holds objects.
+        RunDirError: the file is missing, not an ``.npz``, torn, too large, holds objects,
+            or not the ``expected`` arrays.
     """
-    read_headers(path, max_bytes)
+    found = read_headers(path, max_bytes)
+    if expected is not None:
+        found.pop(META_KEY, None)
+        missing = sorted(set(expected) - set(found))
+        extra = sorted(set(found) - set(expected)) if exact else []
+        if missing or extra:
+            raise RunDirError(
+                f"{path} does not hold {what} (different structure): missing {missing[:3]}, "
+                f"unexpected {extra[:3]}"
+            )
+        for name, (shape, dtype) in expected.items():
+            if found[name][0] != shape or (dtype is not None and found[name][1] != dtype):
+                raise RunDirError(
+                    f"{path} does not hold {what}: {name} has another shape/dtype "
+                    f"{found[name][0]}/{found[name][1]}, expected {shape}/{dtype}"
+                )
     with _reading(path), open_tree(path) as raw, np.load(raw, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files if k != META_KEY}
         meta = _meta(data) if META_KEY in data.files else None
+    check_finite({n: arrays[n] for n, (_, dt) in (expected or {}).items() if dt is not None}, path)
     return arrays, meta
 
 

@@ -15,8 +15,8 @@ Layout of ``RUN_DIR``:
 - ``waves/wave-00003.npz``: one block of results per finished wave of a run trained in waves
   (:mod:`jaxcart.rundir.outputs`);
 - ``manifest.json``: the digest of every finished file, checked by every reader
-  (:mod:`jaxcart.rundir.manifest`);
-- ``.lock``: held by the process that trains it (:mod:`jaxcart.rundir.lock`);
+  (:class:`jaxcart.rundir.files.Manifest`);
+- ``.lock``: held by the process that trains it (:class:`jaxcart.rundir.files.RunLock`);
 - ``policy-seed0.zip`` / ``.onnx``: one seed's policy, where ``python -m jaxcart.export``
   puts it without ``--out`` (:func:`export_file`); no reader looks at it;
 - ``sb3-plan.json`` and ``sb3-seeds/seed-314159.npz``: while ``python -m jaxcart.sb3`` trains,
@@ -61,7 +61,7 @@ CHECKPOINT_FILE = "checkpoint.npz"
 METRICS_STREAM_FILE = "metrics.stream"
 LOCK_FILE = ".lock"
 MANIFEST_FILE = "manifest.json"
-"""Every finished file's digest (:mod:`jaxcart.rundir.manifest`), rewritten after each."""
+"""Every finished file's digest (:class:`jaxcart.rundir.files.Manifest`), rewritten after each."""
 WAVES_DIR = "waves"
 SB3_PLAN_FILE = "sb3-plan.json"
 SB3_SEEDS_DIR = "sb3-seeds"

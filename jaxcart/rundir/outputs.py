@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import zipfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,8 +22,6 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved, solved_definition
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.layout import BLOCK_BEST_PARAMS, BLOCK_METRICS, BLOCK_PARAMS
-from jaxcart.rundir.manifest import FLAG as MANIFEST_FLAG
-from jaxcart.rundir.manifest import Manifest
 
 Digest = Callable[[str], None] | None
 """Called with a finished file's digest before it is renamed into place (its manifest)."""
@@ -117,11 +115,6 @@ def _param_slices(blocks: list, runs: range, name: str, best: bool = False) -> I
                 yield data[(BLOCK_BEST_PARAMS if best else BLOCK_PARAMS) + name][take]
 
 
-def metrics_csv_header(names: list[str]) -> list[str]:
-    """The columns of ``metrics.csv``."""
-    return [*layout.METRICS_INDEX_COLUMNS, *names]
-
-
 def metrics_csv_rows(
     metrics: dict[str, np.ndarray], batch_size: int, first_seed: int = 0, runs: slice = slice(None)
 ) -> Iterator[list]:
@@ -136,15 +129,23 @@ def metrics_csv_rows(
             yield [first_seed + s, i + 1, (i + 1) * batch_size, *row]
 
 
+def _write_csv(path: files.Target, parts: Iterable, batch_size: int, on_digest: Digest) -> None:
+    """``metrics.csv`` from ``(metrics [iterations, R], first seed index, runs)`` parts."""
+    with files.atomic_file(path, "w", on_digest) as f:
+        writer, header = csv.writer(f, lineterminator="\n"), None
+        for metrics, first, take in parts:
+            if header is None:
+                header = [*layout.METRICS_INDEX_COLUMNS, *metrics]
+                writer.writerow(header)
+            writer.writerows(metrics_csv_rows(metrics, batch_size, first, take))
+
+
 def write_metrics_csv(
     path: files.Target, metrics: dict[str, np.ndarray], batch_size: int, on_digest: Digest = None
 ) -> None:
     """Rows ``seed_index, iteration, env_steps, <metrics...>`` from leaves ``[iterations, S]``
     (a run's metrics in memory: a stopped run's so far, or another library's log)."""
-    with files.atomic_file(path, "w", on_digest) as f:
-        writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(metrics_csv_header(list(metrics)))
-        writer.writerows(metrics_csv_rows(metrics, batch_size))
+    _write_csv(path, [(metrics, 0, slice(None))], batch_size, on_digest)
 
 
 def write_blocks_metrics_csv(
@@ -152,14 +153,8 @@ def write_blocks_metrics_csv(
 ) -> None:
     """Rows ``seed_index, iteration, env_steps, <metrics...>`` for ``runs`` (seed index
     counted from ``runs.start``), streamed block by block and renamed into place."""
-    with files.atomic_file(path, "w", on_digest) as f:
-        writer, header = csv.writer(f, lineterminator="\n"), None
-        for block, take in overlapping(blocks, runs):
-            if header is None:
-                header = metrics_csv_header(list(block.metrics))
-                writer.writerow(header)
-            first = block.start + take.start - runs.start
-            writer.writerows(metrics_csv_rows(block.metrics, batch_size, first, take))
+    parts = ((b.metrics, b.start + t.start - runs.start, t) for b, t in overlapping(blocks, runs))
+    _write_csv(path, parts, batch_size, on_digest)
 
 
 def write_params(
@@ -277,11 +272,9 @@ def write_evaluation_dir(
     ``combo-NNN/`` do) and ``others`` (name -> JSON object: a sweep's ``sweep.json``), each
     recorded in the directory's manifest as a run's files are, so that the readers check it
     as they check a run."""
-    named = {layout.CONFIG_FILE: {**info, MANIFEST_FLAG: True}}
+    named = {layout.CONFIG_FILE: {**info, files.MANIFEST_FLAG: True}}
     if returns is not None:
         named[layout.EVALUATION_FILE] = evaluation_record(
             returns, info["config"].get("env", DEFAULT_ENV)
         )
-    listing = Manifest(directory)
-    for name, data in {**named, **(others or {})}.items():
-        listing.write(name, lambda entry, d, data=data: files.write_json(entry, data, d))
+    files.record_json(directory, {**named, **(others or {})})

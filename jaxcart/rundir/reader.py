@@ -14,11 +14,9 @@ import csv
 import fnmatch
 import io
 import itertools
-import json
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,13 +32,9 @@ from jaxcart.core.config import (
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic, param_shapes
 from jaxcart.core.solved import EPISODE_LIMITS, is_solved, return_bounds
-from jaxcart.rundir import files, layout, manifest
-from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir import files, layout
+from jaxcart.rundir.files import MAX_JSON_BYTES, RunDirError, read_json
 
-if TYPE_CHECKING:  # the trainer (and JAX) load when a checkpoint is restored
-    pass
-
-MAX_JSON_BYTES = 16 << 20
 EVAL_JSON_BYTES_PER_EPISODE = 64  # two returns per episode, as JSON, with room to spare
 EVAL_JSON_BYTES_PER_SEED = 1024  # a seed's entry besides its returns
 MAX_CSV_BYTES_PER_ROW = 4096
@@ -60,21 +54,6 @@ MAX_EVAL_EPISODES = 100_000
 CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FILE)
 """Whether these exist says whether a directory is a sweep, a finished or an unfinished run
 (:func:`~jaxcart.rundir.layout.is_sweep`): :func:`read_run_config` refuses each as a link."""
-
-
-def read_json(run_dir: files.Where, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
-    """A JSON object from a run directory, refusing links, non-regular files, files over
-    ``max_bytes`` and anything but an object."""
-    with files.opened(run_dir) as directory:
-        path = directory / name
-        data = files.read_bytes(path, max_bytes)
-    try:
-        data = json.loads(data.decode())
-    except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
-        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
-    if not isinstance(data, dict):
-        raise RunDirError(f"{path} is corrupted: not a JSON object")
-    return data
 
 
 def read_run_config(run_dir: files.Where, verify: bool = False) -> dict:
@@ -117,7 +96,7 @@ def _read_run_config(directory: files.Dir, verify: bool) -> dict:
     for name in CLASSIFYING_FILES:  # what the directory is: never decided through a link
         files.refuse_link(directory / name)
     data = read_json(directory, layout.CONFIG_FILE)
-    manifest.verify(directory, layout.CONFIG_FILE, data)
+    files.verified(directory, layout.CONFIG_FILE, data)
     if verify:
         _check_digest(path, data)
     try:
@@ -382,8 +361,7 @@ def read_run_metrics(run_dir: files.Where, info: dict) -> dict[str, np.ndarray]:
     ``config.json``) trains; leaves ``[iterations, S]``."""
     num_seeds, iterations = int(info.get("num_seeds", 1)), info["config"].num_iterations
     with files.opened(run_dir) as directory:
-        path = files.inside(directory, layout.METRICS_FILE)
-        manifest.verify(directory, layout.METRICS_FILE, info)
+        path = files.verified(directory, layout.METRICS_FILE, info)
         metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
     check_metrics(metrics, path, info["config"].env)
     return metrics
@@ -436,10 +414,9 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB).
     """
     with files.opened(run_dir) as directory:
-        data = read_json(directory, layout.EVALUATION_FILE, _evaluation_bytes(directory))
-        path = directory / layout.EVALUATION_FILE
         config = read_json(directory, layout.CONFIG_FILE)
-        manifest.verify(directory, layout.EVALUATION_FILE, config)
+        data = read_json(directory, layout.EVALUATION_FILE, _evaluation_bytes(config))
+        path = files.verified(directory, layout.EVALUATION_FILE, config)
     env_id = _env_of(config)
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
@@ -527,10 +504,10 @@ def _seed_problem(seed: dict, episodes: int | None, env_id: str = DEFAULT_ENV) -
     return None
 
 
-def _evaluation_bytes(run_dir: files.Where) -> int:
-    """The largest ``evaluation.json`` the run's ``config.json`` allows: its declared seeds x
-    combinations x episodes (read as declared, within the reader's bounds)."""
-    info = read_json(run_dir, layout.CONFIG_FILE)
+def _evaluation_bytes(info: dict) -> int:
+    """The largest ``evaluation.json`` the run's ``config.json`` (``info``, as read) allows:
+    its declared seeds x combinations x episodes (read as declared, within the reader's
+    bounds)."""
     seeds, episodes = info.get("num_seeds", 1), info.get("eval_episodes", 20)
     seeds = seeds if bounded_int(seeds, 1, MAX_RUNS) else 1
     episodes = episodes if bounded_int(episodes, 1, MAX_EVAL_EPISODES) else 20
@@ -580,23 +557,12 @@ def load_params(run_dir: files.Where, policy: str = "final", info: dict | None =
                 f"e.g. {layout.combo_dir(directory.path, 0)}"
             )
         info = info or read_run_config(directory)
-        if files.refuse_link(directory / name) is None:
-            if policy == "best" and not info["config"].keep_best:
-                raise RunDirError(no_best_policy(directory))
-            raise RunDirError(
-                f"{directory} has no {name}: the run did not finish saving parameters"
-            )
-        num_seeds = int(info.get("num_seeds", 1))
-        expected = params_headers(info["config"], num_seeds, params_dtype(info))
-        path = files.inside(directory, name)
-        manifest.verify(directory, name, info)
-        found = files.read_headers(path, max_bytes=4 * _bytes(expected) + (1 << 16))
-        if found != expected:
-            raise RunDirError(
-                f"{path} does not hold this run's network: {_difference(found, expected)}"
-            )
-        arrays, _ = files.load_tree(path)
-    files.check_finite(arrays, path)
+        missing = f"{directory} has no {name}: the run did not finish saving parameters"
+        if policy == "best" and not info["config"].keep_best:
+            missing = no_best_policy(directory)
+        path = files.verified(directory, name, info, missing)
+        expected = params_headers(info["config"], int(info.get("num_seeds", 1)), params_dtype(info))
+        arrays, _ = files.load_tree(path, 4 * files.nbytes(expected) + (1 << 16), expected)
     return files.unflatten(arrays)
 
 
@@ -619,19 +585,6 @@ def policy_file(policy: str) -> str:
     return layout.POLICY_FILES[policy]
 
 
-def _difference(found: dict[str, files.Header], expected: dict[str, files.Header]) -> str:
-    missing, extra = sorted(set(expected) - set(found)), sorted(set(found) - set(expected))
-    if missing or extra:
-        return f"missing {missing[:3]}, unexpected {extra[:3]}"
-    name = next(n for n in expected if found[n] != expected[n])
-    (shape, dtype), (want_shape, want_dtype) = found[name], expected[name]
-    return f"{name} is {shape} {dtype}, expected {want_shape} {want_dtype}"
-
-
-def _bytes(headers: dict[str, files.Header]) -> int:
-    return sum(int(np.prod(shape)) * dtype.itemsize for shape, dtype in headers.values())
-
-
 def check_block(
     path: Path, config: PPOConfig, runs: range, episodes: int, dtype: np.dtype | type = np.float32
 ) -> None:
@@ -651,22 +604,15 @@ def check_block(
         for prefix in prefixes[: 2 if config.keep_best else 1]
         for name, header in headers
     }
-    found = files.read_headers(path, max_bytes=2 * _block_bytes(config, n, episodes))
-    found.pop(files.META_KEY, None)
-    iterations = config.num_iterations
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
     if config.keep_best:
         fixed |= {"best_gym_returns": (n, episodes), "best_iteration": (n,), "best_score": (n,)}
-    wrong = [name for name, header in expected.items() if found.get(name) != header]
-    wrong += [name for name, shape in fixed.items() if found.get(name, ((), None))[0] != shape]
-    wrong += [
-        name
-        for name, (shape, _) in found.items()
-        if name.startswith(layout.BLOCK_METRICS) and shape != (iterations, n)
-    ]
-    if wrong:
-        raise RunDirError(f"{path} does not hold this wave's results: {wrong[0]} has another shape")
-    arrays, meta = files.load_tree(path, max_bytes=2 * _block_bytes(config, n, episodes))
+    expected |= {name: (shape, None) for name, shape in fixed.items()}
+    limit, what = 2 * _block_bytes(config, n, episodes), "this wave's results"
+    arrays, meta = files.load_tree(path, limit, expected, what, exact=False)
+    shapes = {name: a.shape for name, a in arrays.items() if name.startswith(layout.BLOCK_METRICS)}
+    if any(shape != (config.num_iterations, n) for shape in shapes.values()):
+        raise RunDirError(f"{path} does not hold this wave's results: metrics of another shape")
     if meta is None or (meta.get("start"), meta.get("stop")) != (runs.start, runs.stop):
         raise RunDirError(f"{path} is not the file of runs [{runs.start}, {runs.stop})")
     if meta.get(layout.DIGEST_KEY) != files.arrays_digest(arrays):
@@ -674,11 +620,10 @@ def check_block(
             f"{path} does not match its digest: edited or corrupted; delete it to "
             "train that wave again"
         )
-    files.check_finite({n: a for n, a in arrays.items() if n in expected}, path)
 
 
 def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
     """A generous bound on a wave file of ``n`` runs."""
-    params = _bytes(params_headers(config, n)) * (2 if config.keep_best else 1)
+    params = files.nbytes(params_headers(config, n)) * (2 if config.keep_best else 1)
     metrics = (64 + len(config.extra_metric_names)) * config.num_iterations * n * 8
     return params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20)

@@ -19,9 +19,9 @@ This is the one file jaxcart appends to; :mod:`jaxcart.rundir.files` writes ever
 
 from __future__ import annotations
 
-import hashlib
 import os
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -50,22 +50,11 @@ class MetricsStream:
     ) -> None:
         self.path, self.columns, self.runs = path, tuple(columns), int(runs)
         self.row_bytes = len(self.columns) * self.runs * DTYPE.itemsize
+        # appended where it lies (0o666 less the umask): a hard link elsewhere is refused
         flags = os.O_RDWR | os.O_CREAT
-        # appended where it lies: a hard link to a file elsewhere is refused
-        self.fd = self._call(files.open_regular, self.path, flags, files.file_mode(), True)
+        self.fd = self._call(files.open_regular, self.path, flags, 0o666, True)
         try:
-            size = os.fstat(self.fd).st_size
-            if size < rows * self.row_bytes:
-                raise RunDirError(
-                    f"{self.path} holds {size // self.row_bytes} iterations of metrics, fewer "
-                    f"than the {rows} its checkpoint counts; the run cannot be continued"
-                )
-            self.hash = _hash_rows(self.fd, rows * self.row_bytes)
-            if digest is not None and "sha256:" + self.hash.hexdigest() != digest:
-                raise RunDirError(
-                    f"{self.path} is not the file the run wrote: its rows differ from the "
-                    "digest its checkpoint records"
-                )
+            self.hash = _check_rows(self.fd, self.path, rows, self.row_bytes, digest)
             self._call(os.ftruncate, self.fd, rows * self.row_bytes)
             os.lseek(self.fd, 0, os.SEEK_END)
         except BaseException:
@@ -127,15 +116,22 @@ class NoStream:
         pass
 
 
-def _hash_rows(fd: int, size: int) -> hashlib._Hash:
-    """sha256 of the first ``size`` bytes of ``fd``, kept open for the rows appended next."""
-    h, offset = hashlib.sha256(), 0
-    while offset < size:
-        chunk = os.pread(fd, min(1 << 20, size - offset), offset)
-        if not chunk:
-            break
-        h.update(chunk)
-        offset += len(chunk)
+def _check_rows(fd: int, path: files.Target, rows: int, row_bytes: int, digest: str | None) -> Any:
+    """The sha256 of the first ``rows`` rows of the stream ``fd`` (kept open for the rows
+    appended next), refusing a shorter file or (``digest``: the checkpoint's record) other
+    bytes."""
+    size = rows * row_bytes
+    if os.fstat(fd).st_size < size:
+        raise RunDirError(
+            f"{path} holds {os.fstat(fd).st_size // row_bytes} iterations of metrics, fewer "
+            f"than the {rows} iterations its checkpoint counts; refusing it"
+        )
+    h = files.hash_fd(fd, size)
+    if digest is not None and "sha256:" + h.hexdigest() != digest:
+        raise RunDirError(
+            f"{path} is not the file the run wrote: its rows differ from the digest its "
+            "checkpoint records"
+        )
     return h
 
 
@@ -156,22 +152,8 @@ def read_stream(
     """
     if rows == 0:
         return _mapped(None, 0, columns, runs)
-    try:
-        fd = files.open_regular(path)
-    except FileNotFoundError:
-        raise RunDirError(f"{path} does not exist; the run's metrics are lost") from None
-    with os.fdopen(fd, "rb") as f:
-        if os.fstat(f.fileno()).st_size < rows * len(columns) * runs * DTYPE.itemsize:
-            raise RunDirError(
-                f"{path} holds fewer than the {rows} iterations of metrics its checkpoint "
-                "counts; refusing it"
-            )
-        size = rows * len(columns) * runs * DTYPE.itemsize
-        if digest is not None and "sha256:" + _hash_rows(f.fileno(), size).hexdigest() != digest:
-            raise RunDirError(
-                f"{path} is not the file the run wrote: its rows differ from the digest its "
-                "checkpoint records"
-            )
+    with files.open_tree(path) as f:
+        _check_rows(f.fileno(), path, rows, len(columns) * runs * DTYPE.itemsize, digest)
         return _mapped(f, rows, columns, runs)
 
 
