@@ -12,6 +12,7 @@ checkpoint.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -253,6 +254,20 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
             group.add_argument(flag, type=kind, **kwargs)
 
 
+def config_overrides(args: argparse.Namespace) -> dict:
+    """The config fields ``args`` gives explicitly (the options default to "not given")."""
+    names = {f.name for f in config_fields()}
+    return {k: v for k, v in vars(args).items() if k in names}
+
+
+def options_from(cls: type, args: argparse.Namespace, **given: object) -> object:
+    """A frozen options dataclass ``cls`` from the parsed ``args`` whose names are its
+    fields (a repeated option's list becomes a tuple), then ``given``."""
+    own = {f.name for f in dataclasses.fields(cls)} - set(given)
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in vars(args).items()}
+    return cls(**{k: v for k, v in values.items() if k in own}, **given)
+
+
 @dataclass(frozen=True)
 class TrainOptions:
     """Everything the command line said, checked: nothing past :func:`main` sees argparse."""
@@ -271,9 +286,9 @@ class TrainOptions:
     trust_code: bool = False
     checkpoint_every: float = 30.0
     eval_episodes: int | None = None
-    loggers: tuple[str, ...] = ()
+    logger: tuple[str, ...] = ()
     logger_dir: Path | None = None
-    compile_cache: bool = True
+    no_compile_cache: bool = False
     quiet: bool = False
     wave_size: int | None = None
     dry_run: bool = False
@@ -285,35 +300,9 @@ class TrainOptions:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, argv: list[str] = ()) -> TrainOptions:
-        names = {f.name for f in config_fields()}
-        values = vars(args)
-        return cls(
-            preset=args.preset,
-            overrides={k: v for k, v in values.items() if k in names},
-            num_seeds=args.num_seeds,
-            seed=args.seed,
-            out=args.out,
-            sweep=tuple(args.sweep),
-            score=args.score,
-            env_param=tuple(args.env_param),
-            randomize=tuple(args.randomize),
-            resume=args.resume,
-            allow_device_change=args.allow_device_change,
-            trust_code=args.trust_code,
-            checkpoint_every=args.checkpoint_every,
-            eval_episodes=args.eval_episodes,
-            loggers=tuple(args.logger),
-            logger_dir=args.logger_dir,
-            compile_cache=not args.no_compile_cache,
-            quiet=args.quiet,
-            wave_size=args.wave_size,
-            dry_run=args.dry_run,
-            distributed=args.distributed,
-            coordinator_address=args.coordinator_address,
-            num_processes=args.num_processes,
-            process_id=args.process_id,
-            argv=tuple(argv),
-        )
+        """The options of ``args`` that are fields here (a list becomes a tuple), the config
+        fields given explicitly as ``overrides``, and ``argv`` as typed."""
+        return options_from(cls, args, overrides=config_overrides(args), argv=tuple(argv))
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
@@ -359,9 +348,9 @@ class TrainOptions:
         return lifecycle.RunOptions(
             checkpoint_every=self.checkpoint_every,
             eval_episodes=self.eval_episodes,
-            loggers=self.loggers,
+            loggers=self.logger,
             logger_dir=self.logger_dir,
-            compile_cache=self.compile_cache,
+            compile_cache=not self.no_compile_cache,
             wave_size=self.wave_size,
             score=self.score,
         )
@@ -369,23 +358,14 @@ class TrainOptions:
     def check_resume(self) -> None:
         """``--resume`` continues with the run's saved settings: refuse new ones (but
         ``--total-timesteps``, which extends the run)."""
-        given = [f"--{k.replace('_', '-')}" for k in self.overrides if k != "total_timesteps"]
-        for flag, value in (
-            ("--preset", self.preset),
-            ("--num-seeds", self.num_seeds),
-            ("--seed", self.seed),
-            ("--out", self.out),
-            ("--wave-size", self.wave_size),
-            ("--dry-run", self.dry_run or None),
-        ):
-            if value is not None:
-                given.append(flag)
-        given += ["--sweep"] if self.sweep else []
-        given += ["--env-param"] if self.env_param else []
-        given += ["--randomize"] if self.randomize else []
+        kept = ("preset", "num_seeds", "seed", "out", "wave_size", "dry_run", "sweep", "env_param")
+        given = [k for k in self.overrides if k != "total_timesteps"] + [
+            k for k in (*kept, "randomize") if getattr(self, k) not in (None, False, ())
+        ]
         if given:
             raise cli.UsageError(
-                f"--resume continues a run with its saved settings; drop {', '.join(given)}"
+                "--resume continues a run with its saved settings; drop "
+                + ", ".join("--" + k.replace("_", "-") for k in given)
             )
 
     def check_distributed(self) -> None:

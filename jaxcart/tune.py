@@ -18,12 +18,11 @@ import shlex
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import NoReturn
 
 from jaxcart import cli, train
-from jaxcart.core.config import config_fields
 from jaxcart.run.search import DEFAULT_SPACE, SPACE_PRESETS
 
 DEFAULT_STORAGE = "sqlite:///runs/study.db"
@@ -153,32 +152,11 @@ class TuneOptions:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, argv: list[str]) -> TuneOptions:
-        names = {f.name for f in config_fields()}
-        base = train.TrainOptions(
-            preset=args.preset,
-            overrides={k: v for k, v in vars(args).items() if k in names},
-            num_seeds=args.num_seeds,
-            seed=args.seed,
-            out=args.out or Path("runs") / args.study_name,
-            eval_episodes=args.eval_episodes,
-            compile_cache=not args.no_compile_cache,
-            quiet=args.quiet,
-            argv=tuple(argv),
-        )
-        return cls(
-            trials=args.trials,
-            batch_trials=args.batch_trials,
-            space=tuple(args.space),
-            score=args.score,
-            storage=args.storage,
-            study_name=args.study_name,
-            sampler=args.sampler,
-            sampler_seed=args.sampler_seed,
-            pruner=args.pruner,
-            top=args.top,
-            heldout_top=args.heldout_top,
-            base=base,
-        )
+        """The search's options, and the trials' base as train reads its own (its own
+        ``--score`` ranks no sweep; ``--out`` defaults to runs/STUDY_NAME)."""
+        base = train.TrainOptions.from_args(args, argv)
+        out = args.out or Path("runs") / args.study_name
+        return train.options_from(cls, args, base=replace(base, score=None, out=out))
 
 
 def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed: int) -> str:
