@@ -5,6 +5,7 @@ code 2, no abbreviations, "did you mean" hints, ``--version``, one default per o
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import decimal
 import difflib
 import functools
@@ -16,7 +17,7 @@ import textwrap
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 if TYPE_CHECKING:
     from jaxcart.analysis.summary import Score
@@ -343,6 +344,41 @@ class Parser(argparse.ArgumentParser):
         if hints:
             return text + "".join(f"; {t}: did you mean {s}?" for t, s in hints)
         return text
+
+
+def option(default: Any = None, **kwargs: Any) -> Any:
+    """A field of a command's options dataclass that is the command-line option ``--name``,
+    declared once: its default, ``kwargs`` for ``add_argument`` (``group``: the help section,
+    else :func:`add_options`' ``title``) and its docstring as the help."""
+    return dataclasses.field(default=default, metadata={"option": kwargs})
+
+
+def add_options(parser: argparse.ArgumentParser, cls: type, title: str) -> dict[str, Any]:
+    """One option per :func:`option` field of the dataclass ``cls``, in declaration order;
+    returns the argument groups by title."""
+    from jaxcart.core.config import field_docs
+
+    docs, groups = field_docs(cls), {}
+    for f in dataclasses.fields(cls):
+        if "option" not in f.metadata:
+            continue
+        kwargs = dict(f.metadata["option"])
+        where = kwargs.pop("group", title)
+        if where not in groups:
+            groups[where] = parser.add_argument_group(where)
+        kwargs.setdefault("help", docs.get(f.name, "").replace("%", "%%"))
+        default = [] if kwargs.get("action") == "append" else f.default
+        flag = "--" + f.name.replace("_", "-")
+        groups[where].add_argument(flag, dest=f.name, default=default, **kwargs)
+    return groups
+
+
+def options_from(cls: type, args: argparse.Namespace, **given: Any) -> Any:
+    """The options dataclass ``cls`` from parsed ``args`` whose names are its fields (a
+    repeated option's list becomes a tuple), then ``given``."""
+    own = {f.name for f in dataclasses.fields(cls)} - set(given)
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in vars(args).items()}
+    return cls(**{k: v for k, v in values.items() if k in own}, **given)
 
 
 LOGGER_CHOICES = ("tensorboard", "swanlab", "wandb")
