@@ -175,13 +175,13 @@ MAX_COUNT = 2**63 - 1
 """The largest count :func:`count` accepts (a 64-bit integer)."""
 
 
-def count(text: str) -> int:
+def count(text: str, maximum: int = MAX_COUNT) -> int:
     """A positive integer as a user writes one: ``100000``, ``100_000``, ``1e5`` or ``1.5e5``
-    (an argparse ``type``).
+    (an argparse ``type``; :func:`bounded_count` gives one with another ``maximum``).
 
     Raises:
         argparse.ArgumentTypeError: not a number, not whole (``1.5e0``), not positive, or
-            over :data:`MAX_COUNT`.
+            over ``maximum``.
     """
     try:
         value = decimal.Decimal(text.strip())
@@ -193,8 +193,9 @@ def count(text: str) -> int:
         )
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    if value > MAX_COUNT:  # int() of 1e999999999 would take the memory of a billion digits
-        raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.3g}, got {text}")
+    if value > maximum:  # int() of 1e999999999 would take the memory of a billion digits
+        shown = f"{maximum:.3g}" if maximum == MAX_COUNT else f"{maximum:,}"
+        raise argparse.ArgumentTypeError(f"must be at most {shown}, got {text}")
     return int(value)
 
 
@@ -263,14 +264,7 @@ def check_dpi(dpi: int) -> None:
 
 def bounded_count(maximum: int) -> Callable[[str], int]:
     """An argparse ``type``: :func:`count`, at most ``maximum``."""
-
-    def parse(text: str) -> int:
-        value = count(text)
-        if value > maximum:
-            raise argparse.ArgumentTypeError(f"must be at most {maximum:,}, got {text}")
-        return value
-
-    return parse
+    return functools.partial(count, maximum=maximum)
 
 
 SCRIPTS = {"jaxcart-train": "jaxcart.train"}

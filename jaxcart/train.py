@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import IO, TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from jaxcart import cli, environment
 
@@ -245,20 +245,25 @@ class TrainOptions:
             score=self.score,
         )
 
-    def check_resume(self) -> None:
-        """``--resume`` continues with the run's saved settings: refuse new ones (but
-        ``--total-timesteps``, which extends the run)."""
+    def check(self) -> None:
+        """Refuses options that do not go together: ``--resume`` continues with the run's
+        saved settings (but ``--total-timesteps``, which extends the run), and the options of
+        a distributed run need ``--distributed``."""
+        if self.resume is None and self.allow_device_change:
+            raise cli.UsageError("--allow-device-change goes with --resume RUN_DIR")
+        if self.resume is None and self.trust_code:
+            raise cli.UsageError(
+                "--trust-code goes with --resume RUN_DIR (a new run names its code)"
+            )
         kept = ("preset", "num_seeds", "seed", "out", "wave_size", "dry_run", "sweep", "env_param")
         given = [k for k in self.overrides if k != "total_timesteps"] + [
             k for k in (*kept, "randomize") if getattr(self, k) not in (None, False, ())
         ]
-        if given:
+        if self.resume is not None and given:
             raise cli.UsageError(
                 "--resume continues a run with its saved settings; drop "
                 + ", ".join("--" + k.replace("_", "-") for k in given)
             )
-
-    def check_distributed(self) -> None:
         if not self.distributed:
             if any(
                 v is not None
@@ -279,13 +284,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     from jaxcart.run import lifecycle
 
     wall_start = time.perf_counter()
-    opts.check_distributed()
-    if opts.allow_device_change and opts.resume is None:
-        raise cli.UsageError("--allow-device-change goes with --resume RUN_DIR")
-    if opts.trust_code and opts.resume is None:
-        raise cli.UsageError("--trust-code goes with --resume RUN_DIR (a new run names its code)")
-    if opts.resume is not None:
-        opts.check_resume()
+    opts.check()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
     groups = opts.shape_groups() if spec is not None else []
     if spec is not None and opts.score is not None:
@@ -298,7 +297,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
     if not distributed.is_main_process():
-        console.out, console.progress_bar = _devnull(), False
+        console.out, console.progress_bar = open(os.devnull, "w"), False
     if opts.dry_run:
         import jax
 
@@ -483,10 +482,6 @@ def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: flo
     console.print(f"run directory: {outcome.run.out}")
     console.print(report.next_steps_text(outcome))
     return 128 + outcome.signum if outcome.signum else 0
-
-
-def _devnull() -> IO[str]:
-    return open(os.devnull, "w")
 
 
 def main(argv: list[str] | None = None) -> int:
