@@ -32,11 +32,19 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.errors import ConfigError
 from jaxcart.core.metrics import EVAL_METRICS, METRIC_NAMES
 
+BOUNDS = {
+    "> 0": lambda v: v > 0,
+    "in (0, 1]": lambda v: (v > 0) & (v <= 1),
+    ">= 0": lambda v: v >= 0,
+}
+"""What a traced field may hold (:func:`validate` names the bound), and the test of it."""
 
-def traced(default: float) -> Any:
+
+def traced(default: float, bound: str = "> 0") -> Any:
     """Declares a float hyperparameter that travels through the compiled program as an array
-    (a pytree leaf of :class:`PPOConfig`): a Python float, or one float32 value per run."""
-    return field(default=default, metadata={"traced": True})
+    (a pytree leaf of :class:`PPOConfig`): a Python float, or one float32 value per run, each
+    finite and within ``bound`` (a key of :data:`BOUNDS`)."""
+    return field(default=default, metadata={"traced": True, "bound": bound})
 
 
 def float_dtype() -> np.dtype:
@@ -78,17 +86,17 @@ class PPOConfig:
     (i + 1) x num_envs x num_steps / total_timesteps, one iteration ahead)."""
     adam_eps: float = traced(1e-5)
     """Adam epsilon."""
-    gamma: float = traced(0.99)
+    gamma: float = traced(0.99, "in (0, 1]")
     """Discount factor, in (0, 1]."""
-    gae_lambda: float = traced(0.95)
+    gae_lambda: float = traced(0.95, "in (0, 1]")
     """GAE lambda, in (0, 1]."""
     clip_coef: float = traced(0.2)
     """PPO ratio clip range epsilon (SB3: clip_range)."""
     clip_range_vf: float = traced(0.2)
     """Value clip range, used when value_clip is sb3 or purejaxrl (SB3: clip_range_vf)."""
-    ent_coef: float = traced(0.0)
+    ent_coef: float = traced(0.0, ">= 0")
     """Entropy bonus coefficient."""
-    vf_coef: float = traced(0.5)
+    vf_coef: float = traced(0.5, ">= 0")
     """Value loss coefficient."""
     max_grad_norm: float = traced(0.5)
     """Global gradient-norm clip."""
@@ -551,16 +559,6 @@ MAX_ITERATIONS = 2**31 - 1
 ``config.json`` are held to it alike)."""
 
 
-FLOAT_BOUNDS = (
-    (
-        ("learning_rate", "adam_eps", "clip_coef", "clip_range_vf", "max_grad_norm"),
-        "> 0",
-        lambda v: v > 0,
-    ),
-    (("gamma", "gae_lambda"), "in (0, 1]", lambda v: (v > 0) & (v <= 1)),
-    (("ent_coef", "vf_coef"), ">= 0", lambda v: v >= 0),
-)
-"""Traced fields, what they must be, and the test of each value."""
 CHOICES = {
     "adv_std": ("sample", "population"),
     "anneal_progress": ("start", "sb3"),
@@ -595,10 +593,10 @@ def validate(config: PPOConfig) -> None:
             or not np.all(np.isfinite(value))
         ):
             raise ConfigError(f"{name} must be a finite number, got {value!r}")
-    for names, bound, ok in FLOAT_BOUNDS:
-        for name in names:
-            if not np.all(ok(np.asarray(getattr(c, name)))):
-                raise ConfigError(f"{name} must be {bound}, got {getattr(c, name)!r}")
+    for f in dataclasses.fields(c):
+        value, bound = getattr(c, f.name), f.metadata.get("bound")
+        if bound is not None and not np.all(BOUNDS[bound](np.asarray(value))):
+            raise ConfigError(f"{f.name} must be {bound}, got {value!r}")
     if not c.hidden_sizes or any(
         isinstance(h, bool) or not isinstance(h, int) or h <= 0 for h in c.hidden_sizes
     ):
