@@ -264,15 +264,12 @@ class TrainOptions:
                 "--resume continues a run with its saved settings; drop "
                 + ", ".join("--" + k.replace("_", "-") for k in given)
             )
-        if not self.distributed:
-            if any(
-                v is not None
-                for v in (self.coordinator_address, self.num_processes, self.process_id)
-            ):
-                raise cli.UsageError(
-                    "--coordinator-address/--num-processes/--process-id need --distributed"
-                )
-        elif self.out is None and self.resume is None:
+        where = (self.coordinator_address, self.num_processes, self.process_id)
+        if not self.distributed and any(v is not None for v in where):
+            raise cli.UsageError(
+                "--coordinator-address/--num-processes/--process-id need --distributed"
+            )
+        if self.distributed and self.out is None and self.resume is None:
             raise cli.UsageError("--distributed needs --out DIR (the same path on every process)")
 
 
