@@ -429,24 +429,18 @@ def _start_or_resume(
 
 
 def _extend_hint(out: Path) -> str:
-    """For a run that finished: how to train it further (``--total-timesteps`` above its
-    current total), or why it cannot be; "" for any other run."""
+    """For a run that finished (:class:`~jaxcart.run.lifecycle.RunFinished`): how to train
+    it further (``--total-timesteps`` above its current total), or why it cannot be."""
     import shlex
 
-    from jaxcart.rundir import layout, reader
-    from jaxcart.rundir.checkpoint import read_checkpoint_meta
+    from jaxcart.rundir import reader
     from jaxcart.rundir.files import RunDirError
 
     try:
         info = reader.read_run_config(out)
-        config = info["config"]
-        iteration = read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
-    except (RunDirError, OSError, KeyError, ValueError):
+    except (RunDirError, OSError, ValueError):
         return ""
-    written = layout.SWEEP_FILE if layout.is_sweep(out) else layout.EVALUATION_FILE
-    if iteration < config.num_iterations or not (out / written).exists():
-        return ""
-    total = config.env_steps_per_seed
+    config, total = info["config"], info["config"].env_steps_per_seed
     runs = int(info.get("num_seeds", 1)) * max(1, len(info.get("combinations", [])))
     if (info.get("wave_size") or runs) < runs:  # as lifecycle's _extend decides
         return (

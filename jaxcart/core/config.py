@@ -225,11 +225,8 @@ class PPOConfig:
         del data["network"], data["metrics"]
         if self.env == DEFAULT_ENV:
             del data["env"]  # CartPole's config.json reads as it did before there were others
-        if isinstance(self.network, RecordedNetwork):
-            data["network"] = self.network.spec()
-        elif self.network is not None:
-            data["network"] = network_spec(self.network)
         if self.network is not None:
+            data["network"] = network_spec(self.network)
             for name in BUILTIN_NETWORK_FIELDS:  # they describe a network this run does not use
                 del data[name]
         if self.metrics:
@@ -279,6 +276,8 @@ def network_spec(network: Any) -> dict:
     Raises:
         ConfigError: a field set to something other than its default is not a JSON value.
     """
+    if isinstance(network, RecordedNetwork):  # as it was read
+        return network.spec()
     cls = type(network)
     where = f"{cls.__module__}:{cls.__qualname__}"
     fields = {}
