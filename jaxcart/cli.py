@@ -5,6 +5,7 @@ code 2, no abbreviations, "did you mean" hints, ``--version``, one default per o
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import decimal
 import difflib
 import functools
@@ -16,7 +17,7 @@ import textwrap
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 if TYPE_CHECKING:
     from jaxcart.analysis.summary import Score
@@ -174,13 +175,13 @@ MAX_COUNT = 2**63 - 1
 """The largest count :func:`count` accepts (a 64-bit integer)."""
 
 
-def count(text: str) -> int:
+def count(text: str, maximum: int = MAX_COUNT) -> int:
     """A positive integer as a user writes one: ``100000``, ``100_000``, ``1e5`` or ``1.5e5``
-    (an argparse ``type``).
+    (an argparse ``type``; :func:`bounded_count` gives one with another ``maximum``).
 
     Raises:
         argparse.ArgumentTypeError: not a number, not whole (``1.5e0``), not positive, or
-            over :data:`MAX_COUNT`.
+            over ``maximum``.
     """
     try:
         value = decimal.Decimal(text.strip())
@@ -192,8 +193,9 @@ def count(text: str) -> int:
         )
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    if value > MAX_COUNT:  # int() of 1e999999999 would take the memory of a billion digits
-        raise argparse.ArgumentTypeError(f"must be at most {MAX_COUNT:.3g}, got {text}")
+    if value > maximum:  # int() of 1e999999999 would take the memory of a billion digits
+        shown = f"{maximum:.3g}" if maximum == MAX_COUNT else f"{maximum:,}"
+        raise argparse.ArgumentTypeError(f"must be at most {shown}, got {text}")
     return int(value)
 
 
@@ -262,14 +264,7 @@ def check_dpi(dpi: int) -> None:
 
 def bounded_count(maximum: int) -> Callable[[str], int]:
     """An argparse ``type``: :func:`count`, at most ``maximum``."""
-
-    def parse(text: str) -> int:
-        value = count(text)
-        if value > maximum:
-            raise argparse.ArgumentTypeError(f"must be at most {maximum:,}, got {text}")
-        return value
-
-    return parse
+    return functools.partial(count, maximum=maximum)
 
 
 SCRIPTS = {"jaxcart-train": "jaxcart.train"}
@@ -343,6 +338,41 @@ class Parser(argparse.ArgumentParser):
         if hints:
             return text + "".join(f"; {t}: did you mean {s}?" for t, s in hints)
         return text
+
+
+def option(default: Any = None, **kwargs: Any) -> Any:
+    """A field of a command's options dataclass that is the command-line option ``--name``,
+    declared once: its default, ``kwargs`` for ``add_argument`` (``group``: the help section,
+    else :func:`add_options`' ``title``) and its docstring as the help."""
+    return dataclasses.field(default=default, metadata={"option": kwargs})
+
+
+def add_options(parser: argparse.ArgumentParser, cls: type, title: str) -> dict[str, Any]:
+    """One option per :func:`option` field of the dataclass ``cls``, in declaration order;
+    returns the argument groups by title."""
+    from jaxcart.core.config import field_docs
+
+    docs, groups = field_docs(cls), {}
+    for f in dataclasses.fields(cls):
+        if "option" not in f.metadata:
+            continue
+        kwargs = dict(f.metadata["option"])
+        where = kwargs.pop("group", title)
+        if where not in groups:
+            groups[where] = parser.add_argument_group(where)
+        kwargs.setdefault("help", docs.get(f.name, "").replace("%", "%%"))
+        default = [] if kwargs.get("action") == "append" else f.default
+        flag = "--" + f.name.replace("_", "-")
+        groups[where].add_argument(flag, dest=f.name, default=default, **kwargs)
+    return groups
+
+
+def options_from(cls: type, args: argparse.Namespace, **given: Any) -> Any:
+    """The options dataclass ``cls`` from parsed ``args`` whose names are its fields (a
+    repeated option's list becomes a tuple), then ``given``."""
+    own = {f.name for f in dataclasses.fields(cls)} - set(given)
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in vars(args).items()}
+    return cls(**{k: v for k, v in values.items() if k in own}, **given)
 
 
 LOGGER_CHOICES = ("tensorboard", "swanlab", "wandb")

@@ -30,7 +30,6 @@ import re
 import stat
 import sys
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from jaxcart import cli
@@ -44,16 +43,9 @@ NOT_FROM_FILE = ("config", "help", "version")
 MAX_FILE_BYTES = 1 << 20
 
 
-@dataclass
-class FileOptions:
-    """A config file read as command-line tokens, and its notes (one line per ignored key)."""
-
-    tokens: list[str] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
-
-
-def read_config_file(path: Path, parser: argparse.ArgumentParser) -> FileOptions:
-    """``path`` (TOML, YAML, JSON, or a run directory) as tokens for ``parser``.
+def read_config_file(path: Path, parser: argparse.ArgumentParser) -> tuple[list[str], list[str]]:
+    """``path`` (TOML, YAML, JSON, or a run directory) as tokens for ``parser``, and its notes
+    (one line per ignored key).
 
     Raises:
         cli.UsageError: unreadable, not a mapping, no ``CartPole-v1`` entry in an rl-zoo3 file,
@@ -62,33 +54,37 @@ def read_config_file(path: Path, parser: argparse.ArgumentParser) -> FileOptions
     data = _load(path)
     if not isinstance(data, dict):
         raise cli.UsageError(f"--config {path}: expected a mapping of options at the top level")
-    options = FileOptions()
+    notes: list[str] = []
+    zoo = any(isinstance(v, dict) and ZOO_ENV_ID.fullmatch(str(k)) for k, v in data.items())
     if "format_version" in data and isinstance(data.get("config"), dict):  # a run's config.json
-        values = {k: data[k] for k in RUN_KEYS if data.get(k) not in (None, {}, [])}
-        swept = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
-        values.update({k: v for k, v in data["config"].items() if k not in swept})
-        if isinstance(data.get("env_params"), dict) and data["env_params"]:
-            values["env_param"] = data["env_params"]
-        if isinstance(data.get("randomize"), dict) and data["randomize"]:
-            values["randomize"] = {
-                f"env.{k}": f"{_text(r.get('low'))}:{_text(r.get('high'))}:{r.get('per')}"
-                for k, r in data["randomize"].items()
-                if isinstance(r, dict)
-            }
-        if data.get("lr_schedule"):
-            options.notes.append(
-                f"note: --config {path}: its lr_schedule (from a --resume that extended it) is "
-                "not reproduced; the learning rate anneals over the whole run"
-            )
-        _add(values, path, parser, options, zoo=False)
-    elif any(isinstance(v, dict) and ZOO_ENV_ID.fullmatch(str(k)) for k, v in data.items()):
+        data, zoo = _run_values(data, path, notes), False
+    elif zoo:
         if not isinstance(data.get(ZOO_ENV), dict):
             envs = ", ".join(k for k in data if ZOO_ENV_ID.fullmatch(str(k)))
             raise cli.UsageError(f"--config {path}: no {ZOO_ENV} entry (it has {envs})")
-        _add(_zoo_values(data[ZOO_ENV], path, options), path, parser, options, zoo=True)
-    else:
-        _add(data, path, parser, options, zoo=False)
-    return options
+        data = _zoo_values(data[ZOO_ENV], path, notes)
+    return _tokens_of(data, path, parser, notes, zoo), notes
+
+
+def _run_values(data: dict, path: Path, notes: list[str]) -> dict:
+    """A run's ``config.json`` as the options that train it again."""
+    values = {k: data[k] for k in RUN_KEYS if data.get(k) not in (None, {}, [])}
+    swept = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
+    values.update({k: v for k, v in data["config"].items() if k not in swept})
+    if isinstance(data.get("env_params"), dict) and data["env_params"]:
+        values["env_param"] = data["env_params"]
+    if isinstance(data.get("randomize"), dict) and data["randomize"]:
+        values["randomize"] = {
+            f"env.{k}": f"{_text(r.get('low'))}:{_text(r.get('high'))}:{r.get('per')}"
+            for k, r in data["randomize"].items()
+            if isinstance(r, dict)
+        }
+    if data.get("lr_schedule"):
+        notes.append(
+            f"note: --config {path}: its lr_schedule (from a --resume that extended it) is "
+            "not reproduced; the learning rate anneals over the whole run"
+        )
+    return values
 
 
 def _load(path: Path) -> object:
@@ -141,13 +137,13 @@ def _run_config_bytes(run_dir: Path) -> bytes:
         raise cli.UsageError(f"--config {run_dir}: {exc}") from None
 
 
-def _zoo_values(entry: dict, path: Path, options: FileOptions) -> dict:
+def _zoo_values(entry: dict, path: Path, notes: list[str]) -> dict:
     """An rl-zoo3 entry's values, with its schedules and policy read as jaxcart's."""
     values = {}
     for key, value in entry.items():
         if key == "policy":
             if value != "MlpPolicy":
-                options.notes.append(
+                notes.append(
                     f"note: --config {path}: policy {value!r} ignored; jaxcart trains an MLP"
                 )
         elif key in ("learning_rate", "clip_range") and isinstance(value, str):
@@ -176,31 +172,29 @@ def _option(key: str, parser: argparse.ArgumentParser, zoo: bool) -> argparse.Ac
     return actions.get(flag)
 
 
-def _add(
-    values: dict, path: Path, parser: argparse.ArgumentParser, options: FileOptions, zoo: bool
-) -> None:
-    """Each key's tokens into ``options``; unknown keys are notes (rl-zoo3) or errors."""
-    unknown = []
+def _tokens_of(
+    values: dict, path: Path, parser: argparse.ArgumentParser, notes: list[str], zoo: bool
+) -> list[str]:
+    """Each key's tokens; unknown keys are notes (rl-zoo3) or errors."""
+    tokens, unknown = [], []
     for key, value in values.items():
         action = _option(str(key), parser, zoo)
-        if action is None:
-            if zoo:
-                options.notes.append(
-                    f"note: --config {path}: {key} is not supported by jaxcart; ignored"
-                )
-            else:
-                hint = cli.suggestion(f"--{key}", list(parser._option_string_actions))
-                unknown.append(
-                    f"{key!r} is no option of this command"
-                    + (f" (did you mean {hint}?)" if hint else "")
-                )
-            continue
-        try:
-            options.tokens += _tokens(action, value)
-        except (ValueError, cli.UsageError) as exc:
-            raise cli.UsageError(f"--config {path}: {exc}") from None
+        if action is None and zoo:
+            notes.append(f"note: --config {path}: {key} is not supported by jaxcart; ignored")
+        elif action is None:
+            hint = cli.suggestion(f"--{key}", list(parser._option_string_actions))
+            unknown.append(
+                f"{key!r} is no option of this command"
+                + (f" (did you mean {hint}?)" if hint else "")
+            )
+        else:
+            try:
+                tokens += _tokens(action, value)
+            except (ValueError, cli.UsageError) as exc:
+                raise cli.UsageError(f"--config {path}: {exc}") from None
     if unknown:
         raise cli.UsageError("\nerror: ".join(f"--config {path}: {u}" for u in unknown))
+    return tokens
 
 
 def _tokens(action: argparse.Action, value: object) -> list[str]:
@@ -245,11 +239,11 @@ def parse_with_config(parser: argparse.ArgumentParser, argv: list[str]) -> argpa
     args = parser.parse_args(tokens)
     if args.config is None:
         return args
-    from_file = read_config_file(args.config, parser)
-    for note in from_file.notes:
+    from_file, notes = read_config_file(args.config, parser)
+    for note in notes:
         print(note, file=sys.stderr)
     try:
-        parser.parse_args(from_file.tokens)  # a bad value names the file it came from
+        parser.parse_args(from_file)  # a bad value names the file it came from
     except cli.UsageError as exc:
         raise cli.UsageError(f"--config {args.config}: {exc}") from None
-    return parser.parse_args(from_file.tokens + tokens)
+    return parser.parse_args(from_file + tokens)

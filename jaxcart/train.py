@@ -18,7 +18,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import IO, TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 from jaxcart import cli, environment
 
@@ -58,7 +58,8 @@ def _float_or_none(text: str) -> float | None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The CLI: run options, then one option per config field (help from its docstring)."""
+    """The CLI: :class:`TrainOptions`' options, then one option per config field (help from
+    its docstring)."""
     parser = cli.Parser(
         prog="python -m jaxcart.train",
         description="Train PPO on CartPole-v1 (or --env Acrobot-v1, MountainCar-v0) with JAX; "
@@ -66,158 +67,15 @@ def build_parser() -> argparse.ArgumentParser:
         "(CartPole solved = all 20 score 500; the others: the mean reaches the env's "
         "reward_threshold).",
     )
-    _add_run_options(parser.add_argument_group("run"))
-    _add_distributed_options(
-        parser.add_argument_group(
-            "distributed (one process per host; process 0 writes the run directory)"
-        )
-    )
+    run = cli.add_options(parser, TrainOptions, "run")["run"]
+    cli.add_logger_arguments(run)
+    cli.add_trust_code_argument(run)
     _add_config_options(
         parser.add_argument_group(
             "PPO config (defaults shown are the sb3 preset's; --preset changes them)"
         )
     )
     return parser
-
-
-def _add_run_options(run: argparse._ArgumentGroup) -> None:
-    """What to train, where to write it, how to carry it out."""
-    presets = ", ".join(
-        f"{n} (annealed lr)" if p.get("anneal_lr") else n for n, p in PRESETS.items()
-    )
-    run.add_argument("--preset", default=None, help=f"starting config: {presets} (default: sb3)")
-    run.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="options from a TOML/YAML/JSON file (keys named as the options), rl-zoo3's ppo.yml "
-        "(its CartPole-v1 entry) or a run's config.json (trains it again); options on the "
-        "command line override the file's",
-    )
-    run.add_argument(
-        "--num-seeds",
-        type=cli.count,
-        default=None,
-        help="independent agents trained together (default: 1)",
-    )
-    run.add_argument(
-        "--seed",
-        type=int,
-        default=None,
-        help="base seed; seed index i uses fold_in(seed, i) (default: 0)",
-    )
-    run.add_argument(
-        "--out",
-        type=cli.out_dir,
-        default=None,
-        help="run directory (default: runs/<preset>-<time>)",
-    )
-    run.add_argument(
-        "--sweep",
-        action="append",
-        default=[],
-        metavar="NAME=V1,V2",
-        help="sweep a float hyperparameter, or a continuous physics field as env.NAME (e.g. "
-        "env.length=0.5,1.0,2.0) (repeatable); every combination x seed trains in one program",
-    )
-    run.add_argument(
-        "--score",
-        type=cli.score,
-        default=None,
-        metavar="SCORE",
-        help="what ranks a --sweep's combinations, each seed scored as compare --score does: "
-        "eval (mean greedy Gymnasium return), auc (mean of rollout/ep_rew_mean over the run) "
-        "or return-at:STEPS (default: eval)",
-    )
-    run.add_argument(
-        "--env-param",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="set a field of CartPole's physics for every run, e.g. length=1.0 (half the "
-        "pole's length, as in Gymnasium); repeatable; recorded in config.json and used by "
-        "the Gymnasium evaluation, evaluate, load_policy and the GIF (python -m jaxcart.env "
-        "lists the fields)",
-    )
-    run.add_argument(
-        "--randomize",
-        action="append",
-        default=[],
-        metavar="env.NAME=LOW:HIGH",
-        help="draw a continuous physics field uniformly in [LOW, HIGH] once per seed (from the "
-        "seed, recorded per seed in config.json); repeatable; the runs are evaluated on the "
-        "nominal physics (--env-param or CartPole-v1's)",
-    )
-    run.add_argument(
-        "--eval-episodes",
-        type=cli.bounded_count(cli.MAX_EPISODES),
-        default=None,
-        help="greedy evaluation episodes per seed (default 20; a resumed run keeps its own)",
-    )
-    cli.add_logger_arguments(run)
-    run.add_argument(
-        "--no-compile-cache",
-        action="store_true",
-        help="do not use JAX's persistent compilation cache ($JAXCART_CACHE_DIR, else "
-        "$XDG_CACHE_HOME/jaxcart/jax, else ~/.cache/jaxcart/jax)",
-    )
-    run.add_argument(
-        "--wave-size",
-        type=cli.count,
-        default=None,
-        metavar="N",
-        help="train N runs at a time (default: the fewest that fill the devices, fewer when "
-        "memory is short); the wave width is part of what makes a run reproducible",
-    )
-    run.add_argument(
-        "--dry-run",
-        action="store_true",
-        help="print the plan (waves, memory, estimated time) and exit without training",
-    )
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
-    _add_resume_options(run)
-
-
-def _add_resume_options(run: argparse._ArgumentGroup) -> None:
-    """Resuming, extending and checkpointing a run."""
-    run.add_argument(
-        "--resume",
-        type=Path,
-        default=None,
-        metavar="RUN_DIR",
-        help="continue an interrupted run; with --total-timesteps N, train an interrupted or "
-        "finished run on to N env steps per seed (an annealed learning rate then anneals over "
-        "N from the resume on, as SB3's learn(reset_num_timesteps=False): recorded as "
-        "lr_schedule in config.json)",
-    )
-    run.add_argument(
-        "--allow-device-change",
-        action="store_true",
-        help="with --resume: continue on another device count than the run trained on "
-        "(the numbers then differ from an uninterrupted run; config.json records it)",
-    )
-    cli.add_trust_code_argument(run)
-    run.add_argument(
-        "--checkpoint-every",
-        type=float,
-        default=30.0,
-        metavar="SECONDS",
-        help="checkpoint interval",
-    )
-
-
-def _add_distributed_options(dist: argparse._ArgumentGroup) -> None:
-    """Joining a jax.distributed run."""
-    dist.add_argument(
-        "--distributed",
-        action="store_true",
-        help="join a jax.distributed run; unset options come from JAX_COORDINATOR_ADDRESS, "
-        "JAX_NUM_PROCESSES, JAX_PROCESS_ID or the cluster (SLURM, ...)",
-    )
-    dist.add_argument("--coordinator-address", default=None, metavar="HOST:PORT")
-    dist.add_argument("--num-processes", type=cli.count, default=None)
-    dist.add_argument("--process-id", type=int, default=None)
 
 
 def _default_text(value: object) -> str:
@@ -253,67 +111,88 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
             group.add_argument(flag, type=kind, **kwargs)
 
 
+def config_overrides(args: argparse.Namespace) -> dict:
+    """The config fields ``args`` gives explicitly (the options default to "not given")."""
+    names = {f.name for f in config_fields()}
+    return {k: v for k, v in vars(args).items() if k in names}
+
+
+PRESET_NAMES = ", ".join(
+    f"{n} (annealed lr)" if p.get("anneal_lr") else n for n, p in PRESETS.items()
+)
+DISTRIBUTED = "distributed (one process per host; process 0 writes the run directory)"
+
+
 @dataclass(frozen=True)
 class TrainOptions:
-    """Everything the command line said, checked: nothing past :func:`main` sees argparse."""
+    """Everything the command line said, checked: nothing past :func:`main` sees argparse.
+    Each :func:`~jaxcart.cli.option` field is the option ``--name``, its docstring the help."""
 
-    preset: str | None = None
-    overrides: dict = field(default_factory=dict)  # config fields given explicitly
-    num_seeds: int | None = None
-    seed: int | None = None
-    out: Path | None = None
-    sweep: tuple[str, ...] = ()
-    score: Score | None = None
-    env_param: tuple[str, ...] = ()
-    randomize: tuple[str, ...] = ()
-    resume: Path | None = None
-    allow_device_change: bool = False
-    trust_code: bool = False
-    checkpoint_every: float = 30.0
-    eval_episodes: int | None = None
-    loggers: tuple[str, ...] = ()
+    preset: str | None = cli.option(help=f"starting config: {PRESET_NAMES} (default: sb3)")
+    config: Path | None = cli.option(type=Path, metavar="FILE")
+    """options from a TOML/YAML/JSON file (keys named as the options), rl-zoo3's ppo.yml (its
+    CartPole-v1 entry) or a run's config.json (trains it again); options on the command line
+    override the file's"""
+    num_seeds: int | None = cli.option(type=cli.count)
+    """independent agents trained together (default: 1)"""
+    seed: int | None = cli.option(type=int)
+    """base seed; seed index i uses fold_in(seed, i) (default: 0)"""
+    out: Path | None = cli.option(type=cli.out_dir)
+    """run directory (default: runs/<preset>-<time>)"""
+    sweep: tuple[str, ...] = cli.option((), action="append", metavar="NAME=V1,V2")
+    """sweep a float hyperparameter, or a continuous physics field as env.NAME (e.g.
+    env.length=0.5,1.0,2.0) (repeatable); every combination x seed trains in one program"""
+    score: Score | None = cli.option(type=cli.score, metavar="SCORE")
+    """what ranks a --sweep's combinations, each seed scored as compare --score does: eval
+    (mean greedy Gymnasium return), auc (mean of rollout/ep_rew_mean over the run) or
+    return-at:STEPS (default: eval)"""
+    env_param: tuple[str, ...] = cli.option((), action="append", metavar="NAME=VALUE")
+    """set a field of CartPole's physics for every run, e.g. length=1.0 (half the pole's
+    length, as in Gymnasium); repeatable; recorded in config.json and used by the Gymnasium
+    evaluation, evaluate, load_policy and the GIF (python -m jaxcart.env lists the fields)"""
+    randomize: tuple[str, ...] = cli.option((), action="append", metavar="env.NAME=LOW:HIGH")
+    """draw a continuous physics field uniformly in [LOW, HIGH] once per seed (from the seed,
+    recorded per seed in config.json); repeatable; the runs are evaluated on the nominal
+    physics (--env-param or CartPole-v1's)"""
+    eval_episodes: int | None = cli.option(type=cli.bounded_count(cli.MAX_EPISODES))
+    """greedy evaluation episodes per seed (default 20; a resumed run keeps its own)"""
+    no_compile_cache: bool = cli.option(False, action="store_true")
+    """do not use JAX's persistent compilation cache ($JAXCART_CACHE_DIR, else
+    $XDG_CACHE_HOME/jaxcart/jax, else ~/.cache/jaxcart/jax)"""
+    wave_size: int | None = cli.option(type=cli.count, metavar="N")
+    """train N runs at a time (default: the fewest that fill the devices, fewer when memory
+    is short); the wave width is part of what makes a run reproducible"""
+    dry_run: bool = cli.option(False, action="store_true")
+    """print the plan (waves, memory, estimated time) and exit without training"""
+    quiet: bool = cli.option(False, action="store_true")
+    """no progress bar"""
+    resume: Path | None = cli.option(type=Path, metavar="RUN_DIR")
+    """continue an interrupted run; with --total-timesteps N, train an interrupted or
+    finished run on to N env steps per seed (an annealed learning rate then anneals over N
+    from the resume on, as SB3's learn(reset_num_timesteps=False): recorded as lr_schedule
+    in config.json)"""
+    allow_device_change: bool = cli.option(False, action="store_true")
+    """with --resume: continue on another device count than the run trained on (the numbers
+    then differ from an uninterrupted run; config.json records it)"""
+    checkpoint_every: float = cli.option(30.0, type=float, metavar="SECONDS")
+    """checkpoint interval"""
+    distributed: bool = cli.option(False, action="store_true", group=DISTRIBUTED)
+    """join a jax.distributed run; unset options come from JAX_COORDINATOR_ADDRESS,
+    JAX_NUM_PROCESSES, JAX_PROCESS_ID or the cluster (SLURM, ...)"""
+    coordinator_address: str | None = cli.option(metavar="HOST:PORT", group=DISTRIBUTED)
+    num_processes: int | None = cli.option(type=cli.count, group=DISTRIBUTED)
+    process_id: int | None = cli.option(type=int, group=DISTRIBUTED)
+    trust_code: bool = False  # --trust-code, --logger and --logger-dir: shared with other commands
+    logger: tuple[str, ...] = ()
     logger_dir: Path | None = None
-    compile_cache: bool = True
-    quiet: bool = False
-    wave_size: int | None = None
-    dry_run: bool = False
-    distributed: bool = False
-    coordinator_address: str | None = None
-    num_processes: int | None = None
-    process_id: int | None = None
+    overrides: dict = field(default_factory=dict)  # config fields given explicitly
     argv: tuple[str, ...] = ()  # as typed, recorded in config.json
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, argv: list[str] = ()) -> TrainOptions:
-        names = {f.name for f in config_fields()}
-        values = vars(args)
-        return cls(
-            preset=args.preset,
-            overrides={k: v for k, v in values.items() if k in names},
-            num_seeds=args.num_seeds,
-            seed=args.seed,
-            out=args.out,
-            sweep=tuple(args.sweep),
-            score=args.score,
-            env_param=tuple(args.env_param),
-            randomize=tuple(args.randomize),
-            resume=args.resume,
-            allow_device_change=args.allow_device_change,
-            trust_code=args.trust_code,
-            checkpoint_every=args.checkpoint_every,
-            eval_episodes=args.eval_episodes,
-            loggers=tuple(args.logger),
-            logger_dir=args.logger_dir,
-            compile_cache=not args.no_compile_cache,
-            quiet=args.quiet,
-            wave_size=args.wave_size,
-            dry_run=args.dry_run,
-            distributed=args.distributed,
-            coordinator_address=args.coordinator_address,
-            num_processes=args.num_processes,
-            process_id=args.process_id,
-            argv=tuple(argv),
-        )
+        """The options of ``args`` that are fields here, the config fields given explicitly
+        as ``overrides``, and ``argv`` as typed."""
+        return cli.options_from(cls, args, overrides=config_overrides(args), argv=tuple(argv))
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
@@ -358,45 +237,38 @@ class TrainOptions:
         return lifecycle.RunOptions(
             checkpoint_every=self.checkpoint_every,
             eval_episodes=self.eval_episodes,
-            loggers=self.loggers,
+            loggers=self.logger,
             logger_dir=self.logger_dir,
-            compile_cache=self.compile_cache,
+            compile_cache=not self.no_compile_cache,
             wave_size=self.wave_size,
             score=self.score,
         )
 
-    def check_resume(self) -> None:
-        """``--resume`` continues with the run's saved settings: refuse new ones (but
-        ``--total-timesteps``, which extends the run)."""
-        given = [f"--{k.replace('_', '-')}" for k in self.overrides if k != "total_timesteps"]
-        for flag, value in (
-            ("--preset", self.preset),
-            ("--num-seeds", self.num_seeds),
-            ("--seed", self.seed),
-            ("--out", self.out),
-            ("--wave-size", self.wave_size),
-            ("--dry-run", self.dry_run or None),
-        ):
-            if value is not None:
-                given.append(flag)
-        given += ["--sweep"] if self.sweep else []
-        given += ["--env-param"] if self.env_param else []
-        given += ["--randomize"] if self.randomize else []
-        if given:
+    def check(self) -> None:
+        """Refuses options that do not go together: ``--resume`` continues with the run's
+        saved settings (but ``--total-timesteps``, which extends the run), and the options of
+        a distributed run need ``--distributed``."""
+        if self.resume is None and self.allow_device_change:
+            raise cli.UsageError("--allow-device-change goes with --resume RUN_DIR")
+        if self.resume is None and self.trust_code:
             raise cli.UsageError(
-                f"--resume continues a run with its saved settings; drop {', '.join(given)}"
+                "--trust-code goes with --resume RUN_DIR (a new run names its code)"
             )
-
-    def check_distributed(self) -> None:
-        if not self.distributed:
-            if any(
-                v is not None
-                for v in (self.coordinator_address, self.num_processes, self.process_id)
-            ):
-                raise cli.UsageError(
-                    "--coordinator-address/--num-processes/--process-id need --distributed"
-                )
-        elif self.out is None and self.resume is None:
+        kept = ("preset", "num_seeds", "seed", "out", "wave_size", "dry_run", "sweep", "env_param")
+        given = [k for k in self.overrides if k != "total_timesteps"] + [
+            k for k in (*kept, "randomize") if getattr(self, k) not in (None, False, ())
+        ]
+        if self.resume is not None and given:
+            raise cli.UsageError(
+                "--resume continues a run with its saved settings; drop "
+                + ", ".join("--" + k.replace("_", "-") for k in given)
+            )
+        where = (self.coordinator_address, self.num_processes, self.process_id)
+        if not self.distributed and any(v is not None for v in where):
+            raise cli.UsageError(
+                "--coordinator-address/--num-processes/--process-id need --distributed"
+            )
+        if self.distributed and self.out is None and self.resume is None:
             raise cli.UsageError("--distributed needs --out DIR (the same path on every process)")
 
 
@@ -409,13 +281,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     from jaxcart.rundir import layout
 
     wall_start = time.perf_counter()
-    opts.check_distributed()
-    if opts.allow_device_change and opts.resume is None:
-        raise cli.UsageError("--allow-device-change goes with --resume RUN_DIR")
-    if opts.trust_code and opts.resume is None:
-        raise cli.UsageError("--trust-code goes with --resume RUN_DIR (a new run names its code)")
-    if opts.resume is not None:
-        opts.check_resume()
+    opts.check()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
     groups = opts.shape_groups() if spec is not None else []
     if spec is not None and opts.score is not None:
@@ -428,7 +294,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
     if not distributed.is_main_process():
-        console.out, console.progress_bar = _devnull(), False
+        console.out, console.progress_bar = open(os.devnull, "w"), False
     if opts.dry_run:
         import jax
 
@@ -586,24 +452,18 @@ def _start_or_resume(
 
 
 def _extend_hint(out: Path) -> str:
-    """For a run that finished: how to train it further (``--total-timesteps`` above its
-    current total), or why it cannot be; "" for any other run."""
+    """For a run that finished (:class:`~jaxcart.run.lifecycle.RunFinished`): how to train
+    it further (``--total-timesteps`` above its current total), or why it cannot be."""
     import shlex
 
-    from jaxcart.rundir import layout, reader
-    from jaxcart.rundir.checkpoint import read_checkpoint_meta
+    from jaxcart.rundir import reader
     from jaxcart.rundir.files import RunDirError
 
     try:
         info = reader.read_run_config(out)
-        config = info["config"]
-        iteration = read_checkpoint_meta(out / layout.CHECKPOINT_FILE)["iteration"]
-    except (RunDirError, OSError, KeyError, ValueError):
+    except (RunDirError, OSError, ValueError):
         return ""
-    written = layout.SWEEP_FILE if layout.is_sweep(out) else layout.EVALUATION_FILE
-    if iteration < config.num_iterations or not (out / written).exists():
-        return ""
-    total = config.env_steps_per_seed
+    config, total = info["config"], info["config"].env_steps_per_seed
     runs = int(info.get("num_seeds", 1)) * max(1, len(info.get("combinations", [])))
     if (info.get("wave_size") or runs) < runs:  # as lifecycle's _extend decides
         return (
@@ -636,10 +496,6 @@ def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: flo
     console.print(f"run directory: {outcome.run.out}")
     console.print(report.next_steps_text(outcome))
     return 128 + outcome.signum if outcome.signum else 0
-
-
-def _devnull() -> IO[str]:
-    return open(os.devnull, "w")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,12 +18,11 @@ import shlex
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import NoReturn
 
 from jaxcart import cli, train
-from jaxcart.core.config import config_fields
 from jaxcart.run.search import DEFAULT_SPACE, SPACE_PRESETS
 
 DEFAULT_STORAGE = "sqlite:///runs/study.db"
@@ -31,154 +30,85 @@ DEFAULT_STUDY = "jaxcart"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The CLI: the search's options, train's run options, one option per config field."""
+    """The CLI: :class:`TuneOptions`' options (the search's, every trial's), one option per
+    config field."""
     parser = cli.Parser(
         prog="python -m jaxcart.tune",
         description="Search PPO's hyperparameters with Optuna (ask-and-tell, TPE by default): "
         "each batch of trials x seeds trains as one compiled program; the study lives in a "
         "database, so the same command continues it after an interruption or in other processes.",
     )
-    search = parser.add_argument_group("search")
-    search.add_argument(
-        "--trials",
-        type=cli.count,
-        default=32,
-        help="finished trials the study should hold (default: 32)",
-    )
-    search.add_argument(
-        "--batch-trials",
-        type=cli.count,
-        default=8,
-        help="trials asked and trained together (default: 8)",
-    )
-    search.add_argument(
-        "--space",
-        action="append",
-        default=[],
-        metavar="NAME=SPEC",
-        help="a config field to search (repeatable): LOW:HIGH (uniform), log:LOW:HIGH, "
-        "int:LOW:HIGH, or choices A,B,C (shape settings such as num_envs=1,4,8 or "
-        "hidden_sizes=64x64,32x32 group a batch into one program per shape); one_minus_FIELD "
-        "draws 1 - FIELD; a named space stands for its fields: "
-        + ", ".join(SPACE_PRESETS)
-        + "; default: rl-zoo3's PPO float ranges since its v2.6, "
-        + " ".join(DEFAULT_SPACE),
-    )
-    search.add_argument(
-        "--score",
-        default="auc",
-        help="what a trial is told, the IQM over its seeds of compare's score: auc (default), "
-        "eval or return-at:STEPS",
-    )
-    search.add_argument(
-        "--storage",
-        default=DEFAULT_STORAGE,
-        help=f"Optuna storage URL (default: {DEFAULT_STORAGE})",
-    )
-    search.add_argument("--study-name", default=DEFAULT_STUDY, help=f"(default: {DEFAULT_STUDY})")
-    search.add_argument(
-        "--sampler", choices=("tpe", "random"), default="tpe", help="(default: tpe)"
-    )
-    search.add_argument("--sampler-seed", type=int, default=None, help="seed of the sampler")
-    search.add_argument(
-        "--pruner",
-        choices=("none", "median", "halving"),
-        default="none",
-        help="Optuna's MedianPruner or SuccessiveHalvingPruner on the partial AUC at 8 rungs; "
-        "a batch group stops when all its trials are pruned (default: none)",
-    )
-    search.add_argument(
-        "--top", type=cli.count, default=5, help="trials in the final table (default: 5)"
-    )
-    search.add_argument(
-        "--heldout-top",
-        type=int,
-        default=3,
-        metavar="K",
-        help="at the end, train the top K trials again on fresh seeds, as one batch, and rank "
-        "them by those held-out scores (0: skip; default: 3)",
-    )
-    run = parser.add_argument_group("every trial (as for jaxcart.train)")
-    run.add_argument("--preset", default=None, help="starting config (default: sb3)")
-    run.add_argument(
-        "--config",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="options from a TOML/YAML/JSON file (keys named as the options, space = [...] "
-        "included); options on the command line override the file's",
-    )
-    run.add_argument("--num-seeds", type=cli.count, default=4, help="seeds per trial (default: 4)")
-    run.add_argument(
-        "--seed", type=cli.seed, default=0, help="base seed, shared by every trial (default: 0)"
-    )
-    run.add_argument(
-        "--out",
-        type=cli.out_dir,
-        default=None,
-        help="folder of the trials' run directories (default: runs/STUDY_NAME)",
-    )
-    run.add_argument(
-        "--eval-episodes",
-        type=cli.bounded_count(cli.MAX_EPISODES),
-        default=None,
-        help="greedy evaluation episodes per seed (default 20)",
-    )
-    run.add_argument(
-        "--no-compile-cache",
-        action="store_true",
-        help="do not use JAX's persistent compilation cache",
-    )
-    run.add_argument("--quiet", action="store_true", help="no line per batch")
+    cli.add_options(parser, TuneOptions, "search")
     train._add_config_options(parser.add_argument_group("PPO config, the trials' base"))
     return parser
 
 
+SPACE_HELP = (
+    "a config field to search (repeatable): LOW:HIGH (uniform), log:LOW:HIGH, int:LOW:HIGH, or "
+    "choices A,B,C (shape settings such as num_envs=1,4,8 or hidden_sizes=64x64,32x32 group a "
+    "batch into one program per shape); one_minus_FIELD draws 1 - FIELD; a named space stands "
+    f"for its fields: {', '.join(SPACE_PRESETS)}; default: rl-zoo3's PPO float ranges since "
+    f"its v2.6, {' '.join(DEFAULT_SPACE)}"
+)
+TRIAL = "every trial (as for jaxcart.train)"
+
+
 @dataclass(frozen=True)
 class TuneOptions:
-    """Everything the command line said: nothing past :func:`main` sees argparse."""
+    """Everything the command line said: nothing past :func:`main` sees argparse. Each
+    :func:`~jaxcart.cli.option` field is the option ``--name``, its docstring the help."""
 
-    trials: int = 32
-    batch_trials: int = 8
-    space: tuple[str, ...] = ()
-    score: str = "auc"
-    storage: str = DEFAULT_STORAGE
-    study_name: str = DEFAULT_STUDY
-    sampler: str = "tpe"
-    sampler_seed: int | None = None
-    pruner: str = "none"
-    top: int = 5
-    heldout_top: int = 3
+    trials: int = cli.option(32, type=cli.count)
+    """finished trials the study should hold"""
+    batch_trials: int = cli.option(8, type=cli.count)
+    """trials asked and trained together"""
+    space: tuple[str, ...] = cli.option((), action="append", metavar="NAME=SPEC", help=SPACE_HELP)
+    score: str = cli.option("auc")
+    """what a trial is told, the IQM over its seeds of compare's score: auc (default), eval or
+    return-at:STEPS"""
+    storage: str = cli.option(DEFAULT_STORAGE)
+    """Optuna storage URL"""
+    study_name: str = cli.option(DEFAULT_STUDY)
+    """the study's name in the storage"""
+    sampler: str = cli.option("tpe", choices=("tpe", "random"))
+    """Optuna's sampler"""
+    sampler_seed: int | None = cli.option(type=int)
+    """seed of the sampler"""
+    pruner: str = cli.option("none", choices=("none", "median", "halving"))
+    """Optuna's MedianPruner or SuccessiveHalvingPruner on the partial AUC at 8 rungs; a batch
+    group stops when all its trials are pruned"""
+    top: int = cli.option(5, type=cli.count)
+    """trials in the final table"""
+    heldout_top: int = cli.option(3, type=int, metavar="K")
+    """at the end, train the top K trials again on fresh seeds, as one batch, and rank them
+    by those held-out scores (0: skip; default: 3)"""
+    preset: str | None = cli.option(group=TRIAL)
+    """starting config (default: sb3)"""
+    config: Path | None = cli.option(type=Path, metavar="FILE", group=TRIAL)
+    """options from a TOML/YAML/JSON file (keys named as the options, space = [...]
+    included); options on the command line override the file's"""
+    num_seeds: int = cli.option(4, type=cli.count, group=TRIAL)
+    """seeds per trial"""
+    seed: int = cli.option(0, type=cli.seed, group=TRIAL)
+    """base seed, shared by every trial"""
+    out: Path | None = cli.option(type=cli.out_dir, group=TRIAL)
+    """folder of the trials' run directories (default: runs/STUDY_NAME)"""
+    eval_episodes: int | None = cli.option(type=cli.bounded_count(cli.MAX_EPISODES), group=TRIAL)
+    """greedy evaluation episodes per seed (default 20)"""
+    no_compile_cache: bool = cli.option(False, action="store_true", group=TRIAL)
+    """do not use JAX's persistent compilation cache"""
+    quiet: bool = cli.option(False, action="store_true", group=TRIAL)
+    """no line per batch"""
     base: train.TrainOptions = field(default_factory=train.TrainOptions)
+    """Every trial's options, as train reads its own."""
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, argv: list[str]) -> TuneOptions:
-        names = {f.name for f in config_fields()}
-        base = train.TrainOptions(
-            preset=args.preset,
-            overrides={k: v for k, v in vars(args).items() if k in names},
-            num_seeds=args.num_seeds,
-            seed=args.seed,
-            out=args.out or Path("runs") / args.study_name,
-            eval_episodes=args.eval_episodes,
-            compile_cache=not args.no_compile_cache,
-            quiet=args.quiet,
-            argv=tuple(argv),
-        )
-        return cls(
-            trials=args.trials,
-            batch_trials=args.batch_trials,
-            space=tuple(args.space),
-            score=args.score,
-            storage=args.storage,
-            study_name=args.study_name,
-            sampler=args.sampler,
-            sampler_seed=args.sampler_seed,
-            pruner=args.pruner,
-            top=args.top,
-            heldout_top=args.heldout_top,
-            base=base,
-        )
+        """The search's options, and the trials' base as train reads its own (its own
+        ``--score`` ranks no sweep; ``--out`` defaults to runs/STUDY_NAME)."""
+        base = train.TrainOptions.from_args(args, argv)
+        out = args.out or Path("runs") / args.study_name
+        return cli.options_from(cls, args, base=replace(base, score=None, out=out))
 
 
 def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed: int) -> str:

@@ -32,11 +32,19 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.errors import ConfigError
 from jaxcart.core.metrics import EVAL_METRICS, METRIC_NAMES
 
+BOUNDS = {
+    "> 0": lambda v: v > 0,
+    "in (0, 1]": lambda v: (v > 0) & (v <= 1),
+    ">= 0": lambda v: v >= 0,
+}
+"""What a traced field may hold (:func:`validate` names the bound), and the test of it."""
 
-def traced(default: float) -> Any:
+
+def traced(default: float, bound: str = "> 0") -> Any:
     """Declares a float hyperparameter that travels through the compiled program as an array
-    (a pytree leaf of :class:`PPOConfig`): a Python float, or one float32 value per run."""
-    return field(default=default, metadata={"traced": True})
+    (a pytree leaf of :class:`PPOConfig`): a Python float, or one float32 value per run, each
+    finite and within ``bound`` (a key of :data:`BOUNDS`)."""
+    return field(default=default, metadata={"traced": True, "bound": bound})
 
 
 def float_dtype() -> np.dtype:
@@ -78,17 +86,17 @@ class PPOConfig:
     (i + 1) x num_envs x num_steps / total_timesteps, one iteration ahead)."""
     adam_eps: float = traced(1e-5)
     """Adam epsilon."""
-    gamma: float = traced(0.99)
+    gamma: float = traced(0.99, "in (0, 1]")
     """Discount factor, in (0, 1]."""
-    gae_lambda: float = traced(0.95)
+    gae_lambda: float = traced(0.95, "in (0, 1]")
     """GAE lambda, in (0, 1]."""
     clip_coef: float = traced(0.2)
     """PPO ratio clip range epsilon (SB3: clip_range)."""
     clip_range_vf: float = traced(0.2)
     """Value clip range, used when value_clip is sb3 or purejaxrl (SB3: clip_range_vf)."""
-    ent_coef: float = traced(0.0)
+    ent_coef: float = traced(0.0, ">= 0")
     """Entropy bonus coefficient."""
-    vf_coef: float = traced(0.5)
+    vf_coef: float = traced(0.5, ">= 0")
     """Value loss coefficient."""
     max_grad_norm: float = traced(0.5)
     """Global gradient-norm clip."""
@@ -217,11 +225,8 @@ class PPOConfig:
         del data["network"], data["metrics"]
         if self.env == DEFAULT_ENV:
             del data["env"]  # CartPole's config.json reads as it did before there were others
-        if isinstance(self.network, RecordedNetwork):
-            data["network"] = self.network.spec()
-        elif self.network is not None:
-            data["network"] = network_spec(self.network)
         if self.network is not None:
+            data["network"] = network_spec(self.network)
             for name in BUILTIN_NETWORK_FIELDS:  # they describe a network this run does not use
                 del data[name]
         if self.metrics:
@@ -271,6 +276,8 @@ def network_spec(network: Any) -> dict:
     Raises:
         ConfigError: a field set to something other than its default is not a JSON value.
     """
+    if isinstance(network, RecordedNetwork):  # as it was read
+        return network.spec()
     cls = type(network)
     where = f"{cls.__module__}:{cls.__qualname__}"
     fields = {}
@@ -302,15 +309,29 @@ class RebuildError(ConfigError):
     imported or built in this process: the run directory is sound, its code is out of reach."""
 
 
-def _unreachable_code_hint(exc: Exception) -> str:
-    """What to do when a recorded module is not importable from here (its callers refuse
-    ``__main__`` and local definitions with hints of their own first)."""
-    if isinstance(exc, ModuleNotFoundError):
-        return (
+def _import_named(path: str, where: str) -> Any:
+    """The object ``"module:QualName"`` names, imported (its callers refuse ``__main__`` and
+    local definitions with hints of their own first).
+
+    Raises:
+        RebuildError: it cannot be imported, saying why (``where`` first).
+    """
+    import importlib
+
+    module, _, name = path.partition(":")
+    try:
+        found = importlib.import_module(module)
+        for part in name.split("."):
+            found = getattr(found, part)
+    except Exception as exc:  # someone else's module, imported by name on request
+        hint = (
             " (run from the folder the run was trained in, or add the module's folder to "
             "PYTHONPATH)"
+            if isinstance(exc, ModuleNotFoundError)
+            else ""
         )
-    return ""
+        raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
+    return found
 
 
 class UntrustedCodeError(RebuildError):
@@ -367,8 +388,6 @@ def build_network(spec: Any, cls: type | None = None) -> Any:
         ConfigError: not a recorded network; :class:`RebuildError` when its class cannot be
             imported, is not a flax module, or cannot be built with the recorded fields.
     """
-    import importlib
-
     import flax.linen as nn
 
     recorded = spec if isinstance(spec, RecordedNetwork) else RecordedNetwork.from_spec(spec)
@@ -380,13 +399,7 @@ def build_network(spec: Any, cls: type | None = None) -> Any:
                 f"{where}: a class defined in a script or notebook can only be rebuilt there; "
                 "pass it (network=...) or define it in an importable module"
             )
-        try:
-            cls = importlib.import_module(module)
-            for part in name.split("."):
-                cls = getattr(cls, part)
-        except Exception as exc:  # someone else's module, imported by name on request
-            hint = _unreachable_code_hint(exc)
-            raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
+        cls = _import_named(recorded.class_path, where)
     if not (isinstance(cls, type) and issubclass(cls, nn.Module)):
         raise RebuildError(f"{where}: {cls!r:.80} is not a flax.linen.Module subclass")
     fields = json.loads(recorded.fields_json)
@@ -462,19 +475,11 @@ def import_metric(path: str) -> Any:
         RebuildError: it cannot be imported (a function of a script or notebook, or of a
             missing module), saying why.
     """
-    import importlib
-
     module, _, name = path.partition(":")
     where = f"cannot rebuild the run's metric function {path}"
     if module == "__main__" or "<locals>" in name or "<lambda>" in name:
         raise RebuildError(f"{where}: define it at the top level of an importable module")
-    try:
-        fn = importlib.import_module(module)
-        for part in name.split("."):
-            fn = getattr(fn, part)
-    except Exception as exc:  # someone else's module, imported by name
-        hint = _unreachable_code_hint(exc)
-        raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
+    fn = _import_named(path, where)
     if not callable(fn):
         raise RebuildError(f"{where}: not callable")
     return fn
@@ -553,6 +558,16 @@ MAX_ITERATIONS = 2**31 - 1
 ``config.json`` are held to it alike)."""
 
 
+CHOICES = {
+    "adv_std": ("sample", "population"),
+    "anneal_progress": ("start", "sb3"),
+    "value_clip": ("off", "sb3", "purejaxrl"),
+    "activation": ("tanh", "relu"),
+    "weight_init": ("orthogonal", "default"),
+}
+"""The string fields and the values each takes."""
+
+
 def validate(config: PPOConfig) -> None:
     """Raises :class:`ConfigError` naming the first invalid field and what to do about it."""
     c = config
@@ -577,16 +592,10 @@ def validate(config: PPOConfig) -> None:
             or not np.all(np.isfinite(value))
         ):
             raise ConfigError(f"{name} must be a finite number, got {value!r}")
-    for name in ("learning_rate", "adam_eps", "clip_coef", "clip_range_vf", "max_grad_norm"):
-        if np.any(np.asarray(getattr(c, name)) <= 0):
-            raise ConfigError(f"{name} must be > 0, got {getattr(c, name)!r}")
-    for name in ("gamma", "gae_lambda"):
-        value = np.asarray(getattr(c, name))
-        if not np.all((value > 0) & (value <= 1)):
-            raise ConfigError(f"{name} must be in (0, 1], got {getattr(c, name)!r}")
-    for name in ("ent_coef", "vf_coef"):
-        if np.any(np.asarray(getattr(c, name)) < 0):
-            raise ConfigError(f"{name} must be >= 0, got {getattr(c, name)!r}")
+    for f in dataclasses.fields(c):
+        value, bound = getattr(c, f.name), f.metadata.get("bound")
+        if bound is not None and not np.all(BOUNDS[bound](np.asarray(value))):
+            raise ConfigError(f"{f.name} must be {bound}, got {value!r}")
     if not c.hidden_sizes or any(
         isinstance(h, bool) or not isinstance(h, int) or h <= 0 for h in c.hidden_sizes
     ):
@@ -611,12 +620,10 @@ def validate(config: PPOConfig) -> None:
             f"{c.batch_size:,} transitions, more than the {MAX_ITERATIONS:,} this trainer counts; "
             "use fewer total_timesteps"
         )
-    if c.adv_std not in ("sample", "population"):
-        raise ConfigError(f"adv_std must be 'sample' or 'population', got {c.adv_std!r}")
-    if c.anneal_progress not in ("start", "sb3"):
-        raise ConfigError(f"anneal_progress must be 'start' or 'sb3', got {c.anneal_progress!r}")
-    if c.value_clip not in ("off", "sb3", "purejaxrl"):
-        raise ConfigError(f"value_clip must be 'off', 'sb3' or 'purejaxrl', got {c.value_clip!r}")
+    for name, choices in CHOICES.items():
+        if getattr(c, name) not in choices:
+            either = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
+            raise ConfigError(f"{name} must be {either}, got {getattr(c, name)!r}")
     if c.target_kl is not None and (
         isinstance(c.target_kl, bool)
         or not isinstance(c.target_kl, (int, float))
@@ -624,10 +631,6 @@ def validate(config: PPOConfig) -> None:
         or c.target_kl <= 0
     ):
         raise ConfigError(f"target_kl must be a finite number > 0 (or none), got {c.target_kl!r}")
-    if c.activation not in ("tanh", "relu"):
-        raise ConfigError(f"activation must be 'tanh' or 'relu', got {c.activation!r}")
-    if c.weight_init not in ("orthogonal", "default"):
-        raise ConfigError(f"weight_init must be 'orthogonal' or 'default', got {c.weight_init!r}")
     if (
         c.network is not None
         and not isinstance(c.network, RecordedNetwork)

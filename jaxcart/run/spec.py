@@ -216,25 +216,17 @@ class RunOptions:
     the score a resumed sweep recorded in config.json)."""
 
     def __post_init__(self) -> None:
-        check_option(
-            self.eval_episodes is None or (_is_int(self.eval_episodes) and self.eval_episodes > 0),
-            "eval_episodes",
-            f"must be a positive integer, got {self.eval_episodes}",
-        )
+        for name in ("eval_episodes", "chunk_size", "wave_size"):
+            value = getattr(self, name)
+            check_option(
+                value is None or (_is_int(value) and value > 0),
+                name,
+                f"must be a positive integer, got {value}",
+            )
         check_option(
             0 < self.checkpoint_every <= 86_400 * 365,  # NaN fails too
             "checkpoint_every",
             f"must be in (0, 31536000] seconds, got {self.checkpoint_every}",
-        )
-        check_option(
-            self.chunk_size is None or (_is_int(self.chunk_size) and self.chunk_size > 0),
-            "chunk_size",
-            f"must be a positive integer, got {self.chunk_size}",
-        )
-        check_option(
-            self.wave_size is None or (_is_int(self.wave_size) and self.wave_size > 0),
-            "wave_size",
-            f"must be a positive integer, got {self.wave_size}",
         )
         if self.loggers:
             try:
