@@ -108,54 +108,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) -> None:
-    if args.gif.suffix.lower() != ".gif":
-        raise cli.UsageError(f"--gif {args.gif} must end in .gif")
-    if not args.gif.parent.is_dir():
-        raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
-    if sweep and args.combination is None:
-        raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
-    if not 0 <= args.seed_index < num_seeds:
-        raise cli.UsageError(
-            f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
-            f"got {args.seed_index}"
-        )
-
-
-def _sources(
-    run_dir: Path, combination: int | None, policy: str = "final", trust_code: bool = False
-) -> list[tuple[str | None, RunParams]]:
-    """What to evaluate: the run, one combination, or every combination of a sweep, each
-    with its label (``0 learning_rate=0.001``) in a sweep; ``policy`` final or best."""
-    from jaxcart.rundir.policy import run_params
-    from jaxcart.rundir.reader import read_run_config, recorded_combinations
-
-    combos = recorded_combinations(read_run_config(run_dir))
-    if not combos:
-        return [(None, run_params(run_dir, combination, policy, trust_code=trust_code))]
-    chosen = range(len(combos)) if combination is None else [combination]
-    return [
-        (_combo_label(c, combos), run_params(run_dir, c, policy, trust_code=trust_code))
-        for c in chosen
-    ]
-
-
-def _combo_label(c: int, combos: list) -> str:
-    values = combos[c] if 0 <= c < len(combos) else {}
-    return f"{c} " + ",".join(f"{k}={v:g}" for k, v in values.items())
-
-
-def _with_env_params(trained: RunParams, chosen: dict) -> RunParams:
-    """``trained`` evaluated on its own physics with the ``chosen`` fields over them (checked:
-    a value outside physical sense is one line)."""
-    from jaxcart.core import physics
-
-    if not chosen:
-        return trained
-    values = {**physics.overrides(trained.env_params), **chosen}
-    return dataclasses.replace(trained, env_params=physics.make_env_params(values))
-
-
 def _physics_text(sources: list[tuple[str | None, RunParams]], chosen: bool) -> str:
     """`` with length=1`` when every source runs on the same non-default physics; ``""``
     for CartPole-v1's (`` with CartPole-v1's own physics`` when ``--env-param`` chose them);
@@ -209,30 +161,60 @@ def _check_out(out: Path, chosen: dict) -> None:
 def _read_run(
     run_dir: Path, args: argparse.Namespace, chosen: dict, field: str | None, values: list
 ) -> tuple[dict, _Sources]:
-    """A run's ``config.json`` and what to evaluate of it, every physics checked before
-    anything is evaluated."""
+    """A run's ``config.json`` and what to evaluate of it: the run, one combination, or every
+    combination of a sweep (each labelled ``0 learning_rate=0.001``), with ``args.policy``'s
+    parameters, on each physics (the run's own with ``chosen`` over them, and each swept
+    value); every option and physics checked (a value outside physical sense is one line)
+    before anything is evaluated."""
     from jaxcart.core import physics
+    from jaxcart.rundir.policy import run_params
     from jaxcart.rundir.reader import is_evaluation, read_run_config, recorded_combinations
 
     info = read_run_config(run_dir)
     if is_evaluation(info):
         source = info[layout.EVALUATION_OF_KEY]["run"]
         raise cli.UsageError(f"{run_dir} is an evaluation of {source}; evaluate that run")
-    env_id = info["config"].env
+    env_id, combos = info["config"].env, recorded_combinations(info)
     if (chosen or field) and env_id != DEFAULT_ENV:
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
     if args.gif is not None:
+        num_seeds = int(info.get("num_seeds", 1))
         if env_id != DEFAULT_ENV:
             raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
-        _check_gif_options(args, int(info.get("num_seeds", 1)), bool(recorded_combinations(info)))
-    sources = _sources(run_dir, args.combination, args.policy, args.trust_code)
-    if (field or args.out is not None) and len(sources) > 1:
+        if args.gif.suffix.lower() != ".gif":
+            raise cli.UsageError(f"--gif {args.gif} must end in .gif")
+        if not args.gif.parent.is_dir():
+            raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
+        if combos and args.combination is None:
+            raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
+        if not 0 <= args.seed_index < num_seeds:
+            raise cli.UsageError(
+                f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
+                f"got {args.seed_index}"
+            )
+    chosen_combos = range(len(combos)) if combos and args.combination is None else [None]
+    if (field or args.out is not None) and len(chosen_combos) > 1:
         raise cli.UsageError(
             f"{run_dir} is a sweep: --sweep and --out evaluate one run; choose --combination C"
         )
     points = [{**chosen, field[len(physics.PREFIX) :]: v} for v in values] if field else [chosen]
-    return info, [(label, [_with_env_params(t, p) for p in points]) for label, t in sources]
+    sources = []
+    for c in chosen_combos:
+        c = args.combination if c is None else c
+        trained = run_params(run_dir, c, args.policy, trust_code=args.trust_code)
+        label = f"{c} " + ",".join(f"{k}={v:g}" for k, v in combos[c].items()) if combos else None
+        on = [
+            dataclasses.replace(
+                trained,
+                env_params=physics.make_env_params({**physics.overrides(trained.env_params), **p}),
+            )
+            if p
+            else trained
+            for p in points
+        ]
+        sources.append((label, on))
+    return info, sources
 
 
 def _print_note(run_dir: Path, trained: RunParams) -> None:
