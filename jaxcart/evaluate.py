@@ -15,24 +15,21 @@ import functools
 import io
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from jaxcart import cli, environment
+import numpy as np
 
-environment.import_jax()  # before the imports below, which import JAX: JAX reads JAX_* then
+from jaxcart import cli
+from jaxcart.analysis import stats
+from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, GYMNAX_ENVS, NUM_EVAL_EPISODES, is_solved
+from jaxcart.rundir import files, layout
 
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
+if TYPE_CHECKING:  # the modules that import JAX load once the options are read (--help: none)
+    from jaxcart.rundir.policy import RunParams
 
-from jaxcart.analysis import stats  # noqa: E402
-from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, GYMNAX_ENVS, NUM_EVAL_EPISODES, is_solved  # noqa: E402
-from jaxcart.run import physics  # noqa: E402
-from jaxcart.run.greedy import evaluate_params, summarize  # noqa: E402
-from jaxcart.run.sweep import parse_sweep  # noqa: E402
-from jaxcart.rundir import files, layout, outputs  # noqa: E402
-from jaxcart.rundir.directory import package_versions  # noqa: E402
-from jaxcart.rundir.policy import RunParams, make_policy, run_params  # noqa: E402
-from jaxcart.rundir.reader import X64_KEY, is_evaluation, read_run_config, recorded_combinations  # noqa: E402
-from jaxcart.rundir.views import default_label, physics_label  # noqa: E402
+    _Sources = list[tuple[str | None, list[RunParams]]]
+    # per source (the run, or each combination of a sweep): its label and its parameters on
+    # each physics evaluated (each swept value, or the one chosen)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -111,53 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check_gif_options(args: argparse.Namespace, num_seeds: int, sweep: bool) -> None:
-    if args.gif.suffix.lower() != ".gif":
-        raise cli.UsageError(f"--gif {args.gif} must end in .gif")
-    if not args.gif.parent.is_dir():
-        raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
-    if sweep and args.combination is None:
-        raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
-    if not 0 <= args.seed_index < num_seeds:
-        raise cli.UsageError(
-            f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
-            f"got {args.seed_index}"
-        )
-
-
-def _sources(
-    run_dir: Path, combination: int | None, policy: str = "final", trust_code: bool = False
-) -> list[tuple[str | None, RunParams]]:
-    """What to evaluate: the run, one combination, or every combination of a sweep, each
-    with its label (``0 learning_rate=0.001``) in a sweep; ``policy`` final or best."""
-    combos = recorded_combinations(read_run_config(run_dir))
-    if not combos:
-        return [(None, run_params(run_dir, combination, policy, trust_code=trust_code))]
-    chosen = range(len(combos)) if combination is None else [combination]
-    return [
-        (_combo_label(c, combos), run_params(run_dir, c, policy, trust_code=trust_code))
-        for c in chosen
-    ]
-
-
-def _combo_label(c: int, combos: list) -> str:
-    values = combos[c] if 0 <= c < len(combos) else {}
-    return f"{c} " + ",".join(f"{k}={v:g}" for k, v in values.items())
-
-
-def _with_env_params(trained: RunParams, chosen: dict) -> RunParams:
-    """``trained`` evaluated on its own physics with the ``chosen`` fields over them (checked:
-    a value outside physical sense is one line)."""
-    if not chosen:
-        return trained
-    values = {**physics.overrides(trained.env_params), **chosen}
-    return dataclasses.replace(trained, env_params=physics.make_env_params(values))
-
-
 def _physics_text(sources: list[tuple[str | None, RunParams]], chosen: bool) -> str:
     """`` with length=1`` when every source runs on the same non-default physics; ``""``
     for CartPole-v1's (`` with CartPole-v1's own physics`` when ``--env-param`` chose them);
     `` with each combination's physics`` when they differ."""
+    from jaxcart.run import physics
+
     shown = {physics.describe(physics.overrides(t.env_params)) for _, t in sources}
     if len(shown) > 1:
         return " with each combination's physics"
@@ -173,6 +129,9 @@ def _physics_sweep(specs: list[str], chosen: dict) -> tuple[str | None, list[flo
     Raises:
         UsageError, ConfigError: not one continuous physics field, or one --env-param sets.
     """
+    from jaxcart.run import physics
+    from jaxcart.run.sweep import parse_sweep
+
     if not specs:
         return None, []
     if len(specs) > 1 or not specs[0].strip().startswith(physics.PREFIX):
@@ -199,35 +158,63 @@ def _check_out(out: Path, chosen: dict) -> None:
         )
 
 
-_Sources = list[tuple[str | None, list[RunParams]]]
-"""Per source (the run, or each combination of a sweep): its label and its parameters on
-each physics evaluated (each swept value, or the one chosen)."""
-
-
 def _read_run(
     run_dir: Path, args: argparse.Namespace, chosen: dict, field: str | None, values: list
 ) -> tuple[dict, _Sources]:
-    """A run's ``config.json`` and what to evaluate of it, every physics checked before
-    anything is evaluated."""
+    """A run's ``config.json`` and what to evaluate of it: the run, one combination, or every
+    combination of a sweep (each labelled ``0 learning_rate=0.001``), with ``args.policy``'s
+    parameters, on each physics (the run's own with ``chosen`` over them, and each swept
+    value); every option and physics checked (a value outside physical sense is one line)
+    before anything is evaluated."""
+    from jaxcart.run import physics
+    from jaxcart.rundir.policy import run_params
+    from jaxcart.rundir.reader import is_evaluation, read_run_config, recorded_combinations
+
     info = read_run_config(run_dir)
     if is_evaluation(info):
         source = info[layout.EVALUATION_OF_KEY]["run"]
         raise cli.UsageError(f"{run_dir} is an evaluation of {source}; evaluate that run")
-    env_id = info["config"].env
+    env_id, combos = info["config"].env, recorded_combinations(info)
     if (chosen or field) and env_id != DEFAULT_ENV:
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
     if args.gif is not None:
+        num_seeds = int(info.get("num_seeds", 1))
         if env_id != DEFAULT_ENV:
             raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
-        _check_gif_options(args, int(info.get("num_seeds", 1)), bool(recorded_combinations(info)))
-    sources = _sources(run_dir, args.combination, args.policy, args.trust_code)
-    if (field or args.out is not None) and len(sources) > 1:
+        if args.gif.suffix.lower() != ".gif":
+            raise cli.UsageError(f"--gif {args.gif} must end in .gif")
+        if not args.gif.parent.is_dir():
+            raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
+        if combos and args.combination is None:
+            raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
+        if not 0 <= args.seed_index < num_seeds:
+            raise cli.UsageError(
+                f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
+                f"got {args.seed_index}"
+            )
+    chosen_combos = range(len(combos)) if combos and args.combination is None else [None]
+    if (field or args.out is not None) and len(chosen_combos) > 1:
         raise cli.UsageError(
             f"{run_dir} is a sweep: --sweep and --out evaluate one run; choose --combination C"
         )
     points = [{**chosen, field[len(physics.PREFIX) :]: v} for v in values] if field else [chosen]
-    return info, [(label, [_with_env_params(t, p) for p in points]) for label, t in sources]
+    sources = []
+    for c in chosen_combos:
+        c = args.combination if c is None else c
+        trained = run_params(run_dir, c, args.policy, trust_code=args.trust_code)
+        label = f"{c} " + ",".join(f"{k}={v:g}" for k, v in combos[c].items()) if combos else None
+        on = [
+            dataclasses.replace(
+                trained,
+                env_params=physics.make_env_params({**physics.overrides(trained.env_params), **p}),
+            )
+            if p
+            else trained
+            for p in points
+        ]
+        sources.append((label, on))
+    return info, sources
 
 
 def _print_note(run_dir: Path, trained: RunParams) -> None:
@@ -247,6 +234,9 @@ def _evaluate_run(
 ) -> list[np.ndarray]:
     """Prints the per-seed table of every source on its one physics; returns each source's
     Gymnasium returns ``[num_seeds, episodes]``."""
+    from jaxcart.run.greedy import evaluate_params, summarize
+    from jaxcart.rundir.reader import recorded_combinations
+
     env_id = info["config"].env
     num_seeds = int(info.get("num_seeds", 1))
     sweep = bool(recorded_combinations(info))
@@ -286,6 +276,9 @@ def _evaluate_sweep(
     """Every run at every value: prints one row per run and value (the IQM over seeds of each
     seed's mean return with its interval, as ``compare`` computes it); returns per run, per
     value, the returns ``[num_seeds, episodes]`` and that IQM."""
+    from jaxcart.run import physics
+    from jaxcart.run.greedy import evaluate_params
+
     rows, returns, iqms = [], [], []
     for run_dir, _, [(_, trained)] in runs:
         _print_note(run_dir, trained[0])
@@ -311,7 +304,9 @@ def _evaluate_sweep(
 
 
 def _evaluate_command(argv: list[str] | None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(argv)  # imports JAX once the options are read
+    from jaxcart.run import physics
+
     chosen = physics.parse_env_params(args.env_param)  # a bad --env-param before anything is read
     field, values = _physics_sweep(args.sweep, chosen)
     if args.out is not None:
@@ -343,6 +338,8 @@ def _write(
 ) -> None:
     """The evaluations into ``--out``, a new directory (several runs: one subdirectory
     each, named after the run), and ``robustness.png`` in it after a sweep."""
+    from jaxcart.rundir import outputs
+
     png = None if iqms is None else _robustness_png(runs, field, values, iqms, args.episodes)
     args.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
     written = []
@@ -368,6 +365,11 @@ def _record(
 ) -> dict:
     """An evaluation's ``config.json``: the seeds' config as the run trained them, the
     physics they are evaluated on (``env_params``) and the run they came from."""
+    from jaxcart.run import physics
+    from jaxcart.rundir.directory import package_versions
+    from jaxcart.rundir.reader import X64_KEY
+    from jaxcart.rundir.views import physics_label
+
     return {
         "format_version": layout.FORMAT_VERSION,
         "preset": info.get("preset", ""),
@@ -400,6 +402,9 @@ def _write_sweep(
 ) -> None:
     """A sweep of evaluations: ``combo-NNN/`` per value, then the sweep's ``config.json``
     and ``sweep.json`` (the IQM at each value)."""
+    from jaxcart.run import physics
+    from jaxcart.rundir import outputs
+
     for c, (value, t, r) in enumerate(zip(values, trained, returns)):
         sub = directory.sub(layout.combo_dir(".", c).name, create=True)
         try:
@@ -425,6 +430,7 @@ def _robustness_png(
     episodes: int,
 ) -> bytes:
     from jaxcart.results.figure import draw_robustness  # matplotlib: only when drawn
+    from jaxcart.rundir.views import default_label
 
     curves = [
         (
@@ -457,7 +463,10 @@ def _print_written(out: Path, written: list[Path], field: str | None) -> None:
 
 
 def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
+    import jax
+
     from jaxcart.results.gif import render_gif
+    from jaxcart.rundir.policy import make_policy
 
     one = jax.tree.map(lambda x: x[args.seed_index], trained.params)
     policy = make_policy(one, trained.config)

@@ -14,7 +14,7 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from jaxcart.core import networks
 from jaxcart.core.solved import EVAL_SEED, SOLVED_RETURN
 from jaxcart.engine.signals import Stopped
-from jaxcart.run.greedy import _GymnasiumCartPole, evaluate_gymnasium
+from jaxcart.run.greedy import cartpole_constants, cartpole_step, evaluate_gymnasium
 from jaxcart.rundir.policy import NumpyPolicy
 
 NUM_POLICIES, NUM_EPISODES = 64, 20
@@ -130,12 +130,12 @@ def test_the_batched_step_is_gymnasiums_step_bit_for_bit(integrator):
     one state at a time, over states spread across (and beyond) the episode bounds."""
     env = CartPoleEnv()
     env.kinematics_integrator = integrator
-    batched = _GymnasiumCartPole.of(gym.wrappers.TimeLimit(env, 500))
+    constants = cartpole_constants(gym.wrappers.TimeLimit(env, 500))
     rng, n = np.random.default_rng(1), 20_000
     bounds = np.array([2.6, 3.0, 0.25, 3.5])[:, None]
     states = rng.uniform(-bounds, bounds, (4, n))
     actions = rng.integers(0, 2, n)
-    stepped, terminated = batched.step(states, actions)
+    stepped, terminated = cartpole_step(constants, states, actions)
     expected = np.empty_like(states)
     expected_terminated = np.empty(n, bool)
     for i in range(n):
@@ -188,8 +188,17 @@ def test_should_stop_interrupts_the_evaluation():
     assert len(polls) == 3
 
 
-def test_refuses_what_it_cannot_step():
-    with pytest.raises(ValueError, match="not Gymnasium's CartPoleEnv"):
-        evaluate_gymnasium(mixed_policy(6), 6, 1, env_id="Acrobot-v1")
-    with pytest.raises(ValueError, match="actions must be 0 or 1"):
+def test_other_envs_step_one_gymnasium_env_per_episode():
+    """Any other discrete-action env runs in the same loop on its own ``step`` (Acrobot: a
+    constant torque never swings up, so every episode is truncated at -500)."""
+    returns = evaluate_gymnasium(
+        lambda obs: np.zeros(obs.shape[:2], int), 2, 2, env_id="Acrobot-v1"
+    )
+    np.testing.assert_array_equal(returns, np.full((2, 2), -500.0))
+
+
+def test_refuses_actions_outside_the_action_space():
+    with pytest.raises(ValueError, match=r"actions must be in 0\.\.1, got \[2\]"):
         evaluate_gymnasium(lambda obs: np.full(obs.shape[:2], 2), 2, 2)
+    with pytest.raises(ValueError, match=r"actions must be in 0\.\.2"):
+        evaluate_gymnasium(lambda obs: np.full(obs.shape[:2], 3), 2, 1, env_id="Acrobot-v1")

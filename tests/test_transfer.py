@@ -6,6 +6,9 @@ options are one line and exit 2."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -161,3 +164,21 @@ def test_a_physics_sweep_of_another_env_is_refused(arms, tmp_path, capsys):
         capsys
     )
     assert not new.exists()
+
+
+def test_evaluate_help_imports_no_jax():
+    """``python -m jaxcart.evaluate --help`` answers without importing JAX (start-up time);
+    the command imports it once its options are read."""
+    code = (
+        "import sys\n"
+        "from jaxcart import evaluate\n"
+        "code = evaluate.main(['--help'])\n"
+        "print(code, 'jax' in sys.modules)\n"
+        "evaluate.main(['--episodes', '0', 'no-such-run'])\n"
+        "print('jax' in sys.modules)"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
+    ).stdout
+    assert out.splitlines()[-2:] == ["0 False", "False"]

@@ -35,7 +35,7 @@ from jaxcart.core.config import PPOConfig  # noqa: E402
 from jaxcart.core.ppo import make_network  # noqa: E402
 from jaxcart.engine.loop import seed_keys, train  # noqa: E402
 from jaxcart.run.greedy import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
-from jaxcart.rundir.policy import numpy_policy  # noqa: E402
+from jaxcart.rundir.policy import make_policy  # noqa: E402
 
 SHAPES = [(4, 128), (8, 64), (16, 32), (16, 64), (32, 32), (64, 16)]
 MINIBATCHES = [2, 4]
@@ -115,9 +115,7 @@ def confirm(row: dict, seeds: int) -> dict:
     config = PPOConfig(**{**config.to_dict(), "learning_rate": row["learning_rate"]})
     res = train(config, seeds, seed=1000)
     gym = summarize(
-        evaluate_gymnasium(
-            numpy_policy(jax.device_get(res.params), config.activation, stacked=True), seeds
-        )
+        evaluate_gymnasium(make_policy(jax.device_get(res.params), config, stacked=True), seeds)
     )
     return {**row, "confirm_seeds": seeds, "gymnasium_solve_rate": float(gym["solved"].mean())}
 

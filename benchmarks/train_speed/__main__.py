@@ -117,10 +117,10 @@ def evaluate_policy(policy, num_policies: int, env_id: str) -> dict:
     """Gymnasium evaluation of every contender alike, with jaxcart's evaluator: greedy episodes
     in ``gymnasium.make(env_id)``, per-seed mean/min and solved flags (``env_id``'s
     definition: all 500 for CartPole-v1, the mean at least the ``reward_threshold`` else)."""
-    from jaxcart.run.greedy import evaluate_in_gymnasium, summarize
+    from jaxcart.run.greedy import evaluate_gymnasium, summarize
 
     start = time.perf_counter()
-    returns = evaluate_in_gymnasium(policy, num_policies, EVAL_EPISODES, env_id)
+    returns = evaluate_gymnasium(policy, num_policies, EVAL_EPISODES, env_id=env_id)
     summary = summarize(returns, env_id)
     return {
         "env_id": env_id,

@@ -12,7 +12,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-from jaxcart.core import cartpole, envs, networks, pytree
+from jaxcart.core import envs, networks, pytree
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.metrics import EVAL_METRICS
@@ -43,63 +43,39 @@ def greedy_returns(
     env_params: Any = None,
     env_id: str = DEFAULT_ENV,
 ) -> Array:
-    """Greedy returns of ``num_episodes`` jaxcart episodes, ``[num_episodes]``; jit/vmap-able.
+    """Greedy (argmax) returns of ``num_episodes`` episodes of ``env_id``'s
+    :class:`~jaxcart.core.envs.Env`, ``[num_episodes]``; jit/vmap-able. The one JAX greedy
+    evaluation: the final cross-check, the periodic evaluation and the benchmarks call it.
+
+    Every episode steps in lockstep (the env's batched step) until all have terminated or
+    reached the env's time limit; an episode that ends stops counting (the env resets it).
 
     Args:
+        params: the network parameters (no run axis).
+        key: episode ``e`` starts from ``env.reset(split(key, num_episodes)[e])``.
         network: the flax actor-critic ``params`` belong to (default: the built-in MLP).
-        key: draws the episodes' reset states.
-        env_id: another env than CartPole-v1 plays on its :class:`~jaxcart.core.envs.Env`.
+        env_params: the env's params (default: its own).
     """
-    if env_id != DEFAULT_ENV:
-        return _greedy_returns_env(params, key, network, num_episodes, env_params, env_id)
-    env_params = env_params or cartpole.EnvParams()
-    network = network if network is not None else ActorCritic()
-    obs, state = jax.vmap(cartpole.reset, in_axes=(0, None))(
+    env = envs.make(env_id)
+    env_params = env.default_params() if env_params is None else env_params
+    network = ActorCritic(num_actions=env.num_actions) if network is None else network
+    obs, state = jax.vmap(env.reset, in_axes=(0, None))(
         jax.random.split(key, num_episodes), env_params
     )
+    step_key = jax.random.fold_in(key, 1)  # the batched step's resets, which do not count
 
-    def one_step(carry, _):
-        obs, state, alive, total = carry
-        action = jnp.argmax(networks.apply(network, params, obs)[0], axis=-1)
-        obs, state, reward, terminated, truncated = jax.vmap(
-            cartpole.step_env, in_axes=(0, 0, None)
-        )(state, action, env_params)
-        total = total + jnp.where(alive, reward, 0.0)
-        alive = alive & ~(terminated | truncated)
-        return (obs, state, alive, total), None
-
-    init = (obs, state, jnp.ones((num_episodes,), bool), jnp.zeros((num_episodes,), obs.dtype))
-    (_, _, _, total), _ = jax.lax.scan(one_step, init, None, length=env_params.max_episode_steps)
-    return total
-
-
-def _greedy_returns_env(
-    params: dict, key: Array, network: Any, num_episodes: int, env_params: Any, env_id: str
-) -> Array:
-    """:func:`greedy_returns` on another env: its batched step until its time limit (the
-    episodes that end earlier reset and stop counting)."""
-    env = envs.make(env_id)
-    env_params = env_params or env.default_params()
-    network = network if network is not None else ActorCritic(num_actions=env.num_actions)
-    reset_key, step_key = jax.random.split(key)
-    obs, state = jax.vmap(env.reset, in_axes=(0, None))(
-        jax.random.split(reset_key, num_episodes), env_params
-    )
-
-    def one_step(carry, key):
-        obs, state, alive, total = carry
+    def one_step(carry: tuple) -> tuple:
+        obs, state, alive, total, t = carry
         action = jnp.argmax(networks.apply(network, params, obs)[0], axis=-1)
         obs, state, reward, terminated, truncated, _ = env.step_batch(
-            key, state, action, env_params
+            jax.random.fold_in(step_key, t), state, action, env_params
         )
         total = total + jnp.where(alive, reward, 0.0)
-        alive = alive & ~(terminated | truncated)
-        return (obs, state, alive, total), None
+        return obs, state, alive & ~(terminated | truncated), total, t + 1
 
-    init = (obs, state, jnp.ones((num_episodes,), bool), jnp.zeros((num_episodes,), obs.dtype))
-    keys = jax.random.split(step_key, env.max_episode_steps)
-    (_, _, _, total), _ = jax.lax.scan(one_step, init, keys)
-    return total
+    alive = jnp.ones((num_episodes,), bool)
+    init = (obs, state, alive, jnp.zeros((num_episodes,), obs.dtype), jnp.zeros((), jnp.int32))
+    return jax.lax.while_loop(lambda carry: carry[2].any(), one_step, init)[3]
 
 
 def periodic_evaluation(

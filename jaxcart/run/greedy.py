@@ -1,12 +1,14 @@
 """Greedy (argmax) evaluation of trained runs, in Gymnasium's own env of the run's id (the
-verdict, :mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check)."""
+verdict, :mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check, by
+:func:`jaxcart.core.evaluation.greedy_returns`, the one JAX greedy routine)."""
 
 from __future__ import annotations
 
-import dataclasses
+import contextlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import numpy as np
@@ -24,123 +26,119 @@ from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 
-
-@dataclass(frozen=True)
-class _GymnasiumCartPole:
-    """The constants of one ``gymnasium.make(env_id)`` CartPole (Gymnasium's ``CartPoleEnv``
-    under its ``TimeLimit``), and its step for a whole batch of states at once."""
-
-    gravity: float
-    masscart: float
-    masspole: float
-    total_mass: float
-    length: float
-    polemass_length: float
-    force_mag: float
-    tau: float
-    x_threshold: float
-    theta_threshold_radians: float
-    euler: bool
-    sutton_barto_reward: bool
-    max_episode_steps: int | None  # the TimeLimit's; None: no truncation
-
-    @classmethod
-    def of(cls, env) -> _GymnasiumCartPole:
-        """The constants of ``env`` (a ``gymnasium.make`` result) as its step reads them."""
-        from gymnasium.envs.classic_control.cartpole import CartPoleEnv
-
-        cartpole = env.unwrapped
-        if not isinstance(cartpole, CartPoleEnv):
-            name = env.spec.id if env.spec is not None else repr(env)
-            raise ValueError(
-                f"{name} is not Gymnasium's CartPoleEnv "
-                f"({type(cartpole).__name__}): the batched evaluation steps CartPoleEnv's physics"
-            )
-        return cls(
-            gravity=cartpole.gravity,
-            masscart=cartpole.masscart,
-            masspole=cartpole.masspole,
-            total_mass=cartpole.total_mass,
-            length=cartpole.length,
-            polemass_length=cartpole.polemass_length,
-            force_mag=cartpole.force_mag,
-            tau=cartpole.tau,
-            x_threshold=cartpole.x_threshold,
-            theta_threshold_radians=cartpole.theta_threshold_radians,
-            euler=cartpole.kinematics_integrator == "euler",
-            sutton_barto_reward=bool(getattr(cartpole, "_sutton_barto_reward", False)),
-            max_episode_steps=env.spec.max_episode_steps if env.spec else None,
-        )
-
-    def per_policy(self, per_run: dict[str, np.ndarray]) -> _GymnasiumCartPole:
-        """These constants with some fields one value per policy (arrays ``[P]``, shaped
-        ``[P, 1]`` to broadcast over the episodes), and the masses Gymnasium derives from
-        them recomputed as its constructor does."""
-        if not per_run:
-            return self
-        values = {n: np.asarray(v, np.float64)[:, None] for n, v in per_run.items()}
-        new = dataclasses.replace(self, **values)
-        return dataclasses.replace(
-            new,
-            total_mass=new.masspole + new.masscart,
-            polemass_length=new.masspole * new.length,
-        )
-
-    def step(self, state: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``CartPoleEnv.step`` for every state at once: float64 ``state [4, ...]`` (rows x,
-        x_dot, theta, theta_dot) and actions ``[...]`` -> ``(next state [4, ...], terminated
-        [...])``.
-
-        Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
-        element-wise float64 arithmetic rounds each operation as on the single env's scalars,
-        so each next state is bit-identical to the single env's.
-        """
-        x, x_dot, theta, theta_dot = state
-        force = np.where(actions == 1, self.force_mag, -self.force_mag)
-        costheta = np.cos(theta)
-        sintheta = np.sin(theta)
-        temp = (force + self.polemass_length * np.square(theta_dot) * sintheta) / self.total_mass
-        thetaacc = (self.gravity * sintheta - costheta * temp) / (
-            self.length * (4.0 / 3.0 - self.masspole * np.square(costheta) / self.total_mass)
-        )
-        xacc = temp - self.polemass_length * thetaacc * costheta / self.total_mass
-        if self.euler:
-            x = x + self.tau * x_dot
-            x_dot = x_dot + self.tau * xacc
-            theta = theta + self.tau * theta_dot
-            theta_dot = theta_dot + self.tau * thetaacc
-        else:  # semi-implicit Euler
-            x_dot = x_dot + self.tau * xacc
-            x = x + self.tau * x_dot
-            theta_dot = theta_dot + self.tau * thetaacc
-            theta = theta + self.tau * theta_dot
-        terminated = (
-            (x < -self.x_threshold)
-            | (x > self.x_threshold)
-            | (theta < -self.theta_threshold_radians)
-            | (theta > self.theta_threshold_radians)
-        )
-        return np.stack([x, x_dot, theta, theta_dot]), terminated
-
-    def reward(self, terminated: np.ndarray) -> np.ndarray:
-        """``CartPoleEnv``'s reward of a step that ended ``terminated`` (the first time)."""
-        if self.sutton_barto_reward:
-            return np.where(terminated, -1.0, 0.0)
-        return np.ones(terminated.shape)
+Step = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""``(actions [P, E], alive [P, E]) -> (rewards [P, E], done [P, E])``: one step of every
+running episode of a policy x episode grid, its observations updated in place."""
 
 
-def _start_states(
-    env, seed: int, num_episodes: int, options: dict | None = None
+def cartpole_constants(env, per_run: dict[str, np.ndarray] | None = None) -> SimpleNamespace:
+    """The constants ``CartPoleEnv.step`` reads, of ``env`` (a ``gymnasium.make`` result of
+    Gymnasium's ``CartPoleEnv``, its ``TimeLimit`` as ``max_episode_steps``), with the fields
+    of ``per_run`` one value per policy (arrays ``[P]``, shaped ``[P, 1]`` to broadcast over
+    the episodes) and the masses Gymnasium derives from them recomputed as its constructor
+    does."""
+    max_steps = env.spec.max_episode_steps if env.spec is not None else None
+    constants = SimpleNamespace(**vars(env.unwrapped), max_episode_steps=max_steps)
+    if per_run:
+        for name, values in per_run.items():
+            setattr(constants, name, np.asarray(values, np.float64)[:, None])
+        constants.total_mass = constants.masspole + constants.masscart
+        constants.polemass_length = constants.masspole * constants.length
+    return constants
+
+
+def cartpole_step(
+    c: SimpleNamespace, state: np.ndarray, actions: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Episode ``e``'s start from ``env.reset(seed=seed + e, options=options)``: ``(states
-    [4, num_episodes] float64, observations [num_episodes, 4] float32)``, drawn by Gymnasium
-    itself."""
-    states, observations = [], []
-    for e in range(num_episodes):
-        obs, _ = env.reset(seed=seed + e, options=options)
-        states.append(np.array(env.unwrapped.state, dtype=np.float64))
-        observations.append(obs)
-    return np.stack(states, axis=1), np.stack(observations)
+    """``CartPoleEnv.step`` for every state at once, with constants ``c``
+    (:func:`cartpole_constants`): float64 ``state [4, ...]`` (rows x, x_dot, theta,
+    theta_dot) and actions ``[...]`` -> ``(next state [4, ...], terminated [...])``.
+
+    Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
+    element-wise float64 arithmetic rounds each operation as on the single env's scalars,
+    so each next state is bit-identical to the single env's.
+    """
+    x, x_dot, theta, theta_dot = state
+    force = np.where(actions == 1, c.force_mag, -c.force_mag)
+    costheta = np.cos(theta)
+    sintheta = np.sin(theta)
+    temp = (force + c.polemass_length * np.square(theta_dot) * sintheta) / c.total_mass
+    thetaacc = (c.gravity * sintheta - costheta * temp) / (
+        c.length * (4.0 / 3.0 - c.masspole * np.square(costheta) / c.total_mass)
+    )
+    xacc = temp - c.polemass_length * thetaacc * costheta / c.total_mass
+    if c.kinematics_integrator == "euler":
+        x = x + c.tau * x_dot
+        x_dot = x_dot + c.tau * xacc
+        theta = theta + c.tau * theta_dot
+        theta_dot = theta_dot + c.tau * thetaacc
+    else:  # semi-implicit Euler
+        x_dot = x_dot + c.tau * xacc
+        x = x + c.tau * x_dot
+        theta_dot = theta_dot + c.tau * thetaacc
+        theta = theta + c.tau * theta_dot
+    terminated = (
+        (x < -c.x_threshold)
+        | (x > c.x_threshold)
+        | (theta < -c.theta_threshold_radians)
+        | (theta > c.theta_threshold_radians)
+    )
+    return np.stack([x, x_dot, theta, theta_dot]), terminated
+
+
+def _cartpole_grid(
+    env, shape: tuple[int, int], seed: int, per_run: dict, options: dict | None
+) -> tuple[np.ndarray, Step]:
+    """Gymnasium's ``CartPoleEnv`` for a grid of episodes in float64 NumPy arrays: episode
+    ``e``'s start is ``env.reset(seed=seed + e, options=options)``'s, drawn by Gymnasium."""
+    c = cartpole_constants(env, per_run)
+    starts, first_obs = [], []
+    for e in range(shape[1]):
+        first_obs.append(env.reset(seed=seed + e, options=options)[0])
+        starts.append(np.array(env.unwrapped.state, dtype=np.float64))
+    state = np.broadcast_to(np.stack(starts, axis=1)[:, None, :], (4, *shape)).copy()
+    obs = np.broadcast_to(np.stack(first_obs), (*shape, 4)).copy()  # rows contiguous
+    steps = 0
+
+    def step(actions: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nonlocal steps
+        stepped, terminated = cartpole_step(c, state, actions)
+        steps += 1
+        # Only the running episodes move on; the finished keep their state and observation.
+        np.copyto(state, stepped, where=alive)
+        np.copyto(obs, np.moveaxis(stepped, 0, -1), casting="same_kind", where=alive[..., None])
+        if getattr(c, "_sutton_barto_reward", False):
+            reward = np.where(terminated, -1.0, 0.0)
+        else:
+            reward = np.ones(shape)
+        truncated = c.max_episode_steps is not None and steps >= c.max_episode_steps
+        return reward, terminated | truncated  # TimeLimit: every running episode truncated
+
+    return obs, step
+
+
+def _env_grid(
+    env_id: str, shape: tuple[int, int], seed: int, stack: contextlib.ExitStack
+) -> tuple[np.ndarray, Step]:
+    """One ``gymnasium.make(env_id)`` per policy and episode, each stepped by its own
+    ``step`` (time limit included); episode ``e`` starts from ``reset(seed=seed + e)``."""
+    import gymnasium as gym
+
+    games = [
+        [stack.enter_context(gym.make(env_id)) for _ in range(shape[1])] for _ in range(shape[0])
+    ]
+    obs = np.stack(
+        [[np.asarray(g.reset(seed=seed + e)[0]) for e, g in enumerate(row)] for row in games]
+    ).astype(np.float32)
+
+    def step(actions: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        reward, done = np.zeros(shape), np.zeros(shape, bool)
+        for p, e in zip(*np.nonzero(alive)):
+            obs[p, e], reward[p, e], terminated, truncated, _ = games[p][e].step(int(actions[p, e]))
+            done[p, e] = terminated or truncated
+        return reward, done
+
+    return obs, step
 
 
 def evaluate_gymnasium(
@@ -148,85 +146,30 @@ def evaluate_gymnasium(
     num_policies: int,
     num_episodes: int = NUM_EVAL_EPISODES,
     seed: int = EVAL_SEED,
-    env_id: str = "CartPole-v1",
+    env_id: str = DEFAULT_ENV,
     should_stop: Callable[[], bool] | None = None,
     env_params: cartpole.EnvParams | None = None,
 ) -> np.ndarray:
-    """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``, with
-    ``env_params``' physics when given (:func:`jaxcart.gym.stock.make_cartpole`; a continuous
-    field may hold one value per policy, ``[num_policies]``).
+    """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``: the one
+    Gymnasium evaluation loop (the final verdict, ``python -m jaxcart.evaluate``, benchmarks).
 
     Episode ``e`` of every policy starts where ``gymnasium.make(env_id).reset(seed=seed + e)``
     starts. All policies and episodes then advance in lockstep, with one batched policy call
-    and one batched float64 NumPy physics step per time step (:class:`_GymnasiumCartPole`,
-    Gymnasium's ``CartPoleEnv.step`` on arrays), until every episode has terminated or reached
-    the env's time limit. Each return is bit-identical to stepping one ``gymnasium.make(env_id)``
-    per episode: the same start states, float64 dynamics and float32 observations, and the
-    same policy calls (finished episodes keep showing their last observation).
-
-    Args:
-        policy: maps observations ``[num_policies, num_episodes, 4]`` float32 to actions
-            ``[num_policies, num_episodes]`` in ``{0, 1}`` (a stacked :class:`NumpyPolicy`).
-        env_id: a registered Gymnasium ``CartPoleEnv`` (``CartPole-v1``, ``CartPole-v0``, ...).
-        should_stop: polled before every step.
-
-    Returns:
-        Episode returns, ``[num_policies, num_episodes]`` float64.
-
-    Raises:
-        ValueError: ``env_id`` is not Gymnasium's ``CartPoleEnv``, or an action not 0 or 1.
-        Stopped: ``should_stop()`` turned true.
-    """
-    static, per_run = physics.split_per_run(env_params or cartpole.EnvParams())
-    env = make_cartpole(static, env_id)
-    try:
-        constants = _GymnasiumCartPole.of(env).per_policy(per_run)
-        states, first_obs = _start_states(env, seed, num_episodes, reset_options(static))
-    finally:
-        env.close()
-    shape = (num_policies, num_episodes)
-    state = np.broadcast_to(states[:, None, :], (4, *shape)).copy()  # rows contiguous
-    obs = np.broadcast_to(first_obs, (*shape, 4)).copy()
-    returns = np.zeros(shape)
-    alive = np.ones(shape, bool)
-    steps = 0
-    while alive.any():
-        if should_stop is not None and should_stop():
-            raise Stopped("evaluation interrupted")
-        actions = np.asarray(policy(obs))
-        invalid = alive & (actions != 0) & (actions != 1)
-        if invalid.any():
-            raise ValueError(f"actions must be 0 or 1, got {np.unique(actions[invalid])}")
-        stepped, terminated = constants.step(state, actions)
-        steps += 1
-        # Only the running episodes move on; the finished keep their state and observation.
-        np.add(returns, constants.reward(terminated), out=returns, where=alive)
-        np.copyto(state, stepped, where=alive)
-        np.copyto(obs, np.moveaxis(stepped, 0, -1), casting="same_kind", where=alive[..., None])
-        alive &= ~terminated
-        if constants.max_episode_steps is not None and steps >= constants.max_episode_steps:
-            alive[:] = False  # TimeLimit: every episode still running is truncated here
-    return returns
-
-
-def evaluate_gymnasium_env(
-    policy: Callable[[np.ndarray], np.ndarray],
-    num_policies: int,
-    num_episodes: int = NUM_EVAL_EPISODES,
-    seed: int = EVAL_SEED,
-    env_id: str = "Acrobot-v1",
-    should_stop: Callable[[], bool] | None = None,
-) -> np.ndarray:
-    """:func:`evaluate_gymnasium` for any discrete-action Gymnasium env, stepping one
-    ``gymnasium.make(env_id)`` per policy and episode (its own ``step``, time limit included).
-
-    Episode ``e`` of every policy starts from ``reset(seed=seed + e)``; all episodes advance in
-    lockstep with one batched policy call per time step (finished episodes keep showing their
-    last observation).
+    per time step (finished episodes keep showing their last observation), until every episode
+    has terminated or reached the env's time limit. A Gymnasium ``CartPoleEnv`` steps as one
+    batched float64 NumPy physics step (:func:`cartpole_step`), with ``env_params``' physics
+    (:func:`jaxcart.gym.stock.make_cartpole`; a continuous field may hold one value per
+    policy, ``[num_policies]``); each return is bit-identical to stepping one
+    ``gymnasium.make(env_id)`` per episode (the same start states, float64 dynamics, float32
+    observations and policy calls). Any other discrete-action env steps one
+    ``gymnasium.make(env_id)`` per policy and episode, on its own physics.
 
     Args:
         policy: maps observations ``[num_policies, num_episodes, obs_dim]`` float32 to actions
-            ``[num_policies, num_episodes]``.
+            ``[num_policies, num_episodes]`` (a stacked :class:`NumpyPolicy`).
+        env_id: a registered Gymnasium env with discrete actions (``CartPole-v1``,
+            ``CartPole-v0``, ``Acrobot-v1``, ...).
+        should_stop: polled before every step.
 
     Returns:
         Episode returns, ``[num_policies, num_episodes]`` float64.
@@ -235,56 +178,31 @@ def evaluate_gymnasium_env(
         ValueError: an action outside the env's action space.
         Stopped: ``should_stop()`` turned true.
     """
-    import gymnasium as gym
+    from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
     shape = (num_policies, num_episodes)
-    games = [[gym.make(env_id) for _ in range(num_episodes)] for _ in range(num_policies)]
-    try:
-        obs = np.stack(
-            [[np.asarray(g.reset(seed=seed + e)[0]) for e, g in enumerate(row)] for row in games]
-        ).astype(np.float32)
-        num_actions = int(games[0][0].action_space.n)
-        returns = np.zeros(shape)
-        alive = np.ones(shape, bool)
+    static, per_run = physics.split_per_run(env_params or cartpole.EnvParams())
+    with contextlib.ExitStack() as stack:
+        env = stack.enter_context(make_cartpole(static, env_id))
+        num_actions = int(env.action_space.n)
+        if isinstance(env.unwrapped, CartPoleEnv):
+            obs, step = _cartpole_grid(env, shape, seed, per_run, reset_options(static))
+        else:
+            obs, step = _env_grid(env_id, shape, seed, stack)
+        returns, alive = np.zeros(shape), np.ones(shape, bool)
         while alive.any():
             if should_stop is not None and should_stop():
                 raise Stopped("evaluation interrupted")
             actions = np.asarray(policy(obs))
-            invalid = alive & ((actions < 0) | (actions >= num_actions))
+            invalid = alive & ~np.isin(actions, np.arange(num_actions))
             if invalid.any():
                 raise ValueError(
                     f"actions must be in 0..{num_actions - 1}, got {np.unique(actions[invalid])}"
                 )
-            for p, e in zip(*np.nonzero(alive)):
-                next_obs, reward, terminated, truncated, _ = games[p][e].step(int(actions[p, e]))
-                obs[p, e] = next_obs
-                returns[p, e] += float(reward)
-                alive[p, e] = not (terminated or truncated)
-    finally:
-        for row in games:
-            for g in row:
-                g.close()
+            reward, done = step(actions, alive)
+            np.add(returns, reward, out=returns, where=alive)
+            alive &= ~done
     return returns
-
-
-def evaluate_in_gymnasium(
-    policy: Callable[[np.ndarray], np.ndarray],
-    num_policies: int,
-    num_episodes: int = NUM_EVAL_EPISODES,
-    env_id: str = DEFAULT_ENV,
-    should_stop: Callable[[], bool] | None = None,
-    env_params: cartpole.EnvParams | None = None,
-) -> np.ndarray:
-    """Greedy returns ``[num_policies, num_episodes]`` in ``gymnasium.make(env_id)``: CartPole
-    by the batched :func:`evaluate_gymnasium` (with ``env_params``' physics), any other env by
-    :func:`evaluate_gymnasium_env` (with its own)."""
-    if env_id == DEFAULT_ENV:
-        return evaluate_gymnasium(
-            policy, num_policies, num_episodes, should_stop=should_stop, env_params=env_params
-        )
-    return evaluate_gymnasium_env(
-        policy, num_policies, num_episodes, env_id=env_id, should_stop=should_stop
-    )
 
 
 def summarize(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict[str, np.ndarray]:
@@ -308,34 +226,36 @@ def evaluate_runs(
     env_params: cartpole.EnvParams | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
-    Gymnasium's CartPole-v1 (the same reset seeds for all) and in jaxcart's env (run r's
-    episodes from ``fold_in(seed key of seed_indices[r], 1)``), both with ``env_params``'
-    physics (default CartPole-v1's; a continuous field may hold one value per run, ``[R]``).
+    Gymnasium's env of ``config.env`` (the same reset seeds for all) and in jaxcart's env (run
+    r's episodes from ``fold_in(seed key of seed_indices[r], 1)``), both with ``env_params``'
+    physics (default CartPole-v1's; a continuous field may hold one value per run, ``[R]``;
+    another env plays on its own). jaxcart's program compiles and runs in a thread while
+    Gymnasium's episodes run.
 
     Args:
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
-    num_runs = len(seed_indices)
-    if config.env == DEFAULT_ENV:
-        env_params = env_params or cartpole.EnvParams()
-    else:  # another env plays on its own default params (env_params are CartPole's physics)
-        env_params = None
-    policy = make_policy(params, config, stacked=True)
-    gym_returns = evaluate_in_gymnasium(
-        policy, num_runs, episodes, config.env, should_stop=should_stop, env_params=env_params
-    )
-    indices = np.asarray(seed_indices)
-    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_index_keys(seed, indices))
-    network = make_network(config)
+    env_params = env_params if config.env == DEFAULT_ENV else None  # CartPole's physics
     static, per_run = physics.split_per_run(env_params)
     per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
+    network = make_network(config)
 
     def one_run(p: dict, k: jax.Array, values: dict) -> jax.Array:
         run_env = physics.with_values(static, values)
-        return greedy_returns(p, k, network, episodes, run_env, config.env)
+        key = jax.random.fold_in(k, 1)
+        return greedy_returns(p, key, network, episodes, run_env, config.env)
 
-    evaluate = jax.jit(jax.vmap(one_run))
-    return gym_returns, np.asarray(evaluate(params, keys, per_run))
+    def in_jaxcart() -> np.ndarray:
+        keys = seed_index_keys(seed, np.asarray(seed_indices))
+        return np.asarray(jax.jit(jax.vmap(one_run))(params, keys, per_run))
+
+    with ThreadPoolExecutor(1) as pool:
+        jax_returns = pool.submit(in_jaxcart)
+        policy = make_policy(params, config, stacked=True)
+        gym_returns = evaluate_gymnasium(
+            policy, len(seed_indices), episodes, EVAL_SEED, config.env, should_stop, env_params
+        )
+        return gym_returns, jax_returns.result()
 
 
 def evaluate_run_dir(
@@ -371,6 +291,10 @@ def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> n
         policy = make_policy(trained.params, trained.config, stacked=True)
     except (KeyError, TypeError, ValueError) as exc:
         raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
-    return evaluate_in_gymnasium(
-        policy, trained.num_seeds, episodes, trained.config.env, env_params=trained.env_params
+    return evaluate_gymnasium(
+        policy,
+        trained.num_seeds,
+        episodes,
+        env_id=trained.config.env,
+        env_params=trained.env_params,
     )

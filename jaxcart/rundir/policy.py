@@ -162,18 +162,6 @@ class JaxPolicy(Policy):
         return np.asarray(self._logits(self.params, self._checked(obs)))
 
 
-def numpy_policy(
-    params: dict,
-    activation: str,
-    stacked: bool = False,
-    deterministic: bool = True,
-    rng: np.random.Generator | int | None = None,
-) -> NumpyPolicy:
-    """A :class:`NumpyPolicy` from network parameters (a leading seed axis when ``stacked``)."""
-    actor = networks.actor_params(jax.device_get(params))
-    return NumpyPolicy(actor, activation, stacked, deterministic, rng)
-
-
 def make_policy(
     params: dict,
     config: PPOConfig,
@@ -185,7 +173,8 @@ def make_policy(
     (:class:`NumpyPolicy`), any other network through JAX (:class:`JaxPolicy`); it takes
     observations of ``config.env`` (:attr:`Policy.obs_dim` values, :attr:`Policy.env_id`)."""
     if config.network is None:
-        policy: Policy = numpy_policy(params, config.activation, stacked, deterministic, rng)
+        actor = networks.actor_params(jax.device_get(params))
+        policy: Policy = NumpyPolicy(actor, config.activation, stacked, deterministic, rng)
     else:
         policy = JaxPolicy(config.network, params, stacked, deterministic, rng)
     policy.env_id, policy.obs_dim = config.env, envs.make(config.env).obs_dim
@@ -234,11 +223,7 @@ def run_params(
         combos = reader.recorded_combinations(info)
         sweep = reader.is_sweep(directory)
         if combos or sweep:
-            if (
-                isinstance(combination, bool)
-                or not isinstance(combination, (int, np.integer))
-                or not 0 <= combination < max(len(combos), 1)
-            ):
+            if not _is_index(combination, max(len(combos), 1)):
                 count, bounds = (f" of {len(combos)} combinations", f" in [0, {len(combos)})")
                 raise RunDirError(
                     f"{run_dir} is a sweep{count if combos else ''}: choose a combination with "
@@ -271,6 +256,12 @@ def _env_params(run_dir: Path, info: dict, combination: int | None) -> EnvParams
         raise RunDirError(f"{run_dir}: config.json env_params are unusable: {exc}") from None
 
 
+def _is_index(value: object, count: int) -> bool:
+    """``value`` is an integer (not a bool) in ``[0, count)``."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    return ok and 0 <= value < count
+
+
 def seed_params(trained: RunParams, seed_index: int | str, allow_all: bool = False) -> dict:
     """One seed's parameters (no seed axis) of ``trained``.
 
@@ -278,11 +269,7 @@ def seed_params(trained: RunParams, seed_index: int | str, allow_all: bool = Fal
         RunDirError: ``seed_index`` is not an integer in ``[0, num_seeds)``.
     """
     num_seeds = trained.num_seeds
-    if (
-        isinstance(seed_index, bool)
-        or not isinstance(seed_index, (int, np.integer))
-        or not 0 <= seed_index < num_seeds
-    ):
+    if not _is_index(seed_index, num_seeds):
         also = " or 'all'" if allow_all else ""
         raise RunDirError(
             f"seed_index must be an integer in [0, {num_seeds}){also}, got {seed_index!r}"
