@@ -11,7 +11,7 @@ Every backend logs Stable-Baselines3's names (``rollout/ep_rew_mean``, ``train/a
 ``time/iterations``, at step = env steps of that run, so jaxcart's curves and SB3's sit on the
 same axes. ``log_dir`` (the commands' ``--logger-dir``) is one folder that several runs share.
 
-Backends (each imported lazily, in its own thread):
+Backends (each imported when its logger is made, and run in its own thread):
 
 - ``tensorboard``: TensorBoard event files written with ``tensorboardX``, one TensorBoard run
   per training run in ``out_dir/tensorboard/<run_name>/``, or with ``log_dir`` in
@@ -25,7 +25,9 @@ Backends (each imported lazily, in its own thread):
   metrics go under ``<run_name>/<metric>`` and the mean over runs (of those that have a value)
   under the plain SB3 names, for runs logged apart (SB3's seeds) once every run has logged
   that step; ``time/*`` is the same for every run and logged once. With R = 1
-  only the plain names are logged. Mode ``offline`` by default: records for ``swanlab sync``
+  only the plain names are logged. Each batch SwanLab writes is flushed to its records file
+  at once (SwanLab itself flushes it only at the end), so the curve grows on disk as the run
+  trains. Mode ``offline`` by default: records for ``swanlab sync``
   (uploads; needs an account or a self-hosted server). With ``pip install
   'swanlab[dashboard]'`` the mode is ``local`` instead, which also fills the database that
   ``swanlab watch swanlog`` serves on localhost.
@@ -51,7 +53,7 @@ import queue
 import sys
 import textwrap
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
@@ -112,8 +114,9 @@ class MetricBatch:
 
 
 class Backend(Protocol):
-    """What a writer implements. ``__init__`` must be cheap and import nothing heavy; ``open``,
-    ``write`` and ``close`` run in the backend's own thread, in that order."""
+    """What a writer implements. ``__init__`` must be cheap; :func:`make_logger` imports
+    ``module`` in the caller's thread; ``open``, ``write`` and ``close`` run in the backend's
+    own thread, in that order."""
 
     name: ClassVar[str]
     module: ClassVar[str | None]  # package that must be importable (None: nothing needed)
@@ -255,6 +258,7 @@ class SwanLabBackend:
             description=f"{len(self.run_names)} run(s): {', '.join(self.run_names)}",
             config={**_json_safe(self.config), "run_names": self.run_names},
             settings=settings,
+            callbacks=[_flush_records(swanlab.Callback, lambda: self.run)],
         )
 
     def write(self, batch: MetricBatch) -> None:
@@ -301,6 +305,25 @@ class SwanLabBackend:
             if "WARNING" in printed.getvalue() or "ERROR" in printed.getvalue():
                 sys.stdout.write(printed.getvalue())
             self.run = None
+
+
+def _flush_records(base: type, get_run: Callable[[], Any]) -> Any:
+    """A SwanLab callback that puts each batch of scalars into the run's ``.swanlab`` file
+    as soon as SwanLab has written it. SwanLab 0.10 keeps its records file open with Python's
+    buffer and flushes it only when the run finishes, so without this a run's curve would
+    appear on disk (for ``swanlab sync``, or any reader) only at the end. It runs in SwanLab's
+    own writer thread, right after the batch is written; where a SwanLab version has no such
+    writer (``run._core._store``), it does nothing."""
+
+    class FlushRecords(base):
+        name = "jaxcart-flush-records"
+
+        def on_scalar_flush(self, scalar_records, *args, **kwargs) -> None:
+            store = getattr(getattr(get_run(), "_core", None), "_store", None)
+            if store is not None and hasattr(store, "ensure_flushed"):
+                store.ensure_flushed()
+
+    return FlushRecords()
 
 
 class WandbBackend:
@@ -592,6 +615,9 @@ def make_logger(
     if bad:
         raise ValueError(f"run names must be usable as directory names, got {bad}")
     check_available(names)
+    for name in names:  # here, not first in a logger's thread: imports racing can deadlock
+        if BACKENDS[name].module is not None:
+            importlib.import_module(BACKENDS[name].module)
     out_dir = Path(out_dir)
     config = dict(config or {})
     backends = [BACKENDS[n](out_dir, run_names, config, log_dir) for n in names]
