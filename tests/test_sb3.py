@@ -87,7 +87,7 @@ def test_writer_and_mapping_without_sb3(tmp_path, capsys):
         sb3.SeedResult(
             sb3.to_metrics(fake_rows(3)),
             sb3.sb3_params(state, config),
-            sb3.greedy_returns(lambda obs, s=state: sb3_forward(s, obs), 3),
+            sb3.greedy_returns(lambda obs, s=state: [sb3_forward(s, o) for o in obs], 3),
             12.5,
         )
         for state in states

@@ -53,7 +53,7 @@ import queue
 import sys
 import textwrap
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
@@ -111,6 +111,16 @@ class MetricBatch:
     def iterations(self) -> np.ndarray:
         """``[n]`` SB3's ``time/iterations`` of each row."""
         return self.first_iteration + 1 + np.arange(len(self.env_steps))
+
+    def rows(self, column: int) -> Iterator[tuple[int, dict[str, float]]]:
+        """``(env steps, {"time/iterations": ..., name: value})`` of each row of column
+        ``column`` (run ``runs[column]``), its NaN values left out."""
+        for i, step in enumerate(self.env_steps):
+            row: dict[str, float] = {"time/iterations": int(self.iterations[i])}
+            for name, values in self.metrics.items():
+                if not np.isnan(values[i, column]):
+                    row[name] = float(values[i, column])
+            yield int(step), row
 
 
 class Backend(Protocol):
@@ -177,18 +187,11 @@ class TensorBoardBackend:
     def write(self, batch: MetricBatch) -> None:
         from tensorboardX.proto.summary_pb2 import Summary
 
-        names = sorted(batch.metrics)
-        iterations = batch.iterations
         for c, r in enumerate(batch.runs):
-            writer = self.writers[r]
-            for i, step in enumerate(batch.env_steps):
-                values = [Summary.Value(tag="time/iterations", simple_value=float(iterations[i]))]
-                for name in names:
-                    value = batch.metrics[name][i, c]
-                    if not np.isnan(value):
-                        values.append(Summary.Value(tag=name, simple_value=float(value)))
-                writer.add_summary(Summary(value=values), global_step=int(step))
-            writer.flush()  # TensorBoard sees every chunk as soon as it is written
+            for step, row in batch.rows(c):
+                values = [Summary.Value(tag=k, simple_value=v) for k, v in row.items()]
+                self.writers[r].add_summary(Summary(value=values), global_step=step)
+            self.writers[r].flush()  # TensorBoard sees every chunk as soon as it is written
 
     def close(self) -> None:
         for writer in self.writers:
@@ -262,20 +265,17 @@ class SwanLabBackend:
         )
 
     def write(self, batch: MetricBatch) -> None:
-        single = len(self.run_names) == 1
-        iterations = batch.iterations
+        columns = range(len(batch.runs) if len(self.run_names) > 1 else 0)
+        per_run = [list(batch.rows(c)) for c in columns]
         for i, step in enumerate(batch.env_steps):
-            data: dict[str, float] = {"time/iterations": int(iterations[i])}
+            data: dict[str, float] = {"time/iterations": int(batch.iterations[i])}
             for name, row in (self._every_run(batch, i) or {}).items():
                 present = row[~np.isnan(row)]
                 if present.size:
                     data[name] = float(present.mean())
-            for name, values in batch.metrics.items():
-                if single or name.startswith("time/"):
-                    continue
-                for r, value in zip(batch.runs, values[i]):
-                    if not np.isnan(value):
-                        data[f"{self.run_names[r]}/{name}"] = float(value)
+            for r, rows in zip(batch.runs, per_run):
+                name = self.run_names[r]
+                data |= {f"{name}/{k}": v for k, v in rows[i][1].items() if k[:5] != "time/"}
             self.run.log(data, step=int(step))
 
     def _every_run(self, batch: MetricBatch, i: int) -> dict[str, np.ndarray] | None:
@@ -377,15 +377,9 @@ class WandbBackend:
             )
 
     def write(self, batch: MetricBatch) -> None:
-        iterations = batch.iterations
         for c, r in enumerate(batch.runs):
-            run = self.runs[r]
-            for i, step in enumerate(batch.env_steps):
-                data: dict[str, float] = {"time/iterations": int(iterations[i])}
-                for name, values in batch.metrics.items():
-                    if not np.isnan(values[i, c]):
-                        data[name] = float(values[i, c])
-                run.log(data, step=int(step))
+            for step, row in batch.rows(c):
+                self.runs[r].log(row, step=step)
 
     def close(self) -> None:
         import wandb
@@ -538,22 +532,18 @@ class Logger:
             raise LoggerError(message) from next(iter(errors.values()))
 
     def _close_at_exit(self) -> None:
-        try:
+        with contextlib.suppress(LoggerError):  # already reported on stderr
             self.close()
-        except LoggerError:
-            pass  # already reported on stderr
 
     def __enter__(self) -> Logger:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
+        try:
             self.close()
-        else:
-            try:
-                self.close()
-            except LoggerError:
-                pass  # already reported; let the original exception through
+        except LoggerError:
+            if exc_type is None:
+                raise  # else already reported: let the original exception through
 
 
 def _installed(module: str) -> bool:
