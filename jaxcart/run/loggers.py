@@ -56,7 +56,7 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -123,10 +123,10 @@ class MetricBatch:
             yield int(step), row
 
 
-class Backend(Protocol):
-    """What a writer implements. ``__init__`` must be cheap; :func:`make_logger` imports
-    ``module`` in the caller's thread; ``open``, ``write`` and ``close`` run in the backend's
-    own thread, in that order."""
+class Backend:
+    """A writer for one library. ``__init__`` (cheap) keeps :func:`make_logger`'s arguments,
+    which also imports ``module`` in the caller's thread; ``open``, ``write`` and ``close``
+    run in the backend's own thread, in that order."""
 
     name: ClassVar[str]
     module: ClassVar[str | None]  # package that must be importable (None: nothing needed)
@@ -134,13 +134,20 @@ class Backend(Protocol):
 
     def __init__(
         self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None: ...
+    ) -> None:
+        self.out_dir, self.run_names, self.config = Path(out_dir), run_names, config
+        self.log_dir = log_dir  # the folder shared with other runs (None: the library's own)
+        self.experiment = experiment_name(out_dir)
+        self.per_run: list[Any] = []  # each run's writer (TensorBoard) or W&B run
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        raise NotImplementedError
 
-    def write(self, batch: MetricBatch) -> None: ...
+    def write(self, batch: MetricBatch) -> None:
+        raise NotImplementedError
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        raise NotImplementedError
 
 
 def _json_safe(config: dict) -> dict:
@@ -148,7 +155,7 @@ def _json_safe(config: dict) -> dict:
     return json.loads(json.dumps(config, default=str))
 
 
-class TensorBoardBackend:
+class TensorBoardBackend(Backend):
     """One event file per run in ``out_dir/tensorboard/<run_name>/`` (or
     ``log_dir/<run directory's name>/<run_name>/``); each iteration is one event per run
     holding all its scalars, at ``global_step`` = env steps."""
@@ -156,16 +163,6 @@ class TensorBoardBackend:
     name = "tensorboard"
     module = "tensorboardX"
     extra = "tensorboard"
-
-    def __init__(
-        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None:
-        self.out_dir = out_dir
-        self.log_dir = None if log_dir is None else Path(log_dir) / experiment_name(out_dir)
-        base = out_dir / "tensorboard" if self.log_dir is None else self.log_dir
-        self.run_dirs = [base / run for run in run_names]
-        self.config = config
-        self.writers: list[Any] = []
 
     def open(self) -> None:
         from tensorboardX import FileWriter
@@ -176,12 +173,12 @@ class TensorBoardBackend:
         if self.log_dir is None:
             base = files.subdir(self.out_dir, "tensorboard", create=True)  # never through a link
         else:  # the user's own folder, shared with other runs
-            base = self.log_dir
+            base = Path(self.log_dir) / self.experiment
             base.mkdir(parents=True, exist_ok=True)
-        for run_dir in self.run_dirs:
-            files.subdir(base, run_dir.name, create=True)
-            writer = FileWriter(str(run_dir), max_queue=1024, flush_secs=30)
-            self.writers.append(writer)
+        for run in self.run_names:
+            files.subdir(base, run, create=True)
+            writer = FileWriter(str(base / run), max_queue=1024, flush_secs=30)
+            self.per_run.append(writer)
             writer.add_summary(text("config", config_text), global_step=0)
 
     def write(self, batch: MetricBatch) -> None:
@@ -190,13 +187,13 @@ class TensorBoardBackend:
         for c, r in enumerate(batch.runs):
             for step, row in batch.rows(c):
                 values = [Summary.Value(tag=k, simple_value=v) for k, v in row.items()]
-                self.writers[r].add_summary(Summary(value=values), global_step=step)
-            self.writers[r].flush()  # TensorBoard sees every chunk as soon as it is written
+                self.per_run[r].add_summary(Summary(value=values), global_step=step)
+            self.per_run[r].flush()  # TensorBoard sees every chunk as soon as it is written
 
     def close(self) -> None:
-        for writer in self.writers:
+        for writer in self.per_run:
             writer.close()
-        self.writers = []
+        self.per_run = []
 
 
 def swanlab_mode() -> str:
@@ -218,7 +215,7 @@ def swanlab_mode() -> str:
     return "local" if installed in wanted else "offline"
 
 
-class SwanLabBackend:
+class SwanLabBackend(Backend):
     """One SwanLab experiment for all runs (SwanLab allows one per process): with R > 1,
     ``<run_name>/<metric>`` per run plus the mean over runs under the plain names."""
 
@@ -226,18 +223,13 @@ class SwanLabBackend:
     module = "swanlab"
     extra = "swanlab"
 
-    def __init__(
-        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None:
-        self.log_dir = swanlab_dir(log_dir).absolute()
-        self.experiment = experiment_name(out_dir)
-        self.run_names = run_names
-        self.config = config
-        self.run: Any = None
-        self.pending: dict[int, dict[int, dict[str, float]]] = {}  # step -> run -> name -> value
+    run: Any = None
+    pending: dict[int, dict[int, dict[str, float]]]  # step -> run -> name -> value
 
     def open(self) -> None:
-        self.log_dir.mkdir(parents=True, exist_ok=True)
+        folder = swanlab_dir(self.log_dir).absolute()
+        folder.mkdir(parents=True, exist_ok=True)
+        self.pending = {}
         import swanlab
 
         Settings = swanlab.Settings
@@ -248,7 +240,7 @@ class SwanLabBackend:
             # hardware-monitor thread; no webhook even if SWANLAB_WEBHOOK is set.
             mode=swanlab_mode(),
             interactive=False,
-            log_dir=self.log_dir,
+            log_dir=folder,
             terminal=Settings.Terminal(proxy_type="none"),
             probe=Settings.Probe(monitor=False),
             integration=Settings.Integration(webhook=Settings.Integration.Webhook(url="")),
@@ -326,7 +318,7 @@ def _flush_records(base: type, get_run: Callable[[], Any]) -> Any:
     return FlushRecords()
 
 
-class WandbBackend:
+class WandbBackend(Backend):
     """One W&B run per training run, grouped by the run directory; offline unless
     ``WANDB_MODE`` says otherwise; ``WANDB_PROJECT``, ``WANDB_ENTITY`` and ``WANDB_DIR``
     (below ``log_dir``) are honoured."""
@@ -335,24 +327,15 @@ class WandbBackend:
     module = "wandb"
     extra = "wandb"
 
-    def __init__(
-        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None:
-        self.out_dir = out_dir
-        self.log_dir = Path(log_dir or os.environ.get("WANDB_DIR") or out_dir)
-        self.group = experiment_name(out_dir)
-        self.run_names = run_names
-        self.config = config
-        self.runs: list[Any] = []
-
     def open(self) -> None:
         import wandb
 
-        if self.log_dir == self.out_dir:
+        folder = Path(self.log_dir or os.environ.get("WANDB_DIR") or self.out_dir)
+        if folder == self.out_dir:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             files.subdir(self.out_dir, "wandb", create=True)  # W&B writes here; never via a link
         else:
-            (self.log_dir / "wandb").mkdir(parents=True, exist_ok=True)
+            (folder / "wandb").mkdir(parents=True, exist_ok=True)
         # offline unless the user chose otherwise; no console capture (it would wrap the
         # progress bar's stream), no system-metrics sampling thread
         settings = wandb.Settings(
@@ -362,14 +345,14 @@ class WandbBackend:
             silent=True,
         )
         for run in self.run_names:
-            self.runs.append(
+            self.per_run.append(
                 wandb.init(
                     project=os.environ.get("WANDB_PROJECT") or "jaxcart",
                     entity=os.environ.get("WANDB_ENTITY") or None,
-                    group=self.group,
-                    name=f"{self.group}-{run}",
+                    group=self.experiment,
+                    name=f"{self.experiment}-{run}",
                     job_type="train",
-                    dir=str(self.log_dir),
+                    dir=str(folder),
                     config={**_json_safe(self.config), "run_name": run},
                     settings=settings,
                     reinit="create_new",  # every seed's run open at once
@@ -379,19 +362,19 @@ class WandbBackend:
     def write(self, batch: MetricBatch) -> None:
         for c, r in enumerate(batch.runs):
             for step, row in batch.rows(c):
-                self.runs[r].log(row, step=step)
+                self.per_run[r].log(row, step=step)
 
     def close(self) -> None:
         import wandb
 
-        for run in self.runs:
+        for run in self.per_run:
             run.finish()
-        if self.runs:
+        if self.per_run:
             # finish() can return before W&B's service process has written a run's last
             # records (seen with 0.31: the second of two offline runs still empty); stopping
             # the service waits for it, so the files are complete when training returns
             wandb.teardown()
-        self.runs = []
+        self.per_run = []
 
 
 BACKENDS: dict[str, type[Backend]] = {
