@@ -335,18 +335,13 @@ def train_run(
     num_seeds: int,
     total_timesteps: int = DEFAULT_TIMESTEPS,
     first_seed: int = 0,
-    jobs: int = 1,
-    threads: int = 1,
-    on_seed: Callable[[int, SeedResult], None] | None = None,
-    on_start: Callable[[dict, int], None] | None = None,
-    loggers: tuple[str, ...] = (),
-    logger_dir: Path | None = None,
-    progress: bool = False,
+    **options: Any,
 ) -> list[SeedResult]:
-    """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3, ``jobs`` processes
-    at once, and writes them as the run directory ``out`` (created; it must not exist). Each
-    seed is kept as it finishes: an interrupted run continues with :func:`resume_run`, which
-    also describes ``on_start``, the loggers and ``progress``.
+    """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3 and writes them as
+    the run directory ``out`` (created; it must not exist). Each seed is kept as it finishes:
+    an interrupted run continues with :func:`resume_run`, which takes the same ``options``
+    (``jobs``, ``threads``, ``on_seed``, ``on_start``, ``loggers``, ``logger_dir``,
+    ``progress``) and describes them.
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -357,7 +352,7 @@ def train_run(
     out.mkdir(parents=True, exist_ok=False)
     plan = {"first_seed": first_seed, "num_seeds": num_seeds, "total_timesteps": total_timesteps}
     files.write_json(out / layout.SB3_PLAN_FILE, plan)
-    return resume_run(out, jobs, threads, on_seed, on_start, loggers, logger_dir, progress)
+    return resume_run(out, **options)
 
 
 def resume_run(
