@@ -8,7 +8,6 @@ package (``pip install -e '.[export]'``)."""
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
 from pathlib import Path
 
 from jaxcart import cli
@@ -54,33 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-@dataclass(frozen=True)
-class ExportOptions:
-    """What the command line asked for, checked."""
-
-    run_dir: Path
-    to: str
-    out: Path
-    seed_index: int = 0
-    combination: int | None = None
-    policy: str = "final"
-
-    @classmethod
-    def from_args(cls, args: argparse.Namespace) -> ExportOptions:
-        suffix = FORMATS[args.to]
-        out = args.out or layout.export_file(
-            args.run_dir, suffix, args.seed_index, args.combination, args.policy
-        )
-        opts = cls(args.run_dir, args.to, out, args.seed_index, args.combination, args.policy)
-        if opts.out.suffix.lower() != suffix:
-            raise cli.UsageError(f"--out {opts.out} must end in {suffix} for --to {opts.to}")
-        if args.out is not None and not opts.out.parent.is_dir():  # RUN_DIR: run_params checks
-            raise cli.UsageError(f"--out {opts.out}: directory {opts.out.parent} does not exist")
-        return opts
-
-
-def export(opts: ExportOptions) -> str:
-    """Writes the export; returns what to print."""
+def export(opts: argparse.Namespace) -> str:
+    """Writes the export the command line ``opts`` asks for; returns what to print."""
     import sys
 
     from jaxcart.core import networks
@@ -88,6 +62,14 @@ def export(opts: ExportOptions) -> str:
     from jaxcart.rundir.policy import run_params, seed_params
     from jaxcart.rundir.reader import read_run_config
 
+    suffix = FORMATS[opts.to]
+    out = opts.out or layout.export_file(
+        opts.run_dir, suffix, opts.seed_index, opts.combination, opts.policy
+    )
+    if out.suffix.lower() != suffix:
+        raise cli.UsageError(f"--out {out} must end in {suffix} for --to {opts.to}")
+    if opts.out is not None and not out.parent.is_dir():  # RUN_DIR: run_params checks
+        raise cli.UsageError(f"--out {out}: directory {out.parent} does not exist")
     recorded = read_run_config(opts.run_dir)["config"].network  # refused before any params
     if recorded is not None:
         raise cli.UsageError(
@@ -117,9 +99,9 @@ def export(opts: ExportOptions) -> str:
         data = sb3_zip_bytes(params, config)
         arch = net_arch(config)
         text = (
-            f"wrote {opts.out}: {what} as SB3 PPO (MlpPolicy, net_arch pi={arch['pi']} "
+            f"wrote {out}: {what} as SB3 PPO (MlpPolicy, net_arch pi={arch['pi']} "
             f"vf={arch['vf']}, {ACTIVATION_CLASSES[config.activation]}); "
-            f"stable_baselines3.PPO.load({str(opts.out)!r}) opens it"
+            f"stable_baselines3.PPO.load({str(out)!r}) opens it"
         )
     else:
         try:
@@ -132,10 +114,10 @@ def export(opts: ExportOptions) -> str:
                 "pip install 'jaxcart[export]' (or pip install onnx)"
             ) from None
         text = (
-            f"wrote {opts.out}: {what} as ONNX (input obs [N, 4] float32; outputs logits "
+            f"wrote {out}: {what} as ONNX (input obs [N, 4] float32; outputs logits "
             "[N, 2], action [N] int64)"
         )
-    with atomic_file(opts.out, "wb") as f:
+    with atomic_file(out, "wb") as f:
         f.write(data)
     return text
 
@@ -145,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         args = build_parser().parse_args(argv)
-        print(export(ExportOptions.from_args(args)))
+        print(export(args))
         return 0
 
     return cli.run_command(body)

@@ -89,7 +89,6 @@ def _main(argv: list[str] | None) -> int:
         raise cli.UsageError(f"--out {out} exists; choose a new run directory")
     sb3.check_available()
     check_loggers(args.logger)
-    logging = {"loggers": tuple(args.logger), "logger_dir": args.logger_dir}
 
     def on_start(plan: dict, kept: int) -> None:
         resumed = f" | {kept} already kept" if kept else ""
@@ -104,24 +103,14 @@ def _main(argv: list[str] | None) -> int:
         mean = result.returns.mean()
         print(f"seed {seed}: {result.seconds:.1f} s, greedy mean {mean:.1f}{solved}", flush=True)
 
+    options = {"jobs": args.jobs, "threads": args.threads, "on_seed": on_seed, "progress": True}
+    options |= {"on_start": on_start, "loggers": tuple(args.logger), "logger_dir": args.logger_dir}
     try:
         if args.resume is not None:
-            results = sb3.resume_run(
-                out, args.jobs, args.threads, on_seed, on_start, **logging, progress=True
-            )
+            results = sb3.resume_run(out, **options)
         else:
-            results = sb3.train_run(
-                out,
-                args.num_seeds,
-                args.total_timesteps,
-                args.first_seed,
-                args.jobs,
-                args.threads,
-                on_seed,
-                on_start,
-                **logging,
-                progress=True,
-            )
+            plan = (args.num_seeds, args.total_timesteps, args.first_seed)
+            results = sb3.train_run(out, *plan, **options)
     except KeyboardInterrupt:
         kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))
         print(

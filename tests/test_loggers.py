@@ -1,19 +1,24 @@
 """Metric loggers: what TensorBoard, SwanLab and W&B files hold after a run, and the queue around
 them (log() never waits for a writer; writer errors are reported, not raised into training)."""
 
+import dataclasses
 import socket
 import struct
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 import pytest
-from helpers import read_swanlog, read_tfrecords
+from helpers import TINY, read_swanlog, read_tfrecords
 
 from jaxcart.run import loggers
+from jaxcart.run.lifecycle import run_new
 from jaxcart.run.loggers import LoggerError, LoggerUnavailable, MetricBatch, make_logger
+from jaxcart.run.spec import Hooks, RunOptions, RunSpec
+from jaxcart.rundir import layout
 
 RUNS = ["seed0", "seed1"]
 BATCH = 128  # env steps per iteration
@@ -164,6 +169,72 @@ def test_swanlab_runs_logged_apart_get_their_mean_once_every_run_has_the_step(
     assert logged["seed0/rollout/ep_rew_mean"] == [(BATCH, 10.0), (2 * BATCH, 20.0)]
     assert logged["seed1/rollout/ep_rew_mean"] == [(BATCH, 30.0)]
     assert logged["rollout/ep_rew_mean"] == [(BATCH, 20.0)]  # run 1 never logged step 256
+
+
+def read_live_swanlog(folder: Path) -> dict[str, list[tuple[int, float]]]:
+    """Scalar key -> ``[(step, value)]`` of the SwanLab experiments in ``folder`` as their records
+    files hold them now, finished or not (a file still empty, or a record still being written at
+    its end, reads as what comes before it)."""
+    from swanlab.proto.swanlab.record.v1.record_pb2 import Record
+    from swanlab.sdk.internal.core_python.store import DataStoreReader
+
+    scalars: dict[str, list[tuple[int, float]]] = {}
+    for path in sorted(Path(folder).glob("run-*/*.swanlab")):
+        if path.stat().st_size < 7:  # not even SwanLab's file header yet
+            continue
+        reader = DataStoreReader()
+        reader.open(path)
+        for payload in reader:  # stops at the first incomplete record
+            record = Record.FromString(payload)
+            if record.HasField("scalar"):
+                point = (record.scalar.step, record.scalar.value.number)
+                scalars.setdefault(record.scalar.key, []).append(point)
+        reader.close()
+    return scalars
+
+
+def wait_for_steps(read, key: str, wanted: list[int], seconds: float = 60.0) -> dict:
+    """Polls ``read()`` (a logger's folder read back) until ``key``'s steps are ``wanted`` or
+    ``seconds`` pass; returns what it read last."""
+    deadline, scalars = time.monotonic() + seconds, {}
+    while time.monotonic() < deadline:
+        scalars = read()
+        if [step for step, _ in scalars.get(key, [])] == wanted:
+            break
+        time.sleep(0.05)
+    return scalars
+
+
+def test_swanlab_holds_the_curve_on_disk_while_jaxcart_trains(tmp_path, monkeypatch):
+    """Issue 40: SwanLab's records reach the disk as the run trains, not when SwanLab finishes.
+    Blocked in its fifth chunk's hook, a run's ./swanlog records file already holds the five
+    iterations logged so far; the finished file holds all eight, the same values first."""
+    pytest.importorskip("swanlab")
+    pytest.importorskip("swanlab.sdk.internal.core_python.store")  # imported before training
+    monkeypatch.setenv("CI", "true")
+    monkeypatch.delenv("SWANLAB_LOG_DIR", raising=False)
+    monkeypatch.chdir(tmp_path)
+    out, seen = tmp_path / "out", []
+    steps = [TINY.batch_size * i for i in range(1, 9)]
+
+    def on_chunk(progress) -> None:
+        if progress.iteration == 5:
+            read = lambda: read_live_swanlog(tmp_path / "swanlog")
+            scalars = wait_for_steps(read, "train/approx_kl", steps[:5])
+            seen.append((scalars, (out / layout.EVALUATION_FILE).exists()))
+
+    spec = RunSpec(config=dataclasses.replace(TINY, total_timesteps=1024), num_seeds=1)
+    options = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=1, loggers=("swanlab",))
+    run_new(spec, out=out, options=options, hooks=Hooks(on_chunk=on_chunk))
+
+    ((during, finished_then),) = seen
+    assert not finished_then
+    for key in ("train/approx_kl", "time/iterations", "train/n_updates"):
+        assert [step for step, _ in during[key]] == steps[:5], key
+    assert [value for _, value in during["time/iterations"]] == [1, 2, 3, 4, 5]
+    after = read_swanlog(tmp_path / "swanlog")["out"]
+    assert [step for step, _ in after["train/approx_kl"]] == steps
+    assert after["train/approx_kl"][:5] == during["train/approx_kl"]
 
 
 class RecordingBackend:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import struct
-import time
 
 import numpy as np
 import pytest
@@ -88,7 +87,7 @@ def test_writer_and_mapping_without_sb3(tmp_path, capsys):
         sb3.SeedResult(
             sb3.to_metrics(fake_rows(3)),
             sb3.sb3_params(state, config),
-            sb3.greedy_returns(lambda obs, s=state: sb3_forward(s, obs), 3),
+            sb3.greedy_returns(lambda obs, s=state: [sb3_forward(s, o) for o in obs], 3),
             12.5,
         )
         for state in states
@@ -297,15 +296,14 @@ def test_the_chapters_swanlab_comparison_shares_one_folder(fake_sb3, monkeypatch
     assert [v for _, v in logged["sb3-torch"]["time/time_elapsed"]] == [2.0, 4.0, 6.0]
 
 
-def watch_tensorboard(monkeypatch, out, seen: list, rollouts: int = 3) -> None:
+def watch_logger(monkeypatch, out, seen: list, read, rollouts: int = 3) -> None:
     """Wraps ``sb3.train_seed`` (in this process: ``--jobs 1``): right after SB3 writes the row
-    of rollout ``rollouts``, waits (up to 60 s) for the TensorBoard files of the run's first
-    seed to hold the iterations before it, then appends what they hold to ``seen`` and
-    whether the run directory was finished by then."""
-    from helpers import read_tensorboard
+    of rollout ``rollouts``, waits (up to 60 s) for the logger's folder, as ``read()`` reads
+    it, to hold the iterations before it, then appends what it holds to ``seen`` and whether
+    the run directory was finished by then."""
+    from test_loggers import wait_for_steps
 
     real = sb3.train_seed
-    folder = out / "tensorboard" / "seed0"
     wanted = [2048 * i for i in range(1, rollouts)]
 
     def train_seed(seed, total, threads=1, on_row=None):
@@ -315,30 +313,47 @@ def watch_tensorboard(monkeypatch, out, seen: list, rollouts: int = 3) -> None:
             nonlocal count
             on_row(row)
             count += bool(row.get("time/total_timesteps"))
-            if count != rollouts or seen:
-                return
-            deadline = time.monotonic() + 60
-            scalars = {}
-            while time.monotonic() < deadline:
-                try:  # the writer's thread may be mid-record
-                    scalars = read_tensorboard(folder)
-                except (OSError, struct.error, ValueError):
-                    pass
-                if [s for s, _ in scalars.get("train/approx_kl", [])] == wanted:
-                    break
-                time.sleep(0.05)
-            seen.append((scalars, (out / layout.EVALUATION_FILE).exists()))
+            if count == rollouts and not seen:
+                scalars = wait_for_steps(read, "train/approx_kl", wanted)
+                seen.append((scalars, (out / layout.EVALUATION_FILE).exists()))
 
         return real(seed, total, threads, watched)
 
     monkeypatch.setattr(sb3, "train_seed", train_seed)
 
 
-@pytest.mark.parametrize("real", [False, pytest.param(True, marks=pytest.mark.slow)])
-def test_sb3s_curves_reach_tensorboard_while_it_trains(real, monkeypatch, tmp_path, capsys):
-    """After SB3's third rollout, TensorBoard already holds the first two iterations (their
-    rollout and their update), and a progress bar counts the seed's env steps."""
-    pytest.importorskip("tensorboardX")
+def tensorboard_reader(out):
+    """Reads the TensorBoard files of the run's first seed (the writer may be mid-record)."""
+    from helpers import read_tensorboard
+
+    def read() -> dict:
+        try:
+            return read_tensorboard(out / "tensorboard" / "seed0")
+        except (OSError, struct.error, ValueError):
+            return {}
+
+    return read
+
+
+@pytest.mark.parametrize(
+    "real", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["fake-sb3", "real-sb3"]
+)
+@pytest.mark.parametrize("logger", ["tensorboard", "swanlab"])
+def test_sb3s_curves_reach_the_logger_while_it_trains(logger, real, monkeypatch, tmp_path, capsys):
+    """After SB3's third rollout, the logger's folder (TensorBoard's, or SwanLab's records file:
+    issue 40) already holds the first two iterations (their rollout and their update), and a
+    progress bar counts the seed's env steps."""
+    if logger == "tensorboard":
+        pytest.importorskip("tensorboardX")
+        read = tensorboard_reader(tmp_path / "live")
+    else:
+        pytest.importorskip("swanlab.sdk.internal.core_python.store")  # before training
+        from test_loggers import read_live_swanlog
+
+        monkeypatch.chdir(tmp_path)
+        monkeypatch.setenv("CI", "true")
+        monkeypatch.delenv("SWANLAB_LOG_DIR", raising=False)
+        read = lambda: read_live_swanlog(tmp_path / "swanlog")
     if real:
         pytest.importorskip("torch")
         pytest.importorskip("stable_baselines3")
@@ -346,8 +361,8 @@ def test_sb3s_curves_reach_tensorboard_while_it_trains(real, monkeypatch, tmp_pa
         monkeypatch.setattr(sb3, "check_available", lambda: None)
         monkeypatch.setattr(sb3, "train_seed", fake_train_seed)
     out, seen = tmp_path / "live", []
-    watch_tensorboard(monkeypatch, out, seen)
-    argv = ["--total-timesteps", str(4 * 2048), "--out", str(out), "--logger", "tensorboard"]
+    watch_logger(monkeypatch, out, seen, read)
+    argv = ["--total-timesteps", str(4 * 2048), "--out", str(out), "--logger", logger]
     assert sb3_command.main(argv) == 0
     (scalars, finished), *_ = seen
     assert not finished

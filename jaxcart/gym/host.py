@@ -1,5 +1,6 @@
-"""The host side that both Gymnasium front-ends share: reset bounds, rendering with Gymnasium's
-own CartPole renderer, render-mode checks and read-only state arrays."""
+"""The host side that both Gymnasium front-ends share: ``CartPoleEnv``'s attributes, reset
+bounds, rendering with Gymnasium's own CartPole renderer, render-mode checks and read-only state
+arrays."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.vector import VectorEnv
 
 from jaxcart.gym import ENV_ID
 
@@ -31,9 +31,12 @@ def _param_attribute(name: str) -> property:
 class CartPoleAttributes:
     """Gymnasium ``CartPoleEnv``'s attributes (``x_threshold``, ``gravity``, ``total_mass``, ...)
     read from ``self.params``, so code written for ``gym.make("CartPole-v1").unwrapped`` runs
-    on jaxcart's envs unchanged. Read-only: setting one names the ``params=`` route."""
+    on jaxcart's envs unchanged (read-only: setting one names the ``params=`` route), and the
+    rendering both front-ends share."""
 
     params: EnvParams
+    render_mode: str | None
+    _renderer: Renderer | None = None
 
     gravity = _param_attribute("gravity")
     masscart = _param_attribute("masscart")
@@ -63,6 +66,28 @@ class CartPoleAttributes:
     def screen_height(self) -> int:
         return 400
 
+    def _frames(self, states: np.ndarray | None, make: str) -> list[np.ndarray] | None:
+        """RGB frames ``[400, 600, 3]`` uint8 of ``states`` ``[n, 4]`` (None: no state yet);
+        None, with Gymnasium's warning, without a render mode (``make``: how to set one)."""
+        if self.render_mode is None:
+            spec_id = self.spec.id if self.spec is not None else ENV_ID
+            gym.logger.warn(
+                "You are calling render method without specifying any render mode. "
+                "You can specify the render_mode at initialization, "
+                f'e.g. gym.{make}("{spec_id}", render_mode="rgb_array")'
+            )
+            return None
+        if states is None:
+            return None
+        if self._renderer is None:
+            self._renderer = Renderer(self.params)
+        return [self._renderer.frame(state.copy()) for state in states]
+
+    def _close_renderer(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
 
 def reset_bounds(options: dict | None, params: EnvParams) -> tuple[float, float]:
     """Gymnasium's ``options={"low": ..., "high": ...}`` reset bounds, else the params' ones."""
@@ -89,15 +114,6 @@ class Renderer:
 
     def close(self) -> None:
         self._env.close()
-
-
-def no_render_mode_warning(env: gym.Env | VectorEnv, make: str) -> None:
-    spec_id = env.spec.id if env.spec is not None else ENV_ID
-    gym.logger.warn(
-        "You are calling render method without specifying any render mode. "
-        "You can specify the render_mode at initialization, "
-        f'e.g. gym.{make}("{spec_id}", render_mode="rgb_array")'
-    )
 
 
 def check_render_mode(render_mode: str | None, metadata: dict[str, Any]) -> None:

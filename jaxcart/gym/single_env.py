@@ -67,7 +67,6 @@ class JaxCartPoleEnv(host.CartPoleAttributes, gym.Env[np.ndarray, int]):
         self._state: np.ndarray | None = None
         self._device_state = None  # [*state, terminated] on the device; None: upload _state
         self._steps_beyond_terminated: int | None = None
-        self._renderer: host.Renderer | None = None
 
     @property
     def state(self) -> np.ndarray | None:
@@ -138,16 +137,8 @@ class JaxCartPoleEnv(host.CartPoleAttributes, gym.Env[np.ndarray, int]):
 
     def render(self) -> np.ndarray | None:
         """An RGB frame ``[400, 600, 3]`` uint8 (``render_mode="rgb_array"``)."""
-        if self.render_mode is None:
-            host.no_render_mode_warning(self, "make")
-            return None
-        if self._state is None:
-            return None
-        if self._renderer is None:
-            self._renderer = host.Renderer(self.params)
-        return self._renderer.frame(self._state.copy())
+        frames = self._frames(None if self._state is None else self._state[None], "make")
+        return frames[0] if frames else None
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        self._close_renderer()

@@ -207,7 +207,6 @@ class JaxCartPoleVectorEnv(host.CartPoleAttributes, VectorEnv[np.ndarray, np.nda
         self._floats = None  # kernels.float_values with the last reset's bounds, on the device
         self._keys = np.zeros((0, 2), dtype=np.uint32)  # step keys not yet used
         self._ended = np.zeros(self.num_envs, dtype=np.bool_)  # for DISABLED's check
-        self._renderer: host.Renderer | None = None
 
     @property
     def max_episode_steps(self) -> int:
@@ -286,19 +285,12 @@ class JaxCartPoleVectorEnv(host.CartPoleAttributes, VectorEnv[np.ndarray, np.nda
 
     def render(self) -> list[np.ndarray] | None:
         """One RGB frame per sub-environment (``render_mode="rgb_array"``)."""
-        if self.render_mode is None:
-            host.no_render_mode_warning(self, "make_vec")
-            return None
-        if self._rows is None:
+        if self.render_mode is not None and self._rows is None:
             raise ValueError("Call reset before rendering.")
-        if self._renderer is None:
-            self._renderer = host.Renderer(self.params)
-        return [self._renderer.frame(s.copy()) for s in self.state.T]
+        return self._frames(None if self._rows is None else self.state.T, "make_vec")
 
     def close_extras(self, **kwargs: Any) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        self._close_renderer()
 
 
 SPIN_SECONDS = 300e-6

@@ -143,13 +143,13 @@ def render_frames(
         reset state and the state after every step; 360 MB for 500 steps, so
         :func:`render_gif` streams them instead).
     """
-    stats: dict = {}
-    frames = list(_iter_frames(policy, seed, max_steps, backend, env_id, stats, env_params))
-    return frames, stats["return"], stats["backend"]
+    backend = _backend(backend)
+    episode = list(_episode(policy, seed, max_steps, backend, env_id, env_params))
+    return [frame for frame, _, _ in episode], episode[-1][2], backend
 
 
-def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict, env_params=None):
-    """Yields ``(400, 600, 3)`` frames of one episode; fills ``stats`` with its return/backend."""
+def _backend(backend: str) -> str:
+    """``"gymnasium"`` or ``"pillow"``: ``backend``, with ``"auto"`` resolved and checked."""
     if backend not in ("auto", "gymnasium", "pillow"):
         raise ValueError(f"backend must be 'auto', 'gymnasium' or 'pillow', got {backend!r}")
     if backend == "auto":
@@ -158,7 +158,12 @@ def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict, env_para
         raise ImportError(
             "backend='gymnasium' needs pygame: pip install pygame (or use backend='pillow')"
         )
-    stats["backend"] = backend
+    return backend
+
+
+def _episode(policy, seed, max_steps, backend, env_id, env_params=None):
+    """Yields ``(frame (400, 600, 3) uint8, steps, return so far)`` after the reset and after
+    every step of one episode in Gymnasium (``backend`` resolved: :func:`_backend`)."""
     mode = "rgb_array" if backend == "gymnasium" else None
     env = make_cartpole(env_params, env_id, render_mode=mode)
     core = env.unwrapped
@@ -171,13 +176,11 @@ def _iter_frames(policy, seed, max_steps, backend, env_id, stats: dict, env_para
     try:
         obs, _ = env.reset(seed=seed, options=reset_options(env_params))
         total = 0.0
-        stats["return"], stats["steps"] = total, 0
-        yield frame()
+        yield frame(), 0, total
         for step in range(1, max_steps + 1):
             obs, reward, terminated, truncated, _ = env.step(int(policy(obs)))
             total += float(reward)
-            stats["return"], stats["steps"] = total, step
-            yield frame()
+            yield frame(), step, total
             if terminated or truncated:
                 break
     finally:
@@ -239,18 +242,18 @@ def render_gif(
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
     size = (max(1, round(SCREEN_WIDTH * scale)), max(1, round(SCREEN_HEIGHT * scale)))
-    stats: dict = {}
-    palette = gif_palette()
-    images = []
-    last = None
-    frames = _iter_frames(policy, seed, max_steps, backend, env_id, stats, env_params)
-    for i, frame in enumerate(frames):
-        last = (i, frame)
-        if i % frame_skip:
-            continue
-        images.append(_to_gif_frame(frame, size, annotate, stats, palette))
-    if last is not None and last[0] % frame_skip:  # always show how the episode ended
-        images.append(_to_gif_frame(last[1], size, annotate, stats, palette))
+    backend, palette, images = _backend(backend), gif_palette(), []
+    episode = _episode(policy, seed, max_steps, backend, env_id, env_params)
+
+    def add(frame: np.ndarray, steps: int, total: float) -> None:
+        caption = f"step {steps}  return {total:.0f}" if annotate else None
+        images.append(_to_gif_frame(frame, size, caption, palette))
+
+    for i, last in enumerate(episode):  # at least the reset's frame
+        if i % frame_skip == 0:
+            add(*last)
+    if i % frame_skip:  # always show how the episode ended
+        add(*last)
 
     # GIF frame delays are whole centiseconds.
     duration = max(10, round(100 * frame_skip / fps) * 10)
@@ -270,7 +273,7 @@ def render_gif(
         disposal=1,
     )
     atomic_write_bytes(path, buf.getvalue())
-    return RenderedGif(path, len(images), stats["steps"], stats["return"], stats["backend"])
+    return RenderedGif(path, len(images), last[1], last[2], backend)
 
 
 def gif_palette() -> np.ndarray:
@@ -302,13 +305,13 @@ def _to_palette_image(rgb: np.ndarray, palette: np.ndarray):
     return image
 
 
-def _to_gif_frame(frame: np.ndarray, size, annotate: bool, stats: dict, palette: np.ndarray):
-    """An RGB frame resized, annotated and mapped onto the GIF's global palette."""
+def _to_gif_frame(frame: np.ndarray, size, caption: str | None, palette: np.ndarray):
+    """An RGB frame resized, captioned (unless None) and mapped onto the GIF's palette."""
     from PIL import Image
 
     image = Image.fromarray(np.asarray(frame, np.uint8))
     if image.size != size:
         image = image.resize(size, Image.Resampling.LANCZOS)
-    if annotate:
-        _annotate(image, f"step {stats['steps']}  return {stats['return']:.0f}")
+    if caption is not None:
+        _annotate(image, caption)
     return _to_palette_image(np.asarray(image), palette)

@@ -11,7 +11,7 @@ Every backend logs Stable-Baselines3's names (``rollout/ep_rew_mean``, ``train/a
 ``time/iterations``, at step = env steps of that run, so jaxcart's curves and SB3's sit on the
 same axes. ``log_dir`` (the commands' ``--logger-dir``) is one folder that several runs share.
 
-Backends (each imported lazily, in its own thread):
+Backends (each imported when its logger is made, and run in its own thread):
 
 - ``tensorboard``: TensorBoard event files written with ``tensorboardX``, one TensorBoard run
   per training run in ``out_dir/tensorboard/<run_name>/``, or with ``log_dir`` in
@@ -25,7 +25,9 @@ Backends (each imported lazily, in its own thread):
   metrics go under ``<run_name>/<metric>`` and the mean over runs (of those that have a value)
   under the plain SB3 names, for runs logged apart (SB3's seeds) once every run has logged
   that step; ``time/*`` is the same for every run and logged once. With R = 1
-  only the plain names are logged. Mode ``offline`` by default: records for ``swanlab sync``
+  only the plain names are logged. Each batch SwanLab writes is flushed to its records file
+  at once (SwanLab itself flushes it only at the end), so the curve grows on disk as the run
+  trains. Mode ``offline`` by default: records for ``swanlab sync``
   (uploads; needs an account or a self-hosted server). With ``pip install
   'swanlab[dashboard]'`` the mode is ``local`` instead, which also fills the database that
   ``swanlab watch swanlog`` serves on localhost.
@@ -51,10 +53,10 @@ import queue
 import sys
 import textwrap
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -110,10 +112,21 @@ class MetricBatch:
         """``[n]`` SB3's ``time/iterations`` of each row."""
         return self.first_iteration + 1 + np.arange(len(self.env_steps))
 
+    def rows(self, column: int) -> Iterator[tuple[int, dict[str, float]]]:
+        """``(env steps, {"time/iterations": ..., name: value})`` of each row of column
+        ``column`` (run ``runs[column]``), its NaN values left out."""
+        for i, step in enumerate(self.env_steps):
+            row: dict[str, float] = {"time/iterations": int(self.iterations[i])}
+            for name, values in self.metrics.items():
+                if not np.isnan(values[i, column]):
+                    row[name] = float(values[i, column])
+            yield int(step), row
 
-class Backend(Protocol):
-    """What a writer implements. ``__init__`` must be cheap and import nothing heavy; ``open``,
-    ``write`` and ``close`` run in the backend's own thread, in that order."""
+
+class Backend:
+    """A writer for one library. ``__init__`` (cheap) keeps :func:`make_logger`'s arguments,
+    which also imports ``module`` in the caller's thread; ``open``, ``write`` and ``close``
+    run in the backend's own thread, in that order."""
 
     name: ClassVar[str]
     module: ClassVar[str | None]  # package that must be importable (None: nothing needed)
@@ -121,13 +134,20 @@ class Backend(Protocol):
 
     def __init__(
         self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None: ...
+    ) -> None:
+        self.out_dir, self.run_names, self.config = Path(out_dir), run_names, config
+        self.log_dir = log_dir  # the folder shared with other runs (None: the library's own)
+        self.experiment = experiment_name(out_dir)
+        self.per_run: list[Any] = []  # each run's writer (TensorBoard) or W&B run
 
-    def open(self) -> None: ...
+    def open(self) -> None:
+        raise NotImplementedError
 
-    def write(self, batch: MetricBatch) -> None: ...
+    def write(self, batch: MetricBatch) -> None:
+        raise NotImplementedError
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        raise NotImplementedError
 
 
 def _json_safe(config: dict) -> dict:
@@ -135,7 +155,7 @@ def _json_safe(config: dict) -> dict:
     return json.loads(json.dumps(config, default=str))
 
 
-class TensorBoardBackend:
+class TensorBoardBackend(Backend):
     """One event file per run in ``out_dir/tensorboard/<run_name>/`` (or
     ``log_dir/<run directory's name>/<run_name>/``); each iteration is one event per run
     holding all its scalars, at ``global_step`` = env steps."""
@@ -143,16 +163,6 @@ class TensorBoardBackend:
     name = "tensorboard"
     module = "tensorboardX"
     extra = "tensorboard"
-
-    def __init__(
-        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None:
-        self.out_dir = out_dir
-        self.log_dir = None if log_dir is None else Path(log_dir) / experiment_name(out_dir)
-        base = out_dir / "tensorboard" if self.log_dir is None else self.log_dir
-        self.run_dirs = [base / run for run in run_names]
-        self.config = config
-        self.writers: list[Any] = []
 
     def open(self) -> None:
         from tensorboardX import FileWriter
@@ -163,34 +173,27 @@ class TensorBoardBackend:
         if self.log_dir is None:
             base = files.subdir(self.out_dir, "tensorboard", create=True)  # never through a link
         else:  # the user's own folder, shared with other runs
-            base = self.log_dir
+            base = Path(self.log_dir) / self.experiment
             base.mkdir(parents=True, exist_ok=True)
-        for run_dir in self.run_dirs:
-            files.subdir(base, run_dir.name, create=True)
-            writer = FileWriter(str(run_dir), max_queue=1024, flush_secs=30)
-            self.writers.append(writer)
+        for run in self.run_names:
+            files.subdir(base, run, create=True)
+            writer = FileWriter(str(base / run), max_queue=1024, flush_secs=30)
+            self.per_run.append(writer)
             writer.add_summary(text("config", config_text), global_step=0)
 
     def write(self, batch: MetricBatch) -> None:
         from tensorboardX.proto.summary_pb2 import Summary
 
-        names = sorted(batch.metrics)
-        iterations = batch.iterations
         for c, r in enumerate(batch.runs):
-            writer = self.writers[r]
-            for i, step in enumerate(batch.env_steps):
-                values = [Summary.Value(tag="time/iterations", simple_value=float(iterations[i]))]
-                for name in names:
-                    value = batch.metrics[name][i, c]
-                    if not np.isnan(value):
-                        values.append(Summary.Value(tag=name, simple_value=float(value)))
-                writer.add_summary(Summary(value=values), global_step=int(step))
-            writer.flush()  # TensorBoard sees every chunk as soon as it is written
+            for step, row in batch.rows(c):
+                values = [Summary.Value(tag=k, simple_value=v) for k, v in row.items()]
+                self.per_run[r].add_summary(Summary(value=values), global_step=step)
+            self.per_run[r].flush()  # TensorBoard sees every chunk as soon as it is written
 
     def close(self) -> None:
-        for writer in self.writers:
+        for writer in self.per_run:
             writer.close()
-        self.writers = []
+        self.per_run = []
 
 
 def swanlab_mode() -> str:
@@ -212,7 +215,7 @@ def swanlab_mode() -> str:
     return "local" if installed in wanted else "offline"
 
 
-class SwanLabBackend:
+class SwanLabBackend(Backend):
     """One SwanLab experiment for all runs (SwanLab allows one per process): with R > 1,
     ``<run_name>/<metric>`` per run plus the mean over runs under the plain names."""
 
@@ -220,18 +223,13 @@ class SwanLabBackend:
     module = "swanlab"
     extra = "swanlab"
 
-    def __init__(
-        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None:
-        self.log_dir = swanlab_dir(log_dir).absolute()
-        self.experiment = experiment_name(out_dir)
-        self.run_names = run_names
-        self.config = config
-        self.run: Any = None
-        self.pending: dict[int, dict[int, dict[str, float]]] = {}  # step -> run -> name -> value
+    run: Any = None
+    pending: dict[int, dict[int, dict[str, float]]]  # step -> run -> name -> value
 
     def open(self) -> None:
-        self.log_dir.mkdir(parents=True, exist_ok=True)
+        folder = swanlab_dir(self.log_dir).absolute()
+        folder.mkdir(parents=True, exist_ok=True)
+        self.pending = {}
         import swanlab
 
         Settings = swanlab.Settings
@@ -242,7 +240,7 @@ class SwanLabBackend:
             # hardware-monitor thread; no webhook even if SWANLAB_WEBHOOK is set.
             mode=swanlab_mode(),
             interactive=False,
-            log_dir=self.log_dir,
+            log_dir=folder,
             terminal=Settings.Terminal(proxy_type="none"),
             probe=Settings.Probe(monitor=False),
             integration=Settings.Integration(webhook=Settings.Integration.Webhook(url="")),
@@ -255,23 +253,21 @@ class SwanLabBackend:
             description=f"{len(self.run_names)} run(s): {', '.join(self.run_names)}",
             config={**_json_safe(self.config), "run_names": self.run_names},
             settings=settings,
+            callbacks=[_flush_records(swanlab.Callback, lambda: self.run)],
         )
 
     def write(self, batch: MetricBatch) -> None:
-        single = len(self.run_names) == 1
-        iterations = batch.iterations
+        columns = range(len(batch.runs) if len(self.run_names) > 1 else 0)
+        per_run = [list(batch.rows(c)) for c in columns]
         for i, step in enumerate(batch.env_steps):
-            data: dict[str, float] = {"time/iterations": int(iterations[i])}
+            data: dict[str, float] = {"time/iterations": int(batch.iterations[i])}
             for name, row in (self._every_run(batch, i) or {}).items():
                 present = row[~np.isnan(row)]
                 if present.size:
                     data[name] = float(present.mean())
-            for name, values in batch.metrics.items():
-                if single or name.startswith("time/"):
-                    continue
-                for r, value in zip(batch.runs, values[i]):
-                    if not np.isnan(value):
-                        data[f"{self.run_names[r]}/{name}"] = float(value)
+            for r, rows in zip(batch.runs, per_run):
+                name = self.run_names[r]
+                data |= {f"{name}/{k}": v for k, v in rows[i][1].items() if k[:5] != "time/"}
             self.run.log(data, step=int(step))
 
     def _every_run(self, batch: MetricBatch, i: int) -> dict[str, np.ndarray] | None:
@@ -303,7 +299,26 @@ class SwanLabBackend:
             self.run = None
 
 
-class WandbBackend:
+def _flush_records(base: type, get_run: Callable[[], Any]) -> Any:
+    """A SwanLab callback that puts each batch of scalars into the run's ``.swanlab`` file
+    as soon as SwanLab has written it. SwanLab 0.10 keeps its records file open with Python's
+    buffer and flushes it only when the run finishes, so without this a run's curve would
+    appear on disk (for ``swanlab sync``, or any reader) only at the end. It runs in SwanLab's
+    own writer thread, right after the batch is written; where a SwanLab version has no such
+    writer (``run._core._store``), it does nothing."""
+
+    class FlushRecords(base):
+        name = "jaxcart-flush-records"
+
+        def on_scalar_flush(self, scalar_records, *args, **kwargs) -> None:
+            store = getattr(getattr(get_run(), "_core", None), "_store", None)
+            if store is not None and hasattr(store, "ensure_flushed"):
+                store.ensure_flushed()
+
+    return FlushRecords()
+
+
+class WandbBackend(Backend):
     """One W&B run per training run, grouped by the run directory; offline unless
     ``WANDB_MODE`` says otherwise; ``WANDB_PROJECT``, ``WANDB_ENTITY`` and ``WANDB_DIR``
     (below ``log_dir``) are honoured."""
@@ -312,24 +327,15 @@ class WandbBackend:
     module = "wandb"
     extra = "wandb"
 
-    def __init__(
-        self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
-    ) -> None:
-        self.out_dir = out_dir
-        self.log_dir = Path(log_dir or os.environ.get("WANDB_DIR") or out_dir)
-        self.group = experiment_name(out_dir)
-        self.run_names = run_names
-        self.config = config
-        self.runs: list[Any] = []
-
     def open(self) -> None:
         import wandb
 
-        if self.log_dir == self.out_dir:
+        folder = Path(self.log_dir or os.environ.get("WANDB_DIR") or self.out_dir)
+        if folder == self.out_dir:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             files.subdir(self.out_dir, "wandb", create=True)  # W&B writes here; never via a link
         else:
-            (self.log_dir / "wandb").mkdir(parents=True, exist_ok=True)
+            (folder / "wandb").mkdir(parents=True, exist_ok=True)
         # offline unless the user chose otherwise; no console capture (it would wrap the
         # progress bar's stream), no system-metrics sampling thread
         settings = wandb.Settings(
@@ -339,14 +345,14 @@ class WandbBackend:
             silent=True,
         )
         for run in self.run_names:
-            self.runs.append(
+            self.per_run.append(
                 wandb.init(
                     project=os.environ.get("WANDB_PROJECT") or "jaxcart",
                     entity=os.environ.get("WANDB_ENTITY") or None,
-                    group=self.group,
-                    name=f"{self.group}-{run}",
+                    group=self.experiment,
+                    name=f"{self.experiment}-{run}",
                     job_type="train",
-                    dir=str(self.log_dir),
+                    dir=str(folder),
                     config={**_json_safe(self.config), "run_name": run},
                     settings=settings,
                     reinit="create_new",  # every seed's run open at once
@@ -354,27 +360,21 @@ class WandbBackend:
             )
 
     def write(self, batch: MetricBatch) -> None:
-        iterations = batch.iterations
         for c, r in enumerate(batch.runs):
-            run = self.runs[r]
-            for i, step in enumerate(batch.env_steps):
-                data: dict[str, float] = {"time/iterations": int(iterations[i])}
-                for name, values in batch.metrics.items():
-                    if not np.isnan(values[i, c]):
-                        data[name] = float(values[i, c])
-                run.log(data, step=int(step))
+            for step, row in batch.rows(c):
+                self.per_run[r].log(row, step=step)
 
     def close(self) -> None:
         import wandb
 
-        for run in self.runs:
+        for run in self.per_run:
             run.finish()
-        if self.runs:
+        if self.per_run:
             # finish() can return before W&B's service process has written a run's last
             # records (seen with 0.31: the second of two offline runs still empty); stopping
             # the service waits for it, so the files are complete when training returns
             wandb.teardown()
-        self.runs = []
+        self.per_run = []
 
 
 BACKENDS: dict[str, type[Backend]] = {
@@ -515,22 +515,18 @@ class Logger:
             raise LoggerError(message) from next(iter(errors.values()))
 
     def _close_at_exit(self) -> None:
-        try:
+        with contextlib.suppress(LoggerError):  # already reported on stderr
             self.close()
-        except LoggerError:
-            pass  # already reported on stderr
 
     def __enter__(self) -> Logger:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
+        try:
             self.close()
-        else:
-            try:
-                self.close()
-            except LoggerError:
-                pass  # already reported; let the original exception through
+        except LoggerError:
+            if exc_type is None:
+                raise  # else already reported: let the original exception through
 
 
 def _installed(module: str) -> bool:
@@ -592,6 +588,9 @@ def make_logger(
     if bad:
         raise ValueError(f"run names must be usable as directory names, got {bad}")
     check_available(names)
+    for name in names:  # here, not first in a logger's thread: imports racing can deadlock
+        if BACKENDS[name].module is not None:
+            importlib.import_module(BACKENDS[name].module)
     out_dir = Path(out_dir)
     config = dict(config or {})
     backends = [BACKENDS[n](out_dir, run_names, config, log_dir) for n in names]

@@ -8,6 +8,7 @@ terminal. ``run_new(..., progress=True)`` uses :class:`ProgressBar`; the command
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import sys
 from typing import IO, TYPE_CHECKING, Any
 
@@ -19,15 +20,7 @@ if TYPE_CHECKING:
     from jaxcart.engine.loop import Progress
     from jaxcart.run.spec import Run
 
-HOOK_NAMES = (
-    "on_start",
-    "on_compiled",
-    "on_chunk",
-    "on_diverged",
-    "on_signal",
-    "on_init",
-    "on_wave",
-)
+HOOK_NAMES = tuple(field.name for field in dataclasses.fields(Hooks))
 """The fields of :class:`~jaxcart.run.spec.Hooks`."""
 
 

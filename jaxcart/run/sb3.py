@@ -31,13 +31,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 
 from jaxcart.core import networks
 from jaxcart.core.config import PPOConfig
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES
+from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine.loop import METRIC_COLUMNS
-from jaxcart.run.loggers import Logger, make_logger, sb3_extras
+from jaxcart.run.greedy import evaluate_gymnasium
+from jaxcart.run.loggers import SB3_NAMES, Logger, make_logger, sb3_extras
 from jaxcart.run.progress import SeedBars
 from jaxcart.rundir import files, layout, outputs
 from jaxcart.rundir.directory import package_versions
@@ -57,8 +59,6 @@ DEFAULT_TIMESTEPS = 80_000
 # SB3 dumps its log before each update, so train/* values appear one row after the rollout
 # they belong to; rollout/* and time/* belong to the row they are on.
 SHIFTED_PREFIX = "train/"
-SB3_NAMES = {"time/elapsed": "time/time_elapsed"}
-"""jaxcart metric -> SB3's name where they differ."""
 
 
 class SB3Unavailable(ImportError):
@@ -140,23 +140,11 @@ def sb3_params(state_dict: dict[str, np.ndarray], config: PPOConfig) -> dict:
     return tree
 
 
-def greedy_returns(act: Callable[[np.ndarray], int], episodes: int) -> np.ndarray:
-    """``[episodes]`` returns of ``act`` in ``gymnasium.make("CartPole-v1")``, episode ``e``
-    reset with seed ``EVAL_SEED + e`` (as jaxcart's evaluation)."""
-    import gymnasium as gym
-
-    returns = []
-    env = gym.make("CartPole-v1")
-    for e in range(episodes):
-        obs, _ = env.reset(seed=EVAL_SEED + e)
-        total, done = 0.0, False
-        while not done:
-            obs, reward, terminated, truncated, _ = env.step(act(obs))
-            total += float(reward)
-            done = terminated or truncated
-        returns.append(total)
-    env.close()
-    return np.array(returns)
+def greedy_returns(act: Callable[[np.ndarray], np.ndarray], episodes: int) -> np.ndarray:
+    """``[episodes]`` returns of ``act`` (observations ``[episodes, 4]`` -> actions
+    ``[episodes]``) in Gymnasium's CartPole-v1, episode ``e`` reset with seed ``EVAL_SEED + e``:
+    jaxcart's own evaluation (:func:`jaxcart.run.greedy.evaluate_gymnasium`)."""
+    return evaluate_gymnasium(lambda obs: np.asarray(act(obs[0]))[None], 1, episodes)[0]
 
 
 def train_seed(
@@ -201,7 +189,7 @@ def train_seed(
     model.logger.dump(model.num_timesteps)  # the last update's train/* values
     weights = {k: v.detach().cpu().numpy() for k, v in model.policy.state_dict().items()}
     returns = greedy_returns(
-        lambda obs: int(model.predict(obs, deterministic=True)[0]), NUM_EVAL_EPISODES
+        lambda obs: model.predict(obs, deterministic=True)[0], NUM_EVAL_EPISODES
     )
     return SeedResult(to_metrics(rows), sb3_params(weights, PPOConfig()), returns, seconds)
 
@@ -236,7 +224,9 @@ def write_run(
         "versions": package_versions(),
         files.MANIFEST_FLAG: True,
     }
-    stacked = files.flatten(_stack([r.params for r in results]))
+    stacked = files.flatten(
+        jax.tree.map(lambda *seeds: np.stack(seeds), *[r.params for r in results])
+    )
     evaluation = outputs.evaluation_record(np.stack([r.returns for r in results]))
     for s, seed in enumerate(evaluation["seeds"]):
         seed["final_ep_rew_mean"] = float(metrics["rollout/ep_rew_mean"][-1, s])
@@ -253,13 +243,6 @@ def write_run(
         listing.write(layout.EVALUATION_FILE, lambda e, d: files.write_json(e, evaluation, d))
     finally:
         directory.close()
-
-
-def _stack(trees: list[dict]) -> dict:
-    """Nested dicts of arrays -> the same dict with arrays stacked on a new leading axis."""
-    if isinstance(trees[0], dict):
-        return {k: _stack([t[k] for t in trees]) for k in trees[0]}
-    return np.stack(trees)
 
 
 _ROWS: Any = None
@@ -352,18 +335,13 @@ def train_run(
     num_seeds: int,
     total_timesteps: int = DEFAULT_TIMESTEPS,
     first_seed: int = 0,
-    jobs: int = 1,
-    threads: int = 1,
-    on_seed: Callable[[int, SeedResult], None] | None = None,
-    on_start: Callable[[dict, int], None] | None = None,
-    loggers: tuple[str, ...] = (),
-    logger_dir: Path | None = None,
-    progress: bool = False,
+    **options: Any,
 ) -> list[SeedResult]:
-    """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3, ``jobs`` processes
-    at once, and writes them as the run directory ``out`` (created; it must not exist). Each
-    seed is kept as it finishes: an interrupted run continues with :func:`resume_run`, which
-    also describes ``on_start``, the loggers and ``progress``.
+    """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3 and writes them as
+    the run directory ``out`` (created; it must not exist). Each seed is kept as it finishes:
+    an interrupted run continues with :func:`resume_run`, which takes the same ``options``
+    (``jobs``, ``threads``, ``on_seed``, ``on_start``, ``loggers``, ``logger_dir``,
+    ``progress``) and describes them.
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -374,7 +352,7 @@ def train_run(
     out.mkdir(parents=True, exist_ok=False)
     plan = {"first_seed": first_seed, "num_seeds": num_seeds, "total_timesteps": total_timesteps}
     files.write_json(out / layout.SB3_PLAN_FILE, plan)
-    return resume_run(out, jobs, threads, on_seed, on_start, loggers, logger_dir, progress)
+    return resume_run(out, **options)
 
 
 def resume_run(
