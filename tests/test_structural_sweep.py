@@ -16,7 +16,7 @@ from jaxcart.analysis import curves
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run.spec import RunSpec
 from jaxcart.run.structural import group_specs, shape_groups, split_sweep
-from jaxcart.rundir import layout, reader, views
+from jaxcart.rundir import files, layout, reader, views
 
 BASE = [  # 2 envs or 4 envs x 32 steps, minibatches of 32: 4 or 8 iterations of 512 steps
     "--num-steps", "32", "--total-timesteps", "512", "--minibatch-size", "32",
@@ -55,6 +55,7 @@ def test_shape_groups_train_into_one_directory_ranked_together(tmp_path, capsys)
     data = json.loads((out / layout.GROUPS_FILE).read_text())
     assert [g["num_envs"] for g in data["groups"]] == [2, 4]
     assert data["score"] == "auc" and data["saturated"] is False
+    assert layout.GROUPS_FILE in files.read_manifest(out)  # written through the store
     ranking = data["ranking"]
     assert len(ranking) == 4  # every combination of both groups, one ranking
     iqms = [row["iqm"]["value"] for row in ranking]

@@ -208,7 +208,7 @@ def finish_groups(
         "saturated": sweeps.saturated(done.ranking),
         "ranking": done.ranking,
     }
-    files.write_json(out / layout.GROUPS_FILE, data)
+    files.record_json(out, {layout.GROUPS_FILE: data})  # in the sweep's manifest, as a run's files
     return done
 
 
