@@ -26,6 +26,10 @@ from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 
+FAST_COMPILE = {"xla_backend_optimization_level": 1}
+"""XLA's options for the cross-check program: LLVM's lighter optimization halves its compile
+time (about 1 s to 0.5 s) and leaves its returns as they were (checked bit for bit)."""
+
 Step = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 """``(actions [P, E], alive [P, E]) -> (rewards [P, E], done [P, E])``: one step of every
 running episode of a policy x episode grid, its observations updated in place."""
@@ -246,8 +250,9 @@ def evaluate_runs(
         return greedy_returns(p, key, network, episodes, run_env, config.env)
 
     def in_jaxcart() -> np.ndarray:
-        keys = seed_index_keys(seed, np.asarray(seed_indices))
-        return np.asarray(jax.jit(jax.vmap(one_run))(params, keys, per_run))
+        args = (params, seed_index_keys(seed, np.asarray(seed_indices)), per_run)
+        program = jax.jit(jax.vmap(one_run)).lower(*args).compile(FAST_COMPILE)
+        return np.asarray(program(*args))
 
     with ThreadPoolExecutor(1) as pool:
         jax_returns = pool.submit(in_jaxcart)

@@ -1,0 +1,27 @@
+"""Cold ``evaluate_runs`` of a finished run directory, in a fresh process: the final
+evaluation's wall seconds (Gymnasium's episodes and the JAX cross-check, compile included),
+then the two means::
+
+    python -m jaxcart.train --preset fast --num-seeds 64 --out /tmp/fast64
+    for i in 1 2 3; do python benchmarks/eval_cold.py /tmp/fast64; done
+"""
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from jaxcart.run.greedy import evaluate_runs
+from jaxcart.rundir.policy import run_params
+
+run = Path(sys.argv[1])
+rp = run_params(run)
+cfg = json.loads((run / "config.json").read_text())
+seed = cfg.get("seed", 0)
+t = time.perf_counter()
+g, j = evaluate_runs(
+    rp.params, rp.config, seed, np.arange(rp.num_seeds), 20, env_params=rp.env_params
+)
+print(f"{time.perf_counter() - t:.3f} {g.mean():.6f} {np.asarray(j).mean():.6f}")
