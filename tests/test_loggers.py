@@ -205,6 +205,7 @@ def wait_for_steps(read, key: str, wanted: list[int], seconds: float = 60.0) -> 
     return scalars
 
 
+@pytest.mark.slow
 def test_swanlab_holds_the_curve_on_disk_while_jaxcart_trains(tmp_path, monkeypatch):
     """Issue 40: SwanLab's records reach the disk as the run trains, not when SwanLab finishes.
     Blocked in its fifth chunk's hook, a run's ./swanlog records file already holds the five

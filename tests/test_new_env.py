@@ -47,6 +47,7 @@ CONFIG = jaxcart.PPOConfig(
 )
 
 
+@pytest.mark.slow
 def test_a_registered_env_trains_and_evaluates_in_jax():
     from jaxcart.core.evaluation import greedy_returns
     from jaxcart.core.ppo import make_network
@@ -90,6 +91,7 @@ def test_own_ids_cannot_be_taken():
         jaxcart.register_env(dataclasses.replace(POINT_MASS, id="CartPole-v1"))
 
 
+@pytest.mark.slow
 def test_an_env_registered_again_under_its_id_trains_anew():
     """The compiled program is the env's: one registered again under the same id (here paying
     2 a step) is not run by the program compiled for the first."""

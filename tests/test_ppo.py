@@ -164,6 +164,7 @@ def test_zero_policy_gradient_where_clipped():
     assert max(float(jnp.abs(g).max()) for g in jax.tree.leaves(grads)) > 1e-4
 
 
+@pytest.mark.slow
 def test_entropy_loss_is_negative_mean_entropy():
     network, params, batch, _ = _setup_loss()
     logits, _ = network.apply(params, batch.obs)
@@ -302,6 +303,7 @@ def _train_on_probe(reward_fn, iterations: int = 40, seed: int = 0):
     return params, network
 
 
+@pytest.mark.slow
 def test_probe_constant_reward_value_learns_it():
     """Reward 1 on every (terminating) step: V(s) must reach 1 everywhere."""
     params, network = _train_on_probe(lambda obs, action: jnp.ones(action.shape))
@@ -494,6 +496,7 @@ def test_lin_schedules_follow_sb3s_update_order():
         dataclasses.replace(config, anneal_progress="end")
 
 
+@pytest.mark.slow
 def test_an_annealed_clip_range_reaches_the_update():
     from helpers import TINY
 

@@ -335,9 +335,8 @@ def tensorboard_reader(out):
     return read
 
 
-@pytest.mark.parametrize(
-    "real", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["fake-sb3", "real-sb3"]
-)
+@pytest.mark.slow  # about 30 s with TensorBoard and a made-up SB3
+@pytest.mark.parametrize("real", [False, True], ids=["fake-sb3", "real-sb3"])
 @pytest.mark.parametrize("logger", ["tensorboard", "swanlab"])
 def test_sb3s_curves_reach_the_logger_while_it_trains(logger, real, monkeypatch, tmp_path, capsys):
     """After SB3's third rollout, the logger's folder (TensorBoard's, or SwanLab's records file:
