@@ -30,17 +30,22 @@ def step(key: jax.Array, state: tuple, action: jax.Array, params: None) -> tuple
     return jnp.stack([x, v]), (x, v, t), jnp.ones(()), jnp.abs(x) > 1.0, t >= LIMIT
 
 
-POINT_MASS = jaxcart.register_env(
-    jaxcart.env_from_step(
-        "PointMass-v0",
-        obs_dim=2,
-        num_actions=3,
-        reset=reset,
-        step=step,
-        max_episode_steps=LIMIT,
-        reward_threshold=45.0,
+def point_mass(step_fn=step, reward_threshold: float = 45.0) -> jaxcart.Env:
+    """The point mass as a registered env ``PointMass-v0``, stepping with ``step_fn``."""
+    return jaxcart.register_env(
+        jaxcart.env_from_step(
+            "PointMass-v0",
+            obs_dim=2,
+            num_actions=3,
+            reset=reset,
+            step=step_fn,
+            max_episode_steps=LIMIT,
+            reward_threshold=reward_threshold,
+        )
     )
-)
+
+
+POINT_MASS = point_mass()
 
 CONFIG = jaxcart.PPOConfig(
     env="PointMass-v0", num_envs=4, num_steps=32, minibatch_size=64, total_timesteps=128 * 8
@@ -105,17 +110,7 @@ def test_an_env_registered_again_under_its_id_trains_anew():
     first = jaxcart.train_runs(config, num_runs=1, seed=0, devices=DEVICE).runners
     assert np.all(first.episode_return == first.episode_length)
     try:
-        jaxcart.register_env(
-            jaxcart.env_from_step(
-                "PointMass-v0",
-                obs_dim=2,
-                num_actions=3,
-                reset=reset,
-                step=step_paying_two,
-                max_episode_steps=LIMIT,
-                reward_threshold=90.0,
-            )
-        )
+        point_mass(step_paying_two, reward_threshold=90.0)
         again = jaxcart.train_runs(config, num_runs=1, seed=0, devices=DEVICE).runners
         assert np.all(again.episode_return == 2 * again.episode_length)
     finally:
