@@ -54,7 +54,7 @@ import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorEnv
 
 from benchmarks import lib
-from jaxcart.gym import vector_env
+from jaxcart.gym import adapter as vector_env
 from jaxcart.gym.adapter import JaxCartPoleEnv, JaxCartPoleVectorEnv
 
 STEM = "adapter_speed"
