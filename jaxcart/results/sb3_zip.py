@@ -152,21 +152,11 @@ def policy_state_dict(params: dict, config: PPOConfig) -> OrderedDict[str, np.nd
     ``value_net.*`` (weights ``[out, in]``, biases ``[out]``, float32)."""
     root = params[networks.ROOT]
     state: OrderedDict[str, np.ndarray] = OrderedDict()
-    heads = {}
-    for head, extractor, sb3_out in (
-        (networks.ACTOR, "policy_net", "action_net"),
-        (networks.CRITIC, "value_net", "value_net"),
-    ):
-        layers = root[head]
-        names = networks.layer_names(len(layers) - 1)
-        for i, name in enumerate(names[:-1]):
-            state[f"mlp_extractor.{extractor}.{2 * i}.weight"] = layers[name]["kernel"].T
-            state[f"mlp_extractor.{extractor}.{2 * i}.bias"] = layers[name]["bias"]
-        heads[sb3_out] = layers[networks.OUT]
-    for sb3_out in ("action_net", "value_net"):
-        state[f"{sb3_out}.weight"] = heads[sb3_out]["kernel"].T
-        state[f"{sb3_out}.bias"] = heads[sb3_out]["bias"]
-    return OrderedDict((k, np.ascontiguousarray(v, np.float32)) for k, v in state.items())
+    hidden = (len(root[networks.ACTOR]) - 1, len(root[networks.CRITIC]) - 1)
+    for head, layer, module in networks.sb3_layers(*hidden):
+        state[f"{module}.weight"] = np.ascontiguousarray(root[head][layer]["kernel"].T, np.float32)
+        state[f"{module}.bias"] = np.ascontiguousarray(root[head][layer]["bias"], np.float32)
+    return state
 
 
 def net_arch(config: PPOConfig) -> dict[str, list[int]]:
