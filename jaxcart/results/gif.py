@@ -1,8 +1,9 @@
 """Animated GIFs of a policy balancing the pole in Gymnasium's own CartPole-v1.
 
 Frames come from Gymnasium's renderer (``render_mode="rgb_array"``, which needs ``pygame``);
-without pygame they are drawn with Pillow using the same geometry and colours. The episode
-itself always runs in ``gymnasium.make("CartPole-v1")``, so the GIF shows exactly what the
+without pygame the env draws them itself (:attr:`jaxcart.core.envs.Env.draw_frame`: CartPole's
+with Pillow, in the same geometry and colours). The episode itself always runs in Gymnasium's
+env (``gymnasium.make("CartPole-v1")`` by default), so the GIF shows exactly what the
 evaluation measures. Needs Pillow (``pip install pillow pygame``).
 
 Example::
@@ -16,7 +17,6 @@ Example::
 from __future__ import annotations
 
 import io
-import math
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -24,12 +24,11 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from jaxcart.core import envs
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.gym.stock import make_cartpole, reset_options
 from jaxcart.rundir.files import atomic_write_bytes
 
-WIDTH, HEIGHT = 600, 400
-"""Gymnasium's CartPole canvas in pixels (the Pillow drawing's size)."""
 PALETTE_COLOURS = 64
 """Colours of the GIF's one palette, taken from its first frame: the scene's few colours and
 the blends of their anti-aliased edges."""
@@ -58,45 +57,6 @@ def pygame_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def draw_frame(state: np.ndarray, length: float = 0.5, x_threshold: float = 2.4) -> np.ndarray:
-    """One ``(400, 600, 3)`` uint8 frame of ``state = (x, x_dot, theta, theta_dot)``, drawn with
-    Pillow in the geometry and colours of Gymnasium's CartPole renderer (no anti-aliasing)."""
-    from PIL import Image, ImageDraw
-
-    scale = WIDTH / (2 * x_threshold)
-    pole_width, pole_len = 10.0, scale * 2 * length
-    cart_width, cart_height = 50.0, 30.0
-    axle_offset = cart_height / 4.0
-    cart_x = float(state[0]) * scale + WIDTH / 2.0
-    cart_y = 100.0  # top of the cart, measured from the bottom like Gymnasium (flipped below)
-    theta = float(state[2])
-
-    def to_image(x: float, y: float) -> tuple[float, float]:
-        return x, HEIGHT - 1 - y  # pygame.transform.flip maps row y to H - 1 - y
-
-    image = Image.new("RGB", (WIDTH, HEIGHT), (255, 255, 255))
-    draw = ImageDraw.Draw(image)
-    left, right, top, bottom = -cart_width / 2, cart_width / 2, cart_height / 2, -cart_height / 2
-    cart = [(left, bottom), (left, top), (right, top), (right, bottom)]
-    draw.polygon([to_image(cart_x + x, cart_y + y) for x, y in cart], fill=(0, 0, 0))
-
-    left, right = -pole_width / 2, pole_width / 2
-    top, bottom = pole_len - pole_width / 2, -pole_width / 2
-    # pygame's Vector2.rotate_rad(-theta) in y-up coordinates: the pole leans right for theta > 0.
-    cos, sin = math.cos(-theta), math.sin(-theta)
-    pole = [
-        to_image(cart_x + x * cos - y * sin, cart_y + axle_offset + x * sin + y * cos)
-        for x, y in [(left, bottom), (left, top), (right, top), (right, bottom)]
-    ]
-    draw.polygon(pole, fill=(202, 152, 101))
-
-    ax, ay = to_image(int(cart_x), int(cart_y + axle_offset))
-    r = int(pole_width / 2)
-    draw.ellipse([ax - r, ay - r, ax + r, ay + r], fill=(129, 132, 203))
-    draw.line([to_image(0, cart_y), to_image(WIDTH, cart_y)], fill=(0, 0, 0))
-    return np.asarray(image)
 
 
 def _check_options(max_steps: int, fps: float, frame_skip: int, scale: float) -> None:
@@ -152,16 +112,17 @@ def _backend(backend: str) -> str:
 
 
 def _episode(policy, seed, max_steps, backend, env_id, env_params=None):
-    """Yields ``(frame (400, 600, 3) uint8, steps, return so far)`` after the reset and after
-    every step of one episode in Gymnasium (``backend`` resolved: :func:`_backend`)."""
+    """Yields ``(frame [H, W, 3] uint8, steps, return so far)`` after the reset and after every
+    step of one episode in Gymnasium (``backend`` resolved: :func:`_backend`): frames from
+    Gymnasium's renderer, or drawn by the env's :attr:`~jaxcart.core.envs.Env.draw_frame`."""
     mode = "rgb_array" if backend == "gymnasium" else None
+    draw = None if mode else envs.make(env_id).draw_frame  # the env's own Pillow drawing
+    if mode is None and draw is None:
+        raise ValueError(f"env {env_id} draws no frames with Pillow; use backend='gymnasium'")
     env = make_cartpole(env_params, env_id, render_mode=mode)
-    core = env.unwrapped
 
     def frame() -> np.ndarray:
-        if backend == "gymnasium":
-            return env.render()
-        return draw_frame(np.asarray(core.state), core.length, core.x_threshold)
+        return env.render() if draw is None else draw(np.asarray(env.unwrapped.state), env_params)
 
     try:
         obs, _ = env.reset(seed=seed, options=reset_options(env_params))
