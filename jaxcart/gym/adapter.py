@@ -72,17 +72,7 @@ if TYPE_CHECKING:
 
 __all__ = ["ENV_ID", "JaxCartPoleEnv", "JaxCartPoleVectorEnv"]
 
-PARAM_ATTRIBUTES = (
-    "gravity",
-    "masscart",
-    "masspole",
-    "length",
-    "force_mag",
-    "tau",
-    "kinematics_integrator",
-    "theta_threshold_radians",
-    "x_threshold",
-)
+PARAM_ATTRIBUTES = (*kernels.FLOAT_PARAMS[:-2], "kinematics_integrator")
 """``CartPoleEnv``'s attributes that both front-ends read from ``self.params`` (read-only)."""
 
 
@@ -385,15 +375,6 @@ def _valid_actions(actions: Any, space: Any) -> bool:
     return bool(space.contains(actions))
 
 
-def _check_none_ended(ended: np.ndarray) -> None:
-    """With autoreset disabled, stepping an env whose episode has ended is an error."""
-    if ended.any():
-        raise AssertionError(
-            f"sub-environments {np.flatnonzero(ended).tolist()} have ended; with "
-            "autoreset disabled, reset them (reset(options={'reset_mask': mask})) first"
-        )
-
-
 def _step_results(
     rows: np.ndarray, mode: AutoresetMode
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -544,8 +525,11 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
         """Steps every sub-environment, with the autoreset of ``autoreset_mode``."""
         assert _valid_actions(actions, self.action_space), f"{actions!r} ({type(actions)}) invalid"
         assert self._rows is not None, "Call reset before using step method."
-        if self.autoreset_mode is AutoresetMode.DISABLED:
-            _check_none_ended(self._ended)
+        if self.autoreset_mode is AutoresetMode.DISABLED and self._ended.any():
+            raise AssertionError(
+                f"sub-environments {np.flatnonzero(self._ended).tolist()} have ended; with "
+                "autoreset disabled, reset them (reset(options={'reset_mask': mask})) first"
+            )
         inputs = kernels.step_inputs(actions, self._step_key())
         rows = self._step_fn(self._rows, self._spare, inputs, self._floats)
         self._rows, self._spare = rows, self._rows

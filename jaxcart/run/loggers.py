@@ -77,11 +77,6 @@ def sb3_extras(
     return {"train/n_updates": iterations * update_epochs, "train/clip_range": clip}
 
 
-def swanlab_dir(log_dir: Path | None) -> Path:
-    """SwanLab's folder: ``log_dir``, else ``$SWANLAB_LOG_DIR``, else ``./swanlog``."""
-    return Path(log_dir or os.environ.get("SWANLAB_LOG_DIR") or "swanlog")
-
-
 class LoggerUnavailable(ValueError):
     """A requested logger's package is not installed (the message says which extra to add)."""
 
@@ -124,14 +119,13 @@ class MetricBatch:
 
 
 class Backend:
-    """A writer for one library. ``__init__`` (cheap) keeps :func:`make_logger`'s arguments,
-    which also imports ``module`` in the caller's thread; a subclass's ``open()``,
-    ``write(batch: MetricBatch)`` and ``close()`` run in the backend's own thread, in that
-    order."""
+    """A writer for one library (``name``: also the pip extra of jaxcart that installs it).
+    ``__init__`` (cheap) keeps :func:`make_logger`'s arguments, which also imports ``module``
+    in the caller's thread; a subclass's ``open()``, ``write(batch: MetricBatch)`` and
+    ``close()`` run in the backend's own thread, in that order."""
 
     name: ClassVar[str]
     module: ClassVar[str | None]  # package that must be importable (None: nothing needed)
-    extra: ClassVar[str | None]  # pip extra of jaxcart that installs it
 
     def __init__(
         self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
@@ -155,7 +149,6 @@ class TensorBoardBackend(Backend):
 
     name = "tensorboard"
     module = "tensorboardX"
-    extra = "tensorboard"
 
     def open(self) -> None:
         from tensorboardX import FileWriter
@@ -214,13 +207,13 @@ class SwanLabBackend(Backend):
 
     name = "swanlab"
     module = "swanlab"
-    extra = "swanlab"
 
     run: Any = None
     pending: dict[int, dict[int, dict[str, float]]]  # step -> run -> name -> value
 
     def open(self) -> None:
-        folder = swanlab_dir(self.log_dir).absolute()
+        # log_dir, else $SWANLAB_LOG_DIR, else ./swanlog
+        folder = Path(self.log_dir or os.environ.get("SWANLAB_LOG_DIR") or "swanlog").absolute()
         folder.mkdir(parents=True, exist_ok=True)
         self.pending = {}
         import swanlab
@@ -318,7 +311,6 @@ class WandbBackend(Backend):
 
     name = "wandb"
     module = "wandb"
-    extra = "wandb"
 
     def open(self) -> None:
         import wandb
@@ -534,8 +526,8 @@ def check_available(names: Sequence[str]) -> None:
         if backend is not None and backend.module is not None and not _installed(backend.module):
             raise LoggerUnavailable(
                 f"the {name} logger needs the {backend.module} package: "
-                f"pip install 'jaxcart[{backend.extra}]' (in a clone of jaxcart: "
-                f"pip install -e '.[{backend.extra}]')"
+                f"pip install 'jaxcart[{name}]' (in a clone of jaxcart: "
+                f"pip install -e '.[{name}]')"
             )
 
 
