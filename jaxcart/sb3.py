@@ -9,6 +9,7 @@ Each seed is ``PPO("MlpPolicy", "CartPole-v1", seed=s).learn(80_000)``; the libr
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -23,6 +24,32 @@ from jaxcart.run.loggers import check_available as check_loggers  # noqa: E402
 from jaxcart.rundir import layout  # noqa: E402
 
 
+@dataclasses.dataclass(frozen=True)
+class SB3Options:
+    """The command's options, each declared once (:func:`jaxcart.cli.option`): its type and
+    default here, its help the docstring below it."""
+
+    num_seeds: int = cli.option(1, type=cli.count)
+    """seeds to train"""
+    first_seed: int = cli.option(0, type=int)
+    """seeds are first-seed ... first-seed+num-seeds-1"""
+    total_timesteps: int = cli.option(sb3.DEFAULT_TIMESTEPS, type=cli.count)
+    """PPO.learn(total_timesteps); SB3 finishes the 2048-step rollout it is in"""
+    jobs: int = cli.option(1, type=cli.count)
+    """seeds trained at once, one process each"""
+    threads: int = cli.option(1, type=cli.count)
+    """PyTorch threads per process"""
+    out: Path | None = cli.option(type=cli.out_dir)
+    """run directory (default: runs/sb3-torch-<time>)"""
+    resume: Path | None = cli.option(type=Path, metavar="RUN_DIR")
+    """continue an interrupted run: train the seeds it has not kept yet (each seed is kept as
+    it finishes; --jobs, --threads and the loggers may change, nothing else)"""
+
+
+PLAN = ("num_seeds", "first_seed", "total_timesteps")
+"""The options that say what a run trains: fixed once it starts (``--resume`` refuses them)."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m jaxcart.sb3`` command line."""
     parser = cli.Parser(
@@ -32,35 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
         "metrics, its networks under jaxcart's parameter names, 20 greedy episodes per seed in "
         f"Gymnasium). Needs PyTorch and SB3: {sb3.INSTALL_HINT}",
     )
-    parser.add_argument("--num-seeds", type=cli.count, default=1, help="seeds to train")
-    parser.add_argument(
-        "--first-seed", type=int, default=0, help="seeds are first-seed ... first-seed+num-seeds-1"
-    )
-    parser.add_argument(
-        "--total-timesteps",
-        type=cli.count,
-        default=sb3.DEFAULT_TIMESTEPS,
-        help="PPO.learn(total_timesteps); SB3 finishes the 2048-step rollout it is in",
-    )
-    parser.add_argument(
-        "--jobs", type=cli.count, default=1, help="seeds trained at once, one process each"
-    )
-    parser.add_argument("--threads", type=cli.count, default=1, help="PyTorch threads per process")
-    parser.add_argument(
-        "--out",
-        type=cli.out_dir,
-        default=None,
-        help="run directory (default: runs/sb3-torch-<time>)",
-    )
-    parser.add_argument(
-        "--resume",
-        type=Path,
-        default=None,
-        metavar="RUN_DIR",
-        help="continue an interrupted run: train the seeds it has not kept yet (each seed is "
-        "kept as it finishes; --jobs, --threads and the loggers may change, nothing else)",
-    )
-    cli.add_logger_arguments(parser)
+    cli.add_logger_arguments(cli.add_options(parser, SB3Options, "run")["run"])
     return parser
 
 
@@ -73,15 +72,12 @@ def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.resume is not None:
-        given = [
-            o
-            for o in ("--num-seeds", "--first-seed", "--total-timesteps", "--out")
-            if any(
-                a == o or a.startswith(o + "=") for a in (sys.argv[1:] if argv is None else argv)
-            )
-        ]
-        if given:
-            raise cli.UsageError(f"--resume continues the run as it was asked for; drop {given[0]}")
+        given = [a.split("=")[0] for a in (sys.argv[1:] if argv is None else argv)]
+        for option in [*("--" + name.replace("_", "-") for name in PLAN), "--out"]:
+            if option in given:
+                raise cli.UsageError(
+                    f"--resume continues the run as it was asked for; drop {option}"
+                )
     elif args.first_seed < 0:
         raise cli.UsageError(f"--first-seed must be >= 0, got {args.first_seed}")
     out = args.resume or args.out or layout.default_run_dir("sb3-torch")
@@ -105,12 +101,9 @@ def _main(argv: list[str] | None) -> int:
 
     options = {"jobs": args.jobs, "threads": args.threads, "on_seed": on_seed, "progress": True}
     options |= {"on_start": on_start, "loggers": tuple(args.logger), "logger_dir": args.logger_dir}
+    plan = {name: getattr(args, name) for name in PLAN}
     try:
-        if args.resume is not None:
-            results = sb3.resume_run(out, **options)
-        else:
-            plan = (args.num_seeds, args.total_timesteps, args.first_seed)
-            results = sb3.train_run(out, *plan, **options)
+        results = sb3.train_run(out, None if args.resume else plan, **options)
     except KeyboardInterrupt:
         kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))
         print(

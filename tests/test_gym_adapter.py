@@ -163,7 +163,7 @@ def test_make_with_the_package_before_the_colon_in_a_fresh_interpreter():
 def test_import_jaxcart_imports_neither_jax_nor_the_front_ends():
     code = (
         "import sys, jaxcart\n"
-        "print([m for m in ('jax', 'jaxcart.gym.adapter', 'jaxcart.gym.single_env') if m in sys.modules])"
+        "print([m for m in ('jax', 'jaxcart.gym.adapter') if m in sys.modules])"
     )
     assert run_fresh(code) == "[]"
 
@@ -724,7 +724,7 @@ def test_vector_step_evaluates_sin_and_cos_once(mode):
 
 def test_vector_env_action_check_is_action_space_contains():
     """The vector env's fast action check accepts exactly what action_space.contains accepts."""
-    from jaxcart.gym.vector_env import _valid_actions
+    from jaxcart.gym.adapter import _valid_actions
 
     space = JaxCartPoleVectorEnv(num_envs=4).action_space
     candidates = [np.array([0, 1, 1, 0], dtype=t) for t in ("int8", "uint8", "int32", "int64")]

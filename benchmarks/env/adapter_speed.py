@@ -54,7 +54,7 @@ import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv, CartPoleVectorEnv
 
 from benchmarks import lib
-from jaxcart.gym import vector_env
+from jaxcart.gym import adapter
 from jaxcart.gym.adapter import JaxCartPoleEnv, JaxCartPoleVectorEnv
 
 STEM = "adapter_speed"
@@ -244,7 +244,7 @@ def profile_vector(num_envs: int, quick: bool) -> dict:
             lambda: env.action_space.contains(actions), calls
         ),
         "action check (the adapter's: integer array, every action 0 or 1)": per_call_microseconds(
-            lambda: vector_env._valid_actions(actions, env.action_space), calls
+            lambda: adapter._valid_actions(actions, env.action_space), calls
         ),
         "compiled call, waited for": per_call_microseconds(compiled_call, calls),
         "device-to-host read (np.asarray, no copy)": per_call_microseconds(read, calls),

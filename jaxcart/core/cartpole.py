@@ -325,3 +325,46 @@ def action_space(params: EnvParams | None = None):
     from gymnasium import spaces
 
     return spaces.Discrete(2)
+
+
+def draw_frame(state: Any, params: EnvParams | None = None) -> np.ndarray:
+    """One ``(400, 600, 3)`` uint8 frame of ``state = (x, x_dot, theta, theta_dot)``, drawn with
+    Pillow in the geometry and colours of Gymnasium's CartPole renderer (no anti-aliasing), for
+    the pole length and track of ``params`` (default CartPole-v1's): the env's frames where
+    Gymnasium's renderer (pygame) is missing (:attr:`jaxcart.core.envs.Env.draw_frame`)."""
+    from PIL import Image, ImageDraw
+
+    params = params or EnvParams()
+    width, height = 600, 400  # Gymnasium's canvas
+    scale = width / (2 * float(params.x_threshold))
+    pole_width, pole_len = 10.0, scale * 2 * float(params.length)
+    cart_width, cart_height = 50.0, 30.0
+    axle_offset = cart_height / 4.0
+    cart_x = float(state[0]) * scale + width / 2.0
+    cart_y = 100.0  # top of the cart, measured from the bottom like Gymnasium (flipped below)
+    theta = float(state[2])
+
+    def to_image(x: float, y: float) -> tuple[float, float]:
+        return x, height - 1 - y  # pygame.transform.flip maps row y to H - 1 - y
+
+    image = Image.new("RGB", (width, height), (255, 255, 255))
+    draw = ImageDraw.Draw(image)
+    left, right, top, bottom = -cart_width / 2, cart_width / 2, cart_height / 2, -cart_height / 2
+    cart = [(left, bottom), (left, top), (right, top), (right, bottom)]
+    draw.polygon([to_image(cart_x + x, cart_y + y) for x, y in cart], fill=(0, 0, 0))
+
+    left, right = -pole_width / 2, pole_width / 2
+    top, bottom = pole_len - pole_width / 2, -pole_width / 2
+    # pygame's Vector2.rotate_rad(-theta) in y-up coordinates: the pole leans right for theta > 0.
+    cos, sin = math.cos(-theta), math.sin(-theta)
+    pole = [
+        to_image(cart_x + x * cos - y * sin, cart_y + axle_offset + x * sin + y * cos)
+        for x, y in [(left, bottom), (left, top), (right, top), (right, bottom)]
+    ]
+    draw.polygon(pole, fill=(202, 152, 101))
+
+    ax, ay = to_image(int(cart_x), int(cart_y + axle_offset))
+    r = int(pole_width / 2)
+    draw.ellipse([ax - r, ay - r, ax + r, ay + r], fill=(129, 132, 203))
+    draw.line([to_image(0, cart_y), to_image(width, cart_y)], fill=(0, 0, 0))
+    return np.asarray(image)

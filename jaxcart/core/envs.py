@@ -65,6 +65,9 @@ class Env:
             [num_envs])`` in NumPy from a run's ``numpy.random.Generator``: the first episodes
             drawn on the host, no program to compile (CartPole's); None: ``reset`` with keys
             the generator draws.
+        draw_frame: ``(state, params) -> frame [H, W, 3] uint8`` of the state of Gymnasium's
+            env of this id, drawn without pygame (CartPole's, with Pillow: GIFs where pygame
+            is missing); None: frames come from Gymnasium's renderer alone.
     """
 
     id: str
@@ -76,6 +79,7 @@ class Env:
     reward_threshold: float | None = None
     max_episode_steps: int = 500
     host_reset: Callable[[np.random.Generator, Any, int, np.dtype], tuple] | None = None
+    draw_frame: Callable[[Any, Any], np.ndarray] | None = None
 
 
 CARTPOLE = Env(
@@ -87,6 +91,7 @@ CARTPOLE = Env(
     # steps an EpisodeState too: physics drawn anew at every reset (--randomize ...:episode)
     step_batch=physics.step_batch,
     host_reset=cartpole.host_reset,
+    draw_frame=cartpole.draw_frame,
 )
 
 _ENVS: dict[str, Env] = {DEFAULT_ENV: CARTPOLE}

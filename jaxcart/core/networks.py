@@ -44,6 +44,21 @@ def layer_names(num_hidden: int) -> list[str]:
     return [f"hidden_{i}" for i in range(num_hidden)] + [OUT]
 
 
+def sb3_layers(actor_hidden: int, critic_hidden: int) -> list[tuple[str, str, str]]:
+    """``(head, layer, SB3 module)`` of each ``Linear`` of Stable-Baselines3's
+    ``ActorCriticPolicy`` with ``actor_hidden`` and ``critic_hidden`` hidden layers, in its
+    ``state_dict`` order: ``mlp_extractor.policy_net.{2i}`` and ``mlp_extractor.value_net.{2i}``
+    (``Linear`` at even indices, activations between), then the heads ``action_net`` and
+    ``value_net``. SB3's ``weight [out, in]`` is the transpose of jaxcart's ``kernel``."""
+    bodies = ((ACTOR, "policy_net", actor_hidden), (CRITIC, "value_net", critic_hidden))
+    layers = [
+        (head, name, f"mlp_extractor.{net}.{2 * i}")
+        for head, net, hidden in bodies
+        for i, name in enumerate(layer_names(hidden)[:-1])
+    ]
+    return [*layers, (ACTOR, OUT, "action_net"), (CRITIC, OUT, "value_net")]
+
+
 def orthogonal(rng: np.random.Generator, shape: tuple[int, int], gain: float) -> np.ndarray:
     """``gain`` times a Haar-random matrix with orthonormal rows or columns (QR of a Gaussian
     matrix with R's diagonal made positive), float64."""

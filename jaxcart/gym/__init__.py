@@ -1,6 +1,6 @@
-"""jaxcart's Gymnasium front-ends (:mod:`jaxcart.gym.adapter`, which re-exports them from
-:mod:`jaxcart.gym.single_env` and :mod:`jaxcart.gym.vector_env`, over the compiled programs of
-:mod:`jaxcart.gym.kernels`) and GIF rendering (:mod:`jaxcart.results.gif`).
+"""jaxcart's Gymnasium front-ends (:mod:`jaxcart.gym.adapter`, over the compiled programs of
+:mod:`jaxcart.gym.kernels`) and Gymnasium's own CartPole with a run's physics
+(:mod:`jaxcart.gym.stock`).
 
 This ``__init__`` holds :func:`register`, which ``import jaxcart`` calls: Gymnasium's own
 ``gymnasium.register`` with string entry points, so it imports neither JAX nor the front-ends.

@@ -1,7 +1,7 @@
 """The compiled programs behind jaxcart's Gymnasium front-ends, and the vector env's packed rows.
 
-Each ``step`` of :class:`~jaxcart.gym.single_env.JaxCartPoleEnv` and
-:class:`~jaxcart.gym.vector_env.JaxCartPoleVectorEnv` is one call of a program compiled ahead of
+Each ``step`` of :class:`~jaxcart.gym.adapter.JaxCartPoleEnv` and
+:class:`~jaxcart.gym.adapter.JaxCartPoleVectorEnv` is one call of a program compiled ahead of
 time: the state stays on the JAX device as one array, donated to the call (XLA writes the new
 state over the old), and comes back to NumPy in one copy. A program is compiled once per (size,
 autoreset mode, precision, non-float parameters) and shared by every env instance; the float
@@ -213,46 +213,39 @@ def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
     return jnp.stack([r.astype(rows.dtype) for r in out])
 
 
-def float_spec(x64: bool):
+def _compile(fn, x64: bool, *shapes: tuple, **jit_options):
+    """``fn`` jitted with ``jit_options`` and compiled ahead of time, in precision ``x64``, for
+    arguments of ``shapes``: ``(shape, dtype)`` pairs, dtype ``None`` for the float dtype."""
     import jax
     import jax.numpy as jnp
 
-    return jax.ShapeDtypeStruct((len(FLOAT_PARAMS),), jnp.float64 if x64 else jnp.float32)
+    with precision(x64):
+        float_dtype = jnp.float64 if x64 else jnp.float32
+        specs = [jax.ShapeDtypeStruct(shape, dtype or float_dtype) for shape, dtype in shapes]
+        return jax.jit(fn, **jit_options).lower(*specs).compile()
+
+
+FLOATS = ((len(FLOAT_PARAMS),), None)  # the float parameters' argument (see float_values)
+
+
+def rows_shape(num_envs: int, mode: AutoresetMode) -> tuple[int, int]:
+    """The vector env's device state: ``[rows, num_envs]`` in the env's float dtype."""
+    return (num_rows(mode), num_envs)
 
 
 @functools.cache
 def compiled_single_step(params: EnvParams, x64: bool):
     """:func:`single_step` for ``params`` (a :func:`compile_key`), compiled ahead of time in
     that precision (the state donated)."""
-    import jax
-    import jax.numpy as jnp
-
-    with precision(x64):
-        packed = jax.ShapeDtypeStruct((5,), jnp.float64 if x64 else jnp.float32)
-        action = jax.ShapeDtypeStruct((), jnp.int32)
-        fn = jax.jit(functools.partial(single_step, params=params), donate_argnums=0)
-        return fn.lower(packed, action, float_spec(x64)).compile()
-
-
-def rows_spec(num_envs: int, mode: AutoresetMode, x64: bool):
-    import jax
-    import jax.numpy as jnp
-
-    dtype = jnp.float64 if x64 else jnp.float32
-    return jax.ShapeDtypeStruct((num_rows(mode), num_envs), dtype)
+    step = functools.partial(single_step, params=params)
+    return _compile(step, x64, ((5,), None), ((), np.int32), FLOATS, donate_argnums=0)
 
 
 @functools.cache
 def compiled_vector_reset(num_envs: int, mode: AutoresetMode, x64: bool):
     """:func:`vector_reset` compiled ahead of time (the rows donated)."""
-    import jax
-    import jax.numpy as jnp
-
-    with precision(x64):
-        key = jax.ShapeDtypeStruct((2,), jnp.uint32)
-        mask = jax.ShapeDtypeStruct((num_envs,), jnp.bool_)
-        fn = jax.jit(vector_reset, donate_argnums=0)
-        return fn.lower(rows_spec(num_envs, mode, x64), key, float_spec(x64), mask).compile()
+    rows, key, mask = (rows_shape(num_envs, mode), None), ((2,), np.uint32), ((num_envs,), bool)
+    return _compile(vector_reset, x64, rows, key, FLOATS, mask, donate_argnums=0)
 
 
 def _vector_step_into(rows, spare, inputs, floats, params: EnvParams, mode: AutoresetMode):
@@ -268,15 +261,9 @@ def compiled_vector_step(params: EnvParams, num_envs: int, mode: AutoresetMode, 
     buffer of ``spare`` (donated; the rows of the step before), not over ``rows``. Writing over
     ``rows`` would cost a copy of the whole state per step, as XLA cannot compute the new rows
     in place (each row reads others)."""
-    import jax
-    import jax.numpy as jnp
-
-    with precision(x64):
-        rows = rows_spec(num_envs, mode, x64)
-        inputs = jax.ShapeDtypeStruct((num_envs + 2,), jnp.uint32)
-        step = functools.partial(_vector_step_into, params=params, mode=mode)
-        fn = jax.jit(step, donate_argnums=1, keep_unused=True)
-        return fn.lower(rows, rows, inputs, float_spec(x64)).compile()
+    step = functools.partial(_vector_step_into, params=params, mode=mode)
+    rows, inputs = (rows_shape(num_envs, mode), None), ((num_envs + 2,), np.uint32)
+    return _compile(step, x64, rows, rows, inputs, FLOATS, donate_argnums=1, keep_unused=True)
 
 
 def step_inputs(actions: np.ndarray, key: np.ndarray) -> np.ndarray:

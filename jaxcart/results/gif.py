@@ -1,8 +1,9 @@
 """Animated GIFs of a policy balancing the pole in Gymnasium's own CartPole-v1.
 
 Frames come from Gymnasium's renderer (``render_mode="rgb_array"``, which needs ``pygame``);
-without pygame they are drawn with Pillow using the same geometry and colours. The episode
-itself always runs in ``gymnasium.make("CartPole-v1")``, so the GIF shows exactly what the
+without pygame the env draws them itself (:attr:`jaxcart.core.envs.Env.draw_frame`: CartPole's
+with Pillow, in the same geometry and colours). The episode itself always runs in Gymnasium's
+env (``gymnasium.make("CartPole-v1")`` by default), so the GIF shows exactly what the
 evaluation measures. Needs Pillow (``pip install pillow pygame``).
 
 Example::
@@ -15,7 +16,7 @@ Example::
 
 from __future__ import annotations
 
-import math
+import io
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -23,22 +24,14 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from jaxcart.core import envs
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.gym.stock import make_cartpole, reset_options
+from jaxcart.rundir.files import atomic_write_bytes
 
-SCREEN_WIDTH, SCREEN_HEIGHT = 600, 400
-"""Gymnasium's CartPole canvas in pixels."""
-
-SCENE_COLOURS = {
-    (255, 255, 255): "background",
-    (0, 0, 0): "cart and track",
-    (202, 152, 101): "pole",
-    (129, 132, 203): "axle",
-    (60, 60, 60): "caption",
-}
-"""Every colour Gymnasium's renderer (and the caption) uses; the GIF palette blends them."""
-
-CAPTION_COLOUR = (60, 60, 60)
+PALETTE_COLOURS = 64
+"""Colours of the GIF's one palette, taken from its first frame: the scene's few colours and
+the blends of their anti-aliased edges."""
 
 
 class RenderedGif(NamedTuple):
@@ -51,62 +44,19 @@ class RenderedGif(NamedTuple):
     backend: str  # "gymnasium" (pygame) or "pillow"
 
 
-def _prepare_pygame_env() -> None:
-    """Lets pygame render off-screen on a machine without a display, and quietly."""
+def pygame_available() -> bool:
+    """Whether Gymnasium's own renderer (pygame) can be used; lets pygame render off-screen on
+    a machine without a display, and quietly."""
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         # rgb_array rendering never opens a window; the dummy driver avoids SDL errors.
         os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
         os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
-
-
-def pygame_available() -> bool:
-    """Whether Gymnasium's own renderer (pygame) can be used."""
-    _prepare_pygame_env()
     try:
         import pygame  # noqa: F401
     except ImportError:
         return False
     return True
-
-
-def draw_frame(state: np.ndarray, length: float = 0.5, x_threshold: float = 2.4) -> np.ndarray:
-    """One ``(400, 600, 3)`` uint8 frame of ``state = (x, x_dot, theta, theta_dot)``, drawn with
-    Pillow in the geometry and colours of Gymnasium's CartPole renderer (no anti-aliasing)."""
-    from PIL import Image, ImageDraw
-
-    scale = SCREEN_WIDTH / (2 * x_threshold)
-    pole_width, pole_len = 10.0, scale * 2 * length
-    cart_width, cart_height = 50.0, 30.0
-    axle_offset = cart_height / 4.0
-    cart_x = float(state[0]) * scale + SCREEN_WIDTH / 2.0
-    cart_y = 100.0  # top of the cart, measured from the bottom like Gymnasium (flipped below)
-    theta = float(state[2])
-
-    def to_image(x: float, y: float) -> tuple[float, float]:
-        return x, SCREEN_HEIGHT - 1 - y  # pygame.transform.flip maps row y to H - 1 - y
-
-    image = Image.new("RGB", (SCREEN_WIDTH, SCREEN_HEIGHT), (255, 255, 255))
-    draw = ImageDraw.Draw(image)
-    left, right, top, bottom = -cart_width / 2, cart_width / 2, cart_height / 2, -cart_height / 2
-    cart = [(left, bottom), (left, top), (right, top), (right, bottom)]
-    draw.polygon([to_image(cart_x + x, cart_y + y) for x, y in cart], fill=(0, 0, 0))
-
-    left, right = -pole_width / 2, pole_width / 2
-    top, bottom = pole_len - pole_width / 2, -pole_width / 2
-    # pygame's Vector2.rotate_rad(-theta) in y-up coordinates: the pole leans right for theta > 0.
-    cos, sin = math.cos(-theta), math.sin(-theta)
-    pole = [
-        to_image(cart_x + x * cos - y * sin, cart_y + axle_offset + x * sin + y * cos)
-        for x, y in [(left, bottom), (left, top), (right, top), (right, bottom)]
-    ]
-    draw.polygon(pole, fill=(202, 152, 101))
-
-    ax, ay = to_image(int(cart_x), int(cart_y + axle_offset))
-    r = int(pole_width / 2)
-    draw.ellipse([ax - r, ay - r, ax + r, ay + r], fill=(129, 132, 203))
-    draw.line([to_image(0, cart_y), to_image(SCREEN_WIDTH, cart_y)], fill=(0, 0, 0))
-    return np.asarray(image)
 
 
 def _check_options(max_steps: int, fps: float, frame_skip: int, scale: float) -> None:
@@ -162,16 +112,17 @@ def _backend(backend: str) -> str:
 
 
 def _episode(policy, seed, max_steps, backend, env_id, env_params=None):
-    """Yields ``(frame (400, 600, 3) uint8, steps, return so far)`` after the reset and after
-    every step of one episode in Gymnasium (``backend`` resolved: :func:`_backend`)."""
+    """Yields ``(frame [H, W, 3] uint8, steps, return so far)`` after the reset and after every
+    step of one episode in Gymnasium (``backend`` resolved: :func:`_backend`): frames from
+    Gymnasium's renderer, or drawn by the env's :attr:`~jaxcart.core.envs.Env.draw_frame`."""
     mode = "rgb_array" if backend == "gymnasium" else None
+    draw = None if mode else envs.make(env_id).draw_frame  # the env's own Pillow drawing
+    if mode is None and draw is None:
+        raise ValueError(f"env {env_id} draws no frames with Pillow; use backend='gymnasium'")
     env = make_cartpole(env_params, env_id, render_mode=mode)
-    core = env.unwrapped
 
     def frame() -> np.ndarray:
-        if backend == "gymnasium":
-            return env.render()
-        return draw_frame(np.asarray(core.state), core.length, core.x_threshold)
+        return env.render() if draw is None else draw(np.asarray(env.unwrapped.state), env_params)
 
     try:
         obs, _ = env.reset(seed=seed, options=reset_options(env_params))
@@ -197,7 +148,7 @@ def _annotate(image, text: str) -> None:
         font = ImageFont.load_default(size=size)  # FreeType's scalable default font
     except (AttributeError, TypeError, ImportError):  # Pillow without FreeType
         font = ImageFont.load_default()
-    ImageDraw.Draw(image).text((6, 4), text, fill=CAPTION_COLOUR, font=font)
+    ImageDraw.Draw(image).text((6, 4), text, fill=(60, 60, 60), font=font)
 
 
 def render_gif(
@@ -241,13 +192,20 @@ def render_gif(
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
-    size = (max(1, round(SCREEN_WIDTH * scale)), max(1, round(SCREEN_HEIGHT * scale)))
-    backend, palette, images = _backend(backend), gif_palette(), []
+    backend, images = _backend(backend), []
     episode = _episode(policy, seed, max_steps, backend, env_id, env_params)
 
     def add(frame: np.ndarray, steps: int, total: float) -> None:
-        caption = f"step {steps}  return {total:.0f}" if annotate else None
-        images.append(_to_gif_frame(frame, size, caption, palette))
+        """The frame resized, captioned and mapped onto the GIF's palette (the first frame's)."""
+        from PIL import Image
+
+        image = Image.fromarray(np.asarray(frame, np.uint8))
+        size = (max(1, round(image.width * scale)), max(1, round(image.height * scale)))
+        image = image.resize(size, Image.Resampling.LANCZOS) if image.size != size else image
+        if annotate:
+            _annotate(image, f"step {steps}  return {total:.0f}")
+        palette = images[0] if images else image.quantize(PALETTE_COLOURS)
+        images.append(image.quantize(palette=palette, dither=Image.Dither.NONE))
 
     for i, last in enumerate(episode):  # at least the reset's frame
         if i % frame_skip == 0:
@@ -255,63 +213,16 @@ def render_gif(
     if i % frame_skip:  # always show how the episode ended
         add(*last)
 
-    # GIF frame delays are whole centiseconds.
-    duration = max(10, round(100 * frame_skip / fps) * 10)
-    import io
-
-    from jaxcart.rundir.files import atomic_write_bytes
-
     buf = io.BytesIO()
     images[0].save(
         buf,
         format="GIF",
         save_all=True,
         append_images=images[1:],
-        duration=duration,
+        duration=max(10, round(100 * frame_skip / fps) * 10),  # whole centiseconds, in ms
         loop=0,
         optimize=False,
         disposal=1,
     )
     atomic_write_bytes(path, buf.getvalue())
     return RenderedGif(path, len(images), last[1], last[2], backend)
-
-
-def gif_palette() -> np.ndarray:
-    """``(N, 3)`` uint8 colours: the scene's colours and 9-step blends between each pair, which
-    covers the anti-aliased edges of the downscaled frames exactly enough."""
-    colours = np.array(list(SCENE_COLOURS), float)
-    blends = np.linspace(0.0, 1.0, 9)[:, None]
-    rows = [
-        np.rint(colours[i] * (1 - blends) + colours[j] * blends)
-        for i in range(len(colours))
-        for j in range(i + 1, len(colours))
-    ]
-    return np.unique(np.concatenate(rows).astype(np.uint8), axis=0)
-
-
-def _to_palette_image(rgb: np.ndarray, palette: np.ndarray):
-    """A ``P``-mode PIL image of ``rgb`` ``(H, W, 3)`` mapped to the nearest ``palette`` colour."""
-    from PIL import Image
-
-    packed = (
-        (rgb[..., 0].astype(np.int32) << 16) | (rgb[..., 1].astype(np.int32) << 8) | rgb[..., 2]
-    )
-    values, inverse = np.unique(packed.ravel(), return_inverse=True)
-    colours = np.stack([(values >> 16) & 255, (values >> 8) & 255, values & 255], axis=1)
-    dist = ((colours[:, None, :] - palette[None, :, :].astype(np.int32)) ** 2).sum(-1)
-    index = np.argmin(dist, axis=1).astype(np.uint8)[inverse].reshape(rgb.shape[:2])
-    image = Image.fromarray(index, mode="P")
-    image.putpalette(palette.ravel().tolist())
-    return image
-
-
-def _to_gif_frame(frame: np.ndarray, size, caption: str | None, palette: np.ndarray):
-    """An RGB frame resized, captioned (unless None) and mapped onto the GIF's palette."""
-    from PIL import Image
-
-    image = Image.fromarray(np.asarray(frame, np.uint8))
-    if image.size != size:
-        image = image.resize(size, Image.Resampling.LANCZOS)
-    if caption is not None:
-        _annotate(image, caption)
-    return _to_palette_image(np.asarray(image), palette)

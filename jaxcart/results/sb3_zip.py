@@ -19,11 +19,13 @@ from __future__ import annotations
 import base64
 import io
 import json
+import math
 import pickle
 import struct
 import zipfile
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -65,61 +67,49 @@ class TensorRef:
     shape: tuple[int, ...]
 
 
+@dataclass(frozen=True)
+class _Storage:
+    """The persistent ``FloatStorage`` of ``numel`` floats in the record ``data/{key}``."""
+
+    key: str
+    numel: int
+
+
+class _Pickler(pickle._Pickler):
+    """Python's own (pure-Python) pickler that also writes a :class:`Global` by name, without
+    importing it (torch and SB3 need not be installed), and a :class:`TensorRef` as
+    ``torch.save`` writes a tensor: ``_rebuild_tensor_v2`` of a persistent ``FloatStorage``."""
+
+    dispatch: ClassVar[dict] = dict(pickle._Pickler.dispatch)
+
+    def save_global_name(self, obj: Global) -> None:
+        self.write(pickle.GLOBAL + f"{obj.module}\n{obj.name}\n".encode())
+
+    def save_tensor(self, obj: TensorRef) -> None:
+        shape = tuple(obj.shape)
+        strides = tuple(math.prod(shape[i + 1 :]) for i in range(len(shape)))
+        self.save(Global("torch._utils", "_rebuild_tensor_v2"))
+        # storage, offset, size, stride, requires_grad, backward hooks
+        self.save((_Storage(obj.key, math.prod(shape)), 0, shape, strides, False, OrderedDict()))
+        self.write(pickle.REDUCE)
+
+    def persistent_id(self, obj: object) -> tuple | None:
+        """A storage as torch.save names it (BINPERSID): torch.load reads its bytes from the
+        record ``data/{key}``."""
+        if isinstance(obj, _Storage):
+            return ("storage", Global("torch", "FloatStorage"), obj.key, "cpu", obj.numel)
+        return None
+
+    dispatch[Global] = save_global_name
+    dispatch[TensorRef] = save_tensor
+
+
 def write_pickle(obj: object) -> bytes:
-    """``obj`` as a protocol-2 pickle: None, bools, ints, floats, strings, tuples, lists, dicts
-    (an ``OrderedDict`` stays one), :class:`Global` and :class:`TensorRef` (torch's
-    ``_rebuild_tensor_v2`` of a persistent ``FloatStorage``, as ``torch.save`` writes it)."""
-    out = bytearray(b"\x80\x02")
-    _write(obj, out)
-    return bytes(out + b".")
-
-
-def _write(obj: object, out: bytearray) -> None:
-    if obj is None:
-        out += b"N"
-    elif isinstance(obj, bool):
-        out += b"\x88" if obj else b"\x89"
-    elif isinstance(obj, int):
-        out += b"K" + bytes([obj]) if 0 <= obj < 256 else b"J" + struct.pack("<i", obj)
-    elif isinstance(obj, float):
-        out += b"G" + struct.pack(">d", obj)
-    elif isinstance(obj, str):
-        data = obj.encode()
-        out += b"X" + struct.pack("<I", len(data)) + data
-    elif isinstance(obj, Global):
-        out += b"c" + f"{obj.module}\n{obj.name}\n".encode()
-    elif isinstance(obj, tuple):
-        out += b"("
-        for item in obj:
-            _write(item, out)
-        out += b"t"
-    elif isinstance(obj, list):
-        out += b"]("
-        for item in obj:
-            _write(item, out)
-        out += b"e"
-    elif isinstance(obj, dict):
-        # an OrderedDict is OrderedDict() filled by SETITEMS, as pickle writes one
-        out += b"ccollections\nOrderedDict\n)R(" if isinstance(obj, OrderedDict) else b"}("
-        for key, value in obj.items():
-            _write(key, out)
-            _write(value, out)
-        out += b"u"
-    elif isinstance(obj, TensorRef):
-        numel = int(np.prod(obj.shape, dtype=np.int64))
-        strides = tuple(
-            int(np.prod(obj.shape[i + 1 :], dtype=np.int64)) for i in range(len(obj.shape))
-        )
-        storage = ("storage", Global("torch", "FloatStorage"), obj.key, "cpu", numel)
-        _write(Global("torch._utils", "_rebuild_tensor_v2"), out)
-        out += b"("
-        _write(storage, out)
-        out += b"Q"  # BINPERSID: torch.load reads the storage from the record data/{key}
-        for arg in (0, obj.shape, strides, False, OrderedDict()):  # offset, size, stride, ...
-            _write(arg, out)
-        out += b"tR"
-    else:
-        raise TypeError(f"cannot pickle {type(obj).__name__}")
+    """``obj`` as a protocol-2 pickle (what ``torch.load(weights_only=True)`` and SB3 read),
+    its :class:`Global` and :class:`TensorRef` values written by name (:class:`_Pickler`)."""
+    buffer = io.BytesIO()
+    _Pickler(buffer, protocol=2).dump(obj)
+    return buffer.getvalue()
 
 
 def torch_save_bytes(obj: object, tensors: dict[str, np.ndarray]) -> bytes:
@@ -152,21 +142,11 @@ def policy_state_dict(params: dict, config: PPOConfig) -> OrderedDict[str, np.nd
     ``value_net.*`` (weights ``[out, in]``, biases ``[out]``, float32)."""
     root = params[networks.ROOT]
     state: OrderedDict[str, np.ndarray] = OrderedDict()
-    heads = {}
-    for head, extractor, sb3_out in (
-        (networks.ACTOR, "policy_net", "action_net"),
-        (networks.CRITIC, "value_net", "value_net"),
-    ):
-        layers = root[head]
-        names = networks.layer_names(len(layers) - 1)
-        for i, name in enumerate(names[:-1]):
-            state[f"mlp_extractor.{extractor}.{2 * i}.weight"] = layers[name]["kernel"].T
-            state[f"mlp_extractor.{extractor}.{2 * i}.bias"] = layers[name]["bias"]
-        heads[sb3_out] = layers[networks.OUT]
-    for sb3_out in ("action_net", "value_net"):
-        state[f"{sb3_out}.weight"] = heads[sb3_out]["kernel"].T
-        state[f"{sb3_out}.bias"] = heads[sb3_out]["bias"]
-    return OrderedDict((k, np.ascontiguousarray(v, np.float32)) for k, v in state.items())
+    hidden = (len(root[networks.ACTOR]) - 1, len(root[networks.CRITIC]) - 1)
+    for head, layer, module in networks.sb3_layers(*hidden):
+        state[f"{module}.weight"] = np.ascontiguousarray(root[head][layer]["kernel"].T, np.float32)
+        state[f"{module}.bias"] = np.ascontiguousarray(root[head][layer]["bias"], np.float32)
+    return state
 
 
 def net_arch(config: PPOConfig) -> dict[str, list[int]]:

@@ -53,7 +53,7 @@ import queue
 import sys
 import textwrap
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -75,11 +75,6 @@ def sb3_extras(
     iterations = first_iteration + 1 + np.arange(count)
     clip = np.broadcast_to(np.asarray(clip_range, np.float64), (count, len(clip_range)))
     return {"train/n_updates": iterations * update_epochs, "train/clip_range": clip}
-
-
-def swanlab_dir(log_dir: Path | None) -> Path:
-    """SwanLab's folder: ``log_dir``, else ``$SWANLAB_LOG_DIR``, else ``./swanlog``."""
-    return Path(log_dir or os.environ.get("SWANLAB_LOG_DIR") or "swanlog")
 
 
 class LoggerUnavailable(ValueError):
@@ -124,30 +119,22 @@ class MetricBatch:
 
 
 class Backend:
-    """A writer for one library. ``__init__`` (cheap) keeps :func:`make_logger`'s arguments,
-    which also imports ``module`` in the caller's thread; ``open``, ``write`` and ``close``
-    run in the backend's own thread, in that order."""
+    """A writer for one library (``name``: also the pip extra of jaxcart that installs it).
+    ``__init__`` (cheap) keeps :func:`make_logger`'s arguments, which also imports ``module``
+    in the caller's thread; a subclass's ``open()``, ``write(batch: MetricBatch)`` and
+    ``close()`` run in the backend's own thread, in that order."""
 
     name: ClassVar[str]
     module: ClassVar[str | None]  # package that must be importable (None: nothing needed)
-    extra: ClassVar[str | None]  # pip extra of jaxcart that installs it
 
     def __init__(
         self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
     ) -> None:
         self.out_dir, self.run_names, self.config = Path(out_dir), run_names, config
         self.log_dir = log_dir  # the folder shared with other runs (None: the library's own)
-        self.experiment = experiment_name(out_dir)
+        # the name the logs go under: the run directory's
+        self.experiment = Path(out_dir).resolve().name or "jaxcart"
         self.per_run: list[Any] = []  # each run's writer (TensorBoard) or W&B run
-
-    def open(self) -> None:
-        raise NotImplementedError
-
-    def write(self, batch: MetricBatch) -> None:
-        raise NotImplementedError
-
-    def close(self) -> None:
-        raise NotImplementedError
 
 
 def _json_safe(config: dict) -> dict:
@@ -162,7 +149,6 @@ class TensorBoardBackend(Backend):
 
     name = "tensorboard"
     module = "tensorboardX"
-    extra = "tensorboard"
 
     def open(self) -> None:
         from tensorboardX import FileWriter
@@ -221,13 +207,13 @@ class SwanLabBackend(Backend):
 
     name = "swanlab"
     module = "swanlab"
-    extra = "swanlab"
 
     run: Any = None
     pending: dict[int, dict[int, dict[str, float]]]  # step -> run -> name -> value
 
     def open(self) -> None:
-        folder = swanlab_dir(self.log_dir).absolute()
+        # log_dir, else $SWANLAB_LOG_DIR, else ./swanlog
+        folder = Path(self.log_dir or os.environ.get("SWANLAB_LOG_DIR") or "swanlog").absolute()
         folder.mkdir(parents=True, exist_ok=True)
         self.pending = {}
         import swanlab
@@ -253,8 +239,27 @@ class SwanLabBackend(Backend):
             description=f"{len(self.run_names)} run(s): {', '.join(self.run_names)}",
             config={**_json_safe(self.config), "run_names": self.run_names},
             settings=settings,
-            callbacks=[_flush_records(swanlab.Callback, lambda: self.run)],
+            callbacks=[self._flush_records(swanlab.Callback)],
         )
+
+    def _flush_records(self, base: type) -> Any:
+        """A SwanLab callback that puts each batch of scalars into the run's ``.swanlab``
+        file as soon as SwanLab has written it. SwanLab 0.10 keeps its records file open with
+        Python's buffer and flushes it only when the run finishes, so without this a run's
+        curve would appear on disk (for ``swanlab sync``, or any reader) only at the end. It
+        runs in SwanLab's own writer thread, right after the batch is written; where a SwanLab
+        version has no such writer (``run._core._store``), it does nothing."""
+        backend = self
+
+        class FlushRecords(base):
+            name = "jaxcart-flush-records"
+
+            def on_scalar_flush(self, scalar_records, *args, **kwargs) -> None:
+                store = getattr(getattr(backend.run, "_core", None), "_store", None)
+                if store is not None and hasattr(store, "ensure_flushed"):
+                    store.ensure_flushed()
+
+        return FlushRecords()
 
     def write(self, batch: MetricBatch) -> None:
         columns = range(len(batch.runs) if len(self.run_names) > 1 else 0)
@@ -299,25 +304,6 @@ class SwanLabBackend(Backend):
             self.run = None
 
 
-def _flush_records(base: type, get_run: Callable[[], Any]) -> Any:
-    """A SwanLab callback that puts each batch of scalars into the run's ``.swanlab`` file
-    as soon as SwanLab has written it. SwanLab 0.10 keeps its records file open with Python's
-    buffer and flushes it only when the run finishes, so without this a run's curve would
-    appear on disk (for ``swanlab sync``, or any reader) only at the end. It runs in SwanLab's
-    own writer thread, right after the batch is written; where a SwanLab version has no such
-    writer (``run._core._store``), it does nothing."""
-
-    class FlushRecords(base):
-        name = "jaxcart-flush-records"
-
-        def on_scalar_flush(self, scalar_records, *args, **kwargs) -> None:
-            store = getattr(getattr(get_run(), "_core", None), "_store", None)
-            if store is not None and hasattr(store, "ensure_flushed"):
-                store.ensure_flushed()
-
-    return FlushRecords()
-
-
 class WandbBackend(Backend):
     """One W&B run per training run, grouped by the run directory; offline unless
     ``WANDB_MODE`` says otherwise; ``WANDB_PROJECT``, ``WANDB_ENTITY`` and ``WANDB_DIR``
@@ -325,7 +311,6 @@ class WandbBackend(Backend):
 
     name = "wandb"
     module = "wandb"
-    extra = "wandb"
 
     def open(self) -> None:
         import wandb
@@ -424,7 +409,7 @@ class _Worker:
                 )
 
 
-class Logger:
+class Logger(contextlib.AbstractContextManager):
     """Fans each chunk's metrics out to the backends' queues; see :func:`make_logger`.
 
     Use as a context manager or call :meth:`close`; a logger with no backends does nothing.
@@ -518,9 +503,6 @@ class Logger:
         with contextlib.suppress(LoggerError):  # already reported on stderr
             self.close()
 
-    def __enter__(self) -> Logger:
-        return self
-
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
             self.close()
@@ -544,14 +526,9 @@ def check_available(names: Sequence[str]) -> None:
         if backend is not None and backend.module is not None and not _installed(backend.module):
             raise LoggerUnavailable(
                 f"the {name} logger needs the {backend.module} package: "
-                f"pip install 'jaxcart[{backend.extra}]' (in a clone of jaxcart: "
-                f"pip install -e '.[{backend.extra}]')"
+                f"pip install 'jaxcart[{name}]' (in a clone of jaxcart: "
+                f"pip install -e '.[{name}]')"
             )
-
-
-def experiment_name(out_dir: Path) -> str:
-    """The name a run directory's logs go under (its folder's name)."""
-    return Path(out_dir).resolve().name or "jaxcart"
 
 
 def make_logger(

@@ -109,10 +109,9 @@ def to_metrics(rows: list[dict]) -> dict[str, np.ndarray]:
 def sb3_params(state_dict: dict[str, np.ndarray], config: PPOConfig) -> dict:
     """SB3 ``MlpPolicy`` weights as jaxcart's parameter tree (no seed axis, float32).
 
-    SB3's policy keeps two MLPs, ``mlp_extractor.policy_net`` and ``.value_net`` (``Linear``
-    at indices 0, 2, ... between activations), then the heads ``action_net`` and
-    ``value_net``; they become jaxcart's ``actor`` and ``critic`` layers ``hidden_0, ...,
-    out``.
+    SB3's policy keeps two MLPs, then the heads ``action_net`` and ``value_net``; they become
+    jaxcart's ``actor`` and ``critic`` layers ``hidden_0, ..., out``
+    (:func:`jaxcart.core.networks.sb3_layers`).
 
     Args:
         state_dict: ``model.policy.state_dict()`` as NumPy arrays (``weight [out, in]``,
@@ -123,21 +122,13 @@ def sb3_params(state_dict: dict[str, np.ndarray], config: PPOConfig) -> dict:
         KeyError: a layer is missing (not an ``MlpPolicy`` of this shape).
     """
     hidden = len(config.hidden_sizes)
-    heads = {
-        networks.ACTOR: ("mlp_extractor.policy_net", "action_net"),
-        networks.CRITIC: ("mlp_extractor.value_net", "value_net"),
-    }
-    tree: dict = {networks.ROOT: {}}
-    for head, (body, out) in heads.items():
-        sources = [f"{body}.{2 * i}" for i in range(hidden)] + [out]
-        tree[networks.ROOT][head] = {
-            name: {
-                "kernel": np.asarray(state_dict[f"{src}.weight"], np.float32).T,
-                "bias": np.asarray(state_dict[f"{src}.bias"], np.float32),
-            }
-            for name, src in zip(networks.layer_names(hidden), sources)
+    tree: dict = {networks.ACTOR: {}, networks.CRITIC: {}}
+    for head, layer, module in networks.sb3_layers(hidden, hidden):
+        tree[head][layer] = {
+            "kernel": np.asarray(state_dict[f"{module}.weight"], np.float32).T,
+            "bias": np.asarray(state_dict[f"{module}.bias"], np.float32),
         }
-    return tree
+    return {networks.ROOT: tree}
 
 
 def greedy_returns(act: Callable[[np.ndarray], np.ndarray], episodes: int) -> np.ndarray:
@@ -274,39 +265,32 @@ def save_seed(out: Path, seed: int, result: SeedResult, elapsed: float) -> None:
 
 
 def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, float] | None:
-    """A seed :func:`save_seed` kept, checked (names, shapes, finite weights and returns), with
-    the run's elapsed seconds when it was saved; None when that seed has not finished."""
+    """A seed :func:`save_seed` kept, checked (names, shapes, finite weights and returns: the
+    store's :func:`~jaxcart.rundir.files.load_tree`), with the run's elapsed seconds when it
+    was saved; None when that seed has not finished."""
     path = layout.sb3_seed_file(out, seed)
     files.subdir(out, layout.SB3_SEEDS_DIR)
     if files.refuse_link(path) is None:
         return None
-    arrays, meta = files.load_tree(path, max_bytes=1 << 24)
-    expected = {f"params/{k}": h for k, h in _seed_param_headers(config).items()}
-    expected |= {f"metrics/{k}": None for k in METRIC_COLUMNS} | {"returns": None}
-    params = {k: arrays[k] for k in arrays if k.startswith("params/")}
-    if set(arrays) != set(expected) or any(
-        (a.shape, a.dtype) != expected[k] for k, a in params.items()
-    ):
-        raise RunDirError(f"{path} does not hold one SB3 seed of this run; refusing it")
-    returns = arrays["returns"]
-    files.check_finite(params | {"returns": returns}, path)
-    lengths = {arrays[f"metrics/{k}"].shape for k in METRIC_COLUMNS}
+    headers = params_headers(config, 1).items()
+    expected = {f"params/{k}": (shape[1:], dtype) for k, (shape, dtype) in headers}
+    expected["returns"] = ((NUM_EVAL_EPISODES,), np.dtype(np.float64))
+    what = f"SB3 seed {seed} of this run"
+    arrays, meta = files.load_tree(path, 1 << 24, expected, what, exact=False)
+    metrics = {k: arrays.pop(f"metrics/{k}", None) for k in METRIC_COLUMNS}
+    lengths = {None if m is None else m.shape for m in metrics.values()}
     if (
-        returns.shape != (NUM_EVAL_EPISODES,)
+        set(arrays) != set(expected)
         or len(lengths) != 1
-        or len(next(iter(lengths))) != 1
+        or len(next(iter(lengths)) or ()) != 1
         or not isinstance(meta, dict)
         or meta.get("seed") != seed
         or not all(finite_number(meta.get(k)) for k in ("seconds", "elapsed"))
     ):
-        raise RunDirError(f"{path} does not hold SB3 seed {seed} of this run; refusing it")
-    metrics = {k: arrays[f"metrics/{k}"] for k in METRIC_COLUMNS}
-    tree = files.unflatten({k[len("params/") :]: v for k, v in params.items()})
+        raise RunDirError(f"{path} does not hold {what}; refusing it")
+    returns = arrays.pop("returns")
+    tree = files.unflatten({k[len("params/") :]: v for k, v in arrays.items()})
     return SeedResult(metrics, tree, returns, float(meta["seconds"])), float(meta["elapsed"])
-
-
-def _seed_param_headers(config: PPOConfig) -> dict[str, files.Header]:
-    return {k: (shape[1:], dtype) for k, (shape, dtype) in params_headers(config, 1).items()}
 
 
 def read_plan(out: Path) -> dict:
@@ -332,31 +316,7 @@ def read_plan(out: Path) -> dict:
 
 def train_run(
     out: Path,
-    num_seeds: int,
-    total_timesteps: int = DEFAULT_TIMESTEPS,
-    first_seed: int = 0,
-    **options: Any,
-) -> list[SeedResult]:
-    """Trains seeds ``first_seed ... first_seed + num_seeds - 1`` with SB3 and writes them as
-    the run directory ``out`` (created; it must not exist). Each seed is kept as it finishes:
-    an interrupted run continues with :func:`resume_run`, which takes the same ``options``
-    (``jobs``, ``threads``, ``on_seed``, ``on_start``, ``loggers``, ``logger_dir``,
-    ``progress``) and describes them.
-
-    Raises:
-        SB3Unavailable: SB3 or PyTorch is not installed.
-        FileExistsError: ``out`` exists.
-    """
-    check_available()
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=False)
-    plan = {"first_seed": first_seed, "num_seeds": num_seeds, "total_timesteps": total_timesteps}
-    files.write_json(out / layout.SB3_PLAN_FILE, plan)
-    return resume_run(out, **options)
-
-
-def resume_run(
-    out: Path,
+    plan: dict | None = None,
     jobs: int = 1,
     threads: int = 1,
     on_seed: Callable[[int, SeedResult], None] | None = None,
@@ -365,20 +325,34 @@ def resume_run(
     logger_dir: Path | None = None,
     progress: bool = False,
 ) -> list[SeedResult]:
-    """Trains the seeds of an unfinished SB3 run ``out`` that it has not kept yet, then writes
-    the run directory (and removes the plan and kept seeds). ``on_start(plan, kept)`` is
-    called before training. ``loggers`` and ``logger_dir`` as for
-    :func:`jaxcart.run.loggers.make_logger`: each seed's curve is logged as SB3 writes its log
-    (an iteration once its update is logged, one rollout later), under the names SB3 itself
-    logs; the kept seeds' curves when training starts. ``progress=True`` shows a bar per
-    seed (:class:`jaxcart.run.progress.SeedBars`); ``on_seed`` prints above the bars.
+    """Trains SB3's seeds into the run directory ``out``, then writes the run directory (and
+    removes the plan and kept seeds). Each seed is kept as it finishes, so an interrupted run
+    continues where it stopped.
+
+    Args:
+        out: the run directory: created for a new ``plan`` (it must not exist), else an
+            unfinished SB3 run, whose seeds not kept yet are trained.
+        plan: a new run's ``{"first_seed": ..., "num_seeds": ..., "total_timesteps": ...}``
+            (seeds ``first_seed ... first_seed + num_seeds - 1``); None resumes ``out``.
+        jobs, threads: seeds trained at once (one process each) and PyTorch's threads.
+        on_seed: ``on_seed(seed, result)`` as each seed finishes (printed above the bars).
+        on_start: ``on_start(plan, kept)`` before training.
+        loggers, logger_dir: as for :func:`jaxcart.run.loggers.make_logger`: each seed's
+            curve is logged as SB3 writes its log (an iteration once its update is logged,
+            one rollout later), under the names SB3 itself logs; the kept seeds' curves when
+            training starts.
+        progress: show a bar per seed (:class:`jaxcart.run.progress.SeedBars`).
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
+        FileExistsError: a new run's ``out`` exists.
         RunDirError: ``out`` is not an unfinished SB3 run, or a kept seed is damaged.
     """
     check_available()
     out = Path(out)
+    if plan is not None:
+        out.mkdir(parents=True, exist_ok=False)
+        files.write_json(out / layout.SB3_PLAN_FILE, plan)
     plan = read_plan(out)
     config = PPOConfig(total_timesteps=plan["total_timesteps"])  # SB3's defaults: sb3 preset
     seeds = range(plan["first_seed"], plan["first_seed"] + plan["num_seeds"])
