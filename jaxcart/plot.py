@@ -45,7 +45,7 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import figures, stats
-from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS, return_bounds
+from jaxcart.core.solved import SOLVED_BY, return_bounds
 from jaxcart.rundir import files, layout
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
@@ -73,7 +73,9 @@ METRIC_BOUNDS: dict[str, tuple[float, float]] = {
     "train/value_loss": (0.0, math.inf),
     "train/explained_variance": (-math.inf, 1.0),
 }
-"""Each metric's range; confidence bands are clipped to it."""
+"""Each metric's range on CartPole-v1; confidence bands are clipped to it (a run's returns to
+its env's, the entropy to its actions')."""
+ALL = (-math.inf, math.inf)
 FORMATS = ("png", "svg", "pdf")
 COMPARISON = layout.PLOT_COMPARISON_FILE
 """Where several runs are drawn by default (or comparison-2.png, ... if it exists)."""
@@ -81,12 +83,12 @@ SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
 """The summary panel's font sizes, tried largest first until every run's block fits."""
 
 
-def _plot_metric(
-    ax, x: np.ndarray, values: np.ndarray, style: figures.Style, name: str
-) -> np.ndarray:
-    """Draws the mean across seeds and its bootstrap band (:func:`stats.curve_band`, clipped
-    to :data:`METRIC_BOUNDS`); returns the mean ``[iterations]``."""
-    bounds = METRIC_BOUNDS.get(name, (-math.inf, math.inf))
+def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: figures.Style, name: str) -> np.ndarray:
+    """Draws the mean across seeds of ``run``'s metric and its bootstrap band
+    (:func:`stats.curve_band`, clipped to :data:`METRIC_BOUNDS`, returns to the run's env's:
+    :func:`~jaxcart.core.solved.return_bounds`); returns the mean ``[iterations]``."""
+    values = run.metrics[name]
+    bounds = return_bounds(run.env) if name == RETURN_METRIC else METRIC_BOUNDS.get(name, ALL)
     mean, low, high = stats.curve_band(values, "mean", bounds=bounds)
     figures.band(ax, x, mean, low, high, alpha=0.18, **style.line())
     return mean
@@ -261,11 +263,10 @@ def _draw_returns(runs: list[RunCurves], styles: list[figures.Style], ax_steps, 
 
     env_ids = {run.env for run in runs}
     for run, style in zip(runs, styles):
-        ret = run.metrics.get(RETURN_METRIC)
-        if ret is not None:
-            _plot_metric(ax_steps, run.env_steps, ret, style, RETURN_METRIC)
+        if RETURN_METRIC in run.metrics:
+            _plot_metric(ax_steps, run.env_steps, run, style, RETURN_METRIC)
             if run.elapsed is not None:
-                _plot_metric(ax_time, run.elapsed, ret, style, RETURN_METRIC)
+                _plot_metric(ax_time, run.elapsed, run, style, RETURN_METRIC)
         evaluated = run.metrics.get(EVAL_METRIC, np.full((1, 1), np.nan))
         rows = np.isfinite(evaluated).any(axis=1)  # the iterations --eval-every evaluated at
         if rows.any():
@@ -290,15 +291,13 @@ def _draw_returns(runs: list[RunCurves], styles: list[figures.Style], ax_steps, 
     if not ax_time.lines:
         figures.no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
     for ax in (ax_steps, ax_time):
-        if env_ids == {DEFAULT_ENV}:
-            ax.axhline(500, color="0.6", lw=0.8, ls="--")  # CartPole-v1's maximum return
-            ax.set_ylim(0, 520)  # the whole range of returns: panels of different runs compare
-        elif len(env_ids) == 1:  # the env's range of returns, and its reward_threshold
+        ax.grid(alpha=0.3)
+        if len(env_ids) == 1:  # the env's range of returns (from 0 when it is the least), solved
             (env_id,) = env_ids
             low, high = return_bounds(env_id)
-            ax.axhline(GYMNAX_ENVS[env_id], color="0.6", lw=0.8, ls="--")
-            ax.set_ylim(low - 0.04 * (high - low), high + 0.04 * (high - low))
-        ax.grid(alpha=0.3)
+            ax.axhline(SOLVED_BY[env_id][1], color="0.6", lw=0.8, ls="--")
+            pad = 0.04 * (high - low)  # the same range for every run: panels compare
+            ax.set_ylim(low - pad if low < 0 else low, high + pad)
     figures.step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
 
@@ -316,14 +315,14 @@ def _draw_metrics(
 
     for ax, (name, title) in zip(axes, panels):
         means = [
-            _plot_metric(ax, run.env_steps, run.metrics[name], style, name)
+            _plot_metric(ax, run.env_steps, run, style, name)
             for run, style in zip(runs, styles)
             if name in run.metrics
         ]
         ax.set(title=title, xlabel="env steps per seed", ylabel=name)
         ax.grid(alpha=0.3)
         figures.step_axis(ax.xaxis)
-        bounds = METRIC_BOUNDS.get(name, (-math.inf, math.inf))
+        bounds = METRIC_BOUNDS.get(name, ALL)
         if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
             bounds = (-math.log(max(ACTION_COUNTS[run.env] for run in runs)), 0.0)
         limits = figures.curve_limits(means, bounds)
