@@ -44,8 +44,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart import cli
-from jaxcart.analysis import figures, stats
+from jaxcart.analysis import stats
 from jaxcart.core.solved import SOLVED_BY, return_bounds
+from jaxcart.results import figure as figures
 from jaxcart.rundir import files, layout
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read

@@ -14,7 +14,8 @@ from helpers import distinct_colours, seal, tiny_args
 from PIL import Image, ImageSequence
 
 from jaxcart import evaluate, plot
-from jaxcart.analysis import figures, stats
+from jaxcart.analysis import stats
+from jaxcart.results import figure as figures
 from jaxcart.results import gif as render
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.views import RunCurves, load_runs
