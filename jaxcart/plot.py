@@ -33,7 +33,6 @@ Uses matplotlib's object API (no pyplot), so it never changes the caller's backe
 from __future__ import annotations
 
 import argparse
-import io
 import math
 import os
 import sys
@@ -47,7 +46,7 @@ from jaxcart import cli
 from jaxcart.analysis import stats
 from jaxcart.core.solved import SOLVED_BY, return_bounds
 from jaxcart.results import figure as figures
-from jaxcart.rundir import files, layout
+from jaxcart.rundir import layout
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
     from matplotlib.figure import Figure
@@ -147,9 +146,11 @@ def plot_runs(
     """
 
     runs = _load_runs(run_dirs, labels)
-    if out is None:
-        return draw_figure(runs)
-    return draw_runs(runs, out, dpi)[1]
+    out = None if out is None else _checked(Path(out))
+    fig = draw_figure(runs)
+    if out is not None:
+        figures.save(fig, out, dpi)
+    return fig
 
 
 def _load_runs(
@@ -172,40 +173,29 @@ def _load_runs(
     return load_runs([Path(p) for p in run_dirs], labels)
 
 
-def default_out(run_dirs: Sequence[str | os.PathLike]) -> Path:
+def default_out(runs: list[RunCurves]) -> Path:
     """Where a plot goes without ``--out``: one run directory's own ``RUN_DIR/curves.png``
-    (redrawn in place; a sweep directory is one), otherwise the first of ``comparison.png``,
-    ``comparison-2.png``, ... in the current directory that does not exist yet, so that an
-    earlier comparison is never overwritten."""
+    (redrawn in place; a sweep directory is one, :func:`~jaxcart.results.scores.named_dir`),
+    otherwise the first of ``comparison.png``, ``comparison-2.png``, ... in the current
+    directory that does not exist yet, so that an earlier comparison is never overwritten."""
+    from jaxcart.results.scores import named_dir
+
+    run_dirs = list(dict.fromkeys(named_dir(run) for run in runs))
     if len(run_dirs) == 1:
-        return Path(run_dirs[0]) / layout.CURVES_FILE
+        return run_dirs[0] / layout.CURVES_FILE
     out, number = Path(COMPARISON), 2
     while out.exists():
         out, number = Path(f"{Path(COMPARISON).stem}-{number}.png"), number + 1
     return out
 
 
-def draw_runs(
-    runs: list[RunCurves], out: str | os.PathLike | None = None, dpi: int = 100
-) -> tuple[Path, Figure]:
-    """Draws loaded runs (:func:`load_runs`) into ``out`` (see :func:`plot_runs`; default
-    :func:`default_out`); returns the path written and the figure."""
-    from jaxcart.results.scores import named_dir
-
-    out = default_out(list(dict.fromkeys(named_dir(run) for run in runs))) if out is None else out
-    out = Path(out)
-    fmt = out.suffix.lower().lstrip(".")
-    if fmt not in FORMATS:
+def _checked(out: Path) -> Path:
+    """``out``, refused (ValueError) unless it is a .png, .svg or .pdf in a directory."""
+    if out.suffix.lower().lstrip(".") not in FORMATS:
         raise ValueError(f"output {out} must end in one of .{', .'.join(FORMATS)}")
     if not out.parent.is_dir():
         raise ValueError(f"cannot write {out}: directory {out.parent} does not exist")
-
-    fig = draw_figure(runs)
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format=fmt, dpi=dpi)
-    files.atomic_write_bytes(out, buf.getvalue())
-    return out, fig
+    return out
 
 
 def draw_figure(runs: list[RunCurves]) -> Figure:
@@ -467,8 +457,9 @@ def _plot_command(argv: list[str] | None) -> int:
                 f"{run.path} is an evaluation (python -m jaxcart.evaluate --out): no learning "
                 "curves to plot; python -m jaxcart.compare reads it"
             )
+    out = _checked(default_out(runs) if args.out is None else args.out)
     try:
-        out, _ = draw_runs(runs, args.out, dpi=args.dpi)
+        figures.save(draw_figure(runs), out, args.dpi)
     except OSError as exc:
         raise cli.UsageError(f"cannot write the plot: {exc.strerror or exc}") from None
     for line in unfinished_notes(runs):

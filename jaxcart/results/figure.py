@@ -22,6 +22,7 @@ not their bands), :func:`step_axis` (``250k``, ``1.25M``), :func:`wrap_to_width`
 
 from __future__ import annotations
 
+import io
 import math
 import textwrap
 from collections.abc import Callable, Sequence
@@ -31,8 +32,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.analysis import stats
+from jaxcart.rundir import files
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
+    from pathlib import Path
+
     from matplotlib.figure import Figure
 
     from jaxcart.results.scores import Comparison
@@ -108,6 +112,13 @@ def band(ax, x, point, low, high, color: str, alpha: float = 0.2, **line) -> Non
     ax.plot(x, point, color=color, **line)
     if np.isfinite(low).any():
         ax.fill_between(x, low, high, color=color, alpha=alpha, lw=0)
+
+
+def save(fig: Figure, out: Path, dpi: int = 100) -> None:
+    """Writes ``fig`` to ``out`` atomically, in the format its suffix names (png, svg, pdf)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format=out.suffix.lower().lstrip("."), dpi=dpi)
+    files.atomic_write_bytes(out, buf.getvalue())
 
 
 def no_data(ax, text: str) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.analysis import multiplicity, stats, summary
+from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.files import RunDirError
@@ -275,7 +275,7 @@ class Comparison:
                 f"interval is widened to {self.confidence:.2%} (Bonferroni) so that all {n} "
                 f"hold together with probability at least {stats.CONFIDENCE:.0%}"
             )
-        miss = multiplicity.familywise_miss_bound(n)
+        miss = stats.familywise_miss_bound(n)
         return (
             f"{n} comparison(s) against a baseline; each interval is "
             f"{stats.CONFIDENCE:.0%} on its own, so up to {miss:.0%} chance that at least one "
@@ -354,7 +354,7 @@ def build_comparison(
     ``arms``: against the baseline arm's run on the same configuration), and the arms
     aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration); ``adjust=
     "bonferroni"`` widens every difference and ``P(X > Y)`` interval to
-    :func:`multiplicity.bonferroni_confidence` of the number of comparisons."""
+    :func:`stats.bonferroni_confidence` of the number of comparisons."""
     if adjust not in summary.ADJUSTMENTS:
         raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {adjust!r}")
     references = [baseline] * len(entries)
@@ -368,7 +368,7 @@ def build_comparison(
     count += 0 if arms is None else len(arms.names) - 1
     confidence = stats.CONFIDENCE
     if adjust == "bonferroni" and count:
-        confidence = multiplicity.bonferroni_confidence(count)
+        confidence = stats.bonferroni_confidence(count)
 
     def against(x: stats.Scores, y: stats.Scores | None) -> Stats:
         """The IQM difference and ``P(X > Y)``, each with its interval (None without ``y``)."""
@@ -400,7 +400,7 @@ def build_comparison(
             | against(arm, per_arm[0] if a else None)
             for a, arm in enumerate(per_arm)
         ]
-    saturated = multiplicity.saturated(scores)
+    saturated = stats.saturated(scores)
     return Comparison(
         entries,
         score,
