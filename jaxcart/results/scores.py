@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
-from jaxcart.rundir import files, layout, reader
+from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.views import RunCurves, load_runs
 
@@ -514,16 +514,3 @@ def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
         raise CompareError(f"--out {out} exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
     return out
-
-
-def write_outputs(comparison: Comparison, out: Path, figure_png: bytes) -> tuple[Path, Path, Path]:
-    """``compare.json``, ``compare.png`` and ``curves.csv`` into ``out``; returns their paths."""
-    paths = (
-        out / layout.COMPARE_FILE,
-        out / layout.COMPARE_FIGURE_FILE,
-        out / layout.COMPARE_CURVES_FILE,
-    )
-    files.atomic_write_bytes(paths[1], figure_png)
-    files.atomic_write_bytes(paths[2], curves_csv(comparison.entries))
-    files.write_json(paths[0], comparison.to_dict())
-    return paths
