@@ -286,33 +286,28 @@ def next_steps_text(outcome: Outcome) -> str:
     done = np.flatnonzero(done[grid.runs_of(best)] if grid.is_sweep else done)
     seed = int(done[0]) if len(done) else 0
     pick = f" --seed-index {seed}" if seed else ""
-    if grid.is_sweep:
-        gif = out / f"combo-{best:03d}" / f"seed{seed}.gif"
-        commands = [
-            (
-                f"python -m jaxcart.plot {q(str(out))} --out {q(str(out / 'curves.png'))}",
-                "learning curves of every combination",
-            ),
-            (
-                f"python -m jaxcart.evaluate {q(str(out))} --combination {best}{pick} "
-                f"--gif {q(str(gif))}",
-                f"watch seed {seed} of the best-ranked combination",
-            ),
-            (f"python -m jaxcart.compare {q(str(out))}", "the combinations' statistics"),
-        ]
-    else:
-        gif = out / f"seed{seed}.gif"
-        commands = [
-            (f"python -m jaxcart.plot {q(str(out))}", "learning curves, into its curves.png"),
-            (
-                f"python -m jaxcart.evaluate {q(str(out))}{pick} --gif {q(str(gif))}",
-                f"watch seed {seed}'s policy",
-            ),
-            (
-                f"python -m jaxcart.compare {q(str(out))} OTHER_RUN",
-                "statistics against another run",
-            ),
-        ]
+    sweep, run = grid.is_sweep, q(str(out))
+    where, combo = (out / f"combo-{best:03d}", f" --combination {best}") if sweep else (out, "")
+    gif = q(str(where / f"seed{seed}.gif"))
+    curves, other = (f" --out {q(str(out / 'curves.png'))}", "") if sweep else ("", " OTHER_RUN")
+    commands = [
+        (
+            f"python -m jaxcart.plot {run}{curves}",
+            "learning curves of every combination"
+            if sweep
+            else "learning curves, into its curves.png",
+        ),
+        (
+            f"python -m jaxcart.evaluate {run}{combo}{pick} --gif {gif}",
+            f"watch seed {seed} of the best-ranked combination"
+            if sweep
+            else f"watch seed {seed}'s policy",
+        ),
+        (
+            f"python -m jaxcart.compare {run}{other}",
+            "the combinations' statistics" if sweep else "statistics against another run",
+        ),
+    ]
     if outcome.run.config.env != solved.DEFAULT_ENV:  # GIFs draw CartPole only
         commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)

@@ -64,7 +64,8 @@ resamples at once (10 runs x 64 seeds take well under a second), and jaxcart's d
 stay as they are. ``tests/test_stats.py`` checks each definition on fixed
 samples against values worked out by hand, by brute force or by SciPy.
 
-**Many comparisons.** What a set of comparisons can still say: saturation, and many intervals read at once.
+**Many comparisons.** What a set of comparisons can still say: saturation, and many intervals
+read at once.
 
 - :func:`saturated`: every score of every run is the same (e.g. every seed at 500). Then every
   bootstrap interval is a point, every difference 0 and every probability of improvement 0.5:

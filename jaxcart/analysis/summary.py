@@ -5,13 +5,14 @@
   the mean of its learning curve, :func:`auc`; ``return-at:STEPS``: its training return at a
   budget, :func:`return_at`), the one definition that ``compare``, a sweep's ranking and
   ``tune`` (its pruner too) score by.
-- :data:`DEFINITIONS`: what each printed statistic is (:func:`jaxcart.results.scores.build_comparison`
-  computes them: per run, the estimates of :data:`jaxcart.analysis.stats.ESTIMATORS` with
+- :data:`DEFINITIONS`: what each printed statistic is
+  (:func:`jaxcart.results.scores.build_comparison` computes them: per run, the estimates of :data:`jaxcart.analysis.stats.ESTIMATORS` with
   percentile bootstrap intervals, the solve rate with its Wilson interval, and against its
   baseline the IQM difference and ``P(X > Y)``; arms over several configurations with the
   stratified bootstrap).
 
-**Curves.** Per-seed scores from learning curves, for the statistics of :mod:`jaxcart.analysis.stats`.
+**Curves.** Per-seed scores from learning curves, for the statistics of
+:mod:`jaxcart.analysis.stats`.
 
 A learning curve is ``rollout/ep_rew_mean`` as ``[iterations, num_seeds]`` (a run's
 ``metrics.csv`` column, one row per seed and iteration). It is NaN where a seed has no value:
