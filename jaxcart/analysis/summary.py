@@ -6,8 +6,8 @@
   budget, :func:`return_at`), the one definition that ``compare``, a sweep's ranking and
   ``tune`` (its pruner too) score by.
 - :data:`DEFINITIONS`: what each printed statistic is
-  (:func:`jaxcart.results.scores.build_comparison` computes them: per run, the estimates of :data:`jaxcart.analysis.stats.ESTIMATORS` with
-  percentile bootstrap intervals, the solve rate with its Wilson interval, and against its
+  (:func:`jaxcart.results.scores.build_comparison` computes them: per run, the estimates of
+  :data:`jaxcart.analysis.stats.ESTIMATORS` with percentile bootstrap intervals, the solve rate with its Wilson interval, and against its
   baseline the IQM difference and ``P(X > Y)``; arms over several configurations with the
   stratified bootstrap).
 
