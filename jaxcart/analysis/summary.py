@@ -7,9 +7,9 @@
   ``tune`` (its pruner too) score by.
 - :data:`DEFINITIONS`: what each printed statistic is
   (:func:`jaxcart.results.scores.build_comparison` computes them: per run, the estimates of
-  :data:`jaxcart.analysis.stats.ESTIMATORS` with percentile bootstrap intervals, the solve rate with its Wilson interval, and against its
-  baseline the IQM difference and ``P(X > Y)``; arms over several configurations with the
-  stratified bootstrap).
+  :data:`jaxcart.analysis.stats.ESTIMATORS` with percentile bootstrap intervals, the solve
+  rate with its Wilson interval, and against its baseline the IQM difference and
+  ``P(X > Y)``; arms over several configurations with the stratified bootstrap).
 
 **Curves.** Per-seed scores from learning curves, for the statistics of
 :mod:`jaxcart.analysis.stats`.
