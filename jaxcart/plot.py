@@ -44,7 +44,7 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import stats
-from jaxcart.core.solved import SOLVED_BY, return_bounds
+from jaxcart.core.solved import return_bounds
 from jaxcart.results import figure as figures
 from jaxcart.rundir import layout
 
@@ -252,7 +252,6 @@ def _draw_returns(runs: list[RunCurves], styles: list[figures.Style], ax_steps, 
 
     from jaxcart.rundir.views import ELAPSED_METRIC
 
-    env_ids = {run.env for run in runs}
     for run, style in zip(runs, styles):
         if RETURN_METRIC in run.metrics:
             _plot_metric(ax_steps, run.env_steps, run, style, RETURN_METRIC)
@@ -283,12 +282,7 @@ def _draw_returns(runs: list[RunCurves], styles: list[figures.Style], ax_steps, 
         figures.no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
     for ax in (ax_steps, ax_time):
         ax.grid(alpha=0.3)
-        if len(env_ids) == 1:  # the env's range of returns (from 0 when it is the least), solved
-            (env_id,) = env_ids
-            low, high = return_bounds(env_id)
-            ax.axhline(SOLVED_BY[env_id][1], color="0.6", lw=0.8, ls="--")
-            pad = 0.04 * (high - low)  # the same range for every run: panels compare
-            ax.set_ylim(low - pad if low < 0 else low, high + pad)
+        figures.return_axis(ax, [run.env for run in runs])
     figures.step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
 

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.analysis import stats
+from jaxcart.core.solved import DEFAULT_ENV, SOLVED_BY, return_bounds
 from jaxcart.rundir import files
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
@@ -112,6 +113,17 @@ def band(ax, x, point, low, high, color: str, alpha: float = 0.2, **line) -> Non
     ax.plot(x, point, color=color, **line)
     if np.isfinite(low).any():
         ax.fill_between(x, low, high, color=color, alpha=alpha, lw=0)
+
+
+def return_axis(ax, env_ids: Sequence[str]) -> None:
+    """A y axis of episode returns: the env's whole range (from 0 when that is its least, so
+    that panels of different runs compare) and its solved threshold dashed (left as it is
+    for several envs)."""
+    if len(set(env_ids)) == 1:
+        low, high = return_bounds(env_ids[0])
+        pad = 0.04 * (high - low)
+        ax.axhline(SOLVED_BY[env_ids[0]][1], color="0.6", lw=0.8, ls="--")
+        ax.set_ylim(low - pad if low < 0 else low, high + pad)
 
 
 def save(fig: Figure, out: Path, dpi: int = 100) -> None:
@@ -280,32 +292,27 @@ def _limits(
     return low - margin, high + margin
 
 
-def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
-    runs = comparison.runs
-    rows = [
-        (i, e.name, getattr(runs[i], kind))
-        for i, e in enumerate(comparison.entries)
-        if getattr(runs[i], kind) is not None
-    ]
-    base = (
-        "its baseline arm's run"
-        if comparison.arms
-        else comparison.entries[comparison.baseline].name
-    )
-    if kind == "difference":
+def _rows(comparison: Comparison, key: str) -> list[tuple[int, str, stats.Estimate]]:
+    """``(index, name, estimate)`` of each run that has an estimate of ``key``."""
+    pairs = zip(comparison.entries, comparison.runs)
+    return [(i, e.name, st[key]) for i, (e, st) in enumerate(pairs) if st[key] is not None]
+
+
+def _against_baseline(ax, comparison: Comparison, key: str) -> None:
+    """``difference_iqm`` or ``probability_of_improvement`` of every run but the baseline."""
+    rows = _rows(comparison, key)
+    base = comparison.entries[comparison.baseline].name
+    base = "its baseline arm's run" if comparison.arms else base
+    if key == "difference_iqm":
         title, xlabel, zero = f"IQM difference from {base}", "IQM(run) - IQM(baseline)", 0.0
+        span = stats.MAX_RETURN  # a difference of scores in [0, 500]
+        xlim = rows and _limits([e for _, _, e in rows], -span, span, include=0.0)
     else:
         title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
+        xlim = (-0.02, 1.02)
     if not rows:
         ax.set(title=title)
-        no_data(ax, "one run: nothing to compare")
-        return
-    span = stats.MAX_RETURN  # a difference of scores in [0, 500]
-    xlim = (
-        (-0.02, 1.02)
-        if kind == "improvement"
-        else _limits([e for _, _, e in rows], -span, span, include=0.0)
-    )
+        return no_data(ax, "one run: nothing to compare")
     _intervals(ax, rows, title, xlabel, xlim)
     ax.axvline(zero, color="0.5", ls="--", lw=0.8, label="no difference")
     ax.legend(fontsize=8, loc="lower right")
@@ -335,8 +342,9 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
         if values is None or not np.isfinite(values).any():
             continue
         points = np.unique(np.linspace(0, len(values) - 1, CURVE_POINTS).round().astype(int))
+        bounds = return_bounds(entry.run.env)
         iqm, low, high = stats.curve_band(
-            values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=(0.0, 500.0)
+            values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=bounds
         )
         x = entry.run.env_steps[points]
         band(ax, x, iqm, low, high, _colour(i), lw=1.6, label=entry.name)
@@ -344,10 +352,9 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
         title="sample efficiency: IQM over seeds of the training return",
         xlabel="env steps per seed",
         ylabel=RETURN_METRIC,
-        ylim=(0, 520),
     )
     _finish(ax, "lower right", f"{RETURN_METRIC} not recorded")
-    ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
+    return_axis(ax, [entry.run.env for entry in comparison.entries])
 
 
 def _reached_panel(ax, comparison: Comparison) -> None:
@@ -399,22 +406,19 @@ def draw_comparison(comparison: Comparison) -> Figure:
     fig = Figure(figsize=(18, 13 + 0.25 * n), layout="constrained")
     grid = fig.add_gridspec(3, 12, height_ratios=[0.6 + 0.12 * n, 1, 1])
     score = comparison.score
-    location = [r.estimates[name] for r in comparison.runs for name in ("iqm", "median", "mean")]
+    location = [st[name] for st in comparison.runs for name in ("iqm", "median", "mean")]
     shared = _limits(location, 0.0, stats.MAX_RETURN, include=location[0].value)
     for k, (name, title) in enumerate(ESTIMATE_TITLES.items()):
-        ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
-        rows = [
-            (i, e.name, comparison.runs[i].estimates[name])
-            for i, e in enumerate(comparison.entries)
-        ]
+        rows = _rows(comparison, name)
         # One score axis for IQM, median and mean, so that they read alike; the gap
         # (500 - score) gets its own, as wide as theirs.
         xlim = shared
         if name == "optimality_gap":
             xlim = _limits([e for _, _, e in rows], 0.0, stats.MAX_RETURN, include=0.0)
+        ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
         _intervals(ax, rows, title, f"score ({score.label})", xlim)
-    _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference")
-    _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "improvement")
+    _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference_iqm")
+    _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "probability_of_improvement")
     _profile_panel(fig.add_subplot(grid[1, 8:12]), comparison)
     _sample_efficiency_panel(fig.add_subplot(grid[2, 0:4]), comparison)
     _reached_panel(fig.add_subplot(grid[2, 4:8]), comparison)
@@ -453,9 +457,8 @@ def draw_robustness(
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xticks(values, [f"{v:g}" for v in values])
-    ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
+    return_axis(ax, [DEFAULT_ENV])  # physics values are CartPole's
     ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return, IQM over seeds")
-    ax.set(ylim=(0, 520))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower left")
     ax.set_title(textwrap.fill(title, 95), fontsize=10)
