@@ -317,13 +317,16 @@ def next_steps_text(outcome: Outcome) -> str:
 def stopped_text(outcome: Outcome, resume_hint: str) -> str:
     """What a stopped run prints: where it stopped and how to resume."""
     run, (wave, iteration) = outcome.run, outcome.stopped_at or (0, 0)
+    where = f"at {_at(run, iteration, wave)}"
     if outcome.result is None and wave == 0:
         where = "before training started"
-    else:
-        where = f"at iteration {iteration}/{run.config.num_iterations}"
-        if run.plan.num_waves > 1:
-            where += f" of wave {wave + 1}/{run.plan.num_waves}"
     return f"stopped {where}; checkpoint saved in {run.out}\nresume with: {resume_hint}"
+
+
+def _at(run: Run, iteration: int, wave: int) -> str:
+    """``iteration 12/40``, or in waves ``iteration 3/40 of wave 2/5``."""
+    waves = f" of wave {wave + 1}/{run.plan.num_waves}" if run.plan.num_waves > 1 else ""
+    return f"iteration {iteration}/{run.config.num_iterations}{waves}"
 
 
 def plan_text(plan: WavePlan, spec: RunSpec) -> str:
@@ -349,12 +352,7 @@ def checkpoint_text(run: Run) -> str:
     """Which iteration the checkpoint on disk holds, as the run knows it (``iteration
     12/40``, ``iteration 3/40 of wave 2/5``); "" when none was saved yet."""
     meta = run.directory.checkpoint_meta
-    if meta is None:
-        return ""
-    where = f"iteration {int(meta['iteration'])}/{run.config.num_iterations}"
-    if run.plan.num_waves > 1:
-        where += f" of wave {int(meta.get('wave', 0)) + 1}/{run.plan.num_waves}"
-    return where
+    return "" if meta is None else _at(run, int(meta["iteration"]), int(meta.get("wave", 0)))
 
 
 def write_failed_text(run: Run | None, exc: OSError) -> str:
