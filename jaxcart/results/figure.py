@@ -41,6 +41,7 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when run
     from matplotlib.figure import Figure
 
     from jaxcart.results.scores import Comparison
+    from jaxcart.rundir.views import RunCurves
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 PALETTE = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "#CC79A7", "#000000")
@@ -189,6 +190,279 @@ def wrap_to_axes(text, ax) -> None:
     renderer = ax.figure.canvas.get_renderer()
     width = ax.get_window_extent(renderer).width * 72 / ax.figure.dpi
     text.set_text(wrap_to_width(text.get_text(), width, text_measure(text, renderer)))
+
+
+EVAL_METRIC = "eval/mean_return"
+"""The periodic greedy evaluation (``--eval-every``), drawn as dots over the return curve."""
+KEY_METRICS = (
+    ("train/approx_kl", "approx KL"),
+    ("train/clip_fraction", "clip fraction"),
+    ("train/entropy_loss", "entropy loss (= -entropy)"),
+    ("train/value_loss", "value loss"),
+    ("train/explained_variance", "explained variance"),
+)
+METRIC_BOUNDS: dict[str, tuple[float, float]] = {
+    "rollout/ep_rew_mean": (0.0, 500.0),  # CartPole-v1 pays 1 per step, at most 500 steps
+    "rollout/ep_rew_max": (0.0, 500.0),
+    "rollout/ep_len_mean": (0.0, 500.0),
+    "train/approx_kl": (0.0, math.inf),  # (r - 1) - log r >= 0
+    "train/clip_fraction": (0.0, 1.0),
+    "train/entropy_loss": (-math.log(2.0), 0.0),  # -entropy of two actions
+    "train/value_loss": (0.0, math.inf),
+    "train/explained_variance": (-math.inf, 1.0),
+}
+"""Each metric's range on CartPole-v1; confidence bands are clipped to it (a run's returns to
+its env's, the entropy to its actions')."""
+ALL = (-math.inf, math.inf)
+SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
+"""The summary panel's font sizes, tried largest first until every run's block fits."""
+
+
+def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: Style, name: str) -> np.ndarray:
+    """Draws the mean across seeds of ``run``'s metric and its bootstrap band
+    (:func:`stats.curve_band`, clipped to :data:`METRIC_BOUNDS`, returns to the run's env's:
+    :func:`~jaxcart.core.solved.return_bounds`); returns the mean ``[iterations]``."""
+    values = run.metrics[name]
+    bounds = return_bounds(run.env) if name == RETURN_METRIC else METRIC_BOUNDS.get(name, ALL)
+    mean, low, high = stats.curve_band(values, "mean", bounds=bounds)
+    band(ax, x, mean, low, high, alpha=0.18, **style.line())
+    return mean
+
+
+def _summary_lines(run: RunCurves) -> list[str]:
+    """Three lines per run for the summary panel (which wraps them to its width): the label,
+    seeds, steps and final return, and the Gymnasium evaluation."""
+    ret = run.metrics.get(RETURN_METRIC)
+    final = ""
+    if ret is not None and np.isfinite(ret[-1]).any():
+        final = f"final ep_rew_mean {np.nanmean(ret[-1]):.1f}"
+    steps = f"{int(run.env_steps[-1]):,} steps/seed" if np.isfinite(run.env_steps[-1]) else ""
+    line = ", ".join(p for p in (f"{run.num_seeds} seed(s)", steps, final) if p)
+    from jaxcart.results.scores import read_evaluation  # JAX: only once runs are read
+
+    means, solved = read_evaluation(run, required=False)  # the final policies'
+    if run.note:
+        eval_line = f"not evaluated: {run.note}"
+    elif means is not None:
+        eval_line = (
+            f"Gymnasium: solved {solved}/{means.size}, mean return {means.mean():.1f} "
+            f"({run.evaluation.get('episodes', '?')} greedy episodes per seed)"
+        )
+    else:
+        eval_line = "no evaluation.json"
+    return [run.label, "  " + line, "  " + eval_line]
+
+
+def draw_figure(runs: list[RunCurves]) -> Figure:
+    """The whole figure, laid out: return vs steps and vs wall time, the key metrics, the
+    summary, and the legend below the panels."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    # the key metrics, then the runs' own (PPOConfig.metrics), each once, three panels a row;
+    # slot 5 (row 2, right) is the summary's
+    custom = dict.fromkeys(name for run in runs for name in run.custom_metrics)
+    panels = [*KEY_METRICS, *((name, name) for name in custom)]
+    extra_rows = -(-len(custom) // 3)  # below the built-in ones
+    fig = Figure(figsize=(15, 11 + 3.5 * extra_rows), layout="constrained")
+    FigureCanvasAgg(fig)  # a renderer to measure text with, before the figure is saved
+    grid = fig.add_gridspec(3 + extra_rows, 6)
+    ax_steps = fig.add_subplot(grid[0, 0:3])
+    ax_time = fig.add_subplot(grid[0, 3:6])
+    slots = [k + (k >= 5) for k in range(len(panels))]
+    metric_axes = [fig.add_subplot(grid[1 + j // 3, 2 * (j % 3) : 2 * (j % 3) + 2]) for j in slots]
+    ax_summary = fig.add_subplot(grid[2, 4:6])
+    ax_summary.axis("off")
+    styles = run_styles(len(runs))
+    _draw_returns(runs, styles, ax_steps, ax_time)
+    _draw_metrics(runs, styles, metric_axes, panels)
+    _draw_legend(fig, runs, styles)
+    num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
+    if all(run.num_seeds == 1 for run in runs):
+        num += ", 1 seed" if len(runs) == 1 else ", 1 seed per run"
+        what = "no confidence band (train several seeds for one)"
+    else:
+        band = stats.interval_label([run.num_seeds for run in runs if run.num_seeds > 1], "mean")
+        if band == f"{stats.CONFIDENCE:.0%} CI":
+            band = f"{stats.CONFIDENCE:.0%} bootstrap confidence interval"
+        what = (
+            f"mean across seeds, shaded {band} (the axes fit the means; a band may run past them)"
+        )
+    env_ids = sorted({run.env for run in runs})
+    fig.suptitle(f"PPO on {', '.join(env_ids)}, {num}: {what}", fontsize=13)
+    caption = _caption(ax_time, wall_time_notes(runs)) if ax_time.lines else None
+    fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
+    if caption is not None:
+        wrap_to_axes(caption, ax_time)
+        caption.set_in_layout(True)
+        fig.draw_without_rendering()  # again, with room for the wrapped caption
+    _draw_summary(ax_summary, runs, styles)
+    return fig
+
+
+def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time) -> None:
+    """The return against env steps (with ``--eval-every``'s greedy evaluations as dots)
+    and against wall time."""
+    from matplotlib.ticker import MaxNLocator
+
+    from jaxcart.rundir.views import ELAPSED_METRIC
+
+    for run, style in zip(runs, styles):
+        if RETURN_METRIC in run.metrics:
+            _plot_metric(ax_steps, run.env_steps, run, style, RETURN_METRIC)
+            if run.elapsed is not None:
+                _plot_metric(ax_time, run.elapsed, run, style, RETURN_METRIC)
+        evaluated = run.metrics.get(EVAL_METRIC, np.full((1, 1), np.nan))
+        rows = np.isfinite(evaluated).any(axis=1)  # the iterations --eval-every evaluated at
+        if rows.any():
+            mean = np.nanmean(evaluated[rows], axis=1)
+            ax_steps.plot(
+                run.env_steps[rows], mean, "o", color=style.color, ms=4, label=EVAL_METRIC
+            )
+
+    evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
+    ax_steps.set(
+        title="episode return vs env steps" + (f" (dots: {EVAL_METRIC})" if evaluated else ""),
+        xlabel="env steps per seed",
+        ylabel="rollout/ep_rew_mean",
+    )
+    ax_time.set(
+        title="episode return vs wall time",
+        xlabel="training wall time [s] (compile excluded)",
+        ylabel="rollout/ep_rew_mean",
+    )
+    if not ax_steps.lines:
+        no_data(ax_steps, f"{RETURN_METRIC} not recorded")
+    if not ax_time.lines:
+        no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
+    for ax in (ax_steps, ax_time):
+        ax.grid(alpha=0.3)
+        return_axis(ax, [run.env for run in runs])
+    step_axis(ax_steps.xaxis)
+    ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
+
+
+def _draw_metrics(
+    runs: list[RunCurves],
+    styles: list[Style],
+    axes: list,
+    panels: list[tuple[str, str]],
+) -> None:
+    """One panel per ``(metric, title)`` against env steps, for every run that records it;
+    the y axis fits the means within the metric's range (the bands are clipped to the axes,
+    not the axes to them)."""
+    from jaxcart.core.envs import ACTION_COUNTS
+
+    for ax, (name, title) in zip(axes, panels):
+        means = [
+            _plot_metric(ax, run.env_steps, run, style, name)
+            for run, style in zip(runs, styles)
+            if name in run.metrics
+        ]
+        ax.set(title=title, xlabel="env steps per seed", ylabel=name)
+        ax.grid(alpha=0.3)
+        step_axis(ax.xaxis)
+        bounds = METRIC_BOUNDS.get(name, ALL)
+        if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
+            bounds = (-math.log(max(ACTION_COUNTS[run.env] for run in runs)), 0.0)
+        limits = curve_limits(means, bounds)
+        if limits is None:
+            no_data(ax, f"{name} not recorded")
+        else:
+            ax.set_ylim(limits)
+
+
+def _draw_legend(fig, runs: list[RunCurves], styles: list[Style]) -> None:
+    """One entry per run below the panels, outside the data, in as many columns as fit."""
+    from matplotlib.lines import Line2D
+
+    labels = [
+        f"{run.label} ({f'{run.num_seeds} seeds' if run.num_seeds > 1 else '1 seed, no band'})"
+        for run in runs
+    ]
+    handles = [Line2D([], [], **style.line()) for style in styles]
+    # About 0.6 em a character at 9 pt, plus the handle and gaps: the columns that fit 14 in.
+    columns = int(14 * 72 / (max(map(len, labels)) * 9 * 0.6 + 60))
+    fig.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        ncols=max(1, min(len(labels), columns, 4)),
+        fontsize=9,
+        handlelength=4,
+        frameon=False,
+    )
+
+
+def wall_time_notes(runs: list[RunCurves]) -> list[str]:
+    """What the wall-time axis does not say: a run's seeds (and a sweep's combinations)
+    train together in one program, so its wall time covers all of them."""
+    notes = []
+    counts = sorted({run.num_seeds for run in runs})
+    if len(counts) > 1:
+        notes.append(
+            f"different seed counts ({', '.join(map(str, counts))}): each run's wall time "
+            "is for all its seeds trained together"
+        )
+    if any(run.combination for run in runs):
+        notes.append("a sweep's combinations train in one program: they share its wall time")
+    return notes
+
+
+def _text_below(ax, text: str, xy, xycoords, below: float, **style):
+    """``text`` from ``xy`` down, ``below`` points under it, left-aligned; left out of the
+    layout (the panel is laid out already, or will be once the text is wrapped to it)."""
+    offset = {"xytext": (0.0, -below), "textcoords": "offset points"}
+    text = ax.annotate(text, xy, xycoords=xycoords, va="top", ha="left", **offset, **style)
+    text.set_in_layout(False)
+    return text
+
+
+def _caption(ax, notes: list[str]):
+    """Notes under a panel's x label, off the data; None without notes. Left out of the layout
+    until :func:`wrap_to_axes` has wrapped them (unwrapped, they would squeeze the
+    panel)."""
+    if not notes:
+        return None
+    text = "\n".join(f"note: {note}" for note in notes)
+    where = ("axes fraction", ax.xaxis.label)
+    return _text_below(ax, text, (0.0, 0.0), where, 4.0, fontsize=8.5, color="0.3")
+
+
+def _draw_summary(ax, runs: list[RunCurves], styles: list[Style]) -> None:
+    """Each run's block (:func:`_summary_lines`) in its colour, wrapped to the laid-out
+    panel; smaller type for many runs, and at the smallest the runs that still do not fit
+    are counted instead."""
+    renderer = ax.figure.canvas.get_renderer()
+    to_points = 72 / ax.figure.dpi
+    height = ax.get_window_extent(renderer).height * to_points
+    blocks = ["\n".join(_summary_lines(run)) for run in runs]
+    for size in SUMMARY_FONTSIZES:
+        texts, tops, top = [], [], 0.0
+        for block, style in zip(blocks, styles):
+            texts.append(_summary_text(ax, block, style.color, size, top))
+            tops.append(top)
+            top += texts[-1].get_window_extent(renderer).height * to_points + size / 2
+        if top <= height or size == SUMMARY_FONTSIZES[-1]:
+            break
+        for text in texts:
+            text.remove()
+    if top > height:  # even the smallest type overflows: drop the last runs, say how many
+        keep = len(texts) - 1
+        while keep > 0 and tops[keep] + 2 * size > height:
+            keep -= 1
+        for text in texts[keep:]:
+            text.remove()
+        more = f"... and {len(texts) - keep} more run(s): see the legend"
+        _summary_text(ax, more, "0.3", size, tops[keep])
+
+
+def _summary_text(ax, block: str, colour: str, size: float, top: float):
+    """One block of the summary, ``top`` points below the panel's top, wrapped to its width."""
+    style = {"family": "monospace", "fontsize": size, "color": colour}
+    text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, **style)
+    wrap_to_axes(text, ax)
+    return text
 
 
 TAUS = np.linspace(0.0, stats.MAX_RETURN, 101)
