@@ -4,12 +4,14 @@ Panels: episode return (``rollout/ep_rew_mean``) against env steps per seed and 
 time (``time/elapsed``, seconds of training with compilation excluded), then one panel per key
 PPO metric (``train/approx_kl``, ``train/clip_fraction``, ``train/entropy_loss``,
 ``train/value_loss``, ``train/explained_variance``) against env steps, and a summary of each
-run's Gymnasium evaluation; below them, one panel per metric of the run's own (``PPOConfig.metrics``).
+run's Gymnasium evaluation; below them, one panel per metric of the run's own
+(``PPOConfig.metrics``).
 
 Each curve is the mean across seeds; the shaded band is a 95% percentile bootstrap confidence
-interval of that mean (:func:`jaxcart.analysis.stats.curve_band`: whole seeds resampled, a fixed seed
-so the figure is deterministic), clipped to the metric's range (:data:`METRIC_BOUNDS`: returns
-in [0, 500], clip fraction in [0, 1], KL and value loss >= 0, explained variance <= 1, ...).
+interval of that mean (:func:`jaxcart.analysis.stats.curve_band`: whole seeds resampled, a
+fixed seed so the figure is deterministic), clipped to the metric's range
+(:data:`jaxcart.results.figure.METRIC_BOUNDS`: returns within the env's, e.g. [0, 500] on
+CartPole-v1, clip fraction in [0, 1], KL and value loss >= 0, explained variance <= 1, ...).
 NaN entries (``ep_rew_mean`` is NaN until a seed's first episode ends) are left out, so the
 curve starts when the first seed has a value and the band when two seeds do; a single-seed
 run has no band.
@@ -27,7 +29,8 @@ into ``comparison.png`` in the current directory, or ``comparison-2.png``, ... w
 (never overwritten); the command prints the full path it wrote. From Python,
 :func:`plot_runs` returns the matplotlib ``Figure``.
 
-Uses matplotlib's object API (no pyplot), so it never changes the caller's backend.
+The figure is :func:`jaxcart.results.figure.draw_figure`'s, in matplotlib's object API (no
+pyplot), so it never changes the caller's backend.
 """
 
 from __future__ import annotations

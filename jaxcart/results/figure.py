@@ -1,23 +1,29 @@
-"""``compare.png``: the figure of a :class:`~jaxcart.results.scores.Comparison`.
+"""Every figure jaxcart draws, and the helpers they are drawn with (matplotlib's object API,
+never pyplot, so the caller's backend is never changed).
 
-Top row: each run's IQM, median over seeds, mean and optimality gap with their intervals, each
-written out; IQM, median and mean share one score axis, and no panel spans less than
-:data:`MIN_SPAN` points, so that a small difference looks small.
-Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the performance profile
-(fraction of seeds scoring at least tau, the solved fraction marked at 500). Bottom: sample
-efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction of seeds whose training
-had produced a 500 episode by env steps, and the all-pairs ``P(X > Y)`` matrix. Wall time is
-left out: it depends on the machine and its load (``python -m jaxcart.plot`` draws it).
+- :func:`draw_figure`: ``python -m jaxcart.plot``'s learning curves (its module docstring says
+  what each panel shows).
+- :func:`draw_comparison`: ``compare.png``, the figure of a
+  :class:`~jaxcart.results.scores.Comparison`. Top row: each run's IQM, median over seeds, mean
+  and optimality gap with their intervals, each written out; IQM, median and mean share one
+  score axis, and no panel spans less than :data:`MIN_SPAN` points, so that a small difference
+  looks small. Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the
+  performance profile (fraction of seeds scoring at least tau, the solved fraction marked at
+  500). Bottom: sample efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction
+  of seeds whose training had produced a 500 episode by env steps, and the all-pairs
+  ``P(X > Y)`` matrix. Wall time is left out: it depends on the machine and its load
+  (``python -m jaxcart.plot`` draws it).
+- :func:`draw_robustness`: ``robustness.png``, ``python -m jaxcart.evaluate --sweep``'s return
+  against a physics value.
+- Helpers: :func:`run_styles` (a colour from Okabe and Ito's colour-blind-safe palette and a
+  line style per run), :func:`curve_limits` (y limits that fit the mean curves, not their
+  bands), :func:`return_axis` (an env's range of returns and its solved threshold),
+  :func:`step_axis` (``250k``, ``1.25M``), :func:`wrap_to_width` and :func:`wrap_to_axes`
+  (text wrapped to a laid-out panel in the font it is drawn in), :func:`band` (a curve with
+  its confidence band), :func:`no_data` and :func:`save` (one file, written atomically).
 
-Also ``robustness.png`` (:func:`draw_robustness`), ``python -m jaxcart.evaluate --sweep``'s
-return against a physics value.
-
-The helpers every figure here and ``python -m jaxcart.plot``'s draw with (matplotlib's object
-API, never pyplot): :func:`run_styles` (a colour from Okabe and Ito's colour-blind-safe
-palette and a line style per run), :func:`curve_limits` (y limits that fit the mean curves,
-not their bands), :func:`step_axis` (``250k``, ``1.25M``), :func:`wrap_to_width` and
-:func:`wrap_to_axes` (text wrapped to a laid-out panel in the font it is drawn in),
-:func:`band` (a curve with its confidence band) and :func:`no_data`.
+Importing this module imports neither matplotlib nor JAX (``python -m jaxcart.plot --help``
+stays fast); both come in when a figure is drawn from runs read.
 """
 
 from __future__ import annotations
