@@ -99,8 +99,8 @@ def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
         scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
     except ValueError as exc:
         raise CompareError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
-    episodes = (run.evaluation or {}).get("episodes")
-    return Entry(run, scores, solved, int(episodes) if isinstance(episodes, int) else None)
+    episodes = (run.evaluation or {}).get("episodes")  # a bounded int or None (the store checks)
+    return Entry(run, scores, solved, episodes)
 
 
 def load_entries(
