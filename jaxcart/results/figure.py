@@ -183,19 +183,15 @@ def wrap_to_width(text: str, width: float, measure: Callable[[str], float]) -> s
     return "\n".join(out)
 
 
-def text_measure(text, renderer) -> Callable[[str], float]:
-    """The width in points of a string in ``text``'s font."""
-    prop = text.get_fontproperties()
-    return lambda s: (
-        renderer.get_text_width_height_descent(s, prop, ismath=False)[0] * (72 / renderer.dpi)
-    )
-
-
 def wrap_to_axes(text, ax) -> None:
-    """Wraps ``text`` to the width of the (laid out) axes it starts at the left edge of."""
-    renderer = ax.figure.canvas.get_renderer()
+    """Wraps ``text`` to the width of the (laid out) axes it starts at the left edge of,
+    measured in points of the text's font."""
+    renderer, prop = ax.figure.canvas.get_renderer(), text.get_fontproperties()
     width = ax.get_window_extent(renderer).width * 72 / ax.figure.dpi
-    text.set_text(wrap_to_width(text.get_text(), width, text_measure(text, renderer)))
+    measure = lambda s: (
+        renderer.get_text_width_height_descent(s, prop, ismath=False)[0] * 72 / renderer.dpi
+    )
+    text.set_text(wrap_to_width(text.get_text(), width, measure))
 
 
 EVAL_METRIC = "eval/mean_return"
