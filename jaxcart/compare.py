@@ -29,7 +29,6 @@ resamples come from a fixed seed (``--seed``), so the same runs give the same ou
 from __future__ import annotations
 
 import argparse
-import io
 import os
 import textwrap
 from collections.abc import Sequence
@@ -47,47 +46,43 @@ from jaxcart.analysis.summary import Score  # noqa: E402
 from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS  # noqa: E402
 from jaxcart.results import scores as runs  # noqa: E402
 from jaxcart.results.scores import CompareError, Comparison  # noqa: E402
-from jaxcart.rundir import layout  # noqa: E402
+from jaxcart.rundir import files, layout  # noqa: E402
 
-ESTIMATE_NAMES = {
-    "iqm": "IQM",
-    "median": "median",
-    "mean": "mean",
-    "optimality_gap": "opt. gap",
-}
-
-
-def _median_steps(steps: np.ndarray | None) -> str:
-    if steps is None:
-        return "n/a"
-    median = float(np.median(steps))
-    return f"{median:,.0f}" if np.isfinite(median) else "never"
-
-
-def _solved(e: stats.Estimate | None, n: int) -> str:
-    if e is None:
-        return "n/a"
-    return f"{round(e.value * n)}/{n} [{e.ci_low:.1%}, {e.ci_high:.1%}]"
-
-
+ESTIMATE_NAMES = {"iqm": "IQM", "median": "median", "mean": "mean", "optimality_gap": "opt. gap"}
 NAME_WIDTH = 24  # longer run names are listed under the table and numbered in it
 
 
-def _row_names(names: list[str]) -> tuple[list[str], str | None]:
-    """The names the table's rows show, and the legend that numbered rows need (or None)."""
-    if max(len(name) for name in names) <= NAME_WIDTH:
-        return names, None
-    legend = "runs: " + "; ".join(f"[{i}] {name}" for i, name in enumerate(names))
-    return [f"[{i}]" for i in range(len(names))], legend
+def _against(st: dict) -> list[str]:
+    """The IQM difference and ``P(X > Y)`` cells of a run or an arm (``baseline``: none)."""
+    diff, better = st["difference_iqm"], st["probability_of_improvement"]
+    return [diff.format(1) if diff else "baseline", better.format(2) if better else "baseline"]
+
+
+def _row(name: str, entry: runs.Entry, st: dict) -> list:
+    """One run's row of :func:`table`."""
+    n, steps, solved = len(entry.scores), entry.first_reached(entry.run.env_steps), st["solved"]
+    median = np.inf if steps is None else float(np.median(steps))
+    return [
+        name,
+        n,
+        *(st[name].format(1) for name in ESTIMATE_NAMES),
+        "n/a"
+        if solved is None
+        else f"{entry.solved}/{n} [{solved.ci_low:.1%}, {solved.ci_high:.1%}]",
+        *_against(st),
+        "n/a" if steps is None else f"{int(np.isfinite(steps).sum())}/{n}",
+        "n/a" if steps is None else f"{median:,.0f}" if np.isfinite(median) else "never",
+    ]
 
 
 def table(comparison: Comparison) -> str:
-    """The terminal table: one row per run, split so that it fits 100 columns."""
+    """The terminal table: one row per run, split so that it fits 100 columns; names longer
+    than :data:`NAME_WIDTH` are numbered in it and listed under it."""
     reference = "baseline"
     if comparison.arms:
         reference = f"{comparison.arms.names[0]} same config"
-    ci = f"{100 * comparison.confidence:.3g}% CI"  # wider with --adjust bonferroni
     counts = [len(entry.scores) for entry in comparison.entries]
+    ci = f"{100 * comparison.confidence:.3g}% CI"  # wider with --adjust bonferroni
     if stats.interval_label(counts) != f"{stats.CONFIDENCE:.0%} CI":  # too few seeds for one
         ci = stats.interval_label(counts)
     header = [
@@ -100,25 +95,14 @@ def table(comparison: Comparison) -> str:
         "reached 500",
         "steps to 500",
     ]
-    names, legend = _row_names([entry.name for entry in comparison.entries])
-    rows = []
-    for name, entry, st in zip(names, comparison.entries, comparison.runs):
-        n = len(entry.scores)
-        steps = entry.first_reached(entry.run.env_steps)
-        rows.append(
-            [
-                name,
-                n,
-                *(st.estimates[name].format(1) for name in ESTIMATE_NAMES),
-                _solved(st.solved, n),
-                st.difference.format(1) if st.difference else "baseline",
-                st.improvement.format(2) if st.improvement else "baseline",
-                "n/a" if steps is None else f"{int(np.isfinite(steps).sum())}/{n}",
-                _median_steps(steps),
-            ]
-        )
+    names = [entry.name for entry in comparison.entries]
+    numbered = max(map(len, names)) > NAME_WIDTH
+    shown = [f"[{i}]" for i in range(len(names))] if numbered else names
+    rows = [_row(*row) for row in zip(shown, comparison.entries, comparison.runs)]
     text = cli.format_table(rows, header, width=cli.TABLE_WIDTH)
-    return text if legend is None else f"{text}\n{cli.wrap(legend)}"
+    if numbered:
+        text += "\n" + cli.wrap("runs: " + "; ".join(f"[{i}] {n}" for i, n in enumerate(names)))
+    return text
 
 
 def matrix_text(comparison: Comparison) -> str | None:
@@ -141,22 +125,15 @@ def arms_text(comparison: Comparison) -> str | None:
     arms, arm_stats = comparison.arms, comparison.arm_stats
     if arms is None or arm_stats is None:
         return None
-    rows = []
-    for name, st in zip(arms.names, arm_stats):
-        rows.append(
-            [
-                name,
-                len(arms.runs[0]),
-                st.iqm.format(1),
-                st.difference.format(1) if st.difference else "baseline",
-                st.improvement.format(2) if st.improvement else "baseline",
-            ]
-        )
+    k = len(arms.runs[0])
+    rows = [
+        [name, k, st["iqm"].format(1), *_against(st)] for name, st in zip(arms.names, arm_stats)
+    ]
     ci = f"{100 * comparison.confidence:.3g}% CI"
     header = ["arm", "configs", "IQM [95% CI]", f"IQM - {arms.names[0]} [{ci}]", f"P(>) [{ci}]"]
     return (
-        f"Arms over {len(arms.runs[0])} configuration(s) (stratified bootstrap: seeds "
-        "resampled within each configuration; P(>) is the mean over configurations):\n"
+        f"Arms over {k} configuration(s) (stratified bootstrap: seeds resampled within each "
+        "configuration; P(>) is the mean over configurations):\n"
         + cli.format_table(rows, header, cli.TABLE_WIDTH)
     )
 
@@ -276,11 +253,14 @@ def compare_runs(
         grouped = None
     out = runs.prepare_out(None if out is None else Path(out), entries)
     comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, grouped)
-    from jaxcart.results.figure import draw_comparison  # matplotlib: only when drawn
+    from jaxcart.results import figure  # matplotlib: only when drawn
 
-    buf = io.BytesIO()
-    draw_comparison(comparison).savefig(buf, format="png", dpi=dpi)
-    return CompareResult(comparison, *runs.write_outputs(comparison, out, buf.getvalue()))
+    names = (layout.COMPARE_FILE, layout.COMPARE_FIGURE_FILE, layout.COMPARE_CURVES_FILE)
+    paths = [out / name for name in names]  # compare.json last: written once the rest is
+    figure.save(figure.draw_comparison(comparison), paths[1], dpi)
+    files.atomic_write_bytes(paths[2], runs.curves_csv(comparison.entries))
+    files.write_json(paths[0], comparison.to_dict())
+    return CompareResult(comparison, *paths)
 
 
 class _Formatter(cli.HelpFormatter):

@@ -17,9 +17,8 @@ import numpy as np
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
 from jaxcart.cli import format_table
+from jaxcart.core import solved
 from jaxcart.core.config import PRESETS, config_fields, preset
-from jaxcart.core.envs import DEFAULT_ENV, GYMNAX_ENVS
-from jaxcart.core.solved import EVAL_SEED
 from jaxcart.run import physics
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar
@@ -160,7 +159,7 @@ def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
         ("reached 500", lambda r: f"{r['seeds_reaching_500']}/{n}"),
         ("diverged", lambda r: f"{r['seeds_diverged']}/{n}"),
     ]
-    if outcome.run.config.env != DEFAULT_ENV:  # a 500-step episode is CartPole's best only
+    if solved.return_bounds(outcome.run.config.env)[1] != solved.SOLVED_RETURN:  # not its best
         columns = [c for c in columns if "500" not in c[0]]
     return _table(ranking, columns)
 
@@ -186,11 +185,7 @@ def results_text(outcome: Outcome) -> str:
     env_id = outcome.run.config.env
     if grid.is_sweep:
         rows, header = sweep_rows(outcome)
-        rule = (
-            f"all {episodes} greedy Gymnasium episodes score 500"
-            if env_id == DEFAULT_ENV
-            else f"the mean of {episodes} greedy Gymnasium episodes >= {GYMNAX_ENVS[env_id]:g}"
-        )
+        rule = solved.solved_definition(env_id).format(episodes=episodes)
         score = Score.parse(outcome.ranking[0]["score"])
         return (
             f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = {rule}):\n"
@@ -202,10 +197,11 @@ def results_text(outcome: Outcome) -> str:
     overrides = physics.overrides(outcome.run.spec.env_params)
     on = f" with {physics.describe(overrides)}" if overrides else ""
     nominal = " (nominal physics)" if outcome.run.spec.randomize else ""
+    rule, threshold = solved.SOLVED_BY[env_id]
     return (
         f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('{env_id}')"
         + f"{on}{nominal}"
-        + ("" if env_id == DEFAULT_ENV else f" (solved: mean >= {GYMNAX_ENVS[env_id]:g})")
+        + (f" (solved: mean >= {threshold:g})" if rule == "mean" else "")
         + ":\n"
         + format_table(rows, header)
         + "\n"
@@ -237,9 +233,9 @@ def evaluation_columns_text(episodes: int) -> str:
     """The one line under the evaluation table that says what each column is over: the two
     greedy means start from different states, so they differ for a policy that does not
     solve every start (which is not a parity bug)."""
-    last = EVAL_SEED + episodes - 1
+    last = solved.EVAL_SEED + episodes - 1
     return (
-        f"gym: {episodes} greedy episodes in Gymnasium (reset seeds {EVAL_SEED}..{last}); "
+        f"gym: {episodes} greedy episodes in Gymnasium (reset seeds {solved.EVAL_SEED}..{last}); "
         f"jaxcart mean: {episodes} greedy episodes in jaxcart's JAX env from other start "
         "states, so it differs unless the policy solves every start; train ep_rew_mean: the "
         "last 100 training episodes (sampled actions)"
@@ -286,38 +282,33 @@ def next_steps_text(outcome: Outcome) -> str:
     for the shell."""
     out, grid, q = outcome.run.out, outcome.run.grid, shlex.quote
     best = (outcome.ranking[0]["combination"] if outcome.ranking else 0) if grid.is_sweep else 0
-    solved = outcome.evaluation.solved
-    solved = np.flatnonzero(solved[grid.runs_of(best)] if grid.is_sweep else solved)
-    seed = int(solved[0]) if len(solved) else 0
+    done = outcome.evaluation.solved
+    done = np.flatnonzero(done[grid.runs_of(best)] if grid.is_sweep else done)
+    seed = int(done[0]) if len(done) else 0
     pick = f" --seed-index {seed}" if seed else ""
-    if grid.is_sweep:
-        gif = out / f"combo-{best:03d}" / f"seed{seed}.gif"
-        commands = [
-            (
-                f"python -m jaxcart.plot {q(str(out))} --out {q(str(out / 'curves.png'))}",
-                "learning curves of every combination",
-            ),
-            (
-                f"python -m jaxcart.evaluate {q(str(out))} --combination {best}{pick} "
-                f"--gif {q(str(gif))}",
-                f"watch seed {seed} of the best-ranked combination",
-            ),
-            (f"python -m jaxcart.compare {q(str(out))}", "the combinations' statistics"),
-        ]
-    else:
-        gif = out / f"seed{seed}.gif"
-        commands = [
-            (f"python -m jaxcart.plot {q(str(out))}", "learning curves, into its curves.png"),
-            (
-                f"python -m jaxcart.evaluate {q(str(out))}{pick} --gif {q(str(gif))}",
-                f"watch seed {seed}'s policy",
-            ),
-            (
-                f"python -m jaxcart.compare {q(str(out))} OTHER_RUN",
-                "statistics against another run",
-            ),
-        ]
-    if outcome.run.config.env != DEFAULT_ENV:  # GIFs draw CartPole only
+    sweep, run = grid.is_sweep, q(str(out))
+    where, combo = (out / f"combo-{best:03d}", f" --combination {best}") if sweep else (out, "")
+    gif = q(str(where / f"seed{seed}.gif"))
+    curves, other = (f" --out {q(str(out / 'curves.png'))}", "") if sweep else ("", " OTHER_RUN")
+    commands = [
+        (
+            f"python -m jaxcart.plot {run}{curves}",
+            "learning curves of every combination"
+            if sweep
+            else "learning curves, into its curves.png",
+        ),
+        (
+            f"python -m jaxcart.evaluate {run}{combo}{pick} --gif {gif}",
+            f"watch seed {seed} of the best-ranked combination"
+            if sweep
+            else f"watch seed {seed}'s policy",
+        ),
+        (
+            f"python -m jaxcart.compare {run}{other}",
+            "the combinations' statistics" if sweep else "statistics against another run",
+        ),
+    ]
+    if outcome.run.config.env != solved.DEFAULT_ENV:  # GIFs draw CartPole only
         commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
@@ -326,13 +317,16 @@ def next_steps_text(outcome: Outcome) -> str:
 def stopped_text(outcome: Outcome, resume_hint: str) -> str:
     """What a stopped run prints: where it stopped and how to resume."""
     run, (wave, iteration) = outcome.run, outcome.stopped_at or (0, 0)
+    where = f"at {_at(run, iteration, wave)}"
     if outcome.result is None and wave == 0:
         where = "before training started"
-    else:
-        where = f"at iteration {iteration}/{run.config.num_iterations}"
-        if run.plan.num_waves > 1:
-            where += f" of wave {wave + 1}/{run.plan.num_waves}"
     return f"stopped {where}; checkpoint saved in {run.out}\nresume with: {resume_hint}"
+
+
+def _at(run: Run, iteration: int, wave: int) -> str:
+    """``iteration 12/40``, or in waves ``iteration 3/40 of wave 2/5``."""
+    waves = f" of wave {wave + 1}/{run.plan.num_waves}" if run.plan.num_waves > 1 else ""
+    return f"iteration {iteration}/{run.config.num_iterations}{waves}"
 
 
 def plan_text(plan: WavePlan, spec: RunSpec) -> str:
@@ -358,12 +352,7 @@ def checkpoint_text(run: Run) -> str:
     """Which iteration the checkpoint on disk holds, as the run knows it (``iteration
     12/40``, ``iteration 3/40 of wave 2/5``); "" when none was saved yet."""
     meta = run.directory.checkpoint_meta
-    if meta is None:
-        return ""
-    where = f"iteration {int(meta['iteration'])}/{run.config.num_iterations}"
-    if run.plan.num_waves > 1:
-        where += f" of wave {int(meta.get('wave', 0)) + 1}/{run.plan.num_waves}"
-    return where
+    return "" if meta is None else _at(run, int(meta["iteration"]), int(meta.get("wave", 0)))
 
 
 def write_failed_text(run: Run | None, exc: OSError) -> str:

@@ -479,7 +479,7 @@ def test_a_run_ends_with_next_steps_that_work(tmp_path, capsys, monkeypatch):
 def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, capsys):
     """The sweep table's plain gym mean is the plot's "mean return" (the IQM beside it is
     another statistic, and the line under the table says so); the next steps run as printed."""
-    from jaxcart import plot
+    from jaxcart.results import figure
     from jaxcart.rundir.views import load_runs
 
     out = tmp_path / "sweep"
@@ -494,7 +494,7 @@ def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, c
     for row in table[3:5]:
         cells = re.split(r"\s{2,}", row.strip())
         run = load_runs([out / f"combo-{int(cells[combo]):03d}"])[0]
-        summary = " ".join(plot._summary_lines(run))
+        summary = " ".join(figure._summary_lines(run))
         found = re.search(r"mean return ([\d.]+)", summary)
         assert found and found[1] == cells[column], (cells, summary)
     best = int(table[3].split()[combo])

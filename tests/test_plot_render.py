@@ -14,7 +14,8 @@ from helpers import distinct_colours, seal, tiny_args
 from PIL import Image, ImageSequence
 
 from jaxcart import evaluate, plot
-from jaxcart.analysis import figures, stats
+from jaxcart.analysis import stats
+from jaxcart.results import figure as figures
 from jaxcart.results import gif as render
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.views import RunCurves, load_runs
@@ -89,12 +90,12 @@ def test_mean_and_band_ignores_nan_needs_two_seeds_and_stays_in_range():
     # A metric's range clips the band: explained variance <= 1, clip fraction in [0, 1].
     rng = np.random.default_rng(0)
     ev = np.stack([rng.uniform(-20, 1, 8), np.ones(8)])
-    _, low, high = mean_and_band(ev, plot.METRIC_BOUNDS["train/explained_variance"])
+    _, low, high = mean_and_band(ev, figures.METRIC_BOUNDS["train/explained_variance"])
     assert (high <= 1).all() and low[0] < -5
     _, low, high = mean_and_band(np.array([[0.5, 3.0]]), (0.0, 1.0))
     assert low[0] == 0.5 and high[0] == 1.0
-    assert plot.METRIC_BOUNDS["rollout/ep_rew_mean"] == (0.0, 500.0)
-    assert plot.METRIC_BOUNDS["train/approx_kl"][0] == 0.0
+    assert figures.METRIC_BOUNDS["rollout/ep_rew_mean"] == (0.0, 500.0)
+    assert figures.METRIC_BOUNDS["train/approx_kl"][0] == 0.0
 
 
 def test_plot_one_run_default_path(tiny_run, capsys, no_warnings):
@@ -117,12 +118,12 @@ def test_plot_overlay_and_single_seed(
     assert_nontrivial_png(tmp_path / "comparison.png")
     assert not (single_seed_run / "comparison.png").exists()
     runs = load_runs([single_seed_run, tiny_run])
-    assert "different seed counts (1, 2)" in plot.wall_time_notes(runs)[0]
+    assert "different seed counts (1, 2)" in figures.wall_time_notes(runs)[0]
     out = tmp_path / "both.png"
     fig = plot.plot_runs([tiny_run, single_seed_run], out, ["a", "b"], dpi=50)
     # two seeds: the band is their range, and the title says so (not a confidence interval)
     assert fig.axes and "shaded range of 2 seeds" in fig._suptitle.get_text()
-    assert "confidence interval" in plot.draw_figure([synthetic_run("x")])._suptitle.get_text()
+    assert "confidence interval" in figures.draw_figure([synthetic_run("x")])._suptitle.get_text()
     assert_nontrivial_png(out)
     before = sorted(tmp_path.iterdir())
     alone = plot.plot_runs([single_seed_run])  # a notebook's figure: no file written
@@ -146,7 +147,7 @@ def synthetic_run(name: str, iterations: int = 200, seeds: int = 4, **fields) ->
     kl = rng.uniform(0.004, 0.012, (iterations, seeds))
     kl[::20, 0] = 0.06
     metrics = {
-        plot.RETURN_METRIC: np.clip(rise, 0, 500),
+        figures.RETURN_METRIC: np.clip(rise, 0, 500),
         "train/approx_kl": kl,
         "train/clip_fraction": rng.uniform(0.0, 0.2, (iterations, seeds)),
         "train/entropy_loss": -rng.uniform(0.5, 0.6, (iterations, seeds)),
@@ -213,7 +214,7 @@ def test_run_styles_differ_and_later_runs_draw_on_top():
     )
     assert all(a.zorder < b.zorder for a, b in zip(styles, styles[1:]))
     # Two equal curves (the same settings run twice): the second is broken and drawn later.
-    fig = plot.draw_figure([synthetic_run("x"), synthetic_run("x")])
+    fig = figures.draw_figure([synthetic_run("x"), synthetic_run("x")])
     first, second = panel(fig, "approx KL").lines
     np.testing.assert_array_equal(first.get_ydata(), second.get_ydata())
     assert first.get_linestyle() == "-" and second.get_linestyle() != "-"
@@ -225,18 +226,18 @@ def test_the_periodic_evaluation_is_drawn_where_it_ran():
     run = synthetic_run("evaluated", iterations=30)
     evaluated = np.full((30, 4), np.nan)
     evaluated[9::10] = [[100.0, 200, 300, 400]]  # --eval-every 10
-    run.metrics[plot.EVAL_METRIC] = evaluated
-    fig = plot.draw_figure([run])
-    ax = panel(fig, f"episode return vs env steps (dots: {plot.EVAL_METRIC})")
-    (dots,) = [line for line in ax.lines if line.get_label() == plot.EVAL_METRIC]
+    run.metrics[figures.EVAL_METRIC] = evaluated
+    fig = figures.draw_figure([run])
+    ax = panel(fig, f"episode return vs env steps (dots: {figures.EVAL_METRIC})")
+    (dots,) = [line for line in ax.lines if line.get_label() == figures.EVAL_METRIC]
     np.testing.assert_array_equal(dots.get_xdata(), run.env_steps[9::10])
     np.testing.assert_array_equal(dots.get_ydata(), [250.0] * 3)  # the mean over seeds
-    assert panel(plot.draw_figure([synthetic_run("x")]), "episode return vs env steps")
+    assert panel(figures.draw_figure([synthetic_run("x")]), "episode return vs env steps")
 
 
 def test_axes_fit_the_curves_and_bands_run_past_them():
     run = synthetic_run("spiky")
-    fig = plot.draw_figure([run])
+    fig = figures.draw_figure([run])
     ax = panel(fig, "approx KL")
     mean, _, high = mean_and_band(run.metrics["train/approx_kl"], (0.0, np.inf))
     assert np.nanmax(high) > 2 * np.nanmax(mean)  # the band reaches far above the curve
@@ -252,7 +253,7 @@ def test_notes_legend_and_ticks_stay_readable(tmp_path, no_warnings):
     note = "from the checkpoint at iteration 245/977: the run did not finish"
     runs = [synthetic_run("stopped-" + "x" * 80, note=note, iterations=245)]
     runs += [synthetic_run(f"run-{i}", seeds=1 + i % 3) for i in range(11)]
-    fig = plot.draw_figure(runs)
+    fig = figures.draw_figure(runs)
     renderer = fig.canvas.get_renderer()
     figure_box = fig.bbox
     summary = fig.axes[-1]
@@ -338,7 +339,7 @@ def test_plot_expands_sweeps_into_labelled_combinations(tiny_run, tmp_path, monk
         "learning_rate=0.01,clip_coef=0.2",
     ]
     assert [r.path for r in runs] == [sweep / "combo-000", sweep / "combo-001"]
-    assert "share its wall time" in plot.wall_time_notes(runs)[0]
+    assert "share its wall time" in figures.wall_time_notes(runs)[0]
     labelled = load_runs([tiny_run, sweep], labels=["base", "lr"])
     assert [r.label for r in labelled] == ["base", *(f"lr {r.label}" for r in runs)]
     # The same combinations from two sweeps are told apart by the sweep's name.

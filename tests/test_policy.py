@@ -21,6 +21,7 @@ from jaxcart.core import networks
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.engine.signals import StopRequest
+from jaxcart.results import figure
 from jaxcart.run import lifecycle
 from jaxcart.run.greedy import evaluate_run_dir
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
@@ -189,7 +190,7 @@ def test_plot_stopped_run_and_sweep(runs, tmp_path, monkeypatch, capsys):
     csv_rows = np.loadtxt(stopped / "metrics.csv", delimiter=",", skiprows=1)
     assert csv_rows.shape[0] == 2 * 4
     np.testing.assert_array_equal(run.env_steps, np.arange(1, 5) * SMALL.batch_size)
-    assert "not evaluated: " + STOPPED_NOTE in plot._summary_lines(run)[2]
+    assert "not evaluated: " + STOPPED_NOTE in figure._summary_lines(run)[2]
 
     # A sweep killed before it wrote anything but its checkpoint: no metrics.csv either.
     sweep = tmp_path / "sweep"

@@ -8,9 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import mannwhitneyu, trim_mean
 
-from jaxcart.analysis import curves as curves_lib
-from jaxcart.analysis import multiplicity as comparisons
-from jaxcart.analysis import stats
+from jaxcart.analysis import stats, summary
 
 SAMPLE = np.array([0.0, 10, 20, 30, 40, 50, 60, 500])
 
@@ -447,11 +445,11 @@ def test_auc_counts_nan_iterations_as_zero():
     # seed 0: no episode finished in iteration 1 -> (0 + 20 + 40) / 3 = 20;
     # seed 1: diverged after iteration 2 -> (10 + 30 + 0) / 3 = 40 / 3.
     curves = np.array([[np.nan, 10], [20.0, 30], [40.0, np.nan]])
-    np.testing.assert_allclose(curves_lib.auc(curves), [20.0, 40 / 3])
+    np.testing.assert_allclose(summary.auc(curves), [20.0, 40 / 3])
     with pytest.raises(ValueError, match="1 infinite"):
-        curves_lib.auc(np.array([[np.inf, 1.0]]))
+        summary.auc(np.array([[np.inf, 1.0]]))
     with pytest.raises(ValueError, match="non-empty"):
-        curves_lib.auc(np.zeros((0, 3)))
+        summary.auc(np.zeros((0, 3)))
 
 
 @pytest.mark.parametrize("env_id, worst", [("Acrobot-v1", -500.0), ("MountainCar-v0", -200.0)])
@@ -465,15 +463,15 @@ def test_an_iteration_without_a_return_scores_the_envs_worst_return(env_id, wors
         early[:s, s] = np.nan
     diverged = learned.copy()
     diverged[8:] = np.nan  # stopped by the trainer after iteration 8
-    auc = curves_lib.auc(np.hstack([early, diverged]), env_id)
+    auc = summary.auc(np.hstack([early, diverged]), env_id)
     assert (np.diff(auc[:6]) <= 0).all()  # a later first episode never scores higher
     assert auc[6] < auc[:6].min()  # the diverged run ranks last
-    assert curves_lib.auc(np.full((3, 1), np.nan), env_id) == [worst]
-    at_2 = curves_lib.return_at(early, np.arange(1.0, 21), 2, env_id)  # iteration 1
+    assert summary.auc(np.full((3, 1), np.nan), env_id) == [worst]
+    at_2 = summary.return_at(early, np.arange(1.0, 21), 2, env_id)  # iteration 1
     np.testing.assert_array_equal(at_2[:3], [learned[1, 0], learned[1, 0], worst])
     # a CartPole run with a return every iteration scores as it did: the plain mean
     cartpole = rng.uniform(0, 500, size=(20, 3))
-    np.testing.assert_array_equal(curves_lib.auc(cartpole), cartpole.mean(axis=0))
+    np.testing.assert_array_equal(summary.auc(cartpole), cartpole.mean(axis=0))
 
 
 def test_auc_is_recomputable_from_metrics_csv(tmp_path):
@@ -493,48 +491,46 @@ def test_auc_is_recomputable_from_metrics_csv(tmp_path):
                 0.0 if np.isnan(value) else value
             )
     expected = [np.mean(per_seed[s]) for s in range(3)]
-    np.testing.assert_allclose(curves_lib.auc(returns), expected, rtol=1e-6)  # csv: float32
+    np.testing.assert_allclose(summary.auc(returns), expected, rtol=1e-6)  # csv: float32
 
 
 def test_return_at_first_iteration_at_or_past_the_budget():
     curves = np.array([[np.nan, 10], [20.0, 30], [40.0, 50]])
     env_steps = np.array([100.0, 200, 300])
-    np.testing.assert_array_equal(curves_lib.return_at(curves, env_steps, 50), [0, 10])
-    np.testing.assert_array_equal(curves_lib.return_at(curves, env_steps, 200), [20, 30])
-    np.testing.assert_array_equal(curves_lib.return_at(curves, env_steps, 201), [40, 50])
+    np.testing.assert_array_equal(summary.return_at(curves, env_steps, 50), [0, 10])
+    np.testing.assert_array_equal(summary.return_at(curves, env_steps, 200), [20, 30])
+    np.testing.assert_array_equal(summary.return_at(curves, env_steps, 201), [40, 50])
     with pytest.raises(ValueError, match="never reaches 301 env steps: it ends at 300"):
-        curves_lib.return_at(curves, env_steps, 301)
+        summary.return_at(curves, env_steps, 301)
     with pytest.raises(ValueError, match="iterations"):
-        curves_lib.return_at(curves, env_steps[:2], 100)
+        summary.return_at(curves, env_steps[:2], 100)
 
 
 # --- what comparisons can still say -----------------------------------------------------------
 
 
 def test_saturated():
-    assert comparisons.saturated([[500.0] * 64, [500.0] * 10])
-    assert not comparisons.saturated([[500.0] * 64, [500.0] * 9 + [499.0]])
-    assert comparisons.saturated([[3.0]])
+    assert stats.saturated([[500.0] * 64, [500.0] * 10])
+    assert not stats.saturated([[500.0] * 64, [500.0] * 9 + [499.0]])
+    assert stats.saturated([[3.0]])
     with pytest.raises(ValueError, match=r"runs\[1\] holds 1 NaN"):
-        comparisons.saturated([[500.0], [np.nan]])
+        stats.saturated([[500.0], [np.nan]])
 
 
 def test_number_of_comparisons_and_bonferroni():
     from itertools import combinations
 
     for k in range(1, 8):
-        assert comparisons.num_comparisons(k) == k - 1  # each against the baseline
-        assert comparisons.num_comparisons(k, all_pairs=True) == len(
-            list(combinations(range(k), 2))
-        )
+        assert stats.num_comparisons(k) == k - 1  # each against the baseline
+        assert stats.num_comparisons(k, all_pairs=True) == len(list(combinations(range(k), 2)))
     # 4 comparisons at 95%: each at 1 - 0.05/4 = 0.9875; up to 4 x 5% = 20% miss at least once.
-    assert comparisons.bonferroni_confidence(4) == pytest.approx(0.9875)
-    assert comparisons.familywise_miss_bound(4) == pytest.approx(0.20)
-    assert comparisons.familywise_miss_bound(40) == 1.0
+    assert stats.bonferroni_confidence(4) == pytest.approx(0.9875)
+    assert stats.familywise_miss_bound(4) == pytest.approx(0.20)
+    assert stats.familywise_miss_bound(40) == 1.0
     # The bound holds for independent intervals: 1 - 0.95^N <= N x 5%.
     for n in range(1, 30):
-        assert 1 - 0.95**n <= comparisons.familywise_miss_bound(n) + 1e-12
+        assert 1 - 0.95**n <= stats.familywise_miss_bound(n) + 1e-12
     with pytest.raises(ValueError, match="comparisons"):
-        comparisons.bonferroni_confidence(0)
+        stats.bonferroni_confidence(0)
     with pytest.raises(ValueError, match="num_runs"):
-        comparisons.num_comparisons(0)
+        stats.num_comparisons(0)

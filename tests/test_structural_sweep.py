@@ -12,7 +12,7 @@ import pytest
 from helpers import assert_same_run_dirs
 
 from jaxcart import train
-from jaxcart.analysis import curves
+from jaxcart.analysis.summary import auc
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run.spec import RunSpec
 from jaxcart.run.structural import group_specs, shape_groups, split_sweep
@@ -63,7 +63,7 @@ def test_shape_groups_train_into_one_directory_ranked_together(tmp_path, capsys)
     for row in ranking:  # each seed scored on its own group's curve (4 or 8 iterations)
         where = layout.combo_dir(out / f"group-{row['group']:03d}", row["group_combination"])
         curve = reader.read_metrics_csv(where / layout.METRICS_FILE)["rollout/ep_rew_mean"]
-        np.testing.assert_allclose(row["scores"], curves.auc(curve), rtol=1e-6)
+        np.testing.assert_allclose(row["scores"], auc(curve), rtol=1e-6)
         assert row["rank"] == 1 + sum(v > row["iqm"]["value"] for v in iqms)
     assert {(r["num_envs"], r["learning_rate"]) for r in ranking} == {
         (2, 1e-3), (2, 3e-3), (4, 1e-3), (4, 3e-3),

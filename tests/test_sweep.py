@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from helpers import tiny_args
 
-from jaxcart.analysis import curves, stats
-from jaxcart.analysis.summary import Score
+from jaxcart.analysis import stats
+from jaxcart.analysis.summary import Score, auc
 from jaxcart.run.sweep import RunGrid, parse_sweep, rank, ranking_notes, saturated
 from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
@@ -67,7 +67,7 @@ def test_sweep_cli_trains_every_combination(tmp_path, capsys):
 
     def scores(c: int) -> np.ndarray:  # compare --score auc's, from the combination's metrics
         metrics = reader.read_metrics_csv(out / f"combo-{c:03d}" / "metrics.csv")
-        return curves.auc(metrics["rollout/ep_rew_mean"])
+        return auc(metrics["rollout/ep_rew_mean"])
 
     scores_of = {r["combination"]: r["scores"] for r in ranking}
     for r in ranking:

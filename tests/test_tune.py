@@ -417,7 +417,8 @@ def test_rl_zoo3_heldout_params_read_back_as_rl_zoo3_converts_them():
 def test_the_pruner_scores_a_partial_run_as_compare_scores_a_whole_one():
     """The rung scores are curves.auc of the iterations so far (one definition): on an
     Acrobot-like curve, an iteration before the first episode ends is -500, not 0."""
-    from jaxcart.analysis import curves, stats
+    from jaxcart.analysis import stats
+    from jaxcart.analysis.summary import auc
 
     class Trial:
         number, reported = 0, []
@@ -438,7 +439,7 @@ def test_the_pruner_scores_a_partial_run_as_compare_scores_a_whole_one():
         chunk = {search.RETURN_METRIC: rows}
         reporter.on_chunk(types.SimpleNamespace(iteration=start + len(rows), metrics=chunk))
     for step, value in Trial.reported:
-        so_far = curves.auc(returns[: step * 8 // 1000], "Acrobot-v1")
+        so_far = auc(returns[: step * 8 // 1000], "Acrobot-v1")
         assert value == pytest.approx(float(stats.iqm(so_far)))
     assert [s for s, _ in Trial.reported] == [125 * i for i in range(1, 8)]
     assert reporter.last_scores[0][1] < reporter.last_scores[0][0]  # the late seed is lower

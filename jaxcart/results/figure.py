@@ -1,32 +1,471 @@
-"""``compare.png``: the figure of a :class:`~jaxcart.results.scores.Comparison`.
+"""Every figure jaxcart draws, and the helpers they are drawn with (matplotlib's object API,
+never pyplot, so the caller's backend is never changed).
 
-Top row: each run's IQM, median over seeds, mean and optimality gap with their intervals, each
-written out; IQM, median and mean share one score axis, and no panel spans less than
-:data:`MIN_SPAN` points, so that a small difference looks small.
-Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the performance profile
-(fraction of seeds scoring at least tau, the solved fraction marked at 500). Bottom: sample
-efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction of seeds whose training
-had produced a 500 episode by env steps, and the all-pairs ``P(X > Y)`` matrix. Wall time is
-left out: it depends on the machine and its load (``python -m jaxcart.plot`` draws it).
+- :func:`draw_figure`: ``python -m jaxcart.plot``'s learning curves (its module docstring says
+  what each panel shows).
+- :func:`draw_comparison`: ``compare.png``, the figure of a
+  :class:`~jaxcart.results.scores.Comparison`. Top row: each run's IQM, median over seeds, mean
+  and optimality gap with their intervals, each written out; IQM, median and mean share one
+  score axis, and no panel spans less than :data:`MIN_SPAN` points, so that a small difference
+  looks small. Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the
+  performance profile (fraction of seeds scoring at least tau, the solved fraction marked at
+  500). Bottom: sample efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction
+  of seeds whose training had produced a 500 episode by env steps, and the all-pairs
+  ``P(X > Y)`` matrix. Wall time is left out: it depends on the machine and its load
+  (``python -m jaxcart.plot`` draws it).
+- :func:`draw_robustness`: ``robustness.png``, ``python -m jaxcart.evaluate --sweep``'s return
+  against a physics value.
+- Helpers: :func:`run_styles` (a colour from Okabe and Ito's colour-blind-safe palette and a
+  line style per run), :func:`curve_limits` (y limits that fit the mean curves, not their
+  bands), :func:`return_axis` (an env's range of returns and its solved threshold),
+  :func:`step_axis` (``250k``, ``1.25M``), :func:`wrap_to_width` and :func:`wrap_to_axes`
+  (text wrapped to a laid-out panel in the font it is drawn in), :func:`band` (a curve with
+  its confidence band), :func:`no_data` and :func:`save` (one file, written atomically).
 
-Also ``robustness.png`` (:func:`draw_robustness`), ``python -m jaxcart.evaluate --sweep``'s
-return against a physics value.
+Importing this module imports neither matplotlib nor JAX (``python -m jaxcart.plot --help``
+stays fast); both come in when a figure is drawn from runs read.
 """
 
 from __future__ import annotations
 
+import io
+import math
 import textwrap
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from jaxcart.analysis import stats
-from jaxcart.analysis.figures import band, no_data, run_styles
-from jaxcart.results.scores import RETURN_METRIC, Comparison
+from jaxcart.core.solved import DEFAULT_ENV, SOLVED_BY, return_bounds
+from jaxcart.rundir import files
 
-if TYPE_CHECKING:  # matplotlib is imported when the figure is drawn
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
+    from pathlib import Path
+
     from matplotlib.figure import Figure
+
+    from jaxcart.results.scores import Comparison
+    from jaxcart.rundir.views import RunCurves
+
+RETURN_METRIC = "rollout/ep_rew_mean"
+PALETTE = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "#CC79A7", "#000000")
+"""Okabe and Ito's colour-blind-safe colours (their yellow is left out: too faint on white)."""
+LINE_STYLES = (
+    ("-", 2.2),
+    ((0, (5, 2.5)), 1.7),
+    ((0, (1, 1.5)), 1.9),
+    ((0, (6, 2.5, 1.5, 2.5)), 1.3),
+)
+"""Solid, dashed, dotted and dash-dot, each with its width: with 7 colours and 4 styles the
+first 28 runs all differ, and a thinner or broken line drawn over an equal curve leaves it seen."""
+Y_MARGIN = 0.08
+"""Room above and below the mean curves, as a fraction of their range."""
+
+
+@dataclass(frozen=True)
+class Style:
+    """How one run is drawn: its colour and line style in every panel and the legend."""
+
+    color: str
+    linestyle: str | tuple
+    width: float
+    zorder: float  # later runs on top: dashed or dotted over solid, so equal curves both show
+
+    def line(self) -> dict:
+        """Keyword arguments of ``Axes.plot``."""
+        return {"color": self.color, "ls": self.linestyle, "lw": self.width, "zorder": self.zorder}
+
+
+def run_styles(count: int) -> list[Style]:
+    """Colour and line style of each of ``count`` runs: both change from one run to the next."""
+    return [
+        Style(PALETTE[i % len(PALETTE)], *LINE_STYLES[i % len(LINE_STYLES)], 2.0 + i / 1000)
+        for i in range(count)
+    ]
+
+
+def curve_limits(
+    curves: Sequence[np.ndarray],
+    bounds: tuple[float, float] = (-math.inf, math.inf),
+    margin: float = Y_MARGIN,
+) -> tuple[float, float] | None:
+    """Axis limits that fit the mean curves (not their bands) with a margin, kept inside the
+    metric's range unless a curve reaches its edge (then the margin keeps the line visible).
+
+    Args:
+        curves: each ``[iterations]``, NaN where there is no value.
+        bounds: the metric's range (``jaxcart.plot.METRIC_BOUNDS``).
+        margin: room on each side, as a fraction of the curves' range.
+
+    Returns:
+        ``(low, high)`` with ``low < high``, or None if no curve has a finite value.
+    """
+    finite = [c[np.isfinite(c)] for c in curves]
+    values = np.concatenate(finite) if finite else np.empty(0)
+    if values.size == 0:
+        return None
+    lo, hi = float(values.min()), float(values.max())
+    # A flat curve gets a margin from its size (or an absolute one at zero).
+    pad = (hi - lo) * margin if hi > lo else max(abs(hi) * margin, 1e-3)
+    low = lo - pad if lo <= bounds[0] else max(lo - pad, bounds[0])
+    high = hi + pad if hi >= bounds[1] else min(hi + pad, bounds[1])
+    return low, high
+
+
+def band(ax, x, point, low, high, color: str, alpha: float = 0.2, **line) -> None:
+    """A curve ``point`` and, where it has finite values, its band ``[low, high]`` (each
+    ``[len(x)]``) in ``color``; ``line``: ``Axes.plot``'s keywords (``lw``, ``label``)."""
+    ax.plot(x, point, color=color, **line)
+    if np.isfinite(low).any():
+        ax.fill_between(x, low, high, color=color, alpha=alpha, lw=0)
+
+
+def return_axis(ax, env_ids: Sequence[str]) -> None:
+    """A y axis of episode returns: the env's whole range (from 0 when that is its least, so
+    that panels of different runs compare) and its solved threshold dashed (left as it is
+    for several envs)."""
+    if len(set(env_ids)) == 1:
+        low, high = return_bounds(env_ids[0])
+        pad = 0.04 * (high - low)
+        ax.axhline(SOLVED_BY[env_ids[0]][1], color="0.6", lw=0.8, ls="--")
+        ax.set_ylim(low - pad if low < 0 else low, high + pad)
+
+
+def save(fig: Figure, out: Path, dpi: int = 100) -> None:
+    """Writes ``fig`` to ``out`` atomically, in the format its suffix names (png, svg, pdf)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format=out.suffix.lower().lstrip("."), dpi=dpi)
+    files.atomic_write_bytes(out, buf.getvalue())
+
+
+def no_data(ax, text: str) -> None:
+    """``text`` in grey in the middle of an empty panel."""
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
+
+
+def step_axis(axis) -> None:
+    """Few ticks, labelled 0, 250k, 500k, 1.25M: readable at any number of env steps."""
+    from matplotlib.ticker import EngFormatter, MaxNLocator
+
+    axis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 5, 10]))
+    axis.set_major_formatter(EngFormatter(sep=""))
+
+
+def wrap_to_width(text: str, width: float, measure: Callable[[str], float]) -> str:
+    """Word-wraps each line of ``text`` so that ``measure(line) <= width``: a wrapped line
+    keeps the line's indentation plus two spaces, and a word wider than a line is cut.
+
+    Args:
+        text: lines separated by ``\\n``.
+        width: the widest line allowed, in ``measure``'s unit.
+        measure: the width of a string (points of a font, or ``len`` for characters).
+    """
+    out = []
+    for line in text.split("\n"):
+        prefix = line[: len(line) - len(line.lstrip(" "))]
+        more = prefix + "  "
+        current = ""
+        for word in line.split():
+            trial = f"{current} {word}" if current else word
+            if current and measure(prefix + trial) > width:
+                out.append(prefix + current)
+                prefix, trial = more, word
+            while len(trial) > 1 and measure(prefix + trial) > width:
+                cut = len(trial) - 1
+                while cut > 1 and measure(prefix + trial[:cut]) > width:
+                    cut -= 1
+                out.append(prefix + trial[:cut])
+                prefix, trial = more, trial[cut:]
+            current = trial
+        out.append(prefix + current)
+    return "\n".join(out)
+
+
+def wrap_to_axes(text, ax) -> None:
+    """Wraps ``text`` to the width of the (laid out) axes it starts at the left edge of,
+    measured in points of the text's font."""
+    renderer, prop = ax.figure.canvas.get_renderer(), text.get_fontproperties()
+    width = ax.get_window_extent(renderer).width * 72 / ax.figure.dpi
+    measure = lambda s: (
+        renderer.get_text_width_height_descent(s, prop, ismath=False)[0] * 72 / renderer.dpi
+    )
+    text.set_text(wrap_to_width(text.get_text(), width, measure))
+
+
+EVAL_METRIC = "eval/mean_return"
+"""The periodic greedy evaluation (``--eval-every``), drawn as dots over the return curve."""
+KEY_METRICS = (
+    ("train/approx_kl", "approx KL"),
+    ("train/clip_fraction", "clip fraction"),
+    ("train/entropy_loss", "entropy loss (= -entropy)"),
+    ("train/value_loss", "value loss"),
+    ("train/explained_variance", "explained variance"),
+)
+METRIC_BOUNDS: dict[str, tuple[float, float]] = {
+    "rollout/ep_rew_mean": (0.0, 500.0),  # CartPole-v1 pays 1 per step, at most 500 steps
+    "rollout/ep_rew_max": (0.0, 500.0),
+    "rollout/ep_len_mean": (0.0, 500.0),
+    "train/approx_kl": (0.0, math.inf),  # (r - 1) - log r >= 0
+    "train/clip_fraction": (0.0, 1.0),
+    "train/entropy_loss": (-math.log(2.0), 0.0),  # -entropy of two actions
+    "train/value_loss": (0.0, math.inf),
+    "train/explained_variance": (-math.inf, 1.0),
+}
+"""Each metric's range on CartPole-v1; confidence bands are clipped to it (a run's returns to
+its env's, the entropy to its actions')."""
+ALL = (-math.inf, math.inf)
+SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
+"""The summary panel's font sizes, tried largest first until every run's block fits."""
+
+
+def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: Style, name: str) -> np.ndarray:
+    """Draws the mean across seeds of ``run``'s metric and its bootstrap band
+    (:func:`stats.curve_band`, clipped to :data:`METRIC_BOUNDS`, returns to the run's env's:
+    :func:`~jaxcart.core.solved.return_bounds`); returns the mean ``[iterations]``."""
+    values = run.metrics[name]
+    bounds = return_bounds(run.env) if name == RETURN_METRIC else METRIC_BOUNDS.get(name, ALL)
+    mean, low, high = stats.curve_band(values, "mean", bounds=bounds)
+    band(ax, x, mean, low, high, alpha=0.18, **style.line())
+    return mean
+
+
+def _summary_lines(run: RunCurves) -> list[str]:
+    """Three lines per run for the summary panel (which wraps them to its width): the label,
+    seeds, steps and final return, and the Gymnasium evaluation."""
+    ret = run.metrics.get(RETURN_METRIC)
+    final = ""
+    if ret is not None and np.isfinite(ret[-1]).any():
+        final = f"final ep_rew_mean {np.nanmean(ret[-1]):.1f}"
+    steps = f"{int(run.env_steps[-1]):,} steps/seed" if np.isfinite(run.env_steps[-1]) else ""
+    line = ", ".join(p for p in (f"{run.num_seeds} seed(s)", steps, final) if p)
+    from jaxcart.results.scores import read_evaluation  # JAX: only once runs are read
+
+    means, solved = read_evaluation(run, required=False)  # the final policies'
+    if run.note:
+        eval_line = f"not evaluated: {run.note}"
+    elif means is not None:
+        eval_line = (
+            f"Gymnasium: solved {solved}/{means.size}, mean return {means.mean():.1f} "
+            f"({run.evaluation.get('episodes', '?')} greedy episodes per seed)"
+        )
+    else:
+        eval_line = "no evaluation.json"
+    return [run.label, "  " + line, "  " + eval_line]
+
+
+def draw_figure(runs: list[RunCurves]) -> Figure:
+    """The whole figure, laid out: return vs steps and vs wall time, the key metrics, the
+    summary, and the legend below the panels."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    # the key metrics, then the runs' own (PPOConfig.metrics), each once, three panels a row;
+    # slot 5 (row 2, right) is the summary's
+    custom = dict.fromkeys(name for run in runs for name in run.custom_metrics)
+    panels = [*KEY_METRICS, *((name, name) for name in custom)]
+    extra_rows = -(-len(custom) // 3)  # below the built-in ones
+    fig = Figure(figsize=(15, 11 + 3.5 * extra_rows), layout="constrained")
+    FigureCanvasAgg(fig)  # a renderer to measure text with, before the figure is saved
+    grid = fig.add_gridspec(3 + extra_rows, 6)
+    ax_steps = fig.add_subplot(grid[0, 0:3])
+    ax_time = fig.add_subplot(grid[0, 3:6])
+    slots = [k + (k >= 5) for k in range(len(panels))]
+    metric_axes = [fig.add_subplot(grid[1 + j // 3, 2 * (j % 3) : 2 * (j % 3) + 2]) for j in slots]
+    ax_summary = fig.add_subplot(grid[2, 4:6])
+    ax_summary.axis("off")
+    styles = run_styles(len(runs))
+    _draw_returns(runs, styles, ax_steps, ax_time)
+    _draw_metrics(runs, styles, metric_axes, panels)
+    _draw_legend(fig, runs, styles)
+    num = "one run" if len(runs) == 1 else f"{len(runs)} runs"
+    if all(run.num_seeds == 1 for run in runs):
+        num += ", 1 seed" if len(runs) == 1 else ", 1 seed per run"
+        what = "no confidence band (train several seeds for one)"
+    else:
+        band = stats.interval_label([run.num_seeds for run in runs if run.num_seeds > 1], "mean")
+        if band == f"{stats.CONFIDENCE:.0%} CI":
+            band = f"{stats.CONFIDENCE:.0%} bootstrap confidence interval"
+        what = (
+            f"mean across seeds, shaded {band} (the axes fit the means; a band may run past them)"
+        )
+    env_ids = sorted({run.env for run in runs})
+    fig.suptitle(f"PPO on {', '.join(env_ids)}, {num}: {what}", fontsize=13)
+    caption = _caption(ax_time, wall_time_notes(runs)) if ax_time.lines else None
+    fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
+    if caption is not None:
+        wrap_to_axes(caption, ax_time)
+        caption.set_in_layout(True)
+        fig.draw_without_rendering()  # again, with room for the wrapped caption
+    _draw_summary(ax_summary, runs, styles)
+    return fig
+
+
+def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time) -> None:
+    """The return against env steps (with ``--eval-every``'s greedy evaluations as dots)
+    and against wall time."""
+    from matplotlib.ticker import MaxNLocator
+
+    from jaxcart.rundir.views import ELAPSED_METRIC
+
+    for run, style in zip(runs, styles):
+        if RETURN_METRIC in run.metrics:
+            _plot_metric(ax_steps, run.env_steps, run, style, RETURN_METRIC)
+            if run.elapsed is not None:
+                _plot_metric(ax_time, run.elapsed, run, style, RETURN_METRIC)
+        evaluated = run.metrics.get(EVAL_METRIC, np.full((1, 1), np.nan))
+        rows = np.isfinite(evaluated).any(axis=1)  # the iterations --eval-every evaluated at
+        if rows.any():
+            mean = np.nanmean(evaluated[rows], axis=1)
+            ax_steps.plot(
+                run.env_steps[rows], mean, "o", color=style.color, ms=4, label=EVAL_METRIC
+            )
+
+    evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
+    ax_steps.set(
+        title="episode return vs env steps" + (f" (dots: {EVAL_METRIC})" if evaluated else ""),
+        xlabel="env steps per seed",
+        ylabel="rollout/ep_rew_mean",
+    )
+    ax_time.set(
+        title="episode return vs wall time",
+        xlabel="training wall time [s] (compile excluded)",
+        ylabel="rollout/ep_rew_mean",
+    )
+    if not ax_steps.lines:
+        no_data(ax_steps, f"{RETURN_METRIC} not recorded")
+    if not ax_time.lines:
+        no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
+    for ax in (ax_steps, ax_time):
+        ax.grid(alpha=0.3)
+        return_axis(ax, [run.env for run in runs])
+    step_axis(ax_steps.xaxis)
+    ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
+
+
+def _draw_metrics(
+    runs: list[RunCurves],
+    styles: list[Style],
+    axes: list,
+    panels: list[tuple[str, str]],
+) -> None:
+    """One panel per ``(metric, title)`` against env steps, for every run that records it;
+    the y axis fits the means within the metric's range (the bands are clipped to the axes,
+    not the axes to them)."""
+    from jaxcart.core.envs import ACTION_COUNTS
+
+    for ax, (name, title) in zip(axes, panels):
+        means = [
+            _plot_metric(ax, run.env_steps, run, style, name)
+            for run, style in zip(runs, styles)
+            if name in run.metrics
+        ]
+        ax.set(title=title, xlabel="env steps per seed", ylabel=name)
+        ax.grid(alpha=0.3)
+        step_axis(ax.xaxis)
+        bounds = METRIC_BOUNDS.get(name, ALL)
+        if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
+            bounds = (-math.log(max(ACTION_COUNTS[run.env] for run in runs)), 0.0)
+        limits = curve_limits(means, bounds)
+        if limits is None:
+            no_data(ax, f"{name} not recorded")
+        else:
+            ax.set_ylim(limits)
+
+
+def _draw_legend(fig, runs: list[RunCurves], styles: list[Style]) -> None:
+    """One entry per run below the panels, outside the data, in as many columns as fit."""
+    from matplotlib.lines import Line2D
+
+    labels = [
+        f"{run.label} ({f'{run.num_seeds} seeds' if run.num_seeds > 1 else '1 seed, no band'})"
+        for run in runs
+    ]
+    handles = [Line2D([], [], **style.line()) for style in styles]
+    # About 0.6 em a character at 9 pt, plus the handle and gaps: the columns that fit 14 in.
+    columns = int(14 * 72 / (max(map(len, labels)) * 9 * 0.6 + 60))
+    fig.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        ncols=max(1, min(len(labels), columns, 4)),
+        fontsize=9,
+        handlelength=4,
+        frameon=False,
+    )
+
+
+def wall_time_notes(runs: list[RunCurves]) -> list[str]:
+    """What the wall-time axis does not say: a run's seeds (and a sweep's combinations)
+    train together in one program, so its wall time covers all of them."""
+    notes = []
+    counts = sorted({run.num_seeds for run in runs})
+    if len(counts) > 1:
+        notes.append(
+            f"different seed counts ({', '.join(map(str, counts))}): each run's wall time "
+            "is for all its seeds trained together"
+        )
+    if any(run.combination for run in runs):
+        notes.append("a sweep's combinations train in one program: they share its wall time")
+    return notes
+
+
+def _text_below(ax, text: str, xy, xycoords, below: float, **style):
+    """``text`` from ``xy`` down, ``below`` points under it, left-aligned; left out of the
+    layout (the panel is laid out already, or will be once the text is wrapped to it)."""
+    offset = {"xytext": (0.0, -below), "textcoords": "offset points"}
+    text = ax.annotate(text, xy, xycoords=xycoords, va="top", ha="left", **offset, **style)
+    text.set_in_layout(False)
+    return text
+
+
+def _caption(ax, notes: list[str]):
+    """Notes under a panel's x label, off the data; None without notes. Left out of the layout
+    until :func:`wrap_to_axes` has wrapped them (unwrapped, they would squeeze the
+    panel)."""
+    if not notes:
+        return None
+    text = "\n".join(f"note: {note}" for note in notes)
+    where = ("axes fraction", ax.xaxis.label)
+    return _text_below(ax, text, (0.0, 0.0), where, 4.0, fontsize=8.5, color="0.3")
+
+
+def _draw_summary(ax, runs: list[RunCurves], styles: list[Style]) -> None:
+    """Each run's block (:func:`_summary_lines`) in its colour, wrapped to the laid-out
+    panel; smaller type for many runs, and at the smallest the runs that still do not fit
+    are counted instead."""
+    renderer = ax.figure.canvas.get_renderer()
+    to_points = 72 / ax.figure.dpi
+    height = ax.get_window_extent(renderer).height * to_points
+    blocks = ["\n".join(_summary_lines(run)) for run in runs]
+    for size in SUMMARY_FONTSIZES:
+        texts, tops, top = [], [], 0.0
+        for block, style in zip(blocks, styles):
+            texts.append(_summary_text(ax, block, style.color, size, top))
+            tops.append(top)
+            top += texts[-1].get_window_extent(renderer).height * to_points + size / 2
+        if top <= height or size == SUMMARY_FONTSIZES[-1]:
+            break
+        for text in texts:
+            text.remove()
+    if top > height:  # even the smallest type overflows: drop the last runs, say how many
+        keep = len(texts) - 1
+        while keep > 0 and tops[keep] + 2 * size > height:
+            keep -= 1
+        for text in texts[keep:]:
+            text.remove()
+        more = f"... and {len(texts) - keep} more run(s): see the legend"
+        _summary_text(ax, more, "0.3", size, tops[keep])
+
+
+def _summary_text(ax, block: str, colour: str, size: float, top: float):
+    """One block of the summary, ``top`` points below the panel's top, wrapped to its width."""
+    style = {"family": "monospace", "fontsize": size, "color": colour}
+    text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, **style)
+    wrap_to_axes(text, ax)
+    return text
+
 
 TAUS = np.linspace(0.0, stats.MAX_RETURN, 101)
 CURVE_POINTS = 100
@@ -46,7 +485,7 @@ ESTIMATE_TITLES = {
 
 
 def _colour(i: int) -> str:
-    return f"C{i % 10}"
+    return PALETTE[i % len(PALETTE)]
 
 
 def _note(ax, text: str) -> None:
@@ -129,32 +568,27 @@ def _limits(
     return low - margin, high + margin
 
 
-def _against_baseline(ax, comparison: Comparison, kind: str) -> None:
-    runs = comparison.runs
-    rows = [
-        (i, e.name, getattr(runs[i], kind))
-        for i, e in enumerate(comparison.entries)
-        if getattr(runs[i], kind) is not None
-    ]
-    base = (
-        "its baseline arm's run"
-        if comparison.arms
-        else comparison.entries[comparison.baseline].name
-    )
-    if kind == "difference":
+def _rows(comparison: Comparison, key: str) -> list[tuple[int, str, stats.Estimate]]:
+    """``(index, name, estimate)`` of each run that has an estimate of ``key``."""
+    pairs = zip(comparison.entries, comparison.runs)
+    return [(i, e.name, st[key]) for i, (e, st) in enumerate(pairs) if st[key] is not None]
+
+
+def _against_baseline(ax, comparison: Comparison, key: str) -> None:
+    """``difference_iqm`` or ``probability_of_improvement`` of every run but the baseline."""
+    rows = _rows(comparison, key)
+    base = comparison.entries[comparison.baseline].name
+    base = "its baseline arm's run" if comparison.arms else base
+    if key == "difference_iqm":
         title, xlabel, zero = f"IQM difference from {base}", "IQM(run) - IQM(baseline)", 0.0
+        span = stats.MAX_RETURN  # a difference of scores in [0, 500]
+        xlim = rows and _limits([e for _, _, e in rows], -span, span, include=0.0)
     else:
         title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
+        xlim = (-0.02, 1.02)
     if not rows:
         ax.set(title=title)
-        no_data(ax, "one run: nothing to compare")
-        return
-    span = stats.MAX_RETURN  # a difference of scores in [0, 500]
-    xlim = (
-        (-0.02, 1.02)
-        if kind == "improvement"
-        else _limits([e for _, _, e in rows], -span, span, include=0.0)
-    )
+        return no_data(ax, "one run: nothing to compare")
     _intervals(ax, rows, title, xlabel, xlim)
     ax.axvline(zero, color="0.5", ls="--", lw=0.8, label="no difference")
     ax.legend(fontsize=8, loc="lower right")
@@ -184,8 +618,9 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
         if values is None or not np.isfinite(values).any():
             continue
         points = np.unique(np.linspace(0, len(values) - 1, CURVE_POINTS).round().astype(int))
+        bounds = return_bounds(entry.run.env)
         iqm, low, high = stats.curve_band(
-            values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=(0.0, 500.0)
+            values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=bounds
         )
         x = entry.run.env_steps[points]
         band(ax, x, iqm, low, high, _colour(i), lw=1.6, label=entry.name)
@@ -193,10 +628,9 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
         title="sample efficiency: IQM over seeds of the training return",
         xlabel="env steps per seed",
         ylabel=RETURN_METRIC,
-        ylim=(0, 520),
     )
     _finish(ax, "lower right", f"{RETURN_METRIC} not recorded")
-    ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
+    return_axis(ax, [entry.run.env for entry in comparison.entries])
 
 
 def _reached_panel(ax, comparison: Comparison) -> None:
@@ -248,22 +682,19 @@ def draw_comparison(comparison: Comparison) -> Figure:
     fig = Figure(figsize=(18, 13 + 0.25 * n), layout="constrained")
     grid = fig.add_gridspec(3, 12, height_ratios=[0.6 + 0.12 * n, 1, 1])
     score = comparison.score
-    location = [r.estimates[name] for r in comparison.runs for name in ("iqm", "median", "mean")]
+    location = [st[name] for st in comparison.runs for name in ("iqm", "median", "mean")]
     shared = _limits(location, 0.0, stats.MAX_RETURN, include=location[0].value)
     for k, (name, title) in enumerate(ESTIMATE_TITLES.items()):
-        ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
-        rows = [
-            (i, e.name, comparison.runs[i].estimates[name])
-            for i, e in enumerate(comparison.entries)
-        ]
+        rows = _rows(comparison, name)
         # One score axis for IQM, median and mean, so that they read alike; the gap
         # (500 - score) gets its own, as wide as theirs.
         xlim = shared
         if name == "optimality_gap":
             xlim = _limits([e for _, _, e in rows], 0.0, stats.MAX_RETURN, include=0.0)
+        ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
         _intervals(ax, rows, title, f"score ({score.label})", xlim)
-    _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference")
-    _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "improvement")
+    _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference_iqm")
+    _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "probability_of_improvement")
     _profile_panel(fig.add_subplot(grid[1, 8:12]), comparison)
     _sample_efficiency_panel(fig.add_subplot(grid[2, 0:4]), comparison)
     _reached_panel(fig.add_subplot(grid[2, 4:8]), comparison)
@@ -302,9 +733,8 @@ def draw_robustness(
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xticks(values, [f"{v:g}" for v in values])
-    ax.axhline(stats.MAX_RETURN, color="0.6", lw=0.8, ls="--")
+    return_axis(ax, [DEFAULT_ENV])  # physics values are CartPole's
     ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return, IQM over seeds")
-    ax.set(ylim=(0, 520))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower left")
     ax.set_title(textwrap.fill(title, 95), fontsize=10)

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.analysis import multiplicity, stats, summary
+from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
-from jaxcart.rundir import files, layout, reader
+from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.views import RunCurves, load_runs
 
@@ -76,18 +76,14 @@ def read_evaluation(
             f"{run.path} has no {layout.EVALUATION_FILE}: --score eval needs each seed's "
             "greedy evaluation, which training writes when it finishes (--score auc does not)"
         )
-    seeds = run.evaluation["seeds"]
+    seeds = run.evaluation["seeds"]  # each with a finite gymnasium_mean (the store checks)
     if policy == "best":
         if not all(isinstance(s.get("best"), dict) for s in seeds):
             raise RunDirError(reader.no_best_policy(run.path))
         seeds = [s["best"] for s in seeds]
-    try:
-        means = np.array([float(s["gymnasium_mean"]) for s in seeds])
-    except (ValueError, KeyError, TypeError) as exc:
-        detail = f"no {exc} entry" if isinstance(exc, KeyError) else str(exc)
-        raise RunDirError(f"{path} is corrupted: {detail}") from None
-    if means.size == 0 or not np.isfinite(means).all():
-        raise RunDirError(f"{path} holds no finite per-seed gymnasium_mean")
+        if not all(reader.finite_number(s.get("gymnasium_mean")) for s in seeds):
+            raise RunDirError(f"{path} is corrupted: a best policy without a finite gymnasium_mean")
+    means = np.array([float(s["gymnasium_mean"]) for s in seeds])
     return means, sum(bool(s.get("solved")) for s in seeds)
 
 
@@ -103,8 +99,8 @@ def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
         scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
     except ValueError as exc:
         raise CompareError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
-    episodes = (run.evaluation or {}).get("episodes")
-    return Entry(run, scores, solved, int(episodes) if isinstance(episodes, int) else None)
+    episodes = (run.evaluation or {}).get("episodes")  # a bounded int or None (the store checks)
+    return Entry(run, scores, solved, episodes)
 
 
 def load_entries(
@@ -135,17 +131,18 @@ def load_entries(
             index = resolved.index(Path(baseline).resolve())
         else:
             runs = load_runs([baseline, *run_dirs])
-    _refuse_repeats(runs)
-    return [make_entry(run, score, policy) for run in runs], index
+    return _entries(runs, score, policy), index
 
 
-def _refuse_repeats(runs: list[RunCurves]) -> None:
+def _entries(runs: list[RunCurves], score: Score, policy: str) -> list[Entry]:
+    """Each run scored (:func:`make_entry`); a run given twice is refused."""
     seen: set[tuple[Path, str]] = set()
     for run in runs:
         key = (run.path.resolve(), run.label if run.combination else "")
         if key in seen:
             raise CompareError(f"{run.path} is given twice")
         seen.add(key)
+    return [make_entry(run, score, policy) for run in runs]
 
 
 def parse_arm(text: str) -> tuple[str, list[str]]:
@@ -177,7 +174,8 @@ def load_arms(
     policy: str = "final",
 ) -> tuple[list[Entry], Arms]:
     """The runs of every arm (arm-major), baseline arm first; a sweep stands for its
-    combinations, one configuration each (an evaluation's physics values, say).
+    combinations, one configuration each (an evaluation's physics values, say), and the
+    arms' sweeps must sweep the same values, so that each configuration pairs like with like.
 
     Raises:
         CompareError: fewer than two arms, repeated names, unequal configuration counts,
@@ -187,19 +185,16 @@ def load_arms(
     names = [name for name, _ in arms]
     if len(arms) < 2 or len(set(names)) != len(names):
         raise CompareError("--arm needs at least two arms with distinct names")
-    if baseline is not None:
-        if baseline not in names:
-            raise CompareError(f"--baseline {baseline} is not an arm ({', '.join(names)})")
-        arms = sorted(arms, key=lambda arm: arm[0] != baseline)  # stable: baseline first
+    if baseline is not None and baseline not in names:
+        raise CompareError(f"--baseline {baseline} is not an arm ({', '.join(names)})")
+    arms = sorted(arms, key=lambda arm: arm[0] != baseline)  # stable: baseline first
     counts = {len(dirs) for _, dirs in arms}
     if len(counts) != 1:
         raise CompareError(
             "every --arm needs one run per configuration, in the same order; got "
             + ", ".join(f"{name}: {len(dirs)}" for name, dirs in arms)
         )
-    runs = load_runs([Path(d) for _, ds in arms for d in ds])
-    _refuse_repeats(runs)
-    entries = [make_entry(run, score, policy) for run in runs]
+    entries = _entries(load_runs([d for _, dirs in arms for d in dirs]), score, policy)
     k = counts.pop()
     index = [[a * k + t for t in range(k)] for a in range(len(arms))]
     return entries, Arms([name for name, _ in arms], index)
@@ -208,8 +203,7 @@ def load_arms(
 def _expand_sweeps(
     arms: Sequence[tuple[str, Sequence[str | os.PathLike]]],
 ) -> list[tuple[str, list[Path]]]:
-    """Each arm's runs with every sweep replaced by its combinations, in order; the sweeps
-    must sweep the same values, so that each configuration pairs like with like."""
+    """Each arm's runs with every sweep replaced by its combinations, in order."""
     out, swept = [], set()
     for name, dirs in arms:
         runs: list[Path] = []
@@ -225,46 +219,9 @@ def _expand_sweeps(
     return out
 
 
-@dataclass(frozen=True)
-class RunStats:
-    """One run's statistics.
-
-    Attributes:
-        estimates: :data:`stats.ESTIMATORS` name -> estimate with its bootstrap interval.
-        solved: fraction of seeds solved with its Wilson interval (None: not known).
-        difference: IQM of this run minus its reference's (None for a reference itself).
-        improvement: ``P(this run > reference)`` (None for a reference itself).
-    """
-
-    estimates: dict[str, stats.Estimate]
-    solved: stats.Estimate | None
-    difference: stats.Estimate | None
-    improvement: stats.Estimate | None
-
-
-@dataclass(frozen=True)
-class ArmStats:
-    """One arm over every configuration (task): stratified estimates
-    (:data:`jaxcart.analysis.stats.Scores`: seeds resampled within each configuration,
-    configurations never).
-
-    Attributes:
-        iqm: IQM of all its tasks' scores pooled, stratified bootstrap interval.
-        difference: its pooled IQM minus the baseline arm's (None for the baseline).
-        improvement: mean over tasks of ``P(X_m > Y_m)`` against the baseline arm (None for
-            the baseline).
-    """
-
-    iqm: stats.Estimate
-    difference: stats.Estimate | None
-    improvement: stats.Estimate | None
-
-    def to_dict(self) -> dict:
-        return {
-            "iqm": self.iqm.to_dict(),
-            "difference_iqm": self.difference and self.difference.to_dict(),
-            "probability_of_improvement": self.improvement and self.improvement.to_dict(),
-        }
+Stats = dict[str, stats.Estimate | None]
+"""Named estimates, as ``compare.json`` names them (None: not made, e.g. a baseline's
+difference from itself)."""
 
 
 @dataclass
@@ -272,7 +229,10 @@ class Comparison:
     """Every run's statistics, the score, the baseline and what the reader should know.
 
     Attributes:
-        runs: one per entry, in order.
+        runs: per entry, :data:`stats.ESTIMATORS`' estimates with their bootstrap intervals,
+            ``solved`` (the fraction of seeds solved with its Wilson interval; None: not
+            known), ``difference_iqm`` and ``probability_of_improvement`` against its
+            reference (None for a reference itself).
         references: per run, the index of the run it is compared with (itself: a baseline).
         matrix: ``[R, R]`` ``P(row > column)`` point values, None with two runs or fewer
             (or arms: across configurations, pairs of runs compare unlike things).
@@ -282,6 +242,10 @@ class Comparison:
         confidence: of each difference and ``P(X > Y)`` interval (Bonferroni-widened with
             ``adjust="bonferroni"``).
         adjust: ``"none"`` or ``"bonferroni"``.
+        arm_stats: per arm over every configuration (stratified estimates,
+            :data:`jaxcart.analysis.stats.Scores`): ``iqm`` of all its tasks' scores pooled,
+            and against the baseline arm ``difference_iqm`` and ``probability_of_improvement``
+            (the mean over tasks of ``P(X_m > Y_m)``).
     """
 
     entries: list[Entry]
@@ -289,7 +253,7 @@ class Comparison:
     baseline: int
     reps: int
     seed: int
-    runs: list[RunStats]
+    runs: list[Stats]
     references: list[int]
     matrix: np.ndarray | None
     saturated: bool
@@ -297,7 +261,7 @@ class Comparison:
     confidence: float
     adjust: str
     arms: Arms | None = None
-    arm_stats: list[ArmStats] | None = None
+    arm_stats: list[Stats] | None = None
     notes: list[str] = field(default_factory=list)
 
     def reading_note(self) -> str:
@@ -311,7 +275,7 @@ class Comparison:
                 f"interval is widened to {self.confidence:.2%} (Bonferroni) so that all {n} "
                 f"hold together with probability at least {stats.CONFIDENCE:.0%}"
             )
-        miss = multiplicity.familywise_miss_bound(n)
+        miss = stats.familywise_miss_bound(n)
         return (
             f"{n} comparison(s) against a baseline; each interval is "
             f"{stats.CONFIDENCE:.0%} on its own, so up to {miss:.0%} chance that at least one "
@@ -331,12 +295,9 @@ class Comparison:
             "score": self.score.label,
             "num_seeds": len(entry.scores),
             "scores": entry.scores.tolist(),
-            **{name: run.estimates[name].to_dict() for name in stats.ESTIMATORS},
-            "solved": run.solved and run.solved.to_dict(),
+            **_dicts(run),
             "solved_seeds": entry.solved,
             "reference": self.entries[self.references[i]].name,
-            "difference_iqm": run.difference and run.difference.to_dict(),
-            "probability_of_improvement": run.improvement and run.improvement.to_dict(),
             "evaluation_episodes": entry.episodes,
             "steps_to_500": seeds(entry.first_reached(entry.run.env_steps)),
             "seconds_to_500": seeds(entry.first_reached(entry.run.elapsed)),
@@ -350,7 +311,7 @@ class Comparison:
         arms = None
         if self.arms is not None and self.arm_stats is not None:
             arms = [
-                {"name": name, "runs": [names[i] for i in runs], **st.to_dict()}
+                {"name": name, "runs": [names[i] for i in runs], **_dicts(st)}
                 for name, runs, st in zip(self.arms.names, self.arms.runs, self.arm_stats)
             ]
         return {
@@ -376,6 +337,10 @@ class Comparison:
         }
 
 
+def _dicts(estimates: Stats) -> dict:
+    return {name: e and e.to_dict() for name, e in estimates.items()}
+
+
 def build_comparison(
     entries: list[Entry],
     baseline: int = 0,
@@ -389,7 +354,7 @@ def build_comparison(
     ``arms``: against the baseline arm's run on the same configuration), and the arms
     aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration); ``adjust=
     "bonferroni"`` widens every difference and ``P(X > Y)`` interval to
-    :func:`multiplicity.bonferroni_confidence` of the number of comparisons."""
+    :func:`stats.bonferroni_confidence` of the number of comparisons."""
     if adjust not in summary.ADJUSTMENTS:
         raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {adjust!r}")
     references = [baseline] * len(entries)
@@ -403,21 +368,25 @@ def build_comparison(
     count += 0 if arms is None else len(arms.names) - 1
     confidence = stats.CONFIDENCE
     if adjust == "bonferroni" and count:
-        confidence = multiplicity.bonferroni_confidence(count)
+        confidence = stats.bonferroni_confidence(count)
 
-    def against(x: stats.Scores, y: stats.Scores) -> tuple[stats.Estimate, stats.Estimate]:
-        """The IQM difference and ``P(X > Y)``, each with its interval."""
-        return (
-            stats.difference_ci(x, y, stats.iqm, reps, confidence, seed),
-            stats.probability_of_improvement_ci(x, y, reps, confidence, seed),
-        )
+    def against(x: stats.Scores, y: stats.Scores | None) -> Stats:
+        """The IQM difference and ``P(X > Y)``, each with its interval (None without ``y``)."""
+        if y is None:
+            return {"difference_iqm": None, "probability_of_improvement": None}
+        return {
+            "difference_iqm": stats.difference_ci(x, y, stats.iqm, reps, confidence, seed),
+            "probability_of_improvement": stats.probability_of_improvement_ci(
+                x, y, reps, confidence, seed
+            ),
+        }
 
     runs = []
     for i, (x, e, ref) in enumerate(zip(scores, entries, references)):
         solved = None if e.solved is None else stats.wilson_interval(int(e.solved), x.size)
         estimates = stats.bootstrap_cis(x, stats.ESTIMATORS, reps, seed=seed)
         runs.append(
-            RunStats(estimates, solved, *(against(x, scores[ref]) if ref != i else [None] * 2))
+            {**estimates, "solved": solved, **against(x, scores[ref] if ref != i else None)}
         )
     matrix = arm_stats = None
     if arms is None and len(scores) > 2:
@@ -427,13 +396,11 @@ def build_comparison(
     if arms is not None:
         per_arm = [[scores[i] for i in indices] for indices in arms.runs]
         arm_stats = [
-            ArmStats(
-                stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed),
-                *(against(arm, per_arm[0]) if a else [None] * 2),
-            )
+            {"iqm": stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed)}
+            | against(arm, per_arm[0] if a else None)
             for a, arm in enumerate(per_arm)
         ]
-    saturated = multiplicity.saturated(scores)
+    saturated = stats.saturated(scores)
     return Comparison(
         entries,
         score,
@@ -547,16 +514,3 @@ def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
         raise CompareError(f"--out {out} exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
     return out
-
-
-def write_outputs(comparison: Comparison, out: Path, figure_png: bytes) -> tuple[Path, Path, Path]:
-    """``compare.json``, ``compare.png`` and ``curves.csv`` into ``out``; returns their paths."""
-    paths = (
-        out / layout.COMPARE_FILE,
-        out / layout.COMPARE_FIGURE_FILE,
-        out / layout.COMPARE_CURVES_FILE,
-    )
-    files.atomic_write_bytes(paths[1], figure_png)
-    files.atomic_write_bytes(paths[2], curves_csv(comparison.entries))
-    files.write_json(paths[0], comparison.to_dict())
-    return paths

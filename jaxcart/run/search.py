@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxcart.analysis import curves, stats
-from jaxcart.analysis.summary import Score
+from jaxcart.analysis import stats
+from jaxcart.analysis.summary import Score, auc
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, config_fields
 from jaxcart.engine.loop import Progress
 from jaxcart.engine.signals import StopRequest
@@ -712,7 +712,7 @@ def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) ->
 
 class RungReporter(StopRequest):
     """At chunk boundaries, reports each trial's partial area under its learning curve
-    (:func:`jaxcart.analysis.curves.auc` of the iterations so far, as ``--score auc`` scores
+    (:func:`jaxcart.analysis.summary.auc` of the iterations so far, as ``--score auc`` scores
     a whole run; IQM over its seeds) at :data:`RUNGS` evenly spaced iterations, and asks the
     pruner. A pruned trial is marked; when every trial of the group
     is pruned, the group stops (as this stop request, which a signal sets too) and saves the
@@ -754,7 +754,7 @@ class RungReporter(StopRequest):
 
     def _report(self, iteration: int) -> None:
         so_far = np.concatenate(self.returns)[:iteration]
-        partial = curves.auc(so_far, self.env_id).reshape(len(self.trials), self.num_seeds)
+        partial = auc(so_far, self.env_id).reshape(len(self.trials), self.num_seeds)
         for c, trial in enumerate(self.trials):
             self.last_scores[trial.number] = partial[c]
             if trial.number in self.pruned:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from jaxcart.analysis import multiplicity, stats, summary
+from jaxcart.analysis import stats, summary
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
@@ -279,8 +279,8 @@ TIE_BREAKERS = "solve rate, then final ep_rew_mean, then median steps to 500"
 
 def saturated(ranking: list[dict]) -> bool:
     """Whether every seed of every ranked combination has the same score
-    (:func:`jaxcart.analysis.multiplicity.saturated`): the score ranks nothing."""
-    return multiplicity.saturated([np.asarray(r["scores"]) for r in ranking])
+    (:func:`jaxcart.analysis.stats.saturated`): the score ranks nothing."""
+    return stats.saturated([np.asarray(r["scores"]) for r in ranking])
 
 
 def ranking_notes(ranking: list[dict]) -> list[str]:
