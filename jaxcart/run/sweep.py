@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from jaxcart.analysis import multiplicity, stats, summary
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
+from jaxcart.rundir import layout, reader, views
+
+RETURN_METRIC = "rollout/ep_rew_mean"
 
 
 @dataclass(frozen=True)
@@ -165,24 +169,28 @@ def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
     return dataclasses.replace(config, **fields)
 
 
+def grid_values(grid: RunGrid, runs: range, name: str, base: float, dtype=float) -> np.ndarray:
+    """Each of ``runs``' value of the swept field ``name`` (in ``grid`` order; a wave's, never
+    every seed's), ``[len(runs)]`` of ``dtype``: its combination's, or ``base`` where that
+    sets none."""
+    per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], dtype)
+    return per_combo[grid.combo_indices(runs)]
+
+
 def grid_env_values(grid: RunGrid, runs: range) -> dict[str, np.ndarray]:
     """Each swept physics field's value for ``runs`` (in ``grid`` order), float64
     ``[len(runs)]`` (``{}`` when the sweep has none): a wave's, never every seed's."""
     names = sorted({k for c in grid.combos for k in env_values_of(c)})
-    combos = grid.combo_indices(runs)
-    return {n: np.array([env_values_of(c)[n] for c in grid.combos], float)[combos] for n in names}
+    return {n: grid_values(grid, runs, physics.PREFIX + n, math.nan) for n in names}
 
 
 def grid_config(config: PPOConfig, grid: RunGrid, runs: range) -> PPOConfig:
     """The config of ``runs`` (in ``grid`` order; a wave's, never every seed's), its traced
     fields ``[len(runs)]`` (float32, or float64 under x64): each run's combination's values
     (``config``'s own where it sweeps nothing)."""
-    combos = grid.combo_indices(runs)
-    leaves = {}
-    for name in TRACED_FIELDS:
-        base = getattr(config, name)
-        per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], float_dtype())
-        leaves[name] = per_combo[combos]
+    leaves = {
+        n: grid_values(grid, runs, n, getattr(config, n), float_dtype()) for n in TRACED_FIELDS
+    }
     return dataclasses.replace(config, **leaves)
 
 
@@ -281,6 +289,78 @@ def saturated(ranking: list[dict]) -> bool:
     """Whether every seed of every ranked combination has the same score
     (:func:`jaxcart.analysis.multiplicity.saturated`): the score ranks nothing."""
     return multiplicity.saturated([np.asarray(r["scores"]) for r in ranking])
+
+
+def run_scores(runs: list[views.RunCurves], score: summary.Score) -> list[np.ndarray]:
+    """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
+    ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
+
+    Raises:
+        ConfigError: a score the run cannot give (``return-at`` past its end).
+    """
+    results = []
+    for run in runs:
+        evaluation = None
+        if run.evaluation is not None:
+            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
+        try:
+            curve = run.metrics.get(RETURN_METRIC)
+            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    return results
+
+
+def json_values(group: dict) -> dict:
+    """A shape group's values as JSON writes them (``hidden_sizes`` a list)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
+
+
+def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None = None) -> dict:
+    """Every combination of the finished run directories ``dirs`` (a sweep's ``combo-NNN/``,
+    a run as one combination) ranked together (:func:`rank`), read back from each one's own
+    ``config.json``, ``metrics.csv`` and ``evaluation.json`` as ``compare`` reads them: each
+    seed scored on its own run's curve (runs may train different numbers of iterations).
+    The one ranking of a sweep (``sweep.json``, ``dirs`` its own directory) and of a
+    structural sweep's shape groups (``groups.json``: ``groups``, each group's shape values,
+    added to its rows with the group and its ``group_combination``).
+
+    Returns:
+        ``{"score", "score_definition", "saturated", "ranking"}``: the ranking, best first.
+
+    Raises:
+        ConfigError: a score a run cannot give (``return-at`` past its end).
+    """
+    columns: dict[str, list] = {k: [] for k in ("solved", "final", "reach", "div")}
+    scores, combos, where = [], [], []
+    for g, path in enumerate(dirs):
+        swept = layout.present(layout.combo_dir(path, 0))  # before sweep.json is written
+        runs = [views.load_run(p) for p in (reader.combo_dirs(path) if swept else [path])]
+        scores += run_scores(runs, score)
+        for c, run in enumerate(runs):
+            combos.append(dict(run.combination or {}))
+            where.append((g, c if swept else None))
+            seeds = run.evaluation["seeds"]
+            columns["solved"].append([bool(s["solved"]) for s in seeds])
+            diverged = [s.get("diverged_at_iteration") for s in seeds]
+            columns["div"].append([-1 if d is None else d for d in diverged])
+            columns["final"].append(run.metrics[RETURN_METRIC][-1])
+            reached = first_reach(run.metrics["rollout/ep_rew_max"], run.env_steps)
+            columns["reach"].append(reached)
+    stacked = {k: np.concatenate([np.asarray(v) for v in vs]) for k, vs in columns.items()}
+    grid = RunGrid(len(columns["solved"][0]), tuple(combos))
+    solved, final, reach, div = (stacked[k] for k in columns)
+    rows = rank(grid, np.concatenate(scores), solved, final, reach, div, score=score.label)
+    if groups is not None:
+        for row in rows:
+            g, c = where[row["combination"]]
+            row.update({"group": g, **json_values(groups[g]), "group_combination": c})
+    return {
+        "score": score.label,
+        "score_definition": score.definition,
+        "saturated": saturated(rows),
+        "ranking": rows,
+    }
 
 
 def ranking_notes(ranking: list[dict]) -> list[str]:
