@@ -577,7 +577,7 @@ def evaluate_wave(
     runs: range | None = None,
     stop: StopRequest | None = None,
 ) -> Evaluation:
-    """Greedy returns of ``runs`` (default all) in Gymnasium's CartPole-v1 and in jaxcart
+    """Greedy returns of ``runs`` (default all) in the env's Gymnasium counterpart and in jaxcart
     (raises :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile)."""
     runs = runs if runs is not None else range(run.grid.num_runs)
     start = time.perf_counter()
