@@ -538,8 +538,9 @@ def train_wave(
         run.trained_chunks += 1
         new = set(np.flatnonzero(progress.diverged_at >= 0).tolist()) - reported
         reported.update(new)  # indexed within the wave
-        for r in sorted(new) if hooks.on_diverged and run.main_process else ():
-            hooks.on_diverged(grid.run_name(runs.start + r), int(progress.diverged_at[r]))
+        if hooks.on_diverged and run.main_process:
+            for r in sorted(new):
+                hooks.on_diverged(grid.run_name(runs.start + r), int(progress.diverged_at[r]))
         run.directory.stream.append(progress.metrics)
         count = len(progress.metrics["time/fps"])
         first = progress.iteration - count
@@ -570,28 +571,14 @@ def train_wave(
         logger.close()
 
 
-def evaluate_wave(
-    run: Run,
-    params: dict,
-    episodes: int,
-    runs: range | None = None,
-    stop: StopRequest | None = None,
-) -> Evaluation:
-    """Greedy returns of ``runs`` (default all) in the env's Gymnasium counterpart and in jaxcart
-    (raises :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile)."""
-    runs = runs if runs is not None else range(run.grid.num_runs)
+def evaluate_wave(run: Run, params: dict, episodes: int, runs: range, stop=None) -> Evaluation:
+    """Greedy returns of ``runs`` in the env's Gymnasium counterpart and in jaxcart (raises
+    :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile)."""
     start = time.perf_counter()
-    gym_returns, jax_returns = evaluate_runs(
-        params,
-        run.config,
-        run.spec.seed,
-        run.grid.seed_indices(runs),
-        episodes,
-        should_stop=stop,
-        env_params=run.spec.eval_env_params(runs),
-    )
+    seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
+    returns = evaluate_runs(params, run.config, run.spec.seed, seeds, episodes, stop, env_params)
     seconds = time.perf_counter() - start
-    return Evaluation(episodes, gym_returns, jax_returns, seconds, env=run.config.env)
+    return Evaluation(episodes, *returns, seconds, env=run.config.env)
 
 
 def _one_wave(
