@@ -153,6 +153,7 @@ def create_run(
     """
     plan = plan_run(spec, options)
     score = options and options.score
+    drawn = spec.seed_env_values() if spec.num_seeds <= MAX_RECORDED_SEEDS else {}
     info = {
         "format_version": layout.FORMAT_VERSION,
         "preset": spec.preset,
@@ -160,11 +161,7 @@ def create_run(
         "seed": spec.seed,
         "sweep": spec.sweep,
         **spec.record(),
-        **(
-            {"env_per_seed": spec.seed_env_values()}
-            if spec.num_seeds <= MAX_RECORDED_SEEDS and spec.seed_env_values()
-            else {}
-        ),
+        **({"env_per_seed": drawn} if drawn else {}),
         **({"combinations": [dict(c) for c in spec.combinations]} if spec.combinations else {}),
         "versions": package_versions(),
         "backend": jax.default_backend(),

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -119,24 +120,25 @@ def validate_sweep(config: PPOConfig, sweep: dict[str, list[float]]) -> None:
     """Raises :class:`ConfigError` for a swept value that is invalid with ``config``'s other
     fields, before anything compiles. Only traced hyperparameters are swept and each is checked
     on its own, so checking every value once checks every combination (a million-combination
-    sweep costs its 2,000 values, not a million configs)."""
-    for name, values in sweep.items():
-        if name.startswith(physics.PREFIX):
-            continue  # physics: checked with the run's env params (validate_env_sweep)
-        for value in values:
-            try:
-                dataclasses.replace(config, **{name: value})
-            except ConfigError as exc:
-                raise ConfigError(f"--sweep value out of range: {exc}") from None
+    sweep costs its 2,000 values, not a million configs). Physics are checked with the run's
+    env params (:func:`validate_env_sweep`)."""
+    floats = {k: v for k, v in sweep.items() if not k.startswith(physics.PREFIX)}
+    _check_each(floats, lambda name, value: dataclasses.replace(config, **{name: value}))
 
 
 def validate_env_sweep(env_params: EnvParams, sweep: dict[str, list[float]]) -> None:
     """Raises :class:`ConfigError` for a swept physics value outside sense with
     ``env_params``' other fields (each checked on its own, as :func:`validate_sweep`)."""
-    for name, values in env_values_of(sweep).items():
+    check = lambda name, value: physics.check_physics(env_params.replace(**{name: value}))
+    _check_each(env_values_of(sweep), check)
+
+
+def _check_each(sweep: dict[str, list[float]], check: Callable[[str, float], object]) -> None:
+    """``check(name, value)`` of every swept value; its ConfigError said as the sweep's."""
+    for name, values in sweep.items():
         for value in values:
             try:
-                physics.check_physics(env_params.replace(**{name: value}))
+                check(name, value)
             except ConfigError as exc:
                 raise ConfigError(f"--sweep value out of range: {exc}") from None
 
