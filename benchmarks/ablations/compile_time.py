@@ -238,7 +238,7 @@ def child(run: bool, part: str | None) -> dict:
     config = preset("sb3")
     env_params = cartpole.EnvParams()
     state = trainer.initial_state(config, 1, 0, env_params=env_params)
-    runners, configs = trainer.place(state, jax.devices()[:1], 1, None)
+    runners, configs = trainer.place((state.runners, state.config), jax.devices()[:1], 1, None)
     sharding = jax.tree.leaves(runners)[0].sharding
     program = trainer.chunk_program(env_params, state.chunk_size, sharding, adaptive=True)
     args = (runners, configs, jnp.int32(0), jnp.int32(state.chunk_size))

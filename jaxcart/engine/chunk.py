@@ -297,17 +297,3 @@ def train_chunk(
         return jax.lax.cond(active, run, skip, runners, iteration)
 
     return jax.lax.scan(body, runners, jnp.arange(chunk_size, dtype=jnp.int32))
-
-
-__all__ = [
-    "UPDATE_GROUP",
-    "env_axes",
-    "group_layout",
-    "grouped_iteration",
-    "guard_divergence",
-    "guarded_iteration",
-    "in_groups",
-    "initial_runners",
-    "roll_back_diverged",
-    "train_chunk",
-]

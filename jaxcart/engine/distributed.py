@@ -34,22 +34,30 @@ def initialize(
 
     Unset arguments come from ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and
     ``JAX_PROCESS_ID``, else from JAX's cluster auto-detection (SLURM, Open MPI, ...).
+
+    Raises:
+        ConfigError: it cannot start (its first line says why).
     """
     import jax
 
+    from jaxcart.core.errors import ConfigError
+
     env = os.environ
-    num_processes = num_processes or (
-        int(env["JAX_NUM_PROCESSES"]) if "JAX_NUM_PROCESSES" in env else None
-    )
-    if process_id is None and "JAX_PROCESS_ID" in env:
-        process_id = int(env["JAX_PROCESS_ID"])
-    jax.config.update("jax_cpu_collectives_implementation", "gloo")
-    # JAX's preemption service would take SIGTERM over from jaxcart's handler (and do nothing
-    # with it): SIGTERM must stop a distributed run with a checkpoint, as it does one process.
-    jax.config.update("jax_enable_preemption_service", False)
-    jax.distributed.initialize(
-        coordinator_address=coordinator_address, num_processes=num_processes, process_id=process_id
-    )
+    try:
+        num_processes = num_processes or (
+            int(env["JAX_NUM_PROCESSES"]) if "JAX_NUM_PROCESSES" in env else None
+        )
+        if process_id is None and "JAX_PROCESS_ID" in env:
+            process_id = int(env["JAX_PROCESS_ID"])
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        # JAX's preemption service would take SIGTERM over from jaxcart's handler (and do
+        # nothing with it): SIGTERM must stop a distributed run with a checkpoint, as it does
+        # one process.
+        jax.config.update("jax_enable_preemption_service", False)
+        jax.distributed.initialize(coordinator_address, num_processes, process_id)
+    except (ValueError, TypeError, RuntimeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"cannot start jax.distributed: {first}") from None
 
 
 def process_index() -> int:

@@ -325,7 +325,7 @@ def train(
         config, num_runs, seed, env_params, chunk_size, seed_indices, None, episode_ranges
     )
     devices = _devices(devices, num_runs, runs_per_device)
-    runners, run_configs = place(state, devices, num_runs, runs_per_device)
+    runners, run_configs = place((state.runners, state.config), devices, num_runs, runs_per_device)
     env_params = place_env_params(env_params, devices, num_runs, runs_per_device)
 
     start = time.perf_counter()
@@ -337,21 +337,57 @@ def train(
     if on_compiled:
         on_compiled(compile_seconds)
 
-    loop = _ChunkLoop(state, run_configs, num_runs, keep_metrics)
-    stopped = False
-    while loop.done < config.num_iterations:
+    # the host's bookkeeping between chunks: iterations done, training time and, when kept,
+    # every chunk's metrics (after the state's own, if it has any: a state loaded from a
+    # checkpoint has none, they are in its run directory's stream), with SB3's time/fps and
+    # time/elapsed added
+    columns, chunk_seconds = metric_columns(config), state.chunk_seconds
+    empty = {k: np.zeros((0, num_runs), np.float32) for k in columns}
+    chunks = [state.metrics or empty] if keep_metrics else None
+    count = 1 if chunk_seconds else state.chunk_size  # the next call's iterations
+    done, previous_elapsed, stopped = state.iteration, state.elapsed, False
+    last = start = time.perf_counter()
+
+    def snapshot(runners: RunnerState, done: int, now: float) -> TrainState:
+        """The state of the real runs (device arrays with the padding sliced off)."""
+        real = functools.partial(jax.tree.map, lambda x: x[:num_runs])
+        metrics = {k: np.concatenate([c[k] for c in chunks]) for k in columns} if chunks else {}
+        sizes = (state.chunk_size, chunk_seconds)
+        return TrainState(real(runners), real(run_configs), done, now, metrics, *sizes)
+
+    while done < config.num_iterations:
         # every process must agree, or one would wait forever for the others' next chunk
         if should_stop is not None and distributed.any_process(should_stop()):
             stopped = True
             break
-        end, metrics = compiled(runners, run_configs, jnp.int32(loop.done), jnp.int32(loop.count))
+        end, metrics = compiled(runners, run_configs, jnp.int32(done), jnp.int32(count))
         # waits for the chunk on a worker thread, so that signals are handled meanwhile
         metrics = wait_interruptibly(functools.partial(distributed.gather, metrics))
-        runners, progress = loop.record(runners, end, metrics)
+        now = state.elapsed + time.perf_counter() - start
+        take = min(count, config.num_iterations - done)
+        if chunk_seconds:
+            seconds, last = time.perf_counter() - last, time.perf_counter()
+            count = next_chunk_length(state.chunk_size, take, seconds, chunk_seconds)
+        metrics = {k: np.asarray(v[:take, :num_runs]) for k, v in metrics.items()}
+        # time/fps as SB3 logs it (steps of this run / seconds since start); inside a chunk
+        # the iterations are timed by spreading the chunk's time evenly.
+        elapsed = previous_elapsed + (now - previous_elapsed) * np.arange(1, take + 1) / take
+        previous_elapsed = float(elapsed[-1])
+        steps = (done + np.arange(1, take + 1)) * config.batch_size
+        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_runs, 1).astype(np.float32)
+        metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_runs, 1).astype(np.float32)
+        if chunks is not None:
+            chunks.append(metrics)
+        done += take
+        diverged = np.asarray(distributed.gather(end.diverged_at))
+        # rolled back on the host, only once a run has diverged: the chunk carries no rollback
+        runners = roll_back_diverged(runners, end) if (diverged >= 0).any() else end
         if on_chunk:
-            on_chunk(progress)
+            snap = functools.partial(snapshot, runners, done, now)
+            args = (done, config.num_iterations, done * config.batch_size, now, metrics, snap)
+            on_chunk(Progress(*args, diverged[:num_runs]))
     jax.block_until_ready(runners)
-    final = loop.final_state(runners)
+    final = snapshot(runners, done, state.elapsed + time.perf_counter() - start)
     return TrainResult(
         config=config,
         state=final,
@@ -372,14 +408,11 @@ def _devices(devices: list | None, num_runs: int, runs_per_device: int | None) -
     return devices
 
 
-def place(
-    state: TrainState, devices: list, num_runs: int, runs_per_device: int | None
-) -> tuple[RunnerState, PPOConfig]:
-    """The state's runs and their configs padded to fill every device equally and placed."""
-    sharding = run_sharding(devices)
+def place(tree: Any, devices: list, num_runs: int, runs_per_device: int | None) -> Any:
+    """Host arrays ``[num_runs, ...]`` (the runs' state, their configs) padded to fill every
+    device equally and placed."""
     padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
-    runners = distributed.to_global(pad_runs(state.runners, padded), sharding)
-    return runners, distributed.to_global(pad_runs(state.config, padded), sharding)
+    return distributed.to_global(pad_runs(tree, padded), run_sharding(devices))
 
 
 def place_env_params(
@@ -388,88 +421,15 @@ def place_env_params(
     """``env_params`` with its per-run fields (arrays ``[num_runs]``, if any) in the training's
     float type, padded and placed as :func:`place` places the runs; unchanged without them."""
     static, per_run = split_per_run(env_params)
-    if not per_run:
-        return env_params
     for name, values in per_run.items():
         if np.shape(values) != (num_runs,):
             raise ValueError(f"env param {name} holds {np.shape(values)}; expected ({num_runs},)")
-    padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
     arrays = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
-    placed = distributed.to_global(pad_runs(arrays, padded), run_sharding(devices))
-    return with_values(static, placed)
-
-
-class _ChunkLoop:
-    """The host's bookkeeping between compiled chunks: iterations done, training time and
-    the metrics so far (with SB3's ``time/fps`` and ``time/elapsed`` added)."""
-
-    def __init__(self, state: TrainState, config: PPOConfig, num_runs: int, keep: bool) -> None:
-        self.config, self.chunk_size = config, state.chunk_size  # config: the placed runs'
-        self.chunk_seconds = state.chunk_seconds
-        self.count = 1 if self.chunk_seconds else self.chunk_size  # the next call's iterations
-        self.last = time.perf_counter()
-        self.num_runs = num_runs  # the real runs: padding runs beyond them are dropped
-        self.done, self.elapsed_before = state.iteration, state.elapsed
-        # every chunk's metrics when kept (after the state's own, if it has any: a state
-        # loaded from a checkpoint has none, they are in its run directory's stream); else
-        # none (the caller's on_chunk has them)
-        self.columns = metric_columns(config)
-        empty = {k: np.zeros((0, num_runs), np.float32) for k in self.columns}
-        self.chunks = [state.metrics or empty] if keep else None
-        self.previous_elapsed = state.elapsed  # time/elapsed of the last iteration recorded
-        self.start = time.perf_counter()
-
-    def now(self) -> float:
-        return self.elapsed_before + time.perf_counter() - self.start
-
-    def record(
-        self, start: RunnerState, end: RunnerState, metrics: dict
-    ) -> tuple[RunnerState, Progress]:
-        """Takes one chunk's runners before and after it and its metrics ``[chunk_size, R]``;
-        returns the runners to go on from (runs marked diverged rolled back to ``start``) and
-        the progress after the chunk."""
-        config, now = self.config, self.now()
-        take, num_runs = min(self.count, config.num_iterations - self.done), self.num_runs
-        if self.chunk_seconds:
-            seconds, self.last = time.perf_counter() - self.last, time.perf_counter()
-            self.count = next_chunk_length(self.chunk_size, take, seconds, self.chunk_seconds)
-        metrics = {k: np.asarray(v[:take, :num_runs]) for k, v in metrics.items()}
-        # time/fps as SB3 logs it (steps of this run / seconds since start); inside a chunk
-        # the iterations are timed by spreading the chunk's time evenly.
-        prev = self.previous_elapsed
-        elapsed = prev + (now - prev) * np.arange(1, take + 1) / take
-        self.previous_elapsed = float(elapsed[-1])
-        steps = (self.done + np.arange(1, take + 1)) * config.batch_size
-        metrics["time/fps"] = np.repeat((steps / elapsed)[:, None], num_runs, 1).astype(np.float32)
-        metrics["time/elapsed"] = np.repeat(elapsed[:, None], num_runs, 1).astype(np.float32)
-        if self.chunks is not None:
-            self.chunks.append(metrics)
-        self.done += take
-        diverged = np.asarray(distributed.gather(end.diverged_at))
-        # rolled back on the host, only once a run has diverged: the chunk carries no rollback
-        runners = roll_back_diverged(start, end) if (diverged >= 0).any() else end
-        snapshot = functools.partial(self._snapshot, runners, self.done, now)
-        done, diverged = self.done, diverged[:num_runs]
-        return runners, Progress(
-            done, config.num_iterations, done * config.batch_size, now, metrics, snapshot, diverged
-        )
-
-    def _snapshot(self, runners: RunnerState, done: int, now: float) -> TrainState:
-        """The state of the real runs (device arrays with the padding sliced off)."""
-        real = functools.partial(jax.tree.map, lambda x: x[: self.num_runs])
-        metrics = _concat(self.chunks, self.columns) if self.chunks is not None else {}
-        return TrainState(
-            real(runners),
-            real(self.config),
-            done,
-            now,
-            metrics,
-            self.chunk_size,
-            self.chunk_seconds,
-        )
-
-    def final_state(self, runners: RunnerState) -> TrainState:
-        return self._snapshot(runners, self.done, self.now())
+    return (
+        with_values(static, place(arrays, devices, num_runs, runs_per_device))
+        if per_run
+        else env_params
+    )
 
 
 _COMPILED: dict = {}
@@ -574,7 +534,3 @@ def chunk_program(
             check_vma=False,  # per-run metrics vs the skip branch's constants
         )
     return jax.jit(training_chunk)  # XLA's module: jit_training_chunk
-
-
-def _concat(chunks: list[dict[str, np.ndarray]], columns: tuple[str, ...]) -> dict[str, np.ndarray]:
-    return {k: np.concatenate([c[k] for c in chunks]) for k in columns}

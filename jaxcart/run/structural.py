@@ -20,20 +20,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from jaxcart.analysis.summary import EVAL, Score
 from jaxcart.core.config import TRACED_FIELDS, ConfigError
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
-from jaxcart.rundir import files, layout, reader, views
+from jaxcart.run.sweep import RETURN_METRIC, run_scores  # noqa: F401 (search imports them here)
+from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.reader import AXES_KEY, SHAPE_FIELDS, group_label, group_values
 
 MAX_GROUPS = 64
 """Shape groups per structural sweep: each compiles a program of its own."""
-RETURN_METRIC = "rollout/ep_rew_mean"
 
 
 def parse_shape_value(name: str, text: str) -> int | tuple[int, ...]:
@@ -153,7 +151,7 @@ def run_groups(
         raise ConfigError(f"--out {out} is not empty; a structural sweep starts in a new directory")
     extra = {AXES_KEY: list(groups[0]), "score": (options.score or EVAL).label}
     for g, group in enumerate(specs):
-        lifecycle.new_run(group, layout.group_dir(out, g), options, command, extra).close()
+        lifecycle.create_run(group, layout.group_dir(out, g), options, command, extra).close()
     return finish_groups(out, options, hooks, stop, on_group)
 
 
@@ -167,17 +165,17 @@ def finish_groups(
     """Trains every group of the structural sweep ``out`` that has not finished, in order
     (:func:`jaxcart.run.lifecycle.resume_run`: from its checkpoint, or from the start); a
     group stopped stops the sweep there (``train --resume OUT`` goes on). Then writes
-    ``out/groups.json``: every combination ranked (:func:`rank_groups`) by the score the
-    groups record.
+    ``out/groups.json``: every combination ranked together from the groups' own
+    directories (:func:`jaxcart.run.sweep.rank_dirs`, as a sweep's ``sweep.json``) by the
+    score the groups record.
 
     Raises:
         RunDirError: ``out`` is not a structural sweep, or a group directory is unusable.
     """
     out, stop = Path(out), stop or StopRequest()
-    options = options or RunOptions()
-    groups = reader.read_groups(out)
+    paths = [path for _, path in reader.read_groups(out)]
     done = GroupsOutcome(out, [], {}, 1)
-    for _, path in groups:
+    for path in paths:
         if stop():
             done.signum = stop.signum
             return done
@@ -191,88 +189,15 @@ def finish_groups(
         if outcome.stopped:
             done.signum = outcome.signum
             return done
-    infos = [reader.read_run_config(path) for _, path in groups]
-    score = Score.parse(infos[0].get("score", "eval"))
+    infos = [reader.read_run_config(path) for path in paths]
     done.groups = [group_values(info) for info in infos]
     done.sweep, done.num_seeds = infos[0].get("sweep", {}), int(infos[0]["num_seeds"])
-    done.ranking = rank_groups([path for _, path in groups], done.groups, score)
-    data = {
-        "groups": [
-            {"group": g, "directory": path.name, **_json(shape)}
-            for g, (shape, (_, path)) in enumerate(zip(done.groups, groups))
-        ],
-        "sweep": done.sweep,
-        "num_seeds": done.num_seeds,
-        "score": score.label,
-        "score_definition": score.definition,
-        "saturated": sweeps.saturated(done.ranking),
-        "ranking": done.ranking,
-    }
+    ranked = sweeps.rank_dirs(paths, Score.parse(infos[0].get("score", "eval")), done.groups)
+    done.ranking = ranked["ranking"]
+    listed = [
+        {"group": g, "directory": path.name, **sweeps.json_values(shape)}
+        for g, (shape, path) in enumerate(zip(done.groups, paths))
+    ]
+    data = {"groups": listed, "sweep": done.sweep, "num_seeds": done.num_seeds, **ranked}
     files.record_json(out, {layout.GROUPS_FILE: data})  # in the sweep's manifest, as a run's files
     return done
-
-
-def _json(group: dict) -> dict:
-    return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
-
-
-def run_scores(runs: list[views.RunCurves], score: Score) -> list[np.ndarray]:
-    """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
-    ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
-
-    Raises:
-        ConfigError: a score the run cannot give (``return-at`` past its end).
-    """
-    results = []
-    for run in runs:
-        evaluation = None
-        if run.evaluation is not None:
-            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
-        try:
-            curve = run.metrics.get(RETURN_METRIC)
-            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
-        except ValueError as exc:
-            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
-    return results
-
-
-def rank_groups(dirs: list[Path], groups: list[dict], score: Score = EVAL) -> list[dict]:
-    """Every combination of every finished group (run directories ``dirs``, shape values
-    ``groups``) ranked together as one sweep's (:func:`jaxcart.run.sweep.rank`: IQM of each
-    seed's ``score``, then solve rate, final return, steps to 500), each row with its group
-    and shape values. Each group's seeds are scored on their own curves (groups may train
-    different numbers of iterations), read from the group's directory."""
-    columns: dict[str, list] = {k: [] for k in ("score", "solved", "final", "reach", "div")}
-    combos, where = [], []
-    for g, path in enumerate(dirs):
-        runs = views.load_runs([path])
-        columns["score"] += run_scores(runs, score)
-        for c, run in enumerate(runs):
-            combos.append(dict(run.combination or {}))
-            where.append((g, c if layout.is_sweep(path) else None))
-            seeds = run.evaluation["seeds"]
-            columns["solved"].append([bool(s["solved"]) for s in seeds])
-            columns["div"].append(
-                [
-                    -1 if s.get("diverged_at_iteration") is None else s["diverged_at_iteration"]
-                    for s in seeds
-                ]
-            )
-            columns["final"].append(run.metrics[RETURN_METRIC][-1])
-            reached = sweeps.first_reach(run.metrics["rollout/ep_rew_max"], run.env_steps)
-            columns["reach"].append(reached)
-    num_seeds = len(columns["solved"][0])
-    stacked = {k: np.concatenate([np.asarray(v) for v in vs]) for k, vs in columns.items()}
-    rows = sweeps.rank(
-        sweeps.RunGrid(num_seeds, tuple(combos)),
-        stacked["score"],
-        stacked["solved"],
-        stacked["final"],
-        stacked["reach"],
-        stacked["div"],
-        score=score.label,
-    )
-    for row in rows:
-        g, c = where[row["combination"]]
-        row.update({"group": g, **_json(groups[g]), "group_combination": c})
-    return rows

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -19,6 +21,9 @@ from jaxcart.analysis import stats, summary
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
+from jaxcart.rundir import layout, reader, views
+
+RETURN_METRIC = "rollout/ep_rew_mean"
 
 
 @dataclass(frozen=True)
@@ -115,24 +120,25 @@ def validate_sweep(config: PPOConfig, sweep: dict[str, list[float]]) -> None:
     """Raises :class:`ConfigError` for a swept value that is invalid with ``config``'s other
     fields, before anything compiles. Only traced hyperparameters are swept and each is checked
     on its own, so checking every value once checks every combination (a million-combination
-    sweep costs its 2,000 values, not a million configs)."""
-    for name, values in sweep.items():
-        if name.startswith(physics.PREFIX):
-            continue  # physics: checked with the run's env params (validate_env_sweep)
-        for value in values:
-            try:
-                dataclasses.replace(config, **{name: value})
-            except ConfigError as exc:
-                raise ConfigError(f"--sweep value out of range: {exc}") from None
+    sweep costs its 2,000 values, not a million configs). Physics are checked with the run's
+    env params (:func:`validate_env_sweep`)."""
+    floats = {k: v for k, v in sweep.items() if not k.startswith(physics.PREFIX)}
+    _check_each(floats, lambda name, value: dataclasses.replace(config, **{name: value}))
 
 
 def validate_env_sweep(env_params: EnvParams, sweep: dict[str, list[float]]) -> None:
     """Raises :class:`ConfigError` for a swept physics value outside sense with
     ``env_params``' other fields (each checked on its own, as :func:`validate_sweep`)."""
-    for name, values in env_values_of(sweep).items():
+    check = lambda name, value: physics.check_physics(env_params.replace(**{name: value}))
+    _check_each(env_values_of(sweep), check)
+
+
+def _check_each(sweep: dict[str, list[float]], check: Callable[[str, float], object]) -> None:
+    """``check(name, value)`` of every swept value; its ConfigError said as the sweep's."""
+    for name, values in sweep.items():
         for value in values:
             try:
-                physics.check_physics(env_params.replace(**{name: value}))
+                check(name, value)
             except ConfigError as exc:
                 raise ConfigError(f"--sweep value out of range: {exc}") from None
 
@@ -165,24 +171,28 @@ def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
     return dataclasses.replace(config, **fields)
 
 
+def grid_values(grid: RunGrid, runs: range, name: str, base: float, dtype=float) -> np.ndarray:
+    """Each of ``runs``' value of the swept field ``name`` (in ``grid`` order; a wave's, never
+    every seed's), ``[len(runs)]`` of ``dtype``: its combination's, or ``base`` where that
+    sets none."""
+    per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], dtype)
+    return per_combo[grid.combo_indices(runs)]
+
+
 def grid_env_values(grid: RunGrid, runs: range) -> dict[str, np.ndarray]:
     """Each swept physics field's value for ``runs`` (in ``grid`` order), float64
     ``[len(runs)]`` (``{}`` when the sweep has none): a wave's, never every seed's."""
     names = sorted({k for c in grid.combos for k in env_values_of(c)})
-    combos = grid.combo_indices(runs)
-    return {n: np.array([env_values_of(c)[n] for c in grid.combos], float)[combos] for n in names}
+    return {n: grid_values(grid, runs, physics.PREFIX + n, math.nan) for n in names}
 
 
 def grid_config(config: PPOConfig, grid: RunGrid, runs: range) -> PPOConfig:
     """The config of ``runs`` (in ``grid`` order; a wave's, never every seed's), its traced
     fields ``[len(runs)]`` (float32, or float64 under x64): each run's combination's values
     (``config``'s own where it sweeps nothing)."""
-    combos = grid.combo_indices(runs)
-    leaves = {}
-    for name in TRACED_FIELDS:
-        base = getattr(config, name)
-        per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], float_dtype())
-        leaves[name] = per_combo[combos]
+    leaves = {
+        n: grid_values(grid, runs, n, getattr(config, n), float_dtype()) for n in TRACED_FIELDS
+    }
     return dataclasses.replace(config, **leaves)
 
 
@@ -281,6 +291,78 @@ def saturated(ranking: list[dict]) -> bool:
     """Whether every seed of every ranked combination has the same score
     (:func:`jaxcart.analysis.stats.saturated`): the score ranks nothing."""
     return stats.saturated([np.asarray(r["scores"]) for r in ranking])
+
+
+def run_scores(runs: list[views.RunCurves], score: summary.Score) -> list[np.ndarray]:
+    """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
+    ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
+
+    Raises:
+        ConfigError: a score the run cannot give (``return-at`` past its end).
+    """
+    results = []
+    for run in runs:
+        evaluation = None
+        if run.evaluation is not None:
+            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
+        try:
+            curve = run.metrics.get(RETURN_METRIC)
+            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    return results
+
+
+def json_values(group: dict) -> dict:
+    """A shape group's values as JSON writes them (``hidden_sizes`` a list)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
+
+
+def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None = None) -> dict:
+    """Every combination of the finished run directories ``dirs`` (a sweep's ``combo-NNN/``,
+    a run as one combination) ranked together (:func:`rank`), read back from each one's own
+    ``config.json``, ``metrics.csv`` and ``evaluation.json`` as ``compare`` reads them: each
+    seed scored on its own run's curve (runs may train different numbers of iterations).
+    The one ranking of a sweep (``sweep.json``, ``dirs`` its own directory) and of a
+    structural sweep's shape groups (``groups.json``: ``groups``, each group's shape values,
+    added to its rows with the group and its ``group_combination``).
+
+    Returns:
+        ``{"score", "score_definition", "saturated", "ranking"}``: the ranking, best first.
+
+    Raises:
+        ConfigError: a score a run cannot give (``return-at`` past its end).
+    """
+    columns: dict[str, list] = {k: [] for k in ("solved", "final", "reach", "div")}
+    scores, combos, where = [], [], []
+    for g, path in enumerate(dirs):
+        swept = layout.present(layout.combo_dir(path, 0))  # before sweep.json is written
+        runs = [views.load_run(p) for p in (reader.combo_dirs(path) if swept else [path])]
+        scores += run_scores(runs, score)
+        for c, run in enumerate(runs):
+            combos.append(dict(run.combination or {}))
+            where.append((g, c if swept else None))
+            seeds = run.evaluation["seeds"]
+            columns["solved"].append([bool(s["solved"]) for s in seeds])
+            diverged = [s.get("diverged_at_iteration") for s in seeds]
+            columns["div"].append([-1 if d is None else d for d in diverged])
+            columns["final"].append(run.metrics[RETURN_METRIC][-1])
+            reached = first_reach(run.metrics["rollout/ep_rew_max"], run.env_steps)
+            columns["reach"].append(reached)
+    stacked = {k: np.concatenate([np.asarray(v) for v in vs]) for k, vs in columns.items()}
+    grid = RunGrid(len(columns["solved"][0]), tuple(combos))
+    solved, final, reach, div = (stacked[k] for k in columns)
+    rows = rank(grid, np.concatenate(scores), solved, final, reach, div, score=score.label)
+    if groups is not None:
+        for row in rows:
+            g, c = where[row["combination"]]
+            row.update({"group": g, **json_values(groups[g]), "group_combination": c})
+    return {
+        "score": score.label,
+        "score_definition": score.definition,
+        "saturated": saturated(rows),
+        "ranking": rows,
+    }
 
 
 def ranking_notes(ranking: list[dict]) -> list[str]:

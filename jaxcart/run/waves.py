@@ -25,6 +25,7 @@ chunk then replaces with a measurement.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from collections.abc import Iterator
@@ -93,20 +94,14 @@ def available_bytes() -> int:
             raise ConfigError(f"{MEMORY_ENV}={value[:40]} must be a number of bytes in [1, 2**60]")
         return int(memory)
     candidates = []
-    try:
+    with contextlib.suppress(OSError, ValueError):
         with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    candidates.append(int(line.split()[1]) * 1024)
-    except OSError:
-        pass
-    try:
+            found = [line.split()[1] for line in f if line.startswith("MemAvailable:")]
+        candidates += [int(kb) * 1024 for kb in found]
+    with contextlib.suppress(OSError, ValueError):
         limit = open("/sys/fs/cgroup/memory.max").read().strip()
         used = int(open("/sys/fs/cgroup/memory.current").read().strip())
-        if limit != "max":
-            candidates.append(int(limit) - used)
-    except (OSError, ValueError):
-        pass
+        candidates += [int(limit) - used] if limit != "max" else []
     if not candidates:
         pages = os.sysconf("SC_AVPHYS_PAGES") if hasattr(os, "sysconf") else 0
         candidates.append(pages * os.sysconf("SC_PAGE_SIZE") if pages else 8 << 30)
@@ -163,8 +158,7 @@ class WavePlan:
 
     def waves(self) -> Iterator[range]:
         """The runs of each wave, in order."""
-        size = self.wave_size
-        return (range(s, min(s + size, self.num_runs)) for s in range(0, self.num_runs, size))
+        return (self.wave(w) for w in range(self.num_waves))
 
     def wave(self, index: int) -> range:
         """The runs of wave ``index``."""
