@@ -196,7 +196,8 @@ class TrainOptions:
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
-        from jaxcart.run import lifecycle, physics
+        from jaxcart.core import physics
+        from jaxcart.run import lifecycle
         from jaxcart.run.structural import split_sweep
         from jaxcart.run.sweep import parse_sweep
 
