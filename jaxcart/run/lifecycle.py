@@ -549,7 +549,7 @@ def wave_start_state(
         sweeps.grid_config(run.config, run.grid, runs),
         len(runs),
         run.spec.seed,
-        env_params=run.spec.env_params if run.spec.is_cartpole else None,
+        env_params=run.spec.env_params if run.spec.takes_physics else None,
         chunk_size=chunk_size,
         episode_ranges=run.spec.episode_ranges,
         seed_indices=run.grid.seed_indices(runs),

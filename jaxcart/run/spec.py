@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core import physics
+from jaxcart.core import envs, physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
@@ -77,7 +77,7 @@ class RunSpec:
         combos = len(self.combinations) or math.prod(len(v) for v in self.sweep.values())
         check_num_runs(self.num_seeds, combos)  # what the readers accept, before any list
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
-        if not self.is_cartpole and (
+        if not self.takes_physics and (
             physics.overrides(self.env_params) or self.randomize or sweeps.env_values_of(self.sweep)
         ):
             raise ConfigError(
@@ -138,16 +138,19 @@ class RunSpec:
             out["randomize"] = {r.name: r.to_dict() for r in self.randomize}
         return out
 
-    @property
-    def is_cartpole(self) -> bool:
-        """Whether the runs train CartPole, the env whose physics these settings are."""
-        return self.config.env == DEFAULT_ENV
+    @functools.cached_property
+    def takes_physics(self) -> bool:
+        """Whether the env's params (its ``default_params``, as the env protocol gives every
+        env's) are the :class:`EnvParams` that ``env_params``, ``env.*`` sweeps and
+        ``randomize`` set: CartPole's, and any env registered on them; another env trains on
+        its own default params."""
+        return isinstance(envs.make(self.config.env).default_params(), EnvParams)
 
     def run_env_params(self, runs: range) -> EnvParams | None:
         """The physics of ``runs`` (grid order) as they train: the run's env params, with
-        each swept or per-run randomised field an array ``[len(runs)]``; None for another
-        env than CartPole (it trains on its own default params)."""
-        if not self.is_cartpole:
+        each swept or per-run randomised field an array ``[len(runs)]``; None for an env whose
+        params these are not (it trains on its own default params)."""
+        if not self.takes_physics:
             return None
         values = sweeps.grid_env_values(self.grid, runs)
         indices = self.grid.seed_indices(runs)
@@ -156,8 +159,9 @@ class RunSpec:
 
     def eval_env_params(self, runs: range) -> EnvParams | None:
         """The physics ``runs`` are evaluated on: a sweep's own values per run, the nominal
-        physics (``env_params``) for a randomised field; None for another env than CartPole."""
-        if not self.is_cartpole:
+        physics (``env_params``) for a randomised field; None for an env whose params these
+        are not."""
+        if not self.takes_physics:
             return None
         return physics.with_values(self.env_params, sweeps.grid_env_values(self.grid, runs))
 
@@ -185,7 +189,7 @@ class RunSpec:
 
     def combo_env_params(self, combination: int) -> EnvParams:
         """The physics of one combination (the run's env params without a physics sweep)."""
-        if not self.sweep or not self.is_cartpole:
+        if not self.sweep or not self.takes_physics:
             return self.env_params
         swept = sweeps.env_values_of(self.grid.combos[combination])
         return physics.with_values(self.env_params, swept)
