@@ -37,8 +37,6 @@ from jaxcart import cli
 ZOO_ENV = "CartPole-v1"
 ZOO_ENV_ID = re.compile(r"[\w/.:-]+-v\d+")
 """An rl-zoo3 file's top-level keys are env ids (``CartPole-v1``, ``ALE/Pong-v5``)."""
-RUN_KEYS = ("preset", "num_seeds", "seed", "sweep", "wave_size", "eval_episodes")
-"""What a run's ``config.json`` carries, besides its ``config``, that shapes the training."""
 NOT_FROM_FILE = ("config", "help", "version")
 MAX_FILE_BYTES = 1 << 20
 
@@ -67,18 +65,18 @@ def read_config_file(path: Path, parser: argparse.ArgumentParser) -> tuple[list[
 
 
 def _run_values(data: dict, path: Path, notes: list[str]) -> dict:
-    """A run's ``config.json`` as the options that train it again."""
-    values = {k: data[k] for k in RUN_KEYS if data.get(k) not in (None, {}, [])}
-    swept = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
-    values.update({k: v for k, v in data["config"].items() if k not in swept})
-    if isinstance(data.get("env_params"), dict) and data["env_params"]:
-        values["env_param"] = data["env_params"]
-    if isinstance(data.get("randomize"), dict) and data["randomize"]:
-        values["randomize"] = {
-            f"env.{k}": f"{_text(r.get('low'))}:{_text(r.get('high'))}:{r.get('per')}"
-            for k, r in data["randomize"].items()
-            if isinstance(r, dict)
-        }
+    """A run's ``config.json`` as the options that train it again: read as ``--resume``
+    reads it (:meth:`~jaxcart.run.spec.RunSpec.from_record`), then spelled as options
+    (:meth:`~jaxcart.run.spec.RunSpec.options`), with its wave width and evaluation episodes."""
+    from jaxcart.core.config import ConfigError, PPOConfig
+    from jaxcart.run.spec import RunSpec
+
+    try:
+        spec = RunSpec.from_record({**data, "config": PPOConfig.from_dict(data["config"])})
+        values = spec.options()
+    except (ConfigError, TypeError, ValueError) as exc:
+        raise cli.UsageError(f"--config {path}: {exc}") from None
+    values.update({k: data[k] for k in ("wave_size", "eval_episodes") if data.get(k) is not None})
     if data.get("lr_schedule"):
         notes.append(
             f"note: --config {path}: its lr_schedule (from a --resume that extended it) is "

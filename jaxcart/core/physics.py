@@ -205,6 +205,11 @@ class Randomization:
     def to_dict(self) -> dict:
         return {"low": self.low, "high": self.high, "per": self.per}
 
+    @property
+    def option(self) -> str:
+        """As ``--randomize`` takes it (:func:`parse_randomize`): ``env.NAME=LOW:HIGH:PER``."""
+        return f"{PREFIX}{self.name}={self.low!r}:{self.high!r}:{self.per}"
+
 
 def parse_randomize(specs: list[str] | tuple[str, ...]) -> tuple[Randomization, ...]:
     """``["env.length=0.5:1.5", "env.masspole=0.05:0.2:episode"]`` -> randomisations.

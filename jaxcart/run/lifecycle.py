@@ -91,17 +91,12 @@ def create_run(
     out = Path(out) if out is not None else layout.default_run_dir(spec.preset)
     info = {
         "format_version": layout.FORMAT_VERSION,
-        "preset": spec.preset,
-        "num_seeds": spec.num_seeds,
-        "seed": spec.seed,
-        "sweep": spec.sweep,
         **spec.record(),
         **(
             {"env_per_seed": spec.seed_env_values()}
             if spec.num_seeds <= MAX_RECORDED_SEEDS and spec.seed_env_values()
             else {}
         ),
-        **({"combinations": [dict(c) for c in spec.combinations]} if spec.combinations else {}),
         "versions": package_versions(),
         "backend": jax.default_backend(),
         "device_count": jax.device_count(),

@@ -108,8 +108,10 @@ class RunSpec:
 
     @classmethod
     def from_record(cls, info: dict) -> RunSpec:
-        """The spec a run's ``config.json`` records (``config`` already a PPOConfig)."""
-        sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
+        """The spec a run's ``config.json`` records (:meth:`record`; ``config`` already a
+        PPOConfig): the one reading of a record, for ``--resume``, a replay and ``train
+        --config RUN`` (:meth:`options`)."""
+        sweep = {k: list(v) for k, v in (info.get("sweep") or {}).items()}
         points = () if sweep else tuple(dict(c) for c in info.get("combinations") or ())
         env_params = physics.make_env_params(info.get("env_params") or {})
         randomize = tuple(
@@ -118,9 +120,9 @@ class RunSpec:
         )
         return cls(
             info["config"],
-            info["preset"],
-            int(info["num_seeds"]),
-            int(info["seed"]),
+            info.get("preset", "custom"),
+            int(info.get("num_seeds", 1)),
+            int(info.get("seed", 0)),
             sweep,
             points,
             env_params,
@@ -128,15 +130,39 @@ class RunSpec:
         )
 
     def record(self) -> dict:
-        """What ``config.json`` records of the physics: ``env_params`` (the fields that
-        differ from CartPole-v1's) and ``randomize``, each only when there is one, so a run on
-        the default physics records what it always did."""
-        out: dict = {}
+        """What ``config.json`` records of the spec besides its config (:meth:`from_record`
+        reads it back): preset, seeds, sweep, the physics (``env_params``: the fields that
+        differ from CartPole-v1's, and ``randomize``, each only when there is one, so a run on
+        the default physics records what it always did) and a search's ``combinations``."""
+        out = {"preset": self.preset, "num_seeds": self.num_seeds, "seed": self.seed}
+        out["sweep"] = self.sweep
         if physics.overrides(self.env_params):
             out["env_params"] = physics.overrides(self.env_params)
         if self.randomize:
             out["randomize"] = {r.name: r.to_dict() for r in self.randomize}
+        if self.combinations:
+            out["combinations"] = [dict(c) for c in self.combinations]
         return out
+
+    def options(self) -> dict:
+        """The spec as the options that train it again, keyed by their names (``train
+        --config`` of a run's config.json): preset, seeds, sweep, every config field that is
+        not swept, ``env_param`` and ``randomize``.
+
+        Raises:
+            ConfigError: explicit combinations (a search's trials), which no option gives.
+        """
+        if self.combinations:
+            raise ConfigError(
+                "its runs are a search's trials, which no option of train gives; "
+                "python -m jaxcart.tune searches again"
+            )
+        values = {**self.record(), **self.config.to_dict(), "sweep": self.sweep}
+        for name in self.sweep:
+            values.pop(name, None)
+        values["env_param"] = values.pop("env_params", {})
+        values["randomize"] = [r.option for r in self.randomize]
+        return values
 
     @functools.cached_property
     def takes_physics(self) -> bool:
