@@ -20,9 +20,9 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, NoReturn
 
-from jaxcart import cli, environment
+from jaxcart import cli
 
-environment.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
+cli.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
 
 from jaxcart.core.config import PRESETS, config_fields, field_docs, preset  # noqa: E402
 from jaxcart.engine import devices  # noqa: E402
