@@ -213,13 +213,6 @@ class RunSpec:
             return self.config
         return sweeps.combo_config(self.config, self.grid.combos[combination])
 
-    def combo_env_params(self, combination: int) -> EnvParams:
-        """The physics of one combination (the run's env params without a physics sweep)."""
-        if not self.sweep or not self.takes_physics:
-            return self.env_params
-        swept = sweeps.env_values_of(self.grid.combos[combination])
-        return physics.with_values(self.env_params, swept)
-
 
 @dataclass(frozen=True)
 class RunOptions:
