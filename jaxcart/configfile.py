@@ -5,8 +5,9 @@ Three kinds of file, told apart by their contents:
 - **jaxcart's own** (TOML, YAML or JSON): a mapping whose keys are the command's options, spelled
   either way (``learning_rate`` or ``learning-rate``, ``num_seeds``, ``preset``, ``sweep``, ...).
   A key that is no option is an error, one line each (with a "did you mean").
-- **rl-zoo3's** ``hyperparams/ppo.yml``: a mapping of env ids to hyperparameters. The
-  ``CartPole-v1`` entry is read through Stable-Baselines3's names (:data:`jaxcart.cli.ALIASES`:
+- **rl-zoo3's** ``hyperparams/ppo.yml``: a mapping of env ids to hyperparameters. The entry
+  of the env the command line trains (``--env``, else its ``--preset``'s: CartPole-v1 by
+  default) is read through Stable-Baselines3's names (:data:`jaxcart.cli.ALIASES`:
   ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, ``n_timesteps``, ``clip_range``, ...),
   a ``lin_X`` learning rate or clip range as ``X`` annealed linearly to 0 (``--anneal-lr``,
   ``--anneal-clip``) on SB3's progress (``--anneal-progress sb3``: rl-zoo3's
@@ -34,19 +35,20 @@ from pathlib import Path
 
 from jaxcart import cli
 
-ZOO_ENV = "CartPole-v1"
 ZOO_ENV_ID = re.compile(r"[\w/.:-]+-v\d+")
 """An rl-zoo3 file's top-level keys are env ids (``CartPole-v1``, ``ALE/Pong-v5``)."""
 NOT_FROM_FILE = ("config", "help", "version")
 MAX_FILE_BYTES = 1 << 20
 
 
-def read_config_file(path: Path, parser: argparse.ArgumentParser) -> tuple[list[str], list[str]]:
+def read_config_file(
+    path: Path, parser: argparse.ArgumentParser, env_id: str
+) -> tuple[list[str], list[str]]:
     """``path`` (TOML, YAML, JSON, or a run directory) as tokens for ``parser``, and its notes
-    (one line per ignored key).
+    (one line per ignored key); ``env_id``: the env whose entry an rl-zoo3 file gives.
 
     Raises:
-        cli.UsageError: unreadable, not a mapping, no ``CartPole-v1`` entry in an rl-zoo3 file,
+        cli.UsageError: unreadable, not a mapping, no ``env_id`` entry in an rl-zoo3 file,
             or keys that are no option (one line each).
     """
     data = _load(path)
@@ -57,10 +59,10 @@ def read_config_file(path: Path, parser: argparse.ArgumentParser) -> tuple[list[
     if "format_version" in data and isinstance(data.get("config"), dict):  # a run's config.json
         data, zoo = _run_values(data, path, notes), False
     elif zoo:
-        if not isinstance(data.get(ZOO_ENV), dict):
+        if not isinstance(data.get(env_id), dict):
             envs = ", ".join(k for k in data if ZOO_ENV_ID.fullmatch(str(k)))
-            raise cli.UsageError(f"--config {path}: no {ZOO_ENV} entry (it has {envs})")
-        data = _zoo_values(data[ZOO_ENV], path, notes)
+            raise cli.UsageError(f"--config {path}: no {env_id} entry (it has {envs})")
+        data = _zoo_values(data[env_id], path, notes)
     return _tokens_of(data, path, parser, notes, zoo), notes
 
 
@@ -237,7 +239,10 @@ def parse_with_config(parser: argparse.ArgumentParser, argv: list[str]) -> argpa
     args = parser.parse_args(tokens)
     if args.config is None:
         return args
-    from_file, notes = read_config_file(args.config, parser)
+    from jaxcart.core.config import PRESETS, PPOConfig
+
+    chosen = PRESETS.get(getattr(args, "preset", None) or "sb3", {}).get("env", PPOConfig.env)
+    from_file, notes = read_config_file(args.config, parser, vars(args).get("env", chosen))
     for note in notes:
         print(note, file=sys.stderr)
     try:
