@@ -31,7 +31,7 @@ from jaxcart.engine.signals import StopRequest  # noqa: E402
 if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
     from jaxcart import report
     from jaxcart.analysis.summary import Score
-    from jaxcart.run import lifecycle
+    from jaxcart.run import lifecycle, structural
 
 
 def _tuple_of_ints(text: str) -> tuple[int, ...]:
@@ -274,12 +274,14 @@ class TrainOptions:
 
 
 def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
-    """Plans, trains, evaluates and reports; returns the exit code."""
+    """Plans, trains, evaluates and reports a run, or a structural sweep (one program and run
+    directory per shape group, ranked together); returns the exit code."""
     from jaxcart import report
     from jaxcart.engine import distributed
     from jaxcart.engine.signals import Stopped
-    from jaxcart.run import lifecycle
+    from jaxcart.run import lifecycle, structural
     from jaxcart.rundir import layout
+    from jaxcart.rundir.reader import group_label
 
     wall_start = time.perf_counter()
     opts.check()
@@ -288,14 +290,25 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups)
     run_options = opts.run_options()
-    if len(groups) > 1 or any(groups) or (opts.resume and layout.is_groups(opts.resume)):
-        if opts.distributed:
-            raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
-        return _train_groups(opts, spec, groups, run_options, console, wall_start)
+    shaped = len(groups) > 1 or any(groups) or (opts.resume and layout.is_groups(opts.resume))
+    if shaped and opts.distributed:
+        raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
     if not distributed.is_main_process():
         console.out, console.progress_bar = open(os.devnull, "w"), False
+    if groups and shaped:
+        specs = structural.group_specs(spec, groups)  # every group checked before anything runs
+        console.print(
+            f"structural sweep: {len(groups)} shape groups, so {len(groups)} programs compile "
+            f"(one each; the float axes stay vmapped inside each): "
+            + "; ".join(group_label(g) for g in groups)
+        )
+    if opts.dry_run and shaped:
+        for group, group_spec in zip(groups, specs):
+            plan = lifecycle.plan_run(group_spec, run_options)
+            console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
+        return 0
     if opts.dry_run:
         import jax
 
@@ -307,10 +320,25 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
         console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
         return 0
-    stop = StopRequest(on_signal=console.on_signal)
+
+    def on_group(outcome: lifecycle.Outcome) -> None:
+        if not outcome.stopped and outcome.evaluation is not None:
+            console.print(report.results_text(outcome))
+
+    stop, hooks = StopRequest(on_signal=console.on_signal), console.hooks()
     try:
         with stop.installed():  # the training's signal handling, from its plan to its outputs
-            outcome = _start_or_resume(opts, spec, run_options, console.hooks(), stop)
+            if shaped and spec is None:  # --resume of the sweep: every group not finished
+                out = opts.resume
+                outcome = structural.finish_groups(out, run_options, hooks, stop, on_group)
+            elif shaped:
+                out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
+                command = ["python -m jaxcart.train", *opts.argv]
+                outcome = structural.run_groups(
+                    spec, groups, out, run_options, hooks, stop, command, on_group
+                )
+            else:
+                outcome = _start_or_resume(opts, spec, run_options, hooks, stop)
     except Stopped:
         console.print("stopped before the run started; nothing was written")
         return 128 + (stop.signum or 15)
@@ -326,6 +354,8 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         return 1
     finally:
         console.close()
+    if shaped:
+        return _report_groups(out, outcome, console, time.perf_counter() - wall_start)
     return _report(outcome, console, time.perf_counter() - wall_start)
 
 
@@ -344,41 +374,13 @@ def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list[dict]) -> N
         check_score(score, {}, group_spec.config)
 
 
-def _train_groups(
-    opts: TrainOptions,
-    spec: lifecycle.RunSpec,
-    groups: list[dict],
-    run_options: lifecycle.RunOptions,
-    console: report.ConsoleReport,
-    wall_start: float,
+def _report_groups(
+    out: Path, done: structural.GroupsOutcome, console: report.ConsoleReport, wall: float
 ) -> int:
-    """A structural sweep: one program and run directory per shape group, ranked together;
-    ``spec`` None: ``--resume`` of one, which trains the groups that have not finished."""
+    """What a structural sweep prints once its groups are done, or one of them stopped."""
     from jaxcart import report
-    from jaxcart.run import structural
     from jaxcart.rundir import layout
 
-    stop = StopRequest(on_signal=console.on_signal)
-
-    def on_group(outcome: lifecycle.Outcome) -> None:
-        if not outcome.stopped and outcome.evaluation is not None:
-            console.print(report.results_text(outcome))
-
-    try:
-        with stop.installed():
-            if spec is None:  # --resume of the sweep: every group that has not finished
-                out = opts.resume
-                done = structural.finish_groups(out, run_options, console.hooks(), stop, on_group)
-            else:
-                out = _start_groups(opts, spec, groups, run_options, console)
-                if out is None:  # --dry-run
-                    return 0
-                command = ["python -m jaxcart.train", *opts.argv]
-                done = structural.run_groups(
-                    spec, groups, out, run_options, console.hooks(), stop, command, on_group
-                )
-    finally:
-        console.close()
     if done.stopped:
         last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
         hint = report.resume_command(out)
@@ -386,39 +388,12 @@ def _train_groups(
         return 128 + done.signum
     console.print(report.groups_text(done.ranking, done.groups, done.sweep, done.num_seeds))
     console.print(
-        f"wall {time.perf_counter() - wall_start:.1f} s | structural sweep directory: {out} "
+        f"wall {wall:.1f} s | structural sweep directory: {out} "
         f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
         f"  python -m jaxcart.plot {out}      # every group's curves, into its curves.png\n"
         f"  python -m jaxcart.compare {out}   # statistics of every combination"
     )
     return 0
-
-
-def _start_groups(
-    opts: TrainOptions,
-    spec: lifecycle.RunSpec,
-    groups: list[dict],
-    run_options: lifecycle.RunOptions,
-    console: report.ConsoleReport,
-) -> Path | None:
-    """A new structural sweep's plan printed; its directory, None for ``--dry-run``."""
-    from jaxcart import report
-    from jaxcart.run import lifecycle, structural
-    from jaxcart.rundir import layout
-    from jaxcart.rundir.reader import group_label
-
-    specs = structural.group_specs(spec, groups)  # every group checked before anything runs
-    console.print(
-        f"structural sweep: {len(groups)} shape groups, so {len(groups)} programs compile "
-        f"(one each; the float axes stay vmapped inside each): "
-        + "; ".join(group_label(g) for g in groups)
-    )
-    if opts.dry_run:
-        for group, group_spec in zip(groups, specs):
-            plan = lifecycle.plan_run(group_spec, run_options)
-            console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
-        return None
-    return opts.out or layout.default_run_dir(f"{spec.preset}-groups")
 
 
 def _start_or_resume(
