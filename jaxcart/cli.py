@@ -491,6 +491,23 @@ def add_trust_code_argument(parser: argparse._ActionsContainer) -> None:
     )
 
 
+def spelled(value: object) -> str:
+    """A value as the command line spells it: ``64,64``, ``on``/``off``, ``none``, a float
+    exactly (its ``repr``, ``0.0003``); what ``--help`` shows and a config file becomes.
+
+    Raises:
+        UsageError: a list in a list (``[[1, 2], [3]]``): no option takes one, and flattening
+            it would train something the file did not say.
+    """
+    if isinstance(value, (list, tuple)):
+        if any(isinstance(v, (list, tuple, dict)) for v in value):
+            raise UsageError(f"a list of lists is no option value, got {value!r}")
+        return ",".join(spelled(v) for v in value)
+    if isinstance(value, bool) or value is None:
+        return {True: "on", False: "off", None: "none"}[value]
+    return repr(value) if isinstance(value, float) else str(value)
+
+
 def join_negative_values(argv: list[str]) -> list[str]:
     """``["--learning-rate", "-3e-4"]`` -> ``["--learning-rate=-3e-4"]``: argparse reads a
     value like ``-3e-4`` as an unknown option, which would hide the real problem (a negative

@@ -206,29 +206,15 @@ def _tokens(action: argparse.Action, value: object) -> list[str]:
         return [flag] if _truth(value, flag) else []
     if isinstance(action, argparse._AppendAction):
         if isinstance(value, dict):  # sweep = {learning_rate = [1e-3, 5e-3]}
-            value = [f"{k}={_text(v)}" for k, v in value.items()]
+            value = [f"{k}={cli.spelled(v)}" for k, v in value.items()]
         return [t for v in (value if isinstance(value, list) else [value]) for t in (flag, str(v))]
-    return [f"{flag}={_text(value)}"]
+    return [f"{flag}={cli.spelled(value)}"]
 
 
 def _truth(value: object, flag: str) -> bool:
     if isinstance(value, bool):
         return value
     raise ValueError(f"{flag} in a config file takes true or false, got {value!r}")
-
-
-def _text(value: object) -> str:
-    """A value as the command line spells it (lists comma-separated).
-
-    Raises:
-        cli.UsageError: a list in a list (``[[1, 2], [3]]``): no option takes one, and
-            flattening it would train something the file did not say.
-    """
-    if isinstance(value, (list, tuple)):
-        if any(isinstance(v, (list, tuple, dict)) for v in value):
-            raise cli.UsageError(f"a list of lists is no option value, got {value!r}")
-        return ",".join(_text(v) for v in value)
-    return repr(value) if isinstance(value, float) else str(value)
 
 
 def parse_with_config(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:

@@ -78,15 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _default_text(value: object) -> str:
-    """A config value as the command line spells it: ``64,64``, ``on``/``off``, ``0.0003``."""
-    if isinstance(value, bool):
-        return "on" if value else "off"
-    if value is None:
-        return "none"
-    if isinstance(value, tuple):
-        return ",".join(map(str, value))
-    return f"{value:g}" if isinstance(value, float) else str(value)
+_default_text = cli.spelled  # the name jaxcart.tune spells a value by
 
 
 def _add_config_options(group: argparse._ArgumentGroup) -> None:
@@ -95,7 +87,7 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
     docs, defaults = field_docs(), preset("sb3")
     for f in config_fields():
         flag = "--" + f.name.replace("_", "-")
-        shown = _default_text(getattr(defaults, f.name)).replace("%", "%%")
+        shown = cli.spelled(getattr(defaults, f.name)).replace("%", "%%")
         help_text = f"{docs.get(f.name, '').replace('%', '%%')} (default: {shown})"
         kwargs = dict(dest=f.name, default=argparse.SUPPRESS, help=help_text)
         if f.type in ("bool", bool):
