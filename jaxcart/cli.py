@@ -172,54 +172,41 @@ class HelpFormatter(argparse.HelpFormatter):
 # a hint by meaning comes before one by spelling, so that ``--lr`` suggests ``--learning-rate``
 # rather than ``--anneal-lr``. Each name lists candidates in order; the first that the command
 # has is suggested (``--episodes`` is ``--eval-episodes`` in train, ``--episodes`` in evaluate).
-ALIASES: dict[str, tuple[str, ...]] = {
-    **dict.fromkeys(("lr", "step-size"), ("--learning-rate",)),
-    **dict.fromkeys(("lr-schedule", "lr-decay", "linear-lr", "anneal"), ("--anneal-lr",)),
-    **dict.fromkeys(("discount", "discount-factor"), ("--gamma",)),
-    **dict.fromkeys(("lambda", "lam", "gae", "lmbda", "gae-lam"), ("--gae-lambda",)),
-    **dict.fromkeys(("n-steps", "nsteps", "rollout-length", "horizon", "n-step"), ("--num-steps",)),
-    **dict.fromkeys(("n-envs", "nenvs", "envs", "num-env", "num-workers"), ("--num-envs",)),
-    **dict.fromkeys(("seeds", "n-seeds", "nseeds", "num-seed"), ("--num-seeds",)),
-    **dict.fromkeys(("ent", "entropy", "entropy-coef", "ent-coeff"), ("--ent-coef",)),
-    **dict.fromkeys(("vf", "value-coef", "vf-coeff", "value-loss-coef"), ("--vf-coef",)),
-    **dict.fromkeys(
-        ("batch-size", "minibatch", "mini-batch-size", "num-minibatches", "nminibatches"),
-        ("--minibatch-size",),
-    ),
-    **dict.fromkeys(
-        ("epochs", "n-epochs", "num-epochs", "ppo-epochs", "noptepochs"), ("--update-epochs",)
-    ),
-    **dict.fromkeys(
-        ("total-steps", "timesteps", "n-timesteps", "num-timesteps", "total-env-steps"),
-        ("--total-timesteps",),
-    ),
-    **dict.fromkeys(
-        ("clip-range", "clip", "clip-param", "clip-eps", "cliprange"), ("--clip-coef",)
-    ),
-    **dict.fromkeys(("grad-clip", "max-norm", "clip-grad-norm", "grad-norm"), ("--max-grad-norm",)),
-    **dict.fromkeys(("eps", "epsilon", "adam-epsilon"), ("--adam-eps",)),
-    **dict.fromkeys(
-        ("normalize-advantage", "normalize-advantages", "norm-advantage"), ("--norm-adv",)
-    ),
-    **dict.fromkeys(("net-arch", "hidden", "hidden-size", "layers"), ("--hidden-sizes",)),
-    **dict.fromkeys(("activation-fn", "act"), ("--activation",)),
-    **dict.fromkeys(
-        ("output", "output-dir", "outdir", "log-dir", "logdir", "save-dir", "save-path", "run-dir"),
-        ("--out",),
-    ),
-    **dict.fromkeys(
-        ("n-eval-episodes", "num-episodes", "n-episodes", "eval-episodes", "episodes"),
-        ("--eval-episodes", "--episodes"),
-    ),
-    **dict.fromkeys(("continue", "restore", "resume-from", "load"), ("--resume",)),
-    **dict.fromkeys(
-        ("save-freq", "checkpoint-freq", "checkpoint-interval", "save-every"),
-        ("--checkpoint-every",),
-    ),
-    **dict.fromkeys(("algo", "config", "hyperparams"), ("--preset",)),
-    **dict.fromkeys(("track", "wandb", "tensorboard", "tensorboard-log"), ("--logger",)),
-    **dict.fromkeys(("video", "render", "save-gif", "gif-path"), ("--gif",)),
+ALIASES_OF: dict[str, str] = {
+    "--learning-rate": "lr step-size",
+    "--anneal-lr": "lr-schedule lr-decay linear-lr anneal",
+    "--gamma": "discount discount-factor",
+    "--gae-lambda": "lambda lam gae lmbda gae-lam",
+    "--num-steps": "n-steps nsteps rollout-length horizon n-step",
+    "--num-envs": "n-envs nenvs envs num-env num-workers",
+    "--num-seeds": "seeds n-seeds nseeds num-seed",
+    "--ent-coef": "ent entropy entropy-coef ent-coeff",
+    "--vf-coef": "vf value-coef vf-coeff value-loss-coef",
+    "--minibatch-size": "batch-size minibatch mini-batch-size num-minibatches nminibatches",
+    "--update-epochs": "epochs n-epochs num-epochs ppo-epochs noptepochs",
+    "--total-timesteps": "total-steps timesteps n-timesteps num-timesteps total-env-steps",
+    "--clip-coef": "clip-range clip clip-param clip-eps cliprange",
+    "--max-grad-norm": "grad-clip max-norm clip-grad-norm grad-norm",
+    "--adam-eps": "eps epsilon adam-epsilon",
+    "--norm-adv": "normalize-advantage normalize-advantages norm-advantage",
+    "--hidden-sizes": "net-arch hidden hidden-size layers",
+    "--activation": "activation-fn act",
+    "--out": "output output-dir outdir log-dir logdir save-dir save-path run-dir",
+    "--eval-episodes --episodes": "n-eval-episodes num-episodes n-episodes eval-episodes episodes",
+    "--resume": "continue restore resume-from load",
+    "--checkpoint-every": "save-freq checkpoint-freq checkpoint-interval save-every",
+    "--preset": "algo config hyperparams",
+    "--logger": "track wandb tensorboard tensorboard-log",
+    "--gif": "video render save-gif gif-path",
 }
+"""Each option (or, where commands differ, the options in order: the first a command has) and
+the other libraries' names for it, space-separated."""
+ALIASES: dict[str, tuple[str, ...]] = {
+    alias: tuple(options.split())
+    for options, names in ALIASES_OF.items()
+    for alias in names.split()
+}
+"""Each other library's name -> the options it may mean, in order."""
 
 
 def suggestion(token: str, options: Sequence[str]) -> str | None:
