@@ -412,19 +412,22 @@ def option(default: Any = None, **kwargs: Any) -> Any:
     return dataclasses.field(default=default, metadata={"option": kwargs})
 
 
-def add_options(parser: argparse.ArgumentParser, cls: type, title: str) -> dict[str, Any]:
-    """One option per :func:`option` field of the dataclass ``cls``, in declaration order;
-    returns the argument groups by title."""
+def add_options(
+    parser: argparse._ActionsContainer, cls: type, title: str, names: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """One option per :func:`option` field of the dataclass ``cls`` (those of ``names`` only,
+    when given), in declaration order; returns the argument groups by title (``""``: the
+    options go into ``parser`` itself)."""
     from jaxcart.core.config import field_docs
 
     docs, groups = field_docs(cls), {}
     for f in dataclasses.fields(cls):
-        if "option" not in f.metadata:
+        if "option" not in f.metadata or (names and f.name not in names):
             continue
         kwargs = dict(f.metadata["option"])
         where = kwargs.pop("group", title)
         if where not in groups:
-            groups[where] = parser.add_argument_group(where)
+            groups[where] = parser.add_argument_group(where) if where else parser
         kwargs.setdefault("help", docs.get(f.name, "").replace("%", "%%"))
         default = [] if kwargs.get("action") == "append" else f.default
         flag = "--" + f.name.replace("_", "-")
@@ -440,42 +443,37 @@ def options_from(cls: type, args: argparse.Namespace, **given: Any) -> Any:
     return cls(**{k: v for k, v in values.items() if k in own}, **given)
 
 
-LOGGER_CHOICES = ("tensorboard", "swanlab", "wandb")
+@dataclasses.dataclass(frozen=True)
+class SharedOptions:
+    """The options several commands take, each declared once as an :func:`option` field:
+    :func:`add_logger_arguments` (train, sb3) and :func:`add_trust_code_argument` (train,
+    evaluate) add them."""
+
+    logger: tuple[str, ...] = option(
+        (), action="append", choices=("tensorboard", "swanlab", "wandb")
+    )
+    """also log metrics (under SB3's names) to TensorBoard event files, SwanLab (offline) or
+    Weights & Biases (offline unless WANDB_MODE is set; WANDB_PROJECT, WANDB_ENTITY and
+    WANDB_DIR are honoured; one W&B run per seed, grouped by the run directory); repeatable"""
+    logger_dir: Path | None = option(type=Path, metavar="DIR")
+    """one folder the loggers write into, shared by several runs so that one dashboard shows
+    them together (default: SwanLab's SWANLAB_LOG_DIR or ./swanlog; W&B's WANDB_DIR or the run
+    directory; TensorBoard's RUN_DIR/tensorboard)"""
+    trust_code: bool = option(False, action="store_true")
+    """import and run the code the run directory names (its own network class and metric
+    functions, from its config.json): only for runs you trust; without it such a run is
+    refused, and the rest of jaxcart never imports a run's code"""
 
 
 def add_logger_arguments(group: argparse._ActionsContainer) -> None:
     """``--logger`` (repeatable) and ``--logger-dir``, as ``train`` and ``sb3`` share them."""
-    group.add_argument(
-        "--logger",
-        action="append",
-        default=[],
-        choices=LOGGER_CHOICES,
-        help="also log metrics (under SB3's names) to TensorBoard event files, SwanLab (offline) "
-        "or Weights & Biases (offline unless WANDB_MODE is set; WANDB_PROJECT, WANDB_ENTITY "
-        "and WANDB_DIR are honoured; one W&B run per seed, grouped by the run directory); "
-        "repeatable",
-    )
-    group.add_argument(
-        "--logger-dir",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="one folder the loggers write into, shared by several runs so that one dashboard "
-        "shows them together (default: SwanLab's SWANLAB_LOG_DIR or ./swanlog; W&B's "
-        "WANDB_DIR or the run directory; TensorBoard's RUN_DIR/tensorboard)",
-    )
+    add_options(group, SharedOptions, "", ("logger", "logger_dir"))
 
 
 def add_trust_code_argument(parser: argparse._ActionsContainer) -> None:
     """``--trust-code``: the opt-in to import the code a run directory names (the commands
     that run a policy or train share it)."""
-    parser.add_argument(
-        "--trust-code",
-        action="store_true",
-        help="import and run the code the run directory names (its own network class and "
-        "metric functions, from its config.json): only for runs you trust; without it such "
-        "a run is refused, and the rest of jaxcart never imports a run's code",
-    )
+    add_options(parser, SharedOptions, "", ("trust_code",))
 
 
 def spelled(value: object) -> str:
