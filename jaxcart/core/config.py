@@ -322,9 +322,9 @@ class RebuildError(ConfigError):
     imported or built in this process: the run directory is sound, its code is out of reach."""
 
 
-def _import_named(path: str, where: str) -> Any:
-    """The object ``"module:QualName"`` names, imported (its callers refuse ``__main__`` and
-    local definitions with hints of their own first).
+def _import_named(path: str, where: str, local_hint: str) -> Any:
+    """The object ``"module:QualName"`` names, imported; one of a script, a notebook or a
+    function's body (``__main__``, ``<locals>``, ``<lambda>``) is refused with ``local_hint``.
 
     Raises:
         RebuildError: it cannot be imported, saying why (``where`` first).
@@ -332,6 +332,8 @@ def _import_named(path: str, where: str) -> Any:
     import importlib
 
     module, _, name = path.partition(":")
+    if module == "__main__" or "<locals>" in name or "<lambda>" in name:
+        raise RebuildError(f"{where}: {local_hint}")
     try:
         found = importlib.import_module(module)
         for part in name.split("."):
@@ -404,15 +406,14 @@ def build_network(spec: Any, cls: type | None = None) -> Any:
     import flax.linen as nn
 
     recorded = spec if isinstance(spec, RecordedNetwork) else RecordedNetwork.from_spec(spec)
-    module, _, name = recorded.class_path.partition(":")
     where = f"cannot rebuild the run's network {recorded.class_path}"
     if cls is None:
-        if module == "__main__" or "<locals>" in name:
-            raise RebuildError(
-                f"{where}: a class defined in a script or notebook can only be rebuilt there; "
-                "pass it (network=...) or define it in an importable module"
-            )
-        cls = _import_named(recorded.class_path, where)
+        cls = _import_named(
+            recorded.class_path,
+            where,
+            "a class defined in a script or notebook can only be rebuilt there; pass it "
+            "(network=...) or define it in an importable module",
+        )
     if not (isinstance(cls, type) and issubclass(cls, nn.Module)):
         raise RebuildError(f"{where}: {cls!r:.80} is not a flax.linen.Module subclass")
     fields = json.loads(recorded.fields_json)
@@ -488,11 +489,8 @@ def import_metric(path: str) -> Any:
         RebuildError: it cannot be imported (a function of a script or notebook, or of a
             missing module), saying why.
     """
-    module, _, name = path.partition(":")
     where = f"cannot rebuild the run's metric function {path}"
-    if module == "__main__" or "<locals>" in name or "<lambda>" in name:
-        raise RebuildError(f"{where}: define it at the top level of an importable module")
-    fn = _import_named(path, where)
+    fn = _import_named(path, where, "define it at the top level of an importable module")
     if not callable(fn):
         raise RebuildError(f"{where}: not callable")
     return fn
