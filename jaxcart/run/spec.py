@@ -321,18 +321,10 @@ class Run:
     trained_chunks: int = 0
     """Chunks this process has trained (a new run that fails with none is discarded)."""
 
-    @property
-    def out(self) -> Path:
-        return self.directory.path
-
-    @property
-    def main_process(self) -> bool:
-        return self.directory.main_process
-
-    @functools.cached_property
-    def grid(self) -> sweeps.RunGrid:
-        return self.spec.grid
-
+    # the directory's and the spec's, as the run's own
+    out = property(lambda self: self.directory.path)
+    main_process = property(lambda self: self.directory.main_process)
+    grid = property(lambda self: self.spec.grid)
     config = property(lambda self: self.spec.config)
     preset = property(lambda self: self.spec.preset)
     sweep = property(lambda self: self.spec.sweep)
