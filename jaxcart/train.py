@@ -123,8 +123,8 @@ class TrainOptions:
     preset: str | None = cli.option(help=f"starting config: {PRESET_NAMES} (default: sb3)")
     config: Path | None = cli.option(type=Path, metavar="FILE")
     """options from a TOML/YAML/JSON file (keys named as the options), rl-zoo3's ppo.yml (the
-    entry of the env it trains: --env, default CartPole-v1) or a run's config.json (trains it again); options on the command line
-    override the file's"""
+    entry of the env it trains: --env, default CartPole-v1) or a run's config.json (trains it
+    again); options on the command line override the file's"""
     num_seeds: int | None = cli.option(type=cli.count)
     """independent agents trained together (default: 1)"""
     seed: int | None = cli.option(type=int)
