@@ -103,12 +103,6 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
             group.add_argument(flag, type=kind, **kwargs)
 
 
-def config_overrides(args: argparse.Namespace) -> dict:
-    """The config fields ``args`` gives explicitly (the options default to "not given")."""
-    names = {f.name for f in config_fields()}
-    return {k: v for k, v in vars(args).items() if k in names}
-
-
 PRESET_NAMES = ", ".join(
     f"{n} (annealed lr)" if p.get("anneal_lr") else n for n, p in PRESETS.items()
 )
@@ -183,8 +177,10 @@ class TrainOptions:
     @classmethod
     def from_args(cls, args: argparse.Namespace, argv: list[str] = ()) -> TrainOptions:
         """The options of ``args`` that are fields here, the config fields given explicitly
-        as ``overrides``, and ``argv`` as typed."""
-        return cli.options_from(cls, args, overrides=config_overrides(args), argv=tuple(argv))
+        as ``overrides`` (the options default to "not given"), and ``argv`` as typed."""
+        names = {f.name for f in config_fields()}
+        overrides = {k: v for k, v in vars(args).items() if k in names}
+        return cli.options_from(cls, args, overrides=overrides, argv=tuple(argv))
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
