@@ -12,6 +12,7 @@ import functools
 import os
 import re
 import signal
+import subprocess
 import sys
 import textwrap
 import warnings
@@ -47,13 +48,90 @@ def check_not_shadowed() -> None:
 
 check_not_shadowed()  # before the first name taken from the package
 
-from jaxcart import __version__, environment  # noqa: E402
+from jaxcart import __version__  # noqa: E402
 from jaxcart.core.errors import ConfigError  # noqa: E402
 from jaxcart.engine import devices, signals  # noqa: E402
 from jaxcart.rundir.files import RunDirError  # noqa: E402
 
 EXIT_USAGE = 2
 VERSION_TEXT = f"jaxcart {__version__}"
+
+
+# ---- the environment variables JAX reads, checked before any command runs: a value JAX or XLA
+# cannot use becomes one line on stderr and exit code 2 (JAX raises a traceback, XLA aborts the
+# process with a fatal log line). import_jax() imports JAX and turns a value JAX refuses at
+# import (JAX_ENABLE_X64=junk, ...) into that line: every command calls it before its first
+# import of JAX, once its command line is parsed (Parser.parse_args; --help imports no JAX) or,
+# in a command whose own module imports JAX, before that import. check_backend() does the same
+# for what JAX reads when it starts its backend (JAX_PLATFORMS, XLA_FLAGS); command_main calls
+# it before the command's main.
+
+
+def _refuse(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(EXIT_USAGE)
+
+
+def import_jax() -> None:
+    """Imports JAX; a JAX_* value it refuses becomes one line and exit code 2."""
+    try:
+        import jax  # noqa: F401  (it reads JAX_* variables as it is imported)
+    except ValueError as exc:  # JAX's message names the variable or its flag
+        _refuse(f"{str(exc).splitlines()[0]}; fix or unset that environment variable")
+
+
+def xla_flags_problem(flags: str) -> str | None:
+    """What is wrong with an ``XLA_FLAGS`` value that XLA would abort on, read without
+    starting XLA: a token that is not a ``--flag`` (XLA reads it as a file of flags)."""
+    for token in flags.split():
+        if not token.startswith("--"):
+            return (
+                f"XLA_FLAGS holds {token!r}, which is not a --flag (XLA would read it as a "
+                "file of flags and abort); fix or unset XLA_FLAGS"
+            )
+    return None
+
+
+def _probe_backend() -> str | None:
+    """Starts JAX's backend in a child process (XLA aborts the whole process on an unknown
+    flag, and a backend started here could not be given ``jax.distributed`` any more): its
+    last line on failure, None when it starts."""
+    proc = subprocess.run(
+        [sys.executable, "-c", "import jax; jax.devices()"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    if proc.returncode == 0:
+        return None
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    return lines[-1][-300:] if lines else f"exit code {proc.returncode}"
+
+
+def check_backend() -> None:
+    """Refuses, in one line (exit 2), ``XLA_FLAGS`` or ``JAX_PLATFORMS`` values the backend
+    cannot start with. Starts nothing in this process; probes in a child only when a value
+    is one jaxcart does not set itself (flags other than the device count, a platform other
+    than ``cpu``)."""
+    flags, platforms = os.environ.get("XLA_FLAGS", ""), os.environ.get("JAX_PLATFORMS", "")
+    if flags.strip():
+        problem = xla_flags_problem(flags)
+        needs_probe = not all(t.startswith(devices.DEVICE_COUNT_FLAG) for t in flags.split())
+        if problem is None and needs_probe and (failure := _probe_backend()) is not None:
+            problem = f"XLA cannot start with XLA_FLAGS={flags!r}: {failure}"
+        if problem is not None:
+            _refuse(problem)
+    if {p.strip() for p in platforms.split(",") if p.strip()} - {"cpu"}:
+        failure = _probe_backend()
+        if failure is not None and failure.isidentifier():  # a bare exception: no plugin
+            _refuse(
+                f"JAX_PLATFORMS={platforms!r}: this JAX cannot start that backend (it says only "
+                f"{failure}); install JAX for it (cuda: pip install -U 'jax[cuda12]') or unset "
+                "JAX_PLATFORMS to run on the CPU"
+            )
+        if failure is not None:
+            _refuse(f"JAX_PLATFORMS={platforms!r}: {failure}; fix or unset JAX_PLATFORMS")
 
 
 class UsageError(Exception):
@@ -94,54 +172,41 @@ class HelpFormatter(argparse.HelpFormatter):
 # a hint by meaning comes before one by spelling, so that ``--lr`` suggests ``--learning-rate``
 # rather than ``--anneal-lr``. Each name lists candidates in order; the first that the command
 # has is suggested (``--episodes`` is ``--eval-episodes`` in train, ``--episodes`` in evaluate).
-ALIASES: dict[str, tuple[str, ...]] = {
-    **dict.fromkeys(("lr", "step-size"), ("--learning-rate",)),
-    **dict.fromkeys(("lr-schedule", "lr-decay", "linear-lr", "anneal"), ("--anneal-lr",)),
-    **dict.fromkeys(("discount", "discount-factor"), ("--gamma",)),
-    **dict.fromkeys(("lambda", "lam", "gae", "lmbda", "gae-lam"), ("--gae-lambda",)),
-    **dict.fromkeys(("n-steps", "nsteps", "rollout-length", "horizon", "n-step"), ("--num-steps",)),
-    **dict.fromkeys(("n-envs", "nenvs", "envs", "num-env", "num-workers"), ("--num-envs",)),
-    **dict.fromkeys(("seeds", "n-seeds", "nseeds", "num-seed"), ("--num-seeds",)),
-    **dict.fromkeys(("ent", "entropy", "entropy-coef", "ent-coeff"), ("--ent-coef",)),
-    **dict.fromkeys(("vf", "value-coef", "vf-coeff", "value-loss-coef"), ("--vf-coef",)),
-    **dict.fromkeys(
-        ("batch-size", "minibatch", "mini-batch-size", "num-minibatches", "nminibatches"),
-        ("--minibatch-size",),
-    ),
-    **dict.fromkeys(
-        ("epochs", "n-epochs", "num-epochs", "ppo-epochs", "noptepochs"), ("--update-epochs",)
-    ),
-    **dict.fromkeys(
-        ("total-steps", "timesteps", "n-timesteps", "num-timesteps", "total-env-steps"),
-        ("--total-timesteps",),
-    ),
-    **dict.fromkeys(
-        ("clip-range", "clip", "clip-param", "clip-eps", "cliprange"), ("--clip-coef",)
-    ),
-    **dict.fromkeys(("grad-clip", "max-norm", "clip-grad-norm", "grad-norm"), ("--max-grad-norm",)),
-    **dict.fromkeys(("eps", "epsilon", "adam-epsilon"), ("--adam-eps",)),
-    **dict.fromkeys(
-        ("normalize-advantage", "normalize-advantages", "norm-advantage"), ("--norm-adv",)
-    ),
-    **dict.fromkeys(("net-arch", "hidden", "hidden-size", "layers"), ("--hidden-sizes",)),
-    **dict.fromkeys(("activation-fn", "act"), ("--activation",)),
-    **dict.fromkeys(
-        ("output", "output-dir", "outdir", "log-dir", "logdir", "save-dir", "save-path", "run-dir"),
-        ("--out",),
-    ),
-    **dict.fromkeys(
-        ("n-eval-episodes", "num-episodes", "n-episodes", "eval-episodes", "episodes"),
-        ("--eval-episodes", "--episodes"),
-    ),
-    **dict.fromkeys(("continue", "restore", "resume-from", "load"), ("--resume",)),
-    **dict.fromkeys(
-        ("save-freq", "checkpoint-freq", "checkpoint-interval", "save-every"),
-        ("--checkpoint-every",),
-    ),
-    **dict.fromkeys(("algo", "config", "hyperparams"), ("--preset",)),
-    **dict.fromkeys(("track", "wandb", "tensorboard", "tensorboard-log"), ("--logger",)),
-    **dict.fromkeys(("video", "render", "save-gif", "gif-path"), ("--gif",)),
+ALIASES_OF: dict[str, str] = {
+    "--learning-rate": "lr step-size",
+    "--anneal-lr": "lr-schedule lr-decay linear-lr anneal",
+    "--gamma": "discount discount-factor",
+    "--gae-lambda": "lambda lam gae lmbda gae-lam",
+    "--num-steps": "n-steps nsteps rollout-length horizon n-step",
+    "--num-envs": "n-envs nenvs envs num-env num-workers",
+    "--num-seeds": "seeds n-seeds nseeds num-seed",
+    "--ent-coef": "ent entropy entropy-coef ent-coeff",
+    "--vf-coef": "vf value-coef vf-coeff value-loss-coef",
+    "--minibatch-size": "batch-size minibatch mini-batch-size num-minibatches nminibatches",
+    "--update-epochs": "epochs n-epochs num-epochs ppo-epochs noptepochs",
+    "--total-timesteps": "total-steps timesteps n-timesteps num-timesteps total-env-steps",
+    "--clip-coef": "clip-range clip clip-param clip-eps cliprange",
+    "--max-grad-norm": "grad-clip max-norm clip-grad-norm grad-norm",
+    "--adam-eps": "eps epsilon adam-epsilon",
+    "--norm-adv": "normalize-advantage normalize-advantages norm-advantage",
+    "--hidden-sizes": "net-arch hidden hidden-size layers",
+    "--activation": "activation-fn act",
+    "--out": "output output-dir outdir log-dir logdir save-dir save-path run-dir",
+    "--eval-episodes --episodes": "n-eval-episodes num-episodes n-episodes eval-episodes episodes",
+    "--resume": "continue restore resume-from load",
+    "--checkpoint-every": "save-freq checkpoint-freq checkpoint-interval save-every",
+    "--preset": "algo config hyperparams",
+    "--logger": "track wandb tensorboard tensorboard-log",
+    "--gif": "video render save-gif gif-path",
 }
+"""Each option (or, where commands differ, the options in order: the first a command has) and
+the other libraries' names for it, space-separated."""
+ALIASES: dict[str, tuple[str, ...]] = {
+    alias: tuple(options.split())
+    for options, names in ALIASES_OF.items()
+    for alias in names.split()
+}
+"""Each other library's name -> the options it may mean, in order."""
 
 
 def suggestion(token: str, options: Sequence[str]) -> str | None:
@@ -318,7 +383,7 @@ class Parser(argparse.ArgumentParser):
             argv = sys.argv[1:] if args is None else list(args)
             self.error(self.unrecognized_text(extras, argv))
         # The command runs: JAX now (JAX_* checked), not for --help or a usage error.
-        environment.import_jax()
+        import_jax()
         return namespace
 
     def unrecognized_text(self, extras: list[str], argv: Sequence[str] = ()) -> str:
@@ -347,19 +412,22 @@ def option(default: Any = None, **kwargs: Any) -> Any:
     return dataclasses.field(default=default, metadata={"option": kwargs})
 
 
-def add_options(parser: argparse.ArgumentParser, cls: type, title: str) -> dict[str, Any]:
-    """One option per :func:`option` field of the dataclass ``cls``, in declaration order;
-    returns the argument groups by title."""
+def add_options(
+    parser: argparse._ActionsContainer, cls: type, title: str, names: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """One option per :func:`option` field of the dataclass ``cls`` (those of ``names`` only,
+    when given), in declaration order; returns the argument groups by title (``""``: the
+    options go into ``parser`` itself)."""
     from jaxcart.core.config import field_docs
 
     docs, groups = field_docs(cls), {}
     for f in dataclasses.fields(cls):
-        if "option" not in f.metadata:
+        if "option" not in f.metadata or (names and f.name not in names):
             continue
         kwargs = dict(f.metadata["option"])
         where = kwargs.pop("group", title)
         if where not in groups:
-            groups[where] = parser.add_argument_group(where)
+            groups[where] = parser.add_argument_group(where) if where else parser
         kwargs.setdefault("help", docs.get(f.name, "").replace("%", "%%"))
         default = [] if kwargs.get("action") == "append" else f.default
         flag = "--" + f.name.replace("_", "-")
@@ -375,42 +443,54 @@ def options_from(cls: type, args: argparse.Namespace, **given: Any) -> Any:
     return cls(**{k: v for k, v in values.items() if k in own}, **given)
 
 
-LOGGER_CHOICES = ("tensorboard", "swanlab", "wandb")
+@dataclasses.dataclass(frozen=True)
+class SharedOptions:
+    """The options several commands take, each declared once as an :func:`option` field:
+    :func:`add_logger_arguments` (train, sb3) and :func:`add_trust_code_argument` (train,
+    evaluate) add them."""
+
+    logger: tuple[str, ...] = option(
+        (), action="append", choices=("tensorboard", "swanlab", "wandb")
+    )
+    """also log metrics (under SB3's names) to TensorBoard event files, SwanLab (offline) or
+    Weights & Biases (offline unless WANDB_MODE is set; WANDB_PROJECT, WANDB_ENTITY and
+    WANDB_DIR are honoured; one W&B run per seed, grouped by the run directory); repeatable"""
+    logger_dir: Path | None = option(type=Path, metavar="DIR")
+    """one folder the loggers write into, shared by several runs so that one dashboard shows
+    them together (default: SwanLab's SWANLAB_LOG_DIR or ./swanlog; W&B's WANDB_DIR or the run
+    directory; TensorBoard's RUN_DIR/tensorboard)"""
+    trust_code: bool = option(False, action="store_true")
+    """import and run the code the run directory names (its own network class and metric
+    functions, from its config.json): only for runs you trust; without it such a run is
+    refused, and the rest of jaxcart never imports a run's code"""
 
 
 def add_logger_arguments(group: argparse._ActionsContainer) -> None:
     """``--logger`` (repeatable) and ``--logger-dir``, as ``train`` and ``sb3`` share them."""
-    group.add_argument(
-        "--logger",
-        action="append",
-        default=[],
-        choices=LOGGER_CHOICES,
-        help="also log metrics (under SB3's names) to TensorBoard event files, SwanLab (offline) "
-        "or Weights & Biases (offline unless WANDB_MODE is set; WANDB_PROJECT, WANDB_ENTITY "
-        "and WANDB_DIR are honoured; one W&B run per seed, grouped by the run directory); "
-        "repeatable",
-    )
-    group.add_argument(
-        "--logger-dir",
-        type=Path,
-        default=None,
-        metavar="DIR",
-        help="one folder the loggers write into, shared by several runs so that one dashboard "
-        "shows them together (default: SwanLab's SWANLAB_LOG_DIR or ./swanlog; W&B's "
-        "WANDB_DIR or the run directory; TensorBoard's RUN_DIR/tensorboard)",
-    )
+    add_options(group, SharedOptions, "", ("logger", "logger_dir"))
 
 
 def add_trust_code_argument(parser: argparse._ActionsContainer) -> None:
     """``--trust-code``: the opt-in to import the code a run directory names (the commands
     that run a policy or train share it)."""
-    parser.add_argument(
-        "--trust-code",
-        action="store_true",
-        help="import and run the code the run directory names (its own network class and "
-        "metric functions, from its config.json): only for runs you trust; without it such "
-        "a run is refused, and the rest of jaxcart never imports a run's code",
-    )
+    add_options(parser, SharedOptions, "", ("trust_code",))
+
+
+def spelled(value: object) -> str:
+    """A value as the command line spells it: ``64,64``, ``on``/``off``, ``none``, a float
+    exactly (its ``repr``, ``0.0003``); what ``--help`` shows and a config file becomes.
+
+    Raises:
+        UsageError: a list in a list (``[[1, 2], [3]]``): no option takes one, and flattening
+            it would train something the file did not say.
+    """
+    if isinstance(value, (list, tuple)):
+        if any(isinstance(v, (list, tuple, dict)) for v in value):
+            raise UsageError(f"a list of lists is no option value, got {value!r}")
+        return ",".join(spelled(v) for v in value)
+    if isinstance(value, bool) or value is None:
+        return {True: "on", False: "off", None: "none"}[value]
+    return repr(value) if isinstance(value, float) else str(value)
 
 
 def join_negative_values(argv: list[str]) -> list[str]:
@@ -485,7 +565,7 @@ def command_main(
         try:
             signal.signal(signal.SIGTERM, signals.raise_interrupt)
             devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
-            environment.check_backend()  # JAX_PLATFORMS, XLA_FLAGS: one line, not an abort
+            check_backend()  # JAX_PLATFORMS, XLA_FLAGS: one line, not an abort
             code = main(argv)
         finally:
             for sig in signals.SIGNALS:

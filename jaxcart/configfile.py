@@ -5,8 +5,9 @@ Three kinds of file, told apart by their contents:
 - **jaxcart's own** (TOML, YAML or JSON): a mapping whose keys are the command's options, spelled
   either way (``learning_rate`` or ``learning-rate``, ``num_seeds``, ``preset``, ``sweep``, ...).
   A key that is no option is an error, one line each (with a "did you mean").
-- **rl-zoo3's** ``hyperparams/ppo.yml``: a mapping of env ids to hyperparameters. The
-  ``CartPole-v1`` entry is read through Stable-Baselines3's names (:data:`jaxcart.cli.ALIASES`:
+- **rl-zoo3's** ``hyperparams/ppo.yml``: a mapping of env ids to hyperparameters. The entry
+  of the env the command line trains (``--env``, else its ``--preset``'s: CartPole-v1 by
+  default) is read through Stable-Baselines3's names (:data:`jaxcart.cli.ALIASES`:
   ``n_envs``, ``n_steps``, ``batch_size``, ``n_epochs``, ``n_timesteps``, ``clip_range``, ...),
   a ``lin_X`` learning rate or clip range as ``X`` annealed linearly to 0 (``--anneal-lr``,
   ``--anneal-clip``) on SB3's progress (``--anneal-progress sb3``: rl-zoo3's
@@ -34,21 +35,20 @@ from pathlib import Path
 
 from jaxcart import cli
 
-ZOO_ENV = "CartPole-v1"
 ZOO_ENV_ID = re.compile(r"[\w/.:-]+-v\d+")
 """An rl-zoo3 file's top-level keys are env ids (``CartPole-v1``, ``ALE/Pong-v5``)."""
-RUN_KEYS = ("preset", "num_seeds", "seed", "sweep", "wave_size", "eval_episodes")
-"""What a run's ``config.json`` carries, besides its ``config``, that shapes the training."""
 NOT_FROM_FILE = ("config", "help", "version")
 MAX_FILE_BYTES = 1 << 20
 
 
-def read_config_file(path: Path, parser: argparse.ArgumentParser) -> tuple[list[str], list[str]]:
+def read_config_file(
+    path: Path, parser: argparse.ArgumentParser, env_id: str
+) -> tuple[list[str], list[str]]:
     """``path`` (TOML, YAML, JSON, or a run directory) as tokens for ``parser``, and its notes
-    (one line per ignored key).
+    (one line per ignored key); ``env_id``: the env whose entry an rl-zoo3 file gives.
 
     Raises:
-        cli.UsageError: unreadable, not a mapping, no ``CartPole-v1`` entry in an rl-zoo3 file,
+        cli.UsageError: unreadable, not a mapping, no ``env_id`` entry in an rl-zoo3 file,
             or keys that are no option (one line each).
     """
     data = _load(path)
@@ -59,26 +59,26 @@ def read_config_file(path: Path, parser: argparse.ArgumentParser) -> tuple[list[
     if "format_version" in data and isinstance(data.get("config"), dict):  # a run's config.json
         data, zoo = _run_values(data, path, notes), False
     elif zoo:
-        if not isinstance(data.get(ZOO_ENV), dict):
+        if not isinstance(data.get(env_id), dict):
             envs = ", ".join(k for k in data if ZOO_ENV_ID.fullmatch(str(k)))
-            raise cli.UsageError(f"--config {path}: no {ZOO_ENV} entry (it has {envs})")
-        data = _zoo_values(data[ZOO_ENV], path, notes)
+            raise cli.UsageError(f"--config {path}: no {env_id} entry (it has {envs})")
+        data = _zoo_values(data[env_id], path, notes)
     return _tokens_of(data, path, parser, notes, zoo), notes
 
 
 def _run_values(data: dict, path: Path, notes: list[str]) -> dict:
-    """A run's ``config.json`` as the options that train it again."""
-    values = {k: data[k] for k in RUN_KEYS if data.get(k) not in (None, {}, [])}
-    swept = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
-    values.update({k: v for k, v in data["config"].items() if k not in swept})
-    if isinstance(data.get("env_params"), dict) and data["env_params"]:
-        values["env_param"] = data["env_params"]
-    if isinstance(data.get("randomize"), dict) and data["randomize"]:
-        values["randomize"] = {
-            f"env.{k}": f"{_text(r.get('low'))}:{_text(r.get('high'))}:{r.get('per')}"
-            for k, r in data["randomize"].items()
-            if isinstance(r, dict)
-        }
+    """A run's ``config.json`` as the options that train it again: read as ``--resume``
+    reads it (:meth:`~jaxcart.run.spec.RunSpec.from_record`), then spelled as options
+    (:meth:`~jaxcart.run.spec.RunSpec.options`), with its wave width and evaluation episodes."""
+    from jaxcart.core.config import ConfigError, PPOConfig
+    from jaxcart.run.spec import RunSpec
+
+    try:
+        spec = RunSpec.from_record({**data, "config": PPOConfig.from_dict(data["config"])})
+        values = spec.options()
+    except (ConfigError, TypeError, ValueError) as exc:
+        raise cli.UsageError(f"--config {path}: {exc}") from None
+    values.update({k: data[k] for k in ("wave_size", "eval_episodes") if data.get(k) is not None})
     if data.get("lr_schedule"):
         notes.append(
             f"note: --config {path}: its lr_schedule (from a --resume that extended it) is "
@@ -206,29 +206,15 @@ def _tokens(action: argparse.Action, value: object) -> list[str]:
         return [flag] if _truth(value, flag) else []
     if isinstance(action, argparse._AppendAction):
         if isinstance(value, dict):  # sweep = {learning_rate = [1e-3, 5e-3]}
-            value = [f"{k}={_text(v)}" for k, v in value.items()]
+            value = [f"{k}={cli.spelled(v)}" for k, v in value.items()]
         return [t for v in (value if isinstance(value, list) else [value]) for t in (flag, str(v))]
-    return [f"{flag}={_text(value)}"]
+    return [f"{flag}={cli.spelled(value)}"]
 
 
 def _truth(value: object, flag: str) -> bool:
     if isinstance(value, bool):
         return value
     raise ValueError(f"{flag} in a config file takes true or false, got {value!r}")
-
-
-def _text(value: object) -> str:
-    """A value as the command line spells it (lists comma-separated).
-
-    Raises:
-        cli.UsageError: a list in a list (``[[1, 2], [3]]``): no option takes one, and
-            flattening it would train something the file did not say.
-    """
-    if isinstance(value, (list, tuple)):
-        if any(isinstance(v, (list, tuple, dict)) for v in value):
-            raise cli.UsageError(f"a list of lists is no option value, got {value!r}")
-        return ",".join(_text(v) for v in value)
-    return repr(value) if isinstance(value, float) else str(value)
 
 
 def parse_with_config(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
@@ -239,7 +225,10 @@ def parse_with_config(parser: argparse.ArgumentParser, argv: list[str]) -> argpa
     args = parser.parse_args(tokens)
     if args.config is None:
         return args
-    from_file, notes = read_config_file(args.config, parser)
+    from jaxcart.core.config import PRESETS, PPOConfig
+
+    chosen = PRESETS.get(getattr(args, "preset", None) or "sb3", {}).get("env", PPOConfig.env)
+    from_file, notes = read_config_file(args.config, parser, vars(args).get("env", chosen))
     for note in notes:
         print(note, file=sys.stderr)
     try:

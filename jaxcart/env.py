@@ -48,33 +48,25 @@ def describe(params: EnvParams | None = None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Prints :func:`describe` for the default parameters. (The env module imports nothing of
-    the command-line layer: options are spelled out in full, as everywhere in jaxcart.)"""
-    import argparse
-    from importlib import metadata
+    """Prints :func:`describe` for the default parameters, or with the integrator and reward
+    given: a command like every other (:class:`jaxcart.cli.Parser`, one-line errors)."""
+    from jaxcart import cli
 
-    parser = argparse.ArgumentParser(
-        prog="python -m jaxcart.env",
-        description="Show CartPole's spaces, bounds and limits.",
-        allow_abbrev=False,
-    )
-    parser.add_argument(
-        "--version", action="version", version=f"jaxcart {metadata.version('jaxcart')}"
+    parser = cli.Parser(
+        prog="python -m jaxcart.env", description="Show CartPole's spaces, bounds and limits."
     )
     parser.add_argument(
         "--kinematics-integrator", choices=["euler", "semi-implicit"], default="euler"
     )
     parser.add_argument("--sutton-barto-reward", action="store_true")
-    args = parser.parse_args(argv)
-    print(
-        describe(
-            EnvParams(
-                kinematics_integrator=args.kinematics_integrator,
-                sutton_barto_reward=args.sutton_barto_reward,
-            )
-        )
-    )
-    return 0
+
+    def body() -> int:
+        args = parser.parse_args(argv)
+        integrator, reward = args.kinematics_integrator, args.sutton_barto_reward
+        print(describe(EnvParams(kinematics_integrator=integrator, sutton_barto_reward=reward)))
+        return 0
+
+    return cli.run_command(body)
 
 
 if __name__ == "__main__":

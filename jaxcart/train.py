@@ -20,9 +20,9 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, NoReturn
 
-from jaxcart import cli, environment
+from jaxcart import cli
 
-environment.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
+cli.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
 
 from jaxcart.core.config import PRESETS, config_fields, field_docs, preset  # noqa: E402
 from jaxcart.engine import devices  # noqa: E402
@@ -31,7 +31,7 @@ from jaxcart.engine.signals import StopRequest  # noqa: E402
 if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
     from jaxcart import report
     from jaxcart.analysis.summary import Score
-    from jaxcart.run import lifecycle
+    from jaxcart.run import lifecycle, structural
 
 
 def _tuple_of_ints(text: str) -> tuple[int, ...]:
@@ -78,15 +78,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _default_text(value: object) -> str:
-    """A config value as the command line spells it: ``64,64``, ``on``/``off``, ``0.0003``."""
-    if isinstance(value, bool):
-        return "on" if value else "off"
-    if value is None:
-        return "none"
-    if isinstance(value, tuple):
-        return ",".join(map(str, value))
-    return f"{value:g}" if isinstance(value, float) else str(value)
+_default_text = cli.spelled  # the name jaxcart.tune spells a value by
 
 
 def _add_config_options(group: argparse._ArgumentGroup) -> None:
@@ -95,7 +87,7 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
     docs, defaults = field_docs(), preset("sb3")
     for f in config_fields():
         flag = "--" + f.name.replace("_", "-")
-        shown = _default_text(getattr(defaults, f.name)).replace("%", "%%")
+        shown = cli.spelled(getattr(defaults, f.name)).replace("%", "%%")
         help_text = f"{docs.get(f.name, '').replace('%', '%%')} (default: {shown})"
         kwargs = dict(dest=f.name, default=argparse.SUPPRESS, help=help_text)
         if f.type in ("bool", bool):
@@ -111,12 +103,6 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
             group.add_argument(flag, type=kind, **kwargs)
 
 
-def config_overrides(args: argparse.Namespace) -> dict:
-    """The config fields ``args`` gives explicitly (the options default to "not given")."""
-    names = {f.name for f in config_fields()}
-    return {k: v for k, v in vars(args).items() if k in names}
-
-
 PRESET_NAMES = ", ".join(
     f"{n} (annealed lr)" if p.get("anneal_lr") else n for n, p in PRESETS.items()
 )
@@ -130,9 +116,9 @@ class TrainOptions:
 
     preset: str | None = cli.option(help=f"starting config: {PRESET_NAMES} (default: sb3)")
     config: Path | None = cli.option(type=Path, metavar="FILE")
-    """options from a TOML/YAML/JSON file (keys named as the options), rl-zoo3's ppo.yml (its
-    CartPole-v1 entry) or a run's config.json (trains it again); options on the command line
-    override the file's"""
+    """options from a TOML/YAML/JSON file (keys named as the options), rl-zoo3's ppo.yml (the
+    entry of the env it trains: --env, default CartPole-v1) or a run's config.json (trains it
+    again); options on the command line override the file's"""
     num_seeds: int | None = cli.option(type=cli.count)
     """independent agents trained together (default: 1)"""
     seed: int | None = cli.option(type=int)
@@ -191,12 +177,15 @@ class TrainOptions:
     @classmethod
     def from_args(cls, args: argparse.Namespace, argv: list[str] = ()) -> TrainOptions:
         """The options of ``args`` that are fields here, the config fields given explicitly
-        as ``overrides``, and ``argv`` as typed."""
-        return cli.options_from(cls, args, overrides=config_overrides(args), argv=tuple(argv))
+        as ``overrides`` (the options default to "not given"), and ``argv`` as typed."""
+        names = {f.name for f in config_fields()}
+        overrides = {k: v for k, v in vars(args).items() if k in names}
+        return cli.options_from(cls, args, overrides=overrides, argv=tuple(argv))
 
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
-        from jaxcart.run import lifecycle, physics
+        from jaxcart.core import physics
+        from jaxcart.run import lifecycle
         from jaxcart.run.structural import split_sweep
         from jaxcart.run.sweep import parse_sweep
 
@@ -273,12 +262,14 @@ class TrainOptions:
 
 
 def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
-    """Plans, trains, evaluates and reports; returns the exit code."""
+    """Plans, trains, evaluates and reports a run, or a structural sweep (one program and run
+    directory per shape group, ranked together); returns the exit code."""
     from jaxcart import report
     from jaxcart.engine import distributed
     from jaxcart.engine.signals import Stopped
-    from jaxcart.run import lifecycle
+    from jaxcart.run import lifecycle, structural
     from jaxcart.rundir import layout
+    from jaxcart.rundir.reader import group_label
 
     wall_start = time.perf_counter()
     opts.check()
@@ -287,14 +278,25 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups)
     run_options = opts.run_options()
-    if len(groups) > 1 or any(groups) or (opts.resume and layout.is_groups(opts.resume)):
-        if opts.distributed:
-            raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
-        return _train_groups(opts, spec, groups, run_options, console, wall_start)
+    shaped = len(groups) > 1 or any(groups) or (opts.resume and layout.is_groups(opts.resume))
+    if shaped and opts.distributed:
+        raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
     if not distributed.is_main_process():
         console.out, console.progress_bar = open(os.devnull, "w"), False
+    if groups and shaped:
+        specs = structural.group_specs(spec, groups)  # every group checked before anything runs
+        console.print(
+            f"structural sweep: {len(groups)} shape groups, so {len(groups)} programs compile "
+            f"(one each; the float axes stay vmapped inside each): "
+            + "; ".join(group_label(g) for g in groups)
+        )
+    if opts.dry_run and shaped:
+        for group, group_spec in zip(groups, specs):
+            plan = lifecycle.plan_run(group_spec, run_options)
+            console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
+        return 0
     if opts.dry_run:
         import jax
 
@@ -306,10 +308,25 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
         console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
         return 0
-    stop = StopRequest(on_signal=console.on_signal)
+
+    def on_group(outcome: lifecycle.Outcome) -> None:
+        if not outcome.stopped and outcome.evaluation is not None:
+            console.print(report.results_text(outcome))
+
+    stop, hooks = StopRequest(on_signal=console.on_signal), console.hooks()
     try:
         with stop.installed():  # the training's signal handling, from its plan to its outputs
-            outcome = _start_or_resume(opts, spec, run_options, console.hooks(), stop)
+            if shaped and spec is None:  # --resume of the sweep: every group not finished
+                out = opts.resume
+                outcome = structural.finish_groups(out, run_options, hooks, stop, on_group)
+            elif shaped:
+                out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
+                command = ["python -m jaxcart.train", *opts.argv]
+                outcome = structural.run_groups(
+                    spec, groups, out, run_options, hooks, stop, command, on_group
+                )
+            else:
+                outcome = _start_or_resume(opts, spec, run_options, hooks, stop)
     except Stopped:
         console.print("stopped before the run started; nothing was written")
         return 128 + (stop.signum or 15)
@@ -325,6 +342,8 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         return 1
     finally:
         console.close()
+    if shaped:
+        return _report_groups(out, outcome, console, time.perf_counter() - wall_start)
     return _report(outcome, console, time.perf_counter() - wall_start)
 
 
@@ -343,41 +362,13 @@ def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list[dict]) -> N
         check_score(score, {}, group_spec.config)
 
 
-def _train_groups(
-    opts: TrainOptions,
-    spec: lifecycle.RunSpec,
-    groups: list[dict],
-    run_options: lifecycle.RunOptions,
-    console: report.ConsoleReport,
-    wall_start: float,
+def _report_groups(
+    out: Path, done: structural.GroupsOutcome, console: report.ConsoleReport, wall: float
 ) -> int:
-    """A structural sweep: one program and run directory per shape group, ranked together;
-    ``spec`` None: ``--resume`` of one, which trains the groups that have not finished."""
+    """What a structural sweep prints once its groups are done, or one of them stopped."""
     from jaxcart import report
-    from jaxcart.run import structural
     from jaxcart.rundir import layout
 
-    stop = StopRequest(on_signal=console.on_signal)
-
-    def on_group(outcome: lifecycle.Outcome) -> None:
-        if not outcome.stopped and outcome.evaluation is not None:
-            console.print(report.results_text(outcome))
-
-    try:
-        with stop.installed():
-            if spec is None:  # --resume of the sweep: every group that has not finished
-                out = opts.resume
-                done = structural.finish_groups(out, run_options, console.hooks(), stop, on_group)
-            else:
-                out = _start_groups(opts, spec, groups, run_options, console)
-                if out is None:  # --dry-run
-                    return 0
-                command = ["python -m jaxcart.train", *opts.argv]
-                done = structural.run_groups(
-                    spec, groups, out, run_options, console.hooks(), stop, command, on_group
-                )
-    finally:
-        console.close()
     if done.stopped:
         last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
         hint = report.resume_command(out)
@@ -385,39 +376,12 @@ def _train_groups(
         return 128 + done.signum
     console.print(report.groups_text(done.ranking, done.groups, done.sweep, done.num_seeds))
     console.print(
-        f"wall {time.perf_counter() - wall_start:.1f} s | structural sweep directory: {out} "
+        f"wall {wall:.1f} s | structural sweep directory: {out} "
         f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
         f"  python -m jaxcart.plot {out}      # every group's curves, into its curves.png\n"
         f"  python -m jaxcart.compare {out}   # statistics of every combination"
     )
     return 0
-
-
-def _start_groups(
-    opts: TrainOptions,
-    spec: lifecycle.RunSpec,
-    groups: list[dict],
-    run_options: lifecycle.RunOptions,
-    console: report.ConsoleReport,
-) -> Path | None:
-    """A new structural sweep's plan printed; its directory, None for ``--dry-run``."""
-    from jaxcart import report
-    from jaxcart.run import lifecycle, structural
-    from jaxcart.rundir import layout
-    from jaxcart.rundir.reader import group_label
-
-    specs = structural.group_specs(spec, groups)  # every group checked before anything runs
-    console.print(
-        f"structural sweep: {len(groups)} shape groups, so {len(groups)} programs compile "
-        f"(one each; the float axes stay vmapped inside each): "
-        + "; ".join(group_label(g) for g in groups)
-    )
-    if opts.dry_run:
-        for group, group_spec in zip(groups, specs):
-            plan = lifecycle.plan_run(group_spec, run_options)
-            console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
-        return None
-    return opts.out or layout.default_run_dir(f"{spec.preset}-groups")
 
 
 def _start_or_resume(

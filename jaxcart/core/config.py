@@ -47,6 +47,16 @@ def traced(default: float, bound: str = "> 0") -> Any:
     return field(default=default, metadata={"traced": True, "bound": bound})
 
 
+def setting(default: Any, **meta: Any) -> Any:
+    """Declares a static field once, with what :func:`validate`, :meth:`PPOConfig.to_dict` and
+    the command line read of it besides its type (an ``int`` field is a positive integer, a
+    ``bool`` one true or false): ``choices`` (the values a string takes), ``minimum`` (an
+    integer's least value), ``new`` (added after the first config.json: left out of it at its
+    default, or while the field it names is off, so that older runs read as they did) and
+    ``cli=False`` (Python API only)."""
+    return field(default=default, metadata=meta)
+
+
 def float_dtype() -> np.dtype:
     """The float type training runs in: float32, or float64 when JAX runs with x64 enabled
     (``JAX_ENABLE_X64=1``), so that the env state, the network and the update all follow."""
@@ -77,10 +87,10 @@ class PPOConfig:
     anneal_lr: bool = False
     """Decay the learning rate linearly to 0 over the iterations (as PureJaxRL/CleanRL do;
     SB3's lin_X with anneal_progress sb3)."""
-    anneal_clip: bool = False
+    anneal_clip: bool = setting(False, new=True)
     """Decay clip_coef linearly to 0 as anneal_lr does the learning rate (rl-zoo3's lin_X
     clip_range)."""
-    anneal_progress: str = "start"
+    anneal_progress: str = setting("start", choices=("start", "sb3"), new=True)
     """What an annealed rate measures in iteration i (from 0): start (i / num_iterations, as
     PureJaxRL/CleanRL do) or sb3 (SB3's progress_remaining, updated after the rollout: 1 -
     (i + 1) x num_envs x num_steps / total_timesteps, one iteration ahead)."""
@@ -102,10 +112,10 @@ class PPOConfig:
     """Global gradient-norm clip."""
     norm_adv: bool = True
     """Normalise advantages per minibatch (mean 0, std 1)."""
-    adv_std: str = "sample"
+    adv_std: str = setting("sample", choices=("sample", "population"))
     """The std that normalises advantages: sample (ddof 1, as SB3's torch) or population
     (ddof 0, as PureJaxRL's jnp.std)."""
-    value_clip: str = "off"
+    value_clip: str = setting("off", choices=("off", "sb3", "purejaxrl"))
     """Value-loss clipping: off (SB3's default, plain MSE), sb3 (the prediction clipped to
     within clip_range_vf of its value at collection, then MSE) or purejaxrl (half the mean of
     the larger of the clipped and unclipped squared errors)."""
@@ -116,16 +126,16 @@ class PPOConfig:
     """Bootstrap from V(final_obs) at time-limit truncations; off treats them as terminations."""
     hidden_sizes: tuple[int, ...] = (64, 64)
     """Hidden layer widths of both the actor and the critic MLP, e.g. 64,64."""
-    activation: str = "tanh"
+    activation: str = setting("tanh", choices=("tanh", "relu"))
     """Hidden activation: tanh or relu."""
     linear_actor: bool = False
     """A linear policy, softmax(W obs + b): the actor has no hidden layers (the critic keeps
     hidden_sizes)."""
-    weight_init: str = "orthogonal"
+    weight_init: str = setting("orthogonal", choices=("orthogonal", "default"))
     """Weight initialisation: orthogonal (SB3: gains sqrt(2), 0.01 for the policy head, 1 for
     the value head, zero biases) or default (PyTorch's nn.Linear: weights and biases uniform in
     +-1/sqrt(fan_in))."""
-    env: str = "CartPole-v1"
+    env: str = setting(DEFAULT_ENV, new=True)
     """The environment: CartPole-v1 (jaxcart's own), or Acrobot-v1 or MountainCar-v0 (gymnax's,
     pip install -e '.[gymnax]'); judged in Gymnasium's env of the same id."""
     network: Any = field(default=None, metadata={"cli": False})
@@ -133,13 +143,13 @@ class PPOConfig:
     num_actions], value [...]); None: the built-in SB3 MLP that hidden_sizes, activation,
     linear_actor and weight_init describe. Python API only: a run directory records its
     importable class and fields, and rebuilds it from them."""
-    eval_every: int = 0
+    eval_every: int = setting(0, minimum=0, new=True)
     """Every N iterations, play periodic_eval_episodes greedy episodes in jaxcart's env inside
     the compiled program, from the same start states for every run (eval/mean_return and
     eval/min_return); 0: never."""
-    periodic_eval_episodes: int = 10
+    periodic_eval_episodes: int = setting(10, minimum=0, new="eval_every")
     """Greedy episodes of each evaluation during training (with eval_every)."""
-    keep_best: bool = False
+    keep_best: bool = setting(False, new="eval_every")
     """Keep each run's policy with the best eval/mean_return so far (ties: the later one) as
     params_best.npz beside params.npz; needs eval_every."""
     metrics: Any = field(default=(), metadata={"cli": False})
@@ -221,23 +231,26 @@ class PPOConfig:
         """
         if self.is_per_run:
             raise ValueError("a per-run config has no single dict; use to_dict() of each run's")
-        data = dataclasses.asdict(dataclasses.replace(self, network=None, metrics=()))
-        del data["network"], data["metrics"]
-        if self.env == DEFAULT_ENV:
-            del data["env"]  # CartPole's config.json reads as it did before there were others
+        data = {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if f.metadata.get("cli", True) and not self._left_out(f)
+        }
         if self.network is not None:
             data["network"] = network_spec(self.network)
             for name in BUILTIN_NETWORK_FIELDS:  # they describe a network this run does not use
                 del data[name]
         if self.metrics:
             data["metrics"] = {name: function_path(fn) for name, fn in self.metrics}
-        if not self.eval_every:  # off: config.json reads as it did before these options
-            for name in ("eval_every", "periodic_eval_episodes", "keep_best"):
-                del data[name]
-        for name, default in (("anneal_clip", False), ("anneal_progress", "start")):
-            if data[name] == default:  # likewise
-                del data[name]
         return data
+
+    def _left_out(self, f: dataclasses.Field) -> bool:
+        """Whether :meth:`to_dict` leaves out a field added after the first config.json: at
+        its default, or while the field its ``new`` names is off (so older runs read the same)."""
+        new = f.metadata.get("new")
+        if isinstance(new, str):
+            return not getattr(self, new)
+        return bool(new) and getattr(self, f.name) == f.default
 
     @classmethod
     def from_dict(cls, data: dict) -> PPOConfig:
@@ -309,9 +322,9 @@ class RebuildError(ConfigError):
     imported or built in this process: the run directory is sound, its code is out of reach."""
 
 
-def _import_named(path: str, where: str) -> Any:
-    """The object ``"module:QualName"`` names, imported (its callers refuse ``__main__`` and
-    local definitions with hints of their own first).
+def _import_named(path: str, where: str, local_hint: str) -> Any:
+    """The object ``"module:QualName"`` names, imported; one of a script, a notebook or a
+    function's body (``__main__``, ``<locals>``, ``<lambda>``) is refused with ``local_hint``.
 
     Raises:
         RebuildError: it cannot be imported, saying why (``where`` first).
@@ -319,6 +332,8 @@ def _import_named(path: str, where: str) -> Any:
     import importlib
 
     module, _, name = path.partition(":")
+    if module == "__main__" or "<locals>" in name or "<lambda>" in name:
+        raise RebuildError(f"{where}: {local_hint}")
     try:
         found = importlib.import_module(module)
         for part in name.split("."):
@@ -391,15 +406,14 @@ def build_network(spec: Any, cls: type | None = None) -> Any:
     import flax.linen as nn
 
     recorded = spec if isinstance(spec, RecordedNetwork) else RecordedNetwork.from_spec(spec)
-    module, _, name = recorded.class_path.partition(":")
     where = f"cannot rebuild the run's network {recorded.class_path}"
     if cls is None:
-        if module == "__main__" or "<locals>" in name:
-            raise RebuildError(
-                f"{where}: a class defined in a script or notebook can only be rebuilt there; "
-                "pass it (network=...) or define it in an importable module"
-            )
-        cls = _import_named(recorded.class_path, where)
+        cls = _import_named(
+            recorded.class_path,
+            where,
+            "a class defined in a script or notebook can only be rebuilt there; pass it "
+            "(network=...) or define it in an importable module",
+        )
     if not (isinstance(cls, type) and issubclass(cls, nn.Module)):
         raise RebuildError(f"{where}: {cls!r:.80} is not a flax.linen.Module subclass")
     fields = json.loads(recorded.fields_json)
@@ -475,11 +489,8 @@ def import_metric(path: str) -> Any:
         RebuildError: it cannot be imported (a function of a script or notebook, or of a
             missing module), saying why.
     """
-    module, _, name = path.partition(":")
     where = f"cannot rebuild the run's metric function {path}"
-    if module == "__main__" or "<locals>" in name or "<lambda>" in name:
-        raise RebuildError(f"{where}: define it at the top level of an importable module")
-    fn = _import_named(path, where)
+    fn = _import_named(path, where, "define it at the top level of an importable module")
     if not callable(fn):
         raise RebuildError(f"{where}: not callable")
     return fn
@@ -558,23 +569,26 @@ MAX_ITERATIONS = 2**31 - 1
 ``config.json`` are held to it alike)."""
 
 
-CHOICES = {
-    "adv_std": ("sample", "population"),
-    "anneal_progress": ("start", "sb3"),
-    "value_clip": ("off", "sb3", "purejaxrl"),
-    "activation": ("tanh", "relu"),
-    "weight_init": ("orthogonal", "default"),
-}
-"""The string fields and the values each takes."""
+def _check_setting(f: dataclasses.Field, value: Any) -> None:
+    """Raises :class:`ConfigError` for a value that is not what the field's declaration says
+    (:func:`setting`): an integer of at least its ``minimum`` (default 1), true or false, one
+    of its ``choices``."""
+    least, choices = f.metadata.get("minimum", 1), f.metadata.get("choices")
+    if f.type == "int" and (isinstance(value, bool) or not isinstance(value, int) or value < least):
+        what = "a positive integer" if least else "a non-negative integer"
+        raise ConfigError(f"{f.name} must be {what}, got {value!r}")
+    if f.type == "bool" and not isinstance(value, bool):
+        raise ConfigError(f"{f.name} must be true or false, got {value!r}")
+    if choices and value not in choices:
+        either = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
+        raise ConfigError(f"{f.name} must be {either}, got {value!r}")
 
 
 def validate(config: PPOConfig) -> None:
     """Raises :class:`ConfigError` naming the first invalid field and what to do about it."""
     c = config
-    for name in ("num_envs", "num_steps", "total_timesteps", "minibatch_size", "update_epochs"):
-        value = getattr(c, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise ConfigError(f"{name} must be a positive integer, got {value!r}")
+    for f in dataclasses.fields(c):
+        _check_setting(f, getattr(c, f.name))
     if c.batch_size % c.minibatch_size != 0:
         raise ConfigError(
             f"minibatch_size={c.minibatch_size} does not divide the rollout of "
@@ -620,10 +634,6 @@ def validate(config: PPOConfig) -> None:
             f"{c.batch_size:,} transitions, more than the {MAX_ITERATIONS:,} this trainer counts; "
             "use fewer total_timesteps"
         )
-    for name, choices in CHOICES.items():
-        if getattr(c, name) not in choices:
-            either = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-            raise ConfigError(f"{name} must be {either}, got {getattr(c, name)!r}")
     if c.target_kl is not None and (
         isinstance(c.target_kl, bool)
         or not isinstance(c.target_kl, (int, float))
@@ -647,20 +657,12 @@ def validate(config: PPOConfig) -> None:
     except envs.EnvError as exc:
         raise ConfigError(str(exc), "env") from None
     _validate_metrics(c.metrics)
-    for name in ("eval_every", "periodic_eval_episodes"):
-        value = getattr(c, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ConfigError(f"{name} must be a non-negative integer, got {value!r}")
     if c.periodic_eval_episodes == 0 or c.periodic_eval_episodes > 1024:
         raise ConfigError(
             f"periodic_eval_episodes must be in [1, 1024], got {c.periodic_eval_episodes}"
         )
     if c.keep_best and not c.eval_every:
         raise ConfigError("keep_best needs eval_every: give the iterations between evaluations")
-    switches = ("anneal_lr", "anneal_clip", "norm_adv", "bootstrap_truncation", "linear_actor")
-    for name in (*switches, "keep_best"):
-        if not isinstance(getattr(c, name), bool):
-            raise ConfigError(f"{name} must be true or false, got {getattr(c, name)!r}")
 
 
 MAX_CUSTOM_METRICS = 32

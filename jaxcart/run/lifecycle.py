@@ -156,13 +156,8 @@ def create_run(
     drawn = spec.seed_env_values() if spec.num_seeds <= MAX_RECORDED_SEEDS else {}
     info = {
         "format_version": layout.FORMAT_VERSION,
-        "preset": spec.preset,
-        "num_seeds": spec.num_seeds,
-        "seed": spec.seed,
-        "sweep": spec.sweep,
         **spec.record(),
         **({"env_per_seed": drawn} if drawn else {}),
-        **({"combinations": [dict(c) for c in spec.combinations]} if spec.combinations else {}),
         "versions": package_versions(),
         "backend": jax.default_backend(),
         "device_count": jax.device_count(),

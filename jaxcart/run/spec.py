@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.analysis.summary import Score
+from jaxcart.core import envs, physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved
 from jaxcart.engine.loop import Progress, TrainResult
-from jaxcart.run import physics
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.loggers import LoggerUnavailable, check_available
 from jaxcart.run.waves import WavePlan
@@ -77,7 +77,7 @@ class RunSpec:
         combos = len(self.combinations) or math.prod(len(v) for v in self.sweep.values())
         check_num_runs(self.num_seeds, combos)  # what the readers accept, before any list
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
-        if not self.is_cartpole and (
+        if not self.takes_physics and (
             physics.overrides(self.env_params) or self.randomize or sweeps.env_values_of(self.sweep)
         ):
             raise ConfigError(
@@ -108,8 +108,10 @@ class RunSpec:
 
     @classmethod
     def from_record(cls, info: dict) -> RunSpec:
-        """The spec a run's ``config.json`` records (``config`` already a PPOConfig)."""
-        sweep = {k: list(v) for k, v in info.get("sweep", {}).items()}
+        """The spec a run's ``config.json`` records (:meth:`record`; ``config`` already a
+        PPOConfig): the one reading of a record, for ``--resume``, a replay and ``train
+        --config RUN`` (:meth:`options`)."""
+        sweep = {k: list(v) for k, v in (info.get("sweep") or {}).items()}
         points = () if sweep else tuple(dict(c) for c in info.get("combinations") or ())
         env_params = physics.make_env_params(info.get("env_params") or {})
         randomize = tuple(
@@ -118,9 +120,9 @@ class RunSpec:
         )
         return cls(
             info["config"],
-            info["preset"],
-            int(info["num_seeds"]),
-            int(info["seed"]),
+            info.get("preset", "custom"),
+            int(info.get("num_seeds", 1)),
+            int(info.get("seed", 0)),
             sweep,
             points,
             env_params,
@@ -128,26 +130,53 @@ class RunSpec:
         )
 
     def record(self) -> dict:
-        """What ``config.json`` records of the physics: ``env_params`` (the fields that
-        differ from CartPole-v1's) and ``randomize``, each only when there is one, so a run on
-        the default physics records what it always did."""
-        out: dict = {}
+        """What ``config.json`` records of the spec besides its config (:meth:`from_record`
+        reads it back): preset, seeds, sweep, the physics (``env_params``: the fields that
+        differ from CartPole-v1's, and ``randomize``, each only when there is one, so a run on
+        the default physics records what it always did) and a search's ``combinations``."""
+        out = {"preset": self.preset, "num_seeds": self.num_seeds, "seed": self.seed}
+        out["sweep"] = self.sweep
         if physics.overrides(self.env_params):
             out["env_params"] = physics.overrides(self.env_params)
         if self.randomize:
             out["randomize"] = {r.name: r.to_dict() for r in self.randomize}
+        if self.combinations:
+            out["combinations"] = [dict(c) for c in self.combinations]
         return out
 
-    @property
-    def is_cartpole(self) -> bool:
-        """Whether the runs train CartPole, the env whose physics these settings are."""
-        return self.config.env == DEFAULT_ENV
+    def options(self) -> dict:
+        """The spec as the options that train it again, keyed by their names (``train
+        --config`` of a run's config.json): preset, seeds, sweep, every config field that is
+        not swept, ``env_param`` and ``randomize``.
+
+        Raises:
+            ConfigError: explicit combinations (a search's trials), which no option gives.
+        """
+        if self.combinations:
+            raise ConfigError(
+                "its runs are a search's trials, which no option of train gives; "
+                "python -m jaxcart.tune searches again"
+            )
+        values = {**self.record(), **self.config.to_dict(), "sweep": self.sweep}
+        for name in self.sweep:
+            values.pop(name, None)
+        values["env_param"] = values.pop("env_params", {})
+        values["randomize"] = [r.option for r in self.randomize]
+        return values
+
+    @functools.cached_property
+    def takes_physics(self) -> bool:
+        """Whether the env's params (its ``default_params``, as the env protocol gives every
+        env's) are the :class:`EnvParams` that ``env_params``, ``env.*`` sweeps and
+        ``randomize`` set: CartPole's, and any env registered on them; another env trains on
+        its own default params."""
+        return isinstance(envs.make(self.config.env).default_params(), EnvParams)
 
     def run_env_params(self, runs: range) -> EnvParams | None:
         """The physics of ``runs`` (grid order) as they train: the run's env params, with
-        each swept or per-run randomised field an array ``[len(runs)]``; None for another
-        env than CartPole (it trains on its own default params)."""
-        if not self.is_cartpole:
+        each swept or per-run randomised field an array ``[len(runs)]``; None for an env whose
+        params these are not (it trains on its own default params)."""
+        if not self.takes_physics:
             return None
         values = sweeps.grid_env_values(self.grid, runs)
         indices = self.grid.seed_indices(runs)
@@ -156,8 +185,9 @@ class RunSpec:
 
     def eval_env_params(self, runs: range) -> EnvParams | None:
         """The physics ``runs`` are evaluated on: a sweep's own values per run, the nominal
-        physics (``env_params``) for a randomised field; None for another env than CartPole."""
-        if not self.is_cartpole:
+        physics (``env_params``) for a randomised field; None for an env whose params these
+        are not."""
+        if not self.takes_physics:
             return None
         return physics.with_values(self.env_params, sweeps.grid_env_values(self.grid, runs))
 
@@ -182,13 +212,6 @@ class RunSpec:
         if not self.grid.is_sweep:
             return self.config
         return sweeps.combo_config(self.config, self.grid.combos[combination])
-
-    def combo_env_params(self, combination: int) -> EnvParams:
-        """The physics of one combination (the run's env params without a physics sweep)."""
-        if not self.sweep or not self.is_cartpole:
-            return self.env_params
-        swept = sweeps.env_values_of(self.grid.combos[combination])
-        return physics.with_values(self.env_params, swept)
 
 
 @dataclass(frozen=True)
@@ -298,18 +321,10 @@ class Run:
     trained_chunks: int = 0
     """Chunks this process has trained (a new run that fails with none is discarded)."""
 
-    @property
-    def out(self) -> Path:
-        return self.directory.path
-
-    @property
-    def main_process(self) -> bool:
-        return self.directory.main_process
-
-    @functools.cached_property
-    def grid(self) -> sweeps.RunGrid:
-        return self.spec.grid
-
+    # the directory's and the spec's, as the run's own
+    out = property(lambda self: self.directory.path)
+    main_process = property(lambda self: self.directory.main_process)
+    grid = property(lambda self: self.spec.grid)
     config = property(lambda self: self.spec.config)
     preset = property(lambda self: self.spec.preset)
     sweep = property(lambda self: self.spec.sweep)
