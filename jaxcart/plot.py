@@ -51,7 +51,7 @@ from jaxcart.rundir import files, layout
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
     from matplotlib.figure import Figure
 
-    from jaxcart.rundir.views import RunCurves
+    from jaxcart.rundir.reader import RunCurves
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 EVAL_METRIC = "eval/mean_return"
@@ -152,7 +152,7 @@ def plot_runs(
 def _load_runs(
     run_dirs: Sequence[str | os.PathLike], labels: Sequence[str] | None
 ) -> list[RunCurves]:
-    """:func:`jaxcart.rundir.views.load_runs`, with one label per run directory or none.
+    """:func:`jaxcart.rundir.reader.load_runs`, with one label per run directory or none.
 
     Raises:
         ValueError: no run directory, or another number of labels.
@@ -164,7 +164,7 @@ def _load_runs(
             f"got {len(labels)} label(s) (--label) for {len(run_dirs)} run directories; "
             "give one per run directory or none"
         )
-    from jaxcart.rundir.views import load_runs
+    from jaxcart.rundir.reader import load_runs
 
     return load_runs([Path(p) for p in run_dirs], labels)
 
@@ -257,7 +257,7 @@ def _draw_returns(runs: list[RunCurves], styles: list[figures.Style], ax_steps, 
     and against wall time."""
     from matplotlib.ticker import MaxNLocator
 
-    from jaxcart.rundir.views import ELAPSED_METRIC
+    from jaxcart.rundir.reader import ELAPSED_METRIC
 
     env_ids = {run.env for run in runs}
     for run, style in zip(runs, styles):

@@ -58,8 +58,8 @@ from jaxcart.run.spec import (
     check_option,
 )
 from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
-from jaxcart.rundir import files, layout, outputs, reader
-from jaxcart.rundir.directory import RunDir, check_versions, package_versions
+from jaxcart.rundir import files, layout, reader
+from jaxcart.rundir.directory import Block, RunDir, check_versions, overlapping, package_versions
 from jaxcart.rundir.files import RunDirError, UnverifiedRunWarning
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
@@ -702,7 +702,7 @@ def _one_wave(
     outcome: Outcome,
     runs: range,
     wave: int,
-) -> outputs.Block | None:
+) -> Block | None:
     """Trains, checkpoints and evaluates one wave; None when stopped (its state
     checkpointed, and, for a run in one wave, its metrics so far written)."""
     try:
@@ -742,7 +742,7 @@ def _one_wave(
         "train_seconds": result.state.elapsed,
         "eval_seconds": evaluation.seconds,
     }
-    return outputs.Block(
+    return Block(
         runs.start,
         runs.stop,
         files.flatten(params),
@@ -765,7 +765,7 @@ def _finish(
     steps = np.arange(1, config.num_iterations + 1) * config.batch_size
     columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final", "reach")}
     timing = {"compile_seconds": 0.0, "train_seconds": 0.0, "eval_seconds": 0.0}
-    for block, take in outputs.overlapping(blocks, range(run.grid.num_runs)):
+    for block, take in overlapping(blocks, range(run.grid.num_runs)):
         columns["gym"].append(block.gym_returns[take])
         columns["jax"].append(block.jax_returns[take])
         columns["div"].append(block.diverged_at[take])
@@ -786,7 +786,7 @@ def _finish(
         ranked_by = score or Score.parse(run.info.get("score", "eval"))
         curves = None  # [iterations, R], read only for a score that needs them
         if ranked_by.name != "eval":
-            parts = outputs.overlapping(blocks, range(run.grid.num_runs))
+            parts = overlapping(blocks, range(run.grid.num_runs))
             curves = np.concatenate([b.metrics["rollout/ep_rew_mean"][:, t] for b, t in parts], 1)
         try:
             scores = ranked_by.compute(gym.mean(-1), curves, steps, run.config.env)

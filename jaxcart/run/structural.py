@@ -28,7 +28,7 @@ from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
-from jaxcart.rundir import files, layout, reader, views
+from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.reader import AXES_KEY, SHAPE_FIELDS, group_label, group_values
 
 MAX_GROUPS = 64
@@ -216,7 +216,7 @@ def _json(group: dict) -> dict:
     return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
 
 
-def run_scores(runs: list[views.RunCurves], score: Score) -> list[np.ndarray]:
+def run_scores(runs: list[reader.RunCurves], score: Score) -> list[np.ndarray]:
     """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
     ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
 
@@ -245,7 +245,7 @@ def rank_groups(dirs: list[Path], groups: list[dict], score: Score = EVAL) -> li
     columns: dict[str, list] = {k: [] for k in ("score", "solved", "final", "reach", "div")}
     combos, where = [], []
     for g, path in enumerate(dirs):
-        runs = views.load_runs([path])
+        runs = reader.load_runs([path])
         columns["score"] += run_scores(runs, score)
         for c, run in enumerate(runs):
             combos.append(dict(run.combination or {}))
