@@ -361,9 +361,14 @@ def _check_listed(run_dir: Dir, name: str, digest: str, info: dict | None) -> No
         return
     if not present(manifest):
         raise RunDirError(f"{manifest} is missing: the run's files cannot be verified")
-    if digest not in (read_manifest(run_dir).get(name) or []):
+    _check_digest(run_dir / name, digest, read_manifest(run_dir).get(name))
+
+
+def _check_digest(entry: Entry, digest: str, listed: list[str] | None) -> None:
+    """Refuses the file ``entry`` unless its ``digest`` is one of ``listed``."""
+    if digest not in (listed or []):
         raise RunDirError(
-            f"{run_dir / name} is not the file the run wrote: its digest is not the one "
+            f"{entry} is not the file the run wrote: its digest is not the one "
             f"{layout.MANIFEST_FILE} records"
         )
 
@@ -407,7 +412,7 @@ def read_json(
         text = read_bytes(path, max_bytes)
         try:
             data = json.loads(text.decode())
-        except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints
+        except (ValueError, RecursionError) as exc:  # bad UTF-8 and 5,000-digit ints too
             raise RunDirError(
                 f"{path} is corrupted or from an incompatible version: {exc}"
             ) from None
@@ -628,11 +633,7 @@ class Manifest:
         manifests: unchecked)."""
         if self.kept:
             with open_tree(self.dir / name) as f:
-                if fd_digest(f.fileno()) not in self.digests.get(name, []):
-                    raise RunDirError(
-                        f"{self.dir / name} is not the file the run wrote: its digest is not "
-                        f"the one {layout.MANIFEST_FILE} records"
-                    )
+                _check_digest(self.dir / name, fd_digest(f.fileno()), self.digests.get(name))
         return self.dir / name
 
     def _write(self) -> None:
@@ -895,15 +896,7 @@ def _reading(path: Target) -> Iterator[None]:
         yield
     except RunDirError:
         raise
-    except (
-        OSError,
-        ValueError,
-        KeyError,
-        EOFError,
-        RecursionError,
-        zipfile.BadZipFile,
-        UnicodeDecodeError,
-    ) as exc:
+    except (OSError, ValueError, KeyError, EOFError, RecursionError, zipfile.BadZipFile) as exc:
         raise RunDirError(f"{path} is corrupted: {str(exc)[:200]}") from None
 
 

@@ -119,28 +119,27 @@ def _check_run_fields(data: dict) -> None:
         value = data.get(name, defaults.get(name))
         if not (bounded_int(value, low, high) or (value is None and name not in defaults)):
             raise ValueError(f"{name} {value!r:.40} (in [{low:,}, {high:,}])")
-    preset = data.get("preset", "")
-    if not isinstance(preset, str) or len(preset) > 256:
-        raise ValueError(f"preset {preset!r}")
-    if not isinstance(data.get(X64_KEY, False), bool):
-        raise ValueError(f"{X64_KEY} {data.get(X64_KEY)!r}")
-    versions = data.get("versions", {})
-    if not isinstance(versions, dict) or not all(isinstance(v, str) for v in versions.values()):
-        raise ValueError("versions is not a {package: version} object")
-    sweep = data.get("sweep", {})
-    if not isinstance(sweep, dict) or not all(
-        isinstance(v, list) and all(finite_number(x) for x in v) for v in sweep.values()
-    ):
-        raise ValueError(f"sweep {sweep!r}")
-    combination = data.get("combination") or {}
-    if not isinstance(combination, dict) or not all(finite_number(v) for v in combination.values()):
-        raise ValueError("combination is not a {name: value} object")
+    preset, versions = data.get("preset", ""), data.get("versions", {})
+    sweep, combination = data.get("sweep", {}), data.get("combination") or {}
+    source = data.get(layout.EVALUATION_OF_KEY)
+    checks = {
+        "preset": isinstance(preset, str) and len(preset) <= 256,
+        X64_KEY: isinstance(data.get(X64_KEY, False), bool),
+        "versions": isinstance(versions, dict)
+        and all(isinstance(v, str) for v in versions.values()),
+        "sweep": isinstance(sweep, dict)
+        and all(isinstance(v, list) and all(map(finite_number, v)) for v in sweep.values()),
+        "combination": isinstance(combination, dict)
+        and all(map(finite_number, combination.values())),
+        layout.EVALUATION_OF_KEY: source is None
+        or (isinstance(source, dict) and isinstance(source.get("run"), str)),
+    }
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        raise ValueError(f"{', '.join(bad)} not what a run records")
     num_seeds = data.get("num_seeds", 1)
     check_num_runs(num_seeds, math.prod(len(v) for v in sweep.values()) if sweep else 0)
     _check_physics_fields(data)
-    source = data.get(layout.EVALUATION_OF_KEY)
-    if source is not None and not (isinstance(source, dict) and isinstance(source.get("run"), str)):
-        raise ValueError(f"{layout.EVALUATION_OF_KEY} is not a {{run, ...}} object")
     if not sweep and data.get("combinations"):  # explicit points (a search's trials)
         check_num_runs(num_seeds, len(recorded_combinations(data)))
         return
