@@ -89,8 +89,6 @@ def prepare_out_dir(out: Path) -> files.Dir:
     leaves (its ``.lock``, temporaries, the manifest that was to list its ``config.json``) is
     taken over (:meth:`RunDir.create` then takes its lock, so a live start is never taken
     over)."""
-    if str(out) == "":
-        raise ConfigError("--out is empty; name a directory for the run")
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory; choose another path")
     leftover = lambda p: (

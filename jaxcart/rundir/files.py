@@ -713,11 +713,12 @@ class MetricsStream:
         self, path: Target, columns: Sequence[str], runs: int, rows: int, digest: str | None = None
     ) -> None:
         self.path, self.columns, self.runs = path, tuple(columns), int(runs)
+        self.row_bytes = len(self.columns) * self.runs * STREAM_DTYPE.itemsize
         # appended where it lies (0o666 less the umask): a hard link elsewhere is refused
         self.fd = self._call(open_regular, path, os.O_RDWR | os.O_CREAT, 0o666, True)
         try:
-            self.hash = _check_rows(self.fd, path, rows, len(self.columns) * self.runs, digest)
-            self._call(os.ftruncate, self.fd, rows * len(self.columns) * self.runs * 4)
+            self.hash = _check_rows(self.fd, path, rows, self.row_bytes, digest)
+            self._call(os.ftruncate, self.fd, rows * self.row_bytes)
             os.lseek(self.fd, 0, os.SEEK_END)
         except BaseException:
             os.close(self.fd)
@@ -778,11 +779,10 @@ class NoStream:
         pass
 
 
-def _check_rows(fd: int, path: Target, rows: int, width: int, digest: str | None) -> Any:
-    """The sha256 of the first ``rows`` rows (``width`` float32 each) of the stream ``fd``
-    (kept open for the rows appended next), refusing a shorter file or (``digest``: the
-    checkpoint's record) other bytes."""
-    row_bytes = width * STREAM_DTYPE.itemsize
+def _check_rows(fd: int, path: Target, rows: int, row_bytes: int, digest: str | None) -> Any:
+    """The sha256 of the first ``rows`` rows of the stream ``fd`` (kept open for the rows
+    appended next), refusing a shorter file or (``digest``: the checkpoint's record) other
+    bytes."""
     if os.fstat(fd).st_size < rows * row_bytes:
         raise RunDirError(
             f"{path} holds {os.fstat(fd).st_size // row_bytes} iterations of metrics, fewer "
@@ -811,7 +811,7 @@ def read_stream(
     if rows == 0:
         return _mapped(None, 0, columns, runs)
     with open_tree(path) as f:
-        _check_rows(f.fileno(), path, rows, len(columns) * runs, digest)
+        _check_rows(f.fileno(), path, rows, len(columns) * runs * STREAM_DTYPE.itemsize, digest)
         return _mapped(f, rows, columns, runs)
 
 
