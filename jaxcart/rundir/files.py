@@ -659,10 +659,6 @@ class RunLock:
         self.target = run_dir / layout.LOCK_FILE if is_dir else Path(run_dir) / layout.LOCK_FILE
         self._fd: int | None = None
 
-    @property
-    def held(self) -> bool:
-        return self._fd is not None
-
     def acquire(self) -> RunLock:
         """Takes the lock, or raises :class:`RunInUse` naming the holder's PID."""
         import fcntl
