@@ -338,7 +338,7 @@ def _write(
 ) -> None:
     """The evaluations into ``--out``, a new directory (several runs: one subdirectory
     each, named after the run), and ``robustness.png`` in it after a sweep."""
-    from jaxcart.rundir import outputs
+    from jaxcart.rundir.directory import write_evaluation_dir
 
     png = None if iqms is None else _robustness_png(runs, field, values, iqms, args.episodes)
     args.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
@@ -351,7 +351,7 @@ def _write(
         record = functools.partial(_record, run_dir, info, args)
         with files.opened(path) as directory:
             if iqms is None:
-                outputs.write_evaluation_dir(directory, record(trained[0]), returns[k][0])
+                write_evaluation_dir(directory, record(trained[0]), returns[k][0])
             else:
                 _write_sweep(directory, record, trained, returns[k], field, values, iqms[k])
         written.append(path)
@@ -367,8 +367,7 @@ def _record(
     physics they are evaluated on (``env_params``) and the run they came from."""
     from jaxcart.run import physics
     from jaxcart.rundir.directory import package_versions
-    from jaxcart.rundir.reader import X64_KEY
-    from jaxcart.rundir.views import physics_label
+    from jaxcart.rundir.reader import X64_KEY, physics_label
 
     return {
         "format_version": layout.FORMAT_VERSION,
@@ -403,12 +402,12 @@ def _write_sweep(
     """A sweep of evaluations: ``combo-NNN/`` per value, then the sweep's ``config.json``
     and ``sweep.json`` (the IQM at each value)."""
     from jaxcart.run import physics
-    from jaxcart.rundir import outputs
+    from jaxcart.rundir.directory import write_evaluation_dir
 
     for c, (value, t, r) in enumerate(zip(values, trained, returns)):
         sub = directory.sub(layout.combo_dir(".", c).name, create=True)
         try:
-            outputs.write_evaluation_dir(sub, record(t, combination={field: value}), r)
+            write_evaluation_dir(sub, record(t, combination={field: value}), r)
         finally:
             sub.close()
     points = [
@@ -419,7 +418,7 @@ def _write_sweep(
     swept = field[len(physics.PREFIX) :]
     base = {k: v for k, v in physics.overrides(trained[0].env_params).items() if k != swept}
     top = record(trained[0], sweep={field: values}, env_params=base)
-    outputs.write_evaluation_dir(directory, top, others={layout.SWEEP_FILE: ranking})
+    write_evaluation_dir(directory, top, others={layout.SWEEP_FILE: ranking})
 
 
 def _robustness_png(
@@ -430,7 +429,7 @@ def _robustness_png(
     episodes: int,
 ) -> bytes:
     from jaxcart.results.figure import draw_robustness  # matplotlib: only when drawn
-    from jaxcart.rundir.views import default_label
+    from jaxcart.rundir.reader import default_label
 
     curves = [
         (

@@ -50,7 +50,7 @@ from jaxcart.rundir import layout
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
     from matplotlib.figure import Figure
 
-    from jaxcart.rundir.views import RunCurves
+    from jaxcart.rundir.reader import RunCurves
 
 FORMATS = ("png", "svg", "pdf")
 COMPARISON = layout.PLOT_COMPARISON_FILE
@@ -95,7 +95,7 @@ def plot_runs(
 def _load_runs(
     run_dirs: Sequence[str | os.PathLike], labels: Sequence[str] | None
 ) -> list[RunCurves]:
-    """:func:`jaxcart.rundir.views.load_runs`, with one label per run directory or none.
+    """:func:`jaxcart.rundir.reader.load_runs`, with one label per run directory or none.
 
     Raises:
         ValueError: no run directory, or another number of labels.
@@ -107,7 +107,7 @@ def _load_runs(
             f"got {len(labels)} label(s) (--label) for {len(run_dirs)} run directories; "
             "give one per run directory or none"
         )
-    from jaxcart.rundir.views import load_runs
+    from jaxcart.rundir.reader import load_runs
 
     return load_runs([Path(p) for p in run_dirs], labels)
 

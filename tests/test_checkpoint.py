@@ -10,15 +10,16 @@ from helpers import TINY
 
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS, initial_state
-from jaxcart.rundir import checkpoint, files
-from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
+from jaxcart.rundir import files
+from jaxcart.rundir.directory import save_checkpoint
 from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.reader import load_checkpoint, read_checkpoint_meta
 
 
 def test_checkpoint_rejects_other_structures(tmp_path):
     state = initial_state(TINY, 2, 0)
     path = tmp_path / "c.npz"
-    checkpoint.save_checkpoint(path, state, {})
+    save_checkpoint(path, state, {})
     other = initial_state(PPOConfig(**{**TINY.to_dict(), "hidden_sizes": (32, 32)}), 2, 0)
     with pytest.raises(RunDirError, match="shape"):
         load_checkpoint(path, other)
@@ -35,7 +36,7 @@ def test_leaves_are_stored_under_their_tree_paths(tmp_path):
     the same names params.npz uses below its root."""
     state = initial_state(TINY, 2, 0)
     path = tmp_path / "c.npz"
-    checkpoint.save_checkpoint(path, state, {"k": 1})
+    save_checkpoint(path, state, {"k": 1})
     arrays, meta = files.load_tree(path)
     assert meta["k"] == 1 and meta["iteration"] == 0 and meta["checkpoint_format"] == 3
     kernel = arrays["state/runners/params/params/actor/hidden_0/kernel"]
@@ -53,7 +54,7 @@ def test_leaves_are_stored_under_their_tree_paths(tmp_path):
 def test_round_trip_restores_every_leaf(tmp_path):
     state = initial_state(TINY, 3, 4)
     path = tmp_path / "c.npz"
-    checkpoint.save_checkpoint(path, state, {})
+    save_checkpoint(path, state, {})
     loaded = load_checkpoint(path, initial_state(TINY, 3, 99))
     for x, y in zip(jax.tree.leaves(state.runners), jax.tree.leaves(loaded.runners), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))

@@ -16,8 +16,8 @@ from helpers import WAIT_S, assert_same_run_dirs, seal, start_train, tiny_args
 import jaxcart
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.rundir import layout, reader
-from jaxcart.rundir.checkpoint import read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.reader import read_checkpoint_meta
 from jaxcart.train import build_parser, main
 
 SMALL = [*tiny_args(1024, eval_episodes=3), "--no-compile-cache"]
@@ -480,7 +480,7 @@ def test_a_sweep_table_agrees_with_the_plot_and_ends_with_next_steps(tmp_path, c
     """The sweep table's plain gym mean is the plot's "mean return" (the IQM beside it is
     another statistic, and the line under the table says so); the next steps run as printed."""
     from jaxcart.results import figure
-    from jaxcart.rundir.views import load_runs
+    from jaxcart.rundir.reader import load_runs
 
     out = tmp_path / "sweep"
     sweep = ["--sweep", "learning_rate=1e-3,3e-4", "--num-seeds", "2", "--no-compile-cache"]

@@ -18,7 +18,7 @@ from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.engine.loop import METRIC_COLUMNS, train
 from jaxcart.run.lifecycle import resume_run, run_new
 from jaxcart.run.spec import RunOptions, RunSpec
-from jaxcart.rundir import layout, reader, views
+from jaxcart.rundir import layout, reader
 
 SMALL = dataclasses.replace(TINY, total_timesteps=1024)  # 8 iterations
 MINE = {"custom/pole_angle": mean_abs_pole_angle, "custom/value_loss": value_loss_again}
@@ -102,7 +102,7 @@ def test_a_custom_metric_reaches_metrics_csv_tensorboard_plot_and_resume(tmp_pat
     }
     assert set(MINE) <= tags
 
-    curves = views.load_run(tmp_path / "mine")
+    curves = reader.load_run(tmp_path / "mine")
     assert curves.custom_metrics == tuple(MINE)
     titles = {ax.get_title() for ax in draw_figure([curves]).axes}
     assert set(MINE) <= titles

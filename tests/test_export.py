@@ -30,7 +30,7 @@ from jaxcart.run import lifecycle
 from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.policy import NumpyPolicy
-from jaxcart.rundir.views import load_runs
+from jaxcart.rundir.reader import load_runs
 
 SB3_FILES = {"data", "policy.pth", "policy.optimizer.pth", "_stable_baselines3_version"}
 CONFIGS = {

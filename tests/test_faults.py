@@ -24,8 +24,8 @@ from conftest import FAULT_FIGURES
 from helpers import TRAIN_ENV, WAIT_S, assert_same_run_dirs, seal, start_train, tiny_args
 
 from jaxcart.rundir import layout
-from jaxcart.rundir.checkpoint import read_checkpoint_meta
 from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.reader import read_checkpoint_meta
 
 RUN = [*tiny_args(25600, num_seeds=2), "--seed", "11", "--checkpoint-every", "0.2"]
 

@@ -35,7 +35,6 @@ from jaxcart.results import scores as comparison
 from jaxcart.run import lifecycle, loggers, waves
 from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout, policy, reader
-from jaxcart.rundir import views as runs
 from jaxcart.rundir.directory import RunDir
 from jaxcart.rundir.files import RunDirError, RunLock
 
@@ -214,11 +213,11 @@ def load_policy(run: Path) -> None:
 
 
 def plot(run: Path) -> None:
-    runs.load_runs([run])
+    reader.load_runs([run])
 
 
 def compare_scores(run: Path) -> None:
-    for loaded in runs.load_runs([run]):
+    for loaded in reader.load_runs([run]):
         comparison.read_evaluation(loaded, required=True)
 
 
@@ -881,7 +880,7 @@ def test_an_interrupted_extension_reads_as_unfinished(bases, tmp_path):
     assert not (run / layout.EVALUATION_FILE).exists() and not (run / layout.PARAMS_FILE).exists()
     with pytest.warns(UserWarning, match="did not finish"):
         policy.load_policy(run)
-    (curves,) = runs.load_runs([run])
+    (curves,) = reader.load_runs([run])
     assert "did not finish" in curves.note
     with pytest.raises(RunDirError, match=r"no evaluation\.json"):
         comparison.read_evaluation(curves, required=True)
@@ -1049,9 +1048,9 @@ def test_a_run_directory_swapped_while_it_is_read_is_read_from_the_one_opened(
         want = reader.load_params(tmp_path / "moved")
         assert all(np.array_equal(a, b) for a, b in zip(jax_leaves(got), jax_leaves(want)))
     else:
-        curves = runs.load_run(run)
+        curves = reader.load_run(run)
         monkeypatch.setattr(reader, "read_run_config", real)
-        want = runs.load_run(tmp_path / "moved")
+        want = reader.load_run(tmp_path / "moved")
         assert curves.note == want.note
         assert all(
             np.array_equal(curves.metrics[k], v, equal_nan=True) for k, v in want.metrics.items()
@@ -1070,10 +1069,10 @@ def test_a_run_from_before_manifests_is_read_with_a_note_and_a_missing_one_is_re
     run, _ = prepare(bases, "finished", tmp_path)
     (run / layout.MANIFEST_FILE).unlink()
     with pytest.raises(RunDirError, match=r"manifest\.json is missing"):
-        runs.load_runs([run])
+        reader.load_runs([run])
     edit_json(run / layout.CONFIG_FILE, lambda d: d.pop("manifest"))  # an older run
     with pytest.warns(UserWarning, match="cannot be verified"):
-        (curves,) = runs.load_runs([run])
+        (curves,) = reader.load_runs([run])
     assert curves.metrics
     from jaxcart import plot as plot_command
 

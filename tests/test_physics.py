@@ -184,7 +184,7 @@ def test_corrupted_physics_in_config_json_is_refused():
 
 
 def test_runs_are_labelled_by_their_physics(tmp_path):
-    from jaxcart.rundir.views import default_label
+    from jaxcart.rundir.reader import default_label
 
     info = {
         "env_params": {"length": 0.25, "kinematics_integrator": "semi-implicit"},

@@ -18,7 +18,7 @@ from jaxcart.analysis import stats
 from jaxcart.results import figure as figures
 from jaxcart.results import gif as render
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.views import RunCurves, load_runs
+from jaxcart.rundir.reader import RunCurves, load_runs
 from jaxcart.train import main as train_main
 
 TINY = [*tiny_args(2048, num_seeds=2), "--no-compile-cache"]

@@ -26,10 +26,9 @@ from jaxcart.run import lifecycle
 from jaxcart.run.greedy import evaluate_run_dir
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import files, layout
-from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.files import RunDirError, read_stream
 from jaxcart.rundir.layout import CHECKPOINT_FILE, METRICS_STREAM_FILE
-from jaxcart.rundir.stream import read_stream
-from jaxcart.rundir.views import load_runs
+from jaxcart.rundir.reader import load_runs
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
 OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)

@@ -477,7 +477,7 @@ def test_an_iteration_without_a_return_scores_the_envs_worst_return(env_id, wors
 def test_auc_is_recomputable_from_metrics_csv(tmp_path):
     import csv
 
-    from jaxcart.rundir.outputs import write_metrics_csv
+    from jaxcart.rundir.directory import write_metrics_csv
 
     rng = np.random.default_rng(1)
     returns = rng.uniform(0, 500, size=(7, 3))

@@ -15,8 +15,7 @@ from jaxcart.engine.loop import METRIC_COLUMNS, train
 from jaxcart.run import lifecycle
 from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import layout
-from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.stream import MetricsStream, read_stream
+from jaxcart.rundir.files import MetricsStream, RunDirError, read_stream
 
 COLUMNS = ("a", "b")
 

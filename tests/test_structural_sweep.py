@@ -16,7 +16,7 @@ from jaxcart.analysis.summary import auc
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run.spec import RunSpec
 from jaxcart.run.structural import group_specs, shape_groups, split_sweep
-from jaxcart.rundir import files, layout, reader, views
+from jaxcart.rundir import files, layout, reader
 
 BASE = [  # 2 envs or 4 envs x 32 steps, minibatches of 32: 4 or 8 iterations of 512 steps
     "--num-steps", "32", "--total-timesteps", "512", "--minibatch-size", "32",
@@ -77,7 +77,7 @@ def test_shape_groups_train_into_one_directory_ranked_together(tmp_path, capsys)
     for c in range(2):
         assert_same_run_dirs(layout.combo_dir(out / "group-001", c), layout.combo_dir(alone, c))
 
-    runs = views.load_runs([out])
+    runs = reader.load_runs([out])
     assert [r.label for r in runs] == [
         "num_envs=2 learning_rate=0.001", "num_envs=2 learning_rate=0.003",
         "num_envs=4 learning_rate=0.001", "num_envs=4 learning_rate=0.003",
@@ -127,7 +127,7 @@ def test_a_sweep_stopped_mid_group_resumes_as_a_whole_and_reads_at_any_stage(tmp
     done = _stopped_sweep(out, 1, [{"num_envs": 2}, {"num_envs": 4}, {"num_envs": 8}])
     assert done.stopped and done.ranking == [] and not (out / layout.GROUPS_FILE).exists()
     # mid-sweep: group 0 finished, group 1 from its checkpoint, group 2 not started yet
-    assert [r.label for r in views.load_runs([out])] == [
+    assert [r.label for r in reader.load_runs([out])] == [
         "num_envs=2 learning_rate=0.001", "num_envs=2 learning_rate=0.003",
         "num_envs=4 learning_rate=0.001", "num_envs=4 learning_rate=0.003",
     ]  # fmt: skip
@@ -149,7 +149,7 @@ def test_a_sweep_stopped_mid_group_resumes_as_a_whole_and_reads_at_any_stage(tmp
     data["groups"][0]["num_envs"] = 4096
     del data["groups"][2]
     (out / layout.GROUPS_FILE).write_text(json.dumps(data))
-    labels = [r.label for r in views.load_runs([out])]
+    labels = [r.label for r in reader.load_runs([out])]
     assert labels[0] == "num_envs=2 learning_rate=0.001" and len(labels) == 6
     assert not any("4096" in label for label in labels)
     assert compare.main([str(out), "--out", str(tmp_path / "cmp2"), "--reps", "100"]) == 0

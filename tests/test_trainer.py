@@ -21,8 +21,8 @@ from jaxcart.engine.loop import (
     initial_state,
     train,
 )
-from jaxcart.rundir import checkpoint
-from jaxcart.rundir.checkpoint import load_checkpoint
+from jaxcart.rundir.directory import save_checkpoint
+from jaxcart.rundir.reader import load_checkpoint
 
 
 @pytest.mark.slow
@@ -42,7 +42,7 @@ def test_resume_from_checkpoint_is_bit_identical(tmp_path):
     assert part.stopped and part.state.iteration == 10
 
     path = tmp_path / "checkpoint.npz"
-    checkpoint.save_checkpoint(path, part.state, {"note": "test"})
+    save_checkpoint(path, part.state, {"note": "test"})
     resumed_state = load_checkpoint(path, initial_state(TINY, 2, 3, chunk_size=2))
     assert resumed_state.iteration == 10 and resumed_state.chunk_size == 2
     resumed = train(TINY, num_runs=2, seed=3, resume=resumed_state)

@@ -30,7 +30,7 @@ from jaxcart.core.config import ConfigError, preset  # noqa: E402
 from jaxcart.results.scores import make_entry  # noqa: E402
 from jaxcart.run import search  # noqa: E402
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec  # noqa: E402
-from jaxcart.rundir.views import load_run, load_runs  # noqa: E402
+from jaxcart.rundir.reader import load_run, load_runs  # noqa: E402
 
 # 8 iterations of 4 envs x 32 steps: a trial in well under a second once compiled
 BASE = [

@@ -15,7 +15,7 @@ from test_tune import BASE, _states, _tuner  # noqa: E402
 
 from jaxcart import tune  # noqa: E402
 from jaxcart.run import search  # noqa: E402
-from jaxcart.rundir.views import load_runs  # noqa: E402
+from jaxcart.rundir.reader import load_runs  # noqa: E402
 
 LR = "learning_rate=log:1e-4:1e-2"
 ARGV = [*BASE, "--trials", "2", "--batch-trials", "2", "--num-seeds", "1", "--quiet"]

@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 from benchmarks import lib
-from jaxcart.rundir.views import load_run
+from jaxcart.rundir.reader import load_run
 
 ROOT = lib.REPO_ROOT
 BASE_SEED = 314159  # unseen: not used by tests, presets, benchmarks or the README

@@ -47,7 +47,7 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when run
     from matplotlib.figure import Figure
 
     from jaxcart.results.scores import Comparison
-    from jaxcart.rundir.views import RunCurves
+    from jaxcart.rundir.reader import RunCurves
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 PALETTE = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "#CC79A7", "#000000")
@@ -307,7 +307,7 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
     and against wall time."""
     from matplotlib.ticker import MaxNLocator
 
-    from jaxcart.rundir.views import ELAPSED_METRIC
+    from jaxcart.rundir.reader import ELAPSED_METRIC
 
     for run, style in zip(runs, styles):
         if RETURN_METRIC in run.metrics:

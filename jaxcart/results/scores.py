@@ -19,7 +19,7 @@ from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import Score
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.views import RunCurves, load_runs
+from jaxcart.rundir.reader import RunCurves, load_runs
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 REACHED_METRIC = "rollout/ep_rew_max"
@@ -61,7 +61,7 @@ def read_evaluation(
     run: RunCurves, required: bool, policy: str = "final"
 ) -> tuple[np.ndarray | None, int | None]:
     """``(mean greedy return per seed [num_seeds], solved seeds)`` from the run's
-    ``evaluation.json`` (as :func:`jaxcart.rundir.views.load_run` read and checked it), of the
+    ``evaluation.json`` (as :func:`jaxcart.rundir.reader.load_run` read and checked it), of the
     final policies or (``policy="best"``) of the best ones a run kept; ``(None, None)`` when
     it is missing and not ``required``.
 

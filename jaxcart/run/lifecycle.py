@@ -41,8 +41,8 @@ from jaxcart.run.loggers import make_logger, sb3_extras
 from jaxcart.run.progress import ProgressBar
 from jaxcart.run.spec import Evaluation, Hooks, Outcome, Run, RunOptions, RunSpec, check_option
 from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
-from jaxcart.rundir import files, layout, outputs, reader
-from jaxcart.rundir.directory import RunDir, check_versions, package_versions
+from jaxcart.rundir import files, layout, reader
+from jaxcart.rundir.directory import Block, RunDir, check_versions, overlapping, package_versions
 from jaxcart.rundir.files import RunDirError, UnverifiedRunWarning
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
@@ -581,7 +581,7 @@ def _one_wave(
     outcome: Outcome,
     runs: range,
     wave: int,
-) -> outputs.Block | None:
+) -> Block | None:
     """Trains, checkpoints and evaluates one wave; None when stopped (its state
     checkpointed, and, for a run in one wave, its metrics so far written)."""
     try:
@@ -621,7 +621,7 @@ def _one_wave(
         "train_seconds": result.state.elapsed,
         "eval_seconds": evaluation.seconds,
     }
-    return outputs.Block(
+    return Block(
         runs.start,
         runs.stop,
         files.flatten(params),
@@ -645,7 +645,7 @@ def _finish(
     groups are ranked) by ``score`` (None: the one config.json records, else eval)."""
     columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final")}
     timing = dict.fromkeys(("compile_seconds", "train_seconds", "eval_seconds"), 0.0)
-    for block, take in outputs.overlapping(blocks, range(run.grid.num_runs)):
+    for block, take in overlapping(blocks, range(run.grid.num_runs)):
         columns["gym"].append(block.gym_returns[take])
         columns["jax"].append(block.jax_returns[take])
         columns["div"].append(block.diverged_at[take])

@@ -41,8 +41,8 @@ from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run.greedy import evaluate_gymnasium
 from jaxcart.run.loggers import SB3_NAMES, Logger, make_logger, sb3_extras
 from jaxcart.run.progress import SeedBars
-from jaxcart.rundir import files, layout, outputs
-from jaxcart.rundir.directory import package_versions
+from jaxcart.rundir import files, layout
+from jaxcart.rundir.directory import evaluation_record, package_versions, write_metrics_csv
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import bounded_int, finite_number, params_headers, read_json
 
@@ -218,7 +218,7 @@ def write_run(
     stacked = files.flatten(
         jax.tree.map(lambda *seeds: np.stack(seeds), *[r.params for r in results])
     )
-    evaluation = outputs.evaluation_record(np.stack([r.returns for r in results]))
+    evaluation = evaluation_record(np.stack([r.returns for r in results]))
     for s, seed in enumerate(evaluation["seeds"]):
         seed["final_ep_rew_mean"] = float(metrics["rollout/ep_rew_mean"][-1, s])
         seed["train_seconds"] = results[s].seconds
@@ -228,7 +228,7 @@ def write_run(
         listing.write(layout.CONFIG_FILE, lambda e, d: files.write_json(e, info, d))
         listing.write(
             layout.METRICS_FILE,
-            lambda e, d: outputs.write_metrics_csv(e, metrics, config.batch_size, d),
+            lambda e, d: write_metrics_csv(e, metrics, config.batch_size, d),
         )
         listing.write(layout.PARAMS_FILE, lambda e, d: files.save_tree(e, stacked, None, d))
         listing.write(layout.EVALUATION_FILE, lambda e, d: files.write_json(e, evaluation, d))

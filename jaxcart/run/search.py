@@ -39,7 +39,7 @@ from jaxcart.run.lifecycle import run_new
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
 from jaxcart.run.structural import RETURN_METRIC, by_shape, group_spec, run_scores
 from jaxcart.rundir import layout
-from jaxcart.rundir.views import load_runs
+from jaxcart.rundir.reader import load_runs
 
 RUNGS = 8
 """Intermediate scores reported to the pruner per trial, at evenly spaced iterations."""

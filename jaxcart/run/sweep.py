@@ -21,7 +21,7 @@ from jaxcart.analysis import stats, summary
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
-from jaxcart.rundir import layout, reader, views
+from jaxcart.rundir import layout, reader
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 
@@ -293,7 +293,7 @@ def saturated(ranking: list[dict]) -> bool:
     return stats.saturated([np.asarray(r["scores"]) for r in ranking])
 
 
-def run_scores(runs: list[views.RunCurves], score: summary.Score) -> list[np.ndarray]:
+def run_scores(runs: list[reader.RunCurves], score: summary.Score) -> list[np.ndarray]:
     """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
     ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
 
@@ -337,7 +337,7 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
     scores, combos, where = [], [], []
     for g, path in enumerate(dirs):
         swept = layout.present(layout.combo_dir(path, 0))  # before sweep.json is written
-        runs = [views.load_run(p) for p in (reader.combo_dirs(path) if swept else [path])]
+        runs = [reader.load_run(p) for p in (reader.combo_dirs(path) if swept else [path])]
         scores += run_scores(runs, score)
         for c, run in enumerate(runs):
             combos.append(dict(run.combination or {}))

@@ -4,28 +4,54 @@ written as training goes (``config.json``, checkpoints, finished waves, outputs)
 :class:`RunDir` is the run's persistence and nothing else: what to train and when to save
 is decided by :mod:`jaxcart.run.lifecycle`. Every file goes through
 :func:`jaxcart.rundir.files.atomic_file` and is read back through :mod:`jaxcart.rundir.reader`.
+
+A checkpoint is one tree file (:mod:`jaxcart.rundir.files`): every array of the
+:class:`~jaxcart.engine.loop.TrainState` under its tree path
+(``state/runners/params/params/actor/hidden_0/kernel``, ``state/hyperparams/learning_rate``,
+...) and a JSON ``__meta__`` entry (iteration, elapsed time, chunk size, config, package
+versions, and the columns of the metrics so far). The metrics themselves are not in it but in
+its companion ``metrics.stream`` (:class:`~jaxcart.rundir.files.MetricsStream`), so its size
+does not grow with the run's length. It is written beside the target, fsynced and renamed over
+the previous checkpoint, so a crash or SIGKILL at any moment leaves the old or the new one,
+never a torn one.
+
+The outputs are written from blocks of consecutive runs. A :class:`Block` holds what training
+and evaluation produced for runs ``[start, stop)``: parameters, metrics, divergences and
+evaluation returns. A run trained in one go is one block in memory; a run trained in waves
+keeps one block file per finished wave (``waves/wave-00003.npz``) and the outputs are
+streamed from them, so that no step holds more than one wave in memory: ``metrics.csv``,
+``params.npz`` and ``evaluation.json``, for the whole run or for one combination of a sweep.
 """
 
 from __future__ import annotations
 
 import contextlib
+import csv
 import functools
+import json
 import os
+import zipfile
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
+import numpy as np
+
 from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
 from jaxcart.core.envs import DEFAULT_ENV
-from jaxcart.engine.loop import METRIC_COLUMNS, TrainState
-from jaxcart.rundir import checkpoint, files, layout, outputs, reader
-from jaxcart.rundir.checkpoint import load_checkpoint, read_checkpoint_meta
+from jaxcart.core.solved import is_solved, solved_definition
+from jaxcart.engine.loop import METRIC_COLUMNS, TrainState, metric_columns
+from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.files import Manifest, RunDirError, RunLock
-from jaxcart.rundir.stream import STREAM_DIGEST_KEY, MetricsStream, NoStream
+from jaxcart.rundir.layout import BLOCK_BEST_PARAMS, BLOCK_METRICS, BLOCK_PARAMS
 
 VERSIONED_PACKAGES = ("jaxcart", "jax", "jaxlib", "flax", "optax", "distrax", "gymnasium", "numpy")
 """The packages that determine a run's numbers, recorded in config.json and checkpoints."""
 RESUME_PACKAGES = ("jaxcart", "jax", "jaxlib")
 """Those a run must be continued with to continue bit-identically."""
+Digest = Callable[[str], None] | None
+"""Called with a finished file's digest before it is renamed into place (its manifest)."""
 
 
 @functools.cache
@@ -57,22 +83,18 @@ def check_versions(run_dir: str | os.PathLike, saved: dict) -> None:
             )
 
 
-def _leftover(path: Path) -> bool:
-    """Left by a start that failed before writing its ``config.json``: a temporary, the lock
-    or the manifest that was to list it."""
-    return layout.is_temporary(path) or path.name in (layout.LOCK_FILE, layout.MANIFEST_FILE)
-
-
 def prepare_out_dir(out: Path) -> files.Dir:
     """Creates ``out`` and opens it (never through a link); refuses a non-empty or
     unwritable one with a clear message. A directory holding only what a failed start
-    leaves (its ``.lock``, temporaries) is taken over (:meth:`RunDir.create` then takes its
-    lock, so a live start is never taken over)."""
-    if str(out) == "":
-        raise ConfigError("--out is empty; name a directory for the run")
+    leaves (its ``.lock``, temporaries, the manifest that was to list its ``config.json``) is
+    taken over (:meth:`RunDir.create` then takes its lock, so a live start is never taken
+    over)."""
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out} exists and is not a directory; choose another path")
-    if out.is_dir() and any(not _leftover(p) for p in out.iterdir()):
+    leftover = lambda p: (
+        layout.is_temporary(p) or p.name in (layout.LOCK_FILE, layout.MANIFEST_FILE)
+    )
+    if out.is_dir() and not all(leftover(p) for p in out.iterdir()):
         raise ConfigError(
             f"--out {out} is not empty; choose a new directory so no earlier run is "
             f"overwritten (or continue it: --resume {out} on the command line, "
@@ -118,7 +140,7 @@ class RunDir:
         self.manifest = Manifest(None, kept=False)
         self.checkpoint_meta: dict | None = None  # of the checkpoint on disk, when there is one
         self.created = False  # by this process's create(): discard() may remove it
-        self.stream: MetricsStream | NoStream = NoStream()  # the metrics of the wave training
+        self.stream: files.MetricsStream | files.NoStream = files.NoStream()  # the wave's
         self._waves: files.Dir | None = None
 
     def _take(self, directory: files.Dir, verified: bool) -> None:
@@ -164,18 +186,13 @@ class RunDir:
         directory = directory or self.dir
         return directory is not None and files.refuse_link(directory / name) is not None
 
-    def _verified(self, name: str) -> files.Entry:
-        """``name`` checked against the manifest (a run from before manifests: unchecked)."""
-        self.manifest.verify(name)
-        return self.dir / name
-
     def read_checkpoint_meta(self) -> dict | None:
-        """:attr:`checkpoint_meta` read from the checkpoint on disk; None when there is none
-        (stopped while starting up: nothing was trained)."""
-        if not self._present(layout.CHECKPOINT_FILE):
-            self.checkpoint_meta = None
-        else:
-            self.checkpoint_meta = read_checkpoint_meta(self._verified(layout.CHECKPOINT_FILE))
+        """:attr:`checkpoint_meta` read from the checkpoint on disk (checked against the
+        manifest); None when there is none (stopped while starting up: nothing was trained)."""
+        self.checkpoint_meta = None
+        if self._present(layout.CHECKPOINT_FILE):
+            entry = self.manifest.verified(layout.CHECKPOINT_FILE)
+            self.checkpoint_meta = reader.read_checkpoint_meta(entry)
         return self.checkpoint_meta
 
     def discard(self) -> None:
@@ -209,9 +226,9 @@ class RunDir:
                 opened.close()
 
     def write_config(self, info: dict, config: PPOConfig, manifest: Manifest | None = None) -> None:
-        """``config.json``: ``info`` with ``config`` as a dict (in a combination's
-        directory, through its ``manifest``, when given); a sweep's combinations are left to the reader to derive
-        from its ``sweep`` (:func:`~jaxcart.rundir.reader.sweep_combinations`)."""
+        """``config.json``: ``info`` with ``config`` as a dict (in a combination's directory,
+        through its ``manifest``, when given); a sweep's combinations are left to the reader
+        to derive from its ``sweep`` (:func:`~jaxcart.rundir.reader.sweep_combinations`)."""
         data = {k: v for k, v in info.items() if k != layout.DIGEST_KEY}
         if data.get("sweep"):  # the reader derives them: a million would be 70 MB of JSON
             data.pop("combinations", None)
@@ -233,10 +250,9 @@ class RunDir:
         the checkpoint records the stream's digest, the manifest the checkpoint's."""
         digest = self.stream.sync(state.iteration)
         if digest is not None:
-            meta = {**meta, STREAM_DIGEST_KEY: digest}
+            meta = {**meta, files.STREAM_DIGEST_KEY: digest}
         self.manifest.write(
-            layout.CHECKPOINT_FILE,
-            lambda entry, d: checkpoint.save_checkpoint(entry, state, meta, d),
+            layout.CHECKPOINT_FILE, lambda entry, d: save_checkpoint(entry, state, meta, d)
         )
         self.checkpoint_meta = {**meta, "iteration": state.iteration}
 
@@ -247,14 +263,15 @@ class RunDir:
         checkpoint recorded. Only the main process keeps one."""
         self.stream.close()
         if self.main_process:
-            expected = (self.checkpoint_meta or {}).get(STREAM_DIGEST_KEY) if rows else None
+            meta = self.checkpoint_meta or {}
+            expected = meta.get(files.STREAM_DIGEST_KEY) if rows else None
             entry = self.dir / layout.METRICS_STREAM_FILE
-            self.stream = MetricsStream(entry, columns, runs, rows, expected)
+            self.stream = files.MetricsStream(entry, columns, runs, rows, expected)
 
     def load_checkpoint(self, template: TrainState, num_runs: int) -> TrainState:
         """The checkpoint's state of ``num_runs`` runs, in the structure of ``template``."""
-        entry = self._verified(layout.CHECKPOINT_FILE)
-        return load_checkpoint(entry, template, num_runs=num_runs)
+        entry = self.manifest.verified(layout.CHECKPOINT_FILE)
+        return reader.load_checkpoint(entry, template, num_runs=num_runs)
 
     def finished(self) -> bool:
         """Whether the run wrote its last output: its evaluation, or a sweep's ranking."""
@@ -275,24 +292,23 @@ class RunDir:
         self.manifest.forget(*names)
         self.dir.fsync()
 
-    def _waves_dir(self, create: bool = False) -> files.Dir | None:
+    def _wave_file(self, wave: int, create: bool = True) -> files.Entry | None:
+        """Wave ``wave``'s block file in ``waves/`` (created with ``create``; None when it
+        does not exist and is not to be)."""
         if self._waves is None and (create or self._present(layout.WAVES_DIR)):
             self._waves = self.dir.sub(layout.WAVES_DIR, create=create)
-        return self._waves
-
-    def wave_file(self, wave: int) -> files.Entry:
-        return self._waves_dir(create=True) / layout.wave_file(".", wave).name
+        return self._waves and self._waves / layout.wave_file(".", wave).name
 
     def has_wave(self, wave: int) -> bool:
         """Whether wave ``wave`` finished (its block file is saved; a link is refused)."""
-        waves = self._waves_dir()
-        return waves is not None and self._present(layout.wave_file(".", wave).name, waves)
+        entry = self._wave_file(wave, create=False)
+        return entry is not None and files.refuse_link(entry) is not None
 
-    def save_wave(self, block: outputs.Block, wave: int) -> files.Entry:
+    def save_wave(self, block: Block, wave: int) -> files.Entry:
         """Keeps a finished wave's block until the outputs are written; returns its file
         (its own digest inside: many waves would make the manifest a long file rewritten
         after every one)."""
-        entry = self.wave_file(wave)
+        entry = self._wave_file(wave)
         block.save(entry)
         return entry
 
@@ -301,7 +317,7 @@ class RunDir:
     ) -> files.Entry:
         """The file of a wave finished before an interruption, checked (headers, digest,
         finite values) before the outputs are built from it."""
-        entry = self.wave_file(wave)
+        entry = self._wave_file(wave)
         reader.check_block(entry, config, runs, episodes, float_dtype())  # as resume checked
         return entry
 
@@ -309,8 +325,7 @@ class RunDir:
         """``metrics.csv`` of a stopped run, from its stream's rows so far."""
         rows = self.stream.read()
         self.manifest.write(
-            layout.METRICS_FILE,
-            lambda entry, d: outputs.write_metrics_csv(entry, rows, batch_size, d),
+            layout.METRICS_FILE, lambda entry, d: write_metrics_csv(entry, rows, batch_size, d)
         )
 
     def write_outputs(
@@ -333,24 +348,24 @@ class RunDir:
         if combo is not None:
             directory = self.dir.sub(layout.combo_dir(".", combo).name, create=True)
             manifest = Manifest(directory)
+        parts = lambda: (
+            (b.metrics, b.start + t.start - runs.start, t) for b, t in overlapping(blocks, runs)
+        )
         try:
             if record is not None:
                 self.write_config(*record, manifest=manifest)
             manifest.write(
-                layout.METRICS_FILE,
-                lambda e, d: outputs.write_blocks_metrics_csv(e, blocks, runs, batch_size, d),
+                layout.METRICS_FILE, lambda e, d: write_metrics_csv(e, parts(), batch_size, d)
             )
-            manifest.write(
-                layout.PARAMS_FILE, lambda e, d: outputs.write_params(e, blocks, runs, d)
-            )
+            manifest.write(layout.PARAMS_FILE, lambda e, d: write_params(e, blocks, runs, d))
             if best:
                 manifest.write(
                     layout.PARAMS_BEST_FILE,
-                    lambda e, d: outputs.write_params(e, blocks, runs, d, best=True),
+                    lambda e, d: write_params(e, blocks, runs, d, best=True),
                 )
             manifest.write(
                 layout.EVALUATION_FILE,
-                lambda e, d: outputs.write_evaluation(e, blocks, runs, episodes, timing, d, env_id),
+                lambda e, d: write_evaluation(e, blocks, runs, episodes, timing, d, env_id),
             )
         finally:
             if directory is not self.dir:
@@ -359,3 +374,258 @@ class RunDir:
     def write_ranking(self, data: dict) -> None:
         """``sweep.json``: a sweep's combinations, ranked."""
         self.manifest.write_json(layout.SWEEP_FILE, data)
+
+
+def save_checkpoint(
+    path: files.Target, state: TrainState, meta: dict, on_digest: Digest = None
+) -> None:
+    """Writes ``state``'s arrays (:func:`~jaxcart.rundir.reader.state_arrays`) and ``meta``
+    (JSON-able) to ``path``; the metrics so far are the stream's (made durable before this
+    is called). :func:`jaxcart.rundir.reader.load_checkpoint` restores it."""
+    meta = {
+        **meta,
+        "checkpoint_format": layout.CHECKPOINT_FORMAT,
+        "iteration": state.iteration,
+        "elapsed": state.elapsed,
+        "chunk_size": state.chunk_size,
+        "metrics_columns": list(metric_columns(state.config)),
+    }
+    files.save_tree(path, reader.state_arrays(state), meta, on_digest)  # the rename made durable
+
+
+# ---- outputs, from blocks of runs ----
+
+
+BEST_ARRAYS = ("best_gym_returns", "best_iteration", "best_score")
+"""What a block of a run that keeps its best policies holds of them: their Gymnasium returns
+``[n, episodes]``, the (1-based) iteration each was evaluated at and its eval/mean_return
+``[n]``."""
+
+
+@dataclass
+class Block:
+    """Results of runs ``[start, stop)``: arrays with a leading (or, for metrics, second)
+    axis of ``stop - start`` runs."""
+
+    start: int
+    stop: int
+    params: dict[str, np.ndarray]  # flattened names -> [n, ...]
+    metrics: dict[str, np.ndarray]  # name -> [iterations, n]
+    diverged_at: np.ndarray  # [n]
+    gym_returns: np.ndarray  # [n, episodes]
+    jax_returns: np.ndarray  # [n, episodes]
+    timing: dict[str, float]
+    best_params: dict[str, np.ndarray] | None = None  # keep_best's, flattened -> [n, ...]
+    best: dict[str, np.ndarray] | None = None  # keep_best's BEST_ARRAYS
+
+    def save(self, path: files.Target) -> None:
+        arrays = {BLOCK_PARAMS + k: v for k, v in self.params.items()}
+        arrays |= {BLOCK_BEST_PARAMS + k: v for k, v in (self.best_params or {}).items()}
+        arrays |= self.best or {}
+        arrays |= {BLOCK_METRICS + k: np.asarray(v) for k, v in self.metrics.items()}
+        arrays |= {
+            "diverged_at": self.diverged_at,
+            "gym_returns": self.gym_returns,
+            "jax_returns": self.jax_returns,
+        }
+        meta = {"start": self.start, "stop": self.stop, **self.timing}
+        files.save_tree(path, arrays, {**meta, layout.DIGEST_KEY: files.arrays_digest(arrays)})
+
+    @classmethod
+    def load(cls, path: files.Target) -> Block:
+        arrays, meta = files.load_tree(path)
+        take = lambda prefix: {
+            k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)
+        }
+        timing = {k: v for k, v in meta.items() if k not in ("start", "stop", layout.DIGEST_KEY)}
+        return cls(
+            int(meta["start"]),
+            int(meta["stop"]),
+            take(BLOCK_PARAMS),
+            take(BLOCK_METRICS),
+            arrays["diverged_at"],
+            arrays["gym_returns"],
+            arrays["jax_returns"],
+            timing,
+            take(BLOCK_BEST_PARAMS) or None,
+            {k: arrays[k] for k in BEST_ARRAYS if k in arrays} or None,
+        )
+
+
+def _overlap(start: int, stop: int, runs: range) -> slice | None:
+    """The slice of a block of runs ``[start, stop)`` that holds some of ``runs``."""
+    lo, hi = max(start, runs.start), min(stop, runs.stop)
+    return slice(lo - start, hi - start) if lo < hi else None
+
+
+def overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
+    """Each block that holds some of ``runs`` (loaded when it is a path), with the slice of
+    its axis that does."""
+    for item in blocks:
+        block = item if isinstance(item, Block) else Block.load(item)
+        take = _overlap(block.start, block.stop, runs)
+        if take is not None:
+            yield block, take
+
+
+def _param_slices(blocks: list, runs: range, name: str, best: bool = False) -> Iterator[np.ndarray]:
+    """One parameter array of each block that holds some of ``runs``, sliced to them (the
+    best policies' with ``best``); a block file is read for that array alone."""
+    for item in blocks:
+        if isinstance(item, Block):
+            take = _overlap(item.start, item.stop, runs)
+            if take is not None:
+                yield (item.best_params if best else item.params)[name][take]
+            continue
+        meta = files.read_meta(item)
+        take = _overlap(int(meta["start"]), int(meta["stop"]), runs)
+        if take is not None:
+            with files.open_tree(item) as raw, np.load(raw, allow_pickle=False) as data:
+                yield data[(BLOCK_BEST_PARAMS if best else BLOCK_PARAMS) + name][take]
+
+
+def write_metrics_csv(
+    path: files.Target,
+    metrics: dict[str, np.ndarray] | Iterable[tuple[dict, int, slice]],
+    batch_size: int,
+    on_digest: Digest = None,
+) -> None:
+    """``metrics.csv``: rows ``seed_index, iteration, env_steps, <metrics...>``, seed by seed,
+    iteration by iteration, from leaves ``[iterations, S]`` (a run's metrics in memory: a
+    stopped run's so far, or another library's log) or, streamed part by part, from
+    ``(metrics [iterations, R], first seed index, runs)`` parts (blocks of a run's waves)."""
+    parts = [(metrics, 0, slice(None))] if isinstance(metrics, dict) else metrics
+    with files.atomic_file(path, "w", on_digest) as f:
+        writer, header = csv.writer(f, lineterminator="\n"), None
+        for part, first, take in parts:
+            if header is None:
+                header = [*layout.METRICS_INDEX_COLUMNS, *part]
+                writer.writerow(header)
+            columns = [np.asarray(part[n])[:, take] for n in part]
+            iterations, num_seeds = columns[0].shape
+            for s in range(num_seeds):
+                for i in range(iterations):
+                    row = [float(c[i, s]) for c in columns]
+                    writer.writerow([first + s, i + 1, (i + 1) * batch_size, *row])
+
+
+def write_params(
+    path: files.Target, blocks: list, runs: range, on_digest: Digest = None, best: bool = False
+) -> None:
+    """``params.npz`` for ``runs`` (``params_best.npz`` of the best policies with ``best``):
+    each array's header for the whole run, then its blocks' bytes in order (a leading-axis
+    concatenation), streamed into place."""
+    first, _ = next(overlapping(blocks, runs))
+    with (
+        files.atomic_file(path, "wb", on_digest) as out,
+        zipfile.ZipFile(out, "w", allowZip64=True) as zf,
+    ):
+        for name, a in first.params.items():
+            shape = (len(runs), *a.shape[1:])
+            with zf.open(name + ".npy", "w", force_zip64=True) as f:
+                header = {
+                    "descr": np.lib.format.dtype_to_descr(a.dtype),
+                    "fortran_order": False,
+                    "shape": shape,
+                }
+                np.lib.format.write_array_header_1_0(f, header)
+                for part in _param_slices(blocks, runs, name, best):
+                    f.write(np.ascontiguousarray(part).tobytes())
+
+
+def write_evaluation(
+    path: files.Target,
+    blocks: list,
+    runs: range,
+    episodes: int,
+    extra: dict,
+    on_digest: Digest = None,
+    env_id: str = DEFAULT_ENV,
+) -> None:
+    """``evaluation.json`` for ``runs``: per-seed returns and solved flags (solved as
+    ``env_id`` defines it), streamed."""
+    solved_total = best_solved = 0
+    with files.atomic_file(path, "w", on_digest) as f:
+        definition = json.dumps(solved_definition(env_id).format(episodes=episodes))
+        head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
+        f.write(head + '  "seeds": [')
+        sep = "\n"
+        for block, take in overlapping(blocks, runs):
+            final = block.metrics["rollout/ep_rew_mean"][-1, take]
+            g, j, d = block.gym_returns[take], block.jax_returns[take], block.diverged_at[take]
+            first = block.start + take.start - runs.start
+            for s in range(len(g)):
+                seed = {
+                    "seed_index": first + s,
+                    **gymnasium_entry(g[s], env_id),
+                    "jaxcart_returns": j[s].tolist(),
+                    "jaxcart_mean": float(j[s].mean()),
+                    "final_ep_rew_mean": float(final[s]),
+                    "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
+                }
+                solved_total += int(seed["solved"])
+                if block.best is not None:
+                    seed |= _best_entry(block.best, take, s, env_id)
+                    best_solved += int(seed["best"]["solved"])
+                f.write(sep + "    " + json.dumps(seed))
+                sep = ",\n"
+        tail = {"solved_seeds": solved_total, **extra}
+        if any(block.best is not None for block, _ in overlapping(blocks, runs)):
+            tail = {"solved_seeds": solved_total, "best_solved_seeds": best_solved, **extra}
+        f.write("\n  ],\n" + json.dumps(tail, indent=2)[2:] + "\n")
+
+
+def _best_entry(best: dict[str, np.ndarray], take: slice, s: int, env_id: str) -> dict:
+    """A seed's best policy in ``evaluation.json``: its Gymnasium verdict and where it was."""
+    g = best["best_gym_returns"][take][s]
+    iteration = int(best["best_iteration"][take][s])
+    return {
+        "best": {
+            "iteration": iteration if iteration > 0 else None,
+            "eval_mean_return": float(best["best_score"][take][s]) if iteration > 0 else None,
+            **gymnasium_entry(g, env_id),
+        }
+    }
+
+
+def gymnasium_entry(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
+    """One seed's greedy Gymnasium episodes as ``evaluation.json`` records them: the returns
+    ``[episodes]``, their mean and least, and whether they solve ``env_id``."""
+    return {
+        "gymnasium_returns": returns.tolist(),
+        "gymnasium_mean": float(returns.mean()),
+        "gymnasium_min": float(returns.min()),
+        "solved": bool(is_solved(returns, env_id)),
+    }
+
+
+def evaluation_record(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
+    """``evaluation.json`` of greedy Gymnasium returns ``[num_seeds, episodes]``: per seed
+    its returns, their mean and least, and whether they solve ``env_id``."""
+    returns = np.asarray(returns)
+    seeds = [{"seed_index": s, **gymnasium_entry(g, env_id)} for s, g in enumerate(returns)]
+    return {
+        "episodes": returns.shape[1],
+        "solved_definition": solved_definition(env_id).format(episodes=returns.shape[1]),
+        "seeds": seeds,
+        "solved_seeds": sum(seed["solved"] for seed in seeds),
+    }
+
+
+def write_evaluation_dir(
+    directory: files.Dir,
+    info: dict,
+    returns: np.ndarray | None = None,
+    others: dict[str, dict] | None = None,
+) -> None:
+    """An evaluation written in one go (``python -m jaxcart.evaluate --out``, laid out as
+    :mod:`jaxcart.rundir.layout` says): ``config.json`` (``info``), ``evaluation.json`` of
+    ``returns`` ``[num_seeds, episodes]`` (a sweep's own directory has none: its
+    ``combo-NNN/`` do) and ``others`` (name -> JSON object: a sweep's ``sweep.json``), each
+    recorded in the directory's manifest as a run's files are, so that the readers check it
+    as they check a run."""
+    named = {layout.CONFIG_FILE: {**info, files.MANIFEST_FLAG: True}}
+    if returns is not None:
+        env_id = info["config"].get("env", DEFAULT_ENV)
+        named[layout.EVALUATION_FILE] = evaluation_record(returns, env_id)
+    files.record_json(directory, {**named, **(others or {})})

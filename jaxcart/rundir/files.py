@@ -1,11 +1,14 @@
 """The store: the one module that opens a file of a run directory, for reading or writing.
 
-Every byte of a run directory goes through here. Reading: :func:`open_regular` (no link
-followed, a regular file only), :func:`read_bytes` (bounded by what such a file can hold)
-and :func:`verified` (its digest is the one ``manifest.json`` records). Writing:
+Every byte of a run directory goes through here, and each guarantee is given once, here, for
+every reader and writer. Reading: :func:`open_regular` (no link followed, a regular file
+only), :func:`read_bytes` (bounded by what such a file can hold), :func:`verified` and
+:func:`read_json` (a file's digest is the one ``manifest.json`` records) and the tree files'
+:func:`load_tree` (headers checked before anything large is read). Writing:
 :func:`atomic_file` (a temporary beside the target, fsynced and renamed into place, so a crash
 never leaves a torn file) and :class:`Manifest` (each finished file's ``sha256`` recorded).
-The lock (:class:`RunLock`) is here too. Nothing read is ever imported or unpickled.
+The lock (:class:`RunLock`) and the metrics stream (:class:`MetricsStream`, the one file
+appended to) are here too. Nothing read is ever imported or unpickled.
 
 A tree file (parameters, checkpoints) is an uncompressed ``.npz``: every array leaf under its
 tree path joined with ``/`` (``params/actor/hidden_0/kernel``, ``runners/opt_state/1/mu/...``)
@@ -15,21 +18,31 @@ The manifest: a run records each file's ``sha256:<hex>`` before the file is rena
 place (the manifest then lists the old and the new digest, so a crash between the two renames
 leaves a file the manifest accepts) and keeps only the new one once it is. Every reader checks
 a file against it before trusting anything in it (:func:`verified`). The checkpoint counts too;
-the metrics stream, appended chunk by chunk, is covered by the digest its checkpoint records
-(:mod:`jaxcart.rundir.stream`), and a finished wave's file by the digest it carries. A digest
-proves integrity, not authorship. A directory whose ``config.json`` has no ``manifest`` flag
-was written before manifests: it is read with a one-line :class:`UnverifiedRunWarning`; one
-whose ``config.json`` says it has a manifest and has none is refused.
+the metrics stream, appended chunk by chunk, is covered by the digest its checkpoint records,
+and a finished wave's file by the digest it carries. A digest proves integrity, not
+authorship. A directory whose ``config.json`` has no ``manifest`` flag was written before
+manifests: it is read with a one-line :class:`UnverifiedRunWarning`; one whose
+``config.json`` says it has a manifest and has none is refused.
 
 The lock: one process at a time per run directory, an advisory ``flock`` on ``RUN_DIR/.lock``
 held for the whole run and released by the operating system when its holder exits, however it
 exits. The file keeps the holder's PID, so a refused process can say who holds it.
+
+The metrics stream: ``RUN_DIR/metrics.stream`` holds float32 rows, one per iteration, no
+header: each row is every metric column for every run of the wave being trained,
+``[iteration, column, run]`` in C order. What the rows mean (their columns and runs) is
+recorded in the checkpoint's metadata, and only as many rows as the checkpoint's iteration
+count: rows written after the last checkpoint are cut when training continues, so a resumed
+run's metrics are the uninterrupted run's, bit for bit. Rows are fsynced before every
+checkpoint that counts them, so training holds one chunk of metrics in memory whatever the
+run's length, and a checkpoint's size does not grow with it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import fnmatch
 import hashlib
 import json
 import math
@@ -38,7 +51,7 @@ import secrets
 import stat
 import warnings
 import zipfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -50,8 +63,12 @@ META_KEY = "__meta__"
 MANIFEST_FORMAT = 1
 MANIFEST_MAX_BYTES = 1 << 20
 MAX_JSON_BYTES = 16 << 20
+MAX_META_BYTES = 1 << 20
 MANIFEST_FLAG = "manifest"
 """Of ``config.json``: true in a run that keeps ``manifest.json``."""
+STREAM_DTYPE = np.dtype("<f4")
+STREAM_DIGEST_KEY = "metrics_stream_digest"
+"""Of a checkpoint's metadata: ``sha256:<hex>`` of the stream's rows it counts."""
 
 
 class RunDirError(ValueError):
@@ -117,10 +134,6 @@ class Dir:
     def __str__(self) -> str:
         return str(self.path)
 
-    @property
-    def name(self) -> str:
-        return self.path.name
-
     def names(self) -> list[str]:
         """The names inside this directory (``os.listdir`` of its descriptor)."""
         return os.listdir(self.fd)
@@ -146,15 +159,10 @@ class Entry:
     def __init__(self, directory: Dir, name: str) -> None:
         self.dir, self.name = directory, name
 
-    @property
-    def path(self) -> Path:
-        return self.dir.path / self.name
-
     def __fspath__(self) -> str:
-        return str(self.path)
+        return str(self.dir.path / self.name)
 
-    def __str__(self) -> str:
-        return str(self.path)
+    __str__ = __fspath__
 
 
 Target = str | os.PathLike | Entry
@@ -236,22 +244,21 @@ def refuse_link(path: Target) -> os.stat_result | None:
 
 
 def subdir(directory: str | os.PathLike, name: str, create: bool = False) -> Path:
-    """``directory / name`` checked to be a real directory (not a link) when it exists;
-    created (its parent must exist: a deleted run directory is never recreated) when
-    ``create``.
+    """``directory / name`` checked to be a real directory (not a link) when it exists
+    (:meth:`Dir.sub`); created (its parent must exist: a deleted run directory is never
+    recreated) when ``create``.
 
     Raises:
         RunDirError: a link or something other than a directory.
         OSError: it could not be created.
     """
-    path = Path(directory) / name
-    if create and refuse_link(path) is None:
-        with contextlib.suppress(FileExistsError):
-            path.mkdir()
-    st = refuse_link(path)
-    if st is not None and not stat.S_ISDIR(st.st_mode):
-        raise RunDirError(f"{path} is not a directory; refusing it")
-    return path
+    with opened(directory) as parent:
+        try:
+            parent.sub(name, create).close()
+        except FileNotFoundError:
+            if create:
+                raise
+    return Path(directory) / name
 
 
 # ---- reading: the one opener ----
@@ -301,11 +308,9 @@ def open_regular(
     return fd
 
 
-@contextlib.contextmanager
-def open_tree(path: Target) -> Iterator[IO[bytes]]:
+def open_tree(path: Target) -> IO[bytes]:
     """``path`` opened for reading in binary through :func:`open_regular`."""
-    with os.fdopen(open_regular(path), "rb") as f:
-        yield f
+    return os.fdopen(open_regular(path), "rb")
 
 
 def read_bytes(path: Target, max_bytes: int) -> bytes:
@@ -341,11 +346,38 @@ def fd_digest(fd: int) -> str:
     return "sha256:" + hash_fd(fd).hexdigest()
 
 
+def _check_listed(run_dir: Dir, name: str, digest: str, info: dict | None) -> None:
+    """Refuses ``RUN_DIR/name`` unless ``digest`` (of its bytes) is one its manifest lists;
+    ``info`` (the run's ``config.json``) says whether the run keeps a manifest: a run from
+    before manifests gets an :class:`UnverifiedRunWarning` instead."""
+    manifest = run_dir / layout.MANIFEST_FILE
+    if info is not None and not info.get(MANIFEST_FLAG) and not present(manifest):
+        warnings.warn(
+            f"{run_dir} was written before jaxcart kept a manifest: its files cannot be "
+            "verified, only checked for sense",
+            UnverifiedRunWarning,
+            stacklevel=4,
+        )
+        return
+    if not present(manifest):
+        raise RunDirError(f"{manifest} is missing: the run's files cannot be verified")
+    _check_digest(run_dir / name, digest, read_manifest(run_dir).get(name))
+
+
+def _check_digest(entry: Entry, digest: str, listed: list[str] | None) -> None:
+    """Refuses the file ``entry`` unless its ``digest`` is one of ``listed``."""
+    if digest not in (listed or []):
+        raise RunDirError(
+            f"{entry} is not the file the run wrote: its digest is not the one "
+            f"{layout.MANIFEST_FILE} records"
+        )
+
+
 def verified(run_dir: Dir, name: str, info: dict | None, missing: str = "") -> Entry:
     """``RUN_DIR/name`` after refusing it unless it is a regular file (no link followed)
-    whose bytes are those its manifest records; ``info`` (the run's ``config.json``, None
-    while that file itself is checked) says whether the run keeps a manifest. A run from
-    before manifests gets an :class:`UnverifiedRunWarning`. The check every reader makes.
+    whose bytes are those its manifest records; ``info`` (the run's ``config.json``) says
+    whether the run keeps a manifest. A run from before manifests gets an
+    :class:`UnverifiedRunWarning`. The check every reader of a large file makes.
 
     Raises:
         RunDirError: missing (``missing`` says why, when given), the manifest is missing or
@@ -354,44 +386,41 @@ def verified(run_dir: Dir, name: str, info: dict | None, missing: str = "") -> E
     entry = run_dir / name
     if missing and refuse_link(entry) is None:
         raise RunDirError(missing)
-    manifest = run_dir / layout.MANIFEST_FILE
-    if info is not None and not info.get(MANIFEST_FLAG) and not present(manifest):
-        warnings.warn(
-            f"{run_dir} was written before jaxcart kept a manifest: its files cannot be "
-            "verified, only checked for sense",
-            UnverifiedRunWarning,
-            stacklevel=3,
-        )
-        return entry
-    if not present(manifest):
-        raise RunDirError(f"{manifest} is missing: the run's files cannot be verified")
-    _check_digest(entry, read_manifest(run_dir).get(name))
+    with open_tree(entry) as f:
+        _check_listed(run_dir, name, fd_digest(f.fileno()), info)
     return entry
 
 
-def _check_digest(path: Target, listed: list[str] | None) -> None:
-    """Refuses the file at ``path`` unless its digest is one of ``listed``."""
-    with open_tree(path) as f:
-        digest = fd_digest(f.fileno())
-    if not listed or digest not in listed:
-        raise RunDirError(
-            f"{path} is not the file the run wrote: its digest is not the one "
-            f"{layout.MANIFEST_FILE} records"
-        )
-
-
-def read_json(run_dir: Where, name: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
+def read_json(
+    run_dir: Where,
+    name: str,
+    max_bytes: int = MAX_JSON_BYTES,
+    verify: bool = False,
+    info: dict | None = None,
+) -> dict:
     """A JSON object from a run directory, refusing links, non-regular files, files over
-    ``max_bytes`` and anything but an object."""
+    ``max_bytes`` and anything but an object. With ``verify``, the bytes read must be those
+    the directory's manifest records (:func:`verified`; ``info``, the run's ``config.json``,
+    says whether it keeps one: the object itself when None, for ``config.json``).
+
+    Raises:
+        RunDirError: missing, a link, not a regular file, too large, not a JSON object, or
+            (``verify``) not the file the run wrote.
+    """
     with opened(run_dir) as directory:
         path = directory / name
         text = read_bytes(path, max_bytes)
-    try:
-        data = json.loads(text.decode())
-    except (ValueError, UnicodeDecodeError, RecursionError) as exc:  # 5,000-digit ints too
-        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
-    if not isinstance(data, dict):
-        raise RunDirError(f"{path} is corrupted: not a JSON object")
+        try:
+            data = json.loads(text.decode())
+        except (ValueError, RecursionError) as exc:  # bad UTF-8 and 5,000-digit ints too
+            raise RunDirError(
+                f"{path} is corrupted or from an incompatible version: {exc}"
+            ) from None
+        if not isinstance(data, dict):
+            raise RunDirError(f"{path} is corrupted: not a JSON object")
+        if verify:
+            digest = "sha256:" + hashlib.sha256(text).hexdigest()
+            _check_listed(directory, name, digest, data if info is None else info)
     return data
 
 
@@ -412,6 +441,70 @@ def read_manifest(run_dir: Where) -> dict[str, list[str]]:
     ):
         raise RunDirError(f"{run_dir}/{layout.MANIFEST_FILE} is corrupted: not a jaxcart manifest")
     return listed
+
+
+CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FILE)
+"""Whether these exist says whether a directory is a sweep, a finished or an unfinished run
+(:func:`~jaxcart.rundir.layout.is_sweep`): :func:`read_config` refuses each as a link."""
+
+
+def read_config(run_dir: Where, verify: bool = False) -> dict:
+    """A run's ``config.json`` as written: a JSON object, nothing in it interpreted, imported
+    or called. The one reader of that file, for every reader of runs
+    (:func:`jaxcart.rundir.reader.read_run_config` checks what it holds), for ``--resume``
+    and for ``--config RUN_DIR``. Its bytes must be those the manifest records; with
+    ``verify`` (a resume), its own digest must match its contents too (hand edits and
+    corruption are refused: a run continues only with the settings it started with).
+
+    Raises:
+        RunDirError: not a run directory (with a hint for what a failed start or an
+            interrupted ``python -m jaxcart.sb3`` run leaves), a link, unreadable, too large,
+            not a JSON object, or edited.
+    """
+    with opened(run_dir) as directory:
+        path = directory / layout.CONFIG_FILE
+        if refuse_link(path) is None:
+            raise RunDirError(_not_a_run(directory))
+        for name in CLASSIFYING_FILES:  # what the directory is: never decided through a link
+            refuse_link(directory / name)
+        data = read_json(directory, layout.CONFIG_FILE, verify=True)
+    if verify and layout.DIGEST_KEY not in data:
+        raise RunDirError(
+            f"{path} has no digest: it was not written by this version of jaxcart, or was "
+            "rewritten by hand; a run continues only with the settings it started with"
+        )
+    body = {k: v for k, v in data.items() if k != layout.DIGEST_KEY}
+    if verify and data[layout.DIGEST_KEY] != json_digest(body):
+        raise RunDirError(
+            f"{path} does not match its digest: it was edited or corrupted after the run "
+            "wrote it; restore it (a run continues only with the settings it started with)"
+        )
+    return data
+
+
+def _not_a_run(directory: Dir) -> str:
+    """Why ``directory``, which has no ``config.json``, is not a run, and what to do."""
+    names, hint = directory.names(), ""
+    if names == [layout.LOCK_FILE]:
+        hint = (
+            f" (only the {layout.LOCK_FILE} of a start that failed: start it again with "
+            f"--out {directory}, which takes it over)"
+        )
+    if present(directory / layout.SB3_PLAN_FILE):
+        # SB3's seeds are kept one by one; the run directory is written once all finish
+        kept = 0
+        if layout.SB3_SEEDS_DIR in names:
+            seeds = directory.sub(layout.SB3_SEEDS_DIR)
+            try:
+                kept = len(fnmatch.filter(seeds.names(), "seed-*.npz"))
+            finally:
+                seeds.close()
+        hint = (
+            f" yet: it is an interrupted python -m jaxcart.sb3 run ({kept} seed(s) kept); "
+            f"train the others, then plot or evaluate it: python -m jaxcart.sb3 --resume "
+            f"{directory}"
+        )
+    return f"{directory} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory{hint}"
 
 
 # ---- writing: the one writer, and the manifest that records what it wrote ----
@@ -535,10 +628,13 @@ class Manifest:
                 self.digests.pop(name, None)
             self._write()
 
-    def verify(self, name: str) -> None:
-        """Refuses ``name`` unless its bytes are those recorded for it."""
+    def verified(self, name: str) -> Entry:
+        """``name``, refused unless its bytes are those recorded for it (a run from before
+        manifests: unchecked)."""
         if self.kept:
-            _check_digest(self.dir / name, self.digests.get(name))
+            with open_tree(self.dir / name) as f:
+                _check_digest(self.dir / name, fd_digest(f.fileno()), self.digests.get(name))
+        return self.dir / name
 
     def _write(self) -> None:
         data = {"format": MANIFEST_FORMAT, "files": dict(sorted(self.digests.items()))}
@@ -559,13 +655,9 @@ class RunLock:
     """An exclusive lock on a run directory; :meth:`acquire` fails at once if it is held."""
 
     def __init__(self, run_dir: str | os.PathLike | Dir) -> None:
-        self.dir = run_dir if isinstance(run_dir, Dir) else None
-        self.path = (run_dir.path if isinstance(run_dir, Dir) else Path(run_dir)) / layout.LOCK_FILE
+        is_dir = isinstance(run_dir, Dir)
+        self.target = run_dir / layout.LOCK_FILE if is_dir else Path(run_dir) / layout.LOCK_FILE
         self._fd: int | None = None
-
-    @property
-    def held(self) -> bool:
-        return self._fd is not None
 
     def acquire(self) -> RunLock:
         """Takes the lock, or raises :class:`RunInUse` naming the holder's PID."""
@@ -575,16 +667,15 @@ class RunLock:
             return self
         # 0o666 less the umask, as every file of a run directory; a link (symbolic or hard)
         # is refused, not followed: truncating it would truncate whatever it points to
-        target = self.dir / layout.LOCK_FILE if self.dir is not None else self.path
-        fd = open_regular(target, os.O_RDWR | os.O_CREAT, 0o666, in_place=True)
+        fd = open_regular(self.target, os.O_RDWR | os.O_CREAT, 0o666, in_place=True)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
             os.close(fd)
             raise RunInUse(
-                f"{self.path.parent} is in use by another jaxcart process (PID {holder}); "
-                "wait for it to finish or stop it first"
+                f"{Path(self.target).parent} is in use by another jaxcart process (PID "
+                f"{holder}); wait for it to finish or stop it first"
             ) from None
         except BaseException:
             os.close(fd)
@@ -604,6 +695,130 @@ class RunLock:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+# ---- the metrics stream: the one file appended to ----
+
+
+class MetricsStream:
+    """The stream of one wave (``runs`` runs, ``columns``), opened with ``rows`` rows kept:
+    longer files are cut to them (rows past the checkpoint), shorter ones are refused, and
+    with ``digest`` (the checkpoint's record of them) rows whose bytes differ are refused."""
+
+    def __init__(
+        self, path: Target, columns: Sequence[str], runs: int, rows: int, digest: str | None = None
+    ) -> None:
+        self.path, self.columns, self.runs = path, tuple(columns), int(runs)
+        self.row_bytes = len(self.columns) * self.runs * STREAM_DTYPE.itemsize
+        # appended where it lies (0o666 less the umask): a hard link elsewhere is refused
+        self.fd = self._call(open_regular, path, os.O_RDWR | os.O_CREAT, 0o666, True)
+        try:
+            self.hash = _check_rows(self.fd, path, rows, self.row_bytes, digest)
+            self._call(os.ftruncate, self.fd, rows * self.row_bytes)
+            os.lseek(self.fd, 0, os.SEEK_END)
+        except BaseException:
+            os.close(self.fd)
+            raise
+        self.rows = rows
+
+    def _call(self, fn, *args):
+        """``fn(*args)``, an OSError (a full or read-only disk) naming the stream's file."""
+        try:
+            return fn(*args)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
+
+    def append(self, metrics: dict[str, np.ndarray]) -> None:
+        """Appends one chunk: leaves ``[iterations_in_chunk, runs]`` for every column."""
+        rows = np.stack([np.asarray(metrics[c], STREAM_DTYPE) for c in self.columns], axis=1)
+        if rows.shape[1:] != (len(self.columns), self.runs):
+            raise ValueError(f"metrics of shape {rows.shape[1:]}, expected {self.runs} runs")
+        view = memoryview(np.ascontiguousarray(rows)).cast("B")
+        self.hash.update(view)
+        while view:
+            view = view[self._call(os.write, self.fd, view) :]
+        self.rows += len(rows)
+
+    def sync(self, rows: int) -> str:
+        """Makes the rows durable before a checkpoint of ``rows`` iterations counts them;
+        returns their digest, for the checkpoint to record."""
+        if rows != self.rows:
+            raise RuntimeError(f"{self.path} holds {self.rows} iterations, the checkpoint {rows}")
+        self._call(os.fsync, self.fd)
+        return "sha256:" + self.hash.hexdigest()
+
+    def read(self) -> dict[str, np.ndarray]:
+        """Every row so far, memory-mapped from the open file (what this process wrote, even
+        if the path was removed meanwhile): column -> ``[rows, runs]``."""
+        with os.fdopen(os.dup(self.fd), "rb") as f:
+            return _mapped(f, self.rows, self.columns, self.runs)
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+
+class NoStream:
+    """The stream of a process that writes none (not the main one, or no wave open yet)."""
+
+    def append(self, metrics: dict[str, np.ndarray]) -> None:
+        pass
+
+    def sync(self, rows: int) -> None:
+        pass
+
+    def read(self) -> dict[str, np.ndarray]:
+        return {}
+
+    def close(self) -> None:
+        pass
+
+
+def _check_rows(fd: int, path: Target, rows: int, row_bytes: int, digest: str | None) -> Any:
+    """The sha256 of the first ``rows`` rows of the stream ``fd`` (kept open for the rows
+    appended next), refusing a shorter file or (``digest``: the checkpoint's record) other
+    bytes."""
+    if os.fstat(fd).st_size < rows * row_bytes:
+        raise RunDirError(
+            f"{path} holds {os.fstat(fd).st_size // row_bytes} iterations of metrics, fewer "
+            f"than the {rows} iterations its checkpoint counts; refusing it"
+        )
+    h = hash_fd(fd, rows * row_bytes)
+    if digest is not None and "sha256:" + h.hexdigest() != digest:
+        raise RunDirError(
+            f"{path} is not the file the run wrote: its rows differ from the digest its "
+            "checkpoint records"
+        )
+    return h
+
+
+def read_stream(
+    path: Target, columns: Sequence[str], runs: int, rows: int, digest: str | None = None
+) -> dict[str, np.ndarray]:
+    """The first ``rows`` rows of a metrics stream, memory-mapped read-only: column ->
+    ``[rows, runs]`` float32 (a view; nothing is read until it is used). With ``digest``
+    (the checkpoint's record), rows whose bytes differ are refused.
+
+    Raises:
+        RunDirError: missing, a link, not a regular file, shorter than ``rows`` rows, or
+            not the rows the checkpoint recorded.
+    """
+    if rows == 0:
+        return _mapped(None, 0, columns, runs)
+    with open_tree(path) as f:
+        _check_rows(f.fileno(), path, rows, len(columns) * runs * STREAM_DTYPE.itemsize, digest)
+        return _mapped(f, rows, columns, runs)
+
+
+def _mapped(f, rows: int, columns: Sequence[str], runs: int) -> dict[str, np.ndarray]:
+    """The first ``rows`` rows of the open stream ``f``, memory-mapped (zeros when there are
+    none: an empty file cannot be mapped), as column -> ``[rows, runs]`` views."""
+    shape = (rows, len(columns), runs)
+    block = (
+        np.memmap(f, STREAM_DTYPE, mode="r", shape=shape) if rows else np.zeros(shape, STREAM_DTYPE)
+    )
+    return {name: block[:, c, :] for c, name in enumerate(columns)}
 
 
 # ---- tree files (.npz) ----
@@ -630,26 +845,17 @@ def arrays_digest(arrays: dict[str, np.ndarray]) -> str:
     return "sha256:" + h.hexdigest()
 
 
-def path_name(path: tuple) -> str:
-    """A JAX key path as ``a/b/0/c`` (dict keys, attribute names and sequence indices)."""
-    parts = []
-    for key in path:
-        for attr in ("key", "name", "idx"):
-            if hasattr(key, attr):
-                parts.append(str(getattr(key, attr)))
-                break
-        else:
-            parts.append(str(key))
-    return "/".join(parts)
-
-
 def flatten(tree: Any, is_leaf: Any = None) -> dict[str, Any]:
-    """``{"a": {"b": x}} -> {"a/b": x}`` for any pytree (array leaves as NumPy arrays)."""
+    """``{"a": {"b": x}} -> {"a/b": x}`` for any pytree (array leaves as NumPy arrays): each
+    leaf under its key path, dict keys, attribute names and sequence indices joined by ``/``."""
     import jax
 
     leaves = jax.tree_util.tree_flatten_with_path(jax.device_get(tree), is_leaf=is_leaf)[0]
     return {
-        path_name(path): leaf if is_leaf is not None else np.asarray(leaf) for path, leaf in leaves
+        jax.tree_util.keystr(path, simple=True, separator="/"): (
+            leaf if is_leaf is not None else np.asarray(leaf)
+        )
+        for path, leaf in leaves
     }
 
 
@@ -680,23 +886,13 @@ def save_tree(
 
 
 @contextlib.contextmanager
-def _reading(path: str | os.PathLike) -> Iterator[None]:
+def _reading(path: Target) -> Iterator[None]:
     """Turns every way reading a tree file can fail into one :class:`RunDirError`."""
     try:
         yield
-    except FileNotFoundError:
-        raise RunDirError(f"{path} does not exist") from None
     except RunDirError:
         raise
-    except (
-        OSError,
-        ValueError,
-        KeyError,
-        EOFError,
-        RecursionError,
-        zipfile.BadZipFile,
-        UnicodeDecodeError,
-    ) as exc:
+    except (OSError, ValueError, KeyError, EOFError, RecursionError, zipfile.BadZipFile) as exc:
         raise RunDirError(f"{path} is corrupted: {str(exc)[:200]}") from None
 
 
@@ -709,19 +905,18 @@ def nbytes(headers: dict[str, Header]) -> int:
     return sum(math.prod(shape) * np.dtype(dtype).itemsize for shape, dtype in headers.values())
 
 
-MAX_META_BYTES = 1 << 20
-
-
-def read_headers(path: Target, max_bytes: int) -> dict[str, Header]:
-    """Each array's shape and dtype from its header alone, after checking that the file is
-    a plain ``.npz`` whose declared sizes add up and stay under ``max_bytes``: a crafted
-    file is refused before anything large is read.
+def read_headers(path: Target, max_bytes: int) -> tuple[dict[str, Header], dict | None]:
+    """Each array's shape and dtype from its header alone, and the JSON metadata (None when
+    there is none), after checking that the file is a plain ``.npz`` whose declared sizes add
+    up and stay under ``max_bytes``: a crafted file is refused before anything large is read.
 
     Raises:
         RunDirError: not a zip of ``.npy`` arrays, object arrays, sizes that do not match
-            their headers, or more than ``max_bytes`` in all.
+            their headers, more than ``max_bytes`` in all, or metadata that is not a JSON
+            object of reasonable size.
     """
     headers: dict[str, Header] = {}
+    meta = None
     with _reading(path), open_tree(path) as raw, zipfile.ZipFile(raw) as zf:
         infos = zf.infolist()
         names = [i.filename for i in infos]
@@ -752,8 +947,15 @@ def read_headers(path: Target, max_bytes: int) -> dict[str, Header]:
                 data_bytes = math.prod(shape) * dtype.itemsize
                 if f.tell() + data_bytes != info.file_size:
                     raise RunDirError(f"{path}: {info.filename}'s size does not match its header")
+                if info.filename == META_KEY + ".npy":
+                    if dtype != np.uint8 or data_bytes > MAX_META_BYTES:
+                        raise ValueError("metadata is not a JSON text of reasonable size")
+                    meta = json.loads(f.read(data_bytes).decode())
+                    if not isinstance(meta, dict):
+                        raise ValueError("metadata is not a JSON object")
+                    continue
             headers[info.filename[: -len(".npy")]] = (tuple(shape), dtype)
-    return headers
+    return headers, meta
 
 
 def load_tree(
@@ -773,9 +975,8 @@ def load_tree(
         RunDirError: the file is missing, not an ``.npz``, torn, too large, holds objects,
             or not the ``expected`` arrays.
     """
-    found = read_headers(path, max_bytes)
+    found, meta = read_headers(path, max_bytes)
     if expected is not None:
-        found.pop(META_KEY, None)
         missing = sorted(set(expected) - set(found))
         extra = sorted(set(found) - set(expected)) if exact else []
         if missing or extra:
@@ -791,28 +992,16 @@ def load_tree(
                 )
     with _reading(path), open_tree(path) as raw, np.load(raw, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files if k != META_KEY}
-        meta = _meta(data) if META_KEY in data.files else None
     check_finite({n: arrays[n] for n, (_, dt) in (expected or {}).items() if dt is not None}, path)
     return arrays, meta
 
 
-def _meta(data: Any) -> dict:
-    raw = data[META_KEY]
-    if raw.dtype != np.uint8 or raw.size > MAX_META_BYTES:
-        raise ValueError("metadata is not a JSON text of reasonable size")
-    meta = json.loads(bytes(raw).decode())
-    if not isinstance(meta, dict):
-        raise ValueError("metadata is not a JSON object")
-    return meta
-
-
 def read_meta(path: Target) -> dict:
     """Only the JSON metadata of a tree file (the arrays are not read)."""
-    headers = read_headers(path, max_bytes=1 << 40)  # sizes are checked, nothing large read
-    if META_KEY not in headers:
+    meta = read_headers(path, max_bytes=1 << 40)[1]  # sizes are checked, nothing large read
+    if meta is None:
         raise RunDirError(f"{path} has no metadata")
-    with _reading(path), open_tree(path) as raw, np.load(raw, allow_pickle=False) as data:
-        return _meta(data)
+    return meta
 
 
 def check_finite(arrays: dict[str, np.ndarray], path: str | os.PathLike) -> None:

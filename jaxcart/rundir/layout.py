@@ -9,11 +9,11 @@ Layout of ``RUN_DIR``:
   arrays ``[num_seeds, ...]`` keyed by path (``params/actor/hidden_0/kernel``, ...);
 - ``evaluation.json``: per-seed greedy evaluation in Gymnasium's CartPole-v1 (and in jaxcart);
 - ``checkpoint.npz``: the full training state while a run is unfinished
-  (:mod:`jaxcart.rundir.checkpoint`);
+  (:mod:`jaxcart.rundir.directory`);
 - ``metrics.stream``: the metrics so far of the wave being trained, appended chunk by chunk
-  beside the checkpoint (:mod:`jaxcart.rundir.stream`);
+  beside the checkpoint (:class:`jaxcart.rundir.files.MetricsStream`);
 - ``waves/wave-00003.npz``: one block of results per finished wave of a run trained in waves
-  (:mod:`jaxcart.rundir.outputs`);
+  (:class:`jaxcart.rundir.directory.Block`);
 - ``manifest.json``: the digest of every finished file, checked by every reader
   (:class:`jaxcart.rundir.files.Manifest`);
 - ``.lock``: held by the process that trains it (:class:`jaxcart.rundir.files.RunLock`);

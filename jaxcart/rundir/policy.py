@@ -22,8 +22,8 @@ from jaxcart.core import envs, networks
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig, resolve_code
 from jaxcart.rundir import files, layout, reader
-from jaxcart.rundir.checkpoint import read_checkpoint_runs
 from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.reader import read_checkpoint_runs
 
 
 class Policy:

@@ -1,28 +1,37 @@
-"""The one reader of run directories: every command and the library read a run's files
-through here (plot, compare, evaluate, ``load_policy`` and resume), so that what is checked
-before anything is trusted is checked in one place.
+"""The one reader of run directories' contents: every command and the library read a run's
+files through here (plot, compare, evaluate, ``load_policy`` and resume), so that what is
+checked before anything is trusted is checked in one place.
 
-A run directory may come from anyone: every reader refuses links out of the directory,
-bounds what it reads by what the run's ``config.json`` says it can hold, checks headers
-before reading arrays, and turns every way a file can be broken into one
+A run directory may come from anyone. What the store (:mod:`jaxcart.rundir.files`)
+guarantees for every file (no link followed, regular files only, bounded reads, the digest
+the manifest records) is not checked again here; what is checked here is the sense of what
+the files hold: ``config.json``'s fields, metrics within what training can produce,
+evaluation returns within the env's, arrays of the shapes this run's network has, a
+checkpoint that belongs to this run. Every way a file can be wrong is one
 :class:`~jaxcart.rundir.files.RunDirError` that says which file and why.
+
+The curves of a run (:func:`load_run`, :func:`load_runs`: ``metrics.csv``, or its checkpoint
+while unfinished, with its evaluation and labels; a sweep standing for its combinations) are
+what plot and compare read.
 """
 
 from __future__ import annotations
 
 import csv
-import fnmatch
+import dataclasses
 import io
 import itertools
 import math
 import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from jaxcart.core import envs, physics
-from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import (
+    MAX_CUSTOM_METRICS,
     ConfigError,
     PPOConfig,
     RecordedNetwork,
@@ -32,16 +41,13 @@ from jaxcart.core.config import (
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.networks import ActorCritic, param_shapes
 from jaxcart.core.solved import EPISODE_LIMITS, is_solved, return_bounds
+from jaxcart.engine.loop import METRIC_COLUMNS, TrainState, metric_columns
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import MAX_JSON_BYTES, RunDirError, read_json
 
 EVAL_JSON_BYTES_PER_EPISODE = 64  # two returns per episode, as JSON, with room to spare
 EVAL_JSON_BYTES_PER_SEED = 1024  # a seed's entry besides its returns
 MAX_CSV_BYTES_PER_ROW = 4096
-
-
-MAX_RETURN = EnvParams().max_episode_steps
-"""The largest episode return (and length) of CartPole-v1: one point per step, 500 steps."""
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 X64_KEY = "x64"
 """Of ``config.json``: true when the run trained in float64 (``JAX_ENABLE_X64=1``)."""
@@ -49,81 +55,49 @@ MAX_RUNS = 1 << 20
 """The most runs (seeds x combinations) a ``config.json`` may declare."""
 MAX_EVAL_EPISODES = 100_000
 """The most evaluation episodes per seed a run directory may declare."""
+RUN_INTS = {
+    "num_seeds": (1, MAX_RUNS),
+    "seed": (0, 2**32 - 1),
+    "wave_size": (1, MAX_RUNS),
+    "eval_episodes": (1, MAX_EVAL_EPISODES),
+    "device_count": (1, 1 << 16),
+}
+"""The integers of ``config.json`` and their bounds (``wave_size`` and ``eval_episodes`` may
+be null)."""
+MAX_ELAPSED = 1e10
+"""Seconds of training a checkpoint may declare (three centuries)."""
+MAX_CHUNK = 1 << 20
+"""The most iterations a checkpoint's chunk may declare: the compiled chunk scans an int32
+iteration counter and builds ``[chunk_size, R]`` metrics, so a larger one could overflow or
+exhaust memory in the compiled call (the trainer also caps it at the run's iterations)."""
+ELAPSED_METRIC = "time/elapsed"
 
 
-CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FILE)
-"""Whether these exist says whether a directory is a sweep, a finished or an unfinished run
-(:func:`~jaxcart.rundir.layout.is_sweep`): :func:`read_run_config` refuses each as a link."""
+# ---- config.json ----
 
 
 def read_run_config(run_dir: files.Where, verify: bool = False) -> dict:
-    """The run's ``config.json`` as a dict (``config`` a :class:`PPOConfig`), with a clear
-    error when it is not a run or does not hold what a run's config holds; with ``verify``
-    (a resume), its digest must match its contents (hand edits and corruption are refused).
-    """
-    with files.opened(run_dir) as directory:
-        return _read_run_config(directory, verify)
-
-
-def _read_run_config(directory: files.Dir, verify: bool) -> dict:
-    path = directory / layout.CONFIG_FILE
-    if files.refuse_link(path) is None:
-        names = directory.names()
-        only_lock = names == [layout.LOCK_FILE]
-        hint = (
-            f" (only the {layout.LOCK_FILE} of a start that failed: start it again with "
-            f"--out {directory}, which takes it over)"
-            if only_lock
-            else ""
-        )
-        if files.present(directory / layout.SB3_PLAN_FILE):
-            # SB3's seeds are kept one by one; the run directory is written once all finish
-            kept = 0
-            if layout.SB3_SEEDS_DIR in names:
-                seeds = directory.sub(layout.SB3_SEEDS_DIR)
-                try:
-                    kept = len(fnmatch.filter(seeds.names(), "seed-*.npz"))
-                finally:
-                    seeds.close()
-            hint = (
-                f" yet: it is an interrupted python -m jaxcart.sb3 run ({kept} seed(s) kept); "
-                f"train the others, then plot or evaluate it: python -m jaxcart.sb3 --resume "
-                f"{directory}"
-            )
-        raise RunDirError(
-            f"{directory} has no {layout.CONFIG_FILE}: it is not a jaxcart run directory{hint}"
-        )
-    for name in CLASSIFYING_FILES:  # what the directory is: never decided through a link
-        files.refuse_link(directory / name)
-    data = read_json(directory, layout.CONFIG_FILE)
-    files.verified(directory, layout.CONFIG_FILE, data)
-    if verify:
-        _check_digest(path, data)
+    """The run's ``config.json`` (:func:`~jaxcart.rundir.files.read_config`) as a dict
+    (``config`` a :class:`PPOConfig`), with a clear error when it does not hold what a run's
+    config holds; with ``verify`` (a resume), its digest must match its contents."""
+    data = files.read_config(run_dir, verify)
     try:
         data["config"] = PPOConfig.from_dict(data["config"])
         _check_run_fields(data)
     except (KeyError, TypeError, ValueError, OverflowError, ConfigError) as exc:
-        raise RunDirError(f"{path} is corrupted or from an incompatible version: {exc}") from None
+        raise RunDirError(
+            f"{Path(str(run_dir)) / layout.CONFIG_FILE} is corrupted or from an incompatible "
+            f"version: {exc}"
+        ) from None
     return data
-
-
-def _check_digest(path: files.Target, data: dict) -> None:
-    """Refuses a ``config.json`` whose digest is missing or does not match its contents."""
-    if layout.DIGEST_KEY not in data:
-        raise RunDirError(
-            f"{path} has no digest: it was not written by this version of jaxcart, or was "
-            "rewritten by hand; a run continues only with the settings it started with"
-        )
-    body = {k: v for k, v in data.items() if k != layout.DIGEST_KEY}
-    if data[layout.DIGEST_KEY] != files.json_digest(body):
-        raise RunDirError(
-            f"{path} does not match its digest: it was edited or corrupted after the run "
-            "wrote it; restore it (a run continues only with the settings it started with)"
-        )
 
 
 def bounded_int(value: object, low: int, high: int) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+
+
+def finite_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def check_num_runs(num_seeds: int, num_combos: int) -> None:
@@ -140,41 +114,32 @@ def check_num_runs(num_seeds: int, num_combos: int) -> None:
 
 
 def _check_run_fields(data: dict) -> None:
-    num_seeds, seed = data.get("num_seeds", 1), data.get("seed", 0)
-    if not bounded_int(num_seeds, 1, MAX_RUNS):
-        raise ValueError(f"num_seeds {num_seeds!r}")
-    if not bounded_int(seed, 0, 2**32 - 1):
-        raise ValueError(f"seed {seed!r}")
-    wave_size = data.get("wave_size", num_seeds)
-    if wave_size is not None and not bounded_int(wave_size, 1, MAX_RUNS):
-        raise ValueError(f"wave_size {wave_size!r}")
-    episodes = data.get("eval_episodes")
-    if episodes is not None and not bounded_int(episodes, 1, MAX_EVAL_EPISODES):
-        raise ValueError(f"eval_episodes {episodes!r} (at most {MAX_EVAL_EPISODES:,})")
-    device_count = data.get("device_count", 1)
-    if not bounded_int(device_count, 1, 1 << 16):
-        raise ValueError(f"device_count {device_count!r}")
-    preset = data.get("preset", "")
-    if not isinstance(preset, str) or len(preset) > 256:
-        raise ValueError(f"preset {preset!r}")
-    if not isinstance(data.get(X64_KEY, False), bool):
-        raise ValueError(f"{X64_KEY} {data.get(X64_KEY)!r}")
-    versions = data.get("versions", {})
-    if not isinstance(versions, dict) or not all(isinstance(v, str) for v in versions.values()):
-        raise ValueError("versions is not a {package: version} object")
-    sweep = data.get("sweep", {})
-    if not isinstance(sweep, dict) or not all(
-        isinstance(v, list) and all(finite_number(x) for x in v) for v in sweep.values()
-    ):
-        raise ValueError(f"sweep {sweep!r}")
-    combination = data.get("combination") or {}
-    if not isinstance(combination, dict) or not all(finite_number(v) for v in combination.values()):
-        raise ValueError("combination is not a {name: value} object")
+    defaults = {"num_seeds": 1, "seed": 0, "device_count": 1}
+    for name, (low, high) in RUN_INTS.items():
+        value = data.get(name, defaults.get(name))
+        if not (bounded_int(value, low, high) or (value is None and name not in defaults)):
+            raise ValueError(f"{name} {value!r:.40} (in [{low:,}, {high:,}])")
+    preset, versions = data.get("preset", ""), data.get("versions", {})
+    sweep, combination = data.get("sweep", {}), data.get("combination") or {}
+    source = data.get(layout.EVALUATION_OF_KEY)
+    checks = {
+        "preset": isinstance(preset, str) and len(preset) <= 256,
+        X64_KEY: isinstance(data.get(X64_KEY, False), bool),
+        "versions": isinstance(versions, dict)
+        and all(isinstance(v, str) for v in versions.values()),
+        "sweep": isinstance(sweep, dict)
+        and all(isinstance(v, list) and all(map(finite_number, v)) for v in sweep.values()),
+        "combination": isinstance(combination, dict)
+        and all(map(finite_number, combination.values())),
+        layout.EVALUATION_OF_KEY: source is None
+        or (isinstance(source, dict) and isinstance(source.get("run"), str)),
+    }
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        raise ValueError(f"{', '.join(bad)} not what a run records")
+    num_seeds = data.get("num_seeds", 1)
     check_num_runs(num_seeds, math.prod(len(v) for v in sweep.values()) if sweep else 0)
     _check_physics_fields(data)
-    source = data.get(layout.EVALUATION_OF_KEY)
-    if source is not None and not (isinstance(source, dict) and isinstance(source.get("run"), str)):
-        raise ValueError(f"{layout.EVALUATION_OF_KEY} is not a {{run, ...}} object")
     if not sweep and data.get("combinations"):  # explicit points (a search's trials)
         check_num_runs(num_seeds, len(recorded_combinations(data)))
         return
@@ -185,8 +150,8 @@ def _check_run_fields(data: dict) -> None:
 
 
 def _check_physics_fields(data: dict) -> None:
-    """``env_params`` (a {field: value} object CartPole's params accept), ``randomize`` and the
-    physics entries of a sweep or combination, checked as a new run's are."""
+    """``env_params`` (a {field: value} object the env's params accept), ``randomize`` and
+    the physics entries of a sweep or combination, checked as a new run's are."""
     env = data.get("env_params") or {}
     if not isinstance(env, dict):
         raise ValueError("env_params is not a {field: value} object")
@@ -222,9 +187,9 @@ def env_values(combination: dict) -> dict:
     return {k[len(prefix) :]: v for k, v in combination.items() if k.startswith(prefix)}
 
 
-def run_env_params(info: dict, combination: int | None = None) -> EnvParams:
+def run_env_params(info: dict, combination: int | None = None):
     """The physics a run (or one combination of a sweep) trained on, from its ``config.json``
-    (read by :func:`read_run_config`): CartPole-v1's, with ``env_params`` and the
+    (read by :func:`read_run_config`): the env's defaults, with ``env_params`` and the
     combination's ``env.NAME`` values over them. A randomised field keeps its nominal value
     (``env_params``'), which is what a randomised run is evaluated on."""
     values = dict(info.get("env_params") or {})
@@ -245,10 +210,6 @@ def sweep_combinations(sweep: dict[str, list[float]]) -> list[dict[str, float]]:
     return [dict(zip(names, values)) for values in itertools.product(*sweep.values())]
 
 
-def finite_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 def recorded_combinations(info: dict) -> list[dict[str, float]]:
     """A run's ``config.json`` ``combinations`` (``[]`` without a sweep), checked: a list of
     ``{name: number}``."""
@@ -259,6 +220,11 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     ):
         raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
     return combos
+
+
+def params_dtype(info: dict) -> np.dtype:
+    """The float type a run trained in: float64 when its ``config.json`` records ``x64``."""
+    return np.dtype(np.float64 if info.get(X64_KEY) else np.float32)
 
 
 SHAPE_FIELDS = ("num_envs", "num_steps", "minibatch_size", "update_epochs", "hidden_sizes")
@@ -280,6 +246,15 @@ def group_values(info: dict) -> dict:
     return {name: getattr(info["config"], name) for name in SHAPE_FIELDS if name in axes}
 
 
+def _run_dirs(sweep_dir: str | os.PathLike, glob: str, none: str) -> list[Path]:
+    """The run directories of a sweep matching ``glob`` (``combo-NNN``, ``group-NNN``) in
+    order, each refused if a link or not a directory; ``none`` says what is wrong without."""
+    names = sorted(p.name for p in Path(sweep_dir).glob(glob))
+    if not names or len(names) > MAX_RUNS:
+        raise RunDirError(none)
+    return [files.subdir(sweep_dir, name) for name in names]
+
+
 def read_groups(sweep_dir: str | os.PathLike) -> list[tuple[str, Path]]:
     """A structural sweep's shape groups (its ``group-NNN/`` run directories) as ``(label,
     run directory)`` in group order, each labelled from its own ``config.json``
@@ -288,14 +263,9 @@ def read_groups(sweep_dir: str | os.PathLike) -> list[tuple[str, Path]]:
     Raises:
         RunDirError: a group directory that is a link or not a run directory.
     """
-    names = sorted(p.name for p in Path(sweep_dir).glob(layout.GROUP_GLOB))
-    if not names or len(names) > MAX_RUNS:
-        raise RunDirError(f"{sweep_dir} is not a structural sweep: no group-000/")
-    out = []
-    for name in names:
-        path = files.subdir(sweep_dir, name)  # a link is refused
-        out.append((group_label(group_values(read_run_config(path))) or name, path))
-    return out
+    none = f"{sweep_dir} is not a structural sweep: no group-000/"
+    paths = _run_dirs(sweep_dir, layout.GROUP_GLOB, none)
+    return [(group_label(group_values(read_run_config(p))) or p.name, p) for p in paths]
 
 
 def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
@@ -304,19 +274,24 @@ def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
     Raises:
         RunDirError: the sweep holds none.
     """
-    combos = sorted(Path(sweep_dir).glob(layout.COMBO_GLOB))
-    combos = [files.subdir(sweep_dir, p.name) for p in combos]  # a link is refused
-    if not combos:
-        raise RunDirError(
-            f"{sweep_dir} is a sweep without combination directories (combo-000/, ...)"
-        )
-    return combos
+    none = f"{sweep_dir} is a sweep without combination directories (combo-000/, ...)"
+    return _run_dirs(sweep_dir, layout.COMBO_GLOB, none)
+
+
+def is_sweep(directory: files.Dir) -> bool:
+    """:func:`jaxcart.rundir.layout.is_sweep`, through the directory's descriptor."""
+    return files.present(directory / layout.SWEEP_FILE) and not files.present(
+        directory / layout.PARAMS_FILE
+    )
+
+
+# ---- metrics.csv and evaluation.json ----
 
 
 def read_metrics_csv(
     path: files.Target, max_rows: int | None = None, shape: tuple[int, int] | None = None
 ) -> dict[str, np.ndarray]:
-    """Reads ``metrics.csv`` (:mod:`jaxcart.rundir.outputs`) back into leaves
+    """Reads ``metrics.csv`` (:mod:`jaxcart.rundir.directory`) back into leaves
     ``[iterations, S]``.
 
     ``max_rows`` (seeds x iterations, from the run's config) bounds what is read, and
@@ -368,9 +343,6 @@ def read_run_metrics(run_dir: files.Where, info: dict) -> dict[str, np.ndarray]:
 
 
 METRIC_BOUNDS = {
-    "rollout/ep_rew_mean": (0.0, MAX_RETURN),
-    "rollout/ep_len_mean": (0.0, MAX_RETURN),
-    "rollout/ep_rew_max": (0.0, MAX_RETURN),
     "train/approx_kl": (-FLOAT32_MAX, FLOAT32_MAX),
     "train/clip_fraction": (0.0, 1.0),
     "train/value_loss": (0.0, FLOAT32_MAX),
@@ -379,8 +351,8 @@ METRIC_BOUNDS = {
     "time/fps": (0.0, FLOAT32_MAX),
     "time/elapsed": (0.0, FLOAT32_MAX),
 }
-"""What each metric can hold: episode statistics within the env's returns, fractions in
-[0, 1], losses and rates within float32 (the stream stores float32). NaN is allowed (a
+"""What each metric can hold besides the episode statistics (:func:`metric_bounds`): fractions
+in [0, 1], losses and rates within float32 (the stream stores float32). NaN is allowed (a
 diverged run's iterations, and no finished episode yet); infinities never."""
 
 
@@ -414,9 +386,10 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB).
     """
     with files.opened(run_dir) as directory:
-        config = read_json(directory, layout.CONFIG_FILE)
-        data = read_json(directory, layout.EVALUATION_FILE, _evaluation_bytes(config))
-        path = files.verified(directory, layout.EVALUATION_FILE, config)
+        config = files.read_config(directory)
+        name, limit = layout.EVALUATION_FILE, _evaluation_bytes(config)
+        data = read_json(directory, name, limit, verify=True, info=config)
+        path = directory / name
     env_id = _env_of(config)
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
@@ -445,17 +418,9 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     return data
 
 
-def _return_list(values: object, episodes: int | None) -> np.ndarray | None:
-    """Episode returns as an array when they are a list of numbers of the right length."""
-    if not isinstance(values, list) or not all(finite_number(v) for v in values):
-        return None
-    if not values or (episodes is not None and len(values) != episodes):
-        return None
-    return np.asarray(values, float)
-
-
 def _env_of(config: object) -> str:
-    """The env id a raw ``config.json`` names (CartPole-v1 when it names none), or refuses it."""
+    """The env id a raw ``config.json`` names (the default env when it names none), or
+    refuses it."""
     inner = config.get("config") if isinstance(config, dict) else None
     env_id = inner.get("env", DEFAULT_ENV) if isinstance(inner, dict) else DEFAULT_ENV
     if env_id not in EPISODE_LIMITS:
@@ -463,27 +428,32 @@ def _env_of(config: object) -> str:
     return env_id
 
 
-def _seed_problem(seed: dict, episodes: int | None, env_id: str = DEFAULT_ENV) -> str | None:
+def _seed_problem(seed: dict, episodes: int | None, env_id: str) -> str | None:
     """What is wrong with one seed's entry of ``evaluation.json`` (None: nothing): returns
     outside the env's [least, greatest episode return], means and minima that are not theirs,
     and a ``solved`` that is not what the returns say."""
     low, high = return_bounds(env_id)
-    within = lambda x: low <= x <= high
     span = f"[{low:g}, {high:g}]"
+    within = lambda values: (
+        len(values) and all(finite_number(v) and low <= v <= high for v in values)
+    )
     mean = seed["gymnasium_mean"]
-    if not within(mean):
+    if not within([mean]):
         return f"has gymnasium_mean {mean!r:.20}, outside {span}"
     if "gymnasium_returns" not in seed:  # another library's entry: the mean and flag alone
-        return (
-            "says solved with a mean under the maximum"
-            if seed["solved"] and env_id == DEFAULT_ENV and mean < MAX_RETURN
-            else None
-        )
-    returns = _return_list(seed["gymnasium_returns"], episodes)
-    if returns is None:
+        if seed["solved"] and not is_solved(np.array([mean]), env_id):
+            return "says solved with a mean that does not solve it"
+        return None
+    returns = seed["gymnasium_returns"]
+    if not (
+        isinstance(returns, list)
+        and len(returns) == (episodes or len(returns)) > 0
+        and all(finite_number(v) for v in returns)
+    ):
         return "has gymnasium_returns that are not a list of one number per episode"
-    if returns.min() < low or returns.max() > high:
+    if not within(returns):
         return f"has returns outside {span}"
+    returns = np.asarray(returns, float)
     if not math.isclose(mean, float(returns.mean()), rel_tol=1e-9, abs_tol=1e-9):
         return "has a gymnasium_mean that is not the mean of its returns"
     if "gymnasium_min" in seed and seed["gymnasium_min"] != float(returns.min()):
@@ -492,14 +462,11 @@ def _seed_problem(seed: dict, episodes: int | None, env_id: str = DEFAULT_ENV) -
     if seed["solved"] != solved:
         return f"says solved={seed['solved']} where its returns say {solved}"
     jax_returns = seed.get("jaxcart_returns")
-    if jax_returns is not None:
-        values = _return_list(jax_returns, None)
-        if values is None or values.min() < low or values.max() > high:
-            return f"has jaxcart_returns outside {span}"
+    if jax_returns is not None and not (isinstance(jax_returns, list) and within(jax_returns)):
+        return f"has jaxcart_returns outside {span}"
     final = seed.get("final_ep_rew_mean")
-    if final is not None and not (
-        isinstance(final, (int, float)) and (math.isnan(final) or within(final))
-    ):
+    nan = isinstance(final, float) and math.isnan(final)
+    if final is not None and not nan and not within([final]):
         return f"has final_ep_rew_mean {final!r:.20}, outside {span}"
     return None
 
@@ -515,34 +482,27 @@ def _evaluation_bytes(info: dict) -> int:
     return MAX_JSON_BYTES + seeds * per_seed
 
 
+# ---- parameters, wave files and checkpoints ----
+
+
 def params_headers(
-    config: PPOConfig, num_seeds: int, dtype: np.dtype | type = np.float32
+    config: PPOConfig, num_seeds: int, dtype: np.dtype | type = np.float32, prefix: str = ""
 ) -> dict[str, files.Header]:
-    """The arrays ``params.npz`` holds for this config: names, ``[num_seeds, ...]`` shapes; the
-    built-in network's of ``dtype`` (float64 for a run trained under x64: :func:`params_dtype`),
-    another network's as its own initialisation gives them."""
+    """The arrays ``params.npz`` holds for this config (each name after ``prefix``):
+    ``[num_seeds, ...]`` shapes; the built-in network's of ``dtype`` (float64 for a run
+    trained under x64: :func:`params_dtype`), another network's as its own initialisation
+    gives them."""
     obs_dim = envs.make(config.env).obs_dim
     if isinstance(config.network, RecordedNetwork):  # its shapes need its code
         raise untrusted_code(recorded_code(config))
+    is_shape = lambda x: isinstance(x, tuple)
     if config.network is None:
         network = ActorCritic.from_config(config)
-        shapes = files.flatten(network.shapes(obs_dim), is_leaf=lambda x: isinstance(x, tuple))
-        return {name: ((num_seeds, *shape), np.dtype(dtype)) for name, shape in shapes.items()}
-    shaped = param_shapes(config.network, obs_dim)
-    leaves = files.flatten(shaped, is_leaf=lambda x: isinstance(x, tuple))
-    return {name: ((num_seeds, *shape), dt) for name, (shape, dt) in leaves.items()}
-
-
-def params_dtype(info: dict) -> np.dtype:
-    """The float type a run trained in: float64 when its ``config.json`` records ``x64``."""
-    return np.dtype(np.float64 if info.get(X64_KEY) else np.float32)
-
-
-def is_sweep(directory: files.Dir) -> bool:
-    """:func:`jaxcart.rundir.layout.is_sweep`, through the directory's descriptor."""
-    return files.present(directory / layout.SWEEP_FILE) and not files.present(
-        directory / layout.PARAMS_FILE
-    )
+        shapes = files.flatten(network.shapes(obs_dim), is_leaf=is_shape)
+        leaves = {name: (shape, np.dtype(dtype)) for name, shape in shapes.items()}
+    else:
+        leaves = files.flatten(param_shapes(config.network, obs_dim), is_leaf=is_shape)
+    return {prefix + name: ((num_seeds, *shape), dt) for name, (shape, dt) in leaves.items()}
 
 
 def load_params(run_dir: files.Where, policy: str = "final", info: dict | None = None) -> dict:
@@ -588,8 +548,8 @@ def policy_file(policy: str) -> str:
 def check_block(
     path: Path, config: PPOConfig, runs: range, episodes: int, dtype: np.dtype | type = np.float32
 ) -> None:
-    """Refuses a wave file (:class:`~jaxcart.rundir.outputs.Block`) that is not the one this
-    run wrote for ``runs``: its headers (parameters of this network, metrics
+    """Refuses a wave file (:class:`~jaxcart.rundir.directory.Block`) that is not the one
+    this run wrote for ``runs``: its headers (parameters of this network, metrics
     ``[iterations, n]``, returns ``[n, episodes]``) are checked before anything is read, then
     its digest and finite parameters.
 
@@ -597,19 +557,17 @@ def check_block(
         RunDirError: a link, torn, crafted, edited or of another shape.
     """
     n = len(runs)
-    headers = params_headers(config, n, dtype).items()
-    prefixes = (layout.BLOCK_PARAMS, layout.BLOCK_BEST_PARAMS)
-    expected = {
-        prefix + name: header
-        for prefix in prefixes[: 2 if config.keep_best else 1]
-        for name, header in headers
-    }
+    expected = params_headers(config, n, dtype, layout.BLOCK_PARAMS)
+    if config.keep_best:
+        expected |= params_headers(config, n, dtype, layout.BLOCK_BEST_PARAMS)
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
     if config.keep_best:
         fixed |= {"best_gym_returns": (n, episodes), "best_iteration": (n,), "best_score": (n,)}
     expected |= {name: (shape, None) for name, shape in fixed.items()}
-    limit, what = 2 * _block_bytes(config, n, episodes), "this wave's results"
-    arrays, meta = files.load_tree(path, limit, expected, what, exact=False)
+    params = files.nbytes(params_headers(config, n)) * (2 if config.keep_best else 1)
+    metrics = (64 + len(config.extra_metric_names)) * config.num_iterations * n * 8
+    limit = 2 * (params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20))  # generous
+    arrays, meta = files.load_tree(path, limit, expected, "this wave's results", exact=False)
     shapes = {name: a.shape for name, a in arrays.items() if name.startswith(layout.BLOCK_METRICS)}
     if any(shape != (config.num_iterations, n) for shape in shapes.values()):
         raise RunDirError(f"{path} does not hold this wave's results: metrics of another shape")
@@ -622,8 +580,358 @@ def check_block(
         )
 
 
-def _block_bytes(config: PPOConfig, n: int, episodes: int) -> int:
-    """A generous bound on a wave file of ``n`` runs."""
-    params = files.nbytes(params_headers(config, n)) * (2 if config.keep_best else 1)
-    metrics = (64 + len(config.extra_metric_names)) * config.num_iterations * n * 8
-    return params + metrics + n * (2 * episodes + 1) * 8 + (1 << 20)
+def state_arrays(state: TrainState) -> dict[str, np.ndarray]:
+    """The checkpoint entries of a state's arrays: ``state/<tree path>`` -> ``[R, ...]`` (the
+    config's traced fields under ``state/hyperparams/``)."""
+    tree = {"runners": state.runners, "hyperparams": state.config}
+    return {layout.CHECKPOINT_STATE + k: a for k, a in files.flatten(tree).items()}
+
+
+def read_checkpoint_meta(path: files.Target) -> dict:
+    """The metadata of a checkpoint, with a :class:`RunDirError` if it is unreadable, of
+    another format, or holds fields of the wrong type or out of range."""
+    meta = files.read_meta(path)
+    if meta.get("checkpoint_format") != layout.CHECKPOINT_FORMAT:
+        raise RunDirError(
+            f"checkpoint {path} has format {meta.get('checkpoint_format')!r:.40}, this version "
+            f"reads {layout.CHECKPOINT_FORMAT}"
+        )
+    columns, versions = meta.get("metrics_columns"), meta.get("versions", {})
+    checks = {
+        "iteration": bounded_int(meta.get("iteration"), 0, 1 << 40),
+        "chunk_size": bounded_int(meta.get("chunk_size"), 1, MAX_CHUNK),
+        "elapsed": finite_number(meta.get("elapsed")) and 0 <= meta.get("elapsed") < MAX_ELAPSED,
+        "wave": bounded_int(meta.get("wave", 0), 0, MAX_RUNS),
+        "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
+        "versions": isinstance(versions, dict)
+        and all(isinstance(v, str) for v in versions.values()),
+        # the built-in columns, then at most MAX_CUSTOM_METRICS names of a run's own
+        "metrics_columns": isinstance(columns, list)
+        and columns[: len(METRIC_COLUMNS)] == list(METRIC_COLUMNS)
+        and len(columns) <= len(METRIC_COLUMNS) + MAX_CUSTOM_METRICS
+        and all(isinstance(c, str) for c in columns),
+    }
+    bad = [name for name, ok in checks.items() if not ok]
+    if bad:
+        raise RunDirError(f"checkpoint {path} is corrupted: {', '.join(bad)} out of range")
+    return meta
+
+
+def load_checkpoint(
+    path: str | os.PathLike, template: TrainState, num_runs: int | None = None
+) -> TrainState:
+    """Restores a checkpoint into the structure of ``template`` (NumPy leaves), to resume
+    training.
+
+    ``template`` gives the names, dtypes and per-run shapes; its leading run axis may be
+    shorter than the checkpoint's ``num_runs`` (a one-run template is enough). Every header
+    is checked before anything is read, and the state must be finite.
+
+    Raises:
+        RunDirError: missing, corrupted, crafted, or saved from a different structure/shape.
+    """
+    import jax
+
+    meta = read_checkpoint_meta(path)
+    if meta["metrics_columns"] != list(metric_columns(template.config)):
+        raise RunDirError(f"checkpoint {path} records other metrics than this run's config.json")
+    runs = num_runs if num_runs is not None else len(template.runners.diverged_at)
+    expected = {k: ((runs, *a.shape[1:]), a.dtype) for k, a in state_arrays(template).items()}
+    what = "this version's training state"
+    arrays, _ = files.load_tree(path, files.nbytes(expected) + (1 << 20), expected, what)
+    tree = {"runners": template.runners, "hyperparams": template.config}
+    restored = jax.tree.unflatten(jax.tree.structure(tree), [arrays[n] for n in expected])
+    return TrainState(
+        runners=restored["runners"],
+        config=restored["hyperparams"],
+        iteration=int(meta["iteration"]),
+        elapsed=float(meta["elapsed"]),
+        metrics={},  # in the stream (jaxcart.rundir.files.MetricsStream)
+        chunk_size=int(meta["chunk_size"]),
+    )
+
+
+@dataclass(frozen=True)
+class CheckpointRuns:
+    """What a run's checkpoint holds for reading: every run's parameters and metrics so far.
+
+    A sweep's checkpoint (in the sweep directory) holds all combinations x seeds: run ``r``
+    is combination ``r // num_seeds``, seed index ``r % num_seeds``.
+    """
+
+    params: dict  # leaves [R, ...]
+    metrics: dict[str, np.ndarray]  # name -> [iteration, R]
+    iteration: int
+    num_iterations: int
+
+    @property
+    def note(self) -> str:
+        where = f"from the checkpoint at iteration {self.iteration}/{self.num_iterations}"
+        if self.iteration >= self.num_iterations:
+            return f"{where}: training finished but the run stopped before writing its outputs"
+        return f"{where}: the run did not finish"
+
+
+def read_checkpoint_runs(
+    run_dir: files.Where, info: dict | None = None, policy: str = "final", params: bool = True
+) -> CheckpointRuns:
+    """Reads the parameters and metrics of every run from ``RUN_DIR/checkpoint.npz`` (no
+    optimizer or env state is restored), refusing crafted files: the metadata must match the
+    run's ``config.json``, every array header is checked before anything is read, the whole
+    file is bounded by what this config's checkpoint can hold, and parameters must be finite.
+    With ``params=False`` (curves only) the parameters are neither read nor checked, so a run
+    whose network's code is not imported here (:class:`~jaxcart.core.config.RecordedNetwork`)
+    still plots.
+
+    Raises:
+        RunDirError: no usable checkpoint.
+    """
+    with files.opened(run_dir) as directory:
+        info = info or read_run_config(directory)
+        config = info["config"]
+        missing = f"{directory} has no {layout.PARAMS_FILE} and no {layout.CHECKPOINT_FILE}"
+        path = files.verified(directory, layout.CHECKPOINT_FILE, info, missing)
+        meta = read_checkpoint_meta(path)
+        runs = int(info.get("num_seeds", 1)) * max(1, len(recorded_combinations(info)))
+        iteration = meta["iteration"]
+        if meta.get("num_runs") != runs or iteration > config.num_iterations:
+            raise RunDirError(f"{path} does not belong to this run's config.json")
+        prefix = layout.CHECKPOINT_PARAMS
+        if policy == "best":  # the best policies so far (keep_best)
+            if not config.keep_best:
+                raise RunDirError(no_best_policy(directory))
+            prefix = layout.CHECKPOINT_BEST_PARAMS
+        arrays = {}
+        if params:
+            expected = params_headers(config, runs, params_dtype(info), prefix)
+            # parameters and Adam's two moments, per-env state and episode statistics
+            state = 4 * files.nbytes(params_headers(config, runs))
+            limit = 2 * (state + runs * (config.num_envs * 256 + (1 << 14)) + (1 << 20))
+            arrays, _ = files.load_tree(path, limit, expected, exact=False)
+            arrays = {name[len(prefix) :]: arrays[name] for name in expected}
+        stream = directory / layout.METRICS_STREAM_FILE
+        digest = meta.get(files.STREAM_DIGEST_KEY)
+        streamed = files.read_stream(stream, metric_columns(config), runs, iteration, digest)
+    metrics = {name: a.astype(float) for name, a in streamed.items()}
+    return CheckpointRuns(files.unflatten(arrays), metrics, iteration, config.num_iterations)
+
+
+# ---- curves: what plot and compare read ----
+
+
+@dataclass(frozen=True)
+class RunCurves:
+    """One run directory's curves: metric leaves ``[iterations, num_seeds]``."""
+
+    path: Path
+    label: str
+    metrics: dict[str, np.ndarray]
+    env_steps: np.ndarray  # [iterations], env steps per seed
+    elapsed: np.ndarray | None  # [iterations] seconds of training, None if not recorded
+    num_seeds: int
+    evaluation: dict | None  # evaluation.json, None if missing
+    combination: dict[str, float] | None = None  # a sweep's combination: its swept values
+    note: str | None = None  # "from the checkpoint at iteration 12/40: ..." when unfinished
+    custom_metrics: tuple[str, ...] = ()  # the run's own metrics (config.json's names)
+    env: str = DEFAULT_ENV  # the env it trained on (config.json's env)
+
+
+def unfinished(run_dir: files.Where) -> bool:
+    """A run (or sweep) that did not write its outputs but has a checkpoint to plot from."""
+    with files.opened(run_dir) as directory:
+        done = layout.SWEEP_FILE if is_sweep(directory) else layout.PARAMS_FILE
+        return not files.present(directory / done) and files.present(
+            directory / layout.CHECKPOINT_FILE
+        )
+
+
+def started(run_dir: Path) -> bool:
+    """Whether a run has trained (or is training): it has outputs or a checkpoint."""
+    names = (layout.METRICS_FILE, layout.SWEEP_FILE, layout.CHECKPOINT_FILE)
+    return any(files.present(run_dir / name) for name in names)
+
+
+def _curves(
+    path: Path, info: dict, label: str | None, metrics: dict, **fields: object
+) -> RunCurves:
+    """A :class:`RunCurves` of ``metrics`` (its own ``combination`` by default), labelled
+    ``label`` or by its combination's values or its directory."""
+    combination = fields.setdefault("combination", info.get("combination") or None)
+    if label is None:
+        label = combination_label(combination) if combination else default_label(path, info)
+    elapsed = metrics.get(ELAPSED_METRIC)
+    shape = next(iter(metrics.values())).shape[1] if metrics else 1
+    return RunCurves(
+        path=path,
+        label=label,
+        metrics=metrics,
+        elapsed=None if elapsed is None else _first_finite(elapsed),
+        num_seeds=int(info.get("num_seeds", shape)),
+        custom_metrics=info["config"].metric_names,
+        env=info["config"].env,
+        **fields,
+    )
+
+
+def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
+    """Reads a run directory's config, metrics and evaluation; a run that did not finish,
+    its metrics so far from its checkpoint (:attr:`RunCurves.note` says so); an evaluation
+    (``python -m jaxcart.evaluate --out``), its evaluation alone (no curves). The directory
+    is opened once and every file read through it (:func:`jaxcart.rundir.files.opened`).
+
+    Raises:
+        RunDirError: ``run_dir`` is not a jaxcart run directory, or its
+            ``metrics.csv`` is missing or unreadable.
+    """
+    path = Path(run_dir)
+    with files.opened(path) as directory:
+        info = read_run_config(directory)
+        if unfinished(directory):
+            labels = [label] if label is not None else None
+            return checkpoint_curves(path, info, labels, directory)[0]
+        trained = not is_evaluation(info)
+        if trained and not files.present(directory / layout.METRICS_FILE):
+            raise RunDirError(
+                f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
+                "never started training"
+            )
+        # an evaluation's curves are its run's: none here, as for a run that logged none
+        metrics = read_run_metrics(directory, info) if trained else {}
+        evaluation = None
+        if files.present(directory / layout.EVALUATION_FILE):
+            evaluation = read_evaluation(directory, int(info.get("num_seeds", 1)))
+    if trained and "env_steps" not in metrics:
+        raise RunDirError(f"{path / layout.METRICS_FILE} has no env_steps column")
+    env_steps = _first_finite(metrics["env_steps"]) if trained else np.empty(0)
+    return _curves(path, info, label, metrics, env_steps=env_steps, evaluation=evaluation)
+
+
+def checkpoint_curves(
+    path: Path,
+    info: dict,
+    labels: Sequence[str | None] | None = None,
+    directory: files.Dir | None = None,
+) -> list[RunCurves]:
+    """The curves so far of an unfinished run, or of each combination of an unfinished sweep
+    (whose checkpoint holds every combination x seed), from ``checkpoint.npz``.
+
+    Raises:
+        RunDirError: no usable checkpoint, or no iteration finished yet.
+    """
+    # a network recorded as data has no shapes to check its parameters against: curves only
+    known = not isinstance(info["config"].network, RecordedNetwork)
+    saved = read_checkpoint_runs(directory or path, info, params=known)
+    if saved.iteration == 0:
+        raise RunDirError(f"{path}: {saved.note} (no iteration finished yet: no curves)")
+    num_seeds = int(info.get("num_seeds", 1))
+    env_steps = np.arange(1, saved.iteration + 1) * info["config"].batch_size
+    return [
+        _curves(
+            path,
+            info,
+            labels[c] if labels is not None else None,
+            {k: v[:, c * num_seeds : (c + 1) * num_seeds] for k, v in saved.metrics.items()},
+            env_steps=env_steps,
+            evaluation=None,
+            combination=combination,
+            note=saved.note,
+        )
+        for c, combination in enumerate(recorded_combinations(info) or [None])
+    ]
+
+
+def default_label(path: Path, info: dict | None = None) -> str:
+    """The run directory's name (``runs/sb3-x/`` and ``.`` resolve to a real name), with the
+    physics its ``config.json`` records when they are not the env's defaults:
+    ``short-pole (length=0.25)``, ``rand (length~U[0.5,1.5])``."""
+    name = path.resolve().name or str(path)
+    physics = physics_label(info or {})
+    return f"{name} ({physics})" if physics else name
+
+
+def physics_label(info: dict) -> str:
+    """A run's physics from its ``config.json``: ``length=0.25,masspole~U[0.05,0.2]``
+    (``""`` for the env's defaults)."""
+    parts = [
+        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
+        for k, v in (info.get("env_params") or {}).items()
+    ]
+    parts += [
+        f"{k}~U[{r['low']:g},{r['high']:g}]" + ("/episode" if r.get("per") == "episode" else "")
+        for k, r in (info.get("randomize") or {}).items()
+    ]
+    return ",".join(parts)
+
+
+def combination_label(combination: dict[str, float]) -> str:
+    """``{"learning_rate": 0.001, "clip_coef": 0.2}`` -> ``learning_rate=0.001,clip_coef=0.2``."""
+    return ",".join(f"{name}={value:g}" for name, value in combination.items())
+
+
+def load_runs(
+    run_dirs: Sequence[str | os.PathLike], labels: Sequence[str] | None = None
+) -> list[RunCurves]:
+    """Loads run directories, a sweep directory standing for its combinations.
+
+    Args:
+        run_dirs: run or sweep directories.
+        labels: one per entry of ``run_dirs`` (default: directory names, and a combination's
+            hyperparameter values); a sweep's label prefixes its combinations' labels.
+
+    Raises:
+        RunDirError: a path is not a usable run directory.
+    """
+    runs: list[RunCurves] = []
+    for i, path in enumerate(Path(p) for p in run_dirs):
+        label = labels[i] if labels is not None else None
+        if layout.is_groups(path):  # a structural sweep: every group's runs, labelled by it
+            groups = [(name, group) for name, group in read_groups(path) if started(group)]
+            if not groups:
+                raise RunDirError(
+                    f"{path}: no shape group has trained yet; python -m jaxcart.train --resume "
+                    f"{path} trains them"
+                )
+            for name, group in groups:
+                runs += load_runs([group], [name if label is None else f"{label} {name}"])
+        elif layout.is_sweep(path):
+            read_run_config(path)  # a clear error for a broken sweep
+            runs += _prefixed((load_run(combo) for combo in combo_dirs(path)), label)
+        elif (info := read_run_config(path)).get("combinations") and unfinished(path):
+            runs += _prefixed(checkpoint_curves(path, info), label)  # an unfinished sweep
+        else:
+            runs.append(load_run(path, label))
+    if labels is None:
+        _disambiguate(runs)
+    return runs
+
+
+def _prefixed(runs: Iterable[RunCurves], prefix: str | None) -> list[RunCurves]:
+    """``runs`` with ``prefix`` (when given) before each label."""
+    return [
+        r if prefix is None else dataclasses.replace(r, label=f"{prefix} {r.label}") for r in runs
+    ]
+
+
+def _first_finite(values: np.ndarray) -> np.ndarray:
+    """``[iterations, S] -> [iterations]``: the first finite value across seeds (these columns
+    are the same for every seed)."""
+    values = np.asarray(values, float)
+    finite = np.isfinite(values)
+    first = np.argmax(finite, axis=1)
+    out = values[np.arange(values.shape[0]), first]
+    return np.where(finite.any(axis=1), out, np.nan)
+
+
+def _disambiguate(runs: list[RunCurves]) -> None:
+    """Runs that share a label are labelled ``parent/label`` instead: ``parent/name`` for
+    run directories, ``sweep/values`` for sweeps' combinations."""
+    names = [r.label for r in runs]
+    for i, run in enumerate(runs):
+        if names.count(run.label) > 1:
+            resolved = run.path.resolve()
+            if run.combination:  # combo-NNN/ of a sweep, or an unfinished sweep itself
+                sweep = resolved.parent if resolved.name.startswith("combo-") else resolved
+                label = f"{sweep.name}/{run.label}"
+            else:
+                label = f"{resolved.parent.name}/{resolved.name}"
+            runs[i] = dataclasses.replace(run, label=label)
