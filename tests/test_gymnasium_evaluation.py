@@ -14,7 +14,7 @@ from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 from jaxcart.core import networks
 from jaxcart.core.solved import EVAL_SEED, SOLVED_RETURN
 from jaxcart.engine.signals import Stopped
-from jaxcart.run.greedy import cartpole_constants, cartpole_step, evaluate_gymnasium
+from jaxcart.run.greedy import cartpole_step, evaluate_gymnasium
 from jaxcart.rundir.policy import NumpyPolicy
 
 NUM_POLICIES, NUM_EPISODES = 64, 20
@@ -130,12 +130,11 @@ def test_the_batched_step_is_gymnasiums_step_bit_for_bit(integrator):
     one state at a time, over states spread across (and beyond) the episode bounds."""
     env = CartPoleEnv()
     env.kinematics_integrator = integrator
-    constants = cartpole_constants(gym.wrappers.TimeLimit(env, 500))
     rng, n = np.random.default_rng(1), 20_000
     bounds = np.array([2.6, 3.0, 0.25, 3.5])[:, None]
     states = rng.uniform(-bounds, bounds, (4, n))
     actions = rng.integers(0, 2, n)
-    stepped, terminated = cartpole_step(constants, states, actions)
+    stepped, terminated = cartpole_step(env, states, actions)
     expected = np.empty_like(states)
     expected_terminated = np.empty(n, bool)
     for i in range(n):

@@ -9,21 +9,20 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import jax
 import numpy as np
 
-from jaxcart.core import cartpole, physics
+from jaxcart.core import physics
 from jaxcart.core.config import PPOConfig, float_dtype
-from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.evaluation import greedy_returns
 from jaxcart.core.ppo import make_network
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
+from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped
 from jaxcart.gym.stock import make_cartpole, reset_options
 from jaxcart.rundir import reader
-from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 
 FAST_COMPILE = {"xla_backend_optimization_level": 1}
@@ -35,28 +34,11 @@ Step = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 running episode of a policy x episode grid, its observations updated in place."""
 
 
-def cartpole_constants(env, per_run: dict[str, np.ndarray] | None = None) -> SimpleNamespace:
-    """The constants ``CartPoleEnv.step`` reads, of ``env`` (a ``gymnasium.make`` result of
-    Gymnasium's ``CartPoleEnv``, its ``TimeLimit`` as ``max_episode_steps``), with the fields
-    of ``per_run`` one value per policy (arrays ``[P]``, shaped ``[P, 1]`` to broadcast over
-    the episodes) and the masses Gymnasium derives from them recomputed as its constructor
-    does."""
-    max_steps = env.spec.max_episode_steps if env.spec is not None else None
-    constants = SimpleNamespace(**vars(env.unwrapped), max_episode_steps=max_steps)
-    if per_run:
-        for name, values in per_run.items():
-            setattr(constants, name, np.asarray(values, np.float64)[:, None])
-        constants.total_mass = constants.masspole + constants.masscart
-        constants.polemass_length = constants.masspole * constants.length
-    return constants
-
-
-def cartpole_step(
-    c: SimpleNamespace, state: np.ndarray, actions: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """``CartPoleEnv.step`` for every state at once, with constants ``c``
-    (:func:`cartpole_constants`): float64 ``state [4, ...]`` (rows x, x_dot, theta,
-    theta_dot) and actions ``[...]`` -> ``(next state [4, ...], terminated [...])``.
+def cartpole_step(c: Any, state: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``CartPoleEnv.step`` for every state at once, with the constants of ``c`` (a
+    ``CartPoleEnv``, or its attributes with some one value per policy ``[P, 1]``): float64
+    ``state [4, ...]`` (rows x, x_dot, theta, theta_dot) and actions ``[...]`` -> ``(next state
+    [4, ...], terminated [...])``.
 
     Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
     element-wise float64 arithmetic rounds each operation as on the single env's scalars,
@@ -91,11 +73,19 @@ def cartpole_step(
 
 
 def _cartpole_grid(
-    env, shape: tuple[int, int], seed: int, per_run: dict, options: dict | None
+    env: Any, shape: tuple[int, int], seed: int, per_run: dict, options: dict | None
 ) -> tuple[np.ndarray, Step]:
-    """Gymnasium's ``CartPoleEnv`` for a grid of episodes in float64 NumPy arrays: episode
-    ``e``'s start is ``env.reset(seed=seed + e, options=options)``'s, drawn by Gymnasium."""
-    c = cartpole_constants(env, per_run)
+    """Gymnasium's ``CartPoleEnv`` (``env``, a ``gymnasium.make`` result: its time limit
+    included) for a grid of episodes in float64 NumPy arrays: episode ``e``'s start is
+    ``env.reset(seed=seed + e, options=options)``'s, drawn by Gymnasium; the fields of
+    ``per_run`` take one value per policy (``[P]``), and the masses Gymnasium derives from them
+    are recomputed as its constructor does."""
+    c = SimpleNamespace(**vars(env.unwrapped))
+    for name, values in per_run.items():
+        setattr(c, name, np.asarray(values, np.float64)[:, None])  # [P, 1]: over the episodes
+    c.total_mass = c.masspole + c.masscart
+    c.polemass_length = c.masspole * c.length
+    limit = env.spec.max_episode_steps
     starts, first_obs = [], []
     for e in range(shape[1]):
         first_obs.append(env.reset(seed=seed + e, options=options)[0])
@@ -115,7 +105,7 @@ def _cartpole_grid(
             reward = np.where(terminated, -1.0, 0.0)
         else:
             reward = np.ones(shape)
-        truncated = c.max_episode_steps is not None and steps >= c.max_episode_steps
+        truncated = limit is not None and steps >= limit
         return reward, terminated | truncated  # TimeLimit: every running episode truncated
 
     return obs, step
@@ -152,7 +142,7 @@ def evaluate_gymnasium(
     seed: int = EVAL_SEED,
     env_id: str = DEFAULT_ENV,
     should_stop: Callable[[], bool] | None = None,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
 ) -> np.ndarray:
     """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``: the one
     Gymnasium evaluation loop (the final verdict, ``python -m jaxcart.evaluate``, benchmarks).
@@ -185,7 +175,7 @@ def evaluate_gymnasium(
     from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
     shape = (num_policies, num_episodes)
-    static, per_run = physics.split_per_run(env_params or cartpole.EnvParams())
+    static, per_run = _split(env_params)
     with contextlib.ExitStack() as stack:
         env = stack.enter_context(make_cartpole(static, env_id))
         num_actions = int(env.action_space.n)
@@ -227,7 +217,7 @@ def evaluate_runs(
     seed_indices: np.ndarray,
     episodes: int,
     should_stop: Callable[[], bool] | None = None,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
     Gymnasium's env of ``config.env`` (the same reset seeds for all) and in jaxcart's env (run
@@ -239,8 +229,7 @@ def evaluate_runs(
     Args:
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
-    env_params = env_params if config.env == DEFAULT_ENV else None  # CartPole's physics
-    static, per_run = physics.split_per_run(env_params)
+    static, per_run = _split(env_params)
     per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
     network = make_network(config)
 
@@ -270,7 +259,7 @@ def evaluate_run_dir(
     network: type | None = None,
     trust_code: bool = False,
 ) -> tuple[np.ndarray, dict]:
-    """Evaluates every seed of a run directory in Gymnasium's CartPole-v1: a finished run's
+    """Evaluates every seed of a run directory in Gymnasium's env of its id: a finished run's
     ``params.npz``, or the last checkpoint of one that did not finish.
 
     Args:
@@ -288,14 +277,13 @@ def evaluate_run_dir(
     """
     info = reader.read_run_config(run_dir)
     trained = run_params(run_dir, combination, network=network, trust_code=trust_code)
-    return evaluate_params(run_dir, trained, episodes), {**info, "note": trained.note}
+    return evaluate_params(trained, episodes), {**info, "note": trained.note}
 
 
-def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> np.ndarray:
-    try:
-        policy = make_policy(trained.params, trained.config, stacked=True)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
+def evaluate_params(trained: RunParams, episodes: int) -> np.ndarray:
+    """Greedy returns ``[num_seeds, episodes]`` of every seed of ``trained`` (as the store read
+    them: checked against the run's network) in Gymnasium's env of its id, on its physics."""
+    policy = make_policy(trained.params, trained.config, stacked=True)
     return evaluate_gymnasium(
         policy,
         trained.num_seeds,
@@ -303,3 +291,9 @@ def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> n
         env_id=trained.config.env,
         env_params=trained.env_params,
     )
+
+
+def _split(env_params: Any) -> tuple[Any, dict[str, np.ndarray]]:
+    """``(static, per_run)`` of CartPole's physics (:func:`~jaxcart.core.pytree.split_per_run`);
+    ``(None, {})`` for None, the env's own."""
+    return (None, {}) if env_params is None else physics.split_per_run(env_params)
