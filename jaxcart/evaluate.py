@@ -66,7 +66,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--combination",
         type=int,
-        default=None,
         metavar="C",
         help="only this combination of a sweep (needed with --gif)",
     )
@@ -91,7 +90,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out",
         type=cli.out_dir,
-        default=None,
         metavar="DIR",
         help="write the evaluation into this new directory for python -m jaxcart.compare: "
         "every seed's greedy returns, the physics, the run it came from (a sweep of them with "
@@ -105,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
         "by the evaluation during training (a run trained with --eval-every N --keep-best)",
     )
     cli.add_trust_code_argument(parser)
-    parser.add_argument("--gif", type=Path, default=None, help="also render one episode to a GIF")
+    parser.add_argument("--gif", type=Path, help="also render one episode to a GIF")
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
     parser.add_argument(
         "--gif-seed",
@@ -125,39 +123,48 @@ def _overrides(trained: RunParams) -> dict:
     return {} if trained.env_params is None else physics.overrides(trained.env_params)
 
 
-def _physics_sweep(specs: list[str], chosen: dict) -> tuple[str | None, list[float]]:
-    """``["env.length=0.5,1"]`` -> ``("env.length", [0.5, 1.0])``; ``(None, [])`` without.
+def _options(args: argparse.Namespace) -> tuple[dict, str | None, list[float]]:
+    """``--env-param``'s physics, and ``--sweep``'s field and values (``env.length``,
+    ``[0.5, 1.0]``; ``None, []`` without), with ``--out`` and ``--gif``: what no run is needed
+    to check, checked first (a value outside physical sense is one line).
 
     Raises:
-        UsageError, ConfigError: not one continuous physics field, or one --env-param sets.
+        UsageError, ConfigError: not one continuous physics field, one --env-param sets, or
+            an option that cannot be honoured.
     """
     from jaxcart.run import physics
     from jaxcart.run.sweep import parse_sweep
 
-    if not specs:
-        return None, []
-    if len(specs) > 1 or not specs[0].strip().startswith(physics.PREFIX):
+    chosen = physics.parse_env_params(args.env_param)
+    field, values = None, []
+    if args.sweep:
+        if len(args.sweep) > 1 or not args.sweep[0].strip().startswith(physics.PREFIX):
+            raise cli.UsageError(
+                "--sweep evaluates on other physics, one field: env.NAME=V1,V2,... (e.g. "
+                f"env.length=0.25,0.5,1), got {' '.join(args.sweep)}"
+            )
+        ((field, values),) = parse_sweep(args.sweep).items()
+        if field[len(physics.PREFIX) :] in chosen:
+            raise cli.UsageError(f"{field} is both swept and set by --env-param; keep one")
+    if args.out is not None and layout.present(args.out):
         raise cli.UsageError(
-            "--sweep evaluates on other physics, one field: env.NAME=V1,V2,... (e.g. "
-            f"env.length=0.25,0.5,1), got {' '.join(specs)}"
-        )
-    ((name, values),) = parse_sweep(specs).items()
-    if name[len(physics.PREFIX) :] in chosen:
-        raise cli.UsageError(f"{name} is both swept and set by --env-param; keep one")
-    return name, values
-
-
-def _check_out(out: Path, chosen: dict) -> None:
-    if layout.present(out):
-        raise cli.UsageError(
-            f"--out {out} exists; evaluate writes a new directory, so that nothing is overwritten"
+            f"--out {args.out} exists; evaluate writes a new directory, so that nothing is "
+            "overwritten"
         )
     scoring = sorted(set(chosen) & {"max_episode_steps", "sutton_barto_reward"})
-    if scoring:
+    if args.out is not None and scoring:
         raise cli.UsageError(
             f"--env-param {scoring[0]} changes what an episode scores, and an evaluation "
             "directory judges 500 as solved; evaluate without --out"
         )
+    if args.gif is not None:
+        if len(args.run_dirs) > 1 or field:
+            raise cli.UsageError("--gif renders one run on one physics: one RUN_DIR, no --sweep")
+        if args.gif.suffix.lower() != ".gif":
+            raise cli.UsageError(f"--gif {args.gif} must end in .gif")
+        if not args.gif.parent.is_dir():
+            raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
+    return chosen, field, values
 
 
 def _read_run(
@@ -180,15 +187,10 @@ def _read_run(
     if (chosen or field) and not has_physics(env_id):
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
-    if args.gif is not None:
-        if not has_physics(env_id):
-            raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
-        if args.gif.suffix.lower() != ".gif":
-            raise cli.UsageError(f"--gif {args.gif} must end in .gif")
-        if not args.gif.parent.is_dir():
-            raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
-        if combos and args.combination is None:
-            raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
+    if args.gif is not None and not has_physics(env_id):
+        raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
+    if args.gif is not None and combos and args.combination is None:
+        raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
     chosen_combos = range(len(combos)) if combos and args.combination is None else [None]
     if (field or args.out is not None) and len(chosen_combos) > 1:
         raise cli.UsageError(
@@ -244,7 +246,11 @@ def _print_seeds(run: Run, returns: list[np.ndarray], args: argparse.Namespace) 
 
 
 def _print_values(
-    runs: list[Run], returns: list[list[np.ndarray]], field: str, args: argparse.Namespace
+    runs: list[Run],
+    returns: list[list[np.ndarray]],
+    field: str,
+    chosen: dict,
+    args: argparse.Namespace,
 ) -> list[list[stats.Estimate]]:
     """One row per run and swept value: the IQM over seeds of each seed's mean return with its
     interval, as ``compare`` computes it; returns those IQMs, per run and value."""
@@ -259,8 +265,7 @@ def _print_values(
                 [run_dir, f"{value:g}", f"{solved.sum()}/{solved.size}", iqm.format(1)]
                 + [f"{r.mean():.1f}", f"{r.mean(-1).min():.1f}"]
             )
-    chosen = physics.describe(physics.parse_env_params(args.env_param))
-    on = " with each run's physics" + (f" and {chosen}" if chosen else "")
+    on = " with each run's physics" + (f" and {physics.describe(chosen)}" if chosen else "")
     print(_heading(f"at each {field}", runs[0][1]["config"].env, on, args))
     header = ["run", field, "solved", "IQM [95% CI]", "mean", "worst seed"]
     print(cli.format_table(rows, header, cli.TABLE_WIDTH))
@@ -270,15 +275,9 @@ def _print_values(
 
 def _evaluate_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)  # imports JAX once the options are read
-    from jaxcart.run import physics
     from jaxcart.run.greedy import evaluate_params
 
-    chosen = physics.parse_env_params(args.env_param)  # a bad --env-param before anything is read
-    field, values = _physics_sweep(args.sweep, chosen)
-    if args.out is not None:
-        _check_out(args.out, chosen)
-    if args.gif is not None and (len(args.run_dirs) > 1 or field):
-        raise cli.UsageError("--gif renders one run on one physics: one RUN_DIR, no --sweep")
+    chosen, field, values = _options(args)  # before any run is read
     runs = [_read_run(d, args, chosen, field, values) for d in args.run_dirs]
     returns = []  # per run, per source: [num_seeds, episodes]
     for run in runs:
@@ -289,7 +288,7 @@ def _evaluate_command(argv: list[str] | None) -> int:
         returns.append([evaluate_params(t, args.episodes) for _, t in run[2]])
         if field is None:
             _print_seeds(run, returns[-1], args)
-    iqms = None if field is None else _print_values(runs, returns, field, args)
+    iqms = None if field is None else _print_values(runs, returns, field, chosen, args)
     if args.out is not None:
         _write(args, runs, returns, field, iqms)
     if args.gif is not None:

@@ -245,11 +245,8 @@ def evaluate_runs(
 
     with ThreadPoolExecutor(1) as pool:
         jax_returns = pool.submit(in_jaxcart)
-        policy = make_policy(params, config, stacked=True)
-        gym_returns = evaluate_gymnasium(
-            policy, len(seed_indices), episodes, EVAL_SEED, config.env, should_stop, env_params
-        )
-        return gym_returns, jax_returns.result()
+        trained = RunParams(params, config, len(seed_indices), env_params=env_params)
+        return evaluate_params(trained, episodes, should_stop), jax_returns.result()
 
 
 def evaluate_run_dir(
@@ -280,16 +277,17 @@ def evaluate_run_dir(
     return evaluate_params(trained, episodes), {**info, "note": trained.note}
 
 
-def evaluate_params(trained: RunParams, episodes: int) -> np.ndarray:
-    """Greedy returns ``[num_seeds, episodes]`` of every seed of ``trained`` (as the store read
-    them: checked against the run's network) in Gymnasium's env of its id, on its physics."""
+def evaluate_params(
+    trained: RunParams, episodes: int, should_stop: Callable[[], bool] | None = None
+) -> np.ndarray:
+    """Greedy returns ``[num_seeds, episodes]`` of every seed of ``trained`` in Gymnasium's env
+    of its id (:func:`evaluate_gymnasium`), on its physics: the final evaluation of a training
+    and ``python -m jaxcart.evaluate`` alike. A run directory's parameters are the store's,
+    checked against the run's network as they were read (:func:`run_params`)."""
     policy = make_policy(trained.params, trained.config, stacked=True)
+    config, env_params = trained.config, trained.env_params
     return evaluate_gymnasium(
-        policy,
-        trained.num_seeds,
-        episodes,
-        env_id=trained.config.env,
-        env_params=trained.env_params,
+        policy, trained.num_seeds, episodes, EVAL_SEED, config.env, should_stop, env_params
     )
 
 
