@@ -8,20 +8,18 @@ import contextlib
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import jax
 import numpy as np
 
-from jaxcart.core import physics
+from jaxcart.core import envs, physics
 from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.evaluation import greedy_returns
 from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped
-from jaxcart.gym.stock import make_cartpole, reset_options
 from jaxcart.rundir import reader
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 
@@ -31,91 +29,17 @@ time (about 1 s to 0.5 s) and leaves its returns as they were (checked bit for b
 
 Step = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 """``(actions [P, E], alive [P, E]) -> (rewards [P, E], done [P, E])``: one step of every
-running episode of a policy x episode grid, its observations updated in place."""
-
-
-def cartpole_step(c: Any, state: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``CartPoleEnv.step`` for every state at once, with the constants of ``c`` (a
-    ``CartPoleEnv``, or its attributes with some one value per policy ``[P, 1]``): float64
-    ``state [4, ...]`` (rows x, x_dot, theta, theta_dot) and actions ``[...]`` -> ``(next state
-    [4, ...], terminated [...])``.
-
-    Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
-    element-wise float64 arithmetic rounds each operation as on the single env's scalars,
-    so each next state is bit-identical to the single env's.
-    """
-    x, x_dot, theta, theta_dot = state
-    force = np.where(actions == 1, c.force_mag, -c.force_mag)
-    costheta = np.cos(theta)
-    sintheta = np.sin(theta)
-    temp = (force + c.polemass_length * np.square(theta_dot) * sintheta) / c.total_mass
-    thetaacc = (c.gravity * sintheta - costheta * temp) / (
-        c.length * (4.0 / 3.0 - c.masspole * np.square(costheta) / c.total_mass)
-    )
-    xacc = temp - c.polemass_length * thetaacc * costheta / c.total_mass
-    if c.kinematics_integrator == "euler":
-        x = x + c.tau * x_dot
-        x_dot = x_dot + c.tau * xacc
-        theta = theta + c.tau * theta_dot
-        theta_dot = theta_dot + c.tau * thetaacc
-    else:  # semi-implicit Euler
-        x_dot = x_dot + c.tau * xacc
-        x = x + c.tau * x_dot
-        theta_dot = theta_dot + c.tau * thetaacc
-        theta = theta + c.tau * theta_dot
-    terminated = (
-        (x < -c.x_threshold)
-        | (x > c.x_threshold)
-        | (theta < -c.theta_threshold_radians)
-        | (theta > c.theta_threshold_radians)
-    )
-    return np.stack([x, x_dot, theta, theta_dot]), terminated
-
-
-def _cartpole_grid(
-    env: Any, shape: tuple[int, int], seed: int, per_run: dict, options: dict | None
-) -> tuple[np.ndarray, Step]:
-    """Gymnasium's ``CartPoleEnv`` (``env``, a ``gymnasium.make`` result: its time limit
-    included) for a grid of episodes in float64 NumPy arrays: episode ``e``'s start is
-    ``env.reset(seed=seed + e, options=options)``'s, drawn by Gymnasium; the fields of
-    ``per_run`` take one value per policy (``[P]``), and the masses Gymnasium derives from them
-    are recomputed as its constructor does."""
-    c = SimpleNamespace(**vars(env.unwrapped))
-    for name, values in per_run.items():
-        setattr(c, name, np.asarray(values, np.float64)[:, None])  # [P, 1]: over the episodes
-    c.total_mass = c.masspole + c.masscart
-    c.polemass_length = c.masspole * c.length
-    limit = env.spec.max_episode_steps
-    starts, first_obs = [], []
-    for e in range(shape[1]):
-        first_obs.append(env.reset(seed=seed + e, options=options)[0])
-        starts.append(np.array(env.unwrapped.state, dtype=np.float64))
-    state = np.broadcast_to(np.stack(starts, axis=1)[:, None, :], (4, *shape)).copy()
-    obs = np.broadcast_to(np.stack(first_obs), (*shape, 4)).copy()  # rows contiguous
-    steps = 0
-
-    def step(actions: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        nonlocal steps
-        stepped, terminated = cartpole_step(c, state, actions)
-        steps += 1
-        # Only the running episodes move on; the finished keep their state and observation.
-        np.copyto(state, stepped, where=alive)
-        np.copyto(obs, np.moveaxis(stepped, 0, -1), casting="same_kind", where=alive[..., None])
-        if getattr(c, "_sutton_barto_reward", False):
-            reward = np.where(terminated, -1.0, 0.0)
-        else:
-            reward = np.ones(shape)
-        truncated = limit is not None and steps >= limit
-        return reward, terminated | truncated  # TimeLimit: every running episode truncated
-
-    return obs, step
+running episode of a policy x episode grid, its observations updated in place (the step of
+an :attr:`~jaxcart.core.envs.Env.gymnasium_grid`)."""
 
 
 def _env_grid(
-    env_id: str, shape: tuple[int, int], seed: int, stack: contextlib.ExitStack
-) -> tuple[np.ndarray, Step]:
+    env_id: str, params: Any, shape: tuple[int, int], seed: int, stack: contextlib.ExitStack
+) -> tuple[np.ndarray, Step, int]:
     """One ``gymnasium.make(env_id)`` per policy and episode, each stepped by its own
-    ``step`` (time limit included); episode ``e`` starts from ``reset(seed=seed + e)``."""
+    ``step`` (time limit included) on its own physics (``params`` unused); episode ``e``
+    starts from ``reset(seed=seed + e)``: the grid of an env without its own
+    :attr:`~jaxcart.core.envs.Env.gymnasium_grid`."""
     import gymnasium as gym
 
     games = [
@@ -132,7 +56,7 @@ def _env_grid(
             done[p, e] = terminated or truncated
         return reward, done
 
-    return obs, step
+    return obs, step, int(games[0][0].action_space.n)
 
 
 def evaluate_gymnasium(
@@ -150,13 +74,13 @@ def evaluate_gymnasium(
     Episode ``e`` of every policy starts where ``gymnasium.make(env_id).reset(seed=seed + e)``
     starts. All policies and episodes then advance in lockstep, with one batched policy call
     per time step (finished episodes keep showing their last observation), until every episode
-    has terminated or reached the env's time limit. A Gymnasium ``CartPoleEnv`` steps as one
-    batched float64 NumPy physics step (:func:`cartpole_step`), with ``env_params``' physics
-    (:func:`jaxcart.gym.stock.make_cartpole`; a continuous field may hold one value per
-    policy, ``[num_policies]``); each return is bit-identical to stepping one
-    ``gymnasium.make(env_id)`` per episode (the same start states, float64 dynamics, float32
-    observations and policy calls). Any other discrete-action env steps one
-    ``gymnasium.make(env_id)`` per policy and episode, on its own physics.
+    has terminated or reached the env's time limit. An env whose protocol has a
+    :attr:`~jaxcart.core.envs.Env.gymnasium_grid` steps the whole grid at once with
+    ``env_params``' physics (CartPole's: :func:`jaxcart.core.cartpole.gymnasium_grid`, a
+    continuous field may hold one value per policy, ``[num_policies]``), each return
+    bit-identical to stepping one ``gymnasium.make(env_id)`` per episode; any other
+    discrete-action env steps one ``gymnasium.make(env_id)`` per policy and episode, on its
+    own physics.
 
     Args:
         policy: maps observations ``[num_policies, num_episodes, obs_dim]`` float32 to actions
@@ -172,17 +96,12 @@ def evaluate_gymnasium(
         ValueError: an action outside the env's action space.
         Stopped: ``should_stop()`` turned true.
     """
-    from gymnasium.envs.classic_control.cartpole import CartPoleEnv
-
+    grid = _env_grid
+    with contextlib.suppress(envs.EnvError):  # an id of Gymnasium's alone: its own envs
+        grid = envs.make(env_id).gymnasium_grid or _env_grid
     shape = (num_policies, num_episodes)
-    static, per_run = _split(env_params)
     with contextlib.ExitStack() as stack:
-        env = stack.enter_context(make_cartpole(static, env_id))
-        num_actions = int(env.action_space.n)
-        if isinstance(env.unwrapped, CartPoleEnv):
-            obs, step = _cartpole_grid(env, shape, seed, per_run, reset_options(static))
-        else:
-            obs, step = _env_grid(env_id, shape, seed, stack)
+        obs, step, num_actions = grid(env_id, env_params, shape, seed, stack)
         returns, alive = np.zeros(shape), np.ones(shape, bool)
         while alive.any():
             if should_stop is not None and should_stop():
@@ -229,7 +148,7 @@ def evaluate_runs(
     Args:
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
-    static, per_run = _split(env_params)
+    static, per_run = (None, {}) if env_params is None else physics.split_per_run(env_params)
     per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
     network = make_network(config)
 
@@ -289,9 +208,3 @@ def evaluate_params(
     return evaluate_gymnasium(
         policy, trained.num_seeds, episodes, EVAL_SEED, config.env, should_stop, env_params
     )
-
-
-def _split(env_params: Any) -> tuple[Any, dict[str, np.ndarray]]:
-    """``(static, per_run)`` of CartPole's physics (:func:`~jaxcart.core.pytree.split_per_run`);
-    ``(None, {})`` for None, the env's own."""
-    return (None, {}) if env_params is None else physics.split_per_run(env_params)
