@@ -8,6 +8,7 @@ Parameters come from ``params.npz`` of a finished run, or, for a run that did no
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import warnings
 from dataclasses import dataclass
@@ -30,8 +31,8 @@ class Policy:
     """A trained policy for one or a stack of seeds, callable on float32 observations:
     ``(obs_dim,) -> int``, ``(N, obs_dim) -> (N,)``, and when stacked ``(S, N, obs_dim) ->
     (S, N)``. Greedy (argmax) when ``deterministic``, else sampled from the policy's softmax
-    with ``rng`` (a NumPy ``Generator``, or a seed for one). Subclasses set :attr:`num_seeds`
-    and :attr:`obs_dim` and compute :meth:`logits`."""
+    with ``rng`` (a NumPy ``Generator``, or a seed for one). Subclasses set :attr:`num_seeds`,
+    :attr:`obs_dim` and ``_logits``, the network's logits of checked observations."""
 
     num_seeds: int | None = None  # the leading seed axis of a stacked policy (else None)
     obs_dim: int | None = None  # the observation size (None: taken as given)
@@ -67,7 +68,7 @@ class Policy:
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
         """Policy logits for ``obs`` (any leading shape matching the stacking)."""
-        raise NotImplementedError
+        return np.asarray(self._logits(self._checked(obs)))
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
         actions = self.actions(obs, self.deterministic)
@@ -123,9 +124,7 @@ class NumpyPolicy(Policy):
         self.activation = activation
         first = self.actor[networks.layer_names(len(actor) - 1)[0]]["kernel"]  # [S, obs_dim, h]
         self.num_seeds, self.obs_dim = first.shape[0] if stacked else None, first.shape[-2]
-
-    def logits(self, obs: np.ndarray) -> np.ndarray:
-        return networks.mlp(self.actor, self._checked(obs), self.activation, xp=np)
+        self._logits = functools.partial(networks.mlp, self.actor, activation=activation, xp=np)
 
 
 class JaxPolicy(Policy):
@@ -146,11 +145,10 @@ class JaxPolicy(Policy):
         def logits(p: dict, x: jax.Array) -> jax.Array:
             return network.apply(p, x)[0]
 
-        self._logits = jax.jit(jax.vmap(logits) if stacked else logits)
+        self._logits = functools.partial(
+            jax.jit(jax.vmap(logits) if stacked else logits), self.params
+        )
         self.num_seeds = jax.tree.leaves(self.params)[0].shape[0] if stacked else None
-
-    def logits(self, obs: np.ndarray) -> np.ndarray:
-        return np.asarray(self._logits(self.params, self._checked(obs)))
 
 
 def make_policy(
