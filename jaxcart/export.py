@@ -33,15 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out",
         type=Path,
-        default=None,
         help="the file to write (.zip for sb3, .onnx for onnx; default: in RUN_DIR, "
         "policy-seed0.zip for seed 0, policy-best-seed0.zip for --policy best, "
         "policy-combo003-seed0.zip for --combination 3)",
     )
     parser.add_argument("--seed-index", type=int, default=0, help="which seed of the run")
-    parser.add_argument(
-        "--combination", type=int, default=None, metavar="C", help="a sweep's combination"
-    )
+    parser.add_argument("--combination", type=int, metavar="C", help="a sweep's combination")
     parser.add_argument(
         "--policy",
         choices=list(layout.POLICY_FILES),
