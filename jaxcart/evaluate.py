@@ -5,6 +5,12 @@
 ``--out DIR`` writes the evaluation as a run directory without training
 (:mod:`jaxcart.rundir.layout`), which ``python -m jaxcart.compare`` reads like any run, and
 with ``--sweep`` draws ``robustness.png``: the return against the value, one curve per run.
+
+Every RUN_DIR gives its sources, each a label and the run's parameters on one physics: each
+combination of a sweep (``0 learning_rate=0.001``) or the run itself (None) on the physics
+chosen, or with ``--sweep`` the run at each swept value (labelled by the value). Every source
+is evaluated once (:func:`jaxcart.run.greedy.evaluate_params`); the tables and ``--out`` read
+those returns.
 """
 
 from __future__ import annotations
@@ -13,7 +19,6 @@ import argparse
 import dataclasses
 import functools
 import io
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -21,15 +26,19 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import stats
-from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, GYMNAX_ENVS, NUM_EVAL_EPISODES, is_solved
+from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_BY, is_solved
 from jaxcart.rundir import files, layout
 
 if TYPE_CHECKING:  # the modules that import JAX load once the options are read (--help: none)
     from jaxcart.rundir.policy import RunParams
 
-    _Sources = list[tuple[str | None, list[RunParams]]]
-    # per source (the run, or each combination of a sweep): its label and its parameters on
-    # each physics evaluated (each swept value, or the one chosen)
+    Run = tuple[Path, dict, list[tuple[str | float | None, RunParams]]]
+    # a RUN_DIR, its config.json and its sources: (label, the parameters on one physics)
+
+IQM_TEXT = (
+    f"IQM over seeds of each seed's mean return, {stats.CONFIDENCE:.0%} percentile bootstrap "
+    f"interval ({stats.DEFAULT_REPS:,} resamples, seed {stats.DEFAULT_SEED})"
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,7 +66,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--combination",
         type=int,
-        default=None,
         metavar="C",
         help="only this combination of a sweep (needed with --gif)",
     )
@@ -82,7 +90,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out",
         type=cli.out_dir,
-        default=None,
         metavar="DIR",
         help="write the evaluation into this new directory for python -m jaxcart.compare: "
         "every seed's greedy returns, the physics, the run it came from (a sweep of them with "
@@ -96,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
         "by the evaluation during training (a run trained with --eval-every N --keep-best)",
     )
     cli.add_trust_code_argument(parser)
-    parser.add_argument("--gif", type=Path, default=None, help="also render one episode to a GIF")
+    parser.add_argument("--gif", type=Path, help="also render one episode to a GIF")
     parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
     parser.add_argument(
         "--gif-seed",
@@ -108,66 +115,68 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _physics_text(sources: list[tuple[str | None, RunParams]], chosen: bool) -> str:
-    """`` with length=1`` when every source runs on the same non-default physics; ``""``
-    for CartPole-v1's (`` with CartPole-v1's own physics`` when ``--env-param`` chose them);
-    `` with each combination's physics`` when they differ."""
+def _overrides(trained: RunParams) -> dict:
+    """The physics ``trained`` plays on, as the fields that differ from CartPole-v1's (``{}``
+    for an env with its own)."""
     from jaxcart.run import physics
 
-    shown = {physics.describe(physics.overrides(t.env_params)) for _, t in sources}
-    if len(shown) > 1:
-        return " with each combination's physics"
-    text = shown.pop()
-    if not text:
-        return " with CartPole-v1's own physics" if chosen else ""
-    return f" with {text}"
+    return {} if trained.env_params is None else physics.overrides(trained.env_params)
 
 
-def _physics_sweep(specs: list[str], chosen: dict) -> tuple[str | None, list[float]]:
-    """``["env.length=0.5,1"]`` -> ``("env.length", [0.5, 1.0])``; ``(None, [])`` without.
+def _options(args: argparse.Namespace) -> tuple[dict, str | None, list[float]]:
+    """``--env-param``'s physics, and ``--sweep``'s field and values (``env.length``,
+    ``[0.5, 1.0]``; ``None, []`` without), with ``--out`` and ``--gif``: what no run is needed
+    to check, checked first (a value outside physical sense is one line).
 
     Raises:
-        UsageError, ConfigError: not one continuous physics field, or one --env-param sets.
+        UsageError, ConfigError: not one continuous physics field, one --env-param sets, or
+            an option that cannot be honoured.
     """
     from jaxcart.run import physics
     from jaxcart.run.sweep import parse_sweep
 
-    if not specs:
-        return None, []
-    if len(specs) > 1 or not specs[0].strip().startswith(physics.PREFIX):
+    chosen = physics.parse_env_params(args.env_param)
+    field, values = None, []
+    if args.sweep:
+        if len(args.sweep) > 1 or not args.sweep[0].strip().startswith(physics.PREFIX):
+            raise cli.UsageError(
+                "--sweep evaluates on other physics, one field: env.NAME=V1,V2,... (e.g. "
+                f"env.length=0.25,0.5,1), got {' '.join(args.sweep)}"
+            )
+        ((field, values),) = parse_sweep(args.sweep).items()
+        if field[len(physics.PREFIX) :] in chosen:
+            raise cli.UsageError(f"{field} is both swept and set by --env-param; keep one")
+    if args.out is not None and layout.present(args.out):
         raise cli.UsageError(
-            "--sweep evaluates on other physics, one field: env.NAME=V1,V2,... (e.g. "
-            f"env.length=0.25,0.5,1), got {' '.join(specs)}"
-        )
-    ((name, values),) = parse_sweep(specs).items()
-    if name[len(physics.PREFIX) :] in chosen:
-        raise cli.UsageError(f"{name} is both swept and set by --env-param; keep one")
-    return name, values
-
-
-def _check_out(out: Path, chosen: dict) -> None:
-    if layout.present(out):
-        raise cli.UsageError(
-            f"--out {out} exists; evaluate writes a new directory, so that nothing is overwritten"
+            f"--out {args.out} exists; evaluate writes a new directory, so that nothing is "
+            "overwritten"
         )
     scoring = sorted(set(chosen) & {"max_episode_steps", "sutton_barto_reward"})
-    if scoring:
+    if args.out is not None and scoring:
         raise cli.UsageError(
             f"--env-param {scoring[0]} changes what an episode scores, and an evaluation "
             "directory judges 500 as solved; evaluate without --out"
         )
+    if args.gif is not None:
+        if len(args.run_dirs) > 1 or field:
+            raise cli.UsageError("--gif renders one run on one physics: one RUN_DIR, no --sweep")
+        if args.gif.suffix.lower() != ".gif":
+            raise cli.UsageError(f"--gif {args.gif} must end in .gif")
+        if not args.gif.parent.is_dir():
+            raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
+    return chosen, field, values
 
 
 def _read_run(
     run_dir: Path, args: argparse.Namespace, chosen: dict, field: str | None, values: list
-) -> tuple[dict, _Sources]:
-    """A run's ``config.json`` and what to evaluate of it: the run, one combination, or every
-    combination of a sweep (each labelled ``0 learning_rate=0.001``), with ``args.policy``'s
-    parameters, on each physics (the run's own with ``chosen`` over them, and each swept
-    value); every option and physics checked (a value outside physical sense is one line)
-    before anything is evaluated."""
+) -> Run:
+    """A RUN_DIR, its ``config.json`` and its sources (the run, one combination, or every
+    combination of a sweep; with ``field``, the one at each of ``values``), with
+    ``args.policy``'s parameters on the run's physics with ``chosen`` over them; every option
+    and physics checked (a value outside physical sense is one line) before anything is
+    evaluated."""
     from jaxcart.run import physics
-    from jaxcart.rundir.policy import run_params
+    from jaxcart.rundir.policy import has_physics, run_params, seed_params
     from jaxcart.rundir.reader import is_evaluation, read_run_config, recorded_combinations
 
     info = read_run_config(run_dir)
@@ -175,24 +184,13 @@ def _read_run(
         source = info[layout.EVALUATION_OF_KEY]["run"]
         raise cli.UsageError(f"{run_dir} is an evaluation of {source}; evaluate that run")
     env_id, combos = info["config"].env, recorded_combinations(info)
-    if (chosen or field) and env_id != DEFAULT_ENV:
+    if (chosen or field) and not has_physics(env_id):
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
-    if args.gif is not None:
-        num_seeds = int(info.get("num_seeds", 1))
-        if env_id != DEFAULT_ENV:
-            raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
-        if args.gif.suffix.lower() != ".gif":
-            raise cli.UsageError(f"--gif {args.gif} must end in .gif")
-        if not args.gif.parent.is_dir():
-            raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
-        if combos and args.combination is None:
-            raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
-        if not 0 <= args.seed_index < num_seeds:
-            raise cli.UsageError(
-                f"--seed-index must be in [0, {num_seeds}) for this {num_seeds}-seed run, "
-                f"got {args.seed_index}"
-            )
+    if args.gif is not None and not has_physics(env_id):
+        raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
+    if args.gif is not None and combos and args.combination is None:
+        raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
     chosen_combos = range(len(combos)) if combos and args.combination is None else [None]
     if (field or args.out is not None) and len(chosen_combos) > 1:
         raise cli.UsageError(
@@ -203,157 +201,144 @@ def _read_run(
     for c in chosen_combos:
         c = args.combination if c is None else c
         trained = run_params(run_dir, c, args.policy, trust_code=args.trust_code)
+        if args.gif is not None:
+            seed_params(trained, args.seed_index, "--seed-index")
         label = f"{c} " + ",".join(f"{k}={v:g}" for k, v in combos[c].items()) if combos else None
-        on = [
-            dataclasses.replace(
-                trained,
-                env_params=physics.make_env_params({**physics.overrides(trained.env_params), **p}),
-            )
-            if p
-            else trained
-            for p in points
-        ]
-        sources.append((label, on))
-    return info, sources
+        for value, p in zip(values or [label], points):
+            env = physics.make_env_params({**_overrides(trained), **p}) if p else trained.env_params
+            sources.append((value, dataclasses.replace(trained, env_params=env)))
+    return run_dir, info, sources
 
 
-def _print_note(run_dir: Path, trained: RunParams) -> None:
-    if trained.note:
-        print(
-            f"note: parameters {trained.note} (resume with: python -m jaxcart.train --resume "
-            f"{run_dir})"
-        )
+def _heading(what: str, env_id: str, on: str, args: argparse.Namespace) -> str:
+    best = " (each seed's best policy)" if args.policy == "best" else ""
+    return (
+        f"Greedy evaluation {what}{best}, {args.episodes} episodes per seed in "
+        f"gymnasium.make('{env_id}'){on} (reset seeds {EVAL_SEED}..."
+        f"{EVAL_SEED + args.episodes - 1}):"
+    )
 
 
-def _policy_text(args: argparse.Namespace) -> str:
-    return " (each seed's best policy)" if args.policy == "best" else ""
+def _print_seeds(run: Run, returns: list[np.ndarray], args: argparse.Namespace) -> None:
+    """The per-seed table of a RUN_DIR's sources, each on its one physics."""
+    from jaxcart.run import physics
+    from jaxcart.run.greedy import summarize
 
-
-def _evaluate_run(
-    run_dir: Path, info: dict, sources: _Sources, args: argparse.Namespace
-) -> list[np.ndarray]:
-    """Prints the per-seed table of every source on its one physics; returns each source's
-    Gymnasium returns ``[num_seeds, episodes]``."""
-    from jaxcart.run.greedy import evaluate_params, summarize
-    from jaxcart.rundir.reader import recorded_combinations
-
-    env_id = info["config"].env
-    num_seeds = int(info.get("num_seeds", 1))
-    sweep = bool(recorded_combinations(info))
-    _print_note(run_dir, sources[0][1][0])
-    rows, returns = [], []
-    for label, (trained,) in sources:
-        returns.append(evaluate_params(run_dir, trained, args.episodes))
-        summary = summarize(returns[-1], env_id)
+    run_dir, info, sources = run
+    env_id, sweep = info["config"].env, sources[0][0] is not None
+    rows = []
+    for (label, _), r in zip(sources, returns):
+        s = summarize(r, env_id)
         rows += [
             ([label] if sweep else [])
-            + [s, f"{summary['mean'][s]:.1f}", f"{summary['min'][s]:.0f}"]
-            + ["yes" if summary["solved"][s] else "no"]
-            for s in range(num_seeds)
+            + [i, f"{s['mean'][i]:.1f}", f"{s['min'][i]:.0f}", "yes" if s["solved"][i] else "no"]
+            for i in range(len(r))
         ]
-    on = [(label, trained) for label, (trained,) in sources]
-    print(
-        f"Greedy evaluation of {run_dir}{_policy_text(args)}, {args.episodes} episodes per seed "
-        f"in gymnasium.make('{env_id}'){_physics_text(on, bool(args.env_param))} (reset seeds "
-        f"{EVAL_SEED}...{EVAL_SEED + args.episodes - 1}):"
-    )
+    shown = {physics.describe(_overrides(t)) for _, t in sources}
+    text = shown.pop() if len(shown) == 1 else "each combination's physics"
+    if not text and args.env_param:  # --env-param chose CartPole-v1's own
+        text = "CartPole-v1's own physics"
+    print(_heading(f"of {run_dir}", env_id, f" with {text}" if text else "", args))
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
-    solved = sum(r[-1] == "yes" for r in rows)
-    rule = "" if env_id == DEFAULT_ENV else f" (solved: mean >= {GYMNAX_ENVS[env_id]:g})"
-    print(f"solved {solved}/{len(rows)} seed(s){rule}", flush=True)
-    return returns
+    rule, threshold = SOLVED_BY[env_id]
+    rule = "" if rule == "every" else f" (solved: mean >= {threshold:g})"
+    print(f"solved {sum(r[-1] == 'yes' for r in rows)}/{len(rows)} seed(s){rule}", flush=True)
 
 
-IQM_TEXT = (
-    f"IQM over seeds of each seed's mean return, {stats.CONFIDENCE:.0%} percentile bootstrap "
-    f"interval ({stats.DEFAULT_REPS:,} resamples, seed {stats.DEFAULT_SEED})"
-)
-
-
-def _evaluate_sweep(
-    runs: list[tuple[Path, dict, _Sources]], field: str, values: list, args: argparse.Namespace
-) -> tuple[list[list[np.ndarray]], list[list[stats.Estimate]]]:
-    """Every run at every value: prints one row per run and value (the IQM over seeds of each
-    seed's mean return with its interval, as ``compare`` computes it); returns per run, per
-    value, the returns ``[num_seeds, episodes]`` and that IQM."""
+def _print_values(
+    runs: list[Run],
+    returns: list[list[np.ndarray]],
+    field: str,
+    chosen: dict,
+    args: argparse.Namespace,
+) -> list[list[stats.Estimate]]:
+    """One row per run and swept value: the IQM over seeds of each seed's mean return with its
+    interval, as ``compare`` computes it; returns those IQMs, per run and value."""
     from jaxcart.run import physics
-    from jaxcart.run.greedy import evaluate_params
 
-    rows, returns, iqms = [], [], []
-    for run_dir, _, [(_, trained)] in runs:
-        _print_note(run_dir, trained[0])
-        returns.append([evaluate_params(run_dir, t, args.episodes) for t in trained])
-        iqms.append([stats.bootstrap_ci(r.mean(-1), stats.iqm) for r in returns[-1]])
-        for value, r, iqm in zip(values, returns[-1], iqms[-1]):
-            solved = is_solved(r)
+    iqms = [[stats.bootstrap_ci(r.mean(-1), stats.iqm) for r in rs] for rs in returns]
+    rows = []
+    for (run_dir, info, sources), rs, estimates in zip(runs, returns, iqms):
+        for (value, _), r, iqm in zip(sources, rs, estimates):
+            solved = is_solved(r, info["config"].env)
             rows.append(
                 [run_dir, f"{value:g}", f"{solved.sum()}/{solved.size}", iqm.format(1)]
                 + [f"{r.mean():.1f}", f"{r.mean(-1).min():.1f}"]
             )
-    chosen = physics.describe(physics.parse_env_params(args.env_param))
-    print(
-        f"Greedy evaluation at each {field}{_policy_text(args)}, {args.episodes} episodes per "
-        f"seed in gymnasium.make('{DEFAULT_ENV}') with each run's physics"
-        + (f" and {chosen}" if chosen else "")
-        + f" (reset seeds {EVAL_SEED}...{EVAL_SEED + args.episodes - 1}):"
-    )
+    on = " with each run's physics" + (f" and {physics.describe(chosen)}" if chosen else "")
+    print(_heading(f"at each {field}", runs[0][1]["config"].env, on, args))
     header = ["run", field, "solved", "IQM [95% CI]", "mean", "worst seed"]
     print(cli.format_table(rows, header, cli.TABLE_WIDTH))
     print(cli.wrap(f"IQM [95% CI]: {IQM_TEXT}, as python -m jaxcart.compare computes it"))
-    return returns, iqms
+    return iqms
 
 
 def _evaluate_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)  # imports JAX once the options are read
-    from jaxcart.run import physics
+    from jaxcart.run.greedy import evaluate_params
 
-    chosen = physics.parse_env_params(args.env_param)  # a bad --env-param before anything is read
-    field, values = _physics_sweep(args.sweep, chosen)
+    chosen, field, values = _options(args)  # before any run is read
+    runs = [_read_run(d, args, chosen, field, values) for d in args.run_dirs]
+    returns = []  # per run, per source: [num_seeds, episodes]
+    for run in runs:
+        note = run[2][0][1].note
+        if note:
+            resume = f"python -m jaxcart.train --resume {run[0]}"
+            print(f"note: parameters {note} (resume with: {resume})")
+        returns.append([evaluate_params(t, args.episodes) for _, t in run[2]])
+        if field is None:
+            _print_seeds(run, returns[-1], args)
+    iqms = None if field is None else _print_values(runs, returns, field, chosen, args)
     if args.out is not None:
-        _check_out(args.out, chosen)
-    if args.gif is not None and (len(args.run_dirs) > 1 or field):
-        raise cli.UsageError("--gif renders one run on one physics: one RUN_DIR, no --sweep")
-    runs = [(d, *_read_run(d, args, chosen, field, values)) for d in args.run_dirs]
-    # per run, its returns [num_seeds, episodes] per source (one with --out) or swept value
-    if field is None:
-        returns = [_evaluate_run(d, info, sources, args) for d, info, sources in runs]
-        iqms = None
-    else:
-        returns, iqms = _evaluate_sweep(runs, field, values, args)
-    if args.out is not None:
-        _write(args, runs, returns, field, values, iqms)
+        _write(args, runs, returns, field, iqms)
     if args.gif is not None:
-        (_, _, [(_, [trained])]) = runs[0]  # one run, one source, one physics
-        _write_gif(args, trained)
+        _write_gif(args, runs[0][2][0][1])  # one run, one source
     return 0
 
 
 def _write(
     args: argparse.Namespace,
-    runs: list[tuple[Path, dict, _Sources]],
+    runs: list[Run],
     returns: list[list[np.ndarray]],
     field: str | None,
-    values: list,
     iqms: list[list[stats.Estimate]] | None,
 ) -> None:
-    """The evaluations into ``--out``, a new directory (several runs: one subdirectory
-    each, named after the run), and ``robustness.png`` in it after a sweep."""
+    """The evaluations into ``--out``, a new directory (several runs: one subdirectory each,
+    named after the run). Without ``field`` each is one evaluation; with it, a sweep of them:
+    ``combo-NNN/`` per value, then the sweep's ``config.json`` and ``sweep.json`` (the IQM at
+    each value), and ``robustness.png`` in ``--out``."""
     from jaxcart.rundir.directory import write_evaluation_dir
 
-    png = None if iqms is None else _robustness_png(runs, field, values, iqms, args.episodes)
+    png = None if iqms is None else _robustness_png(runs, field, iqms, args.episodes)
     args.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
     written = []
-    for k, (run_dir, info, [(_, trained)]) in enumerate(runs):
+    for k, ((run_dir, info, sources), rs) in enumerate(zip(runs, returns)):
         path = args.out
         if len(runs) > 1:
             path = layout.fresh_dir(args.out / Path(run_dir).resolve().name)  # run-2: a twin
             path.mkdir()
         record = functools.partial(_record, run_dir, info, args)
         with files.opened(path) as directory:
-            if iqms is None:
-                write_evaluation_dir(directory, record(trained[0]), returns[k][0])
+            if field is None:
+                write_evaluation_dir(directory, record(sources[0][1]), rs[0])
             else:
-                _write_sweep(directory, record, trained, returns[k], field, values, iqms[k])
+                values = [value for value, _ in sources]
+                for c, ((value, trained), r) in enumerate(zip(sources, rs)):
+                    sub = directory.sub(layout.combo_dir(".", c).name, create=True)
+                    try:
+                        write_evaluation_dir(sub, record(trained, combination={field: value}), r)
+                    finally:
+                        sub.close()
+                points = [
+                    {field: v, "iqm": e.to_dict(), "solved_seeds": int(is_solved(r).sum())}
+                    for v, e, r in zip(values, iqms[k], rs)
+                ]
+                ranking = {"sweep": {field: values}, "score": "eval", "statistic": IQM_TEXT}
+                swept = field.split(".", 1)[1]
+                base = {n: v for n, v in _overrides(sources[0][1]).items() if n != swept}
+                top = record(sources[0][1], sweep={field: values}, env_params=base)
+                others = {layout.SWEEP_FILE: {**ranking, "values": points}}
+                write_evaluation_dir(directory, top, others=others)
         written.append(path)
     if png is not None:
         files.atomic_write_bytes(args.out / layout.ROBUSTNESS_FIGURE_FILE, png)
@@ -365,7 +350,6 @@ def _record(
 ) -> dict:
     """An evaluation's ``config.json``: the seeds' config as the run trained them, the
     physics they are evaluated on (``env_params``) and the run they came from."""
-    from jaxcart.run import physics
     from jaxcart.rundir.directory import package_versions
     from jaxcart.rundir.reader import X64_KEY, physics_label
 
@@ -376,7 +360,7 @@ def _record(
         "seed": info.get("seed", 0),
         X64_KEY: info.get(X64_KEY, False),
         "config": trained.config.to_dict(),
-        "env_params": physics.overrides(trained.env_params),
+        "env_params": _overrides(trained),
         "eval_episodes": args.episodes,
         "versions": package_versions(),
         layout.EVALUATION_OF_KEY: {
@@ -390,43 +374,8 @@ def _record(
     }
 
 
-def _write_sweep(
-    directory: files.Dir,
-    record: Callable[..., dict],
-    trained: list[RunParams],
-    returns: list[np.ndarray],
-    field: str,
-    values: list,
-    iqms: list[stats.Estimate],
-) -> None:
-    """A sweep of evaluations: ``combo-NNN/`` per value, then the sweep's ``config.json``
-    and ``sweep.json`` (the IQM at each value)."""
-    from jaxcart.run import physics
-    from jaxcart.rundir.directory import write_evaluation_dir
-
-    for c, (value, t, r) in enumerate(zip(values, trained, returns)):
-        sub = directory.sub(layout.combo_dir(".", c).name, create=True)
-        try:
-            write_evaluation_dir(sub, record(t, combination={field: value}), r)
-        finally:
-            sub.close()
-    points = [
-        {field: v, "iqm": e.to_dict(), "solved_seeds": int(is_solved(r).sum())}
-        for v, e, r in zip(values, iqms, returns)
-    ]
-    ranking = {"sweep": {field: values}, "score": "eval", "statistic": IQM_TEXT, "values": points}
-    swept = field[len(physics.PREFIX) :]
-    base = {k: v for k, v in physics.overrides(trained[0].env_params).items() if k != swept}
-    top = record(trained[0], sweep={field: values}, env_params=base)
-    write_evaluation_dir(directory, top, others={layout.SWEEP_FILE: ranking})
-
-
 def _robustness_png(
-    runs: list[tuple[Path, dict, _Sources]],
-    field: str,
-    values: list,
-    iqms: list[list[stats.Estimate]],
-    episodes: int,
+    runs: list[Run], field: str, iqms: list[list[stats.Estimate]], episodes: int
 ) -> bytes:
     from jaxcart.results.figure import draw_robustness  # matplotlib: only when drawn
     from jaxcart.rundir.reader import default_label
@@ -438,6 +387,7 @@ def _robustness_png(
         )
         for (run_dir, info, _), iqm in zip(runs, iqms)
     ]
+    values = [value for value, _ in runs[0][2]]
     title = (
         f"Greedy return in Gymnasium's CartPole-v1 ({episodes} episodes per seed) against "
         f"{field}: {IQM_TEXT}; band: that interval"
@@ -462,13 +412,10 @@ def _print_written(out: Path, written: list[Path], field: str | None) -> None:
 
 
 def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
-    import jax
-
     from jaxcart.results.gif import render_gif
-    from jaxcart.rundir.policy import make_policy
+    from jaxcart.rundir.policy import make_policy, seed_params
 
-    one = jax.tree.map(lambda x: x[args.seed_index], trained.params)
-    policy = make_policy(one, trained.config)
+    policy = make_policy(seed_params(trained, args.seed_index, "--seed-index"), trained.config)
     gif = render_gif(policy, args.gif, seed=args.gif_seed, env_params=trained.env_params)
     print(
         f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "

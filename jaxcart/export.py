@@ -15,7 +15,6 @@ from jaxcart.rundir import layout
 
 FORMATS = {"sb3": ".zip", "onnx": ".onnx"}
 """Each export format and the suffix its file takes."""
-POLICIES = ("final", "best")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,18 +33,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--out",
         type=Path,
-        default=None,
         help="the file to write (.zip for sb3, .onnx for onnx; default: in RUN_DIR, "
         "policy-seed0.zip for seed 0, policy-best-seed0.zip for --policy best, "
         "policy-combo003-seed0.zip for --combination 3)",
     )
     parser.add_argument("--seed-index", type=int, default=0, help="which seed of the run")
-    parser.add_argument(
-        "--combination", type=int, default=None, metavar="C", help="a sweep's combination"
-    )
+    parser.add_argument("--combination", type=int, metavar="C", help="a sweep's combination")
     parser.add_argument(
         "--policy",
-        choices=POLICIES,
+        choices=list(layout.POLICY_FILES),
         default="final",
         help="final: the parameters at the end of training (the last checkpoint's for a run "
         "that did not finish); best: the best evaluated policy, where the run kept one",
@@ -59,7 +55,7 @@ def export(opts: argparse.Namespace) -> str:
 
     from jaxcart.core import networks
     from jaxcart.rundir.files import atomic_file
-    from jaxcart.rundir.policy import run_params, seed_params
+    from jaxcart.rundir.policy import has_physics, run_params, seed_params
     from jaxcart.rundir.reader import read_run_config
 
     suffix = FORMATS[opts.to]
@@ -70,34 +66,28 @@ def export(opts: argparse.Namespace) -> str:
         raise cli.UsageError(f"--out {out} must end in {suffix} for --to {opts.to}")
     if opts.out is not None and not out.parent.is_dir():  # RUN_DIR: run_params checks
         raise cli.UsageError(f"--out {out}: directory {out.parent} does not exist")
-    recorded = read_run_config(opts.run_dir)["config"].network  # refused before any params
-    if recorded is not None:
+    config = read_run_config(opts.run_dir)["config"]  # refused before any params are read:
+    if config.network is not None:
         raise cli.UsageError(
-            f"{opts.run_dir} trained its own network ({recorded.class_path}); "
+            f"{opts.run_dir} trained its own network ({config.network.class_path}); "
             f"--to {opts.to} exports the built-in SB3 MLP only"
+        )
+    if not has_physics(config.env):  # the zip declares CartPole's spaces, ONNX its obs [N, 4]
+        raise cli.UsageError(
+            f"--to {opts.to} exports CartPole-v1 policies only; {opts.run_dir} trained {config.env}"
         )
     trained = run_params(opts.run_dir, opts.combination, opts.policy)
     if trained.note:
         print(f"note: {opts.run_dir}: parameters {trained.note}", file=sys.stderr)
-    if not 0 <= opts.seed_index < trained.num_seeds:
-        raise cli.UsageError(
-            f"--seed-index must be in [0, {trained.num_seeds}) for this {trained.num_seeds}-seed "
-            f"run, got {opts.seed_index}"
-        )
-    params = seed_params(trained, opts.seed_index)
-    config = trained.config
-    if config.env != "CartPole-v1":  # the zip declares CartPole's spaces; ONNX's input is 4 wide
-        raise cli.UsageError(
-            f"--to {opts.to} exports CartPole-v1 policies only; {opts.run_dir} trained {config.env}"
-        )
+    params = seed_params(trained, opts.seed_index, "--seed-index")
     what = f"seed {opts.seed_index} of {opts.run_dir}" + (
         " (its best policy)" if opts.policy == "best" else ""
     )
     if opts.to == "sb3":
         from jaxcart.results.sb3_zip import ACTIVATION_CLASSES, net_arch, sb3_zip_bytes
 
-        data = sb3_zip_bytes(params, config)
-        arch = net_arch(config)
+        data = sb3_zip_bytes(params, trained.config)
+        arch = net_arch(trained.config)
         text = (
             f"wrote {out}: {what} as SB3 PPO (MlpPolicy, net_arch pi={arch['pi']} "
             f"vf={arch['vf']}, {ACTIVATION_CLASSES[config.activation]}); "

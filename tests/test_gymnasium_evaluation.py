@@ -12,9 +12,10 @@ import pytest
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
 from jaxcart.core import networks
+from jaxcart.core.cartpole import EnvParams, gymnasium_step
 from jaxcart.core.solved import EVAL_SEED, SOLVED_RETURN
 from jaxcart.engine.signals import Stopped
-from jaxcart.run.greedy import cartpole_constants, cartpole_step, evaluate_gymnasium
+from jaxcart.run.greedy import evaluate_gymnasium
 from jaxcart.rundir.policy import NumpyPolicy
 
 NUM_POLICIES, NUM_EPISODES = 64, 20
@@ -130,12 +131,11 @@ def test_the_batched_step_is_gymnasiums_step_bit_for_bit(integrator):
     one state at a time, over states spread across (and beyond) the episode bounds."""
     env = CartPoleEnv()
     env.kinematics_integrator = integrator
-    constants = cartpole_constants(gym.wrappers.TimeLimit(env, 500))
     rng, n = np.random.default_rng(1), 20_000
     bounds = np.array([2.6, 3.0, 0.25, 3.5])[:, None]
     states = rng.uniform(-bounds, bounds, (4, n))
     actions = rng.integers(0, 2, n)
-    stepped, terminated = cartpole_step(constants, states, actions)
+    stepped, terminated = gymnasium_step(env, states, actions)
     expected = np.empty_like(states)
     expected_terminated = np.empty(n, bool)
     for i in range(n):
@@ -154,17 +154,28 @@ def semi_implicit_cartpole(**kwargs) -> CartPoleEnv:
     return env
 
 
-VARIANTS = {  # id: (entry point, time limit, kwargs)
-    "jaxcart-test/CartPole-semi-implicit-v0": (semi_implicit_cartpole, 200, {}),
-    "jaxcart-test/CartPole-sutton-barto-v0": (CartPoleEnv, 500, {"sutton_barto_reward": True}),
+VARIANTS = {  # id: (entry point, time limit, kwargs, the same CartPole as jaxcart's physics)
+    "jaxcart-test/CartPole-semi-implicit-v0": (
+        semi_implicit_cartpole,
+        200,
+        {},
+        EnvParams(kinematics_integrator="semi-implicit", max_episode_steps=200),
+    ),
+    "jaxcart-test/CartPole-sutton-barto-v0": (
+        CartPoleEnv,
+        500,
+        {"sutton_barto_reward": True},
+        EnvParams(sutton_barto_reward=True),
+    ),
 }
 
 
 @pytest.mark.parametrize("env_id", sorted(VARIANTS))
 def test_other_cartpoles_and_seeds_match_too(env_id):
     """The other integrator with a 200-step limit, and Sutton and Barto's rewards (0 per
-    step, -1 on failure), from other reset seeds."""
-    entry_point, limit, kwargs = VARIANTS[env_id]
+    step, -1 on failure), from other reset seeds: set as physics on CartPole-v1 (the batched
+    step), and under an id of Gymnasium's alone (one env per episode)."""
+    entry_point, limit, kwargs, physics = VARIANTS[env_id]
     if env_id not in gym.registry:
         gym.register(env_id, entry_point, max_episode_steps=limit, kwargs=kwargs)
     args = (mixed_policy(24), 24, 6)
@@ -173,6 +184,7 @@ def test_other_cartpoles_and_seeds_match_too(env_id):
         assert set(np.unique(expected)) == {-1.0, 0.0}
     else:
         assert expected.max() == limit and (expected < limit).any()
+    np.testing.assert_array_equal(evaluate_gymnasium(*args, seed=7, env_params=physics), expected)
     np.testing.assert_array_equal(evaluate_gymnasium(*args, seed=7, env_id=env_id), expected)
 
 

@@ -116,7 +116,7 @@ def test_writer_and_mapping_without_sb3(tmp_path, capsys):
         r.returns.tolist() for r in results
     ]
     np.testing.assert_array_equal(
-        evaluate_params(out, run_params(out), 3), np.stack([r.returns for r in results])
+        evaluate_params(run_params(out), 3), np.stack([r.returns for r in results])
     )
     assert evaluate.main([str(out), "--episodes", "3"]) == 0
     assert "solved 0/2 seed(s)" in capsys.readouterr().out
@@ -143,7 +143,7 @@ def test_sb3_trains_into_a_run_directory(tmp_path, capsys):
     assert np.isfinite(metrics["train/approx_kl"]).all()
     evaluation = json.loads((out / layout.EVALUATION_FILE).read_text())
     # the mapped weights act as SB3's model did: jaxcart's evaluation scores the same
-    again = evaluate_params(out, run_params(out), 20)
+    again = evaluate_params(run_params(out), 20)
     assert again[0].tolist() == evaluation["seeds"][0]["gymnasium_returns"]
 
 

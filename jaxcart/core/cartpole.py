@@ -134,6 +134,98 @@ def host_reset(
     return obs, EnvState(obs[:, 0], obs[:, 1], obs[:, 2], obs[:, 3], steps)
 
 
+def gymnasium_step(c: Any, state: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``CartPoleEnv.step`` for every state at once, with the constants of ``c`` (a
+    ``CartPoleEnv``, or its attributes with some one value per policy ``[P, 1]``): float64
+    ``state [4, ...]`` (rows x, x_dot, theta, theta_dot) and actions ``[...]`` -> ``(next state
+    [4, ...], terminated [...])``.
+
+    Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
+    element-wise float64 arithmetic rounds each operation as on the single env's scalars,
+    so each next state is bit-identical to the single env's.
+    """
+    x, x_dot, theta, theta_dot = state
+    force = np.where(actions == 1, c.force_mag, -c.force_mag)
+    costheta = np.cos(theta)
+    sintheta = np.sin(theta)
+    temp = (force + c.polemass_length * np.square(theta_dot) * sintheta) / c.total_mass
+    thetaacc = (c.gravity * sintheta - costheta * temp) / (
+        c.length * (4.0 / 3.0 - c.masspole * np.square(costheta) / c.total_mass)
+    )
+    xacc = temp - c.polemass_length * thetaacc * costheta / c.total_mass
+    if c.kinematics_integrator == "euler":
+        x = x + c.tau * x_dot
+        x_dot = x_dot + c.tau * xacc
+        theta = theta + c.tau * theta_dot
+        theta_dot = theta_dot + c.tau * thetaacc
+    else:  # semi-implicit Euler
+        x_dot = x_dot + c.tau * xacc
+        x = x + c.tau * x_dot
+        theta_dot = theta_dot + c.tau * thetaacc
+        theta = theta + c.tau * theta_dot
+    terminated = (
+        (x < -c.x_threshold)
+        | (x > c.x_threshold)
+        | (theta < -c.theta_threshold_radians)
+        | (theta > c.theta_threshold_radians)
+    )
+    return np.stack([x, x_dot, theta, theta_dot]), terminated
+
+
+def gymnasium_grid(
+    env_id: str, params: EnvParams | None, shape: tuple[int, int], seed: int, stack: Any
+) -> tuple[np.ndarray, Callable, int]:
+    """Gymnasium's own ``CartPoleEnv`` (``gymnasium.make(env_id)`` with ``params``' physics:
+    :func:`jaxcart.gym.stock.make_cartpole`, entered in the ``contextlib.ExitStack``
+    ``stack``) for a grid of episodes ``shape = (P, E)`` in float64 NumPy arrays, stepped at
+    once by :func:`gymnasium_step`: the env's :attr:`~jaxcart.core.envs.Env.gymnasium_grid`.
+    Episode ``e``'s start is ``env.reset(seed=seed + e)``'s, drawn by Gymnasium; a continuous
+    field of ``params`` may hold one value per policy ``[P]`` (the masses Gymnasium derives
+    from them recomputed as its constructor does). Each return is bit-identical to stepping
+    one ``gymnasium.make(env_id)`` per episode (the same start states, float64 dynamics,
+    float32 observations).
+
+    Returns:
+        ``(obs [P, E, 4] float32, step, num_actions)``, ``step`` as
+        :data:`jaxcart.run.greedy.Step`.
+    """
+    from types import SimpleNamespace
+
+    from jaxcart.gym.stock import make_cartpole, reset_options
+
+    static, per_run = (None, {}) if params is None else pytree.split_per_run(params)
+    env = stack.enter_context(make_cartpole(static, env_id))
+    c = SimpleNamespace(**vars(env.unwrapped))
+    for name, values in per_run.items():
+        setattr(c, name, np.asarray(values, np.float64)[:, None])  # [P, 1]: over the episodes
+    c.total_mass = c.masspole + c.masscart
+    c.polemass_length = c.masspole * c.length
+    limit = env.spec.max_episode_steps
+    starts, first_obs = [], []
+    for e in range(shape[1]):
+        first_obs.append(env.reset(seed=seed + e, options=reset_options(static))[0])
+        starts.append(np.array(env.unwrapped.state, dtype=np.float64))
+    state = np.broadcast_to(np.stack(starts, axis=1)[:, None, :], (4, *shape)).copy()
+    obs = np.broadcast_to(np.stack(first_obs), (*shape, 4)).copy()  # rows contiguous
+    steps = 0
+
+    def step(actions: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nonlocal steps
+        stepped, terminated = gymnasium_step(c, state, actions)
+        steps += 1
+        # Only the running episodes move on; the finished keep their state and observation.
+        np.copyto(state, stepped, where=alive)
+        np.copyto(obs, np.moveaxis(stepped, 0, -1), casting="same_kind", where=alive[..., None])
+        if getattr(c, "_sutton_barto_reward", False):
+            reward = np.where(terminated, -1.0, 0.0)
+        else:
+            reward = np.ones(shape)
+        truncated = limit is not None and steps >= limit
+        return reward, terminated | truncated  # TimeLimit: every running episode truncated
+
+    return obs, step, int(env.action_space.n)
+
+
 def step_env(
     state: EnvState, action: Array, params: EnvParams
 ) -> tuple[Array, EnvState, Array, Array, Array]:

@@ -60,6 +60,11 @@ class Env:
             episodes reset on the same step (``final_obs``: the observation before the reset).
         reward_threshold: Gymnasium's ``reward_threshold`` for this id, or None for CartPole,
             which is judged by its own stricter rule (:mod:`jaxcart.core.solved`).
+        gymnasium_grid: ``(id, params, (P, E), seed, stack) -> (obs [P, E, obs_dim], step,
+            num_actions)``: Gymnasium's env of this id with ``params``' physics for a grid of
+            greedy episodes stepped at once on the host, bit for bit as one env per episode
+            (CartPole's: :func:`jaxcart.core.cartpole.gymnasium_grid`); None: one
+            ``gymnasium.make(id)`` per episode (:func:`jaxcart.run.greedy.evaluate_gymnasium`).
         max_episode_steps: the time limit (CartPole's default; its params may set another).
         host_reset: ``(rng, params, num_envs, dtype) -> (obs [num_envs, obs_dim], state
             [num_envs])`` in NumPy from a run's ``numpy.random.Generator``: the first episodes
@@ -77,6 +82,7 @@ class Env:
     reset: Callable[[Array, Any], tuple[Array, Any]]
     step_batch: Callable[..., tuple]
     reward_threshold: float | None = None
+    gymnasium_grid: Callable[..., tuple] | None = None
     max_episode_steps: int = 500
     host_reset: Callable[[np.random.Generator, Any, int, np.dtype], tuple] | None = None
     draw_frame: Callable[[Any, Any], np.ndarray] | None = None
@@ -87,6 +93,7 @@ CARTPOLE = Env(
     obs_dim=4,
     num_actions=2,
     default_params=cartpole.EnvParams,
+    gymnasium_grid=cartpole.gymnasium_grid,
     reset=cartpole.reset,
     # steps an EpisodeState too: physics drawn anew at every reset (--randomize ...:episode)
     step_batch=physics.step_batch,

@@ -15,7 +15,6 @@ import jax.numpy as jnp
 from jaxcart.core import envs, networks, pytree
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
-from jaxcart.core.metrics import EVAL_METRICS
 from jaxcart.core.networks import ActorCritic
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 
@@ -99,7 +98,7 @@ def periodic_evaluation(
 
     Returns:
         The best policy, updated when this evaluation scored at least its score, and the
-        metrics :data:`EVAL_METRICS` (NaN when no evaluation ran).
+        metrics :data:`~jaxcart.core.metrics.EVAL_METRICS` (NaN when no evaluation ran).
     """
     due = (iteration + 1) % config.eval_every == 0
     dtype = jax.tree.leaves(params)[0].dtype
@@ -123,12 +122,3 @@ def periodic_evaluation(
             iteration=keep((iteration + 1).astype(jnp.int32), best.iteration),
         )
     return best, metrics
-
-
-__all__ = [
-    "EVAL_KEY_SEED",
-    "EVAL_METRICS",
-    "BestPolicy",
-    "greedy_returns",
-    "periodic_evaluation",
-]

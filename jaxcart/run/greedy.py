@@ -8,22 +8,19 @@ import contextlib
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from types import SimpleNamespace
+from typing import Any
 
 import jax
 import numpy as np
 
-from jaxcart.core import cartpole, physics
+from jaxcart.core import envs, physics
 from jaxcart.core.config import PPOConfig, float_dtype
-from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.evaluation import greedy_returns
 from jaxcart.core.ppo import make_network
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
+from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped
-from jaxcart.gym.stock import make_cartpole, reset_options
 from jaxcart.rundir import reader
-from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 
 FAST_COMPILE = {"xla_backend_optimization_level": 1}
@@ -32,100 +29,17 @@ time (about 1 s to 0.5 s) and leaves its returns as they were (checked bit for b
 
 Step = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 """``(actions [P, E], alive [P, E]) -> (rewards [P, E], done [P, E])``: one step of every
-running episode of a policy x episode grid, its observations updated in place."""
-
-
-def cartpole_constants(env, per_run: dict[str, np.ndarray] | None = None) -> SimpleNamespace:
-    """The constants ``CartPoleEnv.step`` reads, of ``env`` (a ``gymnasium.make`` result of
-    Gymnasium's ``CartPoleEnv``, its ``TimeLimit`` as ``max_episode_steps``), with the fields
-    of ``per_run`` one value per policy (arrays ``[P]``, shaped ``[P, 1]`` to broadcast over
-    the episodes) and the masses Gymnasium derives from them recomputed as its constructor
-    does."""
-    max_steps = env.spec.max_episode_steps if env.spec is not None else None
-    constants = SimpleNamespace(**vars(env.unwrapped), max_episode_steps=max_steps)
-    if per_run:
-        for name, values in per_run.items():
-            setattr(constants, name, np.asarray(values, np.float64)[:, None])
-        constants.total_mass = constants.masspole + constants.masscart
-        constants.polemass_length = constants.masspole * constants.length
-    return constants
-
-
-def cartpole_step(
-    c: SimpleNamespace, state: np.ndarray, actions: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """``CartPoleEnv.step`` for every state at once, with constants ``c``
-    (:func:`cartpole_constants`): float64 ``state [4, ...]`` (rows x, x_dot, theta,
-    theta_dot) and actions ``[...]`` -> ``(next state [4, ...], terminated [...])``.
-
-    Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
-    element-wise float64 arithmetic rounds each operation as on the single env's scalars,
-    so each next state is bit-identical to the single env's.
-    """
-    x, x_dot, theta, theta_dot = state
-    force = np.where(actions == 1, c.force_mag, -c.force_mag)
-    costheta = np.cos(theta)
-    sintheta = np.sin(theta)
-    temp = (force + c.polemass_length * np.square(theta_dot) * sintheta) / c.total_mass
-    thetaacc = (c.gravity * sintheta - costheta * temp) / (
-        c.length * (4.0 / 3.0 - c.masspole * np.square(costheta) / c.total_mass)
-    )
-    xacc = temp - c.polemass_length * thetaacc * costheta / c.total_mass
-    if c.kinematics_integrator == "euler":
-        x = x + c.tau * x_dot
-        x_dot = x_dot + c.tau * xacc
-        theta = theta + c.tau * theta_dot
-        theta_dot = theta_dot + c.tau * thetaacc
-    else:  # semi-implicit Euler
-        x_dot = x_dot + c.tau * xacc
-        x = x + c.tau * x_dot
-        theta_dot = theta_dot + c.tau * thetaacc
-        theta = theta + c.tau * theta_dot
-    terminated = (
-        (x < -c.x_threshold)
-        | (x > c.x_threshold)
-        | (theta < -c.theta_threshold_radians)
-        | (theta > c.theta_threshold_radians)
-    )
-    return np.stack([x, x_dot, theta, theta_dot]), terminated
-
-
-def _cartpole_grid(
-    env, shape: tuple[int, int], seed: int, per_run: dict, options: dict | None
-) -> tuple[np.ndarray, Step]:
-    """Gymnasium's ``CartPoleEnv`` for a grid of episodes in float64 NumPy arrays: episode
-    ``e``'s start is ``env.reset(seed=seed + e, options=options)``'s, drawn by Gymnasium."""
-    c = cartpole_constants(env, per_run)
-    starts, first_obs = [], []
-    for e in range(shape[1]):
-        first_obs.append(env.reset(seed=seed + e, options=options)[0])
-        starts.append(np.array(env.unwrapped.state, dtype=np.float64))
-    state = np.broadcast_to(np.stack(starts, axis=1)[:, None, :], (4, *shape)).copy()
-    obs = np.broadcast_to(np.stack(first_obs), (*shape, 4)).copy()  # rows contiguous
-    steps = 0
-
-    def step(actions: np.ndarray, alive: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        nonlocal steps
-        stepped, terminated = cartpole_step(c, state, actions)
-        steps += 1
-        # Only the running episodes move on; the finished keep their state and observation.
-        np.copyto(state, stepped, where=alive)
-        np.copyto(obs, np.moveaxis(stepped, 0, -1), casting="same_kind", where=alive[..., None])
-        if getattr(c, "_sutton_barto_reward", False):
-            reward = np.where(terminated, -1.0, 0.0)
-        else:
-            reward = np.ones(shape)
-        truncated = c.max_episode_steps is not None and steps >= c.max_episode_steps
-        return reward, terminated | truncated  # TimeLimit: every running episode truncated
-
-    return obs, step
+running episode of a policy x episode grid, its observations updated in place (the step of
+an :attr:`~jaxcart.core.envs.Env.gymnasium_grid`)."""
 
 
 def _env_grid(
-    env_id: str, shape: tuple[int, int], seed: int, stack: contextlib.ExitStack
-) -> tuple[np.ndarray, Step]:
+    env_id: str, params: Any, shape: tuple[int, int], seed: int, stack: contextlib.ExitStack
+) -> tuple[np.ndarray, Step, int]:
     """One ``gymnasium.make(env_id)`` per policy and episode, each stepped by its own
-    ``step`` (time limit included); episode ``e`` starts from ``reset(seed=seed + e)``."""
+    ``step`` (time limit included) on its own physics (``params`` unused); episode ``e``
+    starts from ``reset(seed=seed + e)``: the grid of an env without its own
+    :attr:`~jaxcart.core.envs.Env.gymnasium_grid`."""
     import gymnasium as gym
 
     games = [
@@ -142,7 +56,7 @@ def _env_grid(
             done[p, e] = terminated or truncated
         return reward, done
 
-    return obs, step
+    return obs, step, int(games[0][0].action_space.n)
 
 
 def evaluate_gymnasium(
@@ -152,7 +66,7 @@ def evaluate_gymnasium(
     seed: int = EVAL_SEED,
     env_id: str = DEFAULT_ENV,
     should_stop: Callable[[], bool] | None = None,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
 ) -> np.ndarray:
     """Runs ``num_episodes`` greedy episodes per policy in ``gymnasium.make(env_id)``: the one
     Gymnasium evaluation loop (the final verdict, ``python -m jaxcart.evaluate``, benchmarks).
@@ -160,13 +74,13 @@ def evaluate_gymnasium(
     Episode ``e`` of every policy starts where ``gymnasium.make(env_id).reset(seed=seed + e)``
     starts. All policies and episodes then advance in lockstep, with one batched policy call
     per time step (finished episodes keep showing their last observation), until every episode
-    has terminated or reached the env's time limit. A Gymnasium ``CartPoleEnv`` steps as one
-    batched float64 NumPy physics step (:func:`cartpole_step`), with ``env_params``' physics
-    (:func:`jaxcart.gym.stock.make_cartpole`; a continuous field may hold one value per
-    policy, ``[num_policies]``); each return is bit-identical to stepping one
-    ``gymnasium.make(env_id)`` per episode (the same start states, float64 dynamics, float32
-    observations and policy calls). Any other discrete-action env steps one
-    ``gymnasium.make(env_id)`` per policy and episode, on its own physics.
+    has terminated or reached the env's time limit. An env whose protocol has a
+    :attr:`~jaxcart.core.envs.Env.gymnasium_grid` steps the whole grid at once with
+    ``env_params``' physics (CartPole's: :func:`jaxcart.core.cartpole.gymnasium_grid`, a
+    continuous field may hold one value per policy, ``[num_policies]``), each return
+    bit-identical to stepping one ``gymnasium.make(env_id)`` per episode; any other
+    discrete-action env steps one ``gymnasium.make(env_id)`` per policy and episode, on its
+    own physics.
 
     Args:
         policy: maps observations ``[num_policies, num_episodes, obs_dim]`` float32 to actions
@@ -182,17 +96,12 @@ def evaluate_gymnasium(
         ValueError: an action outside the env's action space.
         Stopped: ``should_stop()`` turned true.
     """
-    from gymnasium.envs.classic_control.cartpole import CartPoleEnv
-
+    grid = _env_grid
+    with contextlib.suppress(envs.EnvError):  # an id of Gymnasium's alone: its own envs
+        grid = envs.make(env_id).gymnasium_grid or _env_grid
     shape = (num_policies, num_episodes)
-    static, per_run = physics.split_per_run(env_params or cartpole.EnvParams())
     with contextlib.ExitStack() as stack:
-        env = stack.enter_context(make_cartpole(static, env_id))
-        num_actions = int(env.action_space.n)
-        if isinstance(env.unwrapped, CartPoleEnv):
-            obs, step = _cartpole_grid(env, shape, seed, per_run, reset_options(static))
-        else:
-            obs, step = _env_grid(env_id, shape, seed, stack)
+        obs, step, num_actions = grid(env_id, env_params, shape, seed, stack)
         returns, alive = np.zeros(shape), np.ones(shape, bool)
         while alive.any():
             if should_stop is not None and should_stop():
@@ -227,7 +136,7 @@ def evaluate_runs(
     seed_indices: np.ndarray,
     episodes: int,
     should_stop: Callable[[], bool] | None = None,
-    env_params: cartpole.EnvParams | None = None,
+    env_params: Any = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
     Gymnasium's env of ``config.env`` (the same reset seeds for all) and in jaxcart's env (run
@@ -239,8 +148,7 @@ def evaluate_runs(
     Args:
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
-    env_params = env_params if config.env == DEFAULT_ENV else None  # CartPole's physics
-    static, per_run = physics.split_per_run(env_params)
+    static, per_run = (None, {}) if env_params is None else physics.split_per_run(env_params)
     per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
     network = make_network(config)
 
@@ -256,11 +164,8 @@ def evaluate_runs(
 
     with ThreadPoolExecutor(1) as pool:
         jax_returns = pool.submit(in_jaxcart)
-        policy = make_policy(params, config, stacked=True)
-        gym_returns = evaluate_gymnasium(
-            policy, len(seed_indices), episodes, EVAL_SEED, config.env, should_stop, env_params
-        )
-        return gym_returns, jax_returns.result()
+        trained = RunParams(params, config, len(seed_indices), env_params=env_params)
+        return evaluate_params(trained, episodes, should_stop), jax_returns.result()
 
 
 def evaluate_run_dir(
@@ -270,7 +175,7 @@ def evaluate_run_dir(
     network: type | None = None,
     trust_code: bool = False,
 ) -> tuple[np.ndarray, dict]:
-    """Evaluates every seed of a run directory in Gymnasium's CartPole-v1: a finished run's
+    """Evaluates every seed of a run directory in Gymnasium's env of its id: a finished run's
     ``params.npz``, or the last checkpoint of one that did not finish.
 
     Args:
@@ -288,18 +193,18 @@ def evaluate_run_dir(
     """
     info = reader.read_run_config(run_dir)
     trained = run_params(run_dir, combination, network=network, trust_code=trust_code)
-    return evaluate_params(run_dir, trained, episodes), {**info, "note": trained.note}
+    return evaluate_params(trained, episodes), {**info, "note": trained.note}
 
 
-def evaluate_params(run_dir: str | Path, trained: RunParams, episodes: int) -> np.ndarray:
-    try:
-        policy = make_policy(trained.params, trained.config, stacked=True)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise RunDirError(f"{run_dir} does not hold an actor: {exc}") from None
+def evaluate_params(
+    trained: RunParams, episodes: int, should_stop: Callable[[], bool] | None = None
+) -> np.ndarray:
+    """Greedy returns ``[num_seeds, episodes]`` of every seed of ``trained`` in Gymnasium's env
+    of its id (:func:`evaluate_gymnasium`), on its physics: the final evaluation of a training
+    and ``python -m jaxcart.evaluate`` alike. A run directory's parameters are the store's,
+    checked against the run's network as they were read (:func:`run_params`)."""
+    policy = make_policy(trained.params, trained.config, stacked=True)
+    config, env_params = trained.config, trained.env_params
     return evaluate_gymnasium(
-        policy,
-        trained.num_seeds,
-        episodes,
-        env_id=trained.config.env,
-        env_params=trained.env_params,
+        policy, trained.num_seeds, episodes, EVAL_SEED, config.env, should_stop, env_params
     )

@@ -8,9 +8,10 @@ Parameters come from ``params.npz`` of a finished run, or, for a run that did no
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -29,12 +30,17 @@ from jaxcart.rundir.reader import read_checkpoint_runs
 class Policy:
     """A trained policy for one or a stack of seeds, callable on float32 observations:
     ``(obs_dim,) -> int``, ``(N, obs_dim) -> (N,)``, and when stacked ``(S, N, obs_dim) ->
-    (S, N)`` (CartPole's ``obs_dim`` is 4). Greedy
-    (argmax) when ``deterministic``, else sampled from the policy's softmax with ``rng`` (a NumPy
-    ``Generator``, or a seed for one). Subclasses compute :meth:`logits`."""
+    (S, N)``. Greedy (argmax) when ``deterministic``, else sampled from the policy's softmax
+    with ``rng`` (a NumPy ``Generator``, or a seed for one). Subclasses set :attr:`num_seeds`,
+    :attr:`obs_dim` and ``_logits``, the network's logits of checked observations."""
 
-    obs_dim = 4  # the observation size of env_id
-    env_id = "CartPole-v1"  # the env whose observations it takes
+    num_seeds: int | None = None  # the leading seed axis of a stacked policy (else None)
+    obs_dim: int | None = None  # the observation size (None: taken as given)
+    env_id: str | None = None  # the env whose observations it takes (set by make_policy)
+    note: str | None = None  # where the parameters came from, if not a finished run
+    env_params: EnvParams | None = None
+    """The physics the policy trained on (set by :func:`load_policy`; None: the env's own), for
+    an env to run it in: ``jaxcart.gym.stock.make_cartpole(policy.env_params)``."""
 
     def __init__(
         self,
@@ -45,19 +51,10 @@ class Policy:
         self.stacked = stacked
         self.deterministic = deterministic
         self.rng = np.random.default_rng(rng)
-        self.note: str | None = None  # where the parameters came from, if not a finished run
-        # the physics the policy trained on (set by load_policy), for an env to run it in:
-        # jaxcart.gym.stock.make_cartpole(policy.env_params)
-        self.env_params: EnvParams = EnvParams()
-
-    @property
-    def num_seeds(self) -> int | None:
-        """The leading seed axis of a stacked policy (None when not stacked)."""
-        raise NotImplementedError
 
     def _checked(self, obs: np.ndarray) -> np.ndarray:
         x = np.asarray(obs, np.float32)
-        if x.shape[-1:] != (self.obs_dim,):
+        if self.obs_dim is not None and x.shape[-1:] != (self.obs_dim,):
             raise ValueError(
                 f"expected observations with {self.obs_dim} values in the last axis, got shape "
                 f"{x.shape}"
@@ -65,13 +62,13 @@ class Policy:
         if self.stacked and (x.ndim != 3 or x.shape[0] != self.num_seeds):
             raise ValueError(
                 f"a policy of {self.num_seeds} stacked seeds takes observations "
-                f"[{self.num_seeds}, N, {self.obs_dim}], got shape {x.shape}"
+                f"[{self.num_seeds}, N, {self.obs_dim or 'obs_dim'}], got shape {x.shape}"
             )
         return x
 
     def logits(self, obs: np.ndarray) -> np.ndarray:
         """Policy logits for ``obs`` (any leading shape matching the stacking)."""
-        raise NotImplementedError
+        return np.asarray(self._logits(self._checked(obs)))
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
         actions = self.actions(obs, self.deterministic)
@@ -125,13 +122,9 @@ class NumpyPolicy(Policy):
         super().__init__(stacked, deterministic, rng)
         self.actor = {name: layer(p) for name, p in actor.items()}
         self.activation = activation
-
-    @property
-    def num_seeds(self) -> int | None:
-        return next(iter(self.actor.values()))["kernel"].shape[0] if self.stacked else None
-
-    def logits(self, obs: np.ndarray) -> np.ndarray:
-        return networks.mlp(self.actor, self._checked(obs), self.activation, xp=np)
+        first = self.actor[networks.layer_names(len(actor) - 1)[0]]["kernel"]  # [S, obs_dim, h]
+        self.num_seeds, self.obs_dim = first.shape[0] if stacked else None, first.shape[-2]
+        self._logits = functools.partial(networks.mlp, self.actor, activation=activation, xp=np)
 
 
 class JaxPolicy(Policy):
@@ -152,14 +145,10 @@ class JaxPolicy(Policy):
         def logits(p: dict, x: jax.Array) -> jax.Array:
             return network.apply(p, x)[0]
 
-        self._logits = jax.jit(jax.vmap(logits) if stacked else logits)
-
-    @property
-    def num_seeds(self) -> int | None:
-        return jax.tree.leaves(self.params)[0].shape[0] if self.stacked else None
-
-    def logits(self, obs: np.ndarray) -> np.ndarray:
-        return np.asarray(self._logits(self.params, self._checked(obs)))
+        self._logits = functools.partial(
+            jax.jit(jax.vmap(logits) if stacked else logits), self.params
+        )
+        self.num_seeds = jax.tree.leaves(self.params)[0].shape[0] if stacked else None
 
 
 def make_policy(
@@ -177,7 +166,8 @@ def make_policy(
         policy: Policy = NumpyPolicy(actor, config.activation, stacked, deterministic, rng)
     else:
         policy = JaxPolicy(config.network, params, stacked, deterministic, rng)
-    policy.env_id, policy.obs_dim = config.env, envs.make(config.env).obs_dim
+    env = envs.make(config.env)
+    policy.env_id, policy.obs_dim = env.id, env.obs_dim
     return policy
 
 
@@ -191,9 +181,21 @@ class RunParams:
     note: str | None = None
     """``from the checkpoint at iteration 12/40: the run did not finish`` when the parameters
     are not a finished run's; None for ``params.npz``."""
-    env_params: EnvParams = field(default_factory=EnvParams)
+    env_params: EnvParams | None = None
     """The physics the run trained on (a randomised field: its nominal value), which its
-    evaluation uses (:func:`jaxcart.rundir.reader.run_env_params`)."""
+    evaluation uses (:func:`jaxcart.rundir.reader.run_env_params`); None for an env without
+    CartPole's physics (:func:`has_physics`), which plays on its own."""
+
+
+def has_physics(env_id: str) -> bool:
+    """Whether ``env_id``'s params are CartPole's :class:`EnvParams` (its
+    :attr:`~jaxcart.core.envs.Env.default_params`): the physics ``--env-param`` and
+    ``--sweep env.NAME`` set, and the env GIFs and the exports draw and declare.
+
+    Raises:
+        EnvError: an env this process cannot make (one line).
+    """
+    return isinstance(envs.make(env_id).default_params(), EnvParams)
 
 
 def run_params(
@@ -234,7 +236,9 @@ def run_params(
             raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
         if not sweep:
             num_seeds = int(info.get("num_seeds", 1))
-            env = _env_params(run_dir, info, combination)
+            env = None
+            if has_physics(info["config"].env):
+                env = _checked_config(run_dir, reader.run_env_params, info, combination)
             if not combos and files.present(directory / layout.PARAMS_FILE):
                 params = reader.load_params(directory, policy, info)
                 return RunParams(params, info["config"], num_seeds, None, env)
@@ -242,39 +246,20 @@ def run_params(
             saved = read_checkpoint_runs(directory, info, policy)  # unfinished
             first = (combination or 0) * num_seeds
             params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
-            config = _combo_config(info, combination)
+            config = _checked_config(run_dir, _combo_config, info, combination)
             return RunParams(params, config, num_seeds, saved.note, env)
     # a finished sweep: each combination is a run directory of its own (a link is refused)
     name = layout.combo_dir(".", int(combination)).name
     return run_params(files.subdir(run_dir, name), None, policy, network, trust_code)
 
 
-def _env_params(run_dir: Path, info: dict, combination: int | None) -> EnvParams:
+def _checked_config(run_dir: Path, read: Any, info: dict, combination: int | None) -> Any:
+    """``read(info, combination)``, a value of config.json it cannot take one line."""
     try:
-        return reader.run_env_params(info, combination)
+        return read(info, combination)
     except (ConfigError, TypeError, ValueError) as exc:
-        raise RunDirError(f"{run_dir}: config.json env_params are unusable: {exc}") from None
-
-
-def _is_index(value: object, count: int) -> bool:
-    """``value`` is an integer (not a bool) in ``[0, count)``."""
-    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-    return ok and 0 <= value < count
-
-
-def seed_params(trained: RunParams, seed_index: int | str, allow_all: bool = False) -> dict:
-    """One seed's parameters (no seed axis) of ``trained``.
-
-    Raises:
-        RunDirError: ``seed_index`` is not an integer in ``[0, num_seeds)``.
-    """
-    num_seeds = trained.num_seeds
-    if not _is_index(seed_index, num_seeds):
-        also = " or 'all'" if allow_all else ""
-        raise RunDirError(
-            f"seed_index must be an integer in [0, {num_seeds}){also}, got {seed_index!r}"
-        )
-    return jax.tree.map(lambda x: np.asarray(x[seed_index]), trained.params)
+        what = "env_params" if combination is None else f"combination {combination}"
+        raise RunDirError(f"{run_dir}: config.json {what} is unusable: {exc}") from None
 
 
 def _combo_config(info: dict, combination: int | None) -> PPOConfig:
@@ -283,10 +268,31 @@ def _combo_config(info: dict, combination: int | None) -> PPOConfig:
         return info["config"]
     values = reader.recorded_combinations(info)[combination]
     values = {k: v for k, v in values.items() if not k.startswith("env.")}
-    try:
-        return dataclasses.replace(info["config"], **values)  # keeps its resolved network
-    except (ConfigError, TypeError, ValueError) as exc:
-        raise RunDirError(f"config.json: combination {combination} is unusable: {exc}") from None
+    return dataclasses.replace(info["config"], **values)  # keeps its resolved network
+
+
+def _is_index(value: object, count: int) -> bool:
+    """``value`` is an integer (not a bool) in ``[0, count)``."""
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    return ok and 0 <= value < count
+
+
+def seed_params(
+    trained: RunParams, seed_index: int | str, option: str = "seed_index", allow_all: bool = False
+) -> dict:
+    """One seed's parameters (no seed axis) of ``trained``.
+
+    Raises:
+        RunDirError: ``seed_index`` is not an integer in ``[0, num_seeds)`` (the message
+            names it ``option``: ``--seed-index`` on a command line).
+    """
+    n = trained.num_seeds
+    if not _is_index(seed_index, n):
+        also = " or 'all'" if allow_all else ""
+        raise RunDirError(
+            f"{option} must be in [0, {n}){also} for this {n}-seed run, got {seed_index!r}"
+        )
+    return jax.tree.map(lambda x: np.asarray(x[seed_index]), trained.params)
 
 
 def load_policy(
@@ -305,7 +311,7 @@ def load_policy(
         run_dir: a run directory. One that did not finish gives the parameters of its last
             checkpoint, with a warning saying so (and ``policy.note``).
         seed_index: which seed, or ``"all"`` for every seed stacked (observations
-            ``[S, N, 4]`` -> actions ``[S, N]``).
+            ``[S, N, obs_dim]`` -> actions ``[S, N]``).
         combination: a sweep's combination (required for a sweep directory).
         deterministic: argmax actions (as evaluated); False samples from the policy.
         rng: the NumPy ``Generator`` (or its seed) that samples when not ``deterministic``.
@@ -318,8 +324,10 @@ def load_policy(
             ``network`` instead.
 
     Returns:
-        A callable mapping a float32 observation ``(4,)`` to an ``int`` action, or ``(N, 4)``
-        to ``(N,)`` actions (plain NumPy; no JAX call per step).
+        A callable mapping a float32 observation ``(obs_dim,)`` (CartPole's: 4) to an ``int``
+        action, or ``(N, obs_dim)`` to ``(N,)`` actions (plain NumPy for the built-in MLP: no
+        JAX call per step). Its parameters are the store's, checked against the run's network
+        as they are read.
 
     Example::
 
@@ -330,12 +338,8 @@ def load_policy(
     trained = run_params(run_dir, combination, policy, network, trust_code)
     stacked = seed_index == "all"
     params = trained.params if stacked else seed_params(trained, seed_index, allow_all=True)
-    try:
-        policy = make_policy(params, trained.config, stacked, deterministic, rng)
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise RunDirError(f"{run_dir} does not hold an actor network: {exc}") from None
-    policy.env_params = trained.env_params
+    policy = make_policy(params, trained.config, stacked, deterministic, rng)
+    policy.env_params, policy.note = trained.env_params, trained.note
     if trained.note:
-        policy.note = trained.note
         warnings.warn(f"{run_dir}: parameters {trained.note}", UserWarning, stacklevel=2)
     return policy
