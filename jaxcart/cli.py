@@ -5,10 +5,12 @@ code 2, no abbreviations, "did you mean" hints, ``--version``, one default per o
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import decimal
 import difflib
 import functools
+import inspect
 import os
 import re
 import signal
@@ -405,6 +407,23 @@ class Parser(argparse.ArgumentParser):
         return text
 
 
+def field_docs(cls: type) -> dict[str, str]:
+    """Attribute docstrings of a dataclass, read from its source (they serve as CLI help)."""
+    tree = ast.parse(inspect.getsource(cls))
+    body = tree.body[0].body
+    docs: dict[str, str] = {}
+    for node, nxt in zip(body, body[1:]):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(nxt, ast.Expr)
+            and isinstance(nxt.value, ast.Constant)
+            and isinstance(nxt.value.value, str)
+        ):
+            docs[node.target.id] = " ".join(nxt.value.value.split())
+    return docs
+
+
 def option(default: Any = None, **kwargs: Any) -> Any:
     """A field of a command's options dataclass that is the command-line option ``--name``,
     declared once: its default, ``kwargs`` for ``add_argument`` (``group``: the help section,
@@ -418,8 +437,6 @@ def add_options(
     """One option per :func:`option` field of the dataclass ``cls`` (those of ``names`` only,
     when given), in declaration order; returns the argument groups by title (``""``: the
     options go into ``parser`` itself)."""
-    from jaxcart.core.config import field_docs
-
     docs, groups = field_docs(cls), {}
     for f in dataclasses.fields(cls):
         if "option" not in f.metadata or (names and f.name not in names):

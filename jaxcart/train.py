@@ -24,7 +24,7 @@ from jaxcart import cli
 
 cli.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
 
-from jaxcart.core.config import PRESETS, config_fields, field_docs, preset  # noqa: E402
+from jaxcart.core.config import PRESETS, PPOConfig, config_fields, preset  # noqa: E402
 from jaxcart.engine import devices  # noqa: E402
 from jaxcart.engine.signals import StopRequest  # noqa: E402
 
@@ -84,7 +84,7 @@ _default_text = cli.spelled  # the name jaxcart.tune spells a value by
 def _add_config_options(group: argparse._ArgumentGroup) -> None:
     """One option per PPOConfig field, its docstring as the help, the sb3 preset's value as
     the default shown (the option itself defaults to "not given", so presets apply)."""
-    docs, defaults = field_docs(), preset("sb3")
+    docs, defaults = cli.field_docs(PPOConfig), preset("sb3")
     for f in config_fields():
         flag = "--" + f.name.replace("_", "-")
         shown = cli.spelled(getattr(defaults, f.name)).replace("%", "%%")

@@ -8,13 +8,13 @@ import jax
 import numpy as np
 import pytest
 
+from jaxcart import cli
 from jaxcart.core.config import (
     PRESETS,
     STATIC_FIELDS,
     TRACED_FIELDS,
     ConfigError,
     PPOConfig,
-    field_docs,
     preset,
 )
 
@@ -44,7 +44,7 @@ def test_purejaxrl_preset():
 
 
 def test_every_field_documented():
-    docs = field_docs()
+    docs = cli.field_docs(PPOConfig)
     for f in PPOConfig.__dataclass_fields__:
         assert docs.get(f), f"{f} has no docstring"
 

@@ -13,10 +13,8 @@ The program reads the one config it is given; there is no second copy with other
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import functools
-import inspect
 import json
 import math
 import re
@@ -761,23 +759,6 @@ def preset(name: str, **overrides) -> PPOConfig:
 
 
 @functools.cache
-def field_docs(cls: type = PPOConfig) -> dict[str, str]:
-    """Attribute docstrings of a dataclass, read from its source (they serve as CLI help)."""
-    tree = ast.parse(inspect.getsource(cls))
-    body = tree.body[0].body
-    docs: dict[str, str] = {}
-    for node, nxt in zip(body, body[1:]):
-        if (
-            isinstance(node, ast.AnnAssign)
-            and isinstance(node.target, ast.Name)
-            and isinstance(nxt, ast.Expr)
-            and isinstance(nxt.value, ast.Constant)
-            and isinstance(nxt.value.value, str)
-        ):
-            docs[node.target.id] = " ".join(nxt.value.value.split())
-    return docs
-
-
 def config_fields() -> list[dataclasses.Field]:
     """The fields of :class:`PPOConfig` the command line sets (all but ``network`` and
     ``metrics``), in
@@ -794,7 +775,6 @@ __all__ = [
     "RebuildError",
     "RecordedMetric",
     "config_fields",
-    "field_docs",
     "preset",
     "validate",
 ]
