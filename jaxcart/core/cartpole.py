@@ -172,11 +172,58 @@ def gymnasium_step(c: Any, state: np.ndarray, actions: np.ndarray) -> tuple[np.n
     return np.stack([x, x_dot, theta, theta_dot]), terminated
 
 
+PHYSICS = (*pytree.per_run_names(EnvParams()), "kinematics_integrator")
+"""The ``CartPoleEnv`` attributes an :class:`EnvParams` sets (same names)."""
+
+
+def make_cartpole(
+    params: EnvParams | None = None, env_id: str = "CartPole-v1", **kwargs: Any
+) -> Any:
+    """``gymnasium.make(env_id, **kwargs)`` with ``params``' physics, episode limit and
+    reward mode (default params: exactly ``gymnasium.make(env_id)``).
+
+    The reset bounds are not an attribute of Gymnasium's env: pass :func:`reset_options`
+    to ``env.reset``.
+    """
+    import gymnasium as gym
+
+    params = params or EnvParams()
+    default = EnvParams()
+    if params.max_episode_steps != default.max_episode_steps:
+        kwargs.setdefault("max_episode_steps", int(params.max_episode_steps))
+    if params.sutton_barto_reward:
+        kwargs.setdefault("sutton_barto_reward", True)
+    env = gym.make(env_id, **kwargs)
+    if params == default:
+        return env
+    cartpole = env.unwrapped
+    for name in PHYSICS:
+        value = getattr(params, name)
+        setattr(cartpole, name, value if isinstance(value, str) else float(value))
+    # what CartPoleEnv.__init__ derives from them, recomputed in its own order of operations
+    cartpole.total_mass = cartpole.masspole + cartpole.masscart
+    cartpole.polemass_length = cartpole.masspole * cartpole.length
+    cartpole.observation_space = observation_space(params)
+    return env
+
+
+def reset_options(params: EnvParams | None = None) -> dict | None:
+    """``env.reset``'s options for ``params``' reset bounds (None for Gymnasium's own)."""
+    params = params or EnvParams()
+    default = EnvParams()
+    if (params.reset_low, params.reset_high) == (default.reset_low, default.reset_high):
+        return None
+    return {"low": float(params.reset_low), "high": float(params.reset_high)}
+
+
+__all__ = ["PHYSICS", "make_cartpole", "reset_options"]
+
+
 def gymnasium_grid(
     env_id: str, params: EnvParams | None, shape: tuple[int, int], seed: int, stack: Any
 ) -> tuple[np.ndarray, Callable, int]:
     """Gymnasium's own ``CartPoleEnv`` (``gymnasium.make(env_id)`` with ``params``' physics:
-    :func:`jaxcart.gym.stock.make_cartpole`, entered in the ``contextlib.ExitStack``
+    :func:`make_cartpole`, entered in the ``contextlib.ExitStack``
     ``stack``) for a grid of episodes ``shape = (P, E)`` in float64 NumPy arrays, stepped at
     once by :func:`gymnasium_step`: the env's :attr:`~jaxcart.core.envs.Env.gymnasium_grid`.
     Episode ``e``'s start is ``env.reset(seed=seed + e)``'s, drawn by Gymnasium; a continuous
@@ -190,8 +237,6 @@ def gymnasium_grid(
         :data:`jaxcart.run.greedy.Step`.
     """
     from types import SimpleNamespace
-
-    from jaxcart.gym.stock import make_cartpole, reset_options
 
     static, per_run = (None, {}) if params is None else pytree.split_per_run(params)
     env = stack.enter_context(make_cartpole(static, env_id))
