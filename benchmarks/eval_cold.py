@@ -6,7 +6,6 @@ then the two means::
     for i in 1 2 3; do python benchmarks/eval_cold.py /tmp/fast64; done
 """
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -15,11 +14,11 @@ import numpy as np
 
 from jaxcart.run.greedy import evaluate_runs
 from jaxcart.rundir.policy import run_params
+from jaxcart.rundir.reader import read_run_config
 
 run = Path(sys.argv[1])
 rp = run_params(run)
-cfg = json.loads((run / "config.json").read_text())
-seed = cfg.get("seed", 0)
+seed = read_run_config(run)["seed"]  # through the store's reader, as evaluate reads it
 t = time.perf_counter()
 g, j = evaluate_runs(
     rp.params, rp.config, seed, np.arange(rp.num_seeds), 20, env_params=rp.env_params
