@@ -133,9 +133,9 @@ def _options(args: argparse.Namespace) -> tuple[dict, str | None, list[float]]:
             an option that cannot be honoured.
     """
     from jaxcart.core import physics
-    from jaxcart.run.sweep import parse_sweep
+    from jaxcart.run.spec import parse_env_params, parse_sweep
 
-    chosen = physics.parse_env_params(args.env_param)
+    chosen = parse_env_params(args.env_param)
     field, values = None, []
     if args.sweep:
         if len(args.sweep) > 1 or not args.sweep[0].strip().startswith(physics.PREFIX):
