@@ -183,11 +183,6 @@ def randomized_values(
     return values
 
 
-def episode_ranges(randomize: tuple[Randomization, ...]) -> dict[str, tuple[float, float]]:
-    """The per-episode randomisations as ``{name: (low, high)}`` (``{}`` when none)."""
-    return {r.name: (r.low, r.high) for r in randomize if r.per == "episode"}
-
-
 def describe(values: dict[str, Any]) -> str:
     """``length=1 masspole=0.2``: a run's physics as a label (``""`` for the defaults)."""
     return " ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items())
@@ -251,7 +246,6 @@ __all__ = [
     "check_continuous",
     "check_physics",
     "describe",
-    "episode_ranges",
     "episode_state",
     "make_env_params",
     "overrides",

@@ -99,7 +99,7 @@ def parse_sweep(specs: Sequence[str]) -> dict[str, list[float]]:
             )
         try:
             sweep[name] = distinct_values("--sweep", name, text, float)
-        except ConfigError:
+        except ConfigError:  # a ValueError too: the repeated values
             raise
         except ValueError:  # float() of a word
             raise ConfigError(f"--sweep {name}: values must be numbers, got {text!r}") from None
@@ -338,7 +338,7 @@ class RunSpec:
     @property
     def episode_ranges(self) -> dict[str, tuple[float, float]]:
         """The fields drawn at every reset, ``{name: (low, high)}`` (``{}``: none)."""
-        return physics.episode_ranges(self.randomize)
+        return {r.name: (r.low, r.high) for r in self.randomize if r.per == "episode"}
 
     def seed_env_values(self) -> dict[str, list[float]]:
         """Each per-run randomised field's value for every seed index, as recorded."""
