@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart import cli, environment
+from jaxcart import cli
 
-environment.import_jax()  # before results.scores, which imports JAX: JAX reads JAX_* then
+cli.import_jax()  # before results.scores, which imports JAX: JAX reads JAX_* then
 
 from jaxcart.analysis import stats, summary  # noqa: E402
 from jaxcart.analysis.summary import Score  # noqa: E402

@@ -118,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _overrides(trained: RunParams) -> dict:
     """The physics ``trained`` plays on, as the fields that differ from CartPole-v1's (``{}``
     for an env with its own)."""
-    from jaxcart.run import physics
+    from jaxcart.core import physics
 
     return {} if trained.env_params is None else physics.overrides(trained.env_params)
 
@@ -132,10 +132,10 @@ def _options(args: argparse.Namespace) -> tuple[dict, str | None, list[float]]:
         UsageError, ConfigError: not one continuous physics field, one --env-param sets, or
             an option that cannot be honoured.
     """
-    from jaxcart.run import physics
-    from jaxcart.run.sweep import parse_sweep
+    from jaxcart.core import physics
+    from jaxcart.run.spec import parse_env_params, parse_sweep
 
-    chosen = physics.parse_env_params(args.env_param)
+    chosen = parse_env_params(args.env_param)
     field, values = None, []
     if args.sweep:
         if len(args.sweep) > 1 or not args.sweep[0].strip().startswith(physics.PREFIX):
@@ -175,7 +175,7 @@ def _read_run(
     ``args.policy``'s parameters on the run's physics with ``chosen`` over them; every option
     and physics checked (a value outside physical sense is one line) before anything is
     evaluated."""
-    from jaxcart.run import physics
+    from jaxcart.core import physics
     from jaxcart.rundir.policy import has_physics, run_params, seed_params
     from jaxcart.rundir.reader import is_evaluation, read_run_config, recorded_combinations
 
@@ -221,7 +221,7 @@ def _heading(what: str, env_id: str, on: str, args: argparse.Namespace) -> str:
 
 def _print_seeds(run: Run, returns: list[np.ndarray], args: argparse.Namespace) -> None:
     """The per-seed table of a RUN_DIR's sources, each on its one physics."""
-    from jaxcart.run import physics
+    from jaxcart.core import physics
     from jaxcart.run.greedy import summarize
 
     run_dir, info, sources = run
@@ -254,7 +254,7 @@ def _print_values(
 ) -> list[list[stats.Estimate]]:
     """One row per run and swept value: the IQM over seeds of each seed's mean return with its
     interval, as ``compare`` computes it; returns those IQMs, per run and value."""
-    from jaxcart.run import physics
+    from jaxcart.core import physics
 
     iqms = [[stats.bootstrap_ci(r.mean(-1), stats.iqm) for r in rs] for rs in returns]
     rows = []

@@ -17,9 +17,8 @@ import numpy as np
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
 from jaxcart.cli import format_table
-from jaxcart.core import solved
+from jaxcart.core import physics, solved
 from jaxcart.core.config import PRESETS, config_fields, preset
-from jaxcart.run import physics
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar
 

@@ -13,9 +13,9 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from jaxcart import cli, environment
+from jaxcart import cli
 
-environment.import_jax()  # before run.sb3, which imports JAX: JAX reads JAX_* then
+cli.import_jax()  # before run.sb3, which imports JAX: JAX reads JAX_* then
 
 from jaxcart.core.solved import is_solved  # noqa: E402
 from jaxcart.run import sb3  # noqa: E402

@@ -78,9 +78,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_default_text = cli.spelled  # the name jaxcart.tune spells a value by
-
-
 def _add_config_options(group: argparse._ArgumentGroup) -> None:
     """One option per PPOConfig field, its docstring as the help, the sb3 preset's value as
     the default shown (the option itself defaults to "not given", so presets apply)."""
@@ -185,13 +182,12 @@ class TrainOptions:
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
         from jaxcart.core import physics
-        from jaxcart.run import lifecycle
+        from jaxcart.run import lifecycle, spec
         from jaxcart.run.structural import split_sweep
-        from jaxcart.run.sweep import parse_sweep
 
         floats, shapes = split_sweep(list(self.sweep))
-        sweep = parse_sweep(floats)
-        env_values = physics.parse_env_params(self.env_param)
+        sweep = spec.parse_sweep(floats)
+        env_values = spec.parse_env_params(self.env_param)
         for name in env_values:
             if physics.PREFIX + name in sweep:
                 raise cli.UsageError(
@@ -210,7 +206,7 @@ class TrainOptions:
             seed=0 if self.seed is None else self.seed,
             sweep=sweep,
             env_params=physics.make_env_params(env_values),
-            randomize=physics.parse_randomize(self.randomize),
+            randomize=spec.parse_randomize(self.randomize),
         )
 
     def shape_groups(self) -> list[dict]:

@@ -129,7 +129,7 @@ def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed
         elif isinstance(value, float):
             words.append(f"{flag}={value!r}")
         else:
-            words.append(f"{flag}={train._default_text(value)}")
+            words.append(f"{flag}={cli.spelled(value)}")
     words += ["--num-seeds", str(base.num_seeds), "--seed", str(seed)]
     if base.eval_episodes:
         words += ["--eval-episodes", str(base.eval_episodes)]

@@ -13,13 +13,14 @@ from helpers import TINY, assert_same_run_dirs, stopped_run, tiny_args
 
 import jaxcart
 from jaxcart import evaluate, train
+from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.core.solved import EVAL_SEED
 from jaxcart.engine.loop import train as train_runs
 from jaxcart.gym.stock import make_cartpole
-from jaxcart.run import lifecycle, physics
-from jaxcart.run.spec import RunSpec
+from jaxcart.run import lifecycle
+from jaxcart.run.spec import RunSpec, parse_randomize
 from jaxcart.rundir import layout, reader
 
 
@@ -110,7 +111,7 @@ def test_swept_physics_values_reach_each_run():
 
 
 def test_randomised_values_are_drawn_from_the_seed_and_replay():
-    r = physics.parse_randomize(["env.length=0.5:1.5"])
+    r = parse_randomize(["env.length=0.5:1.5"])
     every = physics.randomized_values(r, 7, np.arange(5))["length"]
     assert np.all((every >= 0.5) & (every <= 1.5)) and len(set(every.tolist())) == 5
     # seed index 3 draws its own value whatever runs beside it
@@ -124,7 +125,7 @@ def test_randomised_run_records_each_seed_and_replays_exactly(tmp_path):
     spec = RunSpec(
         config=TINY.__class__(**{**TINY.__dict__, "total_timesteps": 512}),
         num_seeds=2,
-        randomize=physics.parse_randomize(["env.length=0.5:1.5"]),
+        randomize=parse_randomize(["env.length=0.5:1.5"]),
     )
     outcome = lifecycle.run_new(spec, tmp_path / "rand", lifecycle.RunOptions(eval_episodes=2))
     info = json.loads((tmp_path / "rand" / layout.CONFIG_FILE).read_text())
@@ -232,7 +233,7 @@ def test_physics_sweep_evaluates_each_combination_on_its_own_physics(tmp_path):
 
 @pytest.mark.slow
 def test_per_episode_randomisation_trains_resumes_and_replays(tmp_path):
-    randomize = physics.parse_randomize(["env.length=0.25:1.0:episode"])
+    randomize = parse_randomize(["env.length=0.25:1.0:episode"])
     spec = RunSpec(SMALL, num_seeds=2, randomize=randomize)
     lifecycle.run_new(spec, tmp_path / "whole", OPTIONS)
     info = json.loads((tmp_path / "whole" / layout.CONFIG_FILE).read_text())
@@ -271,7 +272,7 @@ def test_per_episode_draws_happen_at_resets_only():
 
 
 def test_a_runs_config_json_trains_again_with_its_physics(tmp_path):
-    randomize = physics.parse_randomize(["env.masspole=0.05:0.2", "env.length=0.3:0.9:episode"])
+    randomize = parse_randomize(["env.masspole=0.05:0.2", "env.length=0.3:0.9:episode"])
     gravity = physics.make_env_params({"gravity": 3.7})
     spec = RunSpec(SMALL, preset="sb3", env_params=gravity, randomize=randomize)
     run = lifecycle.create_run(spec, tmp_path / "mars")

@@ -10,7 +10,8 @@ from helpers import tiny_args
 
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score, auc
-from jaxcart.run.sweep import RunGrid, parse_sweep, rank, ranking_notes, saturated
+from jaxcart.run.spec import parse_sweep
+from jaxcart.run.sweep import RunGrid, rank, ranking_notes, saturated
 from jaxcart.rundir import reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.train import main

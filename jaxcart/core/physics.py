@@ -1,6 +1,7 @@
-"""CartPole's physics settings, in one module: what a user types (``NAME=VALUE`` settings of
-:class:`~jaxcart.core.cartpole.EnvParams` for ``--env-param``, the randomisations of
-``--randomize``) and their per-run values (NumPy, on the host); the checks that keep
+"""CartPole's physics settings, in one module: the fields of
+:class:`~jaxcart.core.cartpole.EnvParams` a user sets (``--env-param``, read by
+:func:`jaxcart.run.spec.parse_env_params`), the randomisations of ``--randomize``
+(:class:`Randomization`) and their per-run values (NumPy, on the host); the checks that keep
 ``EnvParams`` physical (for a new run's settings and for a ``config.json`` read back alike);
 and the JAX side of physics drawn per episode (:class:`EpisodeState`, :func:`step_batch`).
 
@@ -33,8 +34,6 @@ CONTINUOUS: tuple[str, ...] = pytree.per_run_names(EnvParams())
 
 PREFIX = "env."
 """How a sweep or a randomisation names a physics field: ``env.length``."""
-
-_KINDS = {f.name: f.type for f in dataclasses.fields(EnvParams)}
 
 
 def check_physics(params: EnvParams, dtype: np.dtype | None = None) -> None:
@@ -144,54 +143,6 @@ def check_continuous(name: str, option: str) -> None:
         )
 
 
-def parse_value(name: str, text: str) -> Any:
-    """``text`` as field ``name``'s type (float, int, bool or the integrator's string).
-
-    Raises:
-        ConfigError: not a field of CartPole's params, or not a value of its type.
-    """
-    if name not in FIELDS:
-        raise ConfigError(f"CartPole has no env param {name!r}; choose one of: {', '.join(FIELDS)}")
-    kind, text = str(_KINDS[name]), text.strip()
-    try:
-        if kind == "bool":
-            if text.lower() not in ("true", "false", "on", "off", "1", "0"):
-                raise ValueError
-            return text.lower() in ("true", "on", "1")
-        if kind == "int":
-            value = float(text)
-            if not value.is_integer():
-                raise ValueError
-            return int(value)
-        if kind == "str":
-            return text
-        return float(text)
-    except ValueError:
-        raise ConfigError(f"env param {name}: {text!r} is not a {kind}") from None
-
-
-def parse_env_params(specs: list[str] | tuple[str, ...]) -> dict[str, Any]:
-    """``["length=1.0", "masspole=0.2"]`` -> ``{"length": 1.0, "masspole": 0.2}``.
-
-    Raises:
-        ConfigError: malformed, unknown, repeated or of the wrong type.
-    """
-    values: dict[str, Any] = {}
-    for spec in specs:
-        name, sep, text = spec.partition("=")
-        name = name.strip().replace("-", "_")
-        if name.startswith(PREFIX):
-            name = name[len(PREFIX) :]
-        if not sep or not name or not text.strip():
-            raise ConfigError(
-                f"malformed --env-param {spec!r}; expected NAME=VALUE, e.g. length=1.0"
-            )
-        if name in values:
-            raise ConfigError(f"--env-param {name} given twice; keep one")
-        values[name] = parse_value(name, text)
-    return values
-
-
 @dataclass(frozen=True)
 class Randomization:
     """A physics field drawn uniformly in ``[low, high]``: once per run (``per="run"``), from
@@ -207,41 +158,8 @@ class Randomization:
 
     @property
     def option(self) -> str:
-        """As ``--randomize`` takes it (:func:`parse_randomize`): ``env.NAME=LOW:HIGH:PER``."""
+        """As ``--randomize`` takes it (:func:`jaxcart.run.spec.parse_randomize`): ``env.NAME=LOW:HIGH:PER``."""
         return f"{PREFIX}{self.name}={self.low!r}:{self.high!r}:{self.per}"
-
-
-def parse_randomize(specs: list[str] | tuple[str, ...]) -> tuple[Randomization, ...]:
-    """``["env.length=0.5:1.5", "env.masspole=0.05:0.2:episode"]`` -> randomisations.
-
-    Raises:
-        ConfigError: malformed, not a continuous physics field, ``low > high``, repeated.
-    """
-    out: dict[str, Randomization] = {}
-    for spec in specs:
-        name, sep, text = spec.partition("=")
-        name = name.strip().replace("-", "_")
-        parts = text.split(":")
-        if not sep or not name.startswith(PREFIX) or len(parts) not in (2, 3):
-            raise ConfigError(
-                f"malformed --randomize {spec!r}; expected env.NAME=LOW:HIGH[:episode], "
-                "e.g. env.length=0.5:1.5"
-            )
-        name = name[len(PREFIX) :]
-        check_continuous(name, "--randomize")
-        per = parts[2].strip() if len(parts) == 3 else "run"
-        if per not in ("run", "episode"):
-            raise ConfigError(f"--randomize {spec!r}: the third part must be run or episode")
-        try:
-            low, high = float(parts[0]), float(parts[1])
-        except ValueError:
-            raise ConfigError(f"--randomize {spec!r}: LOW and HIGH must be numbers") from None
-        if not low <= high:
-            raise ConfigError(f"--randomize env.{name}: low {low:g} is above high {high:g}")
-        if name in out:
-            raise ConfigError(f"--randomize env.{name} given twice; keep one")
-        out[name] = Randomization(name, low, high, per)
-    return tuple(out.values())
 
 
 def randomized_values(
@@ -263,11 +181,6 @@ def randomized_values(
             np.float64,
         )
     return values
-
-
-def episode_ranges(randomize: tuple[Randomization, ...]) -> dict[str, tuple[float, float]]:
-    """The per-episode randomisations as ``{name: (low, high)}`` (``{}`` when none)."""
-    return {r.name: (r.low, r.high) for r in randomize if r.per == "episode"}
 
 
 def describe(values: dict[str, Any]) -> str:
@@ -333,13 +246,9 @@ __all__ = [
     "check_continuous",
     "check_physics",
     "describe",
-    "episode_ranges",
     "episode_state",
     "make_env_params",
     "overrides",
-    "parse_env_params",
-    "parse_randomize",
-    "parse_value",
     "randomized_values",
     "split_per_run",
     "step_batch",

@@ -36,7 +36,7 @@ from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, config_fi
 from jaxcart.engine.loop import Progress
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
-from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
+from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec, assignments
 from jaxcart.run.structural import RETURN_METRIC, by_shape, group_spec, run_scores
 from jaxcart.rundir import layout
 from jaxcart.rundir.reader import load_runs
@@ -217,8 +217,9 @@ def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]
     """
     space: dict[str, Dimension] = {}
     expanded = [s for spec in specs for s in SPACE_PRESETS.get(spec.strip(), (spec,))]
-    for spec in expanded or DEFAULT_SPACE:
-        dim = parse_dimension(spec)
+    form = "NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
+    for name, text in assignments(expanded or DEFAULT_SPACE, "--space", form):
+        dim = parse_dimension(f"{name}={text}")
         if dim.name in {d.name for d in space.values()}:
             raise ConfigError(f"--space {dim.name} given twice; keep one")
         space[dim.param] = dim

@@ -8,18 +8,20 @@ Nothing here trains or touches files: :mod:`jaxcart.run.lifecycle` does, through
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from jaxcart.analysis.summary import Score
 from jaxcart.core import envs, physics
 from jaxcart.core.cartpole import EnvParams
-from jaxcart.core.config import ConfigError, PPOConfig
+from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved
 from jaxcart.engine.loop import Progress, TrainResult
@@ -28,6 +30,148 @@ from jaxcart.run.loggers import LoggerUnavailable, check_available
 from jaxcart.run.waves import WavePlan
 from jaxcart.rundir.directory import RunDir
 from jaxcart.rundir.reader import check_num_runs, sweep_combinations
+
+
+# -- the one reading of NAME=VALUE options (--sweep, --env-param, --randomize, --space) ------
+def assigned_name(spec: str) -> str:
+    """The NAME of a ``NAME=VALUE`` option as it is read: stripped, its dashes read as
+    underscores (``clip-coef`` is ``clip_coef``)."""
+    return spec.partition("=")[0].strip().replace("-", "_")
+
+
+def assignments(
+    specs: Sequence[str], option: str, form: str, twice: str = "keep one", prefix: str = ""
+) -> Iterator[tuple[str, str]]:
+    """Each ``NAME=VALUE`` of a repeatable ``option`` as ``(NAME, VALUE)``, NAME read by
+    :func:`assigned_name` less an optional ``prefix`` (``env.`` of ``--env-param``): what
+    every option that assigns parses its values with.
+
+    Raises:
+        ConfigError: a spec without ``=``, NAME or VALUE (``malformed OPTION 'SPEC';
+            expected FORM``), or a NAME given twice (``OPTION NAME given twice; TWICE``).
+    """
+    seen = set()
+    for spec in specs:
+        name, sep, text = spec.partition("=")
+        name = assigned_name(name).removeprefix(prefix)
+        if not sep or not name or not text.strip():
+            raise ConfigError(f"malformed {option} {spec!r}; expected {form}")
+        if name in seen:
+            raise ConfigError(f"{option} {name} given twice; {twice}")
+        seen.add(name)
+        yield name, text
+
+
+def distinct_values(option: str, name: str, text: str, parse: Callable[[str], Any]) -> list:
+    """The comma-separated values of ``NAME=V1,V2,...``, each read by ``parse``.
+
+    Raises:
+        ConfigError: no value, or a value given twice; ``parse``'s errors pass through.
+    """
+    values = [parse(v) for v in text.split(",") if v.strip()]
+    if not values or len(set(values)) != len(values):
+        raise ConfigError(f"{option} {name}: give distinct values, got {text!r}")
+    return values
+
+
+def sweep_assignments(specs: Sequence[str]) -> Iterator[tuple[str, str]]:
+    """:func:`assignments` of ``--sweep`` (its float and its shape axes alike)."""
+    form = "NAME=V1,V2,... e.g. learning_rate=1e-4,3e-4"
+    return assignments(specs, "--sweep", form, "put all its values in one option")
+
+
+def parse_sweep(specs: Sequence[str]) -> dict[str, list[float]]:
+    """``["learning_rate=1e-4,3e-4", "clip_coef=0.1,0.2"]`` -> ``{name: [values]}``; a
+    continuous physics field sweeps as ``env.length=0.5,1.0`` (kept with its prefix).
+
+    Raises:
+        ConfigError: malformed spec, unknown or non-sweepable field, bad or repeated value.
+    """
+    sweep: dict[str, list[float]] = {}
+    for name, text in sweep_assignments(specs):
+        if name.startswith(physics.PREFIX):
+            physics.check_continuous(name[len(physics.PREFIX) :], "--sweep")
+        elif name not in TRACED_FIELDS:
+            raise ConfigError(
+                f"cannot sweep {name!r}: only float hyperparameters run in one program "
+                f"({', '.join(TRACED_FIELDS)}); num_envs, num_steps, minibatch_size, "
+                "update_epochs and hidden_sizes sweep as shape groups, one program each"
+            )
+        try:
+            sweep[name] = distinct_values("--sweep", name, text, float)
+        except ConfigError:  # a ValueError too: the repeated values
+            raise
+        except ValueError:  # float() of a word
+            raise ConfigError(f"--sweep {name}: values must be numbers, got {text!r}") from None
+    return sweep
+
+
+def parse_env_params(specs: Sequence[str]) -> dict[str, Any]:
+    """``["length=1.0", "masspole=0.2"]`` (``env.length=1.0`` too) -> ``{"length": 1.0,
+    "masspole": 0.2}``, each value of its field's type.
+
+    Raises:
+        ConfigError: malformed, unknown, repeated or of the wrong type.
+    """
+    form = "NAME=VALUE, e.g. length=1.0"
+    given = assignments(specs, "--env-param", form, prefix=physics.PREFIX)
+    return {name: _env_value(name, text) for name, text in given}
+
+
+_ENV_KINDS = {f.name: str(f.type) for f in dataclasses.fields(EnvParams)}
+
+
+def _env_value(name: str, text: str) -> Any:
+    """``text`` as physics field ``name``'s type (float, int, bool or the integrator's name).
+
+    Raises:
+        ConfigError: not a field of CartPole's params, or not a value of its type.
+    """
+    if name not in physics.FIELDS:
+        raise ConfigError(
+            f"CartPole has no env param {name!r}; choose one of: {', '.join(physics.FIELDS)}"
+        )
+    kind, text = _ENV_KINDS[name], text.strip()
+    try:
+        if kind == "bool":
+            if text.lower() not in ("true", "false", "on", "off", "1", "0"):
+                raise ValueError
+            return text.lower() in ("true", "on", "1")
+        if kind == "int":
+            value = float(text)
+            if not value.is_integer():
+                raise ValueError
+            return int(value)
+        return text if kind == "str" else float(text)
+    except ValueError:
+        raise ConfigError(f"env param {name}: {text!r} is not a {kind}") from None
+
+
+def parse_randomize(specs: Sequence[str]) -> tuple[physics.Randomization, ...]:
+    """``["env.length=0.5:1.5", "env.masspole=0.05:0.2:episode"]`` -> randomisations.
+
+    Raises:
+        ConfigError: malformed, not a continuous physics field, ``low > high``, repeated.
+    """
+    form = "env.NAME=LOW:HIGH[:episode], e.g. env.length=0.5:1.5"
+    out = []
+    for name, text in assignments(specs, "--randomize", form):
+        parts = text.split(":")
+        if not name.startswith(physics.PREFIX) or len(parts) not in (2, 3):
+            raise ConfigError(f"malformed --randomize {name + '=' + text!r}; expected {form}")
+        name = name[len(physics.PREFIX) :]
+        physics.check_continuous(name, "--randomize")
+        per = parts[2].strip() if len(parts) == 3 else "run"
+        if per not in ("run", "episode"):
+            raise ConfigError(f"--randomize env.{name}: the third part must be run or episode")
+        try:
+            low, high = float(parts[0]), float(parts[1])
+        except ValueError:
+            raise ConfigError(f"--randomize env.{name}: LOW and HIGH must be numbers") from None
+        if not low <= high:
+            raise ConfigError(f"--randomize env.{name}: low {low:g} is above high {high:g}")
+        out.append(physics.Randomization(name, low, high, per))
+    return tuple(out)
 
 
 def check_option(ok: bool, option: str, problem: str) -> None:
@@ -194,7 +338,7 @@ class RunSpec:
     @property
     def episode_ranges(self) -> dict[str, tuple[float, float]]:
         """The fields drawn at every reset, ``{name: (low, high)}`` (``{}``: none)."""
-        return physics.episode_ranges(self.randomize)
+        return {r.name: (r.low, r.high) for r in self.randomize if r.per == "episode"}
 
     def seed_env_values(self) -> dict[str, list[float]]:
         """Each per-run randomised field's value for every seed index, as recorded."""

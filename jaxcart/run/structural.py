@@ -14,6 +14,7 @@ shape with the same routine (:func:`by_shape`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 from collections.abc import Callable, Sequence
@@ -25,7 +26,15 @@ from jaxcart.core.config import TRACED_FIELDS, ConfigError
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
+from jaxcart.run.spec import (
+    Hooks,
+    Outcome,
+    RunOptions,
+    RunSpec,
+    assigned_name,
+    distinct_values,
+    sweep_assignments,
+)
 from jaxcart.run.sweep import RETURN_METRIC, run_scores  # noqa: F401 (search imports them here)
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.reader import AXES_KEY, SHAPE_FIELDS, group_label, group_values
@@ -53,19 +62,12 @@ def split_sweep(specs: list[str]) -> tuple[list[str], dict[str, list]]:
     Raises:
         ConfigError: a shape axis given twice, with repeated values, or too many groups.
     """
-    floats, shapes = [], {}
-    for spec in specs:
-        name, sep, values = spec.partition("=")
-        name = name.strip().replace("-", "_")
-        if name not in SHAPE_FIELDS or not sep:
-            floats.append(spec)
-            continue
-        if name in shapes:
-            raise ConfigError(f"--sweep {name} given twice; put all its values in one option")
-        parsed = [parse_shape_value(name, v) for v in values.split(",") if v.strip()]
-        if not parsed or len(set(parsed)) != len(parsed):
-            raise ConfigError(f"--sweep {name}: give distinct values, got {values!r}")
-        shapes[name] = parsed
+    shaped = [s for s in specs if "=" in s and assigned_name(s) in SHAPE_FIELDS]
+    floats = [s for s in specs if s not in shaped]
+    shapes = {
+        name: distinct_values("--sweep", name, text, functools.partial(parse_shape_value, name))
+        for name, text in sweep_assignments(shaped)
+    }
     groups = math.prod(len(v) for v in shapes.values())
     if groups > MAX_GROUPS:
         raise ConfigError(

@@ -81,41 +81,6 @@ class RunGrid:
         return [self.run_name(r) for r in range(self.num_runs)]
 
 
-def parse_sweep(specs: list[str]) -> dict[str, list[float]]:
-    """``["learning_rate=1e-4,3e-4", "clip_coef=0.1,0.2"]`` -> ``{name: [values]}``; a
-    continuous physics field sweeps as ``env.length=0.5,1.0`` (kept with its prefix).
-
-    Raises:
-        ConfigError: malformed spec, unknown or non-sweepable field, bad or repeated value.
-    """
-    sweep: dict[str, list[float]] = {}
-    for spec in specs:
-        name, sep, values = spec.partition("=")
-        name = name.strip().replace("-", "_")
-        if not sep or not name or not values.strip():
-            raise ConfigError(
-                f"malformed --sweep {spec!r}; expected NAME=V1,V2,... e.g. learning_rate=1e-4,3e-4"
-            )
-        if name.startswith(physics.PREFIX):
-            physics.check_continuous(name[len(physics.PREFIX) :], "--sweep")
-        elif name not in TRACED_FIELDS:
-            raise ConfigError(
-                f"cannot sweep {name!r}: only float hyperparameters run in one program "
-                f"({', '.join(TRACED_FIELDS)}); num_envs, num_steps, minibatch_size, "
-                "update_epochs and hidden_sizes sweep as shape groups, one program each"
-            )
-        if name in sweep:
-            raise ConfigError(f"--sweep {name} given twice; put all its values in one option")
-        try:
-            parsed = [float(v) for v in values.split(",") if v.strip()]
-        except ValueError:
-            raise ConfigError(f"--sweep {name}: values must be numbers, got {values!r}") from None
-        if not parsed or len(set(parsed)) != len(parsed):
-            raise ConfigError(f"--sweep {name}: give distinct values, got {values!r}")
-        sweep[name] = parsed
-    return sweep
-
-
 def validate_sweep(config: PPOConfig, sweep: dict[str, list[float]]) -> None:
     """Raises :class:`ConfigError` for a swept value that is invalid with ``config``'s other
     fields, before anything compiles. Only traced hyperparameters are swept and each is checked
