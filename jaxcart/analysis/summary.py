@@ -40,6 +40,8 @@ import numpy as np
 
 from jaxcart.core.solved import DEFAULT_ENV, return_bounds
 
+RETURN_METRIC = "rollout/ep_rew_mean"
+"""The learning curve the scores here read (a ``metrics.csv`` column)."""
 SCORES = {
     "eval": "each seed's mean greedy return in gymnasium.make('CartPole-v1') (evaluation.json)",
     "auc": "each seed's mean of rollout/ep_rew_mean over all iterations (area under its "
