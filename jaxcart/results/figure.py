@@ -687,8 +687,9 @@ def draw_comparison(comparison: Comparison) -> Figure:
     _sample_efficiency_panel(fig.add_subplot(grid[2, 0:4]), comparison)
     _reached_panel(fig.add_subplot(grid[2, 4:8]), comparison)
     _matrix_panel(fig.add_subplot(grid[2, 8:12]), comparison)
+    env_ids = sorted({entry.run.env for entry in comparison.entries})
     title = (
-        f"CartPole-v1, {n} run(s); score = {score.label}: {score.definition}; "
+        f"{', '.join(env_ids)}, {n} run(s); score = {score.label}: {score.definition}; "
         f"{stats.CONFIDENCE:.0%} percentile bootstrap intervals over seeds"
     )
     if comparison.saturated:
