@@ -393,7 +393,8 @@ def _robustness_png(
         f"{field}: {IQM_TEXT}; band: that interval"
     )
     buf = io.BytesIO()
-    draw_robustness(field, values, curves, title).savefig(buf, format="png", dpi=100)
+    env_ids = [info["config"].env for _, info, _ in runs]
+    draw_robustness(field, values, curves, title, env_ids).savefig(buf, format="png", dpi=100)
     return buf.getvalue()
 
 

@@ -91,7 +91,9 @@ from statistics import NormalDist
 
 import numpy as np
 
-MAX_RETURN = 500.0
+from jaxcart.core.solved import SOLVED_RETURN
+
+MAX_RETURN = SOLVED_RETURN
 """CartPole-v1's maximum return (the optimality gap's target)."""
 DEFAULT_REPS = 2000
 """Bootstrap resamples: enough for stable 2.5%/97.5% percentiles (rliable's profile default)."""

@@ -40,6 +40,8 @@ import numpy as np
 
 from jaxcart.core.solved import DEFAULT_ENV, return_bounds
 
+RETURN_METRIC = "rollout/ep_rew_mean"
+"""The learning curve the scores here read (a ``metrics.csv`` column)."""
 SCORES = {
     "eval": "each seed's mean greedy return in gymnasium.make('CartPole-v1') (evaluation.json)",
     "auc": "each seed's mean of rollout/ep_rew_mean over all iterations (area under its "
@@ -159,7 +161,9 @@ class Score:
         if self.name not in SCORES:
             raise ValueError(f"unknown score {self.name!r}; choose eval, auc or return-at:STEPS")
         if (self.name == "return-at") != (self.steps is not None):
-            raise ValueError("return-at needs its env steps (return-at:STEPS), and only it")
+            raise ValueError(
+                "return-at needs its env steps, e.g. return-at:100000 (and only it takes them)"
+            )
 
     @classmethod
     def parse(cls, text: str, parse_steps: Callable[[str], int] = int) -> Score:
@@ -169,13 +173,9 @@ class Score:
             ValueError: an unknown name, or return-at without its steps.
         """
         name, sep, steps = text.strip().partition(":")
-        if name == "return-at":
-            if not sep or not steps:
-                raise ValueError("return-at needs its env steps, e.g. return-at:100000")
-            return cls(name, parse_steps(steps))
-        if sep:
+        if sep and name != "return-at":
             raise ValueError(f"score {name!r} takes no ':{steps}'")
-        return cls(name)
+        return cls(name, parse_steps(steps) if steps else None)
 
     @property
     def label(self) -> str:

@@ -38,7 +38,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.analysis import stats
-from jaxcart.core.solved import DEFAULT_ENV, SOLVED_BY, return_bounds
+from jaxcart.analysis.summary import RETURN_METRIC
+from jaxcart.core.solved import SOLVED_BY, return_bounds
 from jaxcart.rundir import files
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
@@ -49,7 +50,6 @@ if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when run
     from jaxcart.results.scores import Comparison
     from jaxcart.rundir.reader import RunCurves
 
-RETURN_METRIC = "rollout/ep_rew_mean"
 PALETTE = ("#0072B2", "#E69F00", "#009E73", "#D55E00", "#56B4E9", "#CC79A7", "#000000")
 """Okabe and Ito's colour-blind-safe colours (their yellow is left out: too faint on white)."""
 LINE_STYLES = (
@@ -326,12 +326,12 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
     ax_steps.set(
         title="episode return vs env steps" + (f" (dots: {EVAL_METRIC})" if evaluated else ""),
         xlabel="env steps per seed",
-        ylabel="rollout/ep_rew_mean",
+        ylabel=RETURN_METRIC,
     )
     ax_time.set(
         title="episode return vs wall time",
         xlabel="training wall time [s] (compile excluded)",
-        ylabel="rollout/ep_rew_mean",
+        ylabel=RETURN_METRIC,
     )
     if not ax_steps.lines:
         no_data(ax_steps, f"{RETURN_METRIC} not recorded")
@@ -488,18 +488,6 @@ def _colour(i: int) -> str:
     return PALETTE[i % len(PALETTE)]
 
 
-def _note(ax, text: str) -> None:
-    ax.text(
-        0.02,
-        0.98,
-        textwrap.fill(text, 50),
-        transform=ax.transAxes,
-        va="top",
-        fontsize=7.5,
-        bbox={"facecolor": "white", "alpha": 0.8, "lw": 0},
-    )
-
-
 def _finish(ax, loc: str, empty: str) -> bool:
     """A grid, and a legend of the runs drawn (at ``loc``) or ``empty`` written in the
     middle; whether any run was drawn."""
@@ -653,7 +641,7 @@ def _reached_panel(ax, comparison: Comparison) -> None:
         ylim=(-0.02, 1.02),
     )
     if _finish(ax, "lower right", "not recorded") and not reached_any:
-        _note(ax, "no seed's training reached 500")
+        no_data(ax, "no seed's training reached 500")
 
 
 def _matrix_panel(ax, comparison: Comparison) -> None:
@@ -699,8 +687,9 @@ def draw_comparison(comparison: Comparison) -> Figure:
     _sample_efficiency_panel(fig.add_subplot(grid[2, 0:4]), comparison)
     _reached_panel(fig.add_subplot(grid[2, 4:8]), comparison)
     _matrix_panel(fig.add_subplot(grid[2, 8:12]), comparison)
+    env_ids = sorted({entry.run.env for entry in comparison.entries})
     title = (
-        f"CartPole-v1, {n} run(s); score = {score.label}: {score.definition}; "
+        f"{', '.join(env_ids)}, {n} run(s); score = {score.label}: {score.definition}; "
         f"{stats.CONFIDENCE:.0%} percentile bootstrap intervals over seeds"
     )
     if comparison.saturated:
@@ -717,11 +706,13 @@ def draw_robustness(
     values: Sequence[float],
     curves: Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
     title: str,
+    env_ids: Sequence[str],
 ) -> Figure:
     """``robustness.png``: one curve per run, ``(label, iqm, low, high)`` each ``[V]``: the
     IQM over seeds of each seed's mean greedy return at each of ``values`` of the physics
     ``field`` (``env.length``), its interval as a band; on a log axis when the values are
-    positive and span a factor of 4 or more."""
+    positive and span a factor of 4 or more. ``env_ids``: the env each run trained on (the
+    return axis is theirs, :func:`return_axis`)."""
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullLocator
 
@@ -733,7 +724,7 @@ def draw_robustness(
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xticks(values, [f"{v:g}" for v in values])
-    return_axis(ax, [DEFAULT_ENV])  # physics values are CartPole's
+    return_axis(ax, env_ids)
     ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return, IQM over seeds")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower left")

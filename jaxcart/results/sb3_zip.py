@@ -160,7 +160,9 @@ def sb3_zip_bytes(params: dict, config: PPOConfig, num_timesteps: int = 0) -> by
 
     The hyperparameters recorded are the config's (an annealed learning rate as its initial
     value: SB3 would need a schedule function); the optimizer state is empty (Adam's moments
-    are not kept), so ``PPO.load(...).learn()`` continues with a fresh Adam.
+    are not kept), so ``PPO.load(...).learn()`` continues with a fresh Adam. What ``data``
+    leaves out (``seed``, ``target_kl``, ``use_sde``, the episode counters, ...) is SB3's
+    default: ``PPO.load`` builds the model with its defaults, then sets what ``data`` holds.
     """
     import gymnasium  # noqa: F401  (the spaces' pickles name gymnasium's classes)
 
@@ -199,16 +201,7 @@ def sb3_zip_bytes(params: dict, config: PPOConfig, num_timesteps: int = 0) -> by
         "n_envs": config.num_envs,
         "num_timesteps": int(num_timesteps),
         "_total_timesteps": int(config.env_steps_per_seed),
-        "seed": None,
         "verbose": 0,
-        "tensorboard_log": None,
-        "_last_obs": None,
-        "_last_episode_starts": None,
-        "_last_original_obs": None,
-        "_episode_num": 0,
-        "_current_progress_remaining": 1.0,
-        "_stats_window_size": 100,
-        "_n_updates": 0,
         "learning_rate": float(config.learning_rate),
         "n_steps": config.num_steps,
         "batch_size": config.minibatch_size,
@@ -216,14 +209,10 @@ def sb3_zip_bytes(params: dict, config: PPOConfig, num_timesteps: int = 0) -> by
         "gamma": float(config.gamma),
         "gae_lambda": float(config.gae_lambda),
         "clip_range": float(config.clip_coef),
-        "clip_range_vf": None,
         "normalize_advantage": bool(config.norm_adv),
         "ent_coef": float(config.ent_coef),
         "vf_coef": float(config.vf_coef),
         "max_grad_norm": float(config.max_grad_norm),
-        "target_kl": None,
-        "use_sde": False,
-        "sde_sample_freq": -1,
     }
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w") as archive:

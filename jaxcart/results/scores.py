@@ -16,12 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.analysis import stats, summary
-from jaxcart.analysis.summary import Score
+from jaxcart.analysis.summary import RETURN_METRIC, Score
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import RunCurves, load_runs
 
-RETURN_METRIC = "rollout/ep_rew_mean"
 REACHED_METRIC = "rollout/ep_rew_max"
 REACHED_DEFINITION = "first iteration in which a training episode scored 500 (rollout/ep_rew_max)"
 
