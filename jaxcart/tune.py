@@ -43,7 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
         "each batch of trials x seeds trains as one compiled program; the study lives in a "
         "database, so the same command continues it after an interruption or in other processes.",
     )
-    cli.add_options(parser, TuneOptions, "search")
+    trial = cli.add_options(parser, TuneOptions, "search")[TRIAL]
+    # what every trial passes on to train unchanged: train's own options
+    cli.add_options(trial, train.TrainOptions, "", ("preset", "eval_episodes", "no_compile_cache"))
     train._add_config_options(parser.add_argument_group("PPO config, the trials' base"))
     return parser
 
@@ -68,7 +70,7 @@ class TuneOptions:
     batch_trials: int = cli.option(8, type=cli.count)
     """trials asked and trained together"""
     space: tuple[str, ...] = cli.option((), action="append", metavar="NAME=SPEC", help=SPACE_HELP)
-    score: str = cli.option("auc")
+    score: Score = cli.option(Score("auc"), type=cli.score, metavar="SCORE")
     """what a trial is told, the IQM over its seeds of compare's score: auc (default), eval or
     return-at:STEPS"""
     storage: str = cli.option(DEFAULT_STORAGE)
@@ -87,8 +89,6 @@ class TuneOptions:
     heldout_top: int = cli.option(3, type=int, metavar="K")
     """at the end, train the top K trials again on fresh seeds, as one batch, and rank them
     by those held-out scores (0: skip; default: 3)"""
-    preset: str | None = cli.option(group=TRIAL)
-    """starting config (default: sb3)"""
     config: Path | None = cli.option(type=Path, metavar="FILE", group=TRIAL)
     """options from a TOML/YAML/JSON file (keys named as the options, space = [...]
     included); options on the command line override the file's"""
@@ -98,10 +98,6 @@ class TuneOptions:
     """base seed, shared by every trial"""
     out: Path | None = cli.option(type=cli.out_dir, group=TRIAL)
     """folder of the trials' run directories (default: runs/STUDY_NAME)"""
-    eval_episodes: int | None = cli.option(type=cli.bounded_count(cli.MAX_EPISODES), group=TRIAL)
-    """greedy evaluation episodes per seed (default 20)"""
-    no_compile_cache: bool = cli.option(False, action="store_true", group=TRIAL)
-    """do not use JAX's persistent compilation cache"""
     quiet: bool = cli.option(False, action="store_true", group=TRIAL)
     """no line per batch"""
     base: train.TrainOptions = field(default_factory=train.TrainOptions)
@@ -191,7 +187,7 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
     ]
     if rows:
         n = opts.base.num_seeds
-        print(f"\nTop trials by the IQM of --score {opts.score} over {n} seed(s):")
+        print(f"\nTop trials by the IQM of --score {opts.score.label} over {n} seed(s):")
         header = ["rank", "trial", f"iqm [{stats.interval_label(n)}]", *space, "run directory"]
         print(cli.format_table(rows, header))
     return ranked
@@ -229,7 +225,7 @@ def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) 
     else:
         print(f"\nbest: trial {best.number}; train it again on fresh seeds with:")
     print(f"  {retrain_command(opts, best.params, space, out, seed + 1)}")
-    print(f"  python -m jaxcart.compare {' '.join(run_dirs)} {out} --score {opts.score}")
+    print(f"  python -m jaxcart.compare {' '.join(run_dirs)} {out} --score {opts.score.label}")
     print(
         f"  optuna-dashboard {opts.storage}   # the study in a browser (pip install optuna-dashboard)"
     )
@@ -261,10 +257,7 @@ def _tune(opts: TuneOptions) -> int:
         raise cli.UsageError(
             f"--{given[0][0].replace('_', '-')} and --space {given[0][1]} both given; keep one"
         )
-    try:
-        score = Score.parse(opts.score)
-    except ValueError as exc:
-        raise cli.UsageError(f"--score: {exc}") from None
+    score = opts.score
     search.check_score(score, space, spec.config)
     study = search.open_study(
         opts.storage, opts.study_name, opts.sampler, opts.pruner, opts.sampler_seed
