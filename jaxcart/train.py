@@ -78,9 +78,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-_default_text = cli.spelled  # the name jaxcart.tune spells a value by
-
-
 def _add_config_options(group: argparse._ArgumentGroup) -> None:
     """One option per PPOConfig field, its docstring as the help, the sb3 preset's value as
     the default shown (the option itself defaults to "not given", so presets apply)."""

@@ -115,22 +115,15 @@ class TuneOptions:
 def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed: int) -> str:
     """The ``python -m jaxcart.train`` command that trains a trial again: the tune command's
     base options, the trial's values, its number of seeds from base seed ``seed``."""
-    words = ["python", "-m", "jaxcart.train"]
     base = opts.base
-    if base.preset:
-        words += ["--preset", base.preset]
-    values = {
-        **base.overrides,
-        **{space[k].name: space[k].config_value(v) for k, v in params.items()},
-    }
-    for name, value in values.items():
+    words = ["python", "-m", "jaxcart.train", *(["--preset", base.preset] if base.preset else [])]
+    drawn = {space[k].name: space[k].config_value(v) for k, v in params.items()}
+    for name, value in {**base.overrides, **drawn}.items():
         flag = "--" + name.replace("_", "-")
-        if isinstance(value, bool):
+        if isinstance(value, bool):  # --FIELD / --no-FIELD
             words.append(flag if value else "--no-" + flag[2:])
-        elif isinstance(value, float):
-            words.append(f"{flag}={value!r}")
         else:
-            words.append(f"{flag}={train._default_text(value)}")
+            words.append(f"{flag}={cli.spelled(value)}")
     words += ["--num-seeds", str(base.num_seeds), "--seed", str(seed)]
     if base.eval_episodes:
         words += ["--eval-episodes", str(base.eval_episodes)]

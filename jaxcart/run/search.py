@@ -276,7 +276,8 @@ def require_optuna() -> Any:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     # Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
     # that it is meant for Study.optimize; ask-and-tell records it by hand (heartbeat())
-    warnings.filterwarnings("ignore", message=".*(experimental|Heartbeat of storage).*")
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    warnings.filterwarnings("ignore", message="Heartbeat of storage")
     return optuna
 
 
