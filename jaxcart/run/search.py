@@ -712,10 +712,8 @@ class RungReporter(StopRequest):
     def on_chunk(self, progress: Progress) -> None:
         """The chunk's returns kept; each rung passed reported."""
         returns = np.asarray(progress.metrics[RETURN_METRIC], float)
-        first = progress.iteration - returns.shape[0]
         self.returns.append(returns)
-        for row in range(returns.shape[0]):
-            done = first + row + 1
+        for done in range(progress.iteration - len(returns) + 1, progress.iteration + 1):
             if done in self.rungs:
                 self._report(done)
 
