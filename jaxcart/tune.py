@@ -14,16 +14,21 @@ ends by training the top ``--heldout-top`` trials again on fresh seeds, ranked b
 from __future__ import annotations
 
 import argparse
+import functools
 import shlex
 import signal
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import NoReturn
 
 from jaxcart import cli, train
-from jaxcart.run.search import DEFAULT_SPACE, SPACE_PRESETS
+from jaxcart.analysis import stats
+from jaxcart.analysis.summary import Score
+from jaxcart.run import search
+from jaxcart.run.spec import Hooks
 
 DEFAULT_STORAGE = "sqlite:///runs/study.db"
 DEFAULT_STUDY = "jaxcart"
@@ -38,7 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
         "each batch of trials x seeds trains as one compiled program; the study lives in a "
         "database, so the same command continues it after an interruption or in other processes.",
     )
-    cli.add_options(parser, TuneOptions, "search")
+    trial = cli.add_options(parser, TuneOptions, "search")[TRIAL]
+    # what every trial passes on to train unchanged: train's own options
+    cli.add_options(trial, train.TrainOptions, "", ("preset", "eval_episodes", "no_compile_cache"))
     train._add_config_options(parser.add_argument_group("PPO config, the trials' base"))
     return parser
 
@@ -47,8 +54,8 @@ SPACE_HELP = (
     "a config field to search (repeatable): LOW:HIGH (uniform), log:LOW:HIGH, int:LOW:HIGH, or "
     "choices A,B,C (shape settings such as num_envs=1,4,8 or hidden_sizes=64x64,32x32 group a "
     "batch into one program per shape); one_minus_FIELD draws 1 - FIELD; a named space stands "
-    f"for its fields: {', '.join(SPACE_PRESETS)}; default: rl-zoo3's PPO float ranges since "
-    f"its v2.6, {' '.join(DEFAULT_SPACE)}"
+    f"for its fields: {', '.join(search.SPACE_PRESETS)}; default: rl-zoo3's PPO float ranges "
+    f"since its v2.6, {' '.join(search.DEFAULT_SPACE)}"
 )
 TRIAL = "every trial (as for jaxcart.train)"
 
@@ -63,7 +70,7 @@ class TuneOptions:
     batch_trials: int = cli.option(8, type=cli.count)
     """trials asked and trained together"""
     space: tuple[str, ...] = cli.option((), action="append", metavar="NAME=SPEC", help=SPACE_HELP)
-    score: str = cli.option("auc")
+    score: Score = cli.option(Score("auc"), type=cli.score, metavar="SCORE")
     """what a trial is told, the IQM over its seeds of compare's score: auc (default), eval or
     return-at:STEPS"""
     storage: str = cli.option(DEFAULT_STORAGE)
@@ -82,8 +89,6 @@ class TuneOptions:
     heldout_top: int = cli.option(3, type=int, metavar="K")
     """at the end, train the top K trials again on fresh seeds, as one batch, and rank them
     by those held-out scores (0: skip; default: 3)"""
-    preset: str | None = cli.option(group=TRIAL)
-    """starting config (default: sb3)"""
     config: Path | None = cli.option(type=Path, metavar="FILE", group=TRIAL)
     """options from a TOML/YAML/JSON file (keys named as the options, space = [...]
     included); options on the command line override the file's"""
@@ -93,10 +98,6 @@ class TuneOptions:
     """base seed, shared by every trial"""
     out: Path | None = cli.option(type=cli.out_dir, group=TRIAL)
     """folder of the trials' run directories (default: runs/STUDY_NAME)"""
-    eval_episodes: int | None = cli.option(type=cli.bounded_count(cli.MAX_EPISODES), group=TRIAL)
-    """greedy evaluation episodes per seed (default 20)"""
-    no_compile_cache: bool = cli.option(False, action="store_true", group=TRIAL)
-    """do not use JAX's persistent compilation cache"""
     quiet: bool = cli.option(False, action="store_true", group=TRIAL)
     """no line per batch"""
     base: train.TrainOptions = field(default_factory=train.TrainOptions)
@@ -114,20 +115,13 @@ class TuneOptions:
 def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed: int) -> str:
     """The ``python -m jaxcart.train`` command that trains a trial again: the tune command's
     base options, the trial's values, its number of seeds from base seed ``seed``."""
-    words = ["python", "-m", "jaxcart.train"]
     base = opts.base
-    if base.preset:
-        words += ["--preset", base.preset]
-    values = {
-        **base.overrides,
-        **{space[k].name: space[k].config_value(v) for k, v in params.items()},
-    }
-    for name, value in values.items():
+    words = ["python", "-m", "jaxcart.train", *(["--preset", base.preset] if base.preset else [])]
+    drawn = {space[k].name: space[k].config_value(v) for k, v in params.items()}
+    for name, value in {**base.overrides, **drawn}.items():
         flag = "--" + name.replace("_", "-")
-        if isinstance(value, bool):
+        if isinstance(value, bool):  # --FIELD / --no-FIELD
             words.append(flag if value else "--no-" + flag[2:])
-        elif isinstance(value, float):
-            words.append(f"{flag}={value!r}")
         else:
             words.append(f"{flag}={cli.spelled(value)}")
     words += ["--num-seeds", str(base.num_seeds), "--seed", str(seed)]
@@ -137,12 +131,10 @@ def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed
     return shlex.join(words)
 
 
-def _iqm_text(scores: list[float]) -> str:
+def _iqm_text(scores: Sequence[float]) -> str:
     """``412.3 [380.0, 450.5]``: the IQM of per-seed ``scores`` ``[num_seeds]`` and its
     bootstrap interval (the seeds' range with too few seeds: :func:`stats.interval_label`)."""
-    from jaxcart.analysis import stats
-
-    return stats.bootstrap_ci(scores, stats.iqm).format()
+    return stats.bootstrap_ci(list(scores), stats.iqm).format()
 
 
 def _scores(trial: object) -> list[float]:
@@ -150,14 +142,23 @@ def _scores(trial: object) -> list[float]:
     return trial.user_attrs.get("scores", [trial.value])
 
 
-def _print_batch(out: Path, results: list, started: float) -> None:
-    from jaxcart.analysis import stats
+def _dir(trial: object) -> str:
+    """Where a trial's runs are (its combination's run directory once it is told)."""
+    return trial.user_attrs.get("run_dir", "")
 
+
+def _shown(value: object) -> str:
+    """A drawn value in the table: floats to four significant digits."""
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+def _print_batch(out: Path, results: list, started: float) -> None:
+    """A batch group's line: its trials, its best trial's IQM, how many were pruned."""
     best = max(results, key=lambda r: float(stats.iqm(r.scores)))
     pruned = sum(r.pruned for r in results)
     print(
         f"trials {', '.join(str(r.number) for r in results)}: best #{best.number} "
-        f"{_iqm_text(list(best.scores))} ({stats.interval_label(len(best.scores))})"
+        f"{_iqm_text(best.scores)} ({stats.interval_label(len(best.scores))})"
         f"{f' | {pruned} pruned' if pruned else ''} | {out} | "
         f"{time.monotonic() - started:.1f} s so far",
         flush=True,
@@ -165,99 +166,81 @@ def _print_batch(out: Path, results: list, started: float) -> None:
 
 
 def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
-    """The top trials with their intervals over seeds; returns every complete trial, best
-    first."""
-    import optuna
-
-    from jaxcart.analysis import stats
-
-    complete = [
-        t for t in study.get_trials(deepcopy=False) if t.state == optuna.trial.TrialState.COMPLETE
-    ]
-    states = [t.state.name.lower() for t in study.get_trials(deepcopy=False)]
+    """The study's trials by state and the top trials with their intervals over seeds;
+    returns every complete trial, best first."""
+    trials = study.get_trials(deepcopy=False)
+    states = [t.state.name.lower() for t in trials]
     counted = {s: states.count(s) for s in ("complete", "pruned", "fail", "running")}
-    print(
-        f"study {opts.study_name!r} in {opts.storage}: "
-        + ", ".join(f"{n} {s}" for s, n in counted.items() if n)
-    )
-    ranked = sorted(complete, key=lambda t: -t.value)
-    names = list(space)
-    rows = []
-    for rank, t in enumerate(ranked[: opts.top], 1):
-        shown = [
-            f"{t.params[n]:.4g}" if isinstance(t.params.get(n), float) else str(t.params.get(n))
-            for n in names
-        ]
-        rows.append(
-            [rank, t.number, _iqm_text(_scores(t)), *shown, t.user_attrs.get("run_dir", "")]
-        )
+    shown = ", ".join(f"{n} {s}" for s, n in counted.items() if n)
+    print(f"study {opts.study_name!r} in {opts.storage}: {shown}")
+    ranked = sorted((t for t in trials if t.state.name == "COMPLETE"), key=lambda t: -t.value)
+    rows = [
+        [rank, t.number, _iqm_text(_scores(t)), *(_shown(t.params.get(n)) for n in space), _dir(t)]
+        for rank, t in enumerate(ranked[: opts.top], 1)
+    ]
     if rows:
-        seeds = stats.interval_label(opts.base.num_seeds)
-        print(
-            f"\nTop trials by the IQM of --score {opts.score} over {opts.base.num_seeds} seed(s):"
-        )
-        print(cli.format_table(rows, ["rank", "trial", f"iqm [{seeds}]", *names, "run directory"]))
+        n = opts.base.num_seeds
+        print(f"\nTop trials by the IQM of --score {opts.score.label} over {n} seed(s):")
+        header = ["rank", "trial", f"iqm [{stats.interval_label(n)}]", *space, "run directory"]
+        print(cli.format_table(rows, header))
     return ranked
 
 
-def _heldout(opts: TuneOptions, tuner: object, ranked: list, space: dict) -> None:
+def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) -> None:
     """Trains the top ``--heldout-top`` trials again on fresh seeds, ranks them by those
     scores, records the seed in the study, and prints the winner's retrain command on seeds
     fresher still (without held-out runs: the search's best)."""
-    from jaxcart.analysis import stats
-    from jaxcart.run import search
-
     if not ranked:
         return
-    study, base = tuner.study, opts.base
-    seed = search.heldout_seed(study, base.seed)
+    n, seed = opts.base.num_seeds, search.heldout_seed(tuner.study, opts.base.seed)
     best, out = ranked[0], f"runs/{opts.study_name}-best"
-    run_dirs = [best.user_attrs.get("run_dir")]
+    run_dirs = [_dir(best)]
     if opts.heldout_top:
-        top = ranked[: opts.heldout_top]
+        top = {t.number: t for t in ranked[: opts.heldout_top]}
         print(
-            f"\nheld-out check: the top {len(top)} trained again on {base.num_seeds} fresh "
-            f"seed(s), base seed {seed} (the search's: {base.seed}), as one batch",
+            f"\nheld-out check: the top {len(top)} trained again on {n} fresh seed(s), base "
+            f"seed {seed} (the search's: {opts.base.seed}), as one batch",
             flush=True,
         )
-        results = sorted(tuner.heldout(top, seed), key=lambda r: -float(stats.iqm(r.scores)))
-        study.set_user_attr(
-            "heldout",
-            {
-                "seed": seed,
-                "scores": {str(r.number): [float(x) for x in r.scores] for r in results},
-            },
-        )
-        searched = {t.number: t for t in top}
-        seeds = stats.interval_label(base.num_seeds)
+        results = tuner.heldout(list(top.values()), seed)
+        results.sort(key=lambda r: -float(stats.iqm(r.scores)))
+        scores = {str(r.number): [float(x) for x in r.scores] for r in results}
+        tuner.study.set_user_attr("heldout", {"seed": seed, "scores": scores})
         rows = [
-            [
-                i,
-                r.number,
-                _iqm_text(_scores(searched[r.number])),
-                _iqm_text(list(r.scores)),
-                r.run_dir,
-            ]
+            [i, r.number, _iqm_text(_scores(top[r.number])), _iqm_text(r.scores), r.run_dir]
             for i, r in enumerate(results, 1)
         ]
+        seeds = stats.interval_label(n)
         header = ["rank", "trial", f"search iqm [{seeds}]", f"held-out iqm [{seeds}]"]
         print(cli.format_table(rows, [*header, "held-out run directory"]))
-        best, run_dirs = searched[results[0].number], [str(r.run_dir) for r in results]
+        best, run_dirs = top[results[0].number], [str(r.run_dir) for r in results]
         print(f"\nbest on held-out seeds: trial {best.number}; train it on other fresh seeds with:")
     else:
         print(f"\nbest: trial {best.number}; train it again on fresh seeds with:")
     print(f"  {retrain_command(opts, best.params, space, out, seed + 1)}")
-    print(f"  python -m jaxcart.compare {' '.join(run_dirs)} {out} --score {opts.score}")
+    print(f"  python -m jaxcart.compare {' '.join(run_dirs)} {out} --score {opts.score.label}")
     print(
         f"  optuna-dashboard {opts.storage}   # the study in a browser (pip install optuna-dashboard)"
     )
 
 
-def _tune(opts: TuneOptions) -> int:
-    from jaxcart.analysis.summary import Score
-    from jaxcart.run import search
-    from jaxcart.run.spec import Hooks
+def _note(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
 
+
+def _on_wait(running: int) -> None:
+    expiry = time.strftime("%H:%M:%S", time.localtime(time.time() + search.STALE_GRACE_SECONDS))
+    _note(
+        f"note: waiting for {running} trial(s) running elsewhere: another process's finish; "
+        f"a killed process's are marked failed by about {expiry} and asked again"
+    )
+
+
+def _on_signal(signum: int) -> None:
+    _note(f"\n{signal.Signals(signum).name}: stopping; this batch's trials are marked failed")
+
+
+def _tune(opts: TuneOptions) -> int:
     if opts.heldout_top < 0:
         raise cli.UsageError(f"--heldout-top must be 0 or more, got {opts.heldout_top}")
     spec = opts.base.run_spec()
@@ -267,68 +250,35 @@ def _tune(opts: TuneOptions) -> int:
         raise cli.UsageError(
             f"--{given[0][0].replace('_', '-')} and --space {given[0][1]} both given; keep one"
         )
-    try:
-        score = Score.parse(opts.score)
-    except ValueError as exc:
-        raise cli.UsageError(f"--score: {exc}") from None
+    score = opts.score
     search.check_score(score, space, spec.config)
     study = search.open_study(
         opts.storage, opts.study_name, opts.sampler, opts.pruner, opts.sampler_seed
     )
     started = time.monotonic()
-    on_batch = (
-        None if opts.base.quiet else (lambda out, results: _print_batch(out, results, started))
-    )
-
-    def on_wait(running: int) -> None:
-        expiry = time.strftime("%H:%M:%S", time.localtime(time.time() + search.STALE_GRACE_SECONDS))
-        print(
-            f"note: waiting for {running} trial(s) running elsewhere: another process's finish; "
-            f"a killed process's are marked failed by about {expiry} and asked again",
-            file=sys.stderr,
-            flush=True,
-        )
-
-    def on_signal(signum: int) -> None:
-        print(
-            f"\n{signal.Signals(signum).name}: stopping; this batch's trials are marked failed",
-            file=sys.stderr,
-            flush=True,
-        )
-
-    tuner = search.Tuner(
-        study,
-        space,
-        spec,
-        opts.base.out,
-        opts.base.run_options(),
-        score,
-        Hooks(on_signal=on_signal),
-        on_batch,
-        on_wait,
-    )
+    on_batch = None if opts.base.quiet else functools.partial(_print_batch, started=started)
+    out, hooks = opts.base.out, Hooks(on_signal=_on_signal)
+    options = opts.base.run_options()
+    tuner = search.Tuner(study, space, spec, out, options, score, hooks, on_batch, _on_wait)
     print(
         f"jaxcart tune | study {opts.study_name!r} in {opts.storage} | {opts.trials} trials, "
         f"{opts.batch_trials} at a time x {spec.num_seeds} seed(s) | score {score.label} | "
-        f"sampler {opts.sampler}, pruner {opts.pruner} | out {opts.base.out}",
+        f"sampler {opts.sampler}, pruner {opts.pruner} | out {out}",
         flush=True,
     )
     with search.storage_errors(opts.storage):  # a read-only database, a lost server
         try:
             tuner.run(opts.trials, opts.batch_trials)
             if tuner.pruned_seconds_saved:
-                print(
-                    f"pruning stopped groups early: about {tuner.pruned_seconds_saved:.1f} s of training saved"
-                )
+                saved = tuner.pruned_seconds_saved
+                print(f"pruning stopped groups early: about {saved:.1f} s of training saved")
             _heldout(opts, tuner, _print_summary(opts, study, space), space)
         except search.BatchStopped as exc:
-            print(
-                f"stopped by {signal.Signals(exc.signum).name}; run the same command again to continue the study",
-                file=sys.stderr,
-            )
+            name = signal.Signals(exc.signum).name
+            _note(f"stopped by {name}; run the same command again to continue the study")
             return 128 + exc.signum
         except KeyboardInterrupt:
-            print("interrupted; run the same command again to continue the study", file=sys.stderr)
+            _note("interrupted; run the same command again to continue the study")
             return 130
     return 0
 

@@ -304,7 +304,7 @@ def test_trials_of_a_killed_process_go_stale_and_are_asked_again(tmp_path, monke
     storage = f"sqlite:///{tmp_path}/study.db"
     tuner = _tuner(storage, tmp_path / "runs")
     orphan = tuner._ask(1, 1)  # a process asked it, sent one heartbeat, and was killed
-    with search.Heartbeat(tuner.study, orphan):
+    with search.heartbeat(tuner.study, orphan):
         pass
     time.sleep(2.5)  # SQLite keeps heartbeats to the second
     tuner.run(1, 1)
@@ -431,7 +431,7 @@ def test_the_pruner_scores_a_partial_run_as_compare_scores_a_whole_one():
 
     config = types.SimpleNamespace(num_iterations=8, env="Acrobot-v1")
     spec = types.SimpleNamespace(num_seeds=2, config=config)
-    reporter = search.RungReporter(None, [Trial()], spec)
+    reporter = search.RungReporter([Trial()], spec)
     returns = np.linspace(-480, -100, 16).reshape(8, 2)
     returns[:3, 1] = np.nan  # seed 1's first episode ends in iteration 4
     for start in (0, 5):  # two chunks

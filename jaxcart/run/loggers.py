@@ -130,16 +130,12 @@ class Backend:
     def __init__(
         self, out_dir: Path, run_names: list[str], config: dict, log_dir: Path | None = None
     ) -> None:
-        self.out_dir, self.run_names, self.config = Path(out_dir), run_names, config
+        self.out_dir, self.run_names = Path(out_dir), run_names
+        self.config = json.loads(json.dumps(config, default=str))  # every value JSON-able
         self.log_dir = log_dir  # the folder shared with other runs (None: the library's own)
         # the name the logs go under: the run directory's
         self.experiment = Path(out_dir).resolve().name or "jaxcart"
         self.per_run: list[Any] = []  # each run's writer (TensorBoard) or W&B run
-
-
-def _json_safe(config: dict) -> dict:
-    """``config`` with every value JSON-able (unknown types become strings)."""
-    return json.loads(json.dumps(config, default=str))
 
 
 class TensorBoardBackend(Backend):
@@ -155,7 +151,7 @@ class TensorBoardBackend(Backend):
         from tensorboardX.summary import text
 
         # Markdown: indenting by four spaces shows the JSON as a code block in the Text tab.
-        config_text = textwrap.indent(json.dumps(self.config, indent=2, default=str), "    ")
+        config_text = textwrap.indent(json.dumps(self.config, indent=2), "    ")
         if self.log_dir is None:
             base = files.subdir(self.out_dir, "tensorboard", create=True)  # never through a link
         else:  # the user's own folder, shared with other runs
@@ -237,7 +233,7 @@ class SwanLabBackend(Backend):
             project="jaxcart",
             name=self.experiment,
             description=f"{len(self.run_names)} run(s): {', '.join(self.run_names)}",
-            config={**_json_safe(self.config), "run_names": self.run_names},
+            config={**self.config, "run_names": self.run_names},
             settings=settings,
             callbacks=[self._flush_records(swanlab.Callback)],
         )
@@ -338,7 +334,7 @@ class WandbBackend(Backend):
                     name=f"{self.experiment}-{run}",
                     job_type="train",
                     dir=str(folder),
-                    config={**_json_safe(self.config), "run_name": run},
+                    config={**self.config, "run_name": run},
                     settings=settings,
                     reinit="create_new",  # every seed's run open at once
                 )

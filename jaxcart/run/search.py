@@ -266,15 +266,6 @@ def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[d
 
 
 # -- the study --------------------------------------------------------------------------------
-@contextlib.contextmanager
-def _heartbeat_warnings_off() -> Iterator[None]:
-    """Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
-    that it is meant for ``Study.optimize``; ask-and-tell records it by hand (:class:`RungReporter`)."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*(experimental|Heartbeat of storage).*")
-        yield
-
-
 def require_optuna() -> Any:
     """The ``optuna`` module, or a one-line error naming the extra to install."""
     try:
@@ -284,6 +275,10 @@ def require_optuna() -> Any:
             "jaxcart.tune needs Optuna: pip install -e '.[tune]' (or pip install optuna)"
         ) from None
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
+    # that it is meant for Study.optimize; ask-and-tell records it by hand (heartbeat())
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    warnings.filterwarnings("ignore", message="Heartbeat of storage")
     return optuna
 
 
@@ -341,7 +336,7 @@ def open_study(
             )
         Path(path).parent.mkdir(parents=True, exist_ok=True)
     # SQLAlchemy's and the drivers' many errors (a closed port, a missing driver): all one line
-    with storage_errors(storage, also=(Exception,)), _heartbeat_warnings_off():
+    with storage_errors(storage, also=(Exception,)):
         rdb = optuna.storages.RDBStorage(
             storage, heartbeat_interval=HEARTBEAT_SECONDS, grace_period=STALE_GRACE_SECONDS
         )
@@ -421,13 +416,9 @@ class BatchStopped(Exception):
 
 def counts(study: Any) -> tuple[int, int]:
     """``(finished, running)``: trials complete or pruned, and trials running or waiting."""
-    import optuna
-
-    states = optuna.trial.TrialState
-    trials = study.get_trials(deepcopy=False)
-    finished = sum(t.state in (states.COMPLETE, states.PRUNED) for t in trials)
-    running = sum(t.state in (states.RUNNING, states.WAITING) for t in trials)
-    return finished, running
+    states = [t.state.name for t in study.get_trials(deepcopy=False)]
+    finished = states.count("COMPLETE") + states.count("PRUNED")
+    return finished, states.count("RUNNING") + states.count("WAITING")
 
 
 @dataclass
@@ -493,27 +484,17 @@ class Tuner:
         trials are asked again."""
         import optuna
 
-        fail, running = optuna.trial.TrialState.FAIL, optuna.trial.TrialState.RUNNING
-        before = {t.number: t.state for t in self.study.get_trials(deepcopy=False)}
-        with _heartbeat_warnings_off():
-            optuna.storages.fail_stale_trials(self.study)
         trials = self.study.get_trials(deepcopy=False)
-        dirs = {
-            t.number: Path(t.user_attrs["run_dir"]).resolve()
-            for t in trials
-            if "run_dir" in t.user_attrs
-        }
-        stale = {
-            dirs[t.number]
-            for t in trials
-            if t.number in dirs and t.state == fail and before.get(t.number) == running
-        }
-        kept = {
-            d
-            for t in trials
-            if t.number in dirs and t.state != fail
-            for d in (dirs[t.number], *dirs[t.number].parents)
-        }
+        running = {t.number for t in trials if t.state.name == "RUNNING"}
+        optuna.storages.fail_stale_trials(self.study)
+        stale, kept = set(), set()
+        for t in self.study.get_trials(deepcopy=False):
+            if "run_dir" in t.user_attrs:
+                run_dir = Path(t.user_attrs["run_dir"]).resolve()
+                if t.state.name != "FAIL":
+                    kept.update((run_dir, *run_dir.parents))
+                elif t.number in running:
+                    stale.add(run_dir)
         for run_dir in stale - kept:
             if self.out.resolve() in run_dir.parents:
                 shutil.rmtree(run_dir, ignore_errors=True)
@@ -524,38 +505,58 @@ class Tuner:
         import optuna
 
         distributions = {name: d.distribution() for name, d in self.space.items()}
-        states = optuna.trial.TrialState
         trials = []
         for _ in range(k):
-            with _heartbeat_warnings_off():
-                trial = self.study.ask(fixed_distributions=distributions)
+            trial = self.study.ask(fixed_distributions=distributions)
             # at once, not when the batch starts: a process killed while asking leaves trials
             # that go stale, rather than trials that run forever
             self.study._storage.record_heartbeat(trial._trial_id)
             ahead = sum(
-                t.number < trial.number and t.state != states.FAIL
+                t.number < trial.number and t.state.name != "FAIL"
                 for t in self.study.get_trials(deepcopy=False)
             )
             if ahead >= n_trials:
                 trial.set_user_attr("surplus", True)
-                self.study.tell(trial, state=states.FAIL)
+                self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
                 break
             trials.append(trial)
         return trials
 
     def _run_batch(self, trials: list[Any]) -> int:
-        """Trains the trials group by group; any trial left untold (a signal, an error) is
-        told failed before this returns or raises."""
+        """Trains the trials group by group and tells each its IQM over its seeds (a pruned
+        trial: pruned); any trial left untold (a signal, an error) is told failed before this
+        returns or raises."""
         import optuna
 
+        states = optuna.trial.TrialState
         untold = {t.number: t for t in trials}
         try:
-            with Heartbeat(self.study, trials):
+            with heartbeat(self.study, trials):
                 for spec, group in self._groups(trials):
-                    self._run_group(spec, group, untold)
+                    # fresh: a study made anew (its numbers from 0 again) keeps the old one's
+                    name = f"trials-{group[0].number:05d}-{group[-1].number:05d}"
+                    out = layout.fresh_dir(self.out / name)
+                    for trial in group:
+                        trial.set_user_attr("run_dir", str(out))
+                        trial.set_user_attr("seed", spec.seed)  # what held-out seeds must avoid
+                    pruning = RungReporter(group, spec, self.hooks.on_signal)
+                    results = self._train(spec, out, group, pruning)
+                    for trial, result in zip(group, results):
+                        value = None
+                        if result.run_dir != out:  # trained to its end: scored
+                            est = stats.bootstrap_ci(result.scores, stats.iqm)
+                            trial.set_user_attr("scores", [float(s) for s in result.scores])
+                            trial.set_user_attr("iqm_ci", [est.ci_low, est.ci_high])
+                            trial.set_user_attr("run_dir", str(result.run_dir))
+                            value = None if result.pruned else est.value
+                        state = states.PRUNED if result.pruned else states.COMPLETE
+                        self.study.tell(trial, value, state=state)
+                        untold.pop(trial.number)
+                    if self.on_batch:
+                        self.on_batch(out, results)
         finally:
             for trial in untold.values():
-                self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
+                self.study.tell(trial, state=states.FAIL)
         return len(trials)
 
     def _groups(self, trials: list[Any], seed: int | None = None) -> list[tuple[RunSpec, list]]:
@@ -571,56 +572,37 @@ class Tuner:
             groups.append((spec, [trials[i] for i in members]))
         return groups
 
-    def _run_group(self, spec: RunSpec, trials: list[Any], untold: dict) -> None:
-        # fresh: a study made anew (its numbers from 0 again) keeps the old one's directories
-        out = layout.fresh_dir(self.out / f"trials-{trials[0].number:05d}-{trials[-1].number:05d}")
-        for trial in trials:
-            trial.set_user_attr("run_dir", str(out))
-            trial.set_user_attr("seed", spec.seed)  # what held-out seeds must avoid
-        pruning = RungReporter(self.study, trials, spec, self.hooks.on_signal)
-        on_chunk = _chained(self.hooks.on_chunk, pruning.on_chunk)
-        hooks = dataclasses.replace(self.hooks, on_chunk=on_chunk)
-        outcome = run_new(spec, out, self.options, hooks, stop=pruning)
-        if outcome.stopped and not pruning.all_pruned:
-            raise BatchStopped(outcome.signum or 15)
-        results = self._tell(outcome, out, trials, pruning, untold)
-        if pruning.all_pruned:
-            self.pruned_seconds_saved += pruning.seconds_saved(outcome)
-        if self.on_batch:
-            self.on_batch(out, results)
-
-    def _tell(
-        self, outcome: Outcome, out: Path, trials: list[Any], pruning: RungReporter, untold: dict
+    def _train(
+        self, spec: RunSpec, out: Path, trials: list[Any], pruning: RungReporter | None = None
     ) -> list[TrialResult]:
-        import optuna
+        """One group's ``trials`` trained as the run ``spec`` into ``out``, each scored from
+        its combination's directory as ``compare`` scores it. With ``pruning``, a group whose
+        every trial is pruned stops: its results are the last rung's, ``run_dir`` ``out``.
 
-        results = []
-        if outcome.stopped:  # every trial pruned: the group stopped at its last rung
-            for trial in trials:
-                self.study.tell(trial, state=optuna.trial.TrialState.PRUNED)
-                untold.pop(trial.number)
-                scores = pruning.last_scores[trial.number]
-                results.append(TrialResult(trial.number, trial.params, scores, out, pruned=True))
-            return results
-        per_trial = run_scores(load_runs([out]), self.score)
-        for c, trial in enumerate(trials):
-            scores = per_trial[c]
-            est = stats.bootstrap_ci(scores, stats.iqm)
-            run_dir = out / f"combo-{c:03d}"
-            trial.set_user_attr("scores", [float(s) for s in scores])
-            trial.set_user_attr("iqm_ci", [est.ci_low, est.ci_high])
-            trial.set_user_attr("run_dir", str(run_dir))
-            pruned = trial.number in pruning.pruned
-            state = optuna.trial.TrialState.PRUNED if pruned else optuna.trial.TrialState.COMPLETE
-            self.study.tell(trial, None if pruned else est.value, state=state)
-            untold.pop(trial.number)
-            results.append(TrialResult(trial.number, trial.params, scores, run_dir, pruned))
-        return results
+        Raises:
+            BatchStopped: a signal stopped the training.
+        """
+        hooks, pruned = self.hooks, set()
+        if pruning is not None:
+            hooks = dataclasses.replace(hooks, on_chunk=_chained(hooks.on_chunk, pruning.on_chunk))
+            pruned = pruning.pruned
+        outcome = run_new(spec, out, self.options, hooks, stop=pruning)
+        if pruning is not None and pruning.all_pruned:
+            self.pruned_seconds_saved += pruning.seconds_saved(outcome)
+            if outcome.stopped:  # the group stopped at its last rung
+                last = pruning.last_scores
+                return [TrialResult(t.number, t.params, last[t.number], out, True) for t in trials]
+        if outcome.stopped:
+            raise BatchStopped(outcome.signum or 15)
+        return [
+            TrialResult(t.number, t.params, s, out / f"combo-{c:03d}", t.number in pruned)
+            for c, (t, s) in enumerate(zip(trials, run_scores(load_runs([out]), self.score)))
+        ]
 
     def heldout(self, trials: list[Any], seed: int) -> list[TrialResult]:
         """Trains finished ``trials`` again from base seed ``seed`` (fresh seeds: see
-        :func:`heldout_seed`), :attr:`spec`'s number of seeds each, as their batches trained:
-        one program per shape group, each a sweep-shaped run directory
+        :func:`heldout_seed`), :attr:`spec`'s number of seeds each, as their batches trained
+        (:meth:`_train`, one program per shape group), each group a sweep-shaped run directory
         ``heldout-SEED-trials-N-...`` under :attr:`out` that ``compare`` and ``plot`` read.
         Nothing is told to the study.
 
@@ -634,14 +616,7 @@ class Tuner:
         for spec, group in self._groups(trials, seed):
             numbers = "-".join(f"{t.number:05d}" for t in group)
             out = layout.fresh_dir(self.out / f"heldout-{seed}-trials-{numbers}")
-            outcome = run_new(spec, out, self.options, self.hooks)
-            if outcome.stopped:
-                raise BatchStopped(outcome.signum or 15)
-            per_trial = run_scores(load_runs([out]), self.score)
-            results += [
-                TrialResult(t.number, t.params, scores, out / f"combo-{c:03d}")
-                for c, (t, scores) in enumerate(zip(group, per_trial))
-            ]
+            results += self._train(spec, out, group)
         return results
 
 
@@ -657,33 +632,29 @@ def heldout_seed(study: Any, seed: int) -> int:
     return fresh
 
 
-class Heartbeat:
+@contextlib.contextmanager
+def heartbeat(study: Any, trials: list[Any]) -> Iterator[None]:
     """Records the trials' heartbeat in the storage every :data:`HEARTBEAT_SECONDS` from a
     thread while the block runs (compile, training and evaluation alike), as
     ``Study.optimize`` does, so that only the trials of a process that died go stale."""
+    storage, ids, done = study._storage, [t._trial_id for t in trials], threading.Event()
 
-    def __init__(self, study: Any, trials: list[Any]) -> None:
-        self.storage, self.ids = study._storage, [t._trial_id for t in trials]
-        self.done = threading.Event()
-        self.thread = threading.Thread(target=self._beat, daemon=True, name="jaxcart-heartbeat")
-
-    def _beat(self) -> None:
+    def beat() -> None:
         while True:
-            for trial_id in self.ids:
-                try:
-                    self.storage.record_heartbeat(trial_id)
-                except Exception:  # a finished trial, or the database busy: the next beat
-                    pass
-            if self.done.wait(HEARTBEAT_SECONDS):
+            for trial_id in ids:
+                # a finished trial, or the database busy: the next beat
+                with contextlib.suppress(Exception):
+                    storage.record_heartbeat(trial_id)
+            if done.wait(HEARTBEAT_SECONDS):
                 return
 
-    def __enter__(self) -> Heartbeat:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.done.set()
-        self.thread.join()
+    thread = threading.Thread(target=beat, daemon=True, name="jaxcart-heartbeat")
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
 
 
 def _chained(first: Callable | None, second: Callable) -> Callable:
@@ -721,14 +692,10 @@ class RungReporter(StopRequest):
     of other shapes (other iterations) are compared at the same point."""
 
     def __init__(
-        self,
-        study: Any,
-        trials: list[Any],
-        spec: RunSpec,
-        on_signal: Callable[[int], None] | None = None,
+        self, trials: list[Any], spec: RunSpec, on_signal: Callable[[int], None] | None = None
     ) -> None:
         super().__init__(on_signal)
-        self.study, self.trials, self.num_seeds = study, trials, spec.num_seeds
+        self.trials, self.num_seeds = trials, spec.num_seeds
         self.num_iterations = spec.config.num_iterations
         steps = (self.num_iterations * (np.arange(RUNGS) + 1)) // RUNGS
         self.rungs = {int(i) for i in steps if 0 < i < self.num_iterations}
@@ -746,10 +713,8 @@ class RungReporter(StopRequest):
     def on_chunk(self, progress: Progress) -> None:
         """The chunk's returns kept; each rung passed reported."""
         returns = np.asarray(progress.metrics[RETURN_METRIC], float)
-        first = progress.iteration - returns.shape[0]
         self.returns.append(returns)
-        for row in range(returns.shape[0]):
-            done = first + row + 1
+        for done in range(progress.iteration - len(returns) + 1, progress.iteration + 1):
             if done in self.rungs:
                 self._report(done)
 
