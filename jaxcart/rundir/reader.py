@@ -100,6 +100,16 @@ def finite_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def _strings(value: object) -> bool:
+    """Whether ``value`` is a ``{name: str}`` object (a run's package versions)."""
+    return isinstance(value, dict) and all(isinstance(v, str) for v in value.values())
+
+
+def _failed(checks: dict[str, bool]) -> str:
+    """The names of the ``checks`` that failed, comma-separated (``""``: none did)."""
+    return ", ".join(name for name, ok in checks.items() if not ok)
+
+
 def check_num_runs(num_seeds: int, num_combos: int) -> None:
     """Raises :class:`ConfigError` (a ValueError) when ``num_seeds`` x ``num_combos`` (0 or 1:
     no sweep) runs are more than :data:`MAX_RUNS`: the one bound of a run directory, for a new
@@ -125,8 +135,7 @@ def _check_run_fields(data: dict) -> None:
     checks = {
         "preset": isinstance(preset, str) and len(preset) <= 256,
         X64_KEY: isinstance(data.get(X64_KEY, False), bool),
-        "versions": isinstance(versions, dict)
-        and all(isinstance(v, str) for v in versions.values()),
+        "versions": _strings(versions),
         "sweep": isinstance(sweep, dict)
         and all(isinstance(v, list) and all(map(finite_number, v)) for v in sweep.values()),
         "combination": isinstance(combination, dict)
@@ -134,9 +143,8 @@ def _check_run_fields(data: dict) -> None:
         layout.EVALUATION_OF_KEY: source is None
         or (isinstance(source, dict) and isinstance(source.get("run"), str)),
     }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"{', '.join(bad)} not what a run records")
+    if bad := _failed(checks):
+        raise ValueError(f"{bad} not what a run records")
     num_seeds = data.get("num_seeds", 1)
     check_num_runs(num_seeds, math.prod(len(v) for v in sweep.values()) if sweep else 0)
     _check_physics_fields(data)
@@ -233,10 +241,17 @@ AXES_KEY = "shape_axes"
 """Of a structural sweep group's ``config.json``: the names of the sweep's shape axes."""
 
 
-def group_label(group: dict) -> str:
-    """``{"num_envs": 4, "hidden_sizes": (64, 64)}`` -> ``num_envs=4,hidden_sizes=64x64``."""
-    show = lambda v: "x".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)
-    return ",".join(f"{name}={show(value)}" for name, value in group.items())
+def group_label(values: dict) -> str:
+    """Settings as a label, of a shape group, a sweep's combination or a run's physics:
+    ``{"num_envs": 4, "hidden_sizes": (64, 64)}`` -> ``num_envs=4,hidden_sizes=64x64``,
+    ``{"learning_rate": 0.001, "clip_coef": 0.2}`` -> ``learning_rate=0.001,clip_coef=0.2``."""
+
+    def show(value: object) -> str:
+        if isinstance(value, (tuple, list)):
+            return "x".join(map(str, value))
+        return f"{value:g}" if isinstance(value, float) else str(value)
+
+    return ",".join(f"{name}={show(value)}" for name, value in values.items())
 
 
 def group_values(info: dict) -> dict:
@@ -603,17 +618,15 @@ def read_checkpoint_meta(path: files.Target) -> dict:
         "elapsed": finite_number(meta.get("elapsed")) and 0 <= meta.get("elapsed") < MAX_ELAPSED,
         "wave": bounded_int(meta.get("wave", 0), 0, MAX_RUNS),
         "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
-        "versions": isinstance(versions, dict)
-        and all(isinstance(v, str) for v in versions.values()),
+        "versions": _strings(versions),
         # the built-in columns, then at most MAX_CUSTOM_METRICS names of a run's own
         "metrics_columns": isinstance(columns, list)
         and columns[: len(METRIC_COLUMNS)] == list(METRIC_COLUMNS)
         and len(columns) <= len(METRIC_COLUMNS) + MAX_CUSTOM_METRICS
         and all(isinstance(c, str) for c in columns),
     }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise RunDirError(f"checkpoint {path} is corrupted: {', '.join(bad)} out of range")
+    if bad := _failed(checks):
+        raise RunDirError(f"checkpoint {path} is corrupted: {bad} out of range")
     return meta
 
 
@@ -758,7 +771,7 @@ def _curves(
     ``label`` or by its combination's values or its directory."""
     combination = fields.setdefault("combination", info.get("combination") or None)
     if label is None:
-        label = combination_label(combination) if combination else default_label(path, info)
+        label = group_label(combination) if combination else default_label(path, info)
     elapsed = metrics.get(ELAPSED_METRIC)
     shape = next(iter(metrics.values())).shape[1] if metrics else 1
     return RunCurves(
@@ -852,20 +865,12 @@ def default_label(path: Path, info: dict | None = None) -> str:
 def physics_label(info: dict) -> str:
     """A run's physics from its ``config.json``: ``length=0.25,masspole~U[0.05,0.2]``
     (``""`` for the env's defaults)."""
-    parts = [
-        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-        for k, v in (info.get("env_params") or {}).items()
-    ]
+    parts = [group_label(info.get("env_params") or {})]
     parts += [
         f"{k}~U[{r['low']:g},{r['high']:g}]" + ("/episode" if r.get("per") == "episode" else "")
         for k, r in (info.get("randomize") or {}).items()
     ]
-    return ",".join(parts)
-
-
-def combination_label(combination: dict[str, float]) -> str:
-    """``{"learning_rate": 0.001, "clip_coef": 0.2}`` -> ``learning_rate=0.001,clip_coef=0.2``."""
-    return ",".join(f"{name}={value:g}" for name, value in combination.items())
+    return ",".join(filter(None, parts))
 
 
 def load_runs(
