@@ -531,7 +531,7 @@ def write_evaluation(
 ) -> None:
     """``evaluation.json`` for ``runs``: per-seed returns and solved flags (solved as
     ``env_id`` defines it), streamed."""
-    solved_total = best_solved = 0
+    counts = {"solved_seeds": 0}  # and best_solved_seeds, when the runs kept their best
     with files.atomic_file(path, "w", on_digest) as f:
         definition = json.dumps(solved_definition(env_id).format(episodes=episodes))
         head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
@@ -550,16 +550,14 @@ def write_evaluation(
                     "final_ep_rew_mean": float(final[s]),
                     "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
                 }
-                solved_total += int(seed["solved"])
+                counts["solved_seeds"] += int(seed["solved"])
                 if block.best is not None:
                     seed |= _best_entry(block.best, take, s, env_id)
-                    best_solved += int(seed["best"]["solved"])
+                    best = counts.get("best_solved_seeds", 0) + int(seed["best"]["solved"])
+                    counts["best_solved_seeds"] = best
                 f.write(sep + "    " + json.dumps(seed))
                 sep = ",\n"
-        tail = {"solved_seeds": solved_total, **extra}
-        if any(block.best is not None for block, _ in overlapping(blocks, runs)):
-            tail = {"solved_seeds": solved_total, "best_solved_seeds": best_solved, **extra}
-        f.write("\n  ],\n" + json.dumps(tail, indent=2)[2:] + "\n")
+        f.write("\n  ],\n" + json.dumps({**counts, **extra}, indent=2)[2:] + "\n")
 
 
 def _best_entry(best: dict[str, np.ndarray], take: slice, s: int, env_id: str) -> dict:

@@ -93,7 +93,9 @@ def read_run_config(run_dir: files.Where, verify: bool = False) -> dict:
 
 
 def bounded_int(value: object, low: int, high: int) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+    """Whether ``value`` is an integer (not a bool; a NumPy one too) in ``[low, high]``."""
+    integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    return integer and low <= value <= high
 
 
 def finite_number(value: object) -> bool:
@@ -697,8 +699,9 @@ def read_checkpoint_runs(
     still plots.
 
     Raises:
-        RunDirError: no usable checkpoint.
+        RunDirError: no usable checkpoint, or ``policy`` is neither ``final`` nor ``best``.
     """
+    best = policy_file(policy) == layout.PARAMS_BEST_FILE
     with files.opened(run_dir) as directory:
         info = info or read_run_config(directory)
         config = info["config"]
@@ -709,11 +712,10 @@ def read_checkpoint_runs(
         iteration = meta["iteration"]
         if meta.get("num_runs") != runs or iteration > config.num_iterations:
             raise RunDirError(f"{path} does not belong to this run's config.json")
-        prefix = layout.CHECKPOINT_PARAMS
-        if policy == "best":  # the best policies so far (keep_best)
-            if not config.keep_best:
-                raise RunDirError(no_best_policy(directory))
-            prefix = layout.CHECKPOINT_BEST_PARAMS
+        if best and not config.keep_best:
+            raise RunDirError(no_best_policy(directory))
+        # the best policies so far (keep_best), or the latest
+        prefix = layout.CHECKPOINT_BEST_PARAMS if best else layout.CHECKPOINT_PARAMS
         arrays = {}
         if params:
             expected = params_headers(config, runs, params_dtype(info), prefix)
