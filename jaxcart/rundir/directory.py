@@ -55,20 +55,17 @@ Digest = Callable[[str], None] | None
 
 
 @functools.cache
-def _installed_versions() -> tuple[tuple[str, str], ...]:
-    versions = []
-    for name in VERSIONED_PACKAGES:
-        try:
-            versions.append((name, metadata.version(name)))
-        except metadata.PackageNotFoundError:
-            versions.append((name, "not installed"))
-    return tuple(versions)
+def _version(name: str) -> str:
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return "not installed"
 
 
 def package_versions() -> dict[str, str]:
-    """Versions of the packages that determine a run's numbers (looked up once per process:
-    every checkpoint records them)."""
-    return dict(_installed_versions())
+    """Versions of the packages that determine a run's numbers (each looked up once per
+    process: every checkpoint records them)."""
+    return {name: _version(name) for name in VERSIONED_PACKAGES}
 
 
 def check_versions(run_dir: str | os.PathLike, saved: dict) -> None:

@@ -192,7 +192,8 @@ def is_evaluation(info: dict) -> bool:
 
 
 def env_values(combination: dict) -> dict:
-    """The physics entries of a combination, without their ``env.`` prefix."""
+    """The physics entries of a combination (or of a sweep's values), without their ``env.``
+    prefix: ``{"env.length": 0.25, "learning_rate": 0.001}`` -> ``{"length": 0.25}``."""
     prefix = physics.PREFIX
     return {k[len(prefix) :]: v for k, v in combination.items() if k.startswith(prefix)}
 
