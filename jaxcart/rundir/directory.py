@@ -178,10 +178,9 @@ class RunDir:
             directory._take(opened, files.present(opened / layout.MANIFEST_FILE))
         return directory
 
-    def _present(self, name: str, directory: files.Dir | None = None) -> bool:
+    def _present(self, name: str) -> bool:
         """Whether ``name`` exists (a link is refused, never followed)."""
-        directory = directory or self.dir
-        return directory is not None and files.refuse_link(directory / name) is not None
+        return self.dir is not None and files.refuse_link(self.dir / name) is not None
 
     def read_checkpoint_meta(self) -> dict | None:
         """:attr:`checkpoint_meta` read from the checkpoint on disk (checked against the

@@ -23,7 +23,7 @@ import io
 import itertools
 import math
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -102,9 +102,16 @@ def finite_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _strings(value: object) -> bool:
-    """Whether ``value`` is a ``{name: str}`` object (a run's package versions)."""
-    return isinstance(value, dict) and all(isinstance(v, str) for v in value.values())
+def _mapping(value: object, check: Callable[[object], bool] = finite_number) -> bool:
+    """Whether ``value`` is a ``{name: value}`` object whose every value passes ``check``
+    (a finite number by default)."""
+    return isinstance(value, dict) and all(
+        isinstance(k, str) and check(v) for k, v in value.items()
+    )
+
+
+def _string(value: object) -> bool:
+    return isinstance(value, str)
 
 
 def _failed(checks: dict[str, bool]) -> str:
@@ -137,11 +144,9 @@ def _check_run_fields(data: dict) -> None:
     checks = {
         "preset": isinstance(preset, str) and len(preset) <= 256,
         X64_KEY: isinstance(data.get(X64_KEY, False), bool),
-        "versions": _strings(versions),
-        "sweep": isinstance(sweep, dict)
-        and all(isinstance(v, list) and all(map(finite_number, v)) for v in sweep.values()),
-        "combination": isinstance(combination, dict)
-        and all(map(finite_number, combination.values())),
+        "versions": _mapping(versions, _string),
+        "sweep": _mapping(sweep, lambda v: isinstance(v, list) and all(map(finite_number, v))),
+        "combination": _mapping(combination),
         layout.EVALUATION_OF_KEY: source is None
         or (isinstance(source, dict) and isinstance(source.get("run"), str)),
     }
@@ -225,10 +230,7 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     """A run's ``config.json`` ``combinations`` (``[]`` without a sweep), checked: a list of
     ``{name: number}``."""
     combos = info.get("combinations") or []
-    if not isinstance(combos, list) or not all(
-        isinstance(c, dict) and all(isinstance(k, str) and finite_number(v) for k, v in c.items())
-        for c in combos
-    ):
+    if not isinstance(combos, list) or not all(map(_mapping, combos)):
         raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
     return combos
 
@@ -621,7 +623,7 @@ def read_checkpoint_meta(path: files.Target) -> dict:
         "elapsed": finite_number(meta.get("elapsed")) and 0 <= meta.get("elapsed") < MAX_ELAPSED,
         "wave": bounded_int(meta.get("wave", 0), 0, MAX_RUNS),
         "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
-        "versions": _strings(versions),
+        "versions": _mapping(versions, _string),
         # the built-in columns, then at most MAX_CUSTOM_METRICS names of a run's own
         "metrics_columns": isinstance(columns, list)
         and columns[: len(METRIC_COLUMNS)] == list(METRIC_COLUMNS)
