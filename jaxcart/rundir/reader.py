@@ -183,10 +183,9 @@ def _check_physics_fields(data: dict) -> None:
         for name, r in randomize.items()
     ):
         raise ValueError("randomize is not a {field: {low, high, per}} object")
-    for name in (*data.get("sweep", {}), *(data.get("combination") or {})):
-        if name.startswith(physics.PREFIX):
-            physics.check_continuous(name[len(physics.PREFIX) :], "config.json: sweep")
     combination = env_values(data.get("combination") or {})
+    for name in (*env_values(data.get("sweep", {})), *combination):
+        physics.check_continuous(name, "config.json: sweep")
     physics.check_physics(physics.with_values(params, combination), dtype)
 
 
