@@ -662,18 +662,14 @@ def _finish(
     for c, combo in enumerate(run.grid.combos or ({},)):
         # a combination of no float values too (tune's shape trials): its own directory
         info = {**run.info, "combination": combo, "sweep": {}, "combinations": []}
-        record = (info, run.spec.combo_config(c)) if swept else None
         runs = run.grid.runs_of(c)
         run.directory.write_outputs(
-            c if swept else None,
             blocks,
             range(runs.start, runs.stop),
+            run.spec.combo_config(c),
             episodes,
             timing,
-            run.config.batch_size,
-            record,
-            best=run.config.keep_best,
-            env_id=env,
+            (c, info) if swept else None,
         )
     if swept:
         ranked = sweeps.rank_dirs([run.out], score or Score.parse(run.info.get("score", "eval")))

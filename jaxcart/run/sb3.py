@@ -213,7 +213,6 @@ def write_run(
         "wall_seconds": wall_seconds,
         "config": config.to_dict(),
         "versions": package_versions(),
-        files.MANIFEST_FLAG: True,
     }
     stacked = files.flatten(
         jax.tree.map(lambda *seeds: np.stack(seeds), *[r.params for r in results])
@@ -225,7 +224,7 @@ def write_run(
     directory = files.Dir.open(out)  # every file through it, and recorded in its manifest
     try:
         listing = files.Manifest(directory)
-        listing.write(layout.CONFIG_FILE, lambda e, d: files.write_json(e, info, d))
+        files.write_config(listing, info)
         listing.write(
             layout.METRICS_FILE,
             lambda e, d: write_metrics_csv(e, metrics, config.batch_size, d),

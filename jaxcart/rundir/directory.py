@@ -55,20 +55,17 @@ Digest = Callable[[str], None] | None
 
 
 @functools.cache
-def _installed_versions() -> tuple[tuple[str, str], ...]:
-    versions = []
-    for name in VERSIONED_PACKAGES:
-        try:
-            versions.append((name, metadata.version(name)))
-        except metadata.PackageNotFoundError:
-            versions.append((name, "not installed"))
-    return tuple(versions)
+def _version(name: str) -> str:
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return "not installed"
 
 
 def package_versions() -> dict[str, str]:
-    """Versions of the packages that determine a run's numbers (looked up once per process:
-    every checkpoint records them)."""
-    return dict(_installed_versions())
+    """Versions of the packages that determine a run's numbers (each looked up once per
+    process: every checkpoint records them)."""
+    return {name: _version(name) for name in VERSIONED_PACKAGES}
 
 
 def check_versions(run_dir: str | os.PathLike, saved: dict) -> None:
@@ -181,10 +178,9 @@ class RunDir:
             directory._take(opened, files.present(opened / layout.MANIFEST_FILE))
         return directory
 
-    def _present(self, name: str, directory: files.Dir | None = None) -> bool:
+    def _present(self, name: str) -> bool:
         """Whether ``name`` exists (a link is refused, never followed)."""
-        directory = directory or self.dir
-        return directory is not None and files.refuse_link(directory / name) is not None
+        return self.dir is not None and files.refuse_link(self.dir / name) is not None
 
     def read_checkpoint_meta(self) -> dict | None:
         """:attr:`checkpoint_meta` read from the checkpoint on disk (checked against the
@@ -225,20 +221,9 @@ class RunDir:
             if opened is not None:
                 opened.close()
 
-    def write_config(self, info: dict, config: PPOConfig, manifest: Manifest | None = None) -> None:
-        """``config.json``: ``info`` with ``config`` as a dict (in a combination's directory,
-        through its ``manifest``, when given); a sweep's combinations are left to the reader
-        to derive from its ``sweep`` (:func:`~jaxcart.rundir.reader.sweep_combinations`)."""
-        data = {k: v for k, v in info.items() if k != layout.DIGEST_KEY}
-        if data.get("sweep"):  # the reader derives them: a million would be 70 MB of JSON
-            data.pop("combinations", None)
-        data["config"] = config.to_dict()
-        manifest = manifest or self.manifest
-        if manifest.kept:
-            data[files.MANIFEST_FLAG] = True
-        manifest.write_json(
-            layout.CONFIG_FILE, {**data, layout.DIGEST_KEY: files.json_digest(data)}
-        )
+    def write_config(self, info: dict, config: PPOConfig) -> None:
+        """``config.json``: ``info`` with ``config`` (:func:`~jaxcart.rundir.files.write_config`)."""
+        files.write_config(self.manifest, {**info, "config": config.to_dict()})
 
     @property
     def checkpoint_path(self) -> Path:
@@ -330,35 +315,33 @@ class RunDir:
 
     def write_outputs(
         self,
-        combo: int | None,
         blocks: list,
         runs: range,
+        config: PPOConfig,
         episodes: int,
         timing: dict,
-        batch_size: int,
-        record: tuple[dict, PPOConfig] | None = None,
-        best: bool = False,
-        env_id: str = DEFAULT_ENV,
+        combo: tuple[int, dict] | None = None,
     ) -> None:
-        """metrics.csv, params.npz and evaluation.json of ``runs`` from the blocks: in the run
-        directory, or in combination ``combo``'s, with its own config.json ``record``
-        (``env_id``: the env whose notion of solved the evaluation records); with ``best``,
-        params_best.npz too."""
+        """metrics.csv, params.npz (and params_best.npz when ``config`` keeps the best
+        policies) and evaluation.json (solved as ``config.env`` defines it) of ``runs`` from
+        the blocks: in the run directory, or with ``combo`` (its index and ``info``) in that
+        combination's directory, beside its own config.json of ``info`` and ``config``."""
         directory, manifest = self.dir, self.manifest  # never recreated once deleted
         if combo is not None:
-            directory = self.dir.sub(layout.combo_dir(".", combo).name, create=True)
+            directory = self.dir.sub(layout.combo_dir(".", combo[0]).name, create=True)
             manifest = Manifest(directory)
         parts = lambda: (
             (b.metrics, b.start + t.start - runs.start, t) for b, t in overlapping(blocks, runs)
         )
+        batch_size, env_id = config.batch_size, config.env
         try:
-            if record is not None:
-                self.write_config(*record, manifest=manifest)
+            if combo is not None:
+                files.write_config(manifest, {**combo[1], "config": config.to_dict()})
             manifest.write(
                 layout.METRICS_FILE, lambda e, d: write_metrics_csv(e, parts(), batch_size, d)
             )
             manifest.write(layout.PARAMS_FILE, lambda e, d: write_params(e, blocks, runs, d))
-            if best:
+            if config.keep_best:
                 manifest.write(
                     layout.PARAMS_BEST_FILE,
                     lambda e, d: write_params(e, blocks, runs, d, best=True),
@@ -544,7 +527,7 @@ def write_evaluation(
 ) -> None:
     """``evaluation.json`` for ``runs``: per-seed returns and solved flags (solved as
     ``env_id`` defines it), streamed."""
-    solved_total = best_solved = 0
+    counts = {"solved_seeds": 0}  # and best_solved_seeds, when the runs kept their best
     with files.atomic_file(path, "w", on_digest) as f:
         definition = json.dumps(solved_definition(env_id).format(episodes=episodes))
         head = f'{{\n  "episodes": {episodes},\n  "solved_definition": {definition},\n'
@@ -563,16 +546,14 @@ def write_evaluation(
                     "final_ep_rew_mean": float(final[s]),
                     "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
                 }
-                solved_total += int(seed["solved"])
+                counts["solved_seeds"] += int(seed["solved"])
                 if block.best is not None:
                     seed |= _best_entry(block.best, take, s, env_id)
-                    best_solved += int(seed["best"]["solved"])
+                    best = counts.get("best_solved_seeds", 0) + int(seed["best"]["solved"])
+                    counts["best_solved_seeds"] = best
                 f.write(sep + "    " + json.dumps(seed))
                 sep = ",\n"
-        tail = {"solved_seeds": solved_total, **extra}
-        if any(block.best is not None for block, _ in overlapping(blocks, runs)):
-            tail = {"solved_seeds": solved_total, "best_solved_seeds": best_solved, **extra}
-        f.write("\n  ],\n" + json.dumps(tail, indent=2)[2:] + "\n")
+        f.write("\n  ],\n" + json.dumps({**counts, **extra}, indent=2)[2:] + "\n")
 
 
 def _best_entry(best: dict[str, np.ndarray], take: slice, s: int, env_id: str) -> dict:
@@ -624,8 +605,10 @@ def write_evaluation_dir(
     ``combo-NNN/`` do) and ``others`` (name -> JSON object: a sweep's ``sweep.json``), each
     recorded in the directory's manifest as a run's files are, so that the readers check it
     as they check a run."""
-    named = {layout.CONFIG_FILE: {**info, files.MANIFEST_FLAG: True}}
+    listing = Manifest(directory)
+    files.write_config(listing, info)
     if returns is not None:
         env_id = info["config"].get("env", DEFAULT_ENV)
-        named[layout.EVALUATION_FILE] = evaluation_record(returns, env_id)
-    files.record_json(directory, {**named, **(others or {})})
+        listing.write_json(layout.EVALUATION_FILE, evaluation_record(returns, env_id))
+    for name, data in (others or {}).items():
+        listing.write_json(name, data)

@@ -449,8 +449,8 @@ CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FI
 
 
 def read_config(run_dir: Where, verify: bool = False) -> dict:
-    """A run's ``config.json`` as written: a JSON object, nothing in it interpreted, imported
-    or called. The one reader of that file, for every reader of runs
+    """A run's ``config.json`` as written (:func:`write_config`): a JSON object, nothing in it
+    interpreted, imported or called. The one reader of that file, for every reader of runs
     (:func:`jaxcart.rundir.reader.read_run_config` checks what it holds), for ``--resume``
     and for ``--config RUN_DIR``. Its bytes must be those the manifest records; with
     ``verify`` (a resume), its own digest must match its contents too (hand edits and
@@ -639,6 +639,21 @@ class Manifest:
     def _write(self) -> None:
         data = {"format": MANIFEST_FORMAT, "files": dict(sorted(self.digests.items()))}
         write_json(self.dir / layout.MANIFEST_FILE, data)
+
+
+def write_config(manifest: Manifest, info: dict) -> None:
+    """``config.json`` of a run, a sweep's combination, an SB3 run or an evaluation, recorded
+    in ``manifest``: ``info`` (a JSON object, its PPO config already a dict), flagged as a run
+    that keeps a manifest when it does, and its own digest over the rest, which
+    :func:`read_config` checks on resume. The one writer of ``config.json``. A sweep's
+    combinations are left to the reader to derive from its ``sweep``
+    (:func:`~jaxcart.rundir.reader.sweep_combinations`): a million would be 70 MB of JSON."""
+    data = {k: v for k, v in info.items() if k != layout.DIGEST_KEY}
+    if data.get("sweep"):
+        data.pop("combinations", None)
+    if manifest.kept:
+        data[MANIFEST_FLAG] = True
+    manifest.write_json(layout.CONFIG_FILE, {**data, layout.DIGEST_KEY: json_digest(data)})
 
 
 def record_json(run_dir: Where, named: dict[str, dict]) -> None:

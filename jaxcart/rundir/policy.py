@@ -225,7 +225,7 @@ def run_params(
         combos = reader.recorded_combinations(info)
         sweep = reader.is_sweep(directory)
         if combos or sweep:
-            if not _is_index(combination, max(len(combos), 1)):
+            if not reader.bounded_int(combination, 0, max(len(combos), 1) - 1):
                 count, bounds = (f" of {len(combos)} combinations", f" in [0, {len(combos)})")
                 raise RunDirError(
                     f"{run_dir} is a sweep{count if combos else ''}: choose a combination with "
@@ -242,7 +242,6 @@ def run_params(
             if not combos and files.present(directory / layout.PARAMS_FILE):
                 params = reader.load_params(directory, policy, info)
                 return RunParams(params, info["config"], num_seeds, None, env)
-            reader.policy_file(policy)
             saved = read_checkpoint_runs(directory, info, policy)  # unfinished
             first = (combination or 0) * num_seeds
             params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
@@ -271,12 +270,6 @@ def _combo_config(info: dict, combination: int | None) -> PPOConfig:
     return dataclasses.replace(info["config"], **values)  # keeps its resolved network
 
 
-def _is_index(value: object, count: int) -> bool:
-    """``value`` is an integer (not a bool) in ``[0, count)``."""
-    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-    return ok and 0 <= value < count
-
-
 def seed_params(
     trained: RunParams, seed_index: int | str, option: str = "seed_index", allow_all: bool = False
 ) -> dict:
@@ -287,7 +280,7 @@ def seed_params(
             names it ``option``: ``--seed-index`` on a command line).
     """
     n = trained.num_seeds
-    if not _is_index(seed_index, n):
+    if not reader.bounded_int(seed_index, 0, n - 1):
         also = " or 'all'" if allow_all else ""
         raise RunDirError(
             f"{option} must be in [0, {n}){also} for this {n}-seed run, got {seed_index!r}"

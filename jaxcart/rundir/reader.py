@@ -23,7 +23,7 @@ import io
 import itertools
 import math
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,11 +93,30 @@ def read_run_config(run_dir: files.Where, verify: bool = False) -> dict:
 
 
 def bounded_int(value: object, low: int, high: int) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+    """Whether ``value`` is an integer (not a bool; a NumPy one too) in ``[low, high]``."""
+    integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    return integer and low <= value <= high
 
 
 def finite_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _mapping(value: object, check: Callable[[object], bool] = finite_number) -> bool:
+    """Whether ``value`` is a ``{name: value}`` object whose every value passes ``check``
+    (a finite number by default)."""
+    return isinstance(value, dict) and all(
+        isinstance(k, str) and check(v) for k, v in value.items()
+    )
+
+
+def _string(value: object) -> bool:
+    return isinstance(value, str)
+
+
+def _failed(checks: dict[str, bool]) -> str:
+    """The names of the ``checks`` that failed, comma-separated (``""``: none did)."""
+    return ", ".join(name for name, ok in checks.items() if not ok)
 
 
 def check_num_runs(num_seeds: int, num_combos: int) -> None:
@@ -125,18 +144,14 @@ def _check_run_fields(data: dict) -> None:
     checks = {
         "preset": isinstance(preset, str) and len(preset) <= 256,
         X64_KEY: isinstance(data.get(X64_KEY, False), bool),
-        "versions": isinstance(versions, dict)
-        and all(isinstance(v, str) for v in versions.values()),
-        "sweep": isinstance(sweep, dict)
-        and all(isinstance(v, list) and all(map(finite_number, v)) for v in sweep.values()),
-        "combination": isinstance(combination, dict)
-        and all(map(finite_number, combination.values())),
+        "versions": _mapping(versions, _string),
+        "sweep": _mapping(sweep, lambda v: isinstance(v, list) and all(map(finite_number, v))),
+        "combination": _mapping(combination),
         layout.EVALUATION_OF_KEY: source is None
         or (isinstance(source, dict) and isinstance(source.get("run"), str)),
     }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise ValueError(f"{', '.join(bad)} not what a run records")
+    if bad := _failed(checks):
+        raise ValueError(f"{bad} not what a run records")
     num_seeds = data.get("num_seeds", 1)
     check_num_runs(num_seeds, math.prod(len(v) for v in sweep.values()) if sweep else 0)
     _check_physics_fields(data)
@@ -168,10 +183,9 @@ def _check_physics_fields(data: dict) -> None:
         for name, r in randomize.items()
     ):
         raise ValueError("randomize is not a {field: {low, high, per}} object")
-    for name in (*data.get("sweep", {}), *(data.get("combination") or {})):
-        if name.startswith(physics.PREFIX):
-            physics.check_continuous(name[len(physics.PREFIX) :], "config.json: sweep")
     combination = env_values(data.get("combination") or {})
+    for name in (*env_values(data.get("sweep", {})), *combination):
+        physics.check_continuous(name, "config.json: sweep")
     physics.check_physics(physics.with_values(params, combination), dtype)
 
 
@@ -182,7 +196,8 @@ def is_evaluation(info: dict) -> bool:
 
 
 def env_values(combination: dict) -> dict:
-    """The physics entries of a combination, without their ``env.`` prefix."""
+    """The physics entries of a combination (or of a sweep's values), without their ``env.``
+    prefix: ``{"env.length": 0.25, "learning_rate": 0.001}`` -> ``{"length": 0.25}``."""
     prefix = physics.PREFIX
     return {k[len(prefix) :]: v for k, v in combination.items() if k.startswith(prefix)}
 
@@ -214,10 +229,7 @@ def recorded_combinations(info: dict) -> list[dict[str, float]]:
     """A run's ``config.json`` ``combinations`` (``[]`` without a sweep), checked: a list of
     ``{name: number}``."""
     combos = info.get("combinations") or []
-    if not isinstance(combos, list) or not all(
-        isinstance(c, dict) and all(isinstance(k, str) and finite_number(v) for k, v in c.items())
-        for c in combos
-    ):
+    if not isinstance(combos, list) or not all(map(_mapping, combos)):
         raise RunDirError("config.json is corrupted: combinations is not a list of {name: value}")
     return combos
 
@@ -233,10 +245,17 @@ AXES_KEY = "shape_axes"
 """Of a structural sweep group's ``config.json``: the names of the sweep's shape axes."""
 
 
-def group_label(group: dict) -> str:
-    """``{"num_envs": 4, "hidden_sizes": (64, 64)}`` -> ``num_envs=4,hidden_sizes=64x64``."""
-    show = lambda v: "x".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)
-    return ",".join(f"{name}={show(value)}" for name, value in group.items())
+def group_label(values: dict) -> str:
+    """Settings as a label, of a shape group, a sweep's combination or a run's physics:
+    ``{"num_envs": 4, "hidden_sizes": (64, 64)}`` -> ``num_envs=4,hidden_sizes=64x64``,
+    ``{"learning_rate": 0.001, "clip_coef": 0.2}`` -> ``learning_rate=0.001,clip_coef=0.2``."""
+
+    def show(value: object) -> str:
+        if isinstance(value, (tuple, list)):
+            return "x".join(map(str, value))
+        return f"{value:g}" if isinstance(value, float) else str(value)
+
+    return ",".join(f"{name}={show(value)}" for name, value in values.items())
 
 
 def group_values(info: dict) -> dict:
@@ -603,17 +622,15 @@ def read_checkpoint_meta(path: files.Target) -> dict:
         "elapsed": finite_number(meta.get("elapsed")) and 0 <= meta.get("elapsed") < MAX_ELAPSED,
         "wave": bounded_int(meta.get("wave", 0), 0, MAX_RUNS),
         "num_runs": bounded_int(meta.get("num_runs", 1), 1, MAX_RUNS),
-        "versions": isinstance(versions, dict)
-        and all(isinstance(v, str) for v in versions.values()),
+        "versions": _mapping(versions, _string),
         # the built-in columns, then at most MAX_CUSTOM_METRICS names of a run's own
         "metrics_columns": isinstance(columns, list)
         and columns[: len(METRIC_COLUMNS)] == list(METRIC_COLUMNS)
         and len(columns) <= len(METRIC_COLUMNS) + MAX_CUSTOM_METRICS
         and all(isinstance(c, str) for c in columns),
     }
-    bad = [name for name, ok in checks.items() if not ok]
-    if bad:
-        raise RunDirError(f"checkpoint {path} is corrupted: {', '.join(bad)} out of range")
+    if bad := _failed(checks):
+        raise RunDirError(f"checkpoint {path} is corrupted: {bad} out of range")
     return meta
 
 
@@ -684,8 +701,9 @@ def read_checkpoint_runs(
     still plots.
 
     Raises:
-        RunDirError: no usable checkpoint.
+        RunDirError: no usable checkpoint, or ``policy`` is neither ``final`` nor ``best``.
     """
+    best = policy_file(policy) == layout.PARAMS_BEST_FILE
     with files.opened(run_dir) as directory:
         info = info or read_run_config(directory)
         config = info["config"]
@@ -696,11 +714,10 @@ def read_checkpoint_runs(
         iteration = meta["iteration"]
         if meta.get("num_runs") != runs or iteration > config.num_iterations:
             raise RunDirError(f"{path} does not belong to this run's config.json")
-        prefix = layout.CHECKPOINT_PARAMS
-        if policy == "best":  # the best policies so far (keep_best)
-            if not config.keep_best:
-                raise RunDirError(no_best_policy(directory))
-            prefix = layout.CHECKPOINT_BEST_PARAMS
+        if best and not config.keep_best:
+            raise RunDirError(no_best_policy(directory))
+        # the best policies so far (keep_best), or the latest
+        prefix = layout.CHECKPOINT_BEST_PARAMS if best else layout.CHECKPOINT_PARAMS
         arrays = {}
         if params:
             expected = params_headers(config, runs, params_dtype(info), prefix)
@@ -758,7 +775,7 @@ def _curves(
     ``label`` or by its combination's values or its directory."""
     combination = fields.setdefault("combination", info.get("combination") or None)
     if label is None:
-        label = combination_label(combination) if combination else default_label(path, info)
+        label = group_label(combination) if combination else default_label(path, info)
     elapsed = metrics.get(ELAPSED_METRIC)
     shape = next(iter(metrics.values())).shape[1] if metrics else 1
     return RunCurves(
@@ -852,20 +869,12 @@ def default_label(path: Path, info: dict | None = None) -> str:
 def physics_label(info: dict) -> str:
     """A run's physics from its ``config.json``: ``length=0.25,masspole~U[0.05,0.2]``
     (``""`` for the env's defaults)."""
-    parts = [
-        f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}"
-        for k, v in (info.get("env_params") or {}).items()
-    ]
+    parts = [group_label(info.get("env_params") or {})]
     parts += [
         f"{k}~U[{r['low']:g},{r['high']:g}]" + ("/episode" if r.get("per") == "episode" else "")
         for k, r in (info.get("randomize") or {}).items()
     ]
-    return ",".join(parts)
-
-
-def combination_label(combination: dict[str, float]) -> str:
-    """``{"learning_rate": 0.001, "clip_coef": 0.2}`` -> ``learning_rate=0.001,clip_coef=0.2``."""
-    return ",".join(f"{name}={value:g}" for name, value in combination.items())
+    return ",".join(filter(None, parts))
 
 
 def load_runs(
