@@ -187,8 +187,9 @@ def _read_run(
     if (chosen or field) and not has_physics(env_id):
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
-    if args.gif is not None and not has_physics(env_id):
-        raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
+    refusal = None if args.gif is None else gif_refusal(env_id)
+    if refusal:
+        raise cli.UsageError(refusal)
     if args.gif is not None and combos and args.combination is None:
         raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
     chosen_combos = range(len(combos)) if combos and args.combination is None else [None]
@@ -416,11 +417,24 @@ def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
     from jaxcart.rundir.policy import make_policy, seed_params
 
     policy = make_policy(seed_params(trained, args.seed_index, "--seed-index"), trained.config)
-    gif = render_gif(policy, args.gif, seed=args.gif_seed, env_params=trained.env_params)
+    env_id, env_params = trained.config.env, trained.env_params
+    gif = render_gif(policy, args.gif, seed=args.gif_seed, env_id=env_id, env_params=env_params)
     print(
         f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
         f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
     )
+
+
+def gif_refusal(env_id: str) -> str | None:
+    """Why ``--gif`` cannot draw ``env_id`` on this machine, or None: Gymnasium's renderer
+    (pygame) draws every env, and without it the env's own
+    :attr:`~jaxcart.core.envs.Env.draw_frame` (CartPole's, with Pillow)."""
+    from jaxcart.core import envs
+    from jaxcart.results.gif import pygame_available
+
+    if pygame_available() or envs.make(env_id).draw_frame is not None:
+        return None
+    return f"--gif of {env_id} needs Gymnasium's renderer: pip install pygame"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -308,7 +308,9 @@ def next_steps_text(outcome: Outcome) -> str:
             "the combinations' statistics" if sweep else "statistics against another run",
         ),
     ]
-    if outcome.run.config.env != solved.DEFAULT_ENV:  # GIFs draw CartPole only
+    from jaxcart.evaluate import gif_refusal
+
+    if gif_refusal(outcome.run.config.env):  # no renderer for this env here
         commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
