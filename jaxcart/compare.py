@@ -269,6 +269,40 @@ def compare_runs(
     return CompareResult(comparison, *paths)
 
 
+@dataclass(frozen=True)
+class CompareOptions:
+    """The command's options, each declared once (:func:`jaxcart.cli.option`): its type and
+    default here, its help the docstring below it; :func:`compare_runs` takes them by name."""
+
+    score: Score = cli.option(summary.EVAL, type=cli.score, metavar="SCORE")
+    """each seed's score: eval (mean greedy Gymnasium return), auc (mean of
+    rollout/ep_rew_mean over the run) or return-at:STEPS (rollout/ep_rew_mean at STEPS env
+    steps, e.g. return-at:1e5) (default: eval)"""
+    policy: str = cli.option("final", choices=list(layout.POLICY_FILES))
+    """whose Gymnasium evaluation --score eval and the solved counts read: the final policies,
+    or the best ones each run kept (--eval-every N --keep-best)"""
+    baseline: str | None = cli.option(metavar="RUN_DIR")
+    """the run the others are compared with, or with --arm the baseline arm's NAME (default:
+    the first RUN_DIR, or the first arm)"""
+    arm: tuple[str, ...] = cli.option((), action="append", metavar="NAME=DIR,DIR")
+    """an arm's runs on several configurations, in the same order for every arm (repeat for
+    each arm, instead of RUN_DIRs): e.g. --arm bootstrap=runs/sb3,runs/pjx --arm
+    no-bootstrap=runs/sb3-nb,runs/pjx-nb aggregates the two arms over both settings with a
+    stratified bootstrap"""
+    adjust: str = cli.option("none", choices=summary.ADJUSTMENTS)
+    """bonferroni: widen each difference and P(X > Y) interval so that all of them hold
+    together at 95%"""
+    out: Path | None = cli.option(type=cli.out_dir, metavar="DIR")
+    """directory for compare.json, compare.png and curves.csv (default: a new compare-<time>
+    beside the first RUN_DIR, e.g. runs/compare-<time>)"""
+    reps: int = cli.option(stats.DEFAULT_REPS, type=int)
+    """bootstrap resamples (default 2000)"""
+    seed: int = cli.option(stats.DEFAULT_SEED, type=int)
+    """bootstrap seed"""
+    dpi: int = cli.option(100, type=int)
+    """PNG resolution"""
+
+
 class _Formatter(cli.HelpFormatter):
     """Keeps the epilog's lines (one definition each), wrapping each on its own."""
 
@@ -294,59 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=epilog,
     )
     parser.add_argument("run_dirs", nargs="*", type=Path, metavar="RUN_DIR")
-    parser.add_argument(
-        "--score",
-        type=cli.score,
-        default=summary.EVAL,
-        metavar="SCORE",
-        help="each seed's score: eval (mean greedy Gymnasium return), auc (mean of "
-        "rollout/ep_rew_mean over the run) or return-at:STEPS (rollout/ep_rew_mean at STEPS "
-        "env steps, e.g. return-at:1e5) (default: eval)",
-    )
-    parser.add_argument(
-        "--policy",
-        choices=list(layout.POLICY_FILES),
-        default="final",
-        help="whose Gymnasium evaluation --score eval and the solved counts read: the final "
-        "policies, or the best ones each run kept (--eval-every N --keep-best)",
-    )
-    parser.add_argument(
-        "--baseline",
-        default=None,
-        metavar="RUN_DIR",
-        help="the run the others are compared with, or with --arm the baseline arm's NAME "
-        "(default: the first RUN_DIR, or the first arm)",
-    )
-    parser.add_argument(
-        "--arm",
-        action="append",
-        default=[],
-        metavar="NAME=DIR,DIR",
-        help="an arm's runs on several configurations, in the same order for every arm "
-        "(repeat for each arm, instead of RUN_DIRs): e.g. --arm bootstrap=runs/sb3,runs/pjx "
-        "--arm no-bootstrap=runs/sb3-nb,runs/pjx-nb aggregates the two arms over both "
-        "settings with a stratified bootstrap",
-    )
-    parser.add_argument(
-        "--adjust",
-        choices=summary.ADJUSTMENTS,
-        default="none",
-        help="bonferroni: widen each difference and P(X > Y) interval so that all of them "
-        "hold together at 95%%",
-    )
-    parser.add_argument(
-        "--out",
-        type=cli.out_dir,
-        default=None,
-        metavar="DIR",
-        help="directory for compare.json, compare.png and curves.csv "
-        "(default: a new compare-<time> beside the first RUN_DIR, e.g. runs/compare-<time>)",
-    )
-    parser.add_argument(
-        "--reps", type=int, default=stats.DEFAULT_REPS, help="bootstrap resamples (default 2000)"
-    )
-    parser.add_argument("--seed", type=int, default=stats.DEFAULT_SEED, help="bootstrap seed")
-    parser.add_argument("--dpi", type=int, default=100, help="PNG resolution")
+    cli.add_options(parser, CompareOptions, "")
     return parser
 
 
