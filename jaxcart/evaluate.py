@@ -1,6 +1,7 @@
-"""Greedy (argmax) evaluation, in jaxcart's JAX env and in Gymnasium's own CartPole-v1.
+"""Greedy (argmax) evaluation of a run's seeds in Gymnasium's own env of the run's id.
 
-"Solved" means every one of the evaluation episodes (20 by default) scores 500.
+"Solved" is :mod:`jaxcart.core.solved`'s rule for that env (CartPole-v1: every one of the
+evaluation episodes, 20 by default, scores 500).
 ``--env-param`` evaluates on other physics and ``--sweep env.NAME=V1,V2`` at each value;
 ``--out DIR`` writes the evaluation as a run directory without training
 (:mod:`jaxcart.rundir.layout`), which ``python -m jaxcart.compare`` reads like any run, and
@@ -222,8 +223,8 @@ def _print_seeds(run: Run, returns: list[np.ndarray], opts: EvaluateOptions) -> 
         ]
     shown = {physics.describe(_overrides(t)) for _, t in sources}
     text = shown.pop() if len(shown) == 1 else "each combination's physics"
-    if not text and opts.env_param:  # --env-param chose CartPole-v1's own
-        text = "CartPole-v1's own physics"
+    if not text and opts.env_param:  # --env-param chose the env's own
+        text = f"{env_id}'s own physics"
     print(_heading(f"of {run_dir}", env_id, f" with {text}" if text else "", opts))
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
     rule, threshold = SOLVED_BY[env_id]
@@ -372,8 +373,9 @@ def _robustness_png(
         for (run_dir, info, _), iqm in zip(runs, iqms)
     ]
     values = [value for value, _ in runs[0][2]]
+    env_id = runs[0][1]["config"].env
     title = (
-        f"Greedy return in Gymnasium's CartPole-v1 ({episodes} episodes per seed) against "
+        f"Greedy return in Gymnasium's {env_id} ({episodes} episodes per seed) against "
         f"{field}: {IQM_TEXT}; band: that interval"
     )
     buf = io.BytesIO()
