@@ -43,7 +43,7 @@ cli.import_jax()  # before results.scores, which imports JAX: JAX reads JAX_* th
 
 from jaxcart.analysis import stats, summary  # noqa: E402
 from jaxcart.analysis.summary import Score  # noqa: E402
-from jaxcart.core.solved import DEFAULT_ENV, GYMNAX_ENVS  # noqa: E402
+from jaxcart.core import solved  # noqa: E402
 from jaxcart.results import scores as runs  # noqa: E402
 from jaxcart.results.scores import CompareError, Comparison  # noqa: E402
 from jaxcart.rundir import files, layout  # noqa: E402
@@ -153,19 +153,27 @@ def saturation_text(comparison: Comparison) -> str:
 
 
 def solved_text(comparison: Comparison) -> str:
-    """What solved and reached 500 mean for the compared runs' envs."""
-    cartpole = "solved: every greedy episode scored 500 (Wilson interval); "
-    others = sorted({e.run.env for e in comparison.entries} - {DEFAULT_ENV})
-    if not others:
+    """What solved, opt. gap and reached 500 mean for the compared runs' envs: each env's rule
+    (:data:`jaxcart.core.solved.SOLVED_BY`); the opt. gap and reached 500 measure against a
+    best return of 500, which not every env has (:func:`jaxcart.core.solved.return_bounds`)."""
+    env_ids = {e.run.env for e in comparison.entries}  # the envs judged by their mean first:
+    env_ids = sorted(env_ids, key=lambda env_id: (solved.SOLVED_BY[env_id][0] != "mean", env_id))
+    rule, threshold = solved.SOLVED_BY[env_ids[0]]
+    if len(env_ids) == 1 and rule == "every":
         return (
-            cartpole + f"reached 500: {runs.REACHED_DEFINITION}; steps to 500: the median over "
-            "seeds of the env steps when that first happened (never: not in half the seeds)"
+            f"solved: every greedy episode scored {threshold:g} (Wilson interval); reached "
+            f"500: {runs.REACHED_DEFINITION}; steps to 500: the median over seeds of the env "
+            "steps when that first happened (never: not in half the seeds)"
         )
-    rules = ", ".join(f"{env_id} >= {GYMNAX_ENVS[env_id]:g}" for env_id in others)
+    rules = ", ".join(
+        f"{env_id} >= {t:g}" if rule == "mean" else f"{env_id}: every episode {t:g}"
+        for env_id, (rule, t) in zip(env_ids, map(solved.SOLVED_BY.get, env_ids))
+    )
+    unlike = [e for e in env_ids if solved.return_bounds(e)[1] != stats.MAX_RETURN]
     return (
-        f"solved: the mean greedy return reaches the env's reward_threshold ({rules}; "
-        "CartPole-v1: every episode 500) (Wilson interval); opt. gap and reached 500 measure "
-        f"against CartPole's 500 and say nothing about {', '.join(others)}"
+        f"solved: the mean greedy return reaches the env's reward_threshold ({rules}) (Wilson "
+        "interval); opt. gap and reached 500 measure against 500 and say nothing about "
+        + ", ".join(unlike)
     )
 
 
@@ -173,10 +181,8 @@ def report_text(comparison: Comparison) -> str:
     """Heading, table, matrix, arms and notes, as printed."""
     reps, seed, score = comparison.reps, comparison.seed, comparison.score
     env_ids = sorted({e.run.env for e in comparison.entries})
-    definition = score.definition
-    if env_ids != [DEFAULT_ENV]:
-        where = f"gymnasium.make('{env_ids[0]}')" if len(env_ids) == 1 else "each run's env"
-        definition = definition.replace("gymnasium.make('CartPole-v1')", where)
+    where = f"gymnasium.make('{env_ids[0]}')" if len(env_ids) == 1 else "each run's env"
+    definition = score.definition.replace(f"gymnasium.make('{solved.DEFAULT_ENV}')", where)
     baseline = comparison.entries[comparison.baseline].name
     if comparison.arms:
         baseline = f"arm {comparison.arms.names[0]} (each run against its configuration's run)"
@@ -263,6 +269,40 @@ def compare_runs(
     return CompareResult(comparison, *paths)
 
 
+@dataclass(frozen=True)
+class CompareOptions:
+    """The command's options, each declared once (:func:`jaxcart.cli.option`): its type and
+    default here, its help the docstring below it; :func:`compare_runs` takes them by name."""
+
+    score: Score = cli.option(summary.EVAL, type=cli.score, metavar="SCORE")
+    """each seed's score: eval (mean greedy Gymnasium return), auc (mean of
+    rollout/ep_rew_mean over the run) or return-at:STEPS (rollout/ep_rew_mean at STEPS env
+    steps, e.g. return-at:1e5) (default: eval)"""
+    policy: str = cli.option("final", choices=list(layout.POLICY_FILES))
+    """whose Gymnasium evaluation --score eval and the solved counts read: the final policies,
+    or the best ones each run kept (--eval-every N --keep-best)"""
+    baseline: str | None = cli.option(metavar="RUN_DIR")
+    """the run the others are compared with, or with --arm the baseline arm's NAME (default:
+    the first RUN_DIR, or the first arm)"""
+    arm: tuple[str, ...] = cli.option((), action="append", metavar="NAME=DIR,DIR")
+    """an arm's runs on several configurations, in the same order for every arm (repeat for
+    each arm, instead of RUN_DIRs): e.g. --arm bootstrap=runs/sb3,runs/pjx --arm
+    no-bootstrap=runs/sb3-nb,runs/pjx-nb aggregates the two arms over both settings with a
+    stratified bootstrap"""
+    adjust: str = cli.option("none", choices=summary.ADJUSTMENTS)
+    """bonferroni: widen each difference and P(X > Y) interval so that all of them hold
+    together at 95%"""
+    out: Path | None = cli.option(type=cli.out_dir, metavar="DIR")
+    """directory for compare.json, compare.png and curves.csv (default: a new compare-<time>
+    beside the first RUN_DIR, e.g. runs/compare-<time>)"""
+    reps: int = cli.option(stats.DEFAULT_REPS, type=int)
+    """bootstrap resamples (default 2000)"""
+    seed: int = cli.option(stats.DEFAULT_SEED, type=int)
+    """bootstrap seed"""
+    dpi: int = cli.option(100, type=int)
+    """PNG resolution"""
+
+
 class _Formatter(cli.HelpFormatter):
     """Keeps the epilog's lines (one definition each), wrapping each on its own."""
 
@@ -288,59 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=epilog,
     )
     parser.add_argument("run_dirs", nargs="*", type=Path, metavar="RUN_DIR")
-    parser.add_argument(
-        "--score",
-        type=cli.score,
-        default=summary.EVAL,
-        metavar="SCORE",
-        help="each seed's score: eval (mean greedy Gymnasium return), auc (mean of "
-        "rollout/ep_rew_mean over the run) or return-at:STEPS (rollout/ep_rew_mean at STEPS "
-        "env steps, e.g. return-at:1e5) (default: eval)",
-    )
-    parser.add_argument(
-        "--policy",
-        choices=list(layout.POLICY_FILES),
-        default="final",
-        help="whose Gymnasium evaluation --score eval and the solved counts read: the final "
-        "policies, or the best ones each run kept (--eval-every N --keep-best)",
-    )
-    parser.add_argument(
-        "--baseline",
-        default=None,
-        metavar="RUN_DIR",
-        help="the run the others are compared with, or with --arm the baseline arm's NAME "
-        "(default: the first RUN_DIR, or the first arm)",
-    )
-    parser.add_argument(
-        "--arm",
-        action="append",
-        default=[],
-        metavar="NAME=DIR,DIR",
-        help="an arm's runs on several configurations, in the same order for every arm "
-        "(repeat for each arm, instead of RUN_DIRs): e.g. --arm bootstrap=runs/sb3,runs/pjx "
-        "--arm no-bootstrap=runs/sb3-nb,runs/pjx-nb aggregates the two arms over both "
-        "settings with a stratified bootstrap",
-    )
-    parser.add_argument(
-        "--adjust",
-        choices=summary.ADJUSTMENTS,
-        default="none",
-        help="bonferroni: widen each difference and P(X > Y) interval so that all of them "
-        "hold together at 95%%",
-    )
-    parser.add_argument(
-        "--out",
-        type=cli.out_dir,
-        default=None,
-        metavar="DIR",
-        help="directory for compare.json, compare.png and curves.csv "
-        "(default: a new compare-<time> beside the first RUN_DIR, e.g. runs/compare-<time>)",
-    )
-    parser.add_argument(
-        "--reps", type=int, default=stats.DEFAULT_REPS, help="bootstrap resamples (default 2000)"
-    )
-    parser.add_argument("--seed", type=int, default=stats.DEFAULT_SEED, help="bootstrap seed")
-    parser.add_argument("--dpi", type=int, default=100, help="PNG resolution")
+    cli.add_options(parser, CompareOptions, "")
     return parser
 
 

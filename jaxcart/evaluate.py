@@ -1,6 +1,7 @@
-"""Greedy (argmax) evaluation, in jaxcart's JAX env and in Gymnasium's own CartPole-v1.
+"""Greedy (argmax) evaluation of a run's seeds in Gymnasium's own env of the run's id.
 
-"Solved" means every one of the evaluation episodes (20 by default) scores 500.
+"Solved" is :mod:`jaxcart.core.solved`'s rule for that env (CartPole-v1: every one of the
+evaluation episodes, 20 by default, scores 500).
 ``--env-param`` evaluates on other physics and ``--sweep env.NAME=V1,V2`` at each value;
 ``--out DIR`` writes the evaluation as a run directory without training
 (:mod:`jaxcart.rundir.layout`), which ``python -m jaxcart.compare`` reads like any run, and
@@ -41,14 +42,52 @@ IQM_TEXT = (
 )
 
 
+@dataclasses.dataclass(frozen=True)
+class EvaluateOptions:
+    """Everything the command line said: nothing past :func:`main` sees argparse. Each
+    :func:`~jaxcart.cli.option` field is the option ``--name``, its docstring the help."""
+
+    run_dirs: tuple[Path, ...]
+    episodes: int = cli.option(NUM_EVAL_EPISODES, type=cli.bounded_count(cli.MAX_EPISODES))
+    """greedy episodes per seed"""
+    combination: int | None = cli.option(type=int, metavar="C")
+    """only this combination of a sweep (needed with --gif)"""
+    env_param: tuple[str, ...] = cli.option((), action="append", metavar="NAME=VALUE")
+    """evaluate on other physics: this field of CartPole's params over the run's own
+    (repeatable; default: the physics the run trained on, a randomised field at its nominal
+    value)"""
+    sweep: tuple[str, ...] = cli.option((), action="append", metavar="env.NAME=V1,V2,...")
+    """evaluate at each value of one continuous physics field (over the run's physics and
+    --env-param) and print the IQM over seeds with its 95% bootstrap interval per value; with
+    --out, one evaluation per value and robustness.png"""
+    out: Path | None = cli.option(type=cli.out_dir, metavar="DIR")
+    """write the evaluation into this new directory for python -m jaxcart.compare: every
+    seed's greedy returns, the physics, the run it came from (a sweep of them with --sweep;
+    one subdirectory per RUN_DIR when there are several)"""
+    policy: str = cli.option("final", choices=list(layout.POLICY_FILES))
+    """final: the parameters at the end of training; best: each seed's best policy by the
+    evaluation during training (a run trained with --eval-every N --keep-best)"""
+    gif: Path | None = cli.option(type=Path)
+    """also render one episode to a GIF"""
+    seed_index: int = cli.option(0, type=int)
+    """the seed --gif renders"""
+    gif_seed: int = cli.option(
+        EVAL_SEED,
+        type=cli.seed,
+        help=f"env.reset seed of the GIF's episode (default: {EVAL_SEED}, the first "
+        "evaluation episode's)",
+    )
+    trust_code: bool = False  # cli.add_trust_code_argument's
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``python -m jaxcart.evaluate`` command line."""
     parser = cli.Parser(
         prog="python -m jaxcart.evaluate",
-        description="Evaluate every seed of a jaxcart run greedily in Gymnasium's own "
-        "CartPole-v1 (solved = every episode scores 500); optionally render one seed's "
-        "policy to an animated GIF. A run that did not finish is evaluated from its last "
-        "checkpoint (and says so); a sweep directory, every combination.",
+        description="Evaluate every seed of a jaxcart run greedily in Gymnasium's own env of "
+        "the run's id (CartPole-v1: solved = every episode scores 500); optionally render "
+        "one seed's policy to an animated GIF. A run that did not finish is evaluated from "
+        "its last checkpoint (and says so); a sweep directory, every combination.",
     )
     parser.add_argument(
         "run_dirs",
@@ -57,61 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="RUN_DIR",
         help="jaxcart run (or sweep) directories",
     )
-    parser.add_argument(
-        "--episodes",
-        type=cli.bounded_count(cli.MAX_EPISODES),
-        default=NUM_EVAL_EPISODES,
-        help="greedy episodes per seed",
-    )
-    parser.add_argument(
-        "--combination",
-        type=int,
-        metavar="C",
-        help="only this combination of a sweep (needed with --gif)",
-    )
-    parser.add_argument(
-        "--env-param",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="evaluate on other physics: this field of CartPole's params over the run's own "
-        "(repeatable; default: the physics the run trained on, a randomised field at its "
-        "nominal value)",
-    )
-    parser.add_argument(
-        "--sweep",
-        action="append",
-        default=[],
-        metavar="env.NAME=V1,V2,...",
-        help="evaluate at each value of one continuous physics field (over the run's physics "
-        "and --env-param) and print the IQM over seeds with its 95%% bootstrap interval per "
-        "value; with --out, one evaluation per value and robustness.png",
-    )
-    parser.add_argument(
-        "--out",
-        type=cli.out_dir,
-        metavar="DIR",
-        help="write the evaluation into this new directory for python -m jaxcart.compare: "
-        "every seed's greedy returns, the physics, the run it came from (a sweep of them with "
-        "--sweep; one subdirectory per RUN_DIR when there are several)",
-    )
-    parser.add_argument(
-        "--policy",
-        choices=list(layout.POLICY_FILES),
-        default="final",
-        help="final: the parameters at the end of training; best: each seed's best policy "
-        "by the evaluation during training (a run trained with --eval-every N --keep-best)",
-    )
+    cli.add_options(parser, EvaluateOptions, "")
     cli.add_trust_code_argument(parser)
-    parser.add_argument("--gif", type=Path, help="also render one episode to a GIF")
-    parser.add_argument("--seed-index", type=int, default=0, help="the seed --gif renders")
-    parser.add_argument(
-        "--gif-seed",
-        type=cli.seed,
-        default=EVAL_SEED,
-        help=f"env.reset seed of the GIF's episode (default: {EVAL_SEED}, the first "
-        "evaluation episode's)",
-    )
     return parser
 
 
@@ -123,7 +109,7 @@ def _overrides(trained: RunParams) -> dict:
     return {} if trained.env_params is None else physics.overrides(trained.env_params)
 
 
-def _options(args: argparse.Namespace) -> tuple[dict, str | None, list[float]]:
+def _options(opts: EvaluateOptions) -> tuple[dict, str | None, list[float]]:
     """``--env-param``'s physics, and ``--sweep``'s field and values (``env.length``,
     ``[0.5, 1.0]``; ``None, []`` without), with ``--out`` and ``--gif``: what no run is needed
     to check, checked first (a value outside physical sense is one line).
@@ -135,44 +121,44 @@ def _options(args: argparse.Namespace) -> tuple[dict, str | None, list[float]]:
     from jaxcart.core import physics
     from jaxcart.run.spec import parse_env_params, parse_sweep
 
-    chosen = parse_env_params(args.env_param)
+    chosen = parse_env_params(opts.env_param)
     field, values = None, []
-    if args.sweep:
-        if len(args.sweep) > 1 or not args.sweep[0].strip().startswith(physics.PREFIX):
+    if opts.sweep:
+        if len(opts.sweep) > 1 or not opts.sweep[0].strip().startswith(physics.PREFIX):
             raise cli.UsageError(
                 "--sweep evaluates on other physics, one field: env.NAME=V1,V2,... (e.g. "
-                f"env.length=0.25,0.5,1), got {' '.join(args.sweep)}"
+                f"env.length=0.25,0.5,1), got {' '.join(opts.sweep)}"
             )
-        ((field, values),) = parse_sweep(args.sweep).items()
+        ((field, values),) = parse_sweep(opts.sweep).items()
         if field[len(physics.PREFIX) :] in chosen:
             raise cli.UsageError(f"{field} is both swept and set by --env-param; keep one")
-    if args.out is not None and layout.present(args.out):
+    if opts.out is not None and layout.present(opts.out):
         raise cli.UsageError(
-            f"--out {args.out} exists; evaluate writes a new directory, so that nothing is "
+            f"--out {opts.out} exists; evaluate writes a new directory, so that nothing is "
             "overwritten"
         )
     scoring = sorted(set(chosen) & {"max_episode_steps", "sutton_barto_reward"})
-    if args.out is not None and scoring:
+    if opts.out is not None and scoring:
         raise cli.UsageError(
             f"--env-param {scoring[0]} changes what an episode scores, and an evaluation "
             "directory judges 500 as solved; evaluate without --out"
         )
-    if args.gif is not None:
-        if len(args.run_dirs) > 1 or field:
+    if opts.gif is not None:
+        if len(opts.run_dirs) > 1 or field:
             raise cli.UsageError("--gif renders one run on one physics: one RUN_DIR, no --sweep")
-        if args.gif.suffix.lower() != ".gif":
-            raise cli.UsageError(f"--gif {args.gif} must end in .gif")
-        if not args.gif.parent.is_dir():
-            raise cli.UsageError(f"--gif {args.gif}: directory {args.gif.parent} does not exist")
+        if opts.gif.suffix.lower() != ".gif":
+            raise cli.UsageError(f"--gif {opts.gif} must end in .gif")
+        if not opts.gif.parent.is_dir():
+            raise cli.UsageError(f"--gif {opts.gif}: directory {opts.gif.parent} does not exist")
     return chosen, field, values
 
 
 def _read_run(
-    run_dir: Path, args: argparse.Namespace, chosen: dict, field: str | None, values: list
+    run_dir: Path, opts: EvaluateOptions, chosen: dict, field: str | None, values: list
 ) -> Run:
     """A RUN_DIR, its ``config.json`` and its sources (the run, one combination, or every
     combination of a sweep; with ``field``, the one at each of ``values``), with
-    ``args.policy``'s parameters on the run's physics with ``chosen`` over them; every option
+    ``opts.policy``'s parameters on the run's physics with ``chosen`` over them; every option
     and physics checked (a value outside physical sense is one line) before anything is
     evaluated."""
     from jaxcart.core import physics
@@ -187,22 +173,23 @@ def _read_run(
     if (chosen or field) and not has_physics(env_id):
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
-    if args.gif is not None and not has_physics(env_id):
-        raise cli.UsageError(f"--gif renders CartPole-v1 only; this run trained {env_id}")
-    if args.gif is not None and combos and args.combination is None:
+    refusal = None if opts.gif is None else gif_refusal(env_id)
+    if refusal:
+        raise cli.UsageError(refusal)
+    if opts.gif is not None and combos and opts.combination is None:
         raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
-    chosen_combos = range(len(combos)) if combos and args.combination is None else [None]
-    if (field or args.out is not None) and len(chosen_combos) > 1:
+    chosen_combos = range(len(combos)) if combos and opts.combination is None else [None]
+    if (field or opts.out is not None) and len(chosen_combos) > 1:
         raise cli.UsageError(
             f"{run_dir} is a sweep: --sweep and --out evaluate one run; choose --combination C"
         )
     points = [{**chosen, field[len(physics.PREFIX) :]: v} for v in values] if field else [chosen]
     sources = []
     for c in chosen_combos:
-        c = args.combination if c is None else c
-        trained = run_params(run_dir, c, args.policy, trust_code=args.trust_code)
-        if args.gif is not None:
-            seed_params(trained, args.seed_index, "--seed-index")
+        c = opts.combination if c is None else c
+        trained = run_params(run_dir, c, opts.policy, trust_code=opts.trust_code)
+        if opts.gif is not None:
+            seed_params(trained, opts.seed_index, "--seed-index")
         label = f"{c} " + ",".join(f"{k}={v:g}" for k, v in combos[c].items()) if combos else None
         for value, p in zip(values or [label], points):
             env = physics.make_env_params({**_overrides(trained), **p}) if p else trained.env_params
@@ -210,16 +197,16 @@ def _read_run(
     return run_dir, info, sources
 
 
-def _heading(what: str, env_id: str, on: str, args: argparse.Namespace) -> str:
-    best = " (each seed's best policy)" if args.policy == "best" else ""
+def _heading(what: str, env_id: str, on: str, opts: EvaluateOptions) -> str:
+    best = " (each seed's best policy)" if opts.policy == "best" else ""
     return (
-        f"Greedy evaluation {what}{best}, {args.episodes} episodes per seed in "
+        f"Greedy evaluation {what}{best}, {opts.episodes} episodes per seed in "
         f"gymnasium.make('{env_id}'){on} (reset seeds {EVAL_SEED}..."
-        f"{EVAL_SEED + args.episodes - 1}):"
+        f"{EVAL_SEED + opts.episodes - 1}):"
     )
 
 
-def _print_seeds(run: Run, returns: list[np.ndarray], args: argparse.Namespace) -> None:
+def _print_seeds(run: Run, returns: list[np.ndarray], opts: EvaluateOptions) -> None:
     """The per-seed table of a RUN_DIR's sources, each on its one physics."""
     from jaxcart.core import physics
     from jaxcart.run.greedy import summarize
@@ -236,9 +223,9 @@ def _print_seeds(run: Run, returns: list[np.ndarray], args: argparse.Namespace) 
         ]
     shown = {physics.describe(_overrides(t)) for _, t in sources}
     text = shown.pop() if len(shown) == 1 else "each combination's physics"
-    if not text and args.env_param:  # --env-param chose CartPole-v1's own
-        text = "CartPole-v1's own physics"
-    print(_heading(f"of {run_dir}", env_id, f" with {text}" if text else "", args))
+    if not text and opts.env_param:  # --env-param chose the env's own
+        text = f"{env_id}'s own physics"
+    print(_heading(f"of {run_dir}", env_id, f" with {text}" if text else "", opts))
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
     rule, threshold = SOLVED_BY[env_id]
     rule = "" if rule == "every" else f" (solved: mean >= {threshold:g})"
@@ -250,7 +237,7 @@ def _print_values(
     returns: list[list[np.ndarray]],
     field: str,
     chosen: dict,
-    args: argparse.Namespace,
+    opts: EvaluateOptions,
 ) -> list[list[stats.Estimate]]:
     """One row per run and swept value: the IQM over seeds of each seed's mean return with its
     interval, as ``compare`` computes it; returns those IQMs, per run and value."""
@@ -266,7 +253,7 @@ def _print_values(
                 + [f"{r.mean():.1f}", f"{r.mean(-1).min():.1f}"]
             )
     on = " with each run's physics" + (f" and {physics.describe(chosen)}" if chosen else "")
-    print(_heading(f"at each {field}", runs[0][1]["config"].env, on, args))
+    print(_heading(f"at each {field}", runs[0][1]["config"].env, on, opts))
     header = ["run", field, "solved", "IQM [95% CI]", "mean", "worst seed"]
     print(cli.format_table(rows, header, cli.TABLE_WIDTH))
     print(cli.wrap(f"IQM [95% CI]: {IQM_TEXT}, as python -m jaxcart.compare computes it"))
@@ -274,30 +261,30 @@ def _print_values(
 
 
 def _evaluate_command(argv: list[str] | None) -> int:
-    args = build_parser().parse_args(argv)  # imports JAX once the options are read
-    from jaxcart.run.greedy import evaluate_params
+    opts = cli.options_from(EvaluateOptions, build_parser().parse_args(argv))
+    from jaxcart.run.greedy import evaluate_params  # JAX: once the options are read
 
-    chosen, field, values = _options(args)  # before any run is read
-    runs = [_read_run(d, args, chosen, field, values) for d in args.run_dirs]
+    chosen, field, values = _options(opts)  # before any run is read
+    runs = [_read_run(d, opts, chosen, field, values) for d in opts.run_dirs]
     returns = []  # per run, per source: [num_seeds, episodes]
     for run in runs:
         note = run[2][0][1].note
         if note:
             resume = f"python -m jaxcart.train --resume {run[0]}"
             print(f"note: parameters {note} (resume with: {resume})")
-        returns.append([evaluate_params(t, args.episodes) for _, t in run[2]])
+        returns.append([evaluate_params(t, opts.episodes) for _, t in run[2]])
         if field is None:
-            _print_seeds(run, returns[-1], args)
-    iqms = None if field is None else _print_values(runs, returns, field, chosen, args)
-    if args.out is not None:
-        _write(args, runs, returns, field, iqms)
-    if args.gif is not None:
-        _write_gif(args, runs[0][2][0][1])  # one run, one source
+            _print_seeds(run, returns[-1], opts)
+    iqms = None if field is None else _print_values(runs, returns, field, chosen, opts)
+    if opts.out is not None:
+        _write(opts, runs, returns, field, iqms)
+    if opts.gif is not None:
+        _write_gif(opts, runs[0][2][0][1])  # one run, one source
     return 0
 
 
 def _write(
-    args: argparse.Namespace,
+    opts: EvaluateOptions,
     runs: list[Run],
     returns: list[list[np.ndarray]],
     field: str | None,
@@ -309,15 +296,15 @@ def _write(
     each value), and ``robustness.png`` in ``--out``."""
     from jaxcart.rundir.directory import write_evaluation_dir
 
-    png = None if iqms is None else _robustness_png(runs, field, iqms, args.episodes)
-    args.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
+    png = None if iqms is None else _robustness_png(runs, field, iqms, opts.episodes)
+    opts.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
     written = []
     for k, ((run_dir, info, sources), rs) in enumerate(zip(runs, returns)):
-        path = args.out
+        path = opts.out
         if len(runs) > 1:
-            path = layout.fresh_dir(args.out / Path(run_dir).resolve().name)  # run-2: a twin
+            path = layout.fresh_dir(opts.out / Path(run_dir).resolve().name)  # run-2: a twin
             path.mkdir()
-        record = functools.partial(_record, run_dir, info, args)
+        record = functools.partial(_record, run_dir, info, opts)
         with files.opened(path) as directory:
             if field is None:
                 write_evaluation_dir(directory, record(sources[0][1]), rs[0])
@@ -341,13 +328,11 @@ def _write(
                 write_evaluation_dir(directory, top, others=others)
         written.append(path)
     if png is not None:
-        files.atomic_write_bytes(args.out / layout.ROBUSTNESS_FIGURE_FILE, png)
-    _print_written(args.out, written, field)
+        files.atomic_write_bytes(opts.out / layout.ROBUSTNESS_FIGURE_FILE, png)
+    _print_written(opts.out, written, field)
 
 
-def _record(
-    run_dir: Path, info: dict, args: argparse.Namespace, trained: RunParams, **extra
-) -> dict:
+def _record(run_dir: Path, info: dict, opts: EvaluateOptions, trained: RunParams, **extra) -> dict:
     """An evaluation's ``config.json``: the seeds' config as the run trained them, the
     physics they are evaluated on (``env_params``) and the run they came from."""
     from jaxcart.rundir.directory import package_versions
@@ -361,12 +346,12 @@ def _record(
         X64_KEY: info.get(X64_KEY, False),
         "config": trained.config.to_dict(),
         "env_params": _overrides(trained),
-        "eval_episodes": args.episodes,
+        "eval_episodes": opts.episodes,
         "versions": package_versions(),
         layout.EVALUATION_OF_KEY: {
             "run": str(run_dir),
-            "combination": args.combination,
-            "policy": args.policy,
+            "combination": opts.combination,
+            "policy": opts.policy,
             "trained_physics": physics_label(info),
             "note": trained.note,
         },
@@ -388,8 +373,9 @@ def _robustness_png(
         for (run_dir, info, _), iqm in zip(runs, iqms)
     ]
     values = [value for value, _ in runs[0][2]]
+    env_id = runs[0][1]["config"].env
     title = (
-        f"Greedy return in Gymnasium's CartPole-v1 ({episodes} episodes per seed) against "
+        f"Greedy return in Gymnasium's {env_id} ({episodes} episodes per seed) against "
         f"{field}: {IQM_TEXT}; band: that interval"
     )
     buf = io.BytesIO()
@@ -412,16 +398,29 @@ def _print_written(out: Path, written: list[Path], field: str | None) -> None:
     )
 
 
-def _write_gif(args: argparse.Namespace, trained: RunParams) -> None:
+def _write_gif(opts: EvaluateOptions, trained: RunParams) -> None:
     from jaxcart.results.gif import render_gif
     from jaxcart.rundir.policy import make_policy, seed_params
 
-    policy = make_policy(seed_params(trained, args.seed_index, "--seed-index"), trained.config)
-    gif = render_gif(policy, args.gif, seed=args.gif_seed, env_params=trained.env_params)
+    policy = make_policy(seed_params(trained, opts.seed_index, "--seed-index"), trained.config)
+    env_id, env_params = trained.config.env, trained.env_params
+    gif = render_gif(policy, opts.gif, seed=opts.gif_seed, env_id=env_id, env_params=env_params)
     print(
-        f"wrote {gif.path}: seed {args.seed_index}, {gif.steps} steps, return "
+        f"wrote {gif.path}: seed {opts.seed_index}, {gif.steps} steps, return "
         f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
     )
+
+
+def gif_refusal(env_id: str) -> str | None:
+    """Why ``--gif`` cannot draw ``env_id`` on this machine, or None: Gymnasium's renderer
+    (pygame) draws every env, and without it the env's own
+    :attr:`~jaxcart.core.envs.Env.draw_frame` (CartPole's, with Pillow)."""
+    from jaxcart.core import envs
+    from jaxcart.results.gif import pygame_available
+
+    if pygame_available() or envs.make(env_id).draw_frame is not None:
+        return None
+    return f"--gif of {env_id} needs Gymnasium's renderer: pip install pygame"
 
 
 def main(argv: list[str] | None = None) -> int:

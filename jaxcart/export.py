@@ -8,6 +8,7 @@ package (``pip install -e '.[export]'``)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from jaxcart import cli
@@ -15,6 +16,27 @@ from jaxcart.rundir import layout
 
 FORMATS = {"sb3": ".zip", "onnx": ".onnx"}
 """Each export format and the suffix its file takes."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportOptions:
+    """Everything the command line said: nothing past :func:`main` sees argparse. Each
+    :func:`~jaxcart.cli.option` field is the option ``--name``, its docstring the help."""
+
+    run_dir: Path
+    to: str = cli.option(required=True, choices=list(FORMATS))
+    """the format"""
+    out: Path | None = cli.option(type=Path)
+    """the file to write (.zip for sb3, .onnx for onnx; default: in RUN_DIR, policy-seed0.zip
+    for seed 0, policy-best-seed0.zip for --policy best, policy-combo003-seed0.zip for
+    --combination 3)"""
+    seed_index: int = cli.option(0, type=int)
+    """which seed of the run"""
+    combination: int | None = cli.option(type=int, metavar="C")
+    """a sweep's combination"""
+    policy: str = cli.option("final", choices=list(layout.POLICY_FILES))
+    """final: the parameters at the end of training (the last checkpoint's for a run that did
+    not finish); best: the best evaluated policy, where the run kept one"""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -29,28 +51,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "run_dir", type=Path, metavar="RUN_DIR", help="a jaxcart run (or sweep) directory"
     )
-    parser.add_argument("--to", required=True, choices=list(FORMATS), help="the format")
-    parser.add_argument(
-        "--out",
-        type=Path,
-        help="the file to write (.zip for sb3, .onnx for onnx; default: in RUN_DIR, "
-        "policy-seed0.zip for seed 0, policy-best-seed0.zip for --policy best, "
-        "policy-combo003-seed0.zip for --combination 3)",
-    )
-    parser.add_argument("--seed-index", type=int, default=0, help="which seed of the run")
-    parser.add_argument("--combination", type=int, metavar="C", help="a sweep's combination")
-    parser.add_argument(
-        "--policy",
-        choices=list(layout.POLICY_FILES),
-        default="final",
-        help="final: the parameters at the end of training (the last checkpoint's for a run "
-        "that did not finish); best: the best evaluated policy, where the run kept one",
-    )
+    cli.add_options(parser, ExportOptions, "")
     return parser
 
 
-def export(opts: argparse.Namespace) -> str:
-    """Writes the export the command line ``opts`` asks for; returns what to print."""
+def export(opts: ExportOptions) -> str:
+    """Writes the export ``opts`` asks for; returns what to print."""
     import sys
 
     from jaxcart.core import networks
@@ -116,8 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 written, 2 a user's mistake)."""
 
     def body() -> int:
-        args = build_parser().parse_args(argv)
-        print(export(args))
+        print(export(cli.options_from(ExportOptions, build_parser().parse_args(argv))))
         return 0
 
     return cli.run_command(body)

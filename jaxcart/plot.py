@@ -36,6 +36,7 @@ pyplot), so it never changes the caller's backend.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 from collections.abc import Sequence
@@ -137,6 +138,23 @@ def _checked(out: Path) -> Path:
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class PlotOptions:
+    """The command's options, each declared once (:func:`jaxcart.cli.option`): its type and
+    default here, its help the docstring below it."""
+
+    out: Path | None = cli.option(type=Path)
+    """image to write (.png, .svg, .pdf), replaced if it exists; default RUN_DIR/curves.png for
+    one run or sweep directory (redrawn in place), and for several comparison.png in the
+    current directory, or comparison-2.png, comparison-3.png, ... if that exists: an earlier
+    comparison is never overwritten"""
+    label: tuple[str, ...] | None = cli.option(action="append")
+    """legend label; repeat once per RUN_DIR, in order (default: directory names, and a sweep
+    combination's hyperparameter values, which a sweep's label prefixes)"""
+    dpi: int = cli.option(100, type=int)
+    """PNG resolution (15x11 in figure)"""
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The CLI."""
     parser = cli.Parser(
@@ -148,30 +166,14 @@ def build_parser() -> argparse.ArgumentParser:
         "is drawn so far from its checkpoint (and says so).",
     )
     parser.add_argument("run_dirs", nargs="+", type=Path, metavar="RUN_DIR")
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="image to write (.png, .svg, .pdf), replaced if it exists; default "
-        "RUN_DIR/curves.png for one run or sweep directory (redrawn in place), and for several "
-        "comparison.png in the current directory, or comparison-2.png, comparison-3.png, ... "
-        "if that exists: an earlier comparison is never overwritten",
-    )
-    parser.add_argument(
-        "--label",
-        action="append",
-        default=None,
-        help="legend label; repeat once per RUN_DIR, in order (default: directory names, "
-        "and a sweep combination's hyperparameter values, which a sweep's label prefixes)",
-    )
-    parser.add_argument("--dpi", type=int, default=100, help="PNG resolution (15x11 in figure)")
+    cli.add_options(parser, PlotOptions, "")
     return parser
 
 
 def _plot_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     cli.check_dpi(args.dpi)
-    runs = _load_runs(args.run_dirs, args.label)
+    runs = _load_runs(args.run_dirs, args.label or None)  # no --label: the default names
     for run in runs:
         if not run.metrics:
             raise cli.UsageError(

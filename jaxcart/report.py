@@ -20,7 +20,7 @@ from jaxcart.cli import format_table
 from jaxcart.core import physics, solved
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.progress import ProgressBar
+from jaxcart.run.progress import ProgressBar, new_bar
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
@@ -280,34 +280,35 @@ def next_steps_text(outcome: Outcome) -> str:
     comparison (with another run; a sweep's combinations with each other). Paths are quoted
     for the shell."""
     out, grid, q = outcome.run.out, outcome.run.grid, shlex.quote
-    best = (outcome.ranking[0]["combination"] if outcome.ranking else 0) if grid.is_sweep else 0
-    done = outcome.evaluation.solved
-    done = np.flatnonzero(done[grid.runs_of(best)] if grid.is_sweep else done)
-    seed = int(done[0]) if len(done) else 0
+    run, solved_seeds = q(str(out)), outcome.evaluation.solved
+    if grid.is_sweep:
+        best = outcome.ranking[0]["combination"] if outcome.ranking else 0
+        solved_seeds = solved_seeds[grid.runs_of(best)]
+    seed = int(np.argmax(solved_seeds))  # the first solved seed (none: seed 0)
     pick = f" --seed-index {seed}" if seed else ""
-    sweep, run = grid.is_sweep, q(str(out))
-    where, combo = (out / f"combo-{best:03d}", f" --combination {best}") if sweep else (out, "")
-    gif = q(str(where / f"seed{seed}.gif"))
-    curves, other = (f" --out {q(str(out / 'curves.png'))}", "") if sweep else ("", " OTHER_RUN")
-    commands = [
-        (
-            f"python -m jaxcart.plot {run}{curves}",
-            "learning curves of every combination"
-            if sweep
-            else "learning curves, into its curves.png",
-        ),
-        (
-            f"python -m jaxcart.evaluate {run}{combo}{pick} --gif {gif}",
-            f"watch seed {seed} of the best-ranked combination"
-            if sweep
-            else f"watch seed {seed}'s policy",
-        ),
-        (
-            f"python -m jaxcart.compare {run}{other}",
-            "the combinations' statistics" if sweep else "statistics against another run",
-        ),
-    ]
-    if outcome.run.config.env != solved.DEFAULT_ENV:  # GIFs draw CartPole only
+    if grid.is_sweep:
+        gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
+        commands = [
+            (
+                f"python -m jaxcart.plot {run} --out {q(str(out / 'curves.png'))}",
+                "learning curves of every combination",
+            ),
+            (
+                f"python -m jaxcart.evaluate {run} --combination {best}{pick} --gif {gif}",
+                f"watch seed {seed} of the best-ranked combination",
+            ),
+            (f"python -m jaxcart.compare {run}", "the combinations' statistics"),
+        ]
+    else:
+        gif = q(str(out / f"seed{seed}.gif"))
+        commands = [
+            (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png"),
+            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s policy"),
+            (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
+        ]
+    from jaxcart.evaluate import gif_refusal
+
+    if gif_refusal(outcome.run.config.env):  # no renderer for this env here
         commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
@@ -467,11 +468,10 @@ class ConsoleReport(ProgressBar):
         self.pace_start = (0.0, -1)  # said once
 
     def on_diverged(self, run_name: str, iteration: int) -> None:
-        message = (
+        self.write(
             f"{run_name} diverged at iteration {iteration} (non-finite loss or parameters): "
-            f"it stops there with its last finite parameters; other runs continue"
+            "it stops there with its last finite parameters; other runs continue"
         )
-        self.write(message)
 
     def on_signal(self, signum: int) -> None:
         name = signal.Signals(signum).name
@@ -487,9 +487,7 @@ class ConsoleReport(ProgressBar):
         if total < 4096 or not self.progress_bar:
             return
         if self.init_bar is None:
-            from tqdm.auto import tqdm
-
-            self.init_bar = tqdm(total=total, unit="run", desc="initialising", file=sys.stderr)
+            self.init_bar = new_bar(total, "initialising", "run")
         self.init_bar.update(done - self.init_bar.n)
         if done + 1024 >= total:
             self.init_bar.update(total - self.init_bar.n)

@@ -281,12 +281,13 @@ def test_acrobot_run_stops_resumes_and_reads_back(tmp_path, capsys):
     out = str(tmp_path / "p.onnx")
     assert export.main([str(tmp_path / "whole"), "--to", "onnx", "--out", out]) == 2
     gif = str(tmp_path / "a.gif")
-    assert evaluate.main([str(tmp_path / "whole"), "--episodes", "1", "--gif", gif]) == 2
     err = capsys.readouterr().err.splitlines()
-    assert err[-2:] == [
-        f"error: --to onnx exports CartPole-v1 policies only; {tmp_path / 'whole'} trained Acrobot-v1",
-        "error: --gif renders CartPole-v1 only; this run trained Acrobot-v1",
-    ]
+    assert err[-1] == (
+        f"error: --to onnx exports CartPole-v1 policies only; {tmp_path / 'whole'} trained Acrobot-v1"
+    )
+    # Gymnasium's renderer (pygame, a test dependency) draws Acrobot's own episode
+    assert evaluate.main([str(tmp_path / "whole"), "--episodes", "1", "--gif", gif]) == 0
+    assert "wrote" in capsys.readouterr().out and (tmp_path / "a.gif").stat().st_size > 0
 
 
 def test_metric_bounds_follow_the_env(tmp_path):
