@@ -29,7 +29,7 @@ from jaxcart.run import sweep as sweeps
 from jaxcart.run.loggers import LoggerUnavailable, check_available
 from jaxcart.run.waves import WavePlan
 from jaxcart.rundir.directory import RunDir
-from jaxcart.rundir.reader import check_num_runs, sweep_combinations
+from jaxcart.rundir.reader import check_num_runs, env_values, sweep_combinations
 
 
 # -- the one reading of NAME=VALUE options (--sweep, --env-param, --randomize, --space) ------
@@ -222,7 +222,7 @@ class RunSpec:
         check_num_runs(self.num_seeds, combos)  # what the readers accept, before any list
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
         if not self.takes_physics and (
-            physics.overrides(self.env_params) or self.randomize or sweeps.env_values_of(self.sweep)
+            physics.overrides(self.env_params) or self.randomize or env_values(self.sweep)
         ):
             raise ConfigError(
                 f"--env-param, env.* sweeps and --randomize set CartPole's physics; "
@@ -237,7 +237,7 @@ class RunSpec:
                     "(jaxcart.engine.loop.train(env_params=...))"
                 )
         sweeps.validate_env_sweep(self.env_params, self.sweep)
-        swept = sweeps.env_values_of(self.sweep)
+        swept = env_values(self.sweep)
         for r in self.randomize:
             if r.name in swept:
                 raise ConfigError(f"env.{r.name} is both swept and randomised; keep one")

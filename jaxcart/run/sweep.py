@@ -95,7 +95,7 @@ def validate_env_sweep(env_params: EnvParams, sweep: dict[str, list[float]]) -> 
     """Raises :class:`ConfigError` for a swept physics value outside sense with
     ``env_params``' other fields (each checked on its own, as :func:`validate_sweep`)."""
     check = lambda name, value: physics.check_physics(env_params.replace(**{name: value}))
-    _check_each(env_values_of(sweep), check)
+    _check_each(reader.env_values(sweep), check)
 
 
 def _check_each(sweep: dict[str, list[float]], check: Callable[[str, float], object]) -> None:
@@ -106,12 +106,6 @@ def _check_each(sweep: dict[str, list[float]], check: Callable[[str, float], obj
                 check(name, value)
             except ConfigError as exc:
                 raise ConfigError(f"--sweep value out of range: {exc}") from None
-
-
-def env_values_of(combo: dict) -> dict:
-    """The physics entries of a combination (or a sweep), without their ``env.`` prefix."""
-    prefix = physics.PREFIX
-    return {k[len(prefix) :]: v for k, v in combo.items() if k.startswith(prefix)}
 
 
 def validate_combinations(config: PPOConfig, combos: tuple[dict[str, float], ...]) -> None:
@@ -147,7 +141,7 @@ def grid_values(grid: RunGrid, runs: range, name: str, base: float, dtype=float)
 def grid_env_values(grid: RunGrid, runs: range) -> dict[str, np.ndarray]:
     """Each swept physics field's value for ``runs`` (in ``grid`` order), float64
     ``[len(runs)]`` (``{}`` when the sweep has none): a wave's, never every seed's."""
-    names = sorted({k for c in grid.combos for k in env_values_of(c)})
+    names = sorted({k for c in grid.combos for k in reader.env_values(c)})
     return {n: grid_values(grid, runs, physics.PREFIX + n, math.nan) for n in names}
 
 
