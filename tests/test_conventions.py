@@ -125,3 +125,23 @@ def test_an_unusable_jaxcart_cache_dir_is_one_line_and_exit_2(tmp_path, where):
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "JAXCART_CACHE_DIR" in lines[0] and "Traceback" not in done.stderr
     assert not out.exists()
+
+
+@pytest.mark.quick
+def test_no_tracked_file_holds_a_merge_conflict_marker():
+    """A merge left half-resolved would ship its markers: every tracked text file is checked."""
+    listed = subprocess.run(
+        ["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=False
+    ).stdout.split(b"\0")
+    if not listed[0]:
+        pytest.skip("not a git checkout")
+    markers = (b"<<<<<<< ", b">>>>>>> ")
+    found = []
+    for name in filter(None, listed):
+        path = REPO / name.decode()
+        if not path.is_file() or path.suffix in {".png", ".gif", ".npz", ".zip", ".onnx"}:
+            continue
+        for number, line in enumerate(path.read_bytes().splitlines(), 1):
+            if line.startswith(markers) or line == b"=======":
+                found.append(f"{name.decode()}:{number}")
+    assert not found, found
