@@ -643,18 +643,16 @@ def _finish(
     outcome's per-run summary; then a sweep's ranking (``sweep.json``), read back from its
     combinations' directories (:func:`jaxcart.run.sweep.rank_dirs`, as a structural sweep's
     groups are ranked) by ``score`` (None: the one config.json records, else eval)."""
-    columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final")}
-    timing = dict.fromkeys(("compile_seconds", "train_seconds", "eval_seconds"), 0.0)
-    for block, take in overlapping(blocks, range(run.grid.num_runs)):
-        columns["gym"].append(block.gym_returns[take])
-        columns["jax"].append(block.jax_returns[take])
-        columns["div"].append(block.diverged_at[take])
-        columns["final"].append(block.metrics["rollout/ep_rew_mean"][-1, take])
-        for k in timing:
-            timing[k] += float(block.timing.get(k, 0.0))
-    gym, jax_returns, outcome.diverged_at, outcome.final_return = map(
-        np.concatenate, columns.values()
-    )
+    pieces = list(overlapping(blocks, range(run.grid.num_runs)))  # (block, its runs' rows)
+    gym = np.concatenate([block.gym_returns[take] for block, take in pieces])
+    jax_returns = np.concatenate([block.jax_returns[take] for block, take in pieces])
+    outcome.diverged_at = np.concatenate([block.diverged_at[take] for block, take in pieces])
+    final = [block.metrics[sweeps.RETURN_METRIC][-1, take] for block, take in pieces]
+    outcome.final_return = np.concatenate(final)
+    timing = {
+        k: sum(float(block.timing.get(k, 0.0)) for block, _ in pieces)
+        for k in ("compile_seconds", "train_seconds", "eval_seconds")
+    }
     env = run.config.env
     outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"], env=env)
     timing |= {"devices": outcome.num_devices, "waves": len(blocks)}

@@ -36,8 +36,16 @@ from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, config_fi
 from jaxcart.engine.loop import Progress
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
+from jaxcart.run.progress import chain_hooks
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
-from jaxcart.run.structural import RETURN_METRIC, by_shape, group_spec, run_scores
+from jaxcart.run.structural import (
+    RETURN_METRIC,
+    by_shape,
+    group_config,
+    group_spec,
+    run_scores,
+    shape_groups,
+)
 from jaxcart.rundir import layout
 from jaxcart.rundir.reader import load_runs
 
@@ -241,18 +249,10 @@ def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]
 def _check_shape_combinations(space: dict[str, Dimension], config: PPOConfig) -> None:
     """Every combination of the shape settings' choices makes a valid config (num_envs x
     num_steps must divide into minibatches, ...): refused before anything compiles."""
-    import itertools
-
     shaped = [d for d in space.values() if not d.traced and d.choices]
-    if len(shaped) < 2:
-        return
-    for values in itertools.islice(itertools.product(*(d.choices for d in shaped)), 10_000):
-        setting = {d.name: d.config_value(v) for d, v in zip(shaped, values)}
-        try:
-            dataclasses.replace(config, **setting)
-        except ConfigError as exc:
-            shown = ", ".join(f"{k}={v}" for k, v in zip((d.name for d in shaped), values))
-            raise ConfigError(f"--space: the combination {shown} is invalid: {exc}") from None
+    choices = {d.name: [d.config_value(v) for v in d.choices] for d in shaped}
+    for shape in shape_groups(choices, limit=10_000) if len(shaped) > 1 else []:
+        group_config(config, shape, "--space")
 
 
 def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[dict, dict]:
@@ -577,8 +577,7 @@ class Tuner:
             trial.set_user_attr("run_dir", str(out))
             trial.set_user_attr("seed", spec.seed)  # what held-out seeds must avoid
         pruning = RungReporter(self.study, trials, spec, self.hooks.on_signal)
-        on_chunk = _chained(self.hooks.on_chunk, pruning.on_chunk)
-        hooks = dataclasses.replace(self.hooks, on_chunk=on_chunk)
+        hooks = chain_hooks(self.hooks, Hooks(on_chunk=pruning.on_chunk))
         outcome = run_new(spec, out, self.options, hooks, stop=pruning)
         if outcome.stopped and not pruning.all_pruned:
             raise BatchStopped(outcome.signum or 15)
@@ -683,12 +682,6 @@ class Heartbeat:
     def __exit__(self, *exc: object) -> None:
         self.done.set()
         self.thread.join()
-
-
-def _chained(first: Callable | None, second: Callable) -> Callable:
-    if first is None:
-        return second
-    return lambda progress: (first(progress), second(progress))
 
 
 def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:
