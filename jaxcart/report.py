@@ -21,7 +21,7 @@ from jaxcart.core import solved
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.run import physics
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.progress import ProgressBar
+from jaxcart.run.progress import ProgressBar, new_bar
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
@@ -488,9 +488,7 @@ class ConsoleReport(ProgressBar):
         if total < 4096 or not self.progress_bar:
             return
         if self.init_bar is None:
-            from tqdm.auto import tqdm
-
-            self.init_bar = tqdm(total=total, unit="run", desc="initialising", file=sys.stderr)
+            self.init_bar = new_bar(total, "initialising", "run")
         self.init_bar.update(done - self.init_bar.n)
         if done + 1024 >= total:
             self.init_bar.update(total - self.init_bar.n)
