@@ -38,7 +38,7 @@ from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.greedy import evaluate_runs
 from jaxcart.run.loggers import make_logger, sb3_extras
-from jaxcart.run.progress import ProgressBar
+from jaxcart.run.progress import ProgressBar, chain_hooks
 from jaxcart.run.spec import Evaluation, Hooks, Outcome, Run, RunOptions, RunSpec, check_option
 from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
 from jaxcart.rundir import files, layout, reader
@@ -370,7 +370,7 @@ def carry_out(
     episodes = options.eval_episodes or run.info.get("eval_episodes") or NUM_EVAL_EPISODES
     options = dataclasses.replace(options, eval_episodes=episodes)
     bar = ProgressBar() if progress else None
-    hooks = bar.hooks(hooks) if bar is not None else hooks or Hooks()
+    hooks = chain_hooks(hooks, bar)
     stop = stop or StopRequest(hooks.on_signal)
     try:
         with stop.installed():
