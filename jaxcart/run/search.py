@@ -38,14 +38,8 @@ from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
 from jaxcart.run.progress import chain_hooks
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
-from jaxcart.run.structural import (
-    RETURN_METRIC,
-    by_shape,
-    group_config,
-    group_spec,
-    run_scores,
-    shape_groups,
-)
+from jaxcart.run.structural import by_shape, group_config, group_spec, shape_groups
+from jaxcart.run.sweep import RETURN_METRIC, run_scores
 from jaxcart.rundir import layout
 from jaxcart.rundir.reader import load_runs
 

@@ -26,7 +26,6 @@ from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
-from jaxcart.run.sweep import RETURN_METRIC, run_scores  # noqa: F401 (search imports them here)
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.reader import AXES_KEY, SHAPE_FIELDS, group_label, group_values
 
