@@ -255,8 +255,7 @@ def _device_change(out: Path, info: dict, allowed: bool) -> bool:
             f"{now}: continuing would give other numbers. Resume with the layout it had: "
             f"XLA_FLAGS=--xla_force_host_platform_device_count={recorded} "
             f"python -m jaxcart.train --resume {shlex.quote(str(out))} (on CPU), or pass "
-            "--allow-device-change "
-            "to continue on this one (config.json records it)"
+            "--allow-device-change to continue on this one (config.json records it)"
         )
     info["device_changes"] = [*info.get("device_changes", []), {"from": recorded, "to": now}]
     info["device_count"] = now

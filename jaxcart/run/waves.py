@@ -111,10 +111,8 @@ def available_bytes() -> int:
 def throughput_runs_per_device(config: PPOConfig, backend: str) -> tuple[int, str]:
     """The runs per device that fill a device's parallel width, and why (one line)."""
     if backend == "cpu":
-        why = "wider waves cost as much per run (measured on a 2-core CPU)"
-        return CPU_RUNS_PER_DEVICE, f"{CPU_RUNS_PER_DEVICE} runs per cpu device: {why}; " + (
-            "--wave-size N overrides"
-        )
+        why = "wider waves cost as much per run (measured on a 2-core CPU); --wave-size N overrides"
+        return CPU_RUNS_PER_DEVICE, f"{CPU_RUNS_PER_DEVICE} runs per cpu device: {why}"
     runs = max(1, ACCELERATOR_ENVS_PER_DEVICE // config.num_envs)
     return runs, (
         f"{runs:,} runs per {backend} device: {ACCELERATOR_ENVS_PER_DEVICE:,} parallel "
