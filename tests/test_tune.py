@@ -131,7 +131,7 @@ def test_a_study_of_the_old_space_refuses_the_new_one(tmp_path, capsys):
 
 def test_space_with_a_shape_combination_that_cannot_train_is_refused():
     base = preset("sb3", num_steps=64, minibatch_size=64, total_timesteps=10**9)
-    with pytest.raises(ConfigError, match="combination num_envs=8192, num_steps=4096"):
+    with pytest.raises(ConfigError, match="--space group num_envs=8192,num_steps=4096: "):
         search.parse_space(["num_envs=1,8192", "num_steps=64,4096"], base)
 
 

@@ -38,7 +38,7 @@ from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.greedy import evaluate_runs
 from jaxcart.run.loggers import make_logger, sb3_extras
-from jaxcart.run.progress import ProgressBar
+from jaxcart.run.progress import ProgressBar, chain_hooks
 from jaxcart.run.spec import Evaluation, Hooks, Outcome, Run, RunOptions, RunSpec, check_option
 from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
 from jaxcart.rundir import files, layout, reader
@@ -255,8 +255,7 @@ def _device_change(out: Path, info: dict, allowed: bool) -> bool:
             f"{now}: continuing would give other numbers. Resume with the layout it had: "
             f"XLA_FLAGS=--xla_force_host_platform_device_count={recorded} "
             f"python -m jaxcart.train --resume {shlex.quote(str(out))} (on CPU), or pass "
-            "--allow-device-change "
-            "to continue on this one (config.json records it)"
+            "--allow-device-change to continue on this one (config.json records it)"
         )
     info["device_changes"] = [*info.get("device_changes", []), {"from": recorded, "to": now}]
     info["device_count"] = now
@@ -370,7 +369,7 @@ def carry_out(
     episodes = options.eval_episodes or run.info.get("eval_episodes") or NUM_EVAL_EPISODES
     options = dataclasses.replace(options, eval_episodes=episodes)
     bar = ProgressBar() if progress else None
-    hooks = bar.hooks(hooks) if bar is not None else hooks or Hooks()
+    hooks = chain_hooks(hooks, bar)
     stop = stop or StopRequest(hooks.on_signal)
     try:
         with stop.installed():
@@ -643,18 +642,16 @@ def _finish(
     outcome's per-run summary; then a sweep's ranking (``sweep.json``), read back from its
     combinations' directories (:func:`jaxcart.run.sweep.rank_dirs`, as a structural sweep's
     groups are ranked) by ``score`` (None: the one config.json records, else eval)."""
-    columns: dict[str, list] = {k: [] for k in ("gym", "jax", "div", "final")}
-    timing = dict.fromkeys(("compile_seconds", "train_seconds", "eval_seconds"), 0.0)
-    for block, take in overlapping(blocks, range(run.grid.num_runs)):
-        columns["gym"].append(block.gym_returns[take])
-        columns["jax"].append(block.jax_returns[take])
-        columns["div"].append(block.diverged_at[take])
-        columns["final"].append(block.metrics["rollout/ep_rew_mean"][-1, take])
-        for k in timing:
-            timing[k] += float(block.timing.get(k, 0.0))
-    gym, jax_returns, outcome.diverged_at, outcome.final_return = map(
-        np.concatenate, columns.values()
-    )
+    pieces = list(overlapping(blocks, range(run.grid.num_runs)))  # (block, its runs' rows)
+    gym = np.concatenate([block.gym_returns[take] for block, take in pieces])
+    jax_returns = np.concatenate([block.jax_returns[take] for block, take in pieces])
+    outcome.diverged_at = np.concatenate([block.diverged_at[take] for block, take in pieces])
+    final = [block.metrics[sweeps.RETURN_METRIC][-1, take] for block, take in pieces]
+    outcome.final_return = np.concatenate(final)
+    timing = {
+        k: sum(float(block.timing.get(k, 0.0)) for block, _ in pieces)
+        for k in ("compile_seconds", "train_seconds", "eval_seconds")
+    }
     env = run.config.env
     outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"], env=env)
     timing |= {"devices": outcome.num_devices, "waves": len(blocks)}

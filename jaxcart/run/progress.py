@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import sys
+from collections.abc import Callable
 from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
@@ -78,12 +80,7 @@ class ProgressBar:
 
     def hooks(self, base: Hooks | None = None) -> Hooks:
         """These methods as the lifecycle's hooks, each called after ``base``'s (if any)."""
-        base = base or Hooks()
-        merged = {}
-        for name in HOOK_NAMES:
-            first, mine = getattr(base, name), getattr(self, name, None)
-            merged[name] = mine if first is None else _both(first, mine) if mine else first
-        return Hooks(**merged)
+        return chain_hooks(base, self)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -143,9 +140,17 @@ def new_bar(total: int, desc: str, unit: str, file: IO[str] | None = None, initi
     )
 
 
-def _both(first, second):
-    def call(*args):
-        first(*args)
-        second(*args)
+def chain_hooks(first: Hooks | None, then: object) -> Hooks:
+    """Hooks that call ``first``'s hook for each event (if any), then ``then``'s: a
+    :class:`~jaxcart.run.spec.Hooks` or any object with methods of the hooks' names (a
+    :class:`ProgressBar`)."""
+    first, chained = first or Hooks(), {}
+    for name in HOOK_NAMES:
+        one, two = getattr(first, name), getattr(then, name, None)
+        chained[name] = functools.partial(_both, one, two) if one and two else one or two
+    return Hooks(**chained)
 
-    return call
+
+def _both(first: Callable, second: Callable, *args: object) -> None:
+    first(*args)
+    second(*args)

@@ -36,8 +36,10 @@ from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, config_fi
 from jaxcart.engine.loop import Progress
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
+from jaxcart.run.progress import chain_hooks
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec, assignments
-from jaxcart.run.structural import RETURN_METRIC, by_shape, group_spec, run_scores
+from jaxcart.run.structural import by_shape, group_config, group_spec, shape_groups
+from jaxcart.run.sweep import RETURN_METRIC, run_scores
 from jaxcart.rundir import layout
 from jaxcart.rundir.reader import load_runs
 
@@ -242,18 +244,10 @@ def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]
 def _check_shape_combinations(space: dict[str, Dimension], config: PPOConfig) -> None:
     """Every combination of the shape settings' choices makes a valid config (num_envs x
     num_steps must divide into minibatches, ...): refused before anything compiles."""
-    import itertools
-
     shaped = [d for d in space.values() if not d.traced and d.choices]
-    if len(shaped) < 2:
-        return
-    for values in itertools.islice(itertools.product(*(d.choices for d in shaped)), 10_000):
-        setting = {d.name: d.config_value(v) for d, v in zip(shaped, values)}
-        try:
-            dataclasses.replace(config, **setting)
-        except ConfigError as exc:
-            shown = ", ".join(f"{k}={v}" for k, v in zip((d.name for d in shaped), values))
-            raise ConfigError(f"--space: the combination {shown} is invalid: {exc}") from None
+    choices = {d.name: [d.config_value(v) for v in d.choices] for d in shaped}
+    for shape in shape_groups(choices, limit=10_000) if len(shaped) > 1 else []:
+        group_config(config, shape, "--space")
 
 
 def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[dict, dict]:
@@ -584,7 +578,7 @@ class Tuner:
         """
         hooks, pruned = self.hooks, set()
         if pruning is not None:
-            hooks = dataclasses.replace(hooks, on_chunk=_chained(hooks.on_chunk, pruning.on_chunk))
+            hooks = chain_hooks(hooks, Hooks(on_chunk=pruning.on_chunk))
             pruned = pruning.pruned
         outcome = run_new(spec, out, self.options, hooks, stop=pruning)
         if pruning is not None and pruning.all_pruned:
@@ -655,12 +649,6 @@ def heartbeat(study: Any, trials: list[Any]) -> Iterator[None]:
     finally:
         done.set()
         thread.join()
-
-
-def _chained(first: Callable | None, second: Callable) -> Callable:
-    if first is None:
-        return second
-    return lambda progress: (first(progress), second(progress))
 
 
 def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from jaxcart.analysis.summary import EVAL, Score
-from jaxcart.core.config import TRACED_FIELDS, ConfigError
+from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
 from jaxcart.run import sweep as sweeps
@@ -35,7 +35,6 @@ from jaxcart.run.spec import (
     distinct_values,
     sweep_assignments,
 )
-from jaxcart.run.sweep import RETURN_METRIC, run_scores  # noqa: F401 (search imports them here)
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.reader import AXES_KEY, SHAPE_FIELDS, group_label, group_values
 
@@ -76,9 +75,11 @@ def split_sweep(specs: list[str]) -> tuple[list[str], dict[str, list]]:
     return floats, shapes
 
 
-def shape_groups(shapes: dict[str, list]) -> list[dict]:
-    """Every combination of the shape axes, in ``itertools.product`` order."""
-    return [dict(zip(shapes, values)) for values in itertools.product(*shapes.values())]
+def shape_groups(shapes: dict[str, list], limit: int | None = None) -> list[dict]:
+    """Every combination of the shape axes (the first ``limit``), in ``itertools.product``
+    order."""
+    combinations = itertools.islice(itertools.product(*shapes.values()), limit)
+    return [dict(zip(shapes, values)) for values in combinations]
 
 
 def by_shape(points: Sequence[dict]) -> list[tuple[dict, list[int]]]:
@@ -92,19 +93,24 @@ def by_shape(points: Sequence[dict]) -> list[tuple[dict, list[int]]]:
     return list(groups.values())
 
 
-def group_spec(spec: RunSpec, shape: dict, **changes: object) -> RunSpec:
-    """One shape group's run: ``spec`` with the group's shape settings (and ``changes`` to
-    the spec, e.g. explicit ``combinations``).
+def group_config(config: PPOConfig, shape: dict, option: str = "--sweep") -> PPOConfig:
+    """``config`` with one shape group's settings: the one check that a structural sweep's
+    groups and a search space's shape choices fit together.
 
     Raises:
         ConfigError: shapes that do not fit together (a minibatch that does not divide the
-            rollout), naming the group.
+            rollout), naming the ``option`` and the group.
     """
     try:
-        config = dataclasses.replace(spec.config, **shape)
+        return dataclasses.replace(config, **shape)
     except ConfigError as exc:
-        raise ConfigError(f"--sweep group {group_label(shape)}: {exc}") from None
-    return dataclasses.replace(spec, config=config, **changes)
+        raise ConfigError(f"{option} group {group_label(shape)}: {exc}") from None
+
+
+def group_spec(spec: RunSpec, shape: dict, **changes: object) -> RunSpec:
+    """One shape group's run: ``spec`` with the group's shape settings
+    (:func:`group_config`) and ``changes`` to the spec, e.g. explicit ``combinations``."""
+    return dataclasses.replace(spec, config=group_config(spec.config, shape), **changes)
 
 
 def group_specs(spec: RunSpec, groups: list[dict]) -> list[RunSpec]:

@@ -292,26 +292,21 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
     Raises:
         ConfigError: a score a run cannot give (``return-at`` past its end).
     """
-    columns: dict[str, list] = {k: [] for k in ("solved", "final", "reach", "div")}
-    scores, combos, where = [], [], []
+    runs, where = [], []  # every combination's run, and its (group, combination) there
     for g, path in enumerate(dirs):
         swept = layout.present(layout.combo_dir(path, 0))  # before sweep.json is written
-        runs = [reader.load_run(p) for p in (reader.combo_dirs(path) if swept else [path])]
-        scores += run_scores(runs, score)
-        for c, run in enumerate(runs):
-            combos.append(dict(run.combination or {}))
+        for c, combo_dir in enumerate(reader.combo_dirs(path) if swept else [path]):
+            runs.append(reader.load_run(combo_dir))
             where.append((g, c if swept else None))
-            seeds = run.evaluation["seeds"]
-            columns["solved"].append([bool(s["solved"]) for s in seeds])
-            diverged = [s.get("diverged_at_iteration") for s in seeds]
-            columns["div"].append([-1 if d is None else d for d in diverged])
-            columns["final"].append(run.metrics[RETURN_METRIC][-1])
-            reached = first_reach(run.metrics["rollout/ep_rew_max"], run.env_steps)
-            columns["reach"].append(reached)
-    stacked = {k: np.concatenate([np.asarray(v) for v in vs]) for k, vs in columns.items()}
-    grid = RunGrid(len(columns["solved"][0]), tuple(combos))
-    solved, final, reach, div = (stacked[k] for k in columns)
-    rows = rank(grid, np.concatenate(scores), solved, final, reach, div, score=score.label)
+    seeds = [run.evaluation["seeds"] for run in runs]
+    solved = np.ravel([[bool(s["solved"]) for s in each] for each in seeds])
+    diverged = [[s.get("diverged_at_iteration") for s in each] for each in seeds]
+    diverged = np.ravel([[-1 if d is None else d for d in each] for each in diverged])
+    final = np.concatenate([run.metrics[RETURN_METRIC][-1] for run in runs])
+    reach = [first_reach(run.metrics["rollout/ep_rew_max"], run.env_steps) for run in runs]
+    grid = RunGrid(len(seeds[0]), tuple(dict(run.combination or {}) for run in runs))
+    scores = np.concatenate(run_scores(runs, score))
+    rows = rank(grid, scores, solved, final, np.concatenate(reach), diverged, score=score.label)
     if groups is not None:
         for row in rows:
             g, c = where[row["combination"]]

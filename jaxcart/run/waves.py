@@ -19,7 +19,7 @@ above that measurement, so it errs on the side of more waves.
 Waves are sized for throughput, not to fill memory: a wave holds the fewest runs per device
 that keep the device busy (:func:`throughput_runs_per_device`), capped by memory. Larger
 waves only cost memory and make every chunk, checkpoint and stop request slower. The plan
-also estimates the job's wall time (:func:`iteration_seconds`), a model the run's own first
+also estimates the job's wall time (:func:`plan_waves`), a model the run's own first
 chunk then replaces with a measurement.
 """
 
@@ -111,22 +111,13 @@ def available_bytes() -> int:
 def throughput_runs_per_device(config: PPOConfig, backend: str) -> tuple[int, str]:
     """The runs per device that fill a device's parallel width, and why (one line)."""
     if backend == "cpu":
-        why = "wider waves cost as much per run (measured on a 2-core CPU)"
-        return CPU_RUNS_PER_DEVICE, f"{CPU_RUNS_PER_DEVICE} runs per cpu device: {why}; " + (
-            "--wave-size N overrides"
-        )
+        why = "wider waves cost as much per run (measured on a 2-core CPU); --wave-size N overrides"
+        return CPU_RUNS_PER_DEVICE, f"{CPU_RUNS_PER_DEVICE} runs per cpu device: {why}"
     runs = max(1, ACCELERATOR_ENVS_PER_DEVICE // config.num_envs)
     return runs, (
         f"{runs:,} runs per {backend} device: {ACCELERATOR_ENVS_PER_DEVICE:,} parallel "
         "environments fill one (a model, not measured); --wave-size N overrides"
     )
-
-
-def iteration_seconds(config: PPOConfig, runs_per_device: int, backend: str) -> float:
-    """Estimated seconds of one iteration of a wave with ``runs_per_device`` runs per device
-    (the devices work in parallel): env steps x (1 + update epochs) at a per-step cost."""
-    per_step = CPU_SECONDS_PER_ENV_STEP if backend == "cpu" else ACCELERATOR_SECONDS_PER_ENV_STEP
-    return runs_per_device * config.batch_size * (1 + config.update_epochs) * per_step
 
 
 def format_duration(seconds: float) -> str:
@@ -230,8 +221,11 @@ def plan_waves(
             why = f"{fit // num_devices:,} runs per device: as many as fit in memory"
         waves = math.ceil(num_runs / size)  # balanced: equal waves where the count allows
         size = min(num_runs, -(-math.ceil(num_runs / waves) // num_devices) * num_devices)
-    per_device = -(-size // num_devices)
-    seconds = config.num_iterations * iteration_seconds(config, per_device, backend)
+    # the time: one device's runs (the devices work in parallel), each iteration's env steps
+    # x (1 + update epochs) at a per-step cost
+    per_step = CPU_SECONDS_PER_ENV_STEP if backend == "cpu" else ACCELERATOR_SECONDS_PER_ENV_STEP
+    steps = -(-size // num_devices) * config.batch_size * (1 + config.update_epochs)
+    seconds = config.num_iterations * steps * per_step
     disk = metrics_disk_bytes(config, num_runs, size)
     return WavePlan(num_runs, size, per_run, available, seconds, why, disk)
 
