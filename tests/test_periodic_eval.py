@@ -163,3 +163,37 @@ def test_a_sweep_keeps_each_combinations_best_policies(tmp_path):
         assert list(np.flatnonzero(evaluated) + 1) == [3, 6]
         policy = load_policy(combo, seed_index=1, policy="best")
         assert policy(np.zeros(4, np.float32)) in (0, 1)
+
+
+def test_the_final_cross_check_compiles_beside_training_once_for_both_verdicts(
+    tmp_path, monkeypatch
+):
+    """The JAX cross-check of the final evaluation starts compiling when the training's
+    program has compiled (before any Gymnasium episode), and the one program serves the final
+    and the kept-best policies; its returns are those of a program compiled at the end."""
+    from jaxcart.run import greedy, lifecycle
+    from jaxcart.run.spec import RunOptions, RunSpec
+    from jaxcart.rundir.policy import run_params
+
+    events = []
+    compile_for, evaluate_params = greedy.CrossCheck.compile_for, greedy.evaluate_params
+
+    def spy_compile(self, params):
+        before = self._program
+        compile_for(self, params)
+        events.append("compile" if self._program is not before else "reuse")
+
+    def spy_gym(*args, **kwargs):
+        events.append("gymnasium")
+        return evaluate_params(*args, **kwargs)
+
+    monkeypatch.setattr(greedy.CrossCheck, "compile_for", spy_compile)
+    monkeypatch.setattr(greedy, "evaluate_params", spy_gym)
+    spec = RunSpec(EVERY, num_seeds=2, seed=3)
+    outcome = lifecycle.run_new(spec, tmp_path / "run", RunOptions(eval_episodes=3))
+    assert events == ["compile", "reuse", "gymnasium", "reuse", "gymnasium"]
+
+    monkeypatch.undo()  # a program compiled at the end, as before: the same returns
+    params = run_params(tmp_path / "run").params
+    fresh = greedy.CrossCheck(EVERY, 3, np.arange(2), 3).returns(params).result()
+    np.testing.assert_array_equal(fresh, outcome.evaluation.jax_returns)

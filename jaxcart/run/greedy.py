@@ -5,8 +5,9 @@ verdict, :mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check, by
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -129,6 +130,77 @@ def summarize(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict[str, np.nd
     }
 
 
+class CrossCheck:
+    """jaxcart's half of :func:`evaluate_runs`: every run's greedy returns ``[R, episodes]``
+    in jaxcart's env, from a program that compiles in a thread as soon as the parameters'
+    shapes are known (:meth:`compile_for`). Training starts it when its own program has
+    compiled, so that the final evaluation finds it ready; one program serves the final and
+    the kept-best policies alike.
+
+    Args:
+        config: the runs' config (its env and network).
+        seed, seed_indices: run r's episodes start from ``fold_in(seed key of
+            seed_indices[r], 1)``.
+        episodes: episodes per run.
+        env_params: the physics (default the env's own; a continuous field may hold one
+            value per run, ``[R]``).
+    """
+
+    def __init__(
+        self,
+        config: PPOConfig,
+        seed: int,
+        seed_indices: np.ndarray,
+        episodes: int,
+        env_params: Any = None,
+    ) -> None:
+        static, per_run = (None, {}) if env_params is None else physics.split_per_run(env_params)
+        network = make_network(config)
+
+        def one_run(p: dict, k: jax.Array, values: dict) -> jax.Array:
+            run_env = physics.with_values(static, values)
+            key = jax.random.fold_in(k, 1)
+            return greedy_returns(p, key, network, episodes, run_env, config.env)
+
+        self._one_run = one_run
+        self._keys = seed_index_keys(seed, np.asarray(seed_indices))
+        self._per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
+        self._program: Future | None = None
+        self._shapes: Any = None
+
+    def compile_for(self, params: Any) -> None:
+        """Starts compiling the program for parameters shaped as ``params`` (arrays or
+        ``jax.ShapeDtypeStruct`` leaves ``[R, ...]``), unless it was started for that shape."""
+        shapes = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), params)
+        if self._program is not None and shapes == self._shapes:
+            return
+        self._shapes, self._program = shapes, Future()
+        args = (shapes, self._keys, self._per_run)
+        program = jax.jit(jax.vmap(self._one_run))
+        _in_thread(self._program, lambda: program.lower(*args).compile(FAST_COMPILE))
+
+    def returns(self, params: dict) -> Future:
+        """A future of the greedy returns ``[R, episodes]`` of ``params`` (NumPy, leaves
+        ``[R, ...]``), computed in a thread once the program is compiled."""
+        self.compile_for(params)
+        program, done = self._program, Future()
+        _in_thread(done, lambda: np.asarray(program.result()(params, self._keys, self._per_run)))
+        return done
+
+
+def _in_thread(future: Future, work: Callable[[], Any]) -> None:
+    """Runs ``work`` in a daemon thread (an interrupted process exits without waiting for it),
+    its result or exception set on ``future``."""
+
+    def target() -> None:
+        try:
+            future.set_result(work())
+        except BaseException as error:  # the caller sees it in future.result()
+            future.set_exception(error)
+
+    threading.Thread(target=target, daemon=True, name="jaxcart-cross-check").start()
+
+
 def evaluate_runs(
     params: dict,
     config: PPOConfig,
@@ -137,35 +209,24 @@ def evaluate_runs(
     episodes: int,
     should_stop: Callable[[], bool] | None = None,
     env_params: Any = None,
+    cross_check: CrossCheck | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
     Gymnasium's env of ``config.env`` (the same reset seeds for all) and in jaxcart's env (run
     r's episodes from ``fold_in(seed key of seed_indices[r], 1)``), both with ``env_params``'
     physics (default CartPole-v1's; a continuous field may hold one value per run, ``[R]``;
-    another env plays on its own). jaxcart's program compiles and runs in a thread while
-    Gymnasium's episodes run.
+    another env plays on its own). jaxcart's program (``cross_check``'s, when training
+    started compiling it, else a new one) compiles and runs in a thread while Gymnasium's
+    episodes run.
 
     Args:
         params: network parameters, leaves ``[R, ...]`` (NumPy).
     """
-    static, per_run = (None, {}) if env_params is None else physics.split_per_run(env_params)
-    per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
-    network = make_network(config)
-
-    def one_run(p: dict, k: jax.Array, values: dict) -> jax.Array:
-        run_env = physics.with_values(static, values)
-        key = jax.random.fold_in(k, 1)
-        return greedy_returns(p, key, network, episodes, run_env, config.env)
-
-    def in_jaxcart() -> np.ndarray:
-        args = (params, seed_index_keys(seed, np.asarray(seed_indices)), per_run)
-        program = jax.jit(jax.vmap(one_run)).lower(*args).compile(FAST_COMPILE)
-        return np.asarray(program(*args))
-
-    with ThreadPoolExecutor(1) as pool:
-        jax_returns = pool.submit(in_jaxcart)
-        trained = RunParams(params, config, len(seed_indices), env_params=env_params)
-        return evaluate_params(trained, episodes, should_stop), jax_returns.result()
+    if cross_check is None:
+        cross_check = CrossCheck(config, seed, seed_indices, episodes, env_params)
+    jax_returns = cross_check.returns(params)
+    trained = RunParams(params, config, len(seed_indices), env_params=env_params)
+    return evaluate_params(trained, episodes, should_stop), jax_returns.result()
 
 
 def evaluate_run_dir(

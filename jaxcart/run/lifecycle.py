@@ -36,7 +36,7 @@ from jaxcart.engine import devices, distributed, loop
 from jaxcart.engine.loop import CHUNK_SECONDS, Progress, TrainResult, TrainState
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.greedy import evaluate_runs
+from jaxcart.run.greedy import CrossCheck, evaluate_runs
 from jaxcart.run.loggers import make_logger, sb3_extras
 from jaxcart.run.progress import ProgressBar, chain_hooks
 from jaxcart.run.spec import Evaluation, Hooks, Outcome, Run, RunOptions, RunSpec, check_option
@@ -495,12 +495,14 @@ def train_wave(
     should_stop: Callable[[], bool] | None = None,
     runs: range | None = None,
     wave: int = 0,
+    cross_check: CrossCheck | None = None,
 ) -> TrainResult:
     """Trains ``runs`` (default: all; wave ``wave`` of the plan) from
     :func:`wave_start_state` to the end or until ``should_stop``. After every chunk its
     metrics are appended to the run directory's stream and logged, divergences reported
     (``hooks.on_diverged``), a checkpoint saved every ``options.checkpoint_every`` seconds,
-    then ``hooks.on_chunk`` called.
+    then ``hooks.on_chunk`` called. ``cross_check`` (the final evaluation's JAX program)
+    starts compiling beside the training once the training's program has compiled.
 
     Raises:
         Stopped: ``should_stop`` turned true during the initialisation.
@@ -523,6 +525,12 @@ def train_wave(
     logger = make_logger(loggers, run.out, names, info, options.logger_dir)
     clip_ranges = sweeps.grid_values(grid, runs, "clip_coef", config.clip_coef)
     last_save, reported = time.monotonic(), set()
+
+    def on_compiled(seconds: float) -> None:
+        if cross_check is not None:
+            cross_check.compile_for(state.runners.params)
+        if hooks.on_compiled:
+            hooks.on_compiled(seconds)
 
     def on_chunk(progress: Progress) -> None:
         nonlocal last_save
@@ -553,7 +561,7 @@ def train_wave(
             run.spec.seed,
             env_params=run.spec.run_env_params(runs),
             resume=state,
-            on_compiled=hooks.on_compiled,
+            on_compiled=on_compiled,
             on_chunk=on_chunk,
             should_stop=should_stop,
             keep_metrics=False,  # streamed to disk chunk by chunk
@@ -562,12 +570,29 @@ def train_wave(
         logger.close()
 
 
-def evaluate_wave(run: Run, params: dict, episodes: int, runs: range, stop=None) -> Evaluation:
+def cross_check_of(run: Run, episodes: int, runs: range) -> CrossCheck:
+    """The JAX half of ``runs``' final evaluation (:func:`evaluate_wave`)."""
+    seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
+    return CrossCheck(run.config, run.spec.seed, seeds, episodes, env_params)
+
+
+def evaluate_wave(
+    run: Run,
+    params: dict,
+    episodes: int,
+    runs: range,
+    stop=None,
+    cross_check: CrossCheck | None = None,
+) -> Evaluation:
     """Greedy returns of ``runs`` in the env's Gymnasium counterpart and in jaxcart (raises
-    :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile)."""
+    :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile), the
+    latter by ``cross_check`` when given (:func:`cross_check_of`)."""
     start = time.perf_counter()
     seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
-    returns = evaluate_runs(params, run.config, run.spec.seed, seeds, episodes, stop, env_params)
+    check = cross_check or CrossCheck(run.config, run.spec.seed, seeds, episodes, env_params)
+    returns = evaluate_runs(
+        params, run.config, run.spec.seed, seeds, episodes, stop, env_params, check
+    )
     seconds = time.perf_counter() - start
     return Evaluation(episodes, *returns, seconds, env=run.config.env)
 
@@ -584,7 +609,9 @@ def _one_wave(
     """Trains, checkpoints and evaluates one wave; None when stopped (its state
     checkpointed, and, for a run in one wave, its metrics so far written)."""
     try:
-        result = train_wave(run, options, hooks, should_stop=stop, runs=runs, wave=wave)
+        # compiled beside the training, so that the evaluation finds it ready
+        check = cross_check_of(run, options.eval_episodes, runs) if run.main_process else None
+        result = train_wave(run, options, hooks, stop, runs, wave, check)
     except Stopped:  # during initialisation: the checkpoint on disk (if any) is untouched
         return None
     outcome.result, outcome.num_devices = result, result.num_devices
@@ -608,10 +635,10 @@ def _one_wave(
     if run.main_process:
         try:
             stop.check()
-            evaluation = evaluate_wave(run, params, episodes, runs, stop)
+            evaluation = evaluate_wave(run, params, episodes, runs, stop, check)
             if best is not None:  # the Gymnasium verdict of the best policies too
                 best["best_gym_returns"] = evaluate_wave(
-                    run, kept.params, episodes, runs, stop
+                    run, kept.params, episodes, runs, stop, check
                 ).gym_returns
         except Stopped:
             return None
