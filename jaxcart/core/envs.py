@@ -139,6 +139,7 @@ def make(env_id: str) -> Env:
         return _ENVS[env_id]
     try:
         import gymnax
+        from gymnax.environments import spaces
     except ImportError:
         if env_id in GYMNAX_ENVS:
             raise EnvError(
@@ -148,27 +149,17 @@ def make(env_id: str) -> Env:
     if env_id not in gymnax.registered_envs:
         raise EnvError(f"unknown env {env_id!r}; choose one of: {', '.join(env_ids())}")
     env, params = gymnax.make(env_id)
-    refusal = _refusal(env_id, env, params)
-    if refusal:
-        raise EnvError(f"env {env_id} {refusal}")
-    return _gymnax_env(env_id, env, params)
-
-
-def _refusal(env_id: str, env: Any, params: Any) -> str | None:
-    """Why the trainer cannot take this gymnax env, or None."""
-    from gymnax.environments import spaces
-
+    trains = f"(it trains {', '.join(env_ids())})"
     if not isinstance(env.action_space(params), spaces.Discrete):
-        return (
-            "has continuous actions; jaxcart's PPO samples discrete actions "
-            f"(it trains {', '.join(env_ids())})"
+        raise EnvError(
+            f"env {env_id} has continuous actions; jaxcart's PPO samples discrete actions {trains}"
         )
     if env_id not in GYMNAX_ENVS:
-        return (
-            "is not one jaxcart trains: runs are judged in Gymnasium's env of the same id, "
-            f"which Gymnasium lacks for it (it trains {', '.join(env_ids())})"
+        raise EnvError(
+            f"env {env_id} is not one jaxcart trains: runs are judged in Gymnasium's env of the "
+            f"same id, which Gymnasium lacks for it {trains}"
         )
-    return None
+    return _gymnax_env(env_id, env, params)
 
 
 def _gymnax_env(env_id: str, env: Any, params: Any) -> Env:

@@ -119,10 +119,6 @@ START_ROWS = slice(7, 11)  # SAME_STEP only: a fresh start state, used where the
 # step's output is one (4 state rows, step count, reward, ended, start rows).
 
 
-def num_rows(mode: AutoresetMode) -> int:
-    return 11 if mode is AutoresetMode.SAME_STEP else 7
-
-
 def start_states(key, floats, num_envs: int, dtype):
     """Fresh start states ``[4, num_envs]``, uniform in ``[low, high)`` (the last two floats).
 
@@ -230,7 +226,7 @@ FLOATS = ((len(FLOAT_PARAMS),), None)  # the float parameters' argument (see flo
 
 def rows_shape(num_envs: int, mode: AutoresetMode) -> tuple[int, int]:
     """The vector env's device state: ``[rows, num_envs]`` in the env's float dtype."""
-    return (num_rows(mode), num_envs)
+    return (11 if mode is AutoresetMode.SAME_STEP else 7, num_envs)
 
 
 @functools.cache
