@@ -369,16 +369,8 @@ def step(
     final_obs, next_state, reward, terminated, truncated = step_env(state, action, params)
     reset_obs, reset_state = reset(key, params)
     done = terminated | truncated
-    obs, state_out = _autoreset(done, reset_obs, reset_state, final_obs, next_state)
+    obs, state_out = pytree.where(done, (reset_obs, reset_state), (final_obs, next_state))
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
-
-
-def _autoreset(
-    done: Array, reset_obs: Array, reset_state: EnvState, final_obs: Array, next_state: EnvState
-) -> tuple[Array, EnvState]:
-    """Where ``done``, the fresh episode's observation and state, else the stepped ones."""
-    state = jax.tree.map(lambda r, n: jnp.where(done, r, n), reset_state, next_state)
-    return jnp.where(done[..., None], reset_obs, final_obs), state
 
 
 def _fmix32(x: Array) -> Array:
@@ -442,7 +434,7 @@ def step_batch(
     noise = hash_uniform(
         key, (done.shape[0], 4), final_obs.dtype, params.reset_low, params.reset_high
     )
-    obs, state_out = _autoreset(done, noise, state_from_obs(noise), final_obs, next_state)
+    obs, state_out = pytree.where(done, (noise, state_from_obs(noise)), (final_obs, next_state))
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
 
 

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import cartpole, physics
+from jaxcart.core import cartpole, physics, pytree
 from jaxcart.core.solved import DEFAULT_ENV, EPISODE_LIMITS, GYMNAX_ENVS
 
 Array = jax.Array
@@ -237,14 +237,9 @@ def _step_batch(
     reset_obs, reset_state = jax.vmap(reset, in_axes=(0, None))(
         jax.random.split(reset_key, num_envs), params
     )
-
-    def pick(reset_leaf: Array, step_leaf: Array) -> Array:
-        where = done.reshape(done.shape + (1,) * (step_leaf.ndim - 1))
-        return jnp.where(where, reset_leaf, step_leaf)
-
     final_obs = _flat_obs(final_obs, 1)
-    obs = pick(_flat_obs(reset_obs, 1), final_obs)
-    state_out = jax.tree.map(pick, reset_state, next_state)
+    fresh = (_flat_obs(reset_obs, 1), reset_state)
+    obs, state_out = pytree.where(done, fresh, (final_obs, next_state))
     reward = jnp.asarray(reward, final_obs.dtype)
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
 
