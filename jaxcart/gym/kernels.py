@@ -29,14 +29,6 @@ def precision(x64: bool):
     return jax.enable_x64(x64)
 
 
-def uses_x64(float64: bool) -> bool:
-    """Whether an env built with ``float64`` computes in float64: always when asked, otherwise
-    as JAX's global setting says."""
-    import jax
-
-    return bool(float64) or bool(jax.config.jax_enable_x64)
-
-
 def make_params(
     params: EnvParams | None, sutton_barto_reward: bool | None, max_episode_steps: int | None
 ) -> EnvParams:
