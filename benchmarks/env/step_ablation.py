@@ -39,6 +39,7 @@ import jax.numpy as jnp  # noqa: E402
 import jaxcart.core.cartpole as cartpole  # noqa: E402
 from benchmarks import lib  # noqa: E402
 from benchmarks.env import contenders  # noqa: E402
+from jaxcart.core import pytree  # noqa: E402
 from jaxcart.core.cartpole import hash_uniform  # noqa: E402
 from jaxcart.gym import kernels  # noqa: E402
 
@@ -62,9 +63,8 @@ def rollout(variant: str, num_envs: int, num_steps: int):
             noise = hash_uniform(
                 key, (done.shape[0], 4), final_obs.dtype, params.reset_low, params.reset_high
             )
-            obs, state = cartpole._autoreset(
-                done, noise, cartpole.state_from_obs(noise), final_obs, next_state
-            )
+            fresh = (noise, cartpole.state_from_obs(noise))
+            obs, state = pytree.where(done, fresh, (final_obs, next_state))
             return obs, state, reward, terminated, truncated
         final_obs, next_state, reward, terminated, truncated = cartpole.step_env(
             state, actions, params
@@ -73,9 +73,8 @@ def rollout(variant: str, num_envs: int, num_steps: int):
             return final_obs, next_state, reward, terminated, truncated
         done = terminated | truncated
         noise = jnp.full_like(final_obs, 0.01)
-        obs, state = cartpole._autoreset(
-            done, noise, cartpole.state_from_obs(noise), final_obs, next_state
-        )
+        fresh = (noise, cartpole.state_from_obs(noise))
+        obs, state = pytree.where(done, fresh, (final_obs, next_state))
         return obs, state, reward, terminated, truncated
 
     def reset_state(key, n):

@@ -140,36 +140,13 @@ def gymnasium_step(c: Any, state: np.ndarray, actions: np.ndarray) -> tuple[np.n
     ``state [4, ...]`` (rows x, x_dot, theta, theta_dot) and actions ``[...]`` -> ``(next state
     [4, ...], terminated [...])``.
 
-    Every line is ``CartPoleEnv.step``'s, in its order of operations, on arrays: NumPy's
-    element-wise float64 arithmetic rounds each operation as on the single env's scalars,
-    so each next state is bit-identical to the single env's.
+    :func:`transition` in NumPy: every line is ``CartPoleEnv.step``'s, in its order of
+    operations, and NumPy's element-wise float64 arithmetic rounds each operation as on the
+    single env's scalars, so each next state is bit-identical to the single env's.
     """
-    x, x_dot, theta, theta_dot = state
-    force = np.where(actions == 1, c.force_mag, -c.force_mag)
-    costheta = np.cos(theta)
-    sintheta = np.sin(theta)
-    temp = (force + c.polemass_length * np.square(theta_dot) * sintheta) / c.total_mass
-    thetaacc = (c.gravity * sintheta - costheta * temp) / (
-        c.length * (4.0 / 3.0 - c.masspole * np.square(costheta) / c.total_mass)
-    )
-    xacc = temp - c.polemass_length * thetaacc * costheta / c.total_mass
-    if c.kinematics_integrator == "euler":
-        x = x + c.tau * x_dot
-        x_dot = x_dot + c.tau * xacc
-        theta = theta + c.tau * theta_dot
-        theta_dot = theta_dot + c.tau * thetaacc
-    else:  # semi-implicit Euler
-        x_dot = x_dot + c.tau * xacc
-        x = x + c.tau * x_dot
-        theta_dot = theta_dot + c.tau * thetaacc
-        theta = theta + c.tau * theta_dot
-    terminated = (
-        (x < -c.x_threshold)
-        | (x > c.x_threshold)
-        | (theta < -c.theta_threshold_radians)
-        | (theta > c.theta_threshold_radians)
-    )
-    return np.stack([x, x_dot, theta, theta_dot]), terminated
+    trig = lambda theta: (np.sin(theta), np.cos(theta))
+    x, x_dot, theta, theta_dot = transition(*state, actions, c, trig, np)
+    return np.stack([x, x_dot, theta, theta_dot]), out_of_bounds(x, theta, c)
 
 
 PHYSICS = (*pytree.per_run_names(EnvParams()), "kinematics_integrator")
@@ -240,11 +217,9 @@ def gymnasium_grid(
 
     static, per_run = (None, {}) if params is None else pytree.split_per_run(params)
     env = stack.enter_context(make_cartpole(static, env_id))
-    c = SimpleNamespace(**vars(env.unwrapped))
+    c = SimpleNamespace(**vars(env.unwrapped))  # the masses it derives: see transition
     for name, values in per_run.items():
         setattr(c, name, np.asarray(values, np.float64)[:, None])  # [P, 1]: over the episodes
-    c.total_mass = c.masspole + c.masscart
-    c.polemass_length = c.masspole * c.length
     limit = env.spec.max_episode_steps
     starts, first_obs = [], []
     for e in range(shape[1]):
@@ -309,38 +284,13 @@ def step_env_with_trig(
     adapter's way changes which multiply-adds XLA fuses into FMAs in training's programs, so its
     numbers would no longer be bit-identical (``benchmarks/RESULTS.md``, env throughput).
     """
-    total_mass = params.masspole + params.masscart
-    polemass_length = params.masspole * params.length
-    force = jnp.where(action == 1, params.force_mag, -params.force_mag)
-    sintheta, costheta = trig(state.theta)
-
-    temp = (force + polemass_length * jnp.square(state.theta_dot) * sintheta) / total_mass
-    thetaacc = (params.gravity * sintheta - costheta * temp) / (
-        params.length * (4.0 / 3.0 - params.masspole * jnp.square(costheta) / total_mass)
+    x, x_dot, theta, theta_dot = transition(
+        state.x, state.x_dot, state.theta, state.theta_dot, action, params, trig
     )
-    xacc = temp - polemass_length * thetaacc * costheta / total_mass
-
-    tau = params.tau
-    if params.kinematics_integrator == "euler":
-        x = state.x + tau * state.x_dot
-        x_dot = state.x_dot + tau * xacc
-        theta = state.theta + tau * state.theta_dot
-        theta_dot = state.theta_dot + tau * thetaacc
-    else:  # semi-implicit Euler: velocities first, then positions from the new velocities
-        x_dot = state.x_dot + tau * xacc
-        x = state.x + tau * x_dot
-        theta_dot = state.theta_dot + tau * thetaacc
-        theta = state.theta + tau * theta_dot
-
     step_count = state.step_count + 1
     new_state = EnvState(x=x, x_dot=x_dot, theta=theta, theta_dot=theta_dot, step_count=step_count)
 
-    terminated = (
-        (x < -params.x_threshold)
-        | (x > params.x_threshold)
-        | (theta < -params.theta_threshold_radians)
-        | (theta > params.theta_threshold_radians)
-    )
+    terminated = out_of_bounds(x, theta, params)
     # TimeLimit truncates on the step that reaches the limit, whether or not the pole fell.
     truncated = step_count >= params.max_episode_steps
     dtype = x.dtype
@@ -352,6 +302,56 @@ def step_env_with_trig(
         1.0,
     ).astype(dtype)
     return get_obs(new_state), new_state, reward, terminated, truncated
+
+
+def transition(
+    x: Any, x_dot: Any, theta: Any, theta_dot: Any, action: Any, p: Any, trig: Callable, xp=jnp
+) -> tuple[Any, Any, Any, Any]:
+    """The state after one push, ``CartPoleEnv.step``'s physics line for line in its order of
+    operations, for JAX (``xp=jnp``: :func:`step_env`) or NumPy arrays (``xp=np``:
+    :func:`gymnasium_step`).
+
+    Args:
+        x, x_dot, theta, theta_dot: the state variables (any matching shapes).
+        action: ``1`` pushes right, anything else left.
+        p: CartPole's constants as attributes (an :class:`EnvParams` or a ``CartPoleEnv``);
+            the total mass and pole mass times length are derived here from them, in the
+            order of operations of ``CartPoleEnv.__init__``.
+        trig: ``theta -> (sin(theta), cos(theta))``.
+    """
+    total_mass = p.masspole + p.masscart
+    polemass_length = p.masspole * p.length
+    force = xp.where(action == 1, p.force_mag, -p.force_mag)
+    sintheta, costheta = trig(theta)
+
+    temp = (force + polemass_length * xp.square(theta_dot) * sintheta) / total_mass
+    thetaacc = (p.gravity * sintheta - costheta * temp) / (
+        p.length * (4.0 / 3.0 - p.masspole * xp.square(costheta) / total_mass)
+    )
+    xacc = temp - polemass_length * thetaacc * costheta / total_mass
+
+    tau = p.tau
+    if p.kinematics_integrator == "euler":
+        x = x + tau * x_dot
+        x_dot = x_dot + tau * xacc
+        theta = theta + tau * theta_dot
+        theta_dot = theta_dot + tau * thetaacc
+    else:  # semi-implicit Euler: velocities first, then positions from the new velocities
+        x_dot = x_dot + tau * xacc
+        x = x + tau * x_dot
+        theta_dot = theta_dot + tau * thetaacc
+        theta = theta + tau * theta_dot
+    return x, x_dot, theta, theta_dot
+
+
+def out_of_bounds(x: Any, theta: Any, p: Any) -> Any:
+    """CartPole's termination: the cart or the pole past its threshold (``p``'s)."""
+    return (
+        (x < -p.x_threshold)
+        | (x > p.x_threshold)
+        | (theta < -p.theta_threshold_radians)
+        | (theta > p.theta_threshold_radians)
+    )
 
 
 def step(
@@ -369,16 +369,8 @@ def step(
     final_obs, next_state, reward, terminated, truncated = step_env(state, action, params)
     reset_obs, reset_state = reset(key, params)
     done = terminated | truncated
-    obs, state_out = _autoreset(done, reset_obs, reset_state, final_obs, next_state)
+    obs, state_out = pytree.where(done, (reset_obs, reset_state), (final_obs, next_state))
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
-
-
-def _autoreset(
-    done: Array, reset_obs: Array, reset_state: EnvState, final_obs: Array, next_state: EnvState
-) -> tuple[Array, EnvState]:
-    """Where ``done``, the fresh episode's observation and state, else the stepped ones."""
-    state = jax.tree.map(lambda r, n: jnp.where(done, r, n), reset_state, next_state)
-    return jnp.where(done[..., None], reset_obs, final_obs), state
 
 
 def _fmix32(x: Array) -> Array:
@@ -442,7 +434,7 @@ def step_batch(
     noise = hash_uniform(
         key, (done.shape[0], 4), final_obs.dtype, params.reset_low, params.reset_high
     )
-    obs, state_out = _autoreset(done, noise, state_from_obs(noise), final_obs, next_state)
+    obs, state_out = pytree.where(done, (noise, state_from_obs(noise)), (final_obs, next_state))
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
 
 

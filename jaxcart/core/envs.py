@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcart.core import cartpole, physics
+from jaxcart.core import cartpole, physics, pytree
 from jaxcart.core.solved import DEFAULT_ENV, EPISODE_LIMITS, GYMNAX_ENVS
 
 Array = jax.Array
@@ -139,6 +139,7 @@ def make(env_id: str) -> Env:
         return _ENVS[env_id]
     try:
         import gymnax
+        from gymnax.environments import spaces
     except ImportError:
         if env_id in GYMNAX_ENVS:
             raise EnvError(
@@ -148,27 +149,17 @@ def make(env_id: str) -> Env:
     if env_id not in gymnax.registered_envs:
         raise EnvError(f"unknown env {env_id!r}; choose one of: {', '.join(env_ids())}")
     env, params = gymnax.make(env_id)
-    refusal = _refusal(env_id, env, params)
-    if refusal:
-        raise EnvError(f"env {env_id} {refusal}")
-    return _gymnax_env(env_id, env, params)
-
-
-def _refusal(env_id: str, env: Any, params: Any) -> str | None:
-    """Why the trainer cannot take this gymnax env, or None."""
-    from gymnax.environments import spaces
-
+    trains = f"(it trains {', '.join(env_ids())})"
     if not isinstance(env.action_space(params), spaces.Discrete):
-        return (
-            "has continuous actions; jaxcart's PPO samples discrete actions "
-            f"(it trains {', '.join(env_ids())})"
+        raise EnvError(
+            f"env {env_id} has continuous actions; jaxcart's PPO samples discrete actions {trains}"
         )
     if env_id not in GYMNAX_ENVS:
-        return (
-            "is not one jaxcart trains: runs are judged in Gymnasium's env of the same id, "
-            f"which Gymnasium lacks for it (it trains {', '.join(env_ids())})"
+        raise EnvError(
+            f"env {env_id} is not one jaxcart trains: runs are judged in Gymnasium's env of the "
+            f"same id, which Gymnasium lacks for it {trains}"
         )
-    return None
+    return _gymnax_env(env_id, env, params)
 
 
 def _gymnax_env(env_id: str, env: Any, params: Any) -> Env:
@@ -246,14 +237,9 @@ def _step_batch(
     reset_obs, reset_state = jax.vmap(reset, in_axes=(0, None))(
         jax.random.split(reset_key, num_envs), params
     )
-
-    def pick(reset_leaf: Array, step_leaf: Array) -> Array:
-        where = done.reshape(done.shape + (1,) * (step_leaf.ndim - 1))
-        return jnp.where(where, reset_leaf, step_leaf)
-
     final_obs = _flat_obs(final_obs, 1)
-    obs = pick(_flat_obs(reset_obs, 1), final_obs)
-    state_out = jax.tree.map(pick, reset_state, next_state)
+    fresh = (_flat_obs(reset_obs, 1), reset_state)
+    obs, state_out = pytree.where(done, fresh, (final_obs, next_state))
     reward = jnp.asarray(reward, final_obs.dtype)
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
 

@@ -158,13 +158,13 @@ def iteration_metrics(
             "train/value_loss": losses["value_loss"].mean(),
             "train/loss": losses["loss"][-1, -1],
         }
+
+    def window_mean(x: Array) -> Array:
+        return jnp.where(count > 0, (x * episodes.valid).sum() / jnp.maximum(count, 1), nan)
+
     return {
-        "rollout/ep_rew_mean": jnp.where(
-            count > 0, (episodes.returns * episodes.valid).sum() / jnp.maximum(count, 1), nan
-        ),
-        "rollout/ep_len_mean": jnp.where(
-            count > 0, (episodes.lengths * episodes.valid).sum() / jnp.maximum(count, 1), nan
-        ),
+        "rollout/ep_rew_mean": window_mean(episodes.returns),
+        "rollout/ep_len_mean": window_mean(episodes.lengths),
         # Best episode finished during this rollout (not an SB3 metric; sweeps rank by the
         # first time it reaches 500).
         "rollout/ep_rew_max": jnp.nan_to_num(

@@ -8,6 +8,7 @@ import dataclasses
 from typing import Any, TypeVar
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 T = TypeVar("T")
@@ -63,3 +64,13 @@ def split_per_run(params: T) -> tuple[T, dict[str, Any]]:
 def with_values(params: T, values: dict[str, Any]) -> T:
     """``params`` with some fields replaced (numbers, or arrays ``[R]`` one per run)."""
     return dataclasses.replace(params, **values) if values else params
+
+
+def where(mask: jax.Array, on_true: T, on_false: T) -> T:
+    """``jnp.where`` leaf by leaf over two pytrees of one structure, with ``mask`` (e.g. a
+    batch's ``done [N]``) broadcast over each leaf's trailing axes (``[N, ...]``)."""
+
+    def pick(a: jax.Array, b: jax.Array) -> jax.Array:
+        return jnp.where(mask.reshape(mask.shape + (1,) * (b.ndim - mask.ndim)), a, b)
+
+    return jax.tree.map(pick, on_true, on_false)

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcart.core import pytree
 from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.evaluation import BestPolicy, periodic_evaluation
 from jaxcart.core.metrics import EPISODE_WINDOW, METRIC_NAMES, EpisodeBuffer
@@ -222,12 +223,8 @@ def roll_back_diverged(start: RunnerState, end: RunnerState) -> RunnerState:
     the start state kept alive across the chunk's loop made the default run's program 13
     kernels larger (220 against 207) for an event most runs never see. The trainer calls it
     only once a run has diverged."""
-    diverged = end.diverged_at >= 0
-
-    def pick(s: Array, e: Array) -> Array:
-        return jnp.where(diverged.reshape(diverged.shape + (1,) * (e.ndim - 1)), s, e)
-
-    return jax.tree.map(pick, start, end).replace(diverged_at=end.diverged_at)
+    rolled_back = pytree.where(end.diverged_at >= 0, start, end)
+    return rolled_back.replace(diverged_at=end.diverged_at)
 
 
 def train_chunk(

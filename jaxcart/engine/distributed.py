@@ -15,7 +15,6 @@ host-side pieces here move data between the global arrays and NumPy:
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -23,6 +22,8 @@ import time
 from typing import Any
 
 import numpy as np
+
+from jaxcart.engine import signals
 
 
 def initialize(
@@ -60,15 +61,11 @@ def initialize(
         raise ConfigError(f"cannot start jax.distributed: {first}") from None
 
 
-def process_index() -> int:
-    import jax
-
-    return jax.process_index()
-
-
 def is_main_process() -> bool:
     """Process 0 writes the run directory and prints."""
-    return process_index() == 0
+    import jax
+
+    return jax.process_index() == 0
 
 
 def multi_process() -> bool:
@@ -176,18 +173,9 @@ def wait_forwarding_signals(procs: list[subprocess.Popen]) -> list[int]:
             if p.poll() is None:
                 p.send_signal(signum)
 
-    previous = {}
-    try:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, forward)
-    except ValueError:  # not the main thread
-        pass
-    try:
+    with signals.handling(forward):
         while any(p.poll() is None for p in procs):
             # short waits: a signal that another thread took is handled here within 0.1 s
             # (a blocking wait would only see it once the processes ended)
             time.sleep(0.1)
-        return [p.returncode for p in procs]
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+    return [p.returncode for p in procs]

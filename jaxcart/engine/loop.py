@@ -43,28 +43,6 @@ def seed_keys(seed: int, num_seeds: int) -> np.ndarray:
     return seed_index_keys(seed, np.arange(num_seeds))
 
 
-def padded_runs(num_runs: int, num_devices: int) -> int:
-    """The run axis rounded up to a multiple of the device count: every device takes an equal
-    share, and the padding runs (copies of the last run) are computed and discarded."""
-    return -(-num_runs // num_devices) * num_devices
-
-
-def run_sharding(devices: list) -> NamedSharding:
-    """Shards a leading run axis over ``devices`` (every device of every process)."""
-    return NamedSharding(Mesh(np.array(devices), ("runs",)), PartitionSpec("runs"))
-
-
-def pad_runs(tree: Any, num_runs: int) -> Any:
-    """Host arrays ``[R, ...]`` -> ``[num_runs, ...]``, repeating the last run."""
-
-    def pad(x: Any) -> np.ndarray:
-        x = np.asarray(x)
-        extra = num_runs - x.shape[0]
-        return x if extra == 0 else np.concatenate([x, np.repeat(x[-1:], extra, axis=0)])
-
-    return jax.tree.map(pad, tree)
-
-
 def init_runners(
     config: PPOConfig,
     seed: int,
@@ -409,10 +387,19 @@ def _devices(devices: list | None, num_runs: int, runs_per_device: int | None) -
 
 
 def place(tree: Any, devices: list, num_runs: int, runs_per_device: int | None) -> Any:
-    """Host arrays ``[num_runs, ...]`` (the runs' state, their configs) padded to fill every
-    device equally and placed."""
-    padded = max(padded_runs(num_runs, len(devices)), (runs_per_device or 0) * len(devices))
-    return distributed.to_global(pad_runs(tree, padded), run_sharding(devices))
+    """Host arrays ``[num_runs, ...]`` (the runs' state, their configs) sharded over
+    ``devices`` (every device of every process) along the run axis, padded so that every
+    device takes an equal share (at least ``runs_per_device``): the padding runs, copies of
+    the last run, are computed and discarded."""
+    padded = max(-(-num_runs // len(devices)), runs_per_device or 0) * len(devices)
+
+    def pad(x: Any) -> np.ndarray:
+        x = np.asarray(x)
+        extra = padded - x.shape[0]
+        return x if extra == 0 else np.concatenate([x, np.repeat(x[-1:], extra, axis=0)])
+
+    sharding = NamedSharding(Mesh(np.array(devices), ("runs",)), PartitionSpec("runs"))
+    return distributed.to_global(jax.tree.map(pad, tree), sharding)
 
 
 def place_env_params(
@@ -424,12 +411,10 @@ def place_env_params(
     for name, values in per_run.items():
         if np.shape(values) != (num_runs,):
             raise ValueError(f"env param {name} holds {np.shape(values)}; expected ({num_runs},)")
+    if not per_run:
+        return env_params
     arrays = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
-    return (
-        with_values(static, place(arrays, devices, num_runs, runs_per_device))
-        if per_run
-        else env_params
-    )
+    return with_values(static, place(arrays, devices, num_runs, runs_per_device))
 
 
 _COMPILED: dict = {}

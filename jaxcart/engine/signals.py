@@ -65,20 +65,31 @@ class StopRequest:
     def installed(self) -> Iterator[StopRequest]:
         """Handles SIGINT and SIGTERM inside the block (nested use is a no-op; outside the
         main thread signals cannot be handled and the block runs without)."""
-        previous = {}
-        if self._installed == 0:
-            try:
-                for sig in SIGNALS:
-                    previous[sig] = signal.signal(sig, self._handle)
-            except ValueError:  # not the main thread
-                pass
+        outermost = self._installed == 0
         self._installed += 1
         try:
-            yield self
+            with handling(self._handle) if outermost else contextlib.nullcontext():
+                yield self
         finally:
             self._installed -= 1
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
+
+
+@contextlib.contextmanager
+def handling(handler: Callable[[int, object], None]) -> Iterator[None]:
+    """``handler`` handles SIGINT and SIGTERM inside the block; the previous handlers are back
+    after it. Outside the main thread, where Python cannot handle signals, the block runs
+    without."""
+    previous = {}
+    try:
+        for sig in SIGNALS:
+            previous[sig] = signal.signal(sig, handler)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:

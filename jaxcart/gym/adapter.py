@@ -113,6 +113,8 @@ class CartPoleAttributes:
     ) -> tuple[Any, Any]:
         """Checks ``render_mode``, sets the params, precision and render mode; returns one
         env's ``(observation_space, action_space)``."""
+        import jax
+
         from jaxcart.core import cartpole
 
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -122,7 +124,8 @@ class CartPoleAttributes:
             )
         self.params = kernels.make_params(params, sutton_barto_reward, max_episode_steps)
         self.float64 = bool(float64)
-        self._x64 = kernels.uses_x64(self.float64)
+        # float64 when asked, otherwise as JAX's global setting says
+        self._x64 = self.float64 or bool(jax.config.jax_enable_x64)
         self.render_mode = render_mode
         return cartpole.observation_space(self.params), cartpole.action_space(self.params)
 

@@ -29,14 +29,6 @@ def precision(x64: bool):
     return jax.enable_x64(x64)
 
 
-def uses_x64(float64: bool) -> bool:
-    """Whether an env built with ``float64`` computes in float64: always when asked, otherwise
-    as JAX's global setting says."""
-    import jax
-
-    return bool(float64) or bool(jax.config.jax_enable_x64)
-
-
 def make_params(
     params: EnvParams | None, sutton_barto_reward: bool | None, max_episode_steps: int | None
 ) -> EnvParams:
@@ -117,10 +109,6 @@ ENDED = 6  # how the last step ended the episode: terminated + 2 * truncated (0:
 START_ROWS = slice(7, 11)  # SAME_STEP only: a fresh start state, used where the episode ended
 # Few rows on purpose: XLA:CPU fuses a concatenation of at most 8 operands only, and the
 # step's output is one (4 state rows, step count, reward, ended, start rows).
-
-
-def num_rows(mode: AutoresetMode) -> int:
-    return 11 if mode is AutoresetMode.SAME_STEP else 7
 
 
 def start_states(key, floats, num_envs: int, dtype):
@@ -230,7 +218,7 @@ FLOATS = ((len(FLOAT_PARAMS),), None)  # the float parameters' argument (see flo
 
 def rows_shape(num_envs: int, mode: AutoresetMode) -> tuple[int, int]:
     """The vector env's device state: ``[rows, num_envs]`` in the env's float dtype."""
-    return (num_rows(mode), num_envs)
+    return (11 if mode is AutoresetMode.SAME_STEP else 7, num_envs)
 
 
 @functools.cache
