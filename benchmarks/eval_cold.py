@@ -4,6 +4,10 @@ then the two means::
 
     python -m jaxcart.train --preset fast --num-seeds 64 --out /tmp/fast64
     for i in 1 2 3; do python benchmarks/eval_cold.py /tmp/fast64; done
+
+With ``--ahead``, the cross-check's program is compiled first and not timed, as training
+compiles it beside its chunks (``run.greedy.CrossCheck``): the seconds are then what the
+evaluation at the end of a training takes.
 """
 
 import sys
@@ -12,15 +16,19 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.run.greedy import evaluate_runs
+from jaxcart.run.greedy import CrossCheck, evaluate_runs
 from jaxcart.rundir.policy import run_params
 from jaxcart.rundir.reader import read_run_config
 
 run = Path(sys.argv[1])
 rp = run_params(run)
 seed = read_run_config(run)["seed"]  # through the store's reader, as evaluate reads it
+seeds, check = np.arange(rp.num_seeds), None
+if "--ahead" in sys.argv[2:]:
+    check = CrossCheck(rp.config, seed, seeds, 20, rp.env_params)
+    check.compile_for(rp.params).result()  # compiled, as it is by the end of a training
 t = time.perf_counter()
 g, j = evaluate_runs(
-    rp.params, rp.config, seed, np.arange(rp.num_seeds), 20, env_params=rp.env_params
+    rp.params, rp.config, seed, seeds, 20, env_params=rp.env_params, cross_check=check
 )
 print(f"{time.perf_counter() - t:.3f} {g.mean():.6f} {np.asarray(j).mean():.6f}")

@@ -168,16 +168,17 @@ class CrossCheck:
         self._program: Future | None = None
         self._shapes: Any = None
 
-    def compile_for(self, params: Any) -> None:
+    def compile_for(self, params: Any) -> Future:
         """Starts compiling the program for parameters shaped as ``params`` (arrays or
-        ``jax.ShapeDtypeStruct`` leaves ``[R, ...]``), unless it was started for that shape."""
+        ``jax.ShapeDtypeStruct`` leaves ``[R, ...]``), unless it was started for that shape;
+        returns the future of the compiled program."""
         shapes = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), params)
-        if self._program is not None and shapes == self._shapes:
-            return
-        self._shapes, self._program = shapes, Future()
-        args = (shapes, self._keys, self._per_run)
-        program = jax.jit(jax.vmap(self._one_run))
-        _in_thread(self._program, lambda: program.lower(*args).compile(FAST_COMPILE))
+        if self._program is None or shapes != self._shapes:
+            self._shapes, self._program = shapes, Future()
+            args = (shapes, self._keys, self._per_run)
+            program = jax.jit(jax.vmap(self._one_run))
+            _in_thread(self._program, lambda: program.lower(*args).compile(FAST_COMPILE))
+        return self._program
 
     def returns(self, params: dict) -> Future:
         """A future of the greedy returns ``[R, episodes]`` of ``params`` (NumPy, leaves
