@@ -165,6 +165,7 @@ def test_a_sweep_keeps_each_combinations_best_policies(tmp_path):
         assert policy(np.zeros(4, np.float32)) in (0, 1)
 
 
+@pytest.mark.slow
 def test_the_final_cross_check_compiles_beside_training_once_for_both_verdicts(
     tmp_path, monkeypatch
 ):
