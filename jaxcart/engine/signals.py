@@ -18,6 +18,7 @@ import contextlib
 import signal
 import threading
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future
 from typing import TypeVar
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -122,12 +123,32 @@ def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
 
 
 _running: set[threading.Thread] = set()
-"""The workers of :func:`wait_interruptibly` whose call has not returned. (Not
-``Thread.is_alive``: a ``join`` interrupted by a signal marks the thread stopped.)"""
+"""The workers of :func:`wait_interruptibly` and :func:`in_background` whose call has not
+returned. (Not ``Thread.is_alive``: a ``join`` interrupted by a signal marks the thread
+stopped.)"""
+
+
+def in_background(work: Callable[[], T], future: Future) -> None:
+    """``work()`` on a daemon thread, its result or exception set on ``future``. Until it
+    returns, :func:`abandoned_work` is true, so a process that stops meanwhile (a signal) ends
+    without the interpreter's teardown instead of waiting for it or freeing what it uses."""
+
+    def target() -> None:
+        try:
+            future.set_result(work())
+        except BaseException as error:  # the caller sees it in future.result()
+            future.set_exception(error)
+        finally:
+            _running.discard(worker)
+
+    worker = threading.Thread(target=target, name="jaxcart-background", daemon=True)
+    _running.add(worker)
+    worker.start()
 
 
 def abandoned_work() -> bool:
-    """Whether a call that :func:`wait_interruptibly` gave up on (a second signal) still runs
-    on its worker thread: XLA may still be compiling there, so the process should end without
-    the interpreter's teardown (``os._exit``), which would free what that call is using."""
+    """Whether a call that :func:`wait_interruptibly` gave up on (a second signal), or one
+    started :func:`in_background`, still runs on its thread: XLA may still be compiling there,
+    so the process should end without the interpreter's teardown (``os._exit``), which would
+    free what that call is using."""
     return bool(_running)

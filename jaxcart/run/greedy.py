@@ -5,7 +5,6 @@ verdict, :mod:`jaxcart.core.solved`) and in jaxcart's JAX env (a cross-check, by
 from __future__ import annotations
 
 import contextlib
-import threading
 from collections.abc import Callable
 from concurrent.futures import Future
 from pathlib import Path
@@ -20,7 +19,7 @@ from jaxcart.core.evaluation import greedy_returns
 from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
-from jaxcart.engine.signals import Stopped
+from jaxcart.engine.signals import Stopped, in_background
 from jaxcart.rundir import reader
 from jaxcart.rundir.policy import RunParams, make_policy, run_params
 
@@ -177,7 +176,7 @@ class CrossCheck:
             self._shapes, self._program = shapes, Future()
             args = (shapes, self._keys, self._per_run)
             program = jax.jit(jax.vmap(self._one_run))
-            _in_thread(self._program, lambda: program.lower(*args).compile(FAST_COMPILE))
+            in_background(self._program, lambda: program.lower(*args).compile(FAST_COMPILE))
         return self._program
 
     def returns(self, params: dict) -> Future:
@@ -185,21 +184,8 @@ class CrossCheck:
         ``[R, ...]``), computed in a thread once the program is compiled."""
         self.compile_for(params)
         program, done = self._program, Future()
-        _in_thread(done, lambda: np.asarray(program.result()(params, self._keys, self._per_run)))
+        in_background(done, lambda: np.asarray(program.result()(params, self._keys, self._per_run)))
         return done
-
-
-def _in_thread(future: Future, work: Callable[[], Any]) -> None:
-    """Runs ``work`` in a daemon thread (an interrupted process exits without waiting for it),
-    its result or exception set on ``future``."""
-
-    def target() -> None:
-        try:
-            future.set_result(work())
-        except BaseException as error:  # the caller sees it in future.result()
-            future.set_exception(error)
-
-    threading.Thread(target=target, daemon=True, name="jaxcart-cross-check").start()
 
 
 def evaluate_runs(
