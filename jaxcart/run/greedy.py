@@ -176,7 +176,7 @@ class CrossCheck:
             self._shapes, self._program = shapes, Future()
             args = (shapes, self._keys, self._per_run)
             program = jax.jit(jax.vmap(self._one_run))
-            in_background(self._program, lambda: program.lower(*args).compile(FAST_COMPILE))
+            in_background(lambda: program.lower(*args).compile(FAST_COMPILE), self._program)
         return self._program
 
     def returns(self, params: dict) -> Future:
@@ -184,7 +184,7 @@ class CrossCheck:
         ``[R, ...]``), computed in a thread once the program is compiled."""
         self.compile_for(params)
         program, done = self._program, Future()
-        in_background(done, lambda: np.asarray(program.result()(params, self._keys, self._per_run)))
+        in_background(lambda: np.asarray(program.result()(params, self._keys, self._per_run)), done)
         return done
 
 
