@@ -12,6 +12,13 @@ so they are comparable only within one invocation.
     # the chosen candidate on the held-out base seeds (never used to choose it)
     python -m benchmarks.experiments.fast_preset_check --stage holdout --candidates NAME \
         --out benchmarks/results
+    # issue 41: 4 more held-out base seeds, under the native ISA and XLA pinned to AVX2
+    python -m benchmarks.experiments.fast_preset_check --stage holdout-isa --candidates NAME \
+        --isa native,avx2 --out benchmarks/results
+
+XLA's float results differ between CPU models (their vector ISA), and a preset tuned to one
+machine's numbers may not solve every seed on another. ``--isa avx2`` runs each training with
+``XLA_FLAGS=--xla_cpu_max_isa=AVX2``, which makes XLA generate the code an AVX2-only CPU gets.
 
 Writes ``fast_preset_<stage>.json`` and ``.md`` to ``--out`` (default the ignored
 ``benchmarks/results/scratch``), and keeps the run directories under ``--runs``.
@@ -20,6 +27,7 @@ Writes ``fast_preset_<stage>.json`` and ``.md`` to ``--out`` (default the ignore
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -33,6 +41,10 @@ TUNING_BASE_SEEDS = (1000, 2000, 3000)
 added after the first round, whose 5 candidates ran on 1000 and 2000 only)."""
 HOLDOUT_BASE_SEEDS = (271828, 161803, 141421)
 """Fixed before any candidate was trained on them; used only to check the chosen one."""
+HOLDOUT_ISA_BASE_SEEDS = (57721566, 66260701, 29979245, 60221407)
+"""Issue 41's check under two ISA settings: fixed before any candidate was trained on them."""
+ISA_FLAGS = {"native": "", "avx2": "--xla_cpu_max_isa=AVX2"}
+"""What each ``--isa`` setting adds to ``XLA_FLAGS``."""
 SEEDS_PER_BASE = 64
 
 CANDIDATES: dict[str, list[str]] = {
@@ -41,6 +53,7 @@ CANDIDATES: dict[str, list[str]] = {
     "4x128-100k": ["--total-timesteps", "100000"],
     "4x128-100k-lr2.5e-3": ["--total-timesteps", "100000", "--learning-rate", "2.5e-3"],
     "4x128-150k": ["--total-timesteps", "150000"],
+    "4x128-100k-best": ["--total-timesteps", "100000", "--eval-every", "10", "--keep-best"],
     "8x64-100k": ["--num-envs", "8", "--num-steps", "64", "--total-timesteps", "100000"],
     "64x16-mb256-100k": [
         "--num-envs",
@@ -57,9 +70,16 @@ CANDIDATES: dict[str, list[str]] = {
 lr 5e-3 annealed to 0, entropy 0, 50k steps), from the original screen's reliable shapes."""
 
 
-def train_once(name: str, base_seed: int, runs: Path) -> dict:
-    """One 64-seed training of candidate ``name`` from ``base_seed``: wall seconds and solves."""
-    out = runs / f"{name}-seed{base_seed}"
+def train_once(name: str, base_seed: int, runs: Path, isa: str = "native") -> dict:
+    """One 64-seed training of candidate ``name`` from ``base_seed`` with XLA's ISA setting
+    ``isa`` (a key of ``ISA_FLAGS``): wall seconds and solves."""
+    out = (
+        runs / f"{name}-seed{base_seed}"
+        if isa == "native"
+        else runs / f"{name}-seed{base_seed}-{isa}"
+    )
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = " ".join(f for f in (env.get("XLA_FLAGS", ""), ISA_FLAGS[isa]) if f)
     command = [
         *lib.module_command("jaxcart.train"),
         "--preset",
@@ -76,11 +96,12 @@ def train_once(name: str, base_seed: int, runs: Path) -> dict:
     if out.exists():
         raise SystemExit(f"{out} exists; give a new --runs folder")
     start = time.perf_counter()
-    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL, env=env)
     wall = time.perf_counter() - start
     evaluation = json.loads((out / "evaluation.json").read_text())
     row = {
         "candidate": name,
+        "isa": isa,
         "base_seed": base_seed,
         "seeds": SEEDS_PER_BASE,
         "solved": evaluation["solved_seeds"],
@@ -98,21 +119,24 @@ def markdown(report: dict) -> str:
         rows.append(
             [
                 r["candidate"],
+                r.get("isa", "native"),
                 str(r["base_seed"]),
                 f"{r['solved']}/{r['seeds']}",
                 f"{r['worst_seed_mean']:.1f}",
                 f"{r['wall_s']:.1f}",
             ]
         )
-        solved, n, walls = totals.get(r["candidate"], (0, 0, []))
-        totals[r["candidate"]] = (solved + r["solved"], n + r["seeds"], [*walls, r["wall_s"]])
+        group = (r["candidate"], r.get("isa", "native"))
+        solved, n, walls = totals.get(group, (0, 0, []))
+        totals[group] = (solved + r["solved"], n + r["seeds"], [*walls, r["wall_s"]])
     summary = []
-    for name, (solved, n, walls) in totals.items():
+    for (name, isa), (solved, n, walls) in totals.items():
         w = wilson_interval(solved, n)
         median = sorted(walls)[len(walls) // 2]
         summary.append(
             [
                 name,
+                isa,
                 f"{solved}/{n}",
                 f"{w.value:.3f} [{w.ci_low:.3f}, {w.ci_high:.3f}]",
                 f"{median:.1f}",
@@ -124,11 +148,13 @@ def markdown(report: dict) -> str:
         *lib.provenance_markdown(report),
         "",
         lib.markdown_table(
-            ["candidate", "solved", "solve rate [95% Wilson]", "median 64-seed wall s"], summary
+            ["candidate", "ISA", "solved", "solve rate [95% Wilson]", "median 64-seed wall s"],
+            summary,
         ),
         "",
         lib.markdown_table(
-            ["candidate", "base seed", "solved", "worst seed's mean", "64-seed wall s"], rows
+            ["candidate", "ISA", "base seed", "solved", "worst seed's mean", "64-seed wall s"],
+            rows,
         ),
         "",
     ]
@@ -137,7 +163,7 @@ def markdown(report: dict) -> str:
 
 def main() -> None:
     parser = lib.arg_parser(__doc__)
-    parser.add_argument("--stage", choices=("tune", "holdout"), required=True)
+    parser.add_argument("--stage", choices=("tune", "holdout", "holdout-isa"), required=True)
     parser.add_argument(
         "--candidates",
         type=lib.split_list,
@@ -151,16 +177,29 @@ def main() -> None:
         default=None,
         help="comma-separated base seeds (default: the stage's own); tuning seeds only",
     )
+    parser.add_argument(
+        "--isa",
+        type=lib.split_list,
+        default=["native"],
+        help=f"comma-separated XLA ISA settings to train each under: {', '.join(ISA_FLAGS)}",
+    )
     parser.add_argument("--round", default="", help="suffix of the report's file names")
     lib.add_out_option(parser)
     args = parser.parse_args()
     names = args.candidates or list(CANDIDATES)
     unknown = [n for n in names if n not in CANDIDATES]
-    if unknown or (args.stage == "holdout" and args.candidates is None):
+    if unknown or (args.stage != "tune" and args.candidates is None):
         parser.error(f"name the candidate(s) to check, from: {', '.join(CANDIDATES)}")
-    bases = TUNING_BASE_SEEDS if args.stage == "tune" else HOLDOUT_BASE_SEEDS
+    if any(isa not in ISA_FLAGS for isa in args.isa):
+        parser.error(f"--isa takes: {', '.join(ISA_FLAGS)}")
+    held_out = (*HOLDOUT_BASE_SEEDS, *HOLDOUT_ISA_BASE_SEEDS)
+    bases = {
+        "tune": TUNING_BASE_SEEDS,
+        "holdout": HOLDOUT_BASE_SEEDS,
+        "holdout-isa": HOLDOUT_ISA_BASE_SEEDS,
+    }[args.stage]
     if args.base_seeds is not None:
-        if args.stage != "tune" or set(args.base_seeds) & set(HOLDOUT_BASE_SEEDS):
+        if args.stage != "tune" or set(args.base_seeds) & set(held_out):
             parser.error("--base-seeds chooses tuning seeds; the held-out ones are fixed")
         bases = tuple(args.base_seeds)
     out = lib.output_dir(args.out)
@@ -168,12 +207,18 @@ def main() -> None:
     args.runs.mkdir(parents=True, exist_ok=True)
     report = lib.new_report(
         "fast_preset_check",
-        {"stage": args.stage, "base_seeds": list(bases), "seeds_per_base": SEEDS_PER_BASE},
+        {
+            "stage": args.stage,
+            "base_seeds": list(bases),
+            "seeds_per_base": SEEDS_PER_BASE,
+            "isa": args.isa,
+        },
         names,
     )
     for base in bases:  # candidates interleaved, so the machine's load is shared out
         for name in names:
-            report["results"].append(train_once(name, base, args.runs))
+            for isa in args.isa:
+                report["results"].append(train_once(name, base, args.runs, isa))
     report["load_average_end"] = lib.load_average()
     stem = f"fast_preset_{args.stage}{args.round}"
     lib.write_json(out / f"{stem}.json", report)
