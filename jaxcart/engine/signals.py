@@ -14,6 +14,7 @@ Outside training, signals are Python's: :func:`jaxcart.cli.command_main` turns t
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import signal
 import threading
@@ -130,8 +131,9 @@ stopped.)"""
 
 def in_background(work: Callable[[], T], future: Future) -> None:
     """``work()`` on a daemon thread, its result or exception set on ``future``. Until it
-    returns, :func:`abandoned_work` is true, so a process that stops meanwhile (a signal) ends
-    without the interpreter's teardown instead of waiting for it or freeing what it uses."""
+    returns, :func:`abandoned_work` is true, so a command stopped meanwhile (a signal) ends
+    without the interpreter's teardown instead of waiting for it or freeing what it uses; a
+    program that simply ends waits for it first (:func:`_finish_background`)."""
 
     def target() -> None:
         try:
@@ -140,10 +142,26 @@ def in_background(work: Callable[[], T], future: Future) -> None:
             future.set_exception(error)
         finally:
             _running.discard(worker)
+            _background.discard(worker)
 
     worker = threading.Thread(target=target, name="jaxcart-background", daemon=True)
+    if not _background_seen:  # registered after JAX's own exit handlers, so it runs first
+        _background_seen.append(atexit.register(_finish_background))
     _running.add(worker)
+    _background.add(worker)
     worker.start()
+
+
+_background: set[threading.Thread] = set()
+"""The threads of :func:`in_background` whose work has not returned."""
+_background_seen: list = []
+
+
+def _finish_background() -> None:
+    """At the interpreter's exit, waits for background work (an XLA compile of a few
+    seconds at most) so that teardown never frees what it is using."""
+    for worker in list(_background):
+        worker.join()
 
 
 def abandoned_work() -> bool:
