@@ -589,9 +589,8 @@ def evaluate_wave(
     latter by ``cross_check`` when given (:func:`cross_check_of`)."""
     start = time.perf_counter()
     seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
-    check = cross_check or CrossCheck(run.config, run.spec.seed, seeds, episodes, env_params)
     returns = evaluate_runs(
-        params, run.config, run.spec.seed, seeds, episodes, stop, env_params, check
+        params, run.config, run.spec.seed, seeds, episodes, stop, env_params, cross_check
     )
     seconds = time.perf_counter() - start
     return Evaluation(episodes, *returns, seconds, env=run.config.env)
