@@ -22,11 +22,11 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NoReturn
 
 from jaxcart import cli, train
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
+from jaxcart.engine import devices
 from jaxcart.run import search
 from jaxcart.run.spec import Hooks
 
@@ -142,16 +142,6 @@ def _scores(trial: object) -> list[float]:
     return trial.user_attrs.get("scores", [trial.value])
 
 
-def _dir(trial: object) -> str:
-    """Where a trial's runs are (its combination's run directory once it is told)."""
-    return trial.user_attrs.get("run_dir", "")
-
-
-def _shown(value: object) -> str:
-    """A drawn value in the table: floats to four significant digits."""
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
-
-
 def _print_batch(out: Path, results: list, started: float) -> None:
     """A batch group's line: its trials, its best trial's IQM, how many were pruned."""
     best = max(results, key=lambda r: float(stats.iqm(r.scores)))
@@ -175,7 +165,9 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
     print(f"study {opts.study_name!r} in {opts.storage}: {shown}")
     ranked = sorted((t for t in trials if t.state.name == "COMPLETE"), key=lambda t: -t.value)
     rows = [
-        [rank, t.number, _iqm_text(_scores(t)), *(_shown(t.params.get(n)) for n in space), _dir(t)]
+        [rank, t.number, _iqm_text(_scores(t))]
+        + [f"{v:.4g}" if isinstance(v, float) else v for v in map(t.params.get, space)]
+        + [t.user_attrs.get("run_dir", "")]
         for rank, t in enumerate(ranked[: opts.top], 1)
     ]
     if rows:
@@ -194,7 +186,7 @@ def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) 
         return
     n, seed = opts.base.num_seeds, search.heldout_seed(tuner.study, opts.base.seed)
     best, out = ranked[0], f"runs/{opts.study_name}-best"
-    run_dirs = [_dir(best)]
+    run_dirs = [best.user_attrs.get("run_dir", "")]
     if opts.heldout_top:
         top = {t.number: t for t in ranked[: opts.heldout_top]}
         print(
@@ -207,7 +199,7 @@ def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) 
         scores = {str(r.number): [float(x) for x in r.scores] for r in results}
         tuner.study.set_user_attr("heldout", {"seed": seed, "scores": scores})
         rows = [
-            [i, r.number, _iqm_text(_scores(top[r.number])), _iqm_text(r.scores), r.run_dir]
+            [i, r.number, _iqm_text(_scores(top[r.number])), _iqm_text(r.scores)] + [r.run_dir]
             for i, r in enumerate(results, 1)
         ]
         seeds = stats.interval_label(n)
@@ -245,24 +237,24 @@ def _tune(opts: TuneOptions) -> int:
         raise cli.UsageError(f"--heldout-top must be 0 or more, got {opts.heldout_top}")
     spec = opts.base.run_spec()
     space = search.parse_space(list(opts.space), spec.config)
-    given = [(d.name, p) for p, d in space.items() if d.name in opts.base.overrides]
-    if given:
-        raise cli.UsageError(
-            f"--{given[0][0].replace('_', '-')} and --space {given[0][1]} both given; keep one"
-        )
-    score = opts.score
-    search.check_score(score, space, spec.config)
-    study = search.open_study(
+    for param, dim in space.items():
+        if dim.name in opts.base.overrides:
+            flag = "--" + dim.name.replace("_", "-")
+            raise cli.UsageError(f"{flag} and --space {param} both given; keep one")
+    search.check_score(opts.score, space, spec.config)
+    study, storage = search.open_study(
         opts.storage, opts.study_name, opts.sampler, opts.pruner, opts.sampler_seed
     )
     started = time.monotonic()
     on_batch = None if opts.base.quiet else functools.partial(_print_batch, started=started)
     out, hooks = opts.base.out, Hooks(on_signal=_on_signal)
     options = opts.base.run_options()
-    tuner = search.Tuner(study, space, spec, out, options, score, hooks, on_batch, _on_wait)
+    tuner = search.Tuner(
+        study, storage, space, spec, out, options, opts.score, hooks, on_batch, _on_wait
+    )
     print(
         f"jaxcart tune | study {opts.study_name!r} in {opts.storage} | {opts.trials} trials, "
-        f"{opts.batch_trials} at a time x {spec.num_seeds} seed(s) | score {score.label} | "
+        f"{opts.batch_trials} at a time x {spec.num_seeds} seed(s) | score {opts.score.label} | "
         f"sampler {opts.sampler}, pruner {opts.pruner} | out {out}",
         flush=True,
     )
@@ -288,8 +280,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
-        args = _parse_args(argv_)
-        return _tune(TuneOptions.from_args(args, argv_))
+        return _tune(TuneOptions.from_args(_parse_args(argv_), argv_))
 
     return cli.run_command(body)
 
@@ -302,17 +293,11 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def main_on_all_cores(argv: list[str] | None = None) -> int:
-    """:func:`main` on one CPU device per core, as ``jaxcart.train`` runs."""
-    from jaxcart.engine import devices
-
+    """:func:`main` as the command runs it (``python -m jaxcart.tune``, ``python -m jaxcart
+    tune``): on one CPU device per core, as ``jaxcart.train`` runs."""
     devices.use_all_host_cores()
     return main(argv)
 
 
-def cli_main(argv: list[str] | None = None) -> NoReturn:
-    """The process entry (``python -m jaxcart.tune``)."""
-    cli.command_main(main_on_all_cores, argv)
-
-
 if __name__ == "__main__":
-    cli_main()
+    cli.command_main(main_on_all_cores)

@@ -212,11 +212,11 @@ def test_study_finishes_groups_by_shape_then_checks_its_top_trials_on_fresh_seed
 
 
 def _tuner(storage: str, out: Path, hooks: Hooks | None = None) -> search.Tuner:
-    study = search.open_study(storage, "s", sampler="random", sampler_seed=0)
+    study, rdb = search.open_study(storage, "s", sampler="random", sampler_seed=0)
     space = search.parse_space(["learning_rate=log:1e-4:1e-2"], SMALL)
     options = RunOptions(eval_episodes=1)
     spec = RunSpec(SMALL, num_seeds=2)
-    return search.Tuner(study, space, spec, out, options, Score("auc"), hooks or Hooks())
+    return search.Tuner(study, rdb, space, spec, out, options, Score("auc"), hooks or Hooks())
 
 
 @pytest.mark.slow
@@ -304,7 +304,7 @@ def test_trials_of_a_killed_process_go_stale_and_are_asked_again(tmp_path, monke
     storage = f"sqlite:///{tmp_path}/study.db"
     tuner = _tuner(storage, tmp_path / "runs")
     orphan = tuner._ask(1, 1)  # a process asked it, sent one heartbeat, and was killed
-    with search.heartbeat(tuner.study, orphan):
+    with search.heartbeat(tuner.storage, tuner.study, orphan):
         pass
     time.sleep(2.5)  # SQLite keeps heartbeats to the second
     tuner.run(1, 1)

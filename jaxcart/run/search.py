@@ -10,13 +10,16 @@ the score ``compare`` ranks by), and every group leaves a sweep-shaped run direc
 ``plot``, ``compare`` and ``evaluate`` read.
 
 Optuna is an optional dependency (``pip install -e '.[tune]'``): it is imported only when a
-study is opened, so the space is checked (one line per mistake) without it.
+study is opened, so the space is checked (one line per mistake) without it. Only Optuna's
+public API is used: the heartbeat, which Optuna keeps for ``Study.optimize``, is recorded
+through the storage's own methods (:func:`heartbeat`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import math
 import shutil
 import threading
@@ -81,10 +84,8 @@ DEFAULT_SPACE = SPACE_PRESETS["rl-zoo3"]
 """Without ``--space``: rl-zoo3's current (v2.6 and later) PPO float ranges."""
 ONE_MINUS = "one_minus_"
 """``one_minus_gamma=log:1e-4:0.03`` draws ``1 - gamma``: log-uniform near 1."""
-
-
-class TuneUnavailable(ConfigError):
-    """Optuna is not installed."""
+SPACE_FORM = "NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
+_KINDS = {f.name: str(f.type) for f in config_fields()}  # "int", "float", "bool", ...
 
 
 # -- search spaces --------------------------------------------------------------------------
@@ -111,6 +112,17 @@ class Dimension:
         """Whether the field is a traced float: drawn values share one compiled program."""
         return self.name in TRACED_FIELDS
 
+    @property
+    def values(self) -> tuple:
+        """The values checked against the base config before anything compiles: every
+        choice, every value of a small integer range (a shape value between its ends may not
+        divide), else the range's ends."""
+        if self.choices:
+            return self.choices
+        if self.integer and self.high - self.low <= 4096:
+            return tuple(range(int(self.low), int(self.high) + 1))
+        return (int(self.low), int(self.high)) if self.integer else (self.low, self.high)
+
     def distribution(self) -> Any:
         """The Optuna distribution (``study.ask(fixed_distributions=...)``)."""
         import optuna
@@ -130,61 +142,42 @@ class Dimension:
         return float(value) if self.traced else value
 
 
-def _field_kinds() -> dict[str, str]:
-    return {f.name: str(f.type) for f in config_fields()}
-
-
-def _choice(name: str, kind: str, text: str) -> Any:
-    """One categorical value of field ``name`` (of annotation ``kind``), from its text."""
-    text = text.strip()
+def _choice(name: str, text: str) -> Any:
+    """One categorical value of config field ``name``, from its text, of the field's kind."""
+    text, kind = text.strip(), _KINDS[name]
     if name == "hidden_sizes":
-        sizes = [s for s in text.split("x")]
-        if not all(s.isdigit() and int(s) > 0 for s in sizes):
+        if not all(s.isdigit() and int(s) > 0 for s in text.split("x")):
             raise ValueError(
                 f"hidden_sizes choices are layer widths joined by x, e.g. 64x64; got {text!r}"
             )
-        return "x".join(sizes)
-    if kind in ("bool", "<class 'bool'>"):
+        return text
+    if kind == "bool":
         if text.lower() not in ("on", "off", "true", "false"):
             raise ValueError(f"{name} choices are on/off, got {text!r}")
         return text.lower() in ("on", "true")
-    if kind in ("int", "<class 'int'>"):
+    if kind == "int":
         return int(float(text)) if float(text).is_integer() else int(text)
-    if kind in ("float", "<class 'float'>") or name in TRACED_FIELDS:
-        return float(text)
-    return text
+    return float(text) if kind == "float" else text
 
 
-def parse_dimension(spec: str) -> Dimension:
-    """``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``, ``num_envs=1,4,8``,
-    ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``; a float
-    field named ``one_minus_FIELD`` draws ``1 - FIELD`` (``one_minus_gamma=log:1e-4:0.03``).
+def _dimension(name: str, text: str) -> Dimension:
+    """One ``--space NAME=TEXT`` (NAME as :func:`~jaxcart.run.spec.assignments` read it).
 
     Raises:
-        ConfigError: malformed, an unknown field, a low not below its high, a log range
-            through zero, a repeated or invalid choice (one line).
+        ConfigError: an unknown field, a low not below its high, a log range through zero,
+            a repeated or invalid choice (one line).
     """
-    name, sep, text = spec.partition("=")
-    name = name.strip().replace("-", "_")
-    kinds = _field_kinds()
-    if not sep or not name or not text.strip():
-        raise ConfigError(
-            f"malformed --space {spec!r}; expected NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
-        )
     field_ = name.removeprefix(ONE_MINUS)
     complement = field_ != name and field_ in TRACED_FIELDS
     field_ = field_ if complement else name
-    if field_ not in kinds:
-        import difflib
-
-        near = difflib.get_close_matches(name, list(kinds), n=1)
+    if field_ not in _KINDS:
+        near = difflib.get_close_matches(name, list(_KINDS), n=1)
         hint = f" (did you mean {near[0]}?)" if near else ""
         raise ConfigError(f"--space {name}: no such config field{hint}")
-    kind = kinds[field_]
     parts = text.strip().split(":")
     try:
         if len(parts) == 1 or "," in text:
-            choices = tuple(_choice(field_, kind, c) for c in text.split(",") if c.strip())
+            choices = tuple(_choice(field_, c) for c in text.split(",") if c.strip())
             if len(set(choices)) != len(choices) or not choices:
                 raise ValueError(f"give distinct choices, got {text!r}")
             return Dimension(field_, choices=choices, complement=complement)
@@ -194,7 +187,7 @@ def parse_dimension(spec: str) -> Dimension:
         low, high = float(parts[-2]), float(parts[-1])
     except ValueError as exc:
         raise ConfigError(f"--space {name}: {exc}") from None
-    integer = "int" in prefix or kind in ("int", "<class 'int'>")
+    integer = "int" in prefix or _KINDS[field_] == "int"
     if not (field_ in TRACED_FIELDS or integer):
         raise ConfigError(f"--space {name}: a range needs a number field; give choices A,B,C")
     if not (math.isfinite(low) and math.isfinite(high)) or low >= high:
@@ -208,46 +201,37 @@ def parse_dimension(spec: str) -> Dimension:
 
 
 def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]:
-    """Every ``--space`` option (none: :data:`DEFAULT_SPACE`; a name of :data:`SPACE_PRESETS`
-    stands for its specs), checked against ``config`` (the trials' base) before anything
-    compiles: each range end and each choice must make a valid config on its own. Keyed by
-    each dimension's Optuna parameter name (:attr:`Dimension.param`).
+    """Every ``--space`` option: ``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``,
+    ``num_envs=1,4,8``, ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``;
+    a float field named ``one_minus_FIELD`` draws ``1 - FIELD``. None: :data:`DEFAULT_SPACE`; a
+    name of :data:`SPACE_PRESETS` stands for its specs. Checked against ``config`` (the trials'
+    base) before anything compiles: each of a dimension's :attr:`~Dimension.values`, and each
+    combination of the shape settings' choices, must make a valid config. Keyed by each
+    dimension's Optuna parameter name (:attr:`Dimension.param`).
 
     Raises:
-        ConfigError: a mistake in a spec (see :func:`parse_dimension`), a field given twice,
-            or a value that makes an invalid config (one line).
+        ConfigError: a malformed spec, a field given twice, or a value that makes an invalid
+            config (one line).
     """
     space: dict[str, Dimension] = {}
     expanded = [s for spec in specs for s in SPACE_PRESETS.get(spec.strip(), (spec,))]
-    form = "NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
-    for name, text in assignments(expanded or DEFAULT_SPACE, "--space", form):
-        dim = parse_dimension(f"{name}={text}")
+    for name, text in assignments(expanded or DEFAULT_SPACE, "--space", SPACE_FORM):
+        dim = _dimension(name, text)
         if dim.name in {d.name for d in space.values()}:
             raise ConfigError(f"--space {dim.name} given twice; keep one")
         space[dim.param] = dim
     for dim in space.values():
-        ends = dim.choices or (dim.low, dim.high)
-        if dim.integer and dim.high - dim.low <= 4096:  # a shape value between may not divide
-            ends = range(int(dim.low), int(dim.high) + 1)
-        for value in ends:
-            value = int(value) if dim.integer else value
+        for value in dim.values:
             try:
                 dataclasses.replace(config, **{dim.name: dim.config_value(value)})
-            except ConfigError as exc:
+            except (TypeError, ValueError) as exc:  # ConfigError is a ValueError
                 raise ConfigError(f"--space {dim.param}={value}: {exc}") from None
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"--space {dim.param}={value}: {exc}") from None
-    _check_shape_combinations(space, config)
-    return space
-
-
-def _check_shape_combinations(space: dict[str, Dimension], config: PPOConfig) -> None:
-    """Every combination of the shape settings' choices makes a valid config (num_envs x
-    num_steps must divide into minibatches, ...): refused before anything compiles."""
+    # num_envs x num_steps must divide into minibatches, ...: the one shape-group check
     shaped = [d for d in space.values() if not d.traced and d.choices]
     choices = {d.name: [d.config_value(v) for v in d.choices] for d in shaped}
     for shape in shape_groups(choices, limit=10_000) if len(shaped) > 1 else []:
         group_config(config, shape, "--space")
+    return space
 
 
 def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[dict, dict]:
@@ -259,36 +243,32 @@ def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[d
     return static, traced
 
 
+def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:
+    """Refuses a ``return-at:STEPS`` that the base config, or one of the space's shape
+    values, ends before (one line, before anything compiles)."""
+    if score.steps is None:
+        return
+    configs = [config] + [
+        dataclasses.replace(config, **{d.name: d.config_value(v)})
+        for d in space.values()
+        if not d.traced
+        for v in d.values
+    ]
+    short = min(c.env_steps_per_seed for c in configs)
+    if score.steps > short:
+        raise ConfigError(
+            f"--score {score.label}: some trials end at {short:,} env steps per seed; "
+            "choose fewer steps or a larger --total-timesteps"
+        )
+
+
 # -- the study --------------------------------------------------------------------------------
-def require_optuna() -> Any:
-    """The ``optuna`` module, or a one-line error naming the extra to install."""
-    try:
-        import optuna
-    except ImportError:
-        raise TuneUnavailable(
-            "jaxcart.tune needs Optuna: pip install -e '.[tune]' (or pip install optuna)"
-        ) from None
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    # Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
-    # that it is meant for Study.optimize; ask-and-tell records it by hand (heartbeat())
-    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
-    warnings.filterwarnings("ignore", message="Heartbeat of storage")
-    return optuna
-
-
-def _root_line(exc: BaseException) -> str:
-    """The first line of what the driver said (``attempt to write a readonly database``):
-    Optuna and SQLAlchemy wrap it in generic messages."""
-    while exc.__cause__ is not None:
-        exc = exc.__cause__
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
 @contextlib.contextmanager
 def storage_errors(storage: str, also: tuple[type[Exception], ...] = ()) -> Iterator[None]:
     """Optuna's storage errors (SQLAlchemy's and the drivers', and ``also``) in the block as
-    one :class:`ConfigError` line naming ``storage``.
+    one :class:`ConfigError` line naming ``storage``, with the first line of what the driver
+    said (``attempt to write a readonly database``): Optuna and SQLAlchemy wrap it in generic
+    messages.
 
     Raises:
         ConfigError: a storage read or write failed (a read-only database, a lost server).
@@ -299,7 +279,11 @@ def storage_errors(storage: str, also: tuple[type[Exception], ...] = ()) -> Iter
     try:
         yield
     except (optuna.exceptions.StorageInternalError, sqlalchemy.exc.SQLAlchemyError, *also) as exc:
-        raise ConfigError(f"--storage {storage}: {_root_line(exc)}") from None
+        while exc.__cause__ is not None:
+            exc = exc.__cause__
+        text = str(exc).strip()
+        line = text.splitlines()[0] if text else type(exc).__name__
+        raise ConfigError(f"--storage {storage}: {line}") from None
 
 
 def open_study(
@@ -308,15 +292,28 @@ def open_study(
     sampler: str = "tpe",
     pruner: str = "none",
     sampler_seed: int | None = None,
-) -> Any:
+) -> tuple[Any, Any]:
     """Opens (or creates) a study in ``storage`` (any URL Optuna's RDB storage accepts).
+
+    Returns:
+        ``(study, its RDBStorage)``: the storage records the trials' heartbeat.
 
     Raises:
         ConfigError: Optuna missing, an in-memory SQLite database (the study would end with the
             process), a storage that cannot be opened or written, or a study that exists with
             another direction.
     """
-    optuna = require_optuna()
+    try:
+        import optuna
+    except ImportError:
+        raise ConfigError(
+            "jaxcart.tune needs Optuna: pip install -e '.[tune]' (or pip install optuna)"
+        ) from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
+    # that it is meant for Study.optimize; ask-and-tell records it by hand (heartbeat())
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    warnings.filterwarnings("ignore", message="Heartbeat of storage")
     if storage.startswith("sqlite:"):
         from sqlalchemy.engine import make_url
 
@@ -346,7 +343,7 @@ def open_study(
     }
     with storage_errors(storage):  # a read-only database fails here
         try:
-            return optuna.create_study(
+            study = optuna.create_study(
                 storage=rdb,
                 study_name=study_name,
                 sampler=samplers[sampler](),
@@ -356,6 +353,7 @@ def open_study(
             )
         except ValueError as exc:
             raise ConfigError(f"--study-name {study_name}: {exc}") from None
+    return study, rdb
 
 
 def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
@@ -390,6 +388,52 @@ def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
                 ) from None
 
 
+def record_heartbeats(storage: Any, study: Any, trials: Sequence[Any]) -> None:
+    """Tells ``storage`` (the study's RDBStorage) that ``trials`` are alive, through the
+    storage's public methods (an Optuna trial names its storage id only privately)."""
+    study_id = storage.get_study_id_from_name(study.study_name)
+    for trial in trials:
+        storage.record_heartbeat(
+            storage.get_trial_id_from_study_id_trial_number(study_id, trial.number)
+        )
+
+
+@contextlib.contextmanager
+def heartbeat(storage: Any, study: Any, trials: Sequence[Any]) -> Iterator[None]:
+    """Records the trials' heartbeat every :data:`HEARTBEAT_SECONDS` from a thread while the
+    block runs (compile, training and evaluation alike), as ``Study.optimize`` does, so that
+    only the trials of a process that died go stale."""
+    done = threading.Event()
+
+    def beat() -> None:
+        while True:
+            # a finished trial, or the database busy: the next beat
+            with contextlib.suppress(Exception):
+                record_heartbeats(storage, study, trials)
+            if done.wait(HEARTBEAT_SECONDS):
+                return
+
+    thread = threading.Thread(target=beat, daemon=True, name="jaxcart-heartbeat")
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
+def heldout_seed(study: Any, seed: int) -> int:
+    """A base seed for held-out runs, derived from the search's base ``seed`` (the same one
+    every time), such that neither it nor the next one (for a retrain) is the base seed of
+    any of the study's trials: seed index i trains from ``fold_in(PRNGKey(base), i)``, so
+    another base gives other keys."""
+    used = {seed} | {t.user_attrs.get("seed") for t in study.get_trials(deepcopy=False)}
+    fresh = zlib.crc32(f"jaxcart heldout {seed}".encode()) % 2**31  # fresh + 1 < 2**32 too
+    while fresh in used or fresh + 1 in used:
+        fresh += 2
+    return fresh
+
+
 @dataclass
 class TrialResult:
     """One finished trial: its number, params, per-seed scores and where its runs are."""
@@ -408,19 +452,12 @@ class BatchStopped(Exception):
     signum: int
 
 
-def counts(study: Any) -> tuple[int, int]:
-    """``(finished, running)``: trials complete or pruned, and trials running or waiting."""
-    states = [t.state.name for t in study.get_trials(deepcopy=False)]
-    finished = states.count("COMPLETE") + states.count("PRUNED")
-    return finished, states.count("RUNNING") + states.count("WAITING")
-
-
 @dataclass
 class Tuner:
     """Runs a study's batches until it holds ``n_trials`` finished trials.
 
     Attributes:
-        study: an Optuna study (:func:`open_study`).
+        study: an Optuna study, and storage: its RDBStorage (:func:`open_study`).
         space: the search space (:func:`parse_space`).
         spec: the trials' base: config, preset, seeds and base seed.
         out: the folder that holds one run directory per batch group.
@@ -431,6 +468,7 @@ class Tuner:
     """
 
     study: Any
+    storage: Any
     space: dict[str, Dimension]
     spec: RunSpec
     out: Path
@@ -442,10 +480,10 @@ class Tuner:
     pruned_seconds_saved: float = 0.0
 
     def run(self, n_trials: int, batch_trials: int) -> int:
-        """Asks, trains and tells batches until the study has ``n_trials`` finished trials.
-        When the trials running elsewhere would finish it, waits for them: another process's
-        finish, and a killed process's are marked failed after :data:`STALE_GRACE_SECONDS`
-        and asked again. Returns the trials this process finished.
+        """Asks, trains and tells batches until the study has ``n_trials`` finished (complete
+        or pruned) trials. When the trials running elsewhere would finish it, waits for them:
+        another process's finish, and a killed process's are marked failed after
+        :data:`STALE_GRACE_SECONDS` and asked again. Returns the trials this process finished.
 
         Raises:
             ConfigError: the space draws a field the study drew otherwise
@@ -457,19 +495,19 @@ class Tuner:
         done, waited_for = 0, 0
         while True:
             self._fail_stale_trials()
-            finished, running = counts(self.study)
+            states = [t.state.name for t in self.study.get_trials(deepcopy=False)]
+            finished = states.count("COMPLETE") + states.count("PRUNED")
+            running = states.count("RUNNING") + states.count("WAITING")
             if finished >= n_trials:
                 return done
             remaining = n_trials - finished - running
-            if remaining <= 0:
-                if self.on_wait and running != waited_for:
-                    self.on_wait(running)
-                waited_for = running
-                time.sleep(WAIT_SECONDS)
+            if remaining > 0:
+                done += self._run_batch(self._ask(min(batch_trials, remaining), n_trials))
                 continue
-            trials = self._ask(min(batch_trials, remaining), n_trials)
-            if trials:
-                done += self._run_batch(trials)
+            if self.on_wait and running != waited_for:
+                self.on_wait(running)
+            waited_for = running
+            time.sleep(WAIT_SECONDS)
 
     def _fail_stale_trials(self) -> None:
         """Marks failed the trials of a process that died (Optuna's heartbeat), and removes
@@ -504,7 +542,7 @@ class Tuner:
             trial = self.study.ask(fixed_distributions=distributions)
             # at once, not when the batch starts: a process killed while asking leaves trials
             # that go stale, rather than trials that run forever
-            self.study._storage.record_heartbeat(trial._trial_id)
+            record_heartbeats(self.storage, self.study, [trial])
             ahead = sum(
                 t.number < trial.number and t.state.name != "FAIL"
                 for t in self.study.get_trials(deepcopy=False)
@@ -525,7 +563,7 @@ class Tuner:
         states = optuna.trial.TrialState
         untold = {t.number: t for t in trials}
         try:
-            with heartbeat(self.study, trials):
+            with heartbeat(self.storage, self.study, trials):
                 for spec, group in self._groups(trials):
                     # fresh: a study made anew (its numbers from 0 again) keeps the old one's
                     name = f"trials-{group[0].number:05d}-{group[-1].number:05d}"
@@ -533,8 +571,7 @@ class Tuner:
                     for trial in group:
                         trial.set_user_attr("run_dir", str(out))
                         trial.set_user_attr("seed", spec.seed)  # what held-out seeds must avoid
-                    pruning = RungReporter(group, spec, self.hooks.on_signal)
-                    results = self._train(spec, out, group, pruning)
+                    results = self._train(spec, out, group)
                     for trial, result in zip(group, results):
                         value = None
                         if result.run_dir != out:  # trained to its end: scored
@@ -545,7 +582,7 @@ class Tuner:
                             value = None if result.pruned else est.value
                         state = states.PRUNED if result.pruned else states.COMPLETE
                         self.study.tell(trial, value, state=state)
-                        untold.pop(trial.number)
+                        del untold[trial.number]
                     if self.on_batch:
                         self.on_batch(out, results)
         finally:
@@ -566,22 +603,20 @@ class Tuner:
             groups.append((spec, [trials[i] for i in members]))
         return groups
 
-    def _train(
-        self, spec: RunSpec, out: Path, trials: list[Any], pruning: RungReporter | None = None
-    ) -> list[TrialResult]:
+    def _train(self, spec: RunSpec, out: Path, trials: list[Any]) -> list[TrialResult]:
         """One group's ``trials`` trained as the run ``spec`` into ``out``, each scored from
-        its combination's directory as ``compare`` scores it. With ``pruning``, a group whose
-        every trial is pruned stops: its results are the last rung's, ``run_dir`` ``out``.
+        its combination's directory as ``compare`` scores it, with the pruner asked at each
+        rung (:class:`RungReporter`; finished trials, as :meth:`heldout` trains, are never
+        pruned). A group whose every trial is pruned stops: its results are the last rung's,
+        ``run_dir`` ``out``.
 
         Raises:
             BatchStopped: a signal stopped the training.
         """
-        hooks, pruned = self.hooks, set()
-        if pruning is not None:
-            hooks = chain_hooks(hooks, Hooks(on_chunk=pruning.on_chunk))
-            pruned = pruning.pruned
+        pruning = RungReporter(trials, spec, self.hooks.on_signal)
+        hooks = chain_hooks(self.hooks, Hooks(on_chunk=pruning.on_chunk))
         outcome = run_new(spec, out, self.options, hooks, stop=pruning)
-        if pruning is not None and pruning.all_pruned:
+        if pruning.all_pruned:
             self.pruned_seconds_saved += pruning.seconds_saved(outcome)
             if outcome.stopped:  # the group stopped at its last rung
                 last = pruning.last_scores
@@ -589,7 +624,7 @@ class Tuner:
         if outcome.stopped:
             raise BatchStopped(outcome.signum or 15)
         return [
-            TrialResult(t.number, t.params, s, out / f"combo-{c:03d}", t.number in pruned)
+            TrialResult(t.number, t.params, s, out / f"combo-{c:03d}", t.number in pruning.pruned)
             for c, (t, s) in enumerate(zip(trials, run_scores(load_runs([out]), self.score)))
         ]
 
@@ -614,70 +649,15 @@ class Tuner:
         return results
 
 
-def heldout_seed(study: Any, seed: int) -> int:
-    """A base seed for held-out runs, derived from the search's base ``seed`` (the same one
-    every time), such that neither it nor the next one (for a retrain) is the base seed of
-    any of the study's trials: seed index i trains from ``fold_in(PRNGKey(base), i)``, so
-    another base gives other keys."""
-    used = {seed} | {t.user_attrs.get("seed") for t in study.get_trials(deepcopy=False)}
-    fresh = zlib.crc32(f"jaxcart heldout {seed}".encode()) % 2**31  # fresh + 1 < 2**32 too
-    while fresh in used or fresh + 1 in used:
-        fresh += 2
-    return fresh
-
-
-@contextlib.contextmanager
-def heartbeat(study: Any, trials: list[Any]) -> Iterator[None]:
-    """Records the trials' heartbeat in the storage every :data:`HEARTBEAT_SECONDS` from a
-    thread while the block runs (compile, training and evaluation alike), as
-    ``Study.optimize`` does, so that only the trials of a process that died go stale."""
-    storage, ids, done = study._storage, [t._trial_id for t in trials], threading.Event()
-
-    def beat() -> None:
-        while True:
-            for trial_id in ids:
-                # a finished trial, or the database busy: the next beat
-                with contextlib.suppress(Exception):
-                    storage.record_heartbeat(trial_id)
-            if done.wait(HEARTBEAT_SECONDS):
-                return
-
-    thread = threading.Thread(target=beat, daemon=True, name="jaxcart-heartbeat")
-    thread.start()
-    try:
-        yield
-    finally:
-        done.set()
-        thread.join()
-
-
-def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:
-    """Refuses a ``return-at:STEPS`` that the base config, or one of the space's shape
-    choices, ends before (one line, before anything compiles)."""
-    if score.steps is None:
-        return
-    configs = [config] + [
-        dataclasses.replace(config, **{d.name: d.config_value(v)})
-        for d in space.values()
-        if not d.traced
-        for v in (d.choices or (int(d.low), int(d.high)))
-    ]
-    short = min(c.env_steps_per_seed for c in configs)
-    if score.steps > short:
-        raise ConfigError(
-            f"--score {score.label}: some trials end at {short:,} env steps per seed; "
-            "choose fewer steps or a larger --total-timesteps"
-        )
-
-
 class RungReporter(StopRequest):
     """At chunk boundaries, reports each trial's partial area under its learning curve
     (:func:`jaxcart.analysis.summary.auc` of the iterations so far, as ``--score auc`` scores
     a whole run; IQM over its seeds) at :data:`RUNGS` evenly spaced iterations, and asks the
-    pruner. A pruned trial is marked; when every trial of the group
-    is pruned, the group stops (as this stop request, which a signal sets too) and saves the
-    rest of its compute. The step reported is the per-mille of training done, so that trials
-    of other shapes (other iterations) are compared at the same point."""
+    pruner. A pruned trial is marked; when every trial of the group is pruned, the group stops
+    (as this stop request, which a signal sets too) and saves the rest of its compute. The
+    step reported is the per-mille of training done, so that trials of other shapes (other
+    iterations) are compared at the same point. A finished trial (Optuna's ``FrozenTrial``)
+    ignores the reports and is never pruned."""
 
     def __init__(
         self, trials: list[Any], spec: RunSpec, on_signal: Callable[[int], None] | None = None
@@ -692,7 +672,10 @@ class RungReporter(StopRequest):
         self.iteration = 0
         self.pruned: set[int] = set()
         self.last_scores: dict[int, np.ndarray] = {}
-        self.all_pruned = False
+
+    @property
+    def all_pruned(self) -> bool:
+        return len(self.pruned) == len(self.trials)
 
     def __call__(self) -> bool:
         """``should_stop`` for the training: a signal, or every trial pruned."""
@@ -711,15 +694,13 @@ class RungReporter(StopRequest):
         partial = auc(so_far, self.env_id).reshape(len(self.trials), self.num_seeds)
         for c, trial in enumerate(self.trials):
             self.last_scores[trial.number] = partial[c]
-            if trial.number in self.pruned:
-                continue
-            step = 1000 * iteration // self.num_iterations
-            trial.report(float(stats.iqm(partial[c])), step=step)
-            if trial.should_prune():
-                self.pruned.add(trial.number)
+            if trial.number not in self.pruned:
+                trial.report(
+                    float(stats.iqm(partial[c])), step=1000 * iteration // self.num_iterations
+                )
+                if trial.should_prune():
+                    self.pruned.add(trial.number)
         self.iteration = iteration
-        if len(self.pruned) == len(self.trials):
-            self.all_pruned = True
 
     def seconds_saved(self, outcome: Outcome) -> float:
         """The training time the rest of the group's iterations would have taken, at the
