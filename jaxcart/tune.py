@@ -112,13 +112,13 @@ class TuneOptions:
         return cli.options_from(cls, args, base=replace(base, score=None, out=out))
 
 
-def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed: int) -> str:
+def retrain_command(opts: TuneOptions, params: dict, out: str, seed: int) -> str:
     """The ``python -m jaxcart.train`` command that trains a trial again: the tune command's
     base options, the trial's values, its number of seeds from base seed ``seed``."""
     base = opts.base
     words = ["python", "-m", "jaxcart.train", *(["--preset", base.preset] if base.preset else [])]
-    drawn = {space[k].name: space[k].config_value(v) for k, v in params.items()}
-    for name, value in {**base.overrides, **drawn}.items():
+    static, traced = search.split_params(params)
+    for name, value in {**base.overrides, **static, **traced}.items():
         flag = "--" + name.replace("_", "-")
         if isinstance(value, bool):  # --FIELD / --no-FIELD
             words.append(flag if value else "--no-" + flag[2:])
@@ -178,7 +178,7 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
     return ranked
 
 
-def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) -> None:
+def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list) -> None:
     """Trains the top ``--heldout-top`` trials again on fresh seeds, ranks them by those
     scores, records the seed in the study, and prints the winner's retrain command on seeds
     fresher still (without held-out runs: the search's best)."""
@@ -209,7 +209,7 @@ def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) 
         print(f"\nbest on held-out seeds: trial {best.number}; train it on other fresh seeds with:")
     else:
         print(f"\nbest: trial {best.number}; train it again on fresh seeds with:")
-    print(f"  {retrain_command(opts, best.params, space, out, seed + 1)}")
+    print(f"  {retrain_command(opts, best.params, out, seed + 1)}")
     print(f"  python -m jaxcart.compare {' '.join(run_dirs)} {out} --score {opts.score.label}")
     print(
         f"  optuna-dashboard {opts.storage}   # the study in a browser (pip install optuna-dashboard)"
@@ -236,12 +236,11 @@ def _tune(opts: TuneOptions) -> int:
     if opts.heldout_top < 0:
         raise cli.UsageError(f"--heldout-top must be 0 or more, got {opts.heldout_top}")
     spec = opts.base.run_spec()
-    space = search.parse_space(list(opts.space), spec.config)
-    for param, dim in space.items():
-        if dim.name in opts.base.overrides:
-            flag = "--" + dim.name.replace("_", "-")
+    space = search.parse_space(list(opts.space), spec.config, opts.score)
+    for param in space:
+        if search.field_of(param) in opts.base.overrides:
+            flag = "--" + search.field_of(param).replace("_", "-")
             raise cli.UsageError(f"{flag} and --space {param} both given; keep one")
-    search.check_score(opts.score, space, spec.config)
     study, storage = search.open_study(
         opts.storage, opts.study_name, opts.sampler, opts.pruner, opts.sampler_seed
     )
@@ -264,7 +263,7 @@ def _tune(opts: TuneOptions) -> int:
             if tuner.pruned_seconds_saved:
                 saved = tuner.pruned_seconds_saved
                 print(f"pruning stopped groups early: about {saved:.1f} s of training saved")
-            _heldout(opts, tuner, _print_summary(opts, study, space), space)
+            _heldout(opts, tuner, _print_summary(opts, study, space))
         except search.BatchStopped as exc:
             name = signal.Signals(exc.signum).name
             _note(f"stopped by {name}; run the same command again to continue the study")

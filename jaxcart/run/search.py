@@ -89,61 +89,52 @@ _KINDS = {f.name: str(f.type) for f in config_fields()}  # "int", "float", "bool
 
 
 # -- search spaces --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Dimension:
-    """How one config field is drawn: a float or int range (``log`` for log-uniform), or a
-    categorical set of ``choices`` (as Optuna stores them: numbers, strings, bools)."""
-
-    name: str
-    low: float | None = None
-    high: float | None = None
-    log: bool = False
-    integer: bool = False
-    choices: tuple = ()
-    complement: bool = False  # drawn as 1 - the field's value (:data:`ONE_MINUS`)
-
-    @property
-    def param(self) -> str:
-        """The Optuna parameter's name: the field's, or ``one_minus_`` and the field's."""
-        return ONE_MINUS + self.name if self.complement else self.name
-
-    @property
-    def traced(self) -> bool:
-        """Whether the field is a traced float: drawn values share one compiled program."""
-        return self.name in TRACED_FIELDS
-
-    @property
-    def values(self) -> tuple:
-        """The values checked against the base config before anything compiles: every
-        choice, every value of a small integer range (a shape value between its ends may not
-        divide), else the range's ends."""
-        if self.choices:
-            return self.choices
-        if self.integer and self.high - self.low <= 4096:
-            return tuple(range(int(self.low), int(self.high) + 1))
-        return (int(self.low), int(self.high)) if self.integer else (self.low, self.high)
-
-    def distribution(self) -> Any:
-        """The Optuna distribution (``study.ask(fixed_distributions=...)``)."""
+def require_optuna() -> Any:
+    """The ``optuna`` module, its logging quiet, or a one-line error naming the extra."""
+    try:
         import optuna
+    except ImportError:
+        raise ConfigError(
+            "jaxcart.tune needs Optuna: pip install -e '.[tune]' (or pip install optuna)"
+        ) from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
+    # that it is meant for Study.optimize; ask-and-tell records it by hand (heartbeat())
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    warnings.filterwarnings("ignore", message="Heartbeat of storage")
+    return optuna
 
-        if self.choices:
-            return optuna.distributions.CategoricalDistribution(list(self.choices))
-        if self.integer:
-            return optuna.distributions.IntDistribution(int(self.low), int(self.high), log=self.log)
-        return optuna.distributions.FloatDistribution(self.low, self.high, log=self.log)
 
-    def config_value(self, value: Any) -> Any:
-        """A drawn value as the config field takes it (``"64x64"`` -> ``(64, 64)``)."""
-        if self.name == "hidden_sizes":
-            return tuple(int(n) for n in str(value).split("x"))
-        if self.complement:
-            return 1.0 - float(value)
-        return float(value) if self.traced else value
+def field_of(param: str) -> str:
+    """The config field an Optuna parameter draws: its own, or for ``one_minus_FIELD`` (a
+    traced float) ``FIELD``."""
+    name = param.removeprefix(ONE_MINUS)
+    return name if name in TRACED_FIELDS else param
+
+
+def config_value(param: str, value: Any) -> Any:
+    """A value drawn for ``param`` as its config field takes it (``"64x64"`` -> ``(64, 64)``,
+    ``one_minus_gamma`` 0.01 -> 0.99)."""
+    name = field_of(param)
+    if name == "hidden_sizes":
+        return tuple(int(n) for n in str(value).split("x"))
+    if name != param:
+        return 1.0 - float(value)
+    return float(value) if name in TRACED_FIELDS else value
+
+
+def split_params(params: dict[str, Any]) -> tuple[dict, dict]:
+    """A trial's params as ``(shape settings, traced floats)``, in config values by field."""
+    static, traced = {}, {}
+    for param, value in params.items():
+        name = field_of(param)
+        (traced if name in TRACED_FIELDS else static)[name] = config_value(param, value)
+    return static, traced
 
 
 def _choice(name: str, text: str) -> Any:
-    """One categorical value of config field ``name``, from its text, of the field's kind."""
+    """One categorical value of config field ``name``, from its text, of the field's kind (as
+    Optuna stores it: ``hidden_sizes`` as widths joined by x)."""
     text, kind = text.strip(), _KINDS[name]
     if name == "hidden_sizes":
         if not all(s.isdigit() and int(s) > 0 for s in text.split("x")):
@@ -160,102 +151,103 @@ def _choice(name: str, text: str) -> Any:
     return float(text) if kind == "float" else text
 
 
-def _dimension(name: str, text: str) -> Dimension:
-    """One ``--space NAME=TEXT`` (NAME as :func:`~jaxcart.run.spec.assignments` read it).
+def _distribution(optuna: Any, param: str, text: str) -> Any:
+    """The Optuna distribution of one ``--space PARAM=TEXT`` (PARAM as
+    :func:`~jaxcart.run.spec.assignments` read it).
 
     Raises:
         ConfigError: an unknown field, a low not below its high, a log range through zero,
             a repeated or invalid choice (one line).
     """
-    field_ = name.removeprefix(ONE_MINUS)
-    complement = field_ != name and field_ in TRACED_FIELDS
-    field_ = field_ if complement else name
-    if field_ not in _KINDS:
-        near = difflib.get_close_matches(name, list(_KINDS), n=1)
+    name, dists = field_of(param), optuna.distributions
+    if name not in _KINDS:
+        near = difflib.get_close_matches(param, list(_KINDS), n=1)
         hint = f" (did you mean {near[0]}?)" if near else ""
-        raise ConfigError(f"--space {name}: no such config field{hint}")
+        raise ConfigError(f"--space {param}: no such config field{hint}")
     parts = text.strip().split(":")
     try:
         if len(parts) == 1 or "," in text:
-            choices = tuple(_choice(field_, c) for c in text.split(",") if c.strip())
+            choices = [_choice(name, c) for c in text.split(",") if c.strip()]
             if len(set(choices)) != len(choices) or not choices:
                 raise ValueError(f"give distinct choices, got {text!r}")
-            return Dimension(field_, choices=choices, complement=complement)
+            return dists.CategoricalDistribution(choices)
         prefix = parts[0] if len(parts) == 3 else ""
         if len(parts) not in (2, 3) or prefix not in ("", "log", "int", "log-int"):
             raise ValueError(f"expected LOW:HIGH, log:LOW:HIGH, int:LOW:HIGH, got {text!r}")
         low, high = float(parts[-2]), float(parts[-1])
     except ValueError as exc:
-        raise ConfigError(f"--space {name}: {exc}") from None
-    integer = "int" in prefix or _KINDS[field_] == "int"
-    if not (field_ in TRACED_FIELDS or integer):
-        raise ConfigError(f"--space {name}: a range needs a number field; give choices A,B,C")
+        raise ConfigError(f"--space {param}: {exc}") from None
+    integer, log = "int" in prefix or _KINDS[name] == "int", prefix.startswith("log")
+    if not (name in TRACED_FIELDS or integer):
+        raise ConfigError(f"--space {param}: a range needs a number field; give choices A,B,C")
     if not (math.isfinite(low) and math.isfinite(high)) or low >= high:
-        raise ConfigError(f"--space {name}: low {low:g} must be below high {high:g}")
+        raise ConfigError(f"--space {param}: low {low:g} must be below high {high:g}")
     if integer and not (low.is_integer() and high.is_integer()):
-        raise ConfigError(f"--space {name}: an integer range needs integer bounds")
-    log = prefix.startswith("log")
+        raise ConfigError(f"--space {param}: an integer range needs integer bounds")
     if log and low <= 0:
-        raise ConfigError(f"--space {name}: a log range must be above zero, got {low:g}:{high:g}")
-    return Dimension(field_, low, high, log, integer, complement=complement)
+        raise ConfigError(f"--space {param}: a log range must be above zero, got {low:g}:{high:g}")
+    if integer:
+        return dists.IntDistribution(int(low), int(high), log=log)
+    return dists.FloatDistribution(low, high, log=log)
 
 
-def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]:
-    """Every ``--space`` option: ``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``,
-    ``num_envs=1,4,8``, ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``;
-    a float field named ``one_minus_FIELD`` draws ``1 - FIELD``. None: :data:`DEFAULT_SPACE`; a
-    name of :data:`SPACE_PRESETS` stands for its specs. Checked against ``config`` (the trials'
-    base) before anything compiles: each of a dimension's :attr:`~Dimension.values`, and each
-    combination of the shape settings' choices, must make a valid config. Keyed by each
-    dimension's Optuna parameter name (:attr:`Dimension.param`).
+def _checked_values(dist: Any) -> tuple:
+    """A dimension's values checked alone against the base config: every choice, every value
+    of a small integer range (a shape value between its ends may not divide), else its ends."""
+    if hasattr(dist, "choices"):
+        return dist.choices
+    if isinstance(dist.low, int) and dist.high - dist.low <= 4096:
+        return tuple(range(dist.low, dist.high + 1))
+    return (dist.low, dist.high)
+
+
+def parse_space(
+    specs: Sequence[str], config: PPOConfig, score: Score | None = None
+) -> dict[str, Any]:
+    """Every ``--space`` option as Optuna distributions, keyed by parameter name:
+    ``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``, ``num_envs=1,4,8``,
+    ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``; a float field
+    named ``one_minus_FIELD`` draws ``1 - FIELD``. None: :data:`DEFAULT_SPACE`; a name of
+    :data:`SPACE_PRESETS` stands for its specs. Checked against ``config`` (the trials' base)
+    before anything compiles: each dimension's values (:func:`_checked_values`), and each
+    combination of the shape settings' choices, must make a valid config, and a ``score``
+    ``return-at:STEPS`` must not be past the end of any (:func:`check_score`).
 
     Raises:
-        ConfigError: a malformed spec, a field given twice, or a value that makes an invalid
-            config (one line).
+        ConfigError: Optuna missing, a malformed spec, a field given twice, or a value that
+            makes an invalid config (one line).
     """
-    space: dict[str, Dimension] = {}
+    optuna, space = require_optuna(), {}
     expanded = [s for spec in specs for s in SPACE_PRESETS.get(spec.strip(), (spec,))]
-    for name, text in assignments(expanded or DEFAULT_SPACE, "--space", SPACE_FORM):
-        dim = _dimension(name, text)
-        if dim.name in {d.name for d in space.values()}:
-            raise ConfigError(f"--space {dim.name} given twice; keep one")
-        space[dim.param] = dim
-    for dim in space.values():
-        for value in dim.values:
+    for param, text in assignments(expanded or DEFAULT_SPACE, "--space", SPACE_FORM):
+        dist = _distribution(optuna, param, text)
+        if field_of(param) in map(field_of, space):
+            raise ConfigError(f"--space {field_of(param)} given twice; keep one")
+        space[param] = dist
+    configs, choices = [config], {}
+    for param, dist in space.items():
+        name = field_of(param)
+        for value in _checked_values(dist):
             try:
-                dataclasses.replace(config, **{dim.name: dim.config_value(value)})
+                changed = dataclasses.replace(config, **{name: config_value(param, value)})
             except (TypeError, ValueError) as exc:  # ConfigError is a ValueError
-                raise ConfigError(f"--space {dim.param}={value}: {exc}") from None
+                raise ConfigError(f"--space {param}={value}: {exc}") from None
+            configs += [] if name in TRACED_FIELDS else [changed]
+        if name not in TRACED_FIELDS and hasattr(dist, "choices"):
+            choices[name] = [config_value(param, v) for v in dist.choices]
     # num_envs x num_steps must divide into minibatches, ...: the one shape-group check
-    shaped = [d for d in space.values() if not d.traced and d.choices]
-    choices = {d.name: [d.config_value(v) for v in d.choices] for d in shaped}
-    for shape in shape_groups(choices, limit=10_000) if len(shaped) > 1 else []:
+    for shape in shape_groups(choices, limit=10_000) if len(choices) > 1 else []:
         group_config(config, shape, "--space")
+    if score is not None:
+        check_score(score, configs)
     return space
 
 
-def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[dict, dict]:
-    """A trial's params as ``(shape settings, traced floats)``, in config values."""
-    static, traced = {}, {}
-    for name, value in params.items():
-        dim = space[name]
-        (traced if dim.traced else static)[dim.name] = dim.config_value(value)
-    return static, traced
-
-
-def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:
-    """Refuses a ``return-at:STEPS`` that the base config, or one of the space's shape
-    values, ends before (one line, before anything compiles)."""
-    if score.steps is None:
-        return
-    configs = [config] + [
-        dataclasses.replace(config, **{d.name: d.config_value(v)})
-        for d in space.values()
-        if not d.traced
-        for v in d.values
-    ]
+def check_score(score: Score, configs: Sequence[PPOConfig]) -> None:
+    """Refuses a ``return-at:STEPS`` past the end of one of ``configs`` (a run's, or a search
+    space's shape values'): one line, before anything compiles."""
     short = min(c.env_steps_per_seed for c in configs)
-    if score.steps > short:
+    if score.steps is not None and score.steps > short:
         raise ConfigError(
             f"--score {score.label}: some trials end at {short:,} env steps per seed; "
             "choose fewer steps or a larger --total-timesteps"
@@ -303,17 +295,7 @@ def open_study(
             process), a storage that cannot be opened or written, or a study that exists with
             another direction.
     """
-    try:
-        import optuna
-    except ImportError:
-        raise ConfigError(
-            "jaxcart.tune needs Optuna: pip install -e '.[tune]' (or pip install optuna)"
-        ) from None
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    # Optuna flags the heartbeat (what fails a dead process's trials) experimental, and warns
-    # that it is meant for Study.optimize; ask-and-tell records it by hand (heartbeat())
-    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
-    warnings.filterwarnings("ignore", message="Heartbeat of storage")
+    optuna = require_optuna()
     if storage.startswith("sqlite:"):
         from sqlalchemy.engine import make_url
 
@@ -356,7 +338,7 @@ def open_study(
     return study, rdb
 
 
-def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
+def check_study_space(study: Any, space: dict[str, Any]) -> None:
     """Refuses a space that draws a field the study's trials drew from another kind of
     distribution (a choice where they drew a float, another log setting or choices): Optuna
     would refuse each new trial's draw, after creating it. Refuses too a field they drew
@@ -367,8 +349,7 @@ def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
     """
     import optuna
 
-    new = {name: d.distribution() for name, d in space.items()}
-    drawn_as = {d.name: name for name, d in space.items()}
+    drawn_as = {field_of(param): param for param in space}
     for trial in study.get_trials(deepcopy=False):
         for name, old in trial.distributions.items():
             field_ = name.removeprefix(ONE_MINUS)
@@ -379,8 +360,8 @@ def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
                     "it so, or give another --study-name"
                 )
             try:
-                if name in new:
-                    optuna.distributions.check_distribution_compatibility(old, new[name])
+                if name in space:
+                    optuna.distributions.check_distribution_compatibility(old, space[name])
             except ValueError as exc:
                 raise ConfigError(
                     f"--space {name}: study {study.study_name!r} draws it from {old} ({exc}); "
@@ -469,7 +450,7 @@ class Tuner:
 
     study: Any
     storage: Any
-    space: dict[str, Dimension]
+    space: dict[str, Any]  # Optuna distributions by parameter name
     spec: RunSpec
     out: Path
     options: RunOptions = field(default_factory=RunOptions)
@@ -536,10 +517,9 @@ class Tuner:
         the same moment) is told failed at once, marked ``surplus``."""
         import optuna
 
-        distributions = {name: d.distribution() for name, d in self.space.items()}
         trials = []
         for _ in range(k):
-            trial = self.study.ask(fixed_distributions=distributions)
+            trial = self.study.ask(fixed_distributions=self.space)
             # at once, not when the batch starts: a process killed while asking leaves trials
             # that go stale, rather than trials that run forever
             record_heartbeats(self.storage, self.study, [trial])
@@ -594,7 +574,7 @@ class Tuner:
         """The trials grouped by their shape settings (:func:`by_shape`), each group's run the
         base config with its shape settings, each trial's traced floats an explicit
         combination, from base seed ``seed`` (None: :attr:`spec`'s)."""
-        points = [split_params(self.space, t.params) for t in trials]
+        points = [split_params(t.params) for t in trials]
         seed = self.spec.seed if seed is None else seed
         groups = []
         for shape, members in by_shape([{**static, **traced} for static, traced in points]):
@@ -712,7 +692,6 @@ class RungReporter(StopRequest):
 
 
 __all__ = [
-    "Dimension",
     "TrialResult",
     "Tuner",
     "heldout_seed",
