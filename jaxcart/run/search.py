@@ -417,10 +417,9 @@ def heldout_seed(study: Any, seed: int) -> int:
 
 @dataclass
 class TrialResult:
-    """One finished trial: its number, params, per-seed scores and where its runs are."""
+    """One finished trial: its number, per-seed scores and where its runs are."""
 
     number: int
-    params: dict[str, Any]
     scores: np.ndarray  # [num_seeds]
     run_dir: Path  # the trial's own run directory (a combination of its batch's sweep)
     pruned: bool = False
@@ -544,10 +543,7 @@ class Tuner:
         untold = {t.number: t for t in trials}
         try:
             with heartbeat(self.storage, self.study, trials):
-                for spec, group in self._groups(trials):
-                    # fresh: a study made anew (its numbers from 0 again) keeps the old one's
-                    name = f"trials-{group[0].number:05d}-{group[-1].number:05d}"
-                    out = layout.fresh_dir(self.out / name)
+                for spec, out, group in self._groups(trials, self.spec.seed, "trials"):
                     for trial in group:
                         trial.set_user_attr("run_dir", str(out))
                         trial.set_user_attr("seed", spec.seed)  # what held-out seeds must avoid
@@ -570,18 +566,19 @@ class Tuner:
                 self.study.tell(trial, state=states.FAIL)
         return len(trials)
 
-    def _groups(self, trials: list[Any], seed: int | None = None) -> list[tuple[RunSpec, list]]:
-        """The trials grouped by their shape settings (:func:`by_shape`), each group's run the
-        base config with its shape settings, each trial's traced floats an explicit
-        combination, from base seed ``seed`` (None: :attr:`spec`'s)."""
+    def _groups(self, trials: list[Any], seed: int, prefix: str) -> Iterator[tuple]:
+        """``(spec, out, trials)`` for the trials grouped by their shape settings
+        (:func:`by_shape`): each group's run is the base config with its shape settings, each
+        trial's traced floats an explicit combination, from base seed ``seed``, into a fresh
+        ``PREFIX-FIRST-LAST`` directory under :attr:`out` (trial numbers: a study made anew
+        numbers its trials from 0 again, and the old one's directories stay)."""
         points = [split_params(t.params) for t in trials]
-        seed = self.spec.seed if seed is None else seed
-        groups = []
         for shape, members in by_shape([{**static, **traced} for static, traced in points]):
             combos = tuple(points[i][1] for i in members)
+            group = [trials[i] for i in members]
+            name = f"{prefix}-{group[0].number:05d}-{group[-1].number:05d}"
             spec = group_spec(self.spec, shape, combinations=combos, seed=seed)
-            groups.append((spec, [trials[i] for i in members]))
-        return groups
+            yield spec, layout.fresh_dir(self.out / name), group
 
     def _train(self, spec: RunSpec, out: Path, trials: list[Any]) -> list[TrialResult]:
         """One group's ``trials`` trained as the run ``spec`` into ``out``, each scored from
@@ -600,20 +597,21 @@ class Tuner:
             self.pruned_seconds_saved += pruning.seconds_saved(outcome)
             if outcome.stopped:  # the group stopped at its last rung
                 last = pruning.last_scores
-                return [TrialResult(t.number, t.params, last[t.number], out, True) for t in trials]
+                return [TrialResult(t.number, last[t.number], out, True) for t in trials]
         if outcome.stopped:
             raise BatchStopped(outcome.signum or 15)
+        scores = run_scores(load_runs([out]), self.score)
         return [
-            TrialResult(t.number, t.params, s, out / f"combo-{c:03d}", t.number in pruning.pruned)
-            for c, (t, s) in enumerate(zip(trials, run_scores(load_runs([out]), self.score)))
+            TrialResult(t.number, s, out / f"combo-{c:03d}", t.number in pruning.pruned)
+            for c, (t, s) in enumerate(zip(trials, scores))
         ]
 
     def heldout(self, trials: list[Any], seed: int) -> list[TrialResult]:
         """Trains finished ``trials`` again from base seed ``seed`` (fresh seeds: see
         :func:`heldout_seed`), :attr:`spec`'s number of seeds each, as their batches trained
-        (:meth:`_train`, one program per shape group), each group a sweep-shaped run directory
-        ``heldout-SEED-trials-N-...`` under :attr:`out` that ``compare`` and ``plot`` read.
-        Nothing is told to the study.
+        (one program per shape group), each group a sweep-shaped run directory
+        ``heldout-SEED-trials-FIRST-LAST`` under :attr:`out` that ``compare`` and ``plot``
+        read. Nothing is told to the study.
 
         Returns:
             Each trial's result (per-seed scores ``[num_seeds]``), group by group.
@@ -621,12 +619,8 @@ class Tuner:
         Raises:
             BatchStopped: a signal stopped the training.
         """
-        results = []
-        for spec, group in self._groups(trials, seed):
-            numbers = "-".join(f"{t.number:05d}" for t in group)
-            out = layout.fresh_dir(self.out / f"heldout-{seed}-trials-{numbers}")
-            results += self._train(spec, out, group)
-        return results
+        groups = self._groups(trials, seed, f"heldout-{seed}-trials")
+        return [result for group in groups for result in self._train(*group)]
 
 
 class RungReporter(StopRequest):
