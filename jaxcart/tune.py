@@ -246,15 +246,14 @@ def _tune(opts: TuneOptions) -> int:
     )
     started = time.monotonic()
     on_batch = None if opts.base.quiet else functools.partial(_print_batch, started=started)
-    out, hooks = opts.base.out, Hooks(on_signal=_on_signal)
-    options = opts.base.run_options()
+    hooks, options = Hooks(on_signal=_on_signal), opts.base.run_options()
     tuner = search.Tuner(
-        study, storage, space, spec, out, options, opts.score, hooks, on_batch, _on_wait
+        study, storage, space, spec, opts.base.out, options, opts.score, hooks, on_batch, _on_wait
     )
     print(
         f"jaxcart tune | study {opts.study_name!r} in {opts.storage} | {opts.trials} trials, "
         f"{opts.batch_trials} at a time x {spec.num_seeds} seed(s) | score {opts.score.label} | "
-        f"sampler {opts.sampler}, pruner {opts.pruner} | out {out}",
+        f"sampler {opts.sampler}, pruner {opts.pruner} | out {opts.base.out}",
         flush=True,
     )
     with search.storage_errors(opts.storage):  # a read-only database, a lost server

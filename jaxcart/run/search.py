@@ -637,15 +637,13 @@ class RungReporter(StopRequest):
         self, trials: list[Any], spec: RunSpec, on_signal: Callable[[int], None] | None = None
     ) -> None:
         super().__init__(on_signal)
-        self.trials, self.num_seeds = trials, spec.num_seeds
-        self.num_iterations = spec.config.num_iterations
-        steps = (self.num_iterations * (np.arange(RUNGS) + 1)) // RUNGS
-        self.rungs = {int(i) for i in steps if 0 < i < self.num_iterations}
-        self.env_id = spec.config.env
+        self.trials, self.spec = trials, spec
+        n = spec.config.num_iterations
+        self.rungs = {n * r // RUNGS for r in range(1, RUNGS)} - {0}
         self.returns: list[np.ndarray] = []  # per chunk, [iterations, trials x seeds]
-        self.iteration = 0
+        self.iteration = 0  # the last rung reported
         self.pruned: set[int] = set()
-        self.last_scores: dict[int, np.ndarray] = {}
+        self.last_scores: dict[int, np.ndarray] = {}  # [num_seeds] by trial number
 
     @property
     def all_pruned(self) -> bool:
@@ -657,21 +655,19 @@ class RungReporter(StopRequest):
 
     def on_chunk(self, progress: Progress) -> None:
         """The chunk's returns kept; each rung passed reported."""
-        returns = np.asarray(progress.metrics[RETURN_METRIC], float)
-        self.returns.append(returns)
-        for done in range(progress.iteration - len(returns) + 1, progress.iteration + 1):
-            if done in self.rungs:
-                self._report(done)
+        self.returns.append(np.asarray(progress.metrics[RETURN_METRIC], float))
+        first = progress.iteration - len(self.returns[-1]) + 1
+        for iteration in sorted(self.rungs.intersection(range(first, progress.iteration + 1))):
+            self._report(iteration)
 
     def _report(self, iteration: int) -> None:
+        config, step = self.spec.config, 1000 * iteration // self.spec.config.num_iterations
         so_far = np.concatenate(self.returns)[:iteration]
-        partial = auc(so_far, self.env_id).reshape(len(self.trials), self.num_seeds)
-        for c, trial in enumerate(self.trials):
-            self.last_scores[trial.number] = partial[c]
+        partial = auc(so_far, config.env).reshape(len(self.trials), self.spec.num_seeds)
+        for trial, scores in zip(self.trials, partial):
+            self.last_scores[trial.number] = scores
             if trial.number not in self.pruned:
-                trial.report(
-                    float(stats.iqm(partial[c])), step=1000 * iteration // self.num_iterations
-                )
+                trial.report(float(stats.iqm(scores)), step=step)
                 if trial.should_prune():
                     self.pruned.add(trial.number)
         self.iteration = iteration
@@ -679,10 +675,8 @@ class RungReporter(StopRequest):
     def seconds_saved(self, outcome: Outcome) -> float:
         """The training time the rest of the group's iterations would have taken, at the
         speed its trained ones ran."""
-        if self.iteration <= 0:
-            return 0.0
-        per_iteration = outcome.train_seconds / self.iteration
-        return per_iteration * (self.num_iterations - self.iteration)
+        done, total = self.iteration, self.spec.config.num_iterations
+        return outcome.train_seconds / done * (total - done) if done > 0 else 0.0
 
 
 __all__ = [
