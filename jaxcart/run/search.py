@@ -9,10 +9,12 @@ Each trial is told its score over its seeds (the IQM of :class:`jaxcart.analysis
 the score ``compare`` ranks by), and every group leaves a sweep-shaped run directory that
 ``plot``, ``compare`` and ``evaluate`` read.
 
-Optuna is an optional dependency (``pip install -e '.[tune]'``): it is imported only when a
-study is opened, so the space is checked (one line per mistake) without it. Only Optuna's
-public API is used: the heartbeat, which Optuna keeps for ``Study.optimize``, is recorded
-through the storage's own methods (:func:`heartbeat`).
+A space is Optuna's own distributions, keyed by parameter name: a parameter is a config
+field, or ``one_minus_FIELD`` (:func:`field_of`, :func:`config_value`). Optuna is an optional
+dependency (``pip install -e '.[tune]'``), imported when a space is parsed (one line when it
+is missing: :func:`require_optuna`), never when this module is. Only Optuna's public API is
+used: the heartbeat, which Optuna keeps for ``Study.optimize``, is recorded through the
+storage's own methods (:func:`heartbeat`).
 """
 
 from __future__ import annotations
