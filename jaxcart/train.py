@@ -355,7 +355,7 @@ def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list[dict]) -> N
             "(python -m jaxcart.compare --score scores any run)"
         )
     for group_spec in structural.group_specs(spec, groups) if any(groups) else [spec]:
-        check_score(score, {}, group_spec.config)
+        check_score(score, [group_spec.config])
 
 
 def _report_groups(

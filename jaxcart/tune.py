@@ -22,11 +22,11 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import NoReturn
 
 from jaxcart import cli, train
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
+from jaxcart.engine import devices
 from jaxcart.run import search
 from jaxcart.run.spec import Hooks
 
@@ -112,13 +112,13 @@ class TuneOptions:
         return cli.options_from(cls, args, base=replace(base, score=None, out=out))
 
 
-def retrain_command(opts: TuneOptions, params: dict, space: dict, out: str, seed: int) -> str:
+def retrain_command(opts: TuneOptions, params: dict, out: str, seed: int) -> str:
     """The ``python -m jaxcart.train`` command that trains a trial again: the tune command's
     base options, the trial's values, its number of seeds from base seed ``seed``."""
     base = opts.base
     words = ["python", "-m", "jaxcart.train", *(["--preset", base.preset] if base.preset else [])]
-    drawn = {space[k].name: space[k].config_value(v) for k, v in params.items()}
-    for name, value in {**base.overrides, **drawn}.items():
+    static, traced = search.split_params(params)
+    for name, value in {**base.overrides, **static, **traced}.items():
         flag = "--" + name.replace("_", "-")
         if isinstance(value, bool):  # --FIELD / --no-FIELD
             words.append(flag if value else "--no-" + flag[2:])
@@ -140,16 +140,6 @@ def _iqm_text(scores: Sequence[float]) -> str:
 def _scores(trial: object) -> list[float]:
     """A complete trial's per-seed scores ``[num_seeds]``, as its batch told them."""
     return trial.user_attrs.get("scores", [trial.value])
-
-
-def _dir(trial: object) -> str:
-    """Where a trial's runs are (its combination's run directory once it is told)."""
-    return trial.user_attrs.get("run_dir", "")
-
-
-def _shown(value: object) -> str:
-    """A drawn value in the table: floats to four significant digits."""
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
 def _print_batch(out: Path, results: list, started: float) -> None:
@@ -175,7 +165,9 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
     print(f"study {opts.study_name!r} in {opts.storage}: {shown}")
     ranked = sorted((t for t in trials if t.state.name == "COMPLETE"), key=lambda t: -t.value)
     rows = [
-        [rank, t.number, _iqm_text(_scores(t)), *(_shown(t.params.get(n)) for n in space), _dir(t)]
+        [rank, t.number, _iqm_text(_scores(t))]
+        + [f"{v:.4g}" if isinstance(v, float) else v for v in map(t.params.get, space)]
+        + [t.user_attrs.get("run_dir", "")]
         for rank, t in enumerate(ranked[: opts.top], 1)
     ]
     if rows:
@@ -186,7 +178,7 @@ def _print_summary(opts: TuneOptions, study: object, space: dict) -> list:
     return ranked
 
 
-def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) -> None:
+def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list) -> None:
     """Trains the top ``--heldout-top`` trials again on fresh seeds, ranks them by those
     scores, records the seed in the study, and prints the winner's retrain command on seeds
     fresher still (without held-out runs: the search's best)."""
@@ -194,7 +186,7 @@ def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) 
         return
     n, seed = opts.base.num_seeds, search.heldout_seed(tuner.study, opts.base.seed)
     best, out = ranked[0], f"runs/{opts.study_name}-best"
-    run_dirs = [_dir(best)]
+    run_dirs = [best.user_attrs.get("run_dir", "")]
     if opts.heldout_top:
         top = {t.number: t for t in ranked[: opts.heldout_top]}
         print(
@@ -207,7 +199,7 @@ def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) 
         scores = {str(r.number): [float(x) for x in r.scores] for r in results}
         tuner.study.set_user_attr("heldout", {"seed": seed, "scores": scores})
         rows = [
-            [i, r.number, _iqm_text(_scores(top[r.number])), _iqm_text(r.scores), r.run_dir]
+            [i, r.number, _iqm_text(_scores(top[r.number])), _iqm_text(r.scores)] + [r.run_dir]
             for i, r in enumerate(results, 1)
         ]
         seeds = stats.interval_label(n)
@@ -217,7 +209,7 @@ def _heldout(opts: TuneOptions, tuner: search.Tuner, ranked: list, space: dict) 
         print(f"\nbest on held-out seeds: trial {best.number}; train it on other fresh seeds with:")
     else:
         print(f"\nbest: trial {best.number}; train it again on fresh seeds with:")
-    print(f"  {retrain_command(opts, best.params, space, out, seed + 1)}")
+    print(f"  {retrain_command(opts, best.params, out, seed + 1)}")
     print(f"  python -m jaxcart.compare {' '.join(run_dirs)} {out} --score {opts.score.label}")
     print(
         f"  optuna-dashboard {opts.storage}   # the study in a browser (pip install optuna-dashboard)"
@@ -244,26 +236,24 @@ def _tune(opts: TuneOptions) -> int:
     if opts.heldout_top < 0:
         raise cli.UsageError(f"--heldout-top must be 0 or more, got {opts.heldout_top}")
     spec = opts.base.run_spec()
-    space = search.parse_space(list(opts.space), spec.config)
-    given = [(d.name, p) for p, d in space.items() if d.name in opts.base.overrides]
-    if given:
-        raise cli.UsageError(
-            f"--{given[0][0].replace('_', '-')} and --space {given[0][1]} both given; keep one"
-        )
-    score = opts.score
-    search.check_score(score, space, spec.config)
-    study = search.open_study(
+    space = search.parse_space(list(opts.space), spec.config, opts.score)
+    for param in space:
+        if search.field_of(param) in opts.base.overrides:
+            flag = "--" + search.field_of(param).replace("_", "-")
+            raise cli.UsageError(f"{flag} and --space {param} both given; keep one")
+    study, storage = search.open_study(
         opts.storage, opts.study_name, opts.sampler, opts.pruner, opts.sampler_seed
     )
     started = time.monotonic()
     on_batch = None if opts.base.quiet else functools.partial(_print_batch, started=started)
-    out, hooks = opts.base.out, Hooks(on_signal=_on_signal)
-    options = opts.base.run_options()
-    tuner = search.Tuner(study, space, spec, out, options, score, hooks, on_batch, _on_wait)
+    hooks, options = Hooks(on_signal=_on_signal), opts.base.run_options()
+    tuner = search.Tuner(
+        study, storage, space, spec, opts.base.out, options, opts.score, hooks, on_batch, _on_wait
+    )
     print(
         f"jaxcart tune | study {opts.study_name!r} in {opts.storage} | {opts.trials} trials, "
-        f"{opts.batch_trials} at a time x {spec.num_seeds} seed(s) | score {score.label} | "
-        f"sampler {opts.sampler}, pruner {opts.pruner} | out {out}",
+        f"{opts.batch_trials} at a time x {spec.num_seeds} seed(s) | score {opts.score.label} | "
+        f"sampler {opts.sampler}, pruner {opts.pruner} | out {opts.base.out}",
         flush=True,
     )
     with search.storage_errors(opts.storage):  # a read-only database, a lost server
@@ -272,7 +262,7 @@ def _tune(opts: TuneOptions) -> int:
             if tuner.pruned_seconds_saved:
                 saved = tuner.pruned_seconds_saved
                 print(f"pruning stopped groups early: about {saved:.1f} s of training saved")
-            _heldout(opts, tuner, _print_summary(opts, study, space), space)
+            _heldout(opts, tuner, _print_summary(opts, study, space))
         except search.BatchStopped as exc:
             name = signal.Signals(exc.signum).name
             _note(f"stopped by {name}; run the same command again to continue the study")
@@ -288,8 +278,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         argv_ = sys.argv[1:] if argv is None else list(argv)
-        args = _parse_args(argv_)
-        return _tune(TuneOptions.from_args(args, argv_))
+        return _tune(TuneOptions.from_args(_parse_args(argv_), argv_))
 
     return cli.run_command(body)
 
@@ -302,17 +291,11 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def main_on_all_cores(argv: list[str] | None = None) -> int:
-    """:func:`main` on one CPU device per core, as ``jaxcart.train`` runs."""
-    from jaxcart.engine import devices
-
+    """:func:`main` as the command runs it (``python -m jaxcart.tune``, ``python -m jaxcart
+    tune``): on one CPU device per core, as ``jaxcart.train`` runs."""
     devices.use_all_host_cores()
     return main(argv)
 
 
-def cli_main(argv: list[str] | None = None) -> NoReturn:
-    """The process entry (``python -m jaxcart.tune``)."""
-    cli.command_main(main_on_all_cores, argv)
-
-
 if __name__ == "__main__":
-    cli_main()
+    cli.command_main(main_on_all_cores)

@@ -26,7 +26,7 @@ from helpers import TINY, TRAIN_ENV  # noqa: E402
 from jaxcart import train, tune  # noqa: E402
 from jaxcart.analysis.stats import iqm  # noqa: E402
 from jaxcart.analysis.summary import Score  # noqa: E402
-from jaxcart.core.config import ConfigError, preset  # noqa: E402
+from jaxcart.core.config import TRACED_FIELDS, ConfigError, preset  # noqa: E402
 from jaxcart.results.scores import make_entry  # noqa: E402
 from jaxcart.run import search  # noqa: E402
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec  # noqa: E402
@@ -84,12 +84,12 @@ def test_space_parsing_draws_what_it_says():
         preset("sb3"),
     )
     lr, clip, envs, sizes = space.values()
-    assert (lr.low, lr.high, lr.log, lr.traced) == (1e-5, 1e-2, True, True)
+    assert (lr.low, lr.high, lr.log) == (1e-5, 1e-2, True)
     assert (clip.low, clip.high, clip.log) == (0.1, 0.3, False)
-    assert envs.choices == (1, 4, 8) and not envs.traced
-    assert sizes.config_value("32x32") == (32, 32)
+    assert envs.choices == (1, 4, 8) and sizes.choices == ("32x32", "64")
+    assert search.config_value("hidden_sizes", "32x32") == (32, 32)
     static, traced = search.split_params(
-        space, {"learning_rate": 1e-3, "clip_coef": 0.2, "num_envs": 4, "hidden_sizes": "64"}
+        {"learning_rate": 1e-3, "clip_coef": 0.2, "num_envs": 4, "hidden_sizes": "64"}
     )
     assert static == {"num_envs": 4, "hidden_sizes": (64,)}
     assert traced == {"learning_rate": 1e-3, "clip_coef": 0.2}
@@ -98,12 +98,12 @@ def test_space_parsing_draws_what_it_says():
 def test_no_space_is_rl_zoo3s_current_float_ranges_and_the_old_one_stays_reachable():
     base = preset("sb3")
     space = search.parse_space([], base)
-    assert all(d.traced for d in space.values())  # every batch one program
+    assert all(search.field_of(p) in TRACED_FIELDS for p in space)  # every batch one program
     assert "vf_coef" not in space and "gamma" not in space
     study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
-    dists = {name: d.distribution() for name, d in space.items()}
+    dists = space
     assert dists["one_minus_gamma"] == optuna.distributions.FloatDistribution(1e-4, 0.03, log=True)
-    drawn = [search.split_params(space, study.ask(dists).params)[1] for _ in range(400)]
+    drawn = [search.split_params(study.ask(dists).params)[1] for _ in range(400)]
     values = {name: np.array([d[name] for d in drawn]) for name in drawn[0]}
     lr, gamma, lam = values["learning_rate"], values["gamma"], values["gae_lambda"]
     assert 1e-5 <= lr.min() and lr.max() <= 0.002 and values["max_grad_norm"].max() <= 2.0
@@ -122,7 +122,7 @@ def test_a_study_of_the_old_space_refuses_the_new_one(tmp_path, capsys):
     storage = f"sqlite:///{tmp_path}/study.db"
     study = optuna.create_study(storage=storage, study_name="old", direction="maximize")
     old = search.parse_space(["rl-zoo3-v2.5"], preset("sb3"))
-    study.tell(study.ask({name: d.distribution() for name, d in old.items()}), 1.0)
+    study.tell(study.ask(old), 1.0)
     assert tune.main([*BASE, "--storage", storage, "--study-name", "old"]) == 2
     err = capsys.readouterr().err
     assert "--space one_minus_gamma: study 'old' draws gamma as gamma" in err, err
@@ -212,11 +212,11 @@ def test_study_finishes_groups_by_shape_then_checks_its_top_trials_on_fresh_seed
 
 
 def _tuner(storage: str, out: Path, hooks: Hooks | None = None) -> search.Tuner:
-    study = search.open_study(storage, "s", sampler="random", sampler_seed=0)
+    study, rdb = search.open_study(storage, "s", sampler="random", sampler_seed=0)
     space = search.parse_space(["learning_rate=log:1e-4:1e-2"], SMALL)
     options = RunOptions(eval_episodes=1)
     spec = RunSpec(SMALL, num_seeds=2)
-    return search.Tuner(study, space, spec, out, options, Score("auc"), hooks or Hooks())
+    return search.Tuner(study, rdb, space, spec, out, options, Score("auc"), hooks or Hooks())
 
 
 @pytest.mark.slow
@@ -304,7 +304,7 @@ def test_trials_of_a_killed_process_go_stale_and_are_asked_again(tmp_path, monke
     storage = f"sqlite:///{tmp_path}/study.db"
     tuner = _tuner(storage, tmp_path / "runs")
     orphan = tuner._ask(1, 1)  # a process asked it, sent one heartbeat, and was killed
-    with search.heartbeat(tuner.study, orphan):
+    with search.heartbeat(tuner.storage, tuner.study, orphan):
         pass
     time.sleep(2.5)  # SQLite keeps heartbeats to the second
     tuner.run(1, 1)

@@ -25,7 +25,7 @@ ARGV += ["--heldout-top", "0"]  # the search alone
 def _study_with_one_trial(db) -> str:
     """A study whose one complete trial drew the learning rate from a log-uniform float."""
     storage = f"sqlite:///{db}"
-    study = search.open_study(storage, "s")
+    study, _ = search.open_study(storage, "s")
     dist = optuna.distributions.FloatDistribution(1e-4, 1e-2, log=True)
     study.tell(study.ask({"learning_rate": dist}), 1.0)
     return storage

@@ -310,12 +310,10 @@ def jaxcart_train_command(args, params: dict, out: Path) -> list[str]:
     """``python -m jaxcart.train`` at the trial's values (jaxcart's own ``retrain_command``)
     over the search's base, on the held-out seeds (``fold_in(--heldout-seed, i)``)."""
     from jaxcart import tune
-    from jaxcart.run import search
 
     argv = [*jaxcart_base(args), *(w for s in args.space for w in ("--space", s))]
     opts = tune.TuneOptions.from_args(tune._parse_args(argv), argv)
-    space = search.parse_space(list(opts.space), opts.base.run_spec().config)
-    words = shlex.split(tune.retrain_command(opts, params, space, str(out), args.heldout_seed))
+    words = shlex.split(tune.retrain_command(opts, params, str(out), args.heldout_seed))
     words[words.index("--num-seeds") + 1] = str(args.heldout_seeds)
     return [sys.executable, *words[1:], "--eval-episodes", str(HELDOUT_EPISODES), "--quiet"]
 

@@ -9,14 +9,19 @@ Each trial is told its score over its seeds (the IQM of :class:`jaxcart.analysis
 the score ``compare`` ranks by), and every group leaves a sweep-shaped run directory that
 ``plot``, ``compare`` and ``evaluate`` read.
 
-Optuna is an optional dependency (``pip install -e '.[tune]'``): it is imported only when a
-study is opened, so the space is checked (one line per mistake) without it.
+A space is Optuna's own distributions, keyed by parameter name: a parameter is a config
+field, or ``one_minus_FIELD`` (:func:`field_of`, :func:`config_value`). Optuna is an optional
+dependency (``pip install -e '.[tune]'``), imported when a space is parsed (one line when it
+is missing: :func:`require_optuna`), never when this module is. Only Optuna's public API is
+used: the heartbeat, which Optuna keeps for ``Study.optimize``, is recorded through the
+storage's own methods (:func:`heartbeat`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import math
 import shutil
 import threading
@@ -81,191 +86,17 @@ DEFAULT_SPACE = SPACE_PRESETS["rl-zoo3"]
 """Without ``--space``: rl-zoo3's current (v2.6 and later) PPO float ranges."""
 ONE_MINUS = "one_minus_"
 """``one_minus_gamma=log:1e-4:0.03`` draws ``1 - gamma``: log-uniform near 1."""
-
-
-class TuneUnavailable(ConfigError):
-    """Optuna is not installed."""
+SPACE_FORM = "NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
+_KINDS = {f.name: str(f.type) for f in config_fields()}  # "int", "float", "bool", ...
 
 
 # -- search spaces --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Dimension:
-    """How one config field is drawn: a float or int range (``log`` for log-uniform), or a
-    categorical set of ``choices`` (as Optuna stores them: numbers, strings, bools)."""
-
-    name: str
-    low: float | None = None
-    high: float | None = None
-    log: bool = False
-    integer: bool = False
-    choices: tuple = ()
-    complement: bool = False  # drawn as 1 - the field's value (:data:`ONE_MINUS`)
-
-    @property
-    def param(self) -> str:
-        """The Optuna parameter's name: the field's, or ``one_minus_`` and the field's."""
-        return ONE_MINUS + self.name if self.complement else self.name
-
-    @property
-    def traced(self) -> bool:
-        """Whether the field is a traced float: drawn values share one compiled program."""
-        return self.name in TRACED_FIELDS
-
-    def distribution(self) -> Any:
-        """The Optuna distribution (``study.ask(fixed_distributions=...)``)."""
-        import optuna
-
-        if self.choices:
-            return optuna.distributions.CategoricalDistribution(list(self.choices))
-        if self.integer:
-            return optuna.distributions.IntDistribution(int(self.low), int(self.high), log=self.log)
-        return optuna.distributions.FloatDistribution(self.low, self.high, log=self.log)
-
-    def config_value(self, value: Any) -> Any:
-        """A drawn value as the config field takes it (``"64x64"`` -> ``(64, 64)``)."""
-        if self.name == "hidden_sizes":
-            return tuple(int(n) for n in str(value).split("x"))
-        if self.complement:
-            return 1.0 - float(value)
-        return float(value) if self.traced else value
-
-
-def _field_kinds() -> dict[str, str]:
-    return {f.name: str(f.type) for f in config_fields()}
-
-
-def _choice(name: str, kind: str, text: str) -> Any:
-    """One categorical value of field ``name`` (of annotation ``kind``), from its text."""
-    text = text.strip()
-    if name == "hidden_sizes":
-        sizes = [s for s in text.split("x")]
-        if not all(s.isdigit() and int(s) > 0 for s in sizes):
-            raise ValueError(
-                f"hidden_sizes choices are layer widths joined by x, e.g. 64x64; got {text!r}"
-            )
-        return "x".join(sizes)
-    if kind in ("bool", "<class 'bool'>"):
-        if text.lower() not in ("on", "off", "true", "false"):
-            raise ValueError(f"{name} choices are on/off, got {text!r}")
-        return text.lower() in ("on", "true")
-    if kind in ("int", "<class 'int'>"):
-        return int(float(text)) if float(text).is_integer() else int(text)
-    if kind in ("float", "<class 'float'>") or name in TRACED_FIELDS:
-        return float(text)
-    return text
-
-
-def parse_dimension(spec: str) -> Dimension:
-    """``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``, ``num_envs=1,4,8``,
-    ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``; a float
-    field named ``one_minus_FIELD`` draws ``1 - FIELD`` (``one_minus_gamma=log:1e-4:0.03``).
-
-    Raises:
-        ConfigError: malformed, an unknown field, a low not below its high, a log range
-            through zero, a repeated or invalid choice (one line).
-    """
-    name, sep, text = spec.partition("=")
-    name = name.strip().replace("-", "_")
-    kinds = _field_kinds()
-    if not sep or not name or not text.strip():
-        raise ConfigError(
-            f"malformed --space {spec!r}; expected NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
-        )
-    field_ = name.removeprefix(ONE_MINUS)
-    complement = field_ != name and field_ in TRACED_FIELDS
-    field_ = field_ if complement else name
-    if field_ not in kinds:
-        import difflib
-
-        near = difflib.get_close_matches(name, list(kinds), n=1)
-        hint = f" (did you mean {near[0]}?)" if near else ""
-        raise ConfigError(f"--space {name}: no such config field{hint}")
-    kind = kinds[field_]
-    parts = text.strip().split(":")
-    try:
-        if len(parts) == 1 or "," in text:
-            choices = tuple(_choice(field_, kind, c) for c in text.split(",") if c.strip())
-            if len(set(choices)) != len(choices) or not choices:
-                raise ValueError(f"give distinct choices, got {text!r}")
-            return Dimension(field_, choices=choices, complement=complement)
-        prefix = parts[0] if len(parts) == 3 else ""
-        if len(parts) not in (2, 3) or prefix not in ("", "log", "int", "log-int"):
-            raise ValueError(f"expected LOW:HIGH, log:LOW:HIGH, int:LOW:HIGH, got {text!r}")
-        low, high = float(parts[-2]), float(parts[-1])
-    except ValueError as exc:
-        raise ConfigError(f"--space {name}: {exc}") from None
-    integer = "int" in prefix or kind in ("int", "<class 'int'>")
-    if not (field_ in TRACED_FIELDS or integer):
-        raise ConfigError(f"--space {name}: a range needs a number field; give choices A,B,C")
-    if not (math.isfinite(low) and math.isfinite(high)) or low >= high:
-        raise ConfigError(f"--space {name}: low {low:g} must be below high {high:g}")
-    if integer and not (low.is_integer() and high.is_integer()):
-        raise ConfigError(f"--space {name}: an integer range needs integer bounds")
-    log = prefix.startswith("log")
-    if log and low <= 0:
-        raise ConfigError(f"--space {name}: a log range must be above zero, got {low:g}:{high:g}")
-    return Dimension(field_, low, high, log, integer, complement=complement)
-
-
-def parse_space(specs: Sequence[str], config: PPOConfig) -> dict[str, Dimension]:
-    """Every ``--space`` option (none: :data:`DEFAULT_SPACE`; a name of :data:`SPACE_PRESETS`
-    stands for its specs), checked against ``config`` (the trials' base) before anything
-    compiles: each range end and each choice must make a valid config on its own. Keyed by
-    each dimension's Optuna parameter name (:attr:`Dimension.param`).
-
-    Raises:
-        ConfigError: a mistake in a spec (see :func:`parse_dimension`), a field given twice,
-            or a value that makes an invalid config (one line).
-    """
-    space: dict[str, Dimension] = {}
-    expanded = [s for spec in specs for s in SPACE_PRESETS.get(spec.strip(), (spec,))]
-    form = "NAME=LOW:HIGH, NAME=log:LOW:HIGH or NAME=A,B,C"
-    for name, text in assignments(expanded or DEFAULT_SPACE, "--space", form):
-        dim = parse_dimension(f"{name}={text}")
-        if dim.name in {d.name for d in space.values()}:
-            raise ConfigError(f"--space {dim.name} given twice; keep one")
-        space[dim.param] = dim
-    for dim in space.values():
-        ends = dim.choices or (dim.low, dim.high)
-        if dim.integer and dim.high - dim.low <= 4096:  # a shape value between may not divide
-            ends = range(int(dim.low), int(dim.high) + 1)
-        for value in ends:
-            value = int(value) if dim.integer else value
-            try:
-                dataclasses.replace(config, **{dim.name: dim.config_value(value)})
-            except ConfigError as exc:
-                raise ConfigError(f"--space {dim.param}={value}: {exc}") from None
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"--space {dim.param}={value}: {exc}") from None
-    _check_shape_combinations(space, config)
-    return space
-
-
-def _check_shape_combinations(space: dict[str, Dimension], config: PPOConfig) -> None:
-    """Every combination of the shape settings' choices makes a valid config (num_envs x
-    num_steps must divide into minibatches, ...): refused before anything compiles."""
-    shaped = [d for d in space.values() if not d.traced and d.choices]
-    choices = {d.name: [d.config_value(v) for v in d.choices] for d in shaped}
-    for shape in shape_groups(choices, limit=10_000) if len(shaped) > 1 else []:
-        group_config(config, shape, "--space")
-
-
-def split_params(space: dict[str, Dimension], params: dict[str, Any]) -> tuple[dict, dict]:
-    """A trial's params as ``(shape settings, traced floats)``, in config values."""
-    static, traced = {}, {}
-    for name, value in params.items():
-        dim = space[name]
-        (traced if dim.traced else static)[dim.name] = dim.config_value(value)
-    return static, traced
-
-
-# -- the study --------------------------------------------------------------------------------
 def require_optuna() -> Any:
-    """The ``optuna`` module, or a one-line error naming the extra to install."""
+    """The ``optuna`` module, its logging quiet, or a one-line error naming the extra."""
     try:
         import optuna
     except ImportError:
-        raise TuneUnavailable(
+        raise ConfigError(
             "jaxcart.tune needs Optuna: pip install -e '.[tune]' (or pip install optuna)"
         ) from None
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -276,19 +107,162 @@ def require_optuna() -> Any:
     return optuna
 
 
-def _root_line(exc: BaseException) -> str:
-    """The first line of what the driver said (``attempt to write a readonly database``):
-    Optuna and SQLAlchemy wrap it in generic messages."""
-    while exc.__cause__ is not None:
-        exc = exc.__cause__
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
+def field_of(param: str) -> str:
+    """The config field an Optuna parameter draws: its own, or for ``one_minus_FIELD`` (a
+    traced float) ``FIELD``."""
+    name = param.removeprefix(ONE_MINUS)
+    return name if name in TRACED_FIELDS else param
 
 
+def config_value(param: str, value: Any) -> Any:
+    """A value drawn for ``param`` as its config field takes it (``"64x64"`` -> ``(64, 64)``,
+    ``one_minus_gamma`` 0.01 -> 0.99)."""
+    name = field_of(param)
+    if name == "hidden_sizes":
+        return tuple(int(n) for n in str(value).split("x"))
+    if name != param:
+        return 1.0 - float(value)
+    return float(value) if name in TRACED_FIELDS else value
+
+
+def split_params(params: dict[str, Any]) -> tuple[dict, dict]:
+    """A trial's params as ``(shape settings, traced floats)``, in config values by field."""
+    static, traced = {}, {}
+    for param, value in params.items():
+        name = field_of(param)
+        (traced if name in TRACED_FIELDS else static)[name] = config_value(param, value)
+    return static, traced
+
+
+def _choice(name: str, text: str) -> Any:
+    """One categorical value of config field ``name``, from its text, of the field's kind (as
+    Optuna stores it: ``hidden_sizes`` as widths joined by x)."""
+    text, kind = text.strip(), _KINDS[name]
+    if name == "hidden_sizes":
+        if not all(s.isdigit() and int(s) > 0 for s in text.split("x")):
+            raise ValueError(
+                f"hidden_sizes choices are layer widths joined by x, e.g. 64x64; got {text!r}"
+            )
+        return text
+    if kind == "bool":
+        if text.lower() not in ("on", "off", "true", "false"):
+            raise ValueError(f"{name} choices are on/off, got {text!r}")
+        return text.lower() in ("on", "true")
+    if kind == "int":
+        return int(float(text)) if float(text).is_integer() else int(text)
+    return float(text) if kind == "float" else text
+
+
+def _distribution(optuna: Any, param: str, text: str) -> Any:
+    """The Optuna distribution of one ``--space PARAM=TEXT`` (PARAM as
+    :func:`~jaxcart.run.spec.assignments` read it).
+
+    Raises:
+        ConfigError: an unknown field, a low not below its high, a log range through zero,
+            a repeated or invalid choice (one line).
+    """
+    name, dists = field_of(param), optuna.distributions
+    if name not in _KINDS:
+        near = difflib.get_close_matches(param, list(_KINDS), n=1)
+        hint = f" (did you mean {near[0]}?)" if near else ""
+        raise ConfigError(f"--space {param}: no such config field{hint}")
+    parts = text.strip().split(":")
+    try:
+        if len(parts) == 1 or "," in text:
+            choices = [_choice(name, c) for c in text.split(",") if c.strip()]
+            if len(set(choices)) != len(choices) or not choices:
+                raise ValueError(f"give distinct choices, got {text!r}")
+            return dists.CategoricalDistribution(choices)
+        prefix = parts[0] if len(parts) == 3 else ""
+        if len(parts) not in (2, 3) or prefix not in ("", "log", "int", "log-int"):
+            raise ValueError(f"expected LOW:HIGH, log:LOW:HIGH, int:LOW:HIGH, got {text!r}")
+        low, high = float(parts[-2]), float(parts[-1])
+    except ValueError as exc:
+        raise ConfigError(f"--space {param}: {exc}") from None
+    integer, log = "int" in prefix or _KINDS[name] == "int", prefix.startswith("log")
+    if not (name in TRACED_FIELDS or integer):
+        raise ConfigError(f"--space {param}: a range needs a number field; give choices A,B,C")
+    if not (math.isfinite(low) and math.isfinite(high)) or low >= high:
+        raise ConfigError(f"--space {param}: low {low:g} must be below high {high:g}")
+    if integer and not (low.is_integer() and high.is_integer()):
+        raise ConfigError(f"--space {param}: an integer range needs integer bounds")
+    if log and low <= 0:
+        raise ConfigError(f"--space {param}: a log range must be above zero, got {low:g}:{high:g}")
+    if integer:
+        return dists.IntDistribution(int(low), int(high), log=log)
+    return dists.FloatDistribution(low, high, log=log)
+
+
+def _checked_values(dist: Any) -> tuple:
+    """A dimension's values checked alone against the base config: every choice, every value
+    of a small integer range (a shape value between its ends may not divide), else its ends."""
+    if hasattr(dist, "choices"):
+        return dist.choices
+    if isinstance(dist.low, int) and dist.high - dist.low <= 4096:
+        return tuple(range(dist.low, dist.high + 1))
+    return (dist.low, dist.high)
+
+
+def parse_space(
+    specs: Sequence[str], config: PPOConfig, score: Score | None = None
+) -> dict[str, Any]:
+    """Every ``--space`` option as Optuna distributions, keyed by parameter name:
+    ``learning_rate=log:1e-5:1e-2``, ``clip_coef=0.1:0.3``, ``num_envs=1,4,8``,
+    ``num_steps=int:32:512`` (``log-int:`` too), ``hidden_sizes=64x64,32x32``; a float field
+    named ``one_minus_FIELD`` draws ``1 - FIELD``. None: :data:`DEFAULT_SPACE`; a name of
+    :data:`SPACE_PRESETS` stands for its specs. Checked against ``config`` (the trials' base)
+    before anything compiles: each dimension's values (:func:`_checked_values`), and each
+    combination of the shape settings' choices, must make a valid config, and a ``score``
+    ``return-at:STEPS`` must not be past the end of any (:func:`check_score`).
+
+    Raises:
+        ConfigError: Optuna missing, a malformed spec, a field given twice, or a value that
+            makes an invalid config (one line).
+    """
+    optuna, space = require_optuna(), {}
+    expanded = [s for spec in specs for s in SPACE_PRESETS.get(spec.strip(), (spec,))]
+    for param, text in assignments(expanded or DEFAULT_SPACE, "--space", SPACE_FORM):
+        dist = _distribution(optuna, param, text)
+        if field_of(param) in map(field_of, space):
+            raise ConfigError(f"--space {field_of(param)} given twice; keep one")
+        space[param] = dist
+    configs, choices = [config], {}
+    for param, dist in space.items():
+        name = field_of(param)
+        for value in _checked_values(dist):
+            try:
+                changed = dataclasses.replace(config, **{name: config_value(param, value)})
+            except (TypeError, ValueError) as exc:  # ConfigError is a ValueError
+                raise ConfigError(f"--space {param}={value}: {exc}") from None
+            configs += [] if name in TRACED_FIELDS else [changed]
+        if name not in TRACED_FIELDS and hasattr(dist, "choices"):
+            choices[name] = [config_value(param, v) for v in dist.choices]
+    # num_envs x num_steps must divide into minibatches, ...: the one shape-group check
+    for shape in shape_groups(choices, limit=10_000) if len(choices) > 1 else []:
+        group_config(config, shape, "--space")
+    if score is not None:
+        check_score(score, configs)
+    return space
+
+
+def check_score(score: Score, configs: Sequence[PPOConfig]) -> None:
+    """Refuses a ``return-at:STEPS`` past the end of one of ``configs`` (a run's, or a search
+    space's shape values'): one line, before anything compiles."""
+    short = min(c.env_steps_per_seed for c in configs)
+    if score.steps is not None and score.steps > short:
+        raise ConfigError(
+            f"--score {score.label}: some trials end at {short:,} env steps per seed; "
+            "choose fewer steps or a larger --total-timesteps"
+        )
+
+
+# -- the study --------------------------------------------------------------------------------
 @contextlib.contextmanager
 def storage_errors(storage: str, also: tuple[type[Exception], ...] = ()) -> Iterator[None]:
     """Optuna's storage errors (SQLAlchemy's and the drivers', and ``also``) in the block as
-    one :class:`ConfigError` line naming ``storage``.
+    one :class:`ConfigError` line naming ``storage``, with the first line of what the driver
+    said (``attempt to write a readonly database``): Optuna and SQLAlchemy wrap it in generic
+    messages.
 
     Raises:
         ConfigError: a storage read or write failed (a read-only database, a lost server).
@@ -299,7 +273,11 @@ def storage_errors(storage: str, also: tuple[type[Exception], ...] = ()) -> Iter
     try:
         yield
     except (optuna.exceptions.StorageInternalError, sqlalchemy.exc.SQLAlchemyError, *also) as exc:
-        raise ConfigError(f"--storage {storage}: {_root_line(exc)}") from None
+        while exc.__cause__ is not None:
+            exc = exc.__cause__
+        text = str(exc).strip()
+        line = text.splitlines()[0] if text else type(exc).__name__
+        raise ConfigError(f"--storage {storage}: {line}") from None
 
 
 def open_study(
@@ -308,8 +286,11 @@ def open_study(
     sampler: str = "tpe",
     pruner: str = "none",
     sampler_seed: int | None = None,
-) -> Any:
+) -> tuple[Any, Any]:
     """Opens (or creates) a study in ``storage`` (any URL Optuna's RDB storage accepts).
+
+    Returns:
+        ``(study, its RDBStorage)``: the storage records the trials' heartbeat.
 
     Raises:
         ConfigError: Optuna missing, an in-memory SQLite database (the study would end with the
@@ -346,7 +327,7 @@ def open_study(
     }
     with storage_errors(storage):  # a read-only database fails here
         try:
-            return optuna.create_study(
+            study = optuna.create_study(
                 storage=rdb,
                 study_name=study_name,
                 sampler=samplers[sampler](),
@@ -356,9 +337,10 @@ def open_study(
             )
         except ValueError as exc:
             raise ConfigError(f"--study-name {study_name}: {exc}") from None
+    return study, rdb
 
 
-def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
+def check_study_space(study: Any, space: dict[str, Any]) -> None:
     """Refuses a space that draws a field the study's trials drew from another kind of
     distribution (a choice where they drew a float, another log setting or choices): Optuna
     would refuse each new trial's draw, after creating it. Refuses too a field they drew
@@ -369,8 +351,7 @@ def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
     """
     import optuna
 
-    new = {name: d.distribution() for name, d in space.items()}
-    drawn_as = {d.name: name for name, d in space.items()}
+    drawn_as = {field_of(param): param for param in space}
     for trial in study.get_trials(deepcopy=False):
         for name, old in trial.distributions.items():
             field_ = name.removeprefix(ONE_MINUS)
@@ -381,8 +362,8 @@ def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
                     "it so, or give another --study-name"
                 )
             try:
-                if name in new:
-                    optuna.distributions.check_distribution_compatibility(old, new[name])
+                if name in space:
+                    optuna.distributions.check_distribution_compatibility(old, space[name])
             except ValueError as exc:
                 raise ConfigError(
                     f"--space {name}: study {study.study_name!r} draws it from {old} ({exc}); "
@@ -390,12 +371,57 @@ def check_study_space(study: Any, space: dict[str, Dimension]) -> None:
                 ) from None
 
 
+def record_heartbeats(storage: Any, study: Any, trials: Sequence[Any]) -> None:
+    """Tells ``storage`` (the study's RDBStorage) that ``trials`` are alive, through the
+    storage's public methods (an Optuna trial names its storage id only privately)."""
+    study_id = storage.get_study_id_from_name(study.study_name)
+    for trial in trials:
+        storage.record_heartbeat(
+            storage.get_trial_id_from_study_id_trial_number(study_id, trial.number)
+        )
+
+
+@contextlib.contextmanager
+def heartbeat(storage: Any, study: Any, trials: Sequence[Any]) -> Iterator[None]:
+    """Records the trials' heartbeat every :data:`HEARTBEAT_SECONDS` from a thread while the
+    block runs (compile, training and evaluation alike), as ``Study.optimize`` does, so that
+    only the trials of a process that died go stale."""
+    done = threading.Event()
+
+    def beat() -> None:
+        while True:
+            # a finished trial, or the database busy: the next beat
+            with contextlib.suppress(Exception):
+                record_heartbeats(storage, study, trials)
+            if done.wait(HEARTBEAT_SECONDS):
+                return
+
+    thread = threading.Thread(target=beat, daemon=True, name="jaxcart-heartbeat")
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join()
+
+
+def heldout_seed(study: Any, seed: int) -> int:
+    """A base seed for held-out runs, derived from the search's base ``seed`` (the same one
+    every time), such that neither it nor the next one (for a retrain) is the base seed of
+    any of the study's trials: seed index i trains from ``fold_in(PRNGKey(base), i)``, so
+    another base gives other keys."""
+    used = {seed} | {t.user_attrs.get("seed") for t in study.get_trials(deepcopy=False)}
+    fresh = zlib.crc32(f"jaxcart heldout {seed}".encode()) % 2**31  # fresh + 1 < 2**32 too
+    while fresh in used or fresh + 1 in used:
+        fresh += 2
+    return fresh
+
+
 @dataclass
 class TrialResult:
-    """One finished trial: its number, params, per-seed scores and where its runs are."""
+    """One finished trial: its number, per-seed scores and where its runs are."""
 
     number: int
-    params: dict[str, Any]
     scores: np.ndarray  # [num_seeds]
     run_dir: Path  # the trial's own run directory (a combination of its batch's sweep)
     pruned: bool = False
@@ -408,19 +434,12 @@ class BatchStopped(Exception):
     signum: int
 
 
-def counts(study: Any) -> tuple[int, int]:
-    """``(finished, running)``: trials complete or pruned, and trials running or waiting."""
-    states = [t.state.name for t in study.get_trials(deepcopy=False)]
-    finished = states.count("COMPLETE") + states.count("PRUNED")
-    return finished, states.count("RUNNING") + states.count("WAITING")
-
-
 @dataclass
 class Tuner:
     """Runs a study's batches until it holds ``n_trials`` finished trials.
 
     Attributes:
-        study: an Optuna study (:func:`open_study`).
+        study: an Optuna study, and storage: its RDBStorage (:func:`open_study`).
         space: the search space (:func:`parse_space`).
         spec: the trials' base: config, preset, seeds and base seed.
         out: the folder that holds one run directory per batch group.
@@ -431,7 +450,8 @@ class Tuner:
     """
 
     study: Any
-    space: dict[str, Dimension]
+    storage: Any
+    space: dict[str, Any]  # Optuna distributions by parameter name
     spec: RunSpec
     out: Path
     options: RunOptions = field(default_factory=RunOptions)
@@ -442,10 +462,10 @@ class Tuner:
     pruned_seconds_saved: float = 0.0
 
     def run(self, n_trials: int, batch_trials: int) -> int:
-        """Asks, trains and tells batches until the study has ``n_trials`` finished trials.
-        When the trials running elsewhere would finish it, waits for them: another process's
-        finish, and a killed process's are marked failed after :data:`STALE_GRACE_SECONDS`
-        and asked again. Returns the trials this process finished.
+        """Asks, trains and tells batches until the study has ``n_trials`` finished (complete
+        or pruned) trials. When the trials running elsewhere would finish it, waits for them:
+        another process's finish, and a killed process's are marked failed after
+        :data:`STALE_GRACE_SECONDS` and asked again. Returns the trials this process finished.
 
         Raises:
             ConfigError: the space draws a field the study drew otherwise
@@ -457,19 +477,19 @@ class Tuner:
         done, waited_for = 0, 0
         while True:
             self._fail_stale_trials()
-            finished, running = counts(self.study)
+            states = [t.state.name for t in self.study.get_trials(deepcopy=False)]
+            finished = states.count("COMPLETE") + states.count("PRUNED")
+            running = states.count("RUNNING") + states.count("WAITING")
             if finished >= n_trials:
                 return done
             remaining = n_trials - finished - running
-            if remaining <= 0:
-                if self.on_wait and running != waited_for:
-                    self.on_wait(running)
-                waited_for = running
-                time.sleep(WAIT_SECONDS)
+            if remaining > 0:
+                done += self._run_batch(self._ask(min(batch_trials, remaining), n_trials))
                 continue
-            trials = self._ask(min(batch_trials, remaining), n_trials)
-            if trials:
-                done += self._run_batch(trials)
+            if self.on_wait and running != waited_for:
+                self.on_wait(running)
+            waited_for = running
+            time.sleep(WAIT_SECONDS)
 
     def _fail_stale_trials(self) -> None:
         """Marks failed the trials of a process that died (Optuna's heartbeat), and removes
@@ -498,13 +518,12 @@ class Tuner:
         the same moment) is told failed at once, marked ``surplus``."""
         import optuna
 
-        distributions = {name: d.distribution() for name, d in self.space.items()}
         trials = []
         for _ in range(k):
-            trial = self.study.ask(fixed_distributions=distributions)
+            trial = self.study.ask(fixed_distributions=self.space)
             # at once, not when the batch starts: a process killed while asking leaves trials
             # that go stale, rather than trials that run forever
-            self.study._storage.record_heartbeat(trial._trial_id)
+            record_heartbeats(self.storage, self.study, [trial])
             ahead = sum(
                 t.number < trial.number and t.state.name != "FAIL"
                 for t in self.study.get_trials(deepcopy=False)
@@ -525,16 +544,12 @@ class Tuner:
         states = optuna.trial.TrialState
         untold = {t.number: t for t in trials}
         try:
-            with heartbeat(self.study, trials):
-                for spec, group in self._groups(trials):
-                    # fresh: a study made anew (its numbers from 0 again) keeps the old one's
-                    name = f"trials-{group[0].number:05d}-{group[-1].number:05d}"
-                    out = layout.fresh_dir(self.out / name)
+            with heartbeat(self.storage, self.study, trials):
+                for spec, out, group in self._groups(trials, self.spec.seed, "trials"):
                     for trial in group:
                         trial.set_user_attr("run_dir", str(out))
                         trial.set_user_attr("seed", spec.seed)  # what held-out seeds must avoid
-                    pruning = RungReporter(group, spec, self.hooks.on_signal)
-                    results = self._train(spec, out, group, pruning)
+                    results = self._train(spec, out, group)
                     for trial, result in zip(group, results):
                         value = None
                         if result.run_dir != out:  # trained to its end: scored
@@ -545,7 +560,7 @@ class Tuner:
                             value = None if result.pruned else est.value
                         state = states.PRUNED if result.pruned else states.COMPLETE
                         self.study.tell(trial, value, state=state)
-                        untold.pop(trial.number)
+                        del untold[trial.number]
                     if self.on_batch:
                         self.on_batch(out, results)
         finally:
@@ -553,52 +568,52 @@ class Tuner:
                 self.study.tell(trial, state=states.FAIL)
         return len(trials)
 
-    def _groups(self, trials: list[Any], seed: int | None = None) -> list[tuple[RunSpec, list]]:
-        """The trials grouped by their shape settings (:func:`by_shape`), each group's run the
-        base config with its shape settings, each trial's traced floats an explicit
-        combination, from base seed ``seed`` (None: :attr:`spec`'s)."""
-        points = [split_params(self.space, t.params) for t in trials]
-        seed = self.spec.seed if seed is None else seed
-        groups = []
+    def _groups(self, trials: list[Any], seed: int, prefix: str) -> Iterator[tuple]:
+        """``(spec, out, trials)`` for the trials grouped by their shape settings
+        (:func:`by_shape`): each group's run is the base config with its shape settings, each
+        trial's traced floats an explicit combination, from base seed ``seed``, into a fresh
+        ``PREFIX-FIRST-LAST`` directory under :attr:`out` (trial numbers: a study made anew
+        numbers its trials from 0 again, and the old one's directories stay)."""
+        points = [split_params(t.params) for t in trials]
         for shape, members in by_shape([{**static, **traced} for static, traced in points]):
             combos = tuple(points[i][1] for i in members)
+            group = [trials[i] for i in members]
+            name = f"{prefix}-{group[0].number:05d}-{group[-1].number:05d}"
             spec = group_spec(self.spec, shape, combinations=combos, seed=seed)
-            groups.append((spec, [trials[i] for i in members]))
-        return groups
+            yield spec, layout.fresh_dir(self.out / name), group
 
-    def _train(
-        self, spec: RunSpec, out: Path, trials: list[Any], pruning: RungReporter | None = None
-    ) -> list[TrialResult]:
+    def _train(self, spec: RunSpec, out: Path, trials: list[Any]) -> list[TrialResult]:
         """One group's ``trials`` trained as the run ``spec`` into ``out``, each scored from
-        its combination's directory as ``compare`` scores it. With ``pruning``, a group whose
-        every trial is pruned stops: its results are the last rung's, ``run_dir`` ``out``.
+        its combination's directory as ``compare`` scores it, with the pruner asked at each
+        rung (:class:`RungReporter`; finished trials, as :meth:`heldout` trains, are never
+        pruned). A group whose every trial is pruned stops: its results are the last rung's,
+        ``run_dir`` ``out``.
 
         Raises:
             BatchStopped: a signal stopped the training.
         """
-        hooks, pruned = self.hooks, set()
-        if pruning is not None:
-            hooks = chain_hooks(hooks, Hooks(on_chunk=pruning.on_chunk))
-            pruned = pruning.pruned
+        pruning = RungReporter(trials, spec, self.hooks.on_signal)
+        hooks = chain_hooks(self.hooks, Hooks(on_chunk=pruning.on_chunk))
         outcome = run_new(spec, out, self.options, hooks, stop=pruning)
-        if pruning is not None and pruning.all_pruned:
+        if pruning.all_pruned:
             self.pruned_seconds_saved += pruning.seconds_saved(outcome)
             if outcome.stopped:  # the group stopped at its last rung
                 last = pruning.last_scores
-                return [TrialResult(t.number, t.params, last[t.number], out, True) for t in trials]
+                return [TrialResult(t.number, last[t.number], out, True) for t in trials]
         if outcome.stopped:
             raise BatchStopped(outcome.signum or 15)
+        scores = run_scores(load_runs([out]), self.score)
         return [
-            TrialResult(t.number, t.params, s, out / f"combo-{c:03d}", t.number in pruned)
-            for c, (t, s) in enumerate(zip(trials, run_scores(load_runs([out]), self.score)))
+            TrialResult(t.number, s, out / f"combo-{c:03d}", t.number in pruning.pruned)
+            for c, (t, s) in enumerate(zip(trials, scores))
         ]
 
     def heldout(self, trials: list[Any], seed: int) -> list[TrialResult]:
         """Trains finished ``trials`` again from base seed ``seed`` (fresh seeds: see
         :func:`heldout_seed`), :attr:`spec`'s number of seeds each, as their batches trained
-        (:meth:`_train`, one program per shape group), each group a sweep-shaped run directory
-        ``heldout-SEED-trials-N-...`` under :attr:`out` that ``compare`` and ``plot`` read.
-        Nothing is told to the study.
+        (one program per shape group), each group a sweep-shaped run directory
+        ``heldout-SEED-trials-FIRST-LAST`` under :attr:`out` that ``compare`` and ``plot``
+        read. Nothing is told to the study.
 
         Returns:
             Each trial's result (per-seed scores ``[num_seeds]``), group by group.
@@ -606,93 +621,35 @@ class Tuner:
         Raises:
             BatchStopped: a signal stopped the training.
         """
-        results = []
-        for spec, group in self._groups(trials, seed):
-            numbers = "-".join(f"{t.number:05d}" for t in group)
-            out = layout.fresh_dir(self.out / f"heldout-{seed}-trials-{numbers}")
-            results += self._train(spec, out, group)
-        return results
-
-
-def heldout_seed(study: Any, seed: int) -> int:
-    """A base seed for held-out runs, derived from the search's base ``seed`` (the same one
-    every time), such that neither it nor the next one (for a retrain) is the base seed of
-    any of the study's trials: seed index i trains from ``fold_in(PRNGKey(base), i)``, so
-    another base gives other keys."""
-    used = {seed} | {t.user_attrs.get("seed") for t in study.get_trials(deepcopy=False)}
-    fresh = zlib.crc32(f"jaxcart heldout {seed}".encode()) % 2**31  # fresh + 1 < 2**32 too
-    while fresh in used or fresh + 1 in used:
-        fresh += 2
-    return fresh
-
-
-@contextlib.contextmanager
-def heartbeat(study: Any, trials: list[Any]) -> Iterator[None]:
-    """Records the trials' heartbeat in the storage every :data:`HEARTBEAT_SECONDS` from a
-    thread while the block runs (compile, training and evaluation alike), as
-    ``Study.optimize`` does, so that only the trials of a process that died go stale."""
-    storage, ids, done = study._storage, [t._trial_id for t in trials], threading.Event()
-
-    def beat() -> None:
-        while True:
-            for trial_id in ids:
-                # a finished trial, or the database busy: the next beat
-                with contextlib.suppress(Exception):
-                    storage.record_heartbeat(trial_id)
-            if done.wait(HEARTBEAT_SECONDS):
-                return
-
-    thread = threading.Thread(target=beat, daemon=True, name="jaxcart-heartbeat")
-    thread.start()
-    try:
-        yield
-    finally:
-        done.set()
-        thread.join()
-
-
-def check_score(score: Score, space: dict[str, Dimension], config: PPOConfig) -> None:
-    """Refuses a ``return-at:STEPS`` that the base config, or one of the space's shape
-    choices, ends before (one line, before anything compiles)."""
-    if score.steps is None:
-        return
-    configs = [config] + [
-        dataclasses.replace(config, **{d.name: d.config_value(v)})
-        for d in space.values()
-        if not d.traced
-        for v in (d.choices or (int(d.low), int(d.high)))
-    ]
-    short = min(c.env_steps_per_seed for c in configs)
-    if score.steps > short:
-        raise ConfigError(
-            f"--score {score.label}: some trials end at {short:,} env steps per seed; "
-            "choose fewer steps or a larger --total-timesteps"
-        )
+        groups = self._groups(trials, seed, f"heldout-{seed}-trials")
+        return [result for group in groups for result in self._train(*group)]
 
 
 class RungReporter(StopRequest):
     """At chunk boundaries, reports each trial's partial area under its learning curve
     (:func:`jaxcart.analysis.summary.auc` of the iterations so far, as ``--score auc`` scores
     a whole run; IQM over its seeds) at :data:`RUNGS` evenly spaced iterations, and asks the
-    pruner. A pruned trial is marked; when every trial of the group
-    is pruned, the group stops (as this stop request, which a signal sets too) and saves the
-    rest of its compute. The step reported is the per-mille of training done, so that trials
-    of other shapes (other iterations) are compared at the same point."""
+    pruner. A pruned trial is marked; when every trial of the group is pruned, the group stops
+    (as this stop request, which a signal sets too) and saves the rest of its compute. The
+    step reported is the per-mille of training done, so that trials of other shapes (other
+    iterations) are compared at the same point. A finished trial (Optuna's ``FrozenTrial``)
+    ignores the reports and is never pruned."""
 
     def __init__(
         self, trials: list[Any], spec: RunSpec, on_signal: Callable[[int], None] | None = None
     ) -> None:
         super().__init__(on_signal)
-        self.trials, self.num_seeds = trials, spec.num_seeds
-        self.num_iterations = spec.config.num_iterations
-        steps = (self.num_iterations * (np.arange(RUNGS) + 1)) // RUNGS
-        self.rungs = {int(i) for i in steps if 0 < i < self.num_iterations}
-        self.env_id = spec.config.env
+        self.trials, self.spec = trials, spec
+        n = spec.config.num_iterations
+        self.rungs = {n * r // RUNGS for r in range(1, RUNGS)} - {0}
         self.returns: list[np.ndarray] = []  # per chunk, [iterations, trials x seeds]
-        self.iteration = 0
+        self.iteration = 0  # the last rung reported
         self.pruned: set[int] = set()
-        self.last_scores: dict[int, np.ndarray] = {}
-        self.all_pruned = False
+        self.last_scores: dict[int, np.ndarray] = {}  # [num_seeds] by trial number
+
+    @property
+    def all_pruned(self) -> bool:
+        return len(self.pruned) == len(self.trials)
 
     def __call__(self) -> bool:
         """``should_stop`` for the training: a signal, or every trial pruned."""
@@ -700,38 +657,31 @@ class RungReporter(StopRequest):
 
     def on_chunk(self, progress: Progress) -> None:
         """The chunk's returns kept; each rung passed reported."""
-        returns = np.asarray(progress.metrics[RETURN_METRIC], float)
-        self.returns.append(returns)
-        for done in range(progress.iteration - len(returns) + 1, progress.iteration + 1):
-            if done in self.rungs:
-                self._report(done)
+        self.returns.append(np.asarray(progress.metrics[RETURN_METRIC], float))
+        first = progress.iteration - len(self.returns[-1]) + 1
+        for iteration in sorted(self.rungs.intersection(range(first, progress.iteration + 1))):
+            self._report(iteration)
 
     def _report(self, iteration: int) -> None:
+        config, step = self.spec.config, 1000 * iteration // self.spec.config.num_iterations
         so_far = np.concatenate(self.returns)[:iteration]
-        partial = auc(so_far, self.env_id).reshape(len(self.trials), self.num_seeds)
-        for c, trial in enumerate(self.trials):
-            self.last_scores[trial.number] = partial[c]
-            if trial.number in self.pruned:
-                continue
-            step = 1000 * iteration // self.num_iterations
-            trial.report(float(stats.iqm(partial[c])), step=step)
-            if trial.should_prune():
-                self.pruned.add(trial.number)
+        partial = auc(so_far, config.env).reshape(len(self.trials), self.spec.num_seeds)
+        for trial, scores in zip(self.trials, partial):
+            self.last_scores[trial.number] = scores
+            if trial.number not in self.pruned:
+                trial.report(float(stats.iqm(scores)), step=step)
+                if trial.should_prune():
+                    self.pruned.add(trial.number)
         self.iteration = iteration
-        if len(self.pruned) == len(self.trials):
-            self.all_pruned = True
 
     def seconds_saved(self, outcome: Outcome) -> float:
         """The training time the rest of the group's iterations would have taken, at the
         speed its trained ones ran."""
-        if self.iteration <= 0:
-            return 0.0
-        per_iteration = outcome.train_seconds / self.iteration
-        return per_iteration * (self.num_iterations - self.iteration)
+        done, total = self.iteration, self.spec.config.num_iterations
+        return outcome.train_seconds / done * (total - done) if done > 0 else 0.0
 
 
 __all__ = [
-    "Dimension",
     "TrialResult",
     "Tuner",
     "heldout_seed",
