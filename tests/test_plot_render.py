@@ -199,10 +199,10 @@ def test_step_ticks_are_few_and_short():
 
 
 def test_wrap_to_width_keeps_indentation_and_cuts_long_words():
-    assert figures.wrap_to_width("ab cd ef", 5, len) == "ab cd\n  ef"
-    assert figures.wrap_to_width("  one two three", 9, len) == "  one two\n    three"
-    assert figures.wrap_to_width("abcdefghij", 4, len) == "abcd\n  ef\n  gh\n  ij"
-    assert figures.wrap_to_width("short\n\n  x", 20, len) == "short\n\n  x"
+    assert figures.wrap_to_width("ab cd ef", 5) == "ab cd\n  ef"
+    assert figures.wrap_to_width("  one two three", 9) == "  one two\n    three"
+    assert figures.wrap_to_width("abcdefghij", 4) == "abcd\n  ef\n  gh\n  ij"
+    assert figures.wrap_to_width("short\n\n  x", 20) == "short\n\n  x"
 
 
 def test_run_styles_differ_and_later_runs_draw_on_top():

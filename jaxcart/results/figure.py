@@ -31,7 +31,7 @@ from __future__ import annotations
 import io
 import math
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -145,6 +145,18 @@ def no_data(ax, text: str) -> None:
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
+def _finish(ax, empty: str, legend: str | None = None) -> bool:
+    """A grid, and ``empty`` written in the middle if no run was drawn, else a legend of the
+    runs at ``legend`` (a ``loc``; none without); whether any run was drawn."""
+    ax.grid(alpha=0.3)
+    if not ax.lines:
+        no_data(ax, empty)
+        return False
+    if legend:
+        ax.legend(fontsize=7, loc=legend)
+    return True
+
+
 def step_axis(axis) -> None:
     """Few ticks, labelled 0, 250k, 500k, 1.25M: readable at any number of env steps."""
     from matplotlib.ticker import EngFormatter, MaxNLocator
@@ -153,45 +165,27 @@ def step_axis(axis) -> None:
     axis.set_major_formatter(EngFormatter(sep=""))
 
 
-def wrap_to_width(text: str, width: float, measure: Callable[[str], float]) -> str:
-    """Word-wraps each line of ``text`` so that ``measure(line) <= width``: a wrapped line
-    keeps the line's indentation plus two spaces, and a word wider than a line is cut.
-
-    Args:
-        text: lines separated by ``\\n``.
-        width: the widest line allowed, in ``measure``'s unit.
-        measure: the width of a string (points of a font, or ``len`` for characters).
-    """
-    out = []
+def wrap_to_width(text: str, width: int) -> str:
+    """Word-wraps each line of ``text`` to ``width`` characters: a wrapped line keeps the
+    line's indentation plus two spaces, and a word longer than a line is cut."""
+    lines = []
     for line in text.split("\n"):
-        prefix = line[: len(line) - len(line.lstrip(" "))]
-        more = prefix + "  "
-        current = ""
-        for word in line.split():
-            trial = f"{current} {word}" if current else word
-            if current and measure(prefix + trial) > width:
-                out.append(prefix + current)
-                prefix, trial = more, word
-            while len(trial) > 1 and measure(prefix + trial) > width:
-                cut = len(trial) - 1
-                while cut > 1 and measure(prefix + trial[:cut]) > width:
-                    cut -= 1
-                out.append(prefix + trial[:cut])
-                prefix, trial = more, trial[cut:]
-            current = trial
-        out.append(prefix + current)
-    return "\n".join(out)
+        indent = line[: len(line) - len(line.lstrip(" "))]
+        width = max(width, len(indent) + 3)  # room for a letter after the wrapped indent
+        wrapped = textwrap.fill(
+            line.lstrip(" "), width, initial_indent=indent, subsequent_indent=indent + "  "
+        )
+        lines.append(wrapped or line)
+    return "\n".join(lines)
 
 
 def wrap_to_axes(text, ax) -> None:
-    """Wraps ``text`` to the width of the (laid out) axes it starts at the left edge of,
-    measured in points of the text's font."""
-    renderer, prop = ax.figure.canvas.get_renderer(), text.get_fontproperties()
-    width = ax.get_window_extent(renderer).width * 72 / ax.figure.dpi
-    measure = lambda s: (
-        renderer.get_text_width_height_descent(s, prop, ismath=False)[0] * 72 / renderer.dpi
-    )
-    text.set_text(wrap_to_width(text.get_text(), width, measure))
+    """Wraps ``text`` (in a monospace font, so that every character is as wide as a digit) to
+    the width of the (laid out) axes it starts at the left edge of."""
+    renderer = ax.figure.canvas.get_renderer()
+    digit = renderer.get_text_width_height_descent("0", text.get_fontproperties(), ismath=False)
+    columns = int(ax.get_window_extent(renderer).width // digit[0])
+    text.set_text(wrap_to_width(text.get_text(), columns))
 
 
 EVAL_METRIC = "eval/mean_return"
@@ -292,12 +286,13 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
         )
     env_ids = sorted({run.env for run in runs})
     fig.suptitle(f"PPO on {', '.join(env_ids)}, {num}: {what}", fontsize=13)
-    caption = _caption(ax_time, wall_time_notes(runs)) if ax_time.lines else None
     fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
-    if caption is not None:
-        wrap_to_axes(caption, ax_time)
-        caption.set_in_layout(True)
-        fig.draw_without_rendering()  # again, with room for the wrapped caption
+    notes = wall_time_notes(runs)
+    if ax_time.lines and notes:  # under the x label, off the data, wrapped to the panel
+        caption = "\n".join(f"note: {note}" for note in notes)
+        where = ("axes fraction", ax_time.xaxis.label)
+        _text_below(ax_time, caption, (0.0, 0.0), where, 4.0, 8.5, "0.3").set_in_layout(True)
+        fig.draw_without_rendering()  # again, with room for the caption
     _draw_summary(ax_summary, runs, styles)
     return fig
 
@@ -333,12 +328,9 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
         xlabel="training wall time [s] (compile excluded)",
         ylabel=RETURN_METRIC,
     )
-    if not ax_steps.lines:
-        no_data(ax_steps, f"{RETURN_METRIC} not recorded")
-    if not ax_time.lines:
-        no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
+    _finish(ax_steps, f"{RETURN_METRIC} not recorded")
+    _finish(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
     for ax in (ax_steps, ax_time):
-        ax.grid(alpha=0.3)
         return_axis(ax, [run.env for run in runs])
     step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
@@ -411,60 +403,42 @@ def wall_time_notes(runs: list[RunCurves]) -> list[str]:
     return notes
 
 
-def _text_below(ax, text: str, xy, xycoords, below: float, **style):
-    """``text`` from ``xy`` down, ``below`` points under it, left-aligned; left out of the
-    layout (the panel is laid out already, or will be once the text is wrapped to it)."""
+def _text_below(ax, text: str, xy, xycoords, below: float, size: float, colour: str):
+    """``text`` in monospace from ``xy`` down, ``below`` points under it, left-aligned and
+    wrapped to the laid-out panel (:func:`wrap_to_axes`); left out of the layout."""
     offset = {"xytext": (0.0, -below), "textcoords": "offset points"}
+    style = {"family": "monospace", "fontsize": size, "color": colour}
     text = ax.annotate(text, xy, xycoords=xycoords, va="top", ha="left", **offset, **style)
     text.set_in_layout(False)
+    wrap_to_axes(text, ax)
     return text
-
-
-def _caption(ax, notes: list[str]):
-    """Notes under a panel's x label, off the data; None without notes. Left out of the layout
-    until :func:`wrap_to_axes` has wrapped them (unwrapped, they would squeeze the
-    panel)."""
-    if not notes:
-        return None
-    text = "\n".join(f"note: {note}" for note in notes)
-    where = ("axes fraction", ax.xaxis.label)
-    return _text_below(ax, text, (0.0, 0.0), where, 4.0, fontsize=8.5, color="0.3")
 
 
 def _draw_summary(ax, runs: list[RunCurves], styles: list[Style]) -> None:
     """Each run's block (:func:`_summary_lines`) in its colour, wrapped to the laid-out
     panel; smaller type for many runs, and at the smallest the runs that still do not fit
     are counted instead."""
-    renderer = ax.figure.canvas.get_renderer()
-    to_points = 72 / ax.figure.dpi
-    height = ax.get_window_extent(renderer).height * to_points
+    renderer, points = ax.figure.canvas.get_renderer(), 72 / ax.figure.dpi
+    height = ax.get_window_extent(renderer).height * points
     blocks = ["\n".join(_summary_lines(run)) for run in runs]
     for size in SUMMARY_FONTSIZES:
-        texts, tops, top = [], [], 0.0
+        for text in list(ax.texts):  # the larger type's blocks, which overflowed
+            text.remove()
+        tops, top = [], 0.0
         for block, style in zip(blocks, styles):
-            texts.append(_summary_text(ax, block, style.color, size, top))
             tops.append(top)
-            top += texts[-1].get_window_extent(renderer).height * to_points + size / 2
-        if top <= height or size == SUMMARY_FONTSIZES[-1]:
-            break
-        for text in texts:
-            text.remove()
-    if top > height:  # even the smallest type overflows: drop the last runs, say how many
-        keep = len(texts) - 1
-        while keep > 0 and tops[keep] + 2 * size > height:
-            keep -= 1
-        for text in texts[keep:]:
-            text.remove()
-        more = f"... and {len(texts) - keep} more run(s): see the legend"
-        _summary_text(ax, more, "0.3", size, tops[keep])
-
-
-def _summary_text(ax, block: str, colour: str, size: float, top: float):
-    """One block of the summary, ``top`` points below the panel's top, wrapped to its width."""
-    style = {"family": "monospace", "fontsize": size, "color": colour}
-    text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, **style)
-    wrap_to_axes(text, ax)
-    return text
+            text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, size, style.color)
+            top += text.get_window_extent(renderer).height * points + size / 2
+        if top <= height:
+            return
+    # Even the smallest type overflows: drop the last runs, and say how many.
+    keep = len(blocks) - 1
+    while keep > 0 and tops[keep] + 2 * size > height:
+        keep -= 1
+    for text in list(ax.texts)[keep:]:
+        text.remove()
+    more = f"... and {len(blocks) - keep} more run(s): see the legend"
+    _text_below(ax, more, (0.0, 1.0), "axes fraction", tops[keep], size, "0.3")
 
 
 TAUS = np.linspace(0.0, stats.MAX_RETURN, 101)
@@ -486,17 +460,6 @@ ESTIMATE_TITLES = {
 
 def _colour(i: int) -> str:
     return PALETTE[i % len(PALETTE)]
-
-
-def _finish(ax, loc: str, empty: str) -> bool:
-    """A grid, and a legend of the runs drawn (at ``loc``) or ``empty`` written in the
-    middle; whether any run was drawn."""
-    ax.grid(alpha=0.3)
-    if not ax.lines:
-        no_data(ax, empty)
-        return False
-    ax.legend(fontsize=7, loc=loc)
-    return True
 
 
 def _tick_label(name: str, width: int = 14) -> str:
@@ -597,7 +560,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
         xlim=(0, stats.MAX_RETURN * 1.02),
         ylim=(-0.02, 1.02),
     )
-    _finish(ax, "lower left", "")
+    _finish(ax, "", "lower left")
 
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
@@ -617,7 +580,7 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
         xlabel="env steps per seed",
         ylabel=RETURN_METRIC,
     )
-    _finish(ax, "lower right", f"{RETURN_METRIC} not recorded")
+    _finish(ax, f"{RETURN_METRIC} not recorded", "lower right")
     return_axis(ax, [entry.run.env for entry in comparison.entries])
 
 
@@ -640,7 +603,7 @@ def _reached_panel(ax, comparison: Comparison) -> None:
         ylabel="fraction of seeds",
         ylim=(-0.02, 1.02),
     )
-    if _finish(ax, "lower right", "not recorded") and not reached_any:
+    if _finish(ax, "not recorded", "lower right") and not reached_any:
         no_data(ax, "no seed's training reached 500")
 
 
