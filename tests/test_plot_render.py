@@ -207,12 +207,10 @@ def test_wrap_to_width_keeps_indentation_and_cuts_long_words():
 
 def test_run_styles_differ_and_later_runs_draw_on_top():
     styles = figures.run_styles(30)
-    pairs = [(s.color, str(s.linestyle)) for s in styles]
+    pairs = [(s["color"], str(s["ls"])) for s in styles]
     assert len(set(pairs[:28])) == 28 and pairs[28] == pairs[0]
-    assert all(
-        a.color != b.color and a.linestyle != b.linestyle for a, b in zip(styles, styles[1:])
-    )
-    assert all(a.zorder < b.zorder for a, b in zip(styles, styles[1:]))
+    assert all(a["color"] != b["color"] and a["ls"] != b["ls"] for a, b in zip(styles, styles[1:]))
+    assert all(a["zorder"] < b["zorder"] for a, b in zip(styles, styles[1:]))
     # Two equal curves (the same settings run twice): the second is broken and drawn later.
     fig = figures.draw_figure([synthetic_run("x"), synthetic_run("x")])
     first, second = panel(fig, "approx KL").lines

@@ -32,7 +32,6 @@ import io
 import math
 import textwrap
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -64,26 +63,17 @@ Y_MARGIN = 0.08
 """Room above and below the mean curves, as a fraction of their range."""
 
 
-@dataclass(frozen=True)
-class Style:
-    """How one run is drawn: its colour and line style in every panel and the legend."""
-
-    color: str
-    linestyle: str | tuple
-    width: float
-    zorder: float  # later runs on top: dashed or dotted over solid, so equal curves both show
-
-    def line(self) -> dict:
-        """Keyword arguments of ``Axes.plot``."""
-        return {"color": self.color, "ls": self.linestyle, "lw": self.width, "zorder": self.zorder}
-
-
-def run_styles(count: int) -> list[Style]:
-    """Colour and line style of each of ``count`` runs: both change from one run to the next."""
-    return [
-        Style(PALETTE[i % len(PALETTE)], *LINE_STYLES[i % len(LINE_STYLES)], 2.0 + i / 1000)
-        for i in range(count)
-    ]
+def run_styles(count: int) -> list[dict]:
+    """How each of ``count`` runs is drawn in every panel and the legend: ``Axes.plot``'s
+    ``color``, ``ls``, ``lw`` and ``zorder``. Colour and line style both change from one run
+    to the next, and later runs draw on top (dashed or dotted over solid, so that equal
+    curves both show)."""
+    styles = []
+    for i in range(count):
+        linestyle, width = LINE_STYLES[i % len(LINE_STYLES)]
+        color = PALETTE[i % len(PALETTE)]
+        styles.append({"color": color, "ls": linestyle, "lw": width, "zorder": 2.0 + i / 1000})
+    return styles
 
 
 def curve_limits(
@@ -214,14 +204,14 @@ SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
 """The summary panel's font sizes, tried largest first until every run's block fits."""
 
 
-def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: Style, name: str) -> np.ndarray:
+def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: dict, name: str) -> np.ndarray:
     """Draws the mean across seeds of ``run``'s metric and its bootstrap band
     (:func:`stats.curve_band`, clipped to :data:`METRIC_BOUNDS`, returns to the run's env's:
     :func:`~jaxcart.core.solved.return_bounds`); returns the mean ``[iterations]``."""
     values = run.metrics[name]
     bounds = return_bounds(run.env) if name == RETURN_METRIC else METRIC_BOUNDS.get(name, ALL)
     mean, low, high = stats.curve_band(values, "mean", bounds=bounds)
-    band(ax, x, mean, low, high, alpha=0.18, **style.line())
+    band(ax, x, mean, low, high, alpha=0.18, **style)
     return mean
 
 
@@ -297,7 +287,7 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
     return fig
 
 
-def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time) -> None:
+def _draw_returns(runs: list[RunCurves], styles: list[dict], ax_steps, ax_time) -> None:
     """The return against env steps (with ``--eval-every``'s greedy evaluations as dots)
     and against wall time."""
     from matplotlib.ticker import MaxNLocator
@@ -314,7 +304,7 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
         if rows.any():
             mean = np.nanmean(evaluated[rows], axis=1)
             ax_steps.plot(
-                run.env_steps[rows], mean, "o", color=style.color, ms=4, label=EVAL_METRIC
+                run.env_steps[rows], mean, "o", color=style["color"], ms=4, label=EVAL_METRIC
             )
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
@@ -338,7 +328,7 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
 
 def _draw_metrics(
     runs: list[RunCurves],
-    styles: list[Style],
+    styles: list[dict],
     axes: list,
     panels: list[tuple[str, str]],
 ) -> None:
@@ -366,7 +356,7 @@ def _draw_metrics(
             ax.set_ylim(limits)
 
 
-def _draw_legend(fig, runs: list[RunCurves], styles: list[Style]) -> None:
+def _draw_legend(fig, runs: list[RunCurves], styles: list[dict]) -> None:
     """One entry per run below the panels, outside the data, in as many columns as fit."""
     from matplotlib.lines import Line2D
 
@@ -374,7 +364,7 @@ def _draw_legend(fig, runs: list[RunCurves], styles: list[Style]) -> None:
         f"{run.label} ({f'{run.num_seeds} seeds' if run.num_seeds > 1 else '1 seed, no band'})"
         for run in runs
     ]
-    handles = [Line2D([], [], **style.line()) for style in styles]
+    handles = [Line2D([], [], **style) for style in styles]
     # About 0.6 em a character at 9 pt, plus the handle and gaps: the columns that fit 14 in.
     columns = int(14 * 72 / (max(map(len, labels)) * 9 * 0.6 + 60))
     fig.legend(
@@ -414,7 +404,7 @@ def _text_below(ax, text: str, xy, xycoords, below: float, size: float, colour: 
     return text
 
 
-def _draw_summary(ax, runs: list[RunCurves], styles: list[Style]) -> None:
+def _draw_summary(ax, runs: list[RunCurves], styles: list[dict]) -> None:
     """Each run's block (:func:`_summary_lines`) in its colour, wrapped to the laid-out
     panel; smaller type for many runs, and at the smallest the runs that still do not fit
     are counted instead."""
@@ -427,7 +417,7 @@ def _draw_summary(ax, runs: list[RunCurves], styles: list[Style]) -> None:
         tops, top = [], 0.0
         for block, style in zip(blocks, styles):
             tops.append(top)
-            text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, size, style.color)
+            text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, size, style["color"])
             top += text.get_window_extent(renderer).height * points + size / 2
         if top <= height:
             return
@@ -682,7 +672,7 @@ def draw_robustness(
     fig = Figure(figsize=(9, 5.5), layout="constrained")
     ax = fig.add_subplot()
     for style, (label, point, low, high) in zip(run_styles(len(curves)), curves):
-        band(ax, values, point, low, high, marker="o", label=label, **style.line())
+        band(ax, values, point, low, high, marker="o", label=label, **style)
     if min(values) > 0 and max(values) >= 4 * min(values):
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())
