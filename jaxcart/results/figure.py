@@ -448,10 +448,6 @@ ESTIMATE_TITLES = {
 }
 
 
-def _colour(i: int) -> str:
-    return PALETTE[i % len(PALETTE)]
-
-
 def _tick_label(name: str, width: int = 14) -> str:
     """A run name as a y tick label, wrapped (at hyphens first) so that long names leave the
     panels room: ``4x128-100k-seed271828`` -> ``4x128-100k-\\nseed271828``."""
@@ -460,7 +456,7 @@ def _tick_label(name: str, width: int = 14) -> str:
 
 def _intervals(
     ax,
-    rows: list[tuple[int, str, stats.Estimate]],
+    rows: list[tuple[str, str, stats.Estimate]],
     title: str,
     xlabel: str,
     xlim: tuple[float, float],
@@ -472,10 +468,10 @@ def _intervals(
     over the next one and squeezing the constrained layout."""
     n = len(rows)
     ax.set_xlim(*xlim)
-    for k, (i, _, e) in enumerate(rows):
+    for k, (colour, _, e) in enumerate(rows):
         y = n - 1 - k
-        ax.plot([e.ci_low, e.ci_high], [y, y], color=_colour(i), lw=6, alpha=0.45)
-        ax.plot([e.value], [y], "|", color=_colour(i), ms=16, mew=2)
+        ax.plot([e.ci_low, e.ci_high], [y, y], color=colour, lw=6, alpha=0.45)
+        ax.plot([e.value], [y], "|", color=colour, ms=16, mew=2)
         right = e.value > (xlim[0] + xlim[1]) / 2
         ax.annotate(
             e.format(1 if abs(e.value) >= 2 else 2),
@@ -509,10 +505,15 @@ def _limits(
     return low - margin, high + margin
 
 
-def _rows(comparison: Comparison, key: str) -> list[tuple[int, str, stats.Estimate]]:
-    """``(index, name, estimate)`` of each run that has an estimate of ``key``."""
-    pairs = zip(comparison.entries, comparison.runs)
-    return [(i, e.name, st[key]) for i, (e, st) in enumerate(pairs) if st[key] is not None]
+def _rows(comparison: Comparison, key: str) -> list[tuple[str, str, stats.Estimate]]:
+    """``(colour, name, estimate)`` of each run that has an estimate of ``key``."""
+    pairs = zip(comparison.entries, comparison.runs, _styles(comparison))
+    return [(s["color"], e.name, st[key]) for e, st, s in pairs if st[key] is not None]
+
+
+def _styles(comparison: Comparison) -> list[dict]:
+    """Each compared run's :func:`run_styles` (as in ``python -m jaxcart.plot``'s figure)."""
+    return run_styles(len(comparison.entries))
 
 
 def _against_baseline(ax, comparison: Comparison, key: str) -> None:
@@ -537,12 +538,12 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
-    for i, entry in enumerate(comparison.entries):
+    for entry, style in zip(comparison.entries, _styles(comparison)):
         profile, low, high = stats.performance_profile_band(
             entry.scores, TAUS, comparison.reps, seed=comparison.seed, at_least=True
         )
-        band(ax, TAUS, profile, low, high, _colour(i), lw=1.6, label=entry.name)
-        ax.plot([TAUS[-1]], [profile[-1]], "o", color=_colour(i), ms=6)
+        band(ax, TAUS, profile, low, high, label=entry.name, **style)
+        ax.plot([TAUS[-1]], [profile[-1]], "o", color=style["color"], ms=6)
     ax.set(
         title=f"performance profile ({score}); dot: fraction at 500",
         xlabel=f"score ({score}) tau",
@@ -554,7 +555,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
 
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
-    for i, entry in enumerate(comparison.entries):
+    for entry, style in zip(comparison.entries, _styles(comparison)):
         values = entry.train_return
         if values is None or not np.isfinite(values).any():
             continue
@@ -564,7 +565,7 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
             values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=bounds
         )
         x = entry.run.env_steps[points]
-        band(ax, x, iqm, low, high, _colour(i), lw=1.6, label=entry.name)
+        band(ax, x, iqm, low, high, label=entry.name, **style)
     ax.set(
         title="sample efficiency: IQM over seeds of the training return",
         xlabel="env steps per seed",
@@ -577,16 +578,14 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
 def _reached_panel(ax, comparison: Comparison) -> None:
     """Fraction of seeds in which a training episode had scored 500, by env steps."""
     reached_any = False
-    for i, entry in enumerate(comparison.entries):
+    for entry, style in zip(comparison.entries, _styles(comparison)):
         x = entry.run.env_steps
         first = entry.first_reached(x)
         if first is None:
             continue
         reached_any |= bool(np.isfinite(first).any())
         x = np.r_[0.0, x[np.isfinite(x)]]
-        ax.step(
-            x, stats.fraction_reached(first, x), where="post", color=_colour(i), label=entry.name
-        )
+        ax.step(x, stats.fraction_reached(first, x), where="post", label=entry.name, **style)
     ax.set(
         title="a training episode at 500 (rollout/ep_rew_max)",
         xlabel="env steps per seed",
