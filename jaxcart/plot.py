@@ -10,7 +10,7 @@ run's Gymnasium evaluation; below them, one panel per metric of the run's own
 Each curve is the mean across seeds; the shaded band is a 95% percentile bootstrap confidence
 interval of that mean (:func:`jaxcart.analysis.stats.curve_band`: whole seeds resampled, a
 fixed seed so the figure is deterministic), clipped to the metric's range
-(:data:`jaxcart.results.figure.METRIC_BOUNDS`: returns within the env's, e.g. [0, 500] on
+(:func:`jaxcart.results.figure.metric_bounds`: returns within the env's, e.g. [0, 500] on
 CartPole-v1, clip fraction in [0, 1], KL and value loss >= 0, explained variance <= 1, ...).
 NaN entries (``ep_rew_mean`` is NaN until a seed's first episode ends) are left out, so the
 curve starts when the first seed has a value and the band when two seeds do; a single-seed

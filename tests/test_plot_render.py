@@ -96,6 +96,10 @@ def test_mean_and_band_ignores_nan_needs_two_seeds_and_stays_in_range():
     assert low[0] == 0.5 and high[0] == 1.0
     assert figures.METRIC_BOUNDS["rollout/ep_rew_mean"] == (0.0, 500.0)
     assert figures.METRIC_BOUNDS["train/approx_kl"][0] == 0.0
+    # On another env: its returns' range, and the entropy of its three actions.
+    assert figures.metric_bounds("rollout/ep_rew_mean", "Acrobot-v1") == (-500.0, 0.0)
+    assert figures.metric_bounds("train/entropy_loss", "Acrobot-v1") == (-np.log(3), 0.0)
+    assert figures.metric_bounds("train/approx_kl", "Acrobot-v1") == (0.0, np.inf)
 
 
 def test_plot_one_run_default_path(tiny_run, capsys, no_warnings):

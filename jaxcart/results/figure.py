@@ -16,11 +16,12 @@ never pyplot, so the caller's backend is never changed).
 - :func:`draw_robustness`: ``robustness.png``, ``python -m jaxcart.evaluate --sweep``'s return
   against a physics value.
 - Helpers: :func:`run_styles` (a colour from Okabe and Ito's colour-blind-safe palette and a
-  line style per run), :func:`curve_limits` (y limits that fit the mean curves, not their
-  bands), :func:`return_axis` (an env's range of returns and its solved threshold),
-  :func:`step_axis` (``250k``, ``1.25M``), :func:`wrap_to_width` and :func:`wrap_to_axes`
-  (text wrapped to a laid-out panel in the font it is drawn in), :func:`band` (a curve with
-  its confidence band), :func:`no_data` and :func:`save` (one file, written atomically).
+  line style per run), :func:`metric_bounds` (a metric's range on an env),
+  :func:`curve_limits` (y limits that fit the mean curves, not their bands),
+  :func:`return_axis` (an env's range of returns and its solved threshold), :func:`step_axis`
+  (``250k``, ``1.25M``), :func:`wrap_to_width` and :func:`wrap_to_axes` (monospace text
+  wrapped to a laid-out panel), :func:`band` (a curve with its confidence band),
+  :func:`no_data` and :func:`save` (one file, written atomically).
 
 Importing this module imports neither matplotlib nor JAX (``python -m jaxcart.plot --help``
 stays fast); both come in when a figure is drawn from runs read.
@@ -198,19 +199,31 @@ METRIC_BOUNDS: dict[str, tuple[float, float]] = {
     "train/explained_variance": (-math.inf, 1.0),
 }
 """Each metric's range on CartPole-v1; confidence bands are clipped to it (a run's returns to
-its env's, the entropy to its actions')."""
+its env's, the entropy to its actions': :func:`metric_bounds`)."""
 ALL = (-math.inf, math.inf)
 SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
 """The summary panel's font sizes, tried largest first until every run's block fits."""
 
 
+def metric_bounds(name: str, env_id: str) -> tuple[float, float]:
+    """The range of metric ``name`` on ``env_id``: a return within the env's
+    (:func:`~jaxcart.core.solved.return_bounds`), the entropy loss within minus the log of
+    the env's action count, any other metric within :data:`METRIC_BOUNDS` (or unbounded)."""
+    from jaxcart.core.envs import ACTION_COUNTS
+
+    if name == RETURN_METRIC:
+        return return_bounds(env_id)
+    if name == "train/entropy_loss" and env_id in ACTION_COUNTS:
+        return -math.log(ACTION_COUNTS[env_id]), 0.0
+    return METRIC_BOUNDS.get(name, ALL)
+
+
 def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: dict, name: str) -> np.ndarray:
     """Draws the mean across seeds of ``run``'s metric and its bootstrap band
-    (:func:`stats.curve_band`, clipped to :data:`METRIC_BOUNDS`, returns to the run's env's:
-    :func:`~jaxcart.core.solved.return_bounds`); returns the mean ``[iterations]``."""
-    values = run.metrics[name]
-    bounds = return_bounds(run.env) if name == RETURN_METRIC else METRIC_BOUNDS.get(name, ALL)
-    mean, low, high = stats.curve_band(values, "mean", bounds=bounds)
+    (:func:`stats.curve_band`, clipped to :func:`metric_bounds` on the run's env); returns
+    the mean ``[iterations]``."""
+    bounds = metric_bounds(name, run.env)
+    mean, low, high = stats.curve_band(run.metrics[name], "mean", bounds=bounds)
     band(ax, x, mean, low, high, alpha=0.18, **style)
     return mean
 
@@ -335,8 +348,6 @@ def _draw_metrics(
     """One panel per ``(metric, title)`` against env steps, for every run that records it;
     the y axis fits the means within the metric's range (the bands are clipped to the axes,
     not the axes to them)."""
-    from jaxcart.core.envs import ACTION_COUNTS
-
     for ax, (name, title) in zip(axes, panels):
         means = [
             _plot_metric(ax, run.env_steps, run, style, name)
@@ -346,10 +357,8 @@ def _draw_metrics(
         ax.set(title=title, xlabel="env steps per seed", ylabel=name)
         ax.grid(alpha=0.3)
         step_axis(ax.xaxis)
-        bounds = METRIC_BOUNDS.get(name, ALL)
-        if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
-            bounds = (-math.log(max(ACTION_COUNTS[run.env] for run in runs)), 0.0)
-        limits = curve_limits(means, bounds)
+        lows, highs = zip(*(metric_bounds(name, run.env) for run in runs))
+        limits = curve_limits(means, (min(lows), max(highs)))  # every run's range
         if limits is None:
             no_data(ax, f"{name} not recorded")
         else:
