@@ -82,7 +82,7 @@ def plot_runs(
 
     Raises:
         files.RunDirError: a path is not a usable run directory.
-        ValueError: bad ``labels``/``out``.
+        ValueError: bad ``labels``/``out``, or an evaluation's directory.
     """
 
     runs = _load_runs(run_dirs, labels)
@@ -99,7 +99,8 @@ def _load_runs(
     """:func:`jaxcart.rundir.reader.load_runs`, with one label per run directory or none.
 
     Raises:
-        ValueError: no run directory, or another number of labels.
+        ValueError: no run directory, another number of labels, or an evaluation's directory
+            (no learning curves).
     """
     if not run_dirs:
         raise ValueError("give at least one run directory")
@@ -110,7 +111,14 @@ def _load_runs(
         )
     from jaxcart.rundir.reader import load_runs
 
-    return load_runs([Path(p) for p in run_dirs], labels)
+    runs = load_runs([Path(p) for p in run_dirs], labels)
+    for run in runs:
+        if not run.metrics:
+            raise ValueError(
+                f"{run.path} is an evaluation (python -m jaxcart.evaluate --out): no learning "
+                "curves to plot; python -m jaxcart.compare reads it"
+            )
+    return runs
 
 
 def default_out(runs: list[RunCurves]) -> Path:
@@ -174,12 +182,6 @@ def _plot_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     cli.check_dpi(args.dpi)
     runs = _load_runs(args.run_dirs, args.label or None)  # no --label: the default names
-    for run in runs:
-        if not run.metrics:
-            raise cli.UsageError(
-                f"{run.path} is an evaluation (python -m jaxcart.evaluate --out): no learning "
-                "curves to plot; python -m jaxcart.compare reads it"
-            )
     out = _checked(default_out(runs) if args.out is None else args.out)
     try:
         figures.save(draw_figure(runs), out, args.dpi)
