@@ -162,9 +162,9 @@ def wrap_to_width(text: str, width: int) -> str:
     lines = []
     for line in text.split("\n"):
         indent = line[: len(line) - len(line.lstrip(" "))]
-        width = max(width, len(indent) + 3)  # room for a letter after the wrapped indent
+        columns = max(width, len(indent) + 3)  # room for a letter after the wrapped indent
         wrapped = textwrap.fill(
-            line.lstrip(" "), width, initial_indent=indent, subsequent_indent=indent + "  "
+            line.lstrip(" "), columns, initial_indent=indent, subsequent_indent=indent + "  "
         )
         lines.append(wrapped or line)
     return "\n".join(lines)
