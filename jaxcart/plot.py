@@ -10,7 +10,7 @@ run's Gymnasium evaluation; below them, one panel per metric of the run's own
 Each curve is the mean across seeds; the shaded band is a 95% percentile bootstrap confidence
 interval of that mean (:func:`jaxcart.analysis.stats.curve_band`: whole seeds resampled, a
 fixed seed so the figure is deterministic), clipped to the metric's range
-(:data:`jaxcart.results.figure.METRIC_BOUNDS`: returns within the env's, e.g. [0, 500] on
+(:func:`jaxcart.results.figure.metric_bounds`: returns within the env's, e.g. [0, 500] on
 CartPole-v1, clip fraction in [0, 1], KL and value loss >= 0, explained variance <= 1, ...).
 NaN entries (``ep_rew_mean`` is NaN until a seed's first episode ends) are left out, so the
 curve starts when the first seed has a value and the band when two seeds do; a single-seed
@@ -82,7 +82,7 @@ def plot_runs(
 
     Raises:
         files.RunDirError: a path is not a usable run directory.
-        ValueError: bad ``labels``/``out``.
+        ValueError: bad ``labels``/``out``, or an evaluation's directory.
     """
 
     runs = _load_runs(run_dirs, labels)
@@ -99,7 +99,8 @@ def _load_runs(
     """:func:`jaxcart.rundir.reader.load_runs`, with one label per run directory or none.
 
     Raises:
-        ValueError: no run directory, or another number of labels.
+        ValueError: no run directory, another number of labels, or an evaluation's directory
+            (no learning curves).
     """
     if not run_dirs:
         raise ValueError("give at least one run directory")
@@ -110,7 +111,14 @@ def _load_runs(
         )
     from jaxcart.rundir.reader import load_runs
 
-    return load_runs([Path(p) for p in run_dirs], labels)
+    runs = load_runs([Path(p) for p in run_dirs], labels)
+    for run in runs:
+        if not run.metrics:
+            raise ValueError(
+                f"{run.path} is an evaluation (python -m jaxcart.evaluate --out): no learning "
+                "curves to plot; python -m jaxcart.compare reads it"
+            )
+    return runs
 
 
 def default_out(runs: list[RunCurves]) -> Path:
@@ -174,12 +182,6 @@ def _plot_command(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     cli.check_dpi(args.dpi)
     runs = _load_runs(args.run_dirs, args.label or None)  # no --label: the default names
-    for run in runs:
-        if not run.metrics:
-            raise cli.UsageError(
-                f"{run.path} is an evaluation (python -m jaxcart.evaluate --out): no learning "
-                "curves to plot; python -m jaxcart.compare reads it"
-            )
     out = _checked(default_out(runs) if args.out is None else args.out)
     try:
         figures.save(draw_figure(runs), out, args.dpi)

@@ -96,6 +96,10 @@ def test_mean_and_band_ignores_nan_needs_two_seeds_and_stays_in_range():
     assert low[0] == 0.5 and high[0] == 1.0
     assert figures.METRIC_BOUNDS["rollout/ep_rew_mean"] == (0.0, 500.0)
     assert figures.METRIC_BOUNDS["train/approx_kl"][0] == 0.0
+    # On another env: its returns' range, and the entropy of its three actions.
+    assert figures.metric_bounds("rollout/ep_rew_mean", "Acrobot-v1") == (-500.0, 0.0)
+    assert figures.metric_bounds("train/entropy_loss", "Acrobot-v1") == (-np.log(3), 0.0)
+    assert figures.metric_bounds("train/approx_kl", "Acrobot-v1") == (0.0, np.inf)
 
 
 def test_plot_one_run_default_path(tiny_run, capsys, no_warnings):
@@ -199,20 +203,18 @@ def test_step_ticks_are_few_and_short():
 
 
 def test_wrap_to_width_keeps_indentation_and_cuts_long_words():
-    assert figures.wrap_to_width("ab cd ef", 5, len) == "ab cd\n  ef"
-    assert figures.wrap_to_width("  one two three", 9, len) == "  one two\n    three"
-    assert figures.wrap_to_width("abcdefghij", 4, len) == "abcd\n  ef\n  gh\n  ij"
-    assert figures.wrap_to_width("short\n\n  x", 20, len) == "short\n\n  x"
+    assert figures.wrap_to_width("ab cd ef", 5) == "ab cd\n  ef"
+    assert figures.wrap_to_width("  one two three", 9) == "  one two\n    three"
+    assert figures.wrap_to_width("abcdefghij", 4) == "abcd\n  ef\n  gh\n  ij"
+    assert figures.wrap_to_width("short\n\n  x", 20) == "short\n\n  x"
 
 
 def test_run_styles_differ_and_later_runs_draw_on_top():
     styles = figures.run_styles(30)
-    pairs = [(s.color, str(s.linestyle)) for s in styles]
+    pairs = [(s["color"], str(s["ls"])) for s in styles]
     assert len(set(pairs[:28])) == 28 and pairs[28] == pairs[0]
-    assert all(
-        a.color != b.color and a.linestyle != b.linestyle for a, b in zip(styles, styles[1:])
-    )
-    assert all(a.zorder < b.zorder for a, b in zip(styles, styles[1:]))
+    assert all(a["color"] != b["color"] and a["ls"] != b["ls"] for a, b in zip(styles, styles[1:]))
+    assert all(a["zorder"] < b["zorder"] for a, b in zip(styles, styles[1:]))
     # Two equal curves (the same settings run twice): the second is broken and drawn later.
     fig = figures.draw_figure([synthetic_run("x"), synthetic_run("x")])
     first, second = panel(fig, "approx KL").lines

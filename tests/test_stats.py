@@ -517,12 +517,7 @@ def test_saturated():
         stats.saturated([[500.0], [np.nan]])
 
 
-def test_number_of_comparisons_and_bonferroni():
-    from itertools import combinations
-
-    for k in range(1, 8):
-        assert stats.num_comparisons(k) == k - 1  # each against the baseline
-        assert stats.num_comparisons(k, all_pairs=True) == len(list(combinations(range(k), 2)))
+def test_bonferroni():
     # 4 comparisons at 95%: each at 1 - 0.05/4 = 0.9875; up to 4 x 5% = 20% miss at least once.
     assert stats.bonferroni_confidence(4) == pytest.approx(0.9875)
     assert stats.familywise_miss_bound(4) == pytest.approx(0.20)
@@ -532,5 +527,3 @@ def test_number_of_comparisons_and_bonferroni():
         assert 1 - 0.95**n <= stats.familywise_miss_bound(n) + 1e-12
     with pytest.raises(ValueError, match="comparisons"):
         stats.bonferroni_confidence(0)
-    with pytest.raises(ValueError, match="num_runs"):
-        stats.num_comparisons(0)

@@ -72,7 +72,7 @@ read at once.
   the runs cannot be told apart by these scores, and the comparison should say so instead of
   printing a table of identical intervals (compare a harder score, e.g. the area under the
   learning curve, :func:`jaxcart.analysis.summary.auc`).
-- :func:`num_comparisons`, :func:`bonferroni_confidence`, :func:`familywise_miss_bound`: each
+- :func:`bonferroni_confidence`, :func:`familywise_miss_bound`: each
   95% interval covers its true value 95% of the time *on its own*; reading N of them at once,
   the chance that at least one misses is up to N x 5% (Bonferroni's bound, from
   ``P(A or B) <= P(A) + P(B)``). Either say so, or widen each interval to confidence
@@ -373,20 +373,15 @@ def wilson_interval(successes: int, n: int, confidence: float = CONFIDENCE) -> E
     return Estimate(p, max(0.0, center - half), min(1.0, center + half))
 
 
-def pair_wins(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``[n, m]``: 1 where ``x_i > y_j``, 0.5 where equal, 0 where less."""
-    x, y = check_seeds(x, "x")[:, None], check_seeds(y, "y")[None, :]
-    return (x > y) + 0.5 * (x == y)
-
-
 def _task_wins(x: Scores, y: Scores) -> list[np.ndarray]:
-    """Per task, the ``[n_m, k_m]`` pair wins of X's seeds over Y's (the tasks in one order)."""
+    """Per task, the ``[n_m, k_m]`` pair wins of X's seeds over Y's (the tasks in one order):
+    1 where ``x_i > y_j``, 0.5 where equal, 0 where less."""
     x, y = check_tasks(x, "x"), check_tasks(y, "y")
     if len(x) != len(y):
         raise ValueError(
             f"x has {len(x)} tasks and y {len(y)}: P(X > Y) compares the two runs task by task"
         )
-    return [pair_wins(a, b) for a, b in zip(x, y)]
+    return [(a[:, None] > b) + 0.5 * (a[:, None] == b) for a, b in zip(x, y)]
 
 
 def probability_of_improvement(x: Scores, y: Scores) -> float:
@@ -586,19 +581,6 @@ def saturated(runs: Sequence[np.ndarray]) -> bool:
         raise ValueError("runs holds no run")
     pooled = np.concatenate([check_seeds(r, f"runs[{i}]") for i, r in enumerate(runs)])
     return bool((pooled == pooled[0]).all())
-
-
-def num_comparisons(num_runs: int, all_pairs: bool = False) -> int:
-    """How many comparisons a table of ``num_runs`` runs makes.
-
-    Args:
-        num_runs: runs compared, the baseline included.
-        all_pairs: every pair of runs, ``num_runs (num_runs - 1) / 2``; otherwise each run
-            against the baseline, ``num_runs - 1``.
-    """
-    if int(num_runs) != num_runs or num_runs < 1:
-        raise ValueError(f"num_runs must be a positive whole number, got {num_runs}")
-    return num_runs * (num_runs - 1) // 2 if all_pairs else num_runs - 1
 
 
 def _check(comparisons: int, confidence: float) -> None:

@@ -16,11 +16,12 @@ never pyplot, so the caller's backend is never changed).
 - :func:`draw_robustness`: ``robustness.png``, ``python -m jaxcart.evaluate --sweep``'s return
   against a physics value.
 - Helpers: :func:`run_styles` (a colour from Okabe and Ito's colour-blind-safe palette and a
-  line style per run), :func:`curve_limits` (y limits that fit the mean curves, not their
-  bands), :func:`return_axis` (an env's range of returns and its solved threshold),
-  :func:`step_axis` (``250k``, ``1.25M``), :func:`wrap_to_width` and :func:`wrap_to_axes`
-  (text wrapped to a laid-out panel in the font it is drawn in), :func:`band` (a curve with
-  its confidence band), :func:`no_data` and :func:`save` (one file, written atomically).
+  line style per run), :func:`metric_bounds` (a metric's range on an env),
+  :func:`curve_limits` (y limits that fit the mean curves, not their bands),
+  :func:`return_axis` (an env's range of returns and its solved threshold), :func:`step_axis`
+  (``250k``, ``1.25M``), :func:`wrap_to_width` and :func:`wrap_to_axes` (monospace text
+  wrapped to a laid-out panel), :func:`band` (a curve with its confidence band),
+  :func:`no_data` and :func:`save` (one file, written atomically).
 
 Importing this module imports neither matplotlib nor JAX (``python -m jaxcart.plot --help``
 stays fast); both come in when a figure is drawn from runs read.
@@ -31,8 +32,7 @@ from __future__ import annotations
 import io
 import math
 import textwrap
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -64,26 +64,17 @@ Y_MARGIN = 0.08
 """Room above and below the mean curves, as a fraction of their range."""
 
 
-@dataclass(frozen=True)
-class Style:
-    """How one run is drawn: its colour and line style in every panel and the legend."""
-
-    color: str
-    linestyle: str | tuple
-    width: float
-    zorder: float  # later runs on top: dashed or dotted over solid, so equal curves both show
-
-    def line(self) -> dict:
-        """Keyword arguments of ``Axes.plot``."""
-        return {"color": self.color, "ls": self.linestyle, "lw": self.width, "zorder": self.zorder}
-
-
-def run_styles(count: int) -> list[Style]:
-    """Colour and line style of each of ``count`` runs: both change from one run to the next."""
-    return [
-        Style(PALETTE[i % len(PALETTE)], *LINE_STYLES[i % len(LINE_STYLES)], 2.0 + i / 1000)
-        for i in range(count)
-    ]
+def run_styles(count: int) -> list[dict]:
+    """How each of ``count`` runs is drawn in every panel and the legend: ``Axes.plot``'s
+    ``color``, ``ls``, ``lw`` and ``zorder``. Colour and line style both change from one run
+    to the next, and later runs draw on top (dashed or dotted over solid, so that equal
+    curves both show)."""
+    styles = []
+    for i in range(count):
+        linestyle, width = LINE_STYLES[i % len(LINE_STYLES)]
+        color = PALETTE[i % len(PALETTE)]
+        styles.append({"color": color, "ls": linestyle, "lw": width, "zorder": 2.0 + i / 1000})
+    return styles
 
 
 def curve_limits(
@@ -145,6 +136,18 @@ def no_data(ax, text: str) -> None:
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
+def _finish(ax, empty: str, legend: str | None = None) -> bool:
+    """A grid, and ``empty`` written in the middle if no run was drawn, else a legend of the
+    runs at ``legend`` (a ``loc``; none without); whether any run was drawn."""
+    ax.grid(alpha=0.3)
+    if not ax.lines:
+        no_data(ax, empty)
+        return False
+    if legend:
+        ax.legend(fontsize=7, loc=legend)
+    return True
+
+
 def step_axis(axis) -> None:
     """Few ticks, labelled 0, 250k, 500k, 1.25M: readable at any number of env steps."""
     from matplotlib.ticker import EngFormatter, MaxNLocator
@@ -153,45 +156,27 @@ def step_axis(axis) -> None:
     axis.set_major_formatter(EngFormatter(sep=""))
 
 
-def wrap_to_width(text: str, width: float, measure: Callable[[str], float]) -> str:
-    """Word-wraps each line of ``text`` so that ``measure(line) <= width``: a wrapped line
-    keeps the line's indentation plus two spaces, and a word wider than a line is cut.
-
-    Args:
-        text: lines separated by ``\\n``.
-        width: the widest line allowed, in ``measure``'s unit.
-        measure: the width of a string (points of a font, or ``len`` for characters).
-    """
-    out = []
+def wrap_to_width(text: str, width: int) -> str:
+    """Word-wraps each line of ``text`` to ``width`` characters: a wrapped line keeps the
+    line's indentation plus two spaces, and a word longer than a line is cut."""
+    lines = []
     for line in text.split("\n"):
-        prefix = line[: len(line) - len(line.lstrip(" "))]
-        more = prefix + "  "
-        current = ""
-        for word in line.split():
-            trial = f"{current} {word}" if current else word
-            if current and measure(prefix + trial) > width:
-                out.append(prefix + current)
-                prefix, trial = more, word
-            while len(trial) > 1 and measure(prefix + trial) > width:
-                cut = len(trial) - 1
-                while cut > 1 and measure(prefix + trial[:cut]) > width:
-                    cut -= 1
-                out.append(prefix + trial[:cut])
-                prefix, trial = more, trial[cut:]
-            current = trial
-        out.append(prefix + current)
-    return "\n".join(out)
+        indent = line[: len(line) - len(line.lstrip(" "))]
+        columns = max(width, len(indent) + 3)  # room for a letter after the wrapped indent
+        wrapped = textwrap.fill(
+            line.lstrip(" "), columns, initial_indent=indent, subsequent_indent=indent + "  "
+        )
+        lines.append(wrapped or line)
+    return "\n".join(lines)
 
 
 def wrap_to_axes(text, ax) -> None:
-    """Wraps ``text`` to the width of the (laid out) axes it starts at the left edge of,
-    measured in points of the text's font."""
-    renderer, prop = ax.figure.canvas.get_renderer(), text.get_fontproperties()
-    width = ax.get_window_extent(renderer).width * 72 / ax.figure.dpi
-    measure = lambda s: (
-        renderer.get_text_width_height_descent(s, prop, ismath=False)[0] * 72 / renderer.dpi
-    )
-    text.set_text(wrap_to_width(text.get_text(), width, measure))
+    """Wraps ``text`` (in a monospace font, so that every character is as wide as a digit) to
+    the width of the (laid out) axes it starts at the left edge of."""
+    renderer = ax.figure.canvas.get_renderer()
+    digit = renderer.get_text_width_height_descent("0", text.get_fontproperties(), ismath=False)
+    columns = int(ax.get_window_extent(renderer).width // digit[0])
+    text.set_text(wrap_to_width(text.get_text(), columns))
 
 
 EVAL_METRIC = "eval/mean_return"
@@ -214,20 +199,32 @@ METRIC_BOUNDS: dict[str, tuple[float, float]] = {
     "train/explained_variance": (-math.inf, 1.0),
 }
 """Each metric's range on CartPole-v1; confidence bands are clipped to it (a run's returns to
-its env's, the entropy to its actions')."""
+its env's, the entropy to its actions': :func:`metric_bounds`)."""
 ALL = (-math.inf, math.inf)
 SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
 """The summary panel's font sizes, tried largest first until every run's block fits."""
 
 
-def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: Style, name: str) -> np.ndarray:
+def metric_bounds(name: str, env_id: str) -> tuple[float, float]:
+    """The range of metric ``name`` on ``env_id``: a return within the env's
+    (:func:`~jaxcart.core.solved.return_bounds`), the entropy loss within minus the log of
+    the env's action count, any other metric within :data:`METRIC_BOUNDS` (or unbounded)."""
+    from jaxcart.core.envs import ACTION_COUNTS
+
+    if name == RETURN_METRIC:
+        return return_bounds(env_id)
+    if name == "train/entropy_loss" and env_id in ACTION_COUNTS:
+        return -math.log(ACTION_COUNTS[env_id]), 0.0
+    return METRIC_BOUNDS.get(name, ALL)
+
+
+def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: dict, name: str) -> np.ndarray:
     """Draws the mean across seeds of ``run``'s metric and its bootstrap band
-    (:func:`stats.curve_band`, clipped to :data:`METRIC_BOUNDS`, returns to the run's env's:
-    :func:`~jaxcart.core.solved.return_bounds`); returns the mean ``[iterations]``."""
-    values = run.metrics[name]
-    bounds = return_bounds(run.env) if name == RETURN_METRIC else METRIC_BOUNDS.get(name, ALL)
-    mean, low, high = stats.curve_band(values, "mean", bounds=bounds)
-    band(ax, x, mean, low, high, alpha=0.18, **style.line())
+    (:func:`stats.curve_band`, clipped to :func:`metric_bounds` on the run's env); returns
+    the mean ``[iterations]``."""
+    bounds = metric_bounds(name, run.env)
+    mean, low, high = stats.curve_band(run.metrics[name], "mean", bounds=bounds)
+    band(ax, x, mean, low, high, alpha=0.18, **style)
     return mean
 
 
@@ -292,17 +289,18 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
         )
     env_ids = sorted({run.env for run in runs})
     fig.suptitle(f"PPO on {', '.join(env_ids)}, {num}: {what}", fontsize=13)
-    caption = _caption(ax_time, wall_time_notes(runs)) if ax_time.lines else None
     fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
-    if caption is not None:
-        wrap_to_axes(caption, ax_time)
-        caption.set_in_layout(True)
-        fig.draw_without_rendering()  # again, with room for the wrapped caption
+    notes = wall_time_notes(runs)
+    if ax_time.lines and notes:  # under the x label, off the data, wrapped to the panel
+        caption = "\n".join(f"note: {note}" for note in notes)
+        where = ("axes fraction", ax_time.xaxis.label)
+        _text_below(ax_time, caption, (0.0, 0.0), where, 4.0, 8.5, "0.3").set_in_layout(True)
+        fig.draw_without_rendering()  # again, with room for the caption
     _draw_summary(ax_summary, runs, styles)
     return fig
 
 
-def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time) -> None:
+def _draw_returns(runs: list[RunCurves], styles: list[dict], ax_steps, ax_time) -> None:
     """The return against env steps (with ``--eval-every``'s greedy evaluations as dots)
     and against wall time."""
     from matplotlib.ticker import MaxNLocator
@@ -319,7 +317,7 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
         if rows.any():
             mean = np.nanmean(evaluated[rows], axis=1)
             ax_steps.plot(
-                run.env_steps[rows], mean, "o", color=style.color, ms=4, label=EVAL_METRIC
+                run.env_steps[rows], mean, "o", color=style["color"], ms=4, label=EVAL_METRIC
             )
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
@@ -333,12 +331,9 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
         xlabel="training wall time [s] (compile excluded)",
         ylabel=RETURN_METRIC,
     )
-    if not ax_steps.lines:
-        no_data(ax_steps, f"{RETURN_METRIC} not recorded")
-    if not ax_time.lines:
-        no_data(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
+    _finish(ax_steps, f"{RETURN_METRIC} not recorded")
+    _finish(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
     for ax in (ax_steps, ax_time):
-        ax.grid(alpha=0.3)
         return_axis(ax, [run.env for run in runs])
     step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
@@ -346,15 +341,13 @@ def _draw_returns(runs: list[RunCurves], styles: list[Style], ax_steps, ax_time)
 
 def _draw_metrics(
     runs: list[RunCurves],
-    styles: list[Style],
+    styles: list[dict],
     axes: list,
     panels: list[tuple[str, str]],
 ) -> None:
     """One panel per ``(metric, title)`` against env steps, for every run that records it;
     the y axis fits the means within the metric's range (the bands are clipped to the axes,
     not the axes to them)."""
-    from jaxcart.core.envs import ACTION_COUNTS
-
     for ax, (name, title) in zip(axes, panels):
         means = [
             _plot_metric(ax, run.env_steps, run, style, name)
@@ -364,17 +357,15 @@ def _draw_metrics(
         ax.set(title=title, xlabel="env steps per seed", ylabel=name)
         ax.grid(alpha=0.3)
         step_axis(ax.xaxis)
-        bounds = METRIC_BOUNDS.get(name, ALL)
-        if name == "train/entropy_loss":  # -entropy of the most actions any run's env has
-            bounds = (-math.log(max(ACTION_COUNTS[run.env] for run in runs)), 0.0)
-        limits = curve_limits(means, bounds)
+        lows, highs = zip(*(metric_bounds(name, run.env) for run in runs))
+        limits = curve_limits(means, (min(lows), max(highs)))  # every run's range
         if limits is None:
             no_data(ax, f"{name} not recorded")
         else:
             ax.set_ylim(limits)
 
 
-def _draw_legend(fig, runs: list[RunCurves], styles: list[Style]) -> None:
+def _draw_legend(fig, runs: list[RunCurves], styles: list[dict]) -> None:
     """One entry per run below the panels, outside the data, in as many columns as fit."""
     from matplotlib.lines import Line2D
 
@@ -382,7 +373,7 @@ def _draw_legend(fig, runs: list[RunCurves], styles: list[Style]) -> None:
         f"{run.label} ({f'{run.num_seeds} seeds' if run.num_seeds > 1 else '1 seed, no band'})"
         for run in runs
     ]
-    handles = [Line2D([], [], **style.line()) for style in styles]
+    handles = [Line2D([], [], **style) for style in styles]
     # About 0.6 em a character at 9 pt, plus the handle and gaps: the columns that fit 14 in.
     columns = int(14 * 72 / (max(map(len, labels)) * 9 * 0.6 + 60))
     fig.legend(
@@ -411,60 +402,42 @@ def wall_time_notes(runs: list[RunCurves]) -> list[str]:
     return notes
 
 
-def _text_below(ax, text: str, xy, xycoords, below: float, **style):
-    """``text`` from ``xy`` down, ``below`` points under it, left-aligned; left out of the
-    layout (the panel is laid out already, or will be once the text is wrapped to it)."""
+def _text_below(ax, text: str, xy, xycoords, below: float, size: float, colour: str):
+    """``text`` in monospace from ``xy`` down, ``below`` points under it, left-aligned and
+    wrapped to the laid-out panel (:func:`wrap_to_axes`); left out of the layout."""
     offset = {"xytext": (0.0, -below), "textcoords": "offset points"}
+    style = {"family": "monospace", "fontsize": size, "color": colour}
     text = ax.annotate(text, xy, xycoords=xycoords, va="top", ha="left", **offset, **style)
     text.set_in_layout(False)
+    wrap_to_axes(text, ax)
     return text
 
 
-def _caption(ax, notes: list[str]):
-    """Notes under a panel's x label, off the data; None without notes. Left out of the layout
-    until :func:`wrap_to_axes` has wrapped them (unwrapped, they would squeeze the
-    panel)."""
-    if not notes:
-        return None
-    text = "\n".join(f"note: {note}" for note in notes)
-    where = ("axes fraction", ax.xaxis.label)
-    return _text_below(ax, text, (0.0, 0.0), where, 4.0, fontsize=8.5, color="0.3")
-
-
-def _draw_summary(ax, runs: list[RunCurves], styles: list[Style]) -> None:
+def _draw_summary(ax, runs: list[RunCurves], styles: list[dict]) -> None:
     """Each run's block (:func:`_summary_lines`) in its colour, wrapped to the laid-out
     panel; smaller type for many runs, and at the smallest the runs that still do not fit
     are counted instead."""
-    renderer = ax.figure.canvas.get_renderer()
-    to_points = 72 / ax.figure.dpi
-    height = ax.get_window_extent(renderer).height * to_points
+    renderer, points = ax.figure.canvas.get_renderer(), 72 / ax.figure.dpi
+    height = ax.get_window_extent(renderer).height * points
     blocks = ["\n".join(_summary_lines(run)) for run in runs]
     for size in SUMMARY_FONTSIZES:
-        texts, tops, top = [], [], 0.0
+        for text in list(ax.texts):  # the larger type's blocks, which overflowed
+            text.remove()
+        tops, top = [], 0.0
         for block, style in zip(blocks, styles):
-            texts.append(_summary_text(ax, block, style.color, size, top))
             tops.append(top)
-            top += texts[-1].get_window_extent(renderer).height * to_points + size / 2
-        if top <= height or size == SUMMARY_FONTSIZES[-1]:
-            break
-        for text in texts:
-            text.remove()
-    if top > height:  # even the smallest type overflows: drop the last runs, say how many
-        keep = len(texts) - 1
-        while keep > 0 and tops[keep] + 2 * size > height:
-            keep -= 1
-        for text in texts[keep:]:
-            text.remove()
-        more = f"... and {len(texts) - keep} more run(s): see the legend"
-        _summary_text(ax, more, "0.3", size, tops[keep])
-
-
-def _summary_text(ax, block: str, colour: str, size: float, top: float):
-    """One block of the summary, ``top`` points below the panel's top, wrapped to its width."""
-    style = {"family": "monospace", "fontsize": size, "color": colour}
-    text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, **style)
-    wrap_to_axes(text, ax)
-    return text
+            text = _text_below(ax, block, (0.0, 1.0), "axes fraction", top, size, style["color"])
+            top += text.get_window_extent(renderer).height * points + size / 2
+        if top <= height:
+            return
+    # Even the smallest type overflows: drop the last runs, and say how many.
+    keep = len(blocks) - 1
+    while keep > 0 and tops[keep] + 2 * size > height:
+        keep -= 1
+    for text in list(ax.texts)[keep:]:
+        text.remove()
+    more = f"... and {len(blocks) - keep} more run(s): see the legend"
+    _text_below(ax, more, (0.0, 1.0), "axes fraction", tops[keep], size, "0.3")
 
 
 TAUS = np.linspace(0.0, stats.MAX_RETURN, 101)
@@ -484,21 +457,6 @@ ESTIMATE_TITLES = {
 }
 
 
-def _colour(i: int) -> str:
-    return PALETTE[i % len(PALETTE)]
-
-
-def _finish(ax, loc: str, empty: str) -> bool:
-    """A grid, and a legend of the runs drawn (at ``loc``) or ``empty`` written in the
-    middle; whether any run was drawn."""
-    ax.grid(alpha=0.3)
-    if not ax.lines:
-        no_data(ax, empty)
-        return False
-    ax.legend(fontsize=7, loc=loc)
-    return True
-
-
 def _tick_label(name: str, width: int = 14) -> str:
     """A run name as a y tick label, wrapped (at hyphens first) so that long names leave the
     panels room: ``4x128-100k-seed271828`` -> ``4x128-100k-\\nseed271828``."""
@@ -507,7 +465,7 @@ def _tick_label(name: str, width: int = 14) -> str:
 
 def _intervals(
     ax,
-    rows: list[tuple[int, str, stats.Estimate]],
+    rows: list[tuple[str, str, stats.Estimate]],
     title: str,
     xlabel: str,
     xlim: tuple[float, float],
@@ -519,10 +477,10 @@ def _intervals(
     over the next one and squeezing the constrained layout."""
     n = len(rows)
     ax.set_xlim(*xlim)
-    for k, (i, _, e) in enumerate(rows):
+    for k, (colour, _, e) in enumerate(rows):
         y = n - 1 - k
-        ax.plot([e.ci_low, e.ci_high], [y, y], color=_colour(i), lw=6, alpha=0.45)
-        ax.plot([e.value], [y], "|", color=_colour(i), ms=16, mew=2)
+        ax.plot([e.ci_low, e.ci_high], [y, y], color=colour, lw=6, alpha=0.45)
+        ax.plot([e.value], [y], "|", color=colour, ms=16, mew=2)
         right = e.value > (xlim[0] + xlim[1]) / 2
         ax.annotate(
             e.format(1 if abs(e.value) >= 2 else 2),
@@ -556,10 +514,15 @@ def _limits(
     return low - margin, high + margin
 
 
-def _rows(comparison: Comparison, key: str) -> list[tuple[int, str, stats.Estimate]]:
-    """``(index, name, estimate)`` of each run that has an estimate of ``key``."""
-    pairs = zip(comparison.entries, comparison.runs)
-    return [(i, e.name, st[key]) for i, (e, st) in enumerate(pairs) if st[key] is not None]
+def _rows(comparison: Comparison, key: str) -> list[tuple[str, str, stats.Estimate]]:
+    """``(colour, name, estimate)`` of each run that has an estimate of ``key``."""
+    pairs = zip(comparison.entries, comparison.runs, _styles(comparison))
+    return [(s["color"], e.name, st[key]) for e, st, s in pairs if st[key] is not None]
+
+
+def _styles(comparison: Comparison) -> list[dict]:
+    """Each compared run's :func:`run_styles` (as in ``python -m jaxcart.plot``'s figure)."""
+    return run_styles(len(comparison.entries))
 
 
 def _against_baseline(ax, comparison: Comparison, key: str) -> None:
@@ -584,12 +547,12 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
-    for i, entry in enumerate(comparison.entries):
+    for entry, style in zip(comparison.entries, _styles(comparison)):
         profile, low, high = stats.performance_profile_band(
             entry.scores, TAUS, comparison.reps, seed=comparison.seed, at_least=True
         )
-        band(ax, TAUS, profile, low, high, _colour(i), lw=1.6, label=entry.name)
-        ax.plot([TAUS[-1]], [profile[-1]], "o", color=_colour(i), ms=6)
+        band(ax, TAUS, profile, low, high, label=entry.name, **style)
+        ax.plot([TAUS[-1]], [profile[-1]], "o", color=style["color"], ms=6)
     ax.set(
         title=f"performance profile ({score}); dot: fraction at 500",
         xlabel=f"score ({score}) tau",
@@ -597,11 +560,11 @@ def _profile_panel(ax, comparison: Comparison) -> None:
         xlim=(0, stats.MAX_RETURN * 1.02),
         ylim=(-0.02, 1.02),
     )
-    _finish(ax, "lower left", "")
+    _finish(ax, "", "lower left")
 
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
-    for i, entry in enumerate(comparison.entries):
+    for entry, style in zip(comparison.entries, _styles(comparison)):
         values = entry.train_return
         if values is None or not np.isfinite(values).any():
             continue
@@ -611,36 +574,34 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
             values[points], "iqm", CURVE_REPS, seed=comparison.seed, bounds=bounds
         )
         x = entry.run.env_steps[points]
-        band(ax, x, iqm, low, high, _colour(i), lw=1.6, label=entry.name)
+        band(ax, x, iqm, low, high, label=entry.name, **style)
     ax.set(
         title="sample efficiency: IQM over seeds of the training return",
         xlabel="env steps per seed",
         ylabel=RETURN_METRIC,
     )
-    _finish(ax, "lower right", f"{RETURN_METRIC} not recorded")
+    _finish(ax, f"{RETURN_METRIC} not recorded", "lower right")
     return_axis(ax, [entry.run.env for entry in comparison.entries])
 
 
 def _reached_panel(ax, comparison: Comparison) -> None:
     """Fraction of seeds in which a training episode had scored 500, by env steps."""
     reached_any = False
-    for i, entry in enumerate(comparison.entries):
+    for entry, style in zip(comparison.entries, _styles(comparison)):
         x = entry.run.env_steps
         first = entry.first_reached(x)
         if first is None:
             continue
         reached_any |= bool(np.isfinite(first).any())
         x = np.r_[0.0, x[np.isfinite(x)]]
-        ax.step(
-            x, stats.fraction_reached(first, x), where="post", color=_colour(i), label=entry.name
-        )
+        ax.step(x, stats.fraction_reached(first, x), where="post", label=entry.name, **style)
     ax.set(
         title="a training episode at 500 (rollout/ep_rew_max)",
         xlabel="env steps per seed",
         ylabel="fraction of seeds",
         ylim=(-0.02, 1.02),
     )
-    if _finish(ax, "lower right", "not recorded") and not reached_any:
+    if _finish(ax, "not recorded", "lower right") and not reached_any:
         no_data(ax, "no seed's training reached 500")
 
 
@@ -719,7 +680,7 @@ def draw_robustness(
     fig = Figure(figsize=(9, 5.5), layout="constrained")
     ax = fig.add_subplot()
     for style, (label, point, low, high) in zip(run_styles(len(curves)), curves):
-        band(ax, values, point, low, high, marker="o", label=label, **style.line())
+        band(ax, values, point, low, high, marker="o", label=label, **style)
     if min(values) > 0 and max(values) >= 4 * min(values):
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())

@@ -60,12 +60,11 @@ def pygame_available() -> bool:
 
 
 def _check_options(max_steps: int, fps: float, frame_skip: int, scale: float) -> None:
-    if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    for name, value in (("max_steps", max_steps), ("frame_skip", frame_skip)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps!r}")
-    if isinstance(frame_skip, bool) or not isinstance(frame_skip, int) or frame_skip < 1:
-        raise ValueError(f"frame_skip must be a positive integer, got {frame_skip!r}")
     if not 0 < scale <= 4:
         raise ValueError(f"scale must be in (0, 4], got {scale!r}")
 
@@ -102,24 +101,23 @@ def _backend(backend: str) -> str:
     """``"gymnasium"`` or ``"pillow"``: ``backend``, with ``"auto"`` resolved and checked."""
     if backend not in ("auto", "gymnasium", "pillow"):
         raise ValueError(f"backend must be 'auto', 'gymnasium' or 'pillow', got {backend!r}")
-    if backend == "auto":
-        backend = "gymnasium" if pygame_available() else "pillow"
-    if backend == "gymnasium" and not pygame_available():
+    if backend != "pillow" and pygame_available():
+        return "gymnasium"
+    if backend == "gymnasium":
         raise ImportError(
             "backend='gymnasium' needs pygame: pip install pygame (or use backend='pillow')"
         )
-    return backend
+    return "pillow"
 
 
 def _episode(policy, seed, max_steps, backend, env_id, env_params=None):
     """Yields ``(frame [H, W, 3] uint8, steps, return so far)`` after the reset and after every
     step of one episode in Gymnasium (``backend`` resolved: :func:`_backend`): frames from
     Gymnasium's renderer, or drawn by the env's :attr:`~jaxcart.core.envs.Env.draw_frame`."""
-    mode = "rgb_array" if backend == "gymnasium" else None
-    draw = None if mode else envs.make(env_id).draw_frame  # the env's own Pillow drawing
-    if mode is None and draw is None:
+    draw = envs.make(env_id).draw_frame if backend == "pillow" else None  # the env's own
+    if backend == "pillow" and draw is None:
         raise ValueError(f"env {env_id} draws no frames with Pillow; use backend='gymnasium'")
-    env = make_cartpole(env_params, env_id, render_mode=mode)
+    env = make_cartpole(env_params, env_id, render_mode=None if draw else "rgb_array")
 
     def frame() -> np.ndarray:
         return env.render() if draw is None else draw(np.asarray(env.unwrapped.state), env_params)
