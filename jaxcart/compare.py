@@ -78,9 +78,7 @@ def _row(name: str, entry: runs.Entry, st: dict) -> list:
 def table(comparison: Comparison) -> str:
     """The terminal table: one row per run, split so that it fits 100 columns; names longer
     than :data:`NAME_WIDTH` are numbered in it and listed under it."""
-    reference = "baseline"
-    if comparison.arms:
-        reference = f"{comparison.arms[0]} same config"
+    reference = f"{comparison.arms[0]} same config" if comparison.arms else "baseline"
     counts = [len(entry.scores) for entry in comparison.entries]
     ci = f"{100 * comparison.confidence:.3g}% CI"  # wider with --adjust bonferroni
     if stats.interval_label(counts) != f"{stats.CONFIDENCE:.0%} CI":  # too few seeds for one
@@ -140,12 +138,11 @@ def saturation_text(comparison: Comparison) -> str:
     """One line: whether the score can tell the runs apart at all."""
     if not comparison.saturated:
         return "saturated: no (the scores differ between seeds or runs)"
-    value = comparison.entries[0].scores[0]
+    value, score = comparison.entries[0].scores[0], comparison.score
     hint = "compare with --score auc (or return-at:STEPS)"
-    if comparison.score.name != "eval":
-        hint = "try another --score"
+    hint = hint if score.name == "eval" else "try another --score"
     return (
-        f"saturated: every seed of every run scores {value:g} by {comparison.score.label}: "
+        f"saturated: every seed of every run scores {value:g} by {score.label}: "
         f"the score cannot tell the runs apart; {hint}"
     )
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import stats
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_BY, is_solved
+from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.rundir import files, layout
 
 if TYPE_CHECKING:  # the modules that import JAX load once the options are read (--help: none)
@@ -208,28 +208,22 @@ def _heading(what: str, env_id: str, on: str, opts: EvaluateOptions) -> str:
 
 def _print_seeds(run: Run, returns: list[np.ndarray], opts: EvaluateOptions) -> None:
     """The per-seed table of a RUN_DIR's sources, each on its one physics."""
+    from jaxcart import report
     from jaxcart.core import physics
-    from jaxcart.run.greedy import summarize
 
     run_dir, info, sources = run
     env_id, sweep = info["config"].env, sources[0][0] is not None
     rows = []
     for (label, _), r in zip(sources, returns):
-        s = summarize(r, env_id)
-        rows += [
-            ([label] if sweep else [])
-            + [i, f"{s['mean'][i]:.1f}", f"{s['min'][i]:.0f}", "yes" if s["solved"][i] else "no"]
-            for i in range(len(r))
-        ]
+        rows += [[label] * sweep + row for row in report.seed_rows(r, env_id)]
     shown = {physics.describe(_overrides(t)) for _, t in sources}
     text = shown.pop() if len(shown) == 1 else "each combination's physics"
     if not text and opts.env_param:  # --env-param chose the env's own
         text = f"{env_id}'s own physics"
     print(_heading(f"of {run_dir}", env_id, f" with {text}" if text else "", opts))
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
-    rule, threshold = SOLVED_BY[env_id]
-    rule = "" if rule == "every" else f" (solved: mean >= {threshold:g})"
-    print(f"solved {sum(r[-1] == 'yes' for r in rows)}/{len(rows)} seed(s){rule}", flush=True)
+    solved = sum(r[-1] == "yes" for r in rows)
+    print(f"solved {solved}/{len(rows)} seed(s){report.mean_rule(env_id)}", flush=True)
 
 
 def _print_values(
