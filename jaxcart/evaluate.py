@@ -161,6 +161,7 @@ def _read_run(
     ``opts.policy``'s parameters on the run's physics with ``chosen`` over them; every option
     and physics checked (a value outside physical sense is one line) before anything is
     evaluated."""
+    from jaxcart import report
     from jaxcart.core import physics
     from jaxcart.rundir.policy import has_physics, run_params, seed_params
     from jaxcart.rundir.reader import is_evaluation, read_run_config, recorded_combinations
@@ -173,7 +174,7 @@ def _read_run(
     if (chosen or field) and not has_physics(env_id):
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
-    refusal = None if opts.gif is None else gif_refusal(env_id)
+    refusal = None if opts.gif is None else report.gif_refusal(env_id)
     if refusal:
         raise cli.UsageError(refusal)
     if opts.gif is not None and combos and opts.combination is None:
@@ -403,18 +404,6 @@ def _write_gif(opts: EvaluateOptions, trained: RunParams) -> None:
         f"wrote {gif.path}: seed {opts.seed_index}, {gif.steps} steps, return "
         f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
     )
-
-
-def gif_refusal(env_id: str) -> str | None:
-    """Why ``--gif`` cannot draw ``env_id`` on this machine, or None: Gymnasium's renderer
-    (pygame) draws every env, and without it the env's own
-    :attr:`~jaxcart.core.envs.Env.draw_frame` (CartPole's, with Pillow)."""
-    from jaxcart.core import envs
-    from jaxcart.results.gif import pygame_available
-
-    if pygame_available() or envs.make(env_id).draw_frame is not None:
-        return None
-    return f"--gif of {env_id} needs Gymnasium's renderer: pip install pygame"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -273,8 +273,6 @@ def next_steps_text(outcome: Outcome) -> str:
     policy (the first solved seed, else seed 0; a sweep's best-ranked combination) and a
     comparison (with another run; a sweep's combinations with each other). Paths are quoted
     for the shell."""
-    from jaxcart.evaluate import gif_refusal
-
     out, grid, q = outcome.run.out, outcome.run.grid, shlex.quote
     run, solved_seeds = q(str(out)), outcome.evaluation.solved
     plot = (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png")
@@ -302,6 +300,18 @@ def next_steps_text(outcome: Outcome) -> str:
         commands.remove(watch)
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
+
+
+def gif_refusal(env_id: str) -> str | None:
+    """Why ``--gif`` cannot draw ``env_id`` on this machine, or None: Gymnasium's renderer
+    (pygame) draws every env, and without it the env's own
+    :attr:`~jaxcart.core.envs.Env.draw_frame` (CartPole's, with Pillow)."""
+    from jaxcart.core import envs
+    from jaxcart.results.gif import pygame_available
+
+    if pygame_available() or envs.make(env_id).draw_frame is not None:
+        return None
+    return f"--gif of {env_id} needs Gymnasium's renderer: pip install pygame"
 
 
 def stopped_text(outcome: Outcome, resume_hint: str) -> str:
