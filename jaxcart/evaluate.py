@@ -17,9 +17,9 @@ those returns.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
-import io
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,6 +31,8 @@ from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.rundir import files, layout
 
 if TYPE_CHECKING:  # the modules that import JAX load once the options are read (--help: none)
+    from matplotlib.figure import Figure
+
     from jaxcart.rundir.policy import RunParams
 
     Run = tuple[Path, dict, list[tuple[str | float | None, RunParams]]]
@@ -289,9 +291,10 @@ def _write(
     named after the run). Without ``field`` each is one evaluation; with it, a sweep of them:
     ``combo-NNN/`` per value, then the sweep's ``config.json`` and ``sweep.json`` (the IQM at
     each value), and ``robustness.png`` in ``--out``."""
+    from jaxcart.results import figure  # matplotlib: only when drawn
     from jaxcart.rundir.directory import write_evaluation_dir
 
-    png = None if iqms is None else _robustness_png(runs, field, iqms, opts.episodes)
+    fig = None if iqms is None else _robustness_figure(runs, field, iqms, opts.episodes)
     opts.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
     written = []
     for k, ((run_dir, info, sources), rs) in enumerate(zip(runs, returns)):
@@ -306,11 +309,9 @@ def _write(
             else:
                 values = [value for value, _ in sources]
                 for c, ((value, trained), r) in enumerate(zip(sources, rs)):
-                    sub = directory.sub(layout.combo_dir(".", c).name, create=True)
-                    try:
+                    name = layout.combo_dir(".", c).name
+                    with contextlib.closing(directory.sub(name, create=True)) as sub:
                         write_evaluation_dir(sub, record(trained, combination={field: value}), r)
-                    finally:
-                        sub.close()
                 points = [
                     {field: v, "iqm": e.to_dict(), "solved_seeds": int(is_solved(r).sum())}
                     for v, e, r in zip(values, iqms[k], rs)
@@ -322,8 +323,8 @@ def _write(
                 others = {layout.SWEEP_FILE: {**ranking, "values": points}}
                 write_evaluation_dir(directory, top, others=others)
         written.append(path)
-    if png is not None:
-        files.atomic_write_bytes(opts.out / layout.ROBUSTNESS_FIGURE_FILE, png)
+    if fig is not None:
+        figure.save(fig, opts.out / layout.ROBUSTNESS_FIGURE_FILE)
     _print_written(opts.out, written, field)
 
 
@@ -354,10 +355,11 @@ def _record(run_dir: Path, info: dict, opts: EvaluateOptions, trained: RunParams
     }
 
 
-def _robustness_png(
+def _robustness_figure(
     runs: list[Run], field: str, iqms: list[list[stats.Estimate]], episodes: int
-) -> bytes:
-    from jaxcart.results.figure import draw_robustness  # matplotlib: only when drawn
+) -> Figure:
+    """``robustness.png``: each run's IQM over seeds at each value of ``field``."""
+    from jaxcart.results.figure import draw_robustness
     from jaxcart.rundir.reader import default_label
 
     curves = [
@@ -373,10 +375,8 @@ def _robustness_png(
         f"Greedy return in Gymnasium's {env_id} ({episodes} episodes per seed) against "
         f"{field}: {IQM_TEXT}; band: that interval"
     )
-    buf = io.BytesIO()
     env_ids = [info["config"].env for _, info, _ in runs]
-    draw_robustness(field, values, curves, title, env_ids).savefig(buf, format="png", dpi=100)
-    return buf.getvalue()
+    return draw_robustness(field, values, curves, title, env_ids)
 
 
 def _print_written(out: Path, written: list[Path], field: str | None) -> None:
