@@ -138,11 +138,12 @@ def saturation_text(comparison: Comparison) -> str:
     """One line: whether the score can tell the runs apart at all."""
     if not comparison.saturated:
         return "saturated: no (the scores differ between seeds or runs)"
-    value, score = comparison.entries[0].scores[0], comparison.score
+    value = comparison.entries[0].scores[0]
     hint = "compare with --score auc (or return-at:STEPS)"
-    hint = hint if score.name == "eval" else "try another --score"
+    if comparison.score.name != "eval":
+        hint = "try another --score"
     return (
-        f"saturated: every seed of every run scores {value:g} by {score.label}: "
+        f"saturated: every seed of every run scores {value:g} by {comparison.score.label}: "
         f"the score cannot tell the runs apart; {hint}"
     )
 
@@ -241,9 +242,9 @@ def compare_runs(
             score = Score.parse(score, cli.score_steps)
         except ValueError as exc:
             raise CompareError(f"score {score!r}: {exc}") from None
-    entries, index, names = runs.load_entries(run_dirs, baseline, score, policy, arms)
+    entries, index, arm_names = runs.load_entries(run_dirs, baseline, score, policy, arms)
     out = runs.prepare_out(None if out is None else Path(out), entries)
-    comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, names)
+    comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, arm_names)
     from jaxcart.results import figure  # matplotlib: only when drawn
 
     names = (layout.COMPARE_FILE, layout.COMPARE_FIGURE_FILE, layout.COMPARE_CURVES_FILE)

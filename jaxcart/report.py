@@ -275,29 +275,33 @@ def next_steps_text(outcome: Outcome) -> str:
     for the shell."""
     out, grid, q = outcome.run.out, outcome.run.grid, shlex.quote
     run, solved_seeds = q(str(out)), outcome.evaluation.solved
-    plot = (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png")
-    compare = (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run")
-    policy_dir, combo, whose = out, "", "'s policy"
     if grid.is_sweep:
         best = outcome.ranking[0]["combination"] if outcome.ranking else 0
         solved_seeds = solved_seeds[grid.runs_of(best)]
-        policy_dir, combo = out / f"combo-{best:03d}", f" --combination {best}"
-        whose = " of the best-ranked combination"
-        plot = (
-            f"{plot[0]} --out {q(str(out / 'curves.png'))}",
-            "learning curves of every combination",
-        )
-        compare = (f"python -m jaxcart.compare {run}", "the combinations' statistics")
     seed = int(np.argmax(solved_seeds))  # the first solved seed (none: seed 0)
     pick = f" --seed-index {seed}" if seed else ""
-    gif = q(str(policy_dir / f"seed{seed}.gif"))
-    watch = (
-        f"python -m jaxcart.evaluate {run}{combo}{pick} --gif {gif}",
-        f"watch seed {seed}{whose}",
-    )
-    commands = [plot, watch, compare]
+    if grid.is_sweep:
+        gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
+        commands = [
+            (
+                f"python -m jaxcart.plot {run} --out {q(str(out / 'curves.png'))}",
+                "learning curves of every combination",
+            ),
+            (
+                f"python -m jaxcart.evaluate {run} --combination {best}{pick} --gif {gif}",
+                f"watch seed {seed} of the best-ranked combination",
+            ),
+            (f"python -m jaxcart.compare {run}", "the combinations' statistics"),
+        ]
+    else:
+        gif = q(str(out / f"seed{seed}.gif"))
+        commands = [
+            (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png"),
+            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s policy"),
+            (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
+        ]
     if gif_refusal(outcome.run.config.env):  # no renderer for this env here
-        commands.remove(watch)
+        commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
 
