@@ -78,9 +78,7 @@ def _row(name: str, entry: runs.Entry, st: dict) -> list:
 def table(comparison: Comparison) -> str:
     """The terminal table: one row per run, split so that it fits 100 columns; names longer
     than :data:`NAME_WIDTH` are numbered in it and listed under it."""
-    reference = "baseline"
-    if comparison.arms:
-        reference = f"{comparison.arms.names[0]} same config"
+    reference = f"{comparison.arms[0]} same config" if comparison.arms else "baseline"
     counts = [len(entry.scores) for entry in comparison.entries]
     ci = f"{100 * comparison.confidence:.3g}% CI"  # wider with --adjust bonferroni
     if stats.interval_label(counts) != f"{stats.CONFIDENCE:.0%} CI":  # too few seeds for one
@@ -125,12 +123,10 @@ def arms_text(comparison: Comparison) -> str | None:
     arms, arm_stats = comparison.arms, comparison.arm_stats
     if arms is None or arm_stats is None:
         return None
-    k = len(arms.runs[0])
-    rows = [
-        [name, k, st["iqm"].format(1), *_against(st)] for name, st in zip(arms.names, arm_stats)
-    ]
+    k = len(comparison.entries) // len(arms)
+    rows = [[name, k, st["iqm"].format(1), *_against(st)] for name, st in zip(arms, arm_stats)]
     ci = f"{100 * comparison.confidence:.3g}% CI"
-    header = ["arm", "configs", "IQM [95% CI]", f"IQM - {arms.names[0]} [{ci}]", f"P(>) [{ci}]"]
+    header = ["arm", "configs", "IQM [95% CI]", f"IQM - {arms[0]} [{ci}]", f"P(>) [{ci}]"]
     return (
         f"Arms over {k} configuration(s) (stratified bootstrap: seeds resampled within each "
         "configuration; P(>) is the mean over configurations):\n"
@@ -185,7 +181,7 @@ def report_text(comparison: Comparison) -> str:
     definition = score.definition.replace(f"gymnasium.make('{solved.DEFAULT_ENV}')", where)
     baseline = comparison.entries[comparison.baseline].name
     if comparison.arms:
-        baseline = f"arm {comparison.arms.names[0]} (each run against its configuration's run)"
+        baseline = f"arm {comparison.arms[0]} (each run against its configuration's run)"
     wrap = cli.wrap
     lines = [
         wrap(
@@ -246,19 +242,9 @@ def compare_runs(
             score = Score.parse(score, cli.score_steps)
         except ValueError as exc:
             raise CompareError(f"score {score!r}: {exc}") from None
-    if arms:
-        if run_dirs:
-            raise CompareError("give either RUN_DIRs or --arm, not both")
-        named = None if baseline is None else str(baseline)
-        entries, grouped = runs.load_arms(arms, named, score, policy)
-        index = 0
-    else:
-        if not run_dirs:
-            raise CompareError("nothing to compare: give RUN_DIRs or --arm NAME=DIR,DIR")
-        entries, index = runs.load_entries(run_dirs, baseline, score, policy)
-        grouped = None
+    entries, index, arm_names = runs.load_entries(run_dirs, baseline, score, policy, arms)
     out = runs.prepare_out(None if out is None else Path(out), entries)
-    comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, grouped)
+    comparison = runs.build_comparison(entries, index, score, reps, seed, adjust, arm_names)
     from jaxcart.results import figure  # matplotlib: only when drawn
 
     names = (layout.COMPARE_FILE, layout.COMPARE_FIGURE_FILE, layout.COMPARE_CURVES_FILE)
@@ -297,7 +283,7 @@ class CompareOptions:
     beside the first RUN_DIR, e.g. runs/compare-<time>)"""
     reps: int = cli.option(stats.DEFAULT_REPS, type=int)
     """bootstrap resamples (default 2000)"""
-    seed: int = cli.option(stats.DEFAULT_SEED, type=int)
+    seed: int = cli.option(stats.DEFAULT_SEED, type=cli.seed)
     """bootstrap seed"""
     dpi: int = cli.option(100, type=int)
     """PNG resolution"""
@@ -333,14 +319,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _compare_command(argv: list[str] | None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not args.run_dirs and not args.arm:
-        parser.error("give at least one RUN_DIR (or --arm NAME=DIR,DIR twice or more)")
+    args = build_parser().parse_args(argv)
     if not 100 <= args.reps <= cli.MAX_REPS:
         raise cli.UsageError(f"--reps must be in [100, {cli.MAX_REPS:,}], got {args.reps}")
-    if not 0 <= args.seed < 2**32:
-        raise cli.UsageError(f"--seed must be in [0, 2**32), got {args.seed}")
     cli.check_dpi(args.dpi)
     options = vars(args)  # compare_runs's parameters, by name
     options["arms"] = [runs.parse_arm(text) for text in options.pop("arm")]

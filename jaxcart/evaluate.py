@@ -17,9 +17,9 @@ those returns.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
-import io
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,10 +27,12 @@ import numpy as np
 
 from jaxcart import cli
 from jaxcart.analysis import stats
-from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, SOLVED_BY, is_solved
+from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.rundir import files, layout
 
 if TYPE_CHECKING:  # the modules that import JAX load once the options are read (--help: none)
+    from matplotlib.figure import Figure
+
     from jaxcart.rundir.policy import RunParams
 
     Run = tuple[Path, dict, list[tuple[str | float | None, RunParams]]]
@@ -161,6 +163,7 @@ def _read_run(
     ``opts.policy``'s parameters on the run's physics with ``chosen`` over them; every option
     and physics checked (a value outside physical sense is one line) before anything is
     evaluated."""
+    from jaxcart import report
     from jaxcart.core import physics
     from jaxcart.rundir.policy import has_physics, run_params, seed_params
     from jaxcart.rundir.reader import is_evaluation, read_run_config, recorded_combinations
@@ -173,7 +176,7 @@ def _read_run(
     if (chosen or field) and not has_physics(env_id):
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
-    refusal = None if opts.gif is None else gif_refusal(env_id)
+    refusal = None if opts.gif is None else report.gif_refusal(env_id)
     if refusal:
         raise cli.UsageError(refusal)
     if opts.gif is not None and combos and opts.combination is None:
@@ -208,28 +211,22 @@ def _heading(what: str, env_id: str, on: str, opts: EvaluateOptions) -> str:
 
 def _print_seeds(run: Run, returns: list[np.ndarray], opts: EvaluateOptions) -> None:
     """The per-seed table of a RUN_DIR's sources, each on its one physics."""
+    from jaxcart import report
     from jaxcart.core import physics
-    from jaxcart.run.greedy import summarize
 
     run_dir, info, sources = run
     env_id, sweep = info["config"].env, sources[0][0] is not None
     rows = []
     for (label, _), r in zip(sources, returns):
-        s = summarize(r, env_id)
-        rows += [
-            ([label] if sweep else [])
-            + [i, f"{s['mean'][i]:.1f}", f"{s['min'][i]:.0f}", "yes" if s["solved"][i] else "no"]
-            for i in range(len(r))
-        ]
+        rows += [[label] * sweep + row for row in report.seed_rows(r, env_id)]
     shown = {physics.describe(_overrides(t)) for _, t in sources}
     text = shown.pop() if len(shown) == 1 else "each combination's physics"
     if not text and opts.env_param:  # --env-param chose the env's own
         text = f"{env_id}'s own physics"
     print(_heading(f"of {run_dir}", env_id, f" with {text}" if text else "", opts))
     print(cli.format_table(rows, ["combination"] * sweep + ["seed", "mean", "min", "solved"]))
-    rule, threshold = SOLVED_BY[env_id]
-    rule = "" if rule == "every" else f" (solved: mean >= {threshold:g})"
-    print(f"solved {sum(r[-1] == 'yes' for r in rows)}/{len(rows)} seed(s){rule}", flush=True)
+    solved = sum(r[-1] == "yes" for r in rows)
+    print(f"solved {solved}/{len(rows)} seed(s){report.mean_rule(env_id)}", flush=True)
 
 
 def _print_values(
@@ -294,9 +291,10 @@ def _write(
     named after the run). Without ``field`` each is one evaluation; with it, a sweep of them:
     ``combo-NNN/`` per value, then the sweep's ``config.json`` and ``sweep.json`` (the IQM at
     each value), and ``robustness.png`` in ``--out``."""
+    from jaxcart.results import figure  # matplotlib: only when drawn
     from jaxcart.rundir.directory import write_evaluation_dir
 
-    png = None if iqms is None else _robustness_png(runs, field, iqms, opts.episodes)
+    fig = None if iqms is None else _robustness_figure(runs, field, iqms, opts.episodes)
     opts.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
     written = []
     for k, ((run_dir, info, sources), rs) in enumerate(zip(runs, returns)):
@@ -311,11 +309,9 @@ def _write(
             else:
                 values = [value for value, _ in sources]
                 for c, ((value, trained), r) in enumerate(zip(sources, rs)):
-                    sub = directory.sub(layout.combo_dir(".", c).name, create=True)
-                    try:
+                    name = layout.combo_dir(".", c).name
+                    with contextlib.closing(directory.sub(name, create=True)) as sub:
                         write_evaluation_dir(sub, record(trained, combination={field: value}), r)
-                    finally:
-                        sub.close()
                 points = [
                     {field: v, "iqm": e.to_dict(), "solved_seeds": int(is_solved(r).sum())}
                     for v, e, r in zip(values, iqms[k], rs)
@@ -327,8 +323,8 @@ def _write(
                 others = {layout.SWEEP_FILE: {**ranking, "values": points}}
                 write_evaluation_dir(directory, top, others=others)
         written.append(path)
-    if png is not None:
-        files.atomic_write_bytes(opts.out / layout.ROBUSTNESS_FIGURE_FILE, png)
+    if fig is not None:
+        figure.save(fig, opts.out / layout.ROBUSTNESS_FIGURE_FILE)
     _print_written(opts.out, written, field)
 
 
@@ -359,10 +355,11 @@ def _record(run_dir: Path, info: dict, opts: EvaluateOptions, trained: RunParams
     }
 
 
-def _robustness_png(
+def _robustness_figure(
     runs: list[Run], field: str, iqms: list[list[stats.Estimate]], episodes: int
-) -> bytes:
-    from jaxcart.results.figure import draw_robustness  # matplotlib: only when drawn
+) -> Figure:
+    """``robustness.png``: each run's IQM over seeds at each value of ``field``."""
+    from jaxcart.results.figure import draw_robustness
     from jaxcart.rundir.reader import default_label
 
     curves = [
@@ -378,10 +375,8 @@ def _robustness_png(
         f"Greedy return in Gymnasium's {env_id} ({episodes} episodes per seed) against "
         f"{field}: {IQM_TEXT}; band: that interval"
     )
-    buf = io.BytesIO()
     env_ids = [info["config"].env for _, info, _ in runs]
-    draw_robustness(field, values, curves, title, env_ids).savefig(buf, format="png", dpi=100)
-    return buf.getvalue()
+    return draw_robustness(field, values, curves, title, env_ids)
 
 
 def _print_written(out: Path, written: list[Path], field: str | None) -> None:
@@ -409,18 +404,6 @@ def _write_gif(opts: EvaluateOptions, trained: RunParams) -> None:
         f"wrote {gif.path}: seed {opts.seed_index}, {gif.steps} steps, return "
         f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
     )
-
-
-def gif_refusal(env_id: str) -> str | None:
-    """Why ``--gif`` cannot draw ``env_id`` on this machine, or None: Gymnasium's renderer
-    (pygame) draws every env, and without it the env's own
-    :attr:`~jaxcart.core.envs.Env.draw_frame` (CartPole's, with Pillow)."""
-    from jaxcart.core import envs
-    from jaxcart.results.gif import pygame_available
-
-    if pygame_available() or envs.make(env_id).draw_frame is not None:
-        return None
-    return f"--gif of {env_id} needs Gymnasium's renderer: pip install pygame"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -69,21 +69,30 @@ def physics_text(run: Run) -> str:
     return f" | physics {', '.join(parts)}" if parts else ""
 
 
+def seed_rows(returns: np.ndarray, env_id: str) -> list[list]:
+    """``seed, mean, min, solved`` of each seed's greedy returns ``[num_seeds, episodes]``:
+    the table after training and ``python -m jaxcart.evaluate``'s."""
+    flags = solved.is_solved(returns, env_id)
+    return [
+        [s, f"{r.mean():.1f}", f"{r.min():.0f}", "yes" if ok else "no"]
+        for s, (r, ok) in enumerate(zip(returns, flags))
+    ]
+
+
+def mean_rule(env_id: str) -> str:
+    """`` (solved: mean >= -100)`` for an env solved by its mean return (``""``: CartPole's
+    every episode scores 500)."""
+    rule, threshold = solved.SOLVED_BY[env_id]
+    return f" (solved: mean >= {threshold:g})" if rule == "mean" else ""
+
+
 def evaluation_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
     """The per-seed table of a run without a sweep."""
     ev, final, diverged = outcome.evaluation, outcome.final_return, outcome.diverged_at
-    rows = [
-        [
-            s,
-            f"{ev.gym_returns[s].mean():.1f}",
-            f"{ev.gym_returns[s].min():.0f}",
-            ("yes" if ev.solved[s] else "no")
-            + (f" (diverged@{diverged[s]})" if diverged[s] >= 0 else ""),
-            f"{ev.jax_returns[s].mean():.1f}",
-            f"{final[s]:.1f}",
-        ]
-        for s in range(min(len(ev.solved), MAX_TABLE_ROWS))
-    ]
+    rows = seed_rows(ev.gym_returns[:MAX_TABLE_ROWS], ev.env)
+    for s, row in enumerate(rows):
+        row[-1] += f" (diverged@{diverged[s]})" if diverged[s] >= 0 else ""
+        row += [f"{ev.jax_returns[s].mean():.1f}", f"{final[s]:.1f}"]
     header = ["seed", "gym mean", "gym min", "solved", "jaxcart mean", "train ep_rew_mean"]
     spec = outcome.run.spec
     # each seed's randomised physics: what it trained on (it is evaluated on the nominal)
@@ -111,13 +120,6 @@ def _interval(e: dict | None, digits: int = 1) -> str:
     )
 
 
-def _iqm_header(ranking: list[dict], num_seeds: int) -> str:
-    """``IQM gym return [95% CI]``, ``IQM auc [range of 2 seeds]``: what ranks, and what
-    its interval is (:func:`jaxcart.analysis.stats.interval_label`)."""
-    label = ranking[0]["score"] if ranking else "eval"
-    return f"IQM {'gym return' if label == 'eval' else label} [{stats.interval_label(num_seeds)}]"
-
-
 Column = tuple[str, Callable[[dict], object]]
 """A ranking table's column: its header and its cell of a ranking row."""
 
@@ -125,7 +127,9 @@ Column = tuple[str, Callable[[dict], object]]
 def _ranking_columns(ranking: list[dict], names: list[str], num_seeds: int) -> list[Column]:
     """The columns every ranking shows: the swept values and the IQM with its interval."""
     values = [(name, lambda r, name=name: f"{r[name]:g}") for name in names]
-    return [*values, (_iqm_header(ranking, num_seeds), lambda r: _interval(r["iqm"]))]
+    label = ranking[0]["score"] if ranking else "eval"  # IQM gym return [95% CI], IQM auc [...]
+    iqm = f"IQM {'gym return' if label == 'eval' else label} [{stats.interval_label(num_seeds)}]"
+    return [*values, (iqm, lambda r: _interval(r["iqm"]))]
 
 
 def _table(ranking: list[dict], columns: list[Column]) -> tuple[list[list], list[str]]:
@@ -196,12 +200,9 @@ def results_text(outcome: Outcome) -> str:
     overrides = physics.overrides(outcome.run.spec.env_params)
     on = f" with {physics.describe(overrides)}" if overrides else ""
     nominal = " (nominal physics)" if outcome.run.spec.randomize else ""
-    rule, threshold = solved.SOLVED_BY[env_id]
     return (
         f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('{env_id}')"
-        + f"{on}{nominal}"
-        + (f" (solved: mean >= {threshold:g})" if rule == "mean" else "")
-        + ":\n"
+        + f"{on}{nominal}{mean_rule(env_id)}:\n"
         + format_table(rows, header)
         + "\n"
         + evaluation_columns_text(episodes)
@@ -250,8 +251,11 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
     train, session = f"train {run_s:.1f} s", ""
     if outcome.run.resumed_from is not None:
         session = " this session"
-        total = total_train_seconds(outcome)
-        train += session + (f" and {total:.1f} s in all" if total is not None else "")
+        train += session
+        # the state's elapsed spans every session of a run in one wave; in waves, only the
+        # output files record the earlier waves' times
+        if outcome.result is not None and outcome.run.plan.num_waves == 1:
+            train += f" and {float(outcome.result.state.elapsed):.1f} s in all"
     rate = ""  # none when this session trained nothing (a resume that only evaluated)
     if run_s > 0:
         rate = (
@@ -262,16 +266,6 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
         f"(compile {compile_s:.1f} s, {train}, eval {ev.seconds:.1f} s) | "
         f"{steps:,} env steps{session}{rate} on {outcome.num_devices} device(s)"
     )
-
-
-def total_train_seconds(outcome: Outcome) -> float | None:
-    """Seconds of training over every session of a run trained in one wave (its state's
-    ``elapsed``, which the checkpoint carries across resumes); None for a run in waves,
-    whose earlier waves' times only its output files record."""
-    result = outcome.result
-    if result is None or outcome.run.plan.num_waves > 1:
-        return None
-    return float(result.state.elapsed)
 
 
 def next_steps_text(outcome: Outcome) -> str:
@@ -306,12 +300,22 @@ def next_steps_text(outcome: Outcome) -> str:
             (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s policy"),
             (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
         ]
-    from jaxcart.evaluate import gif_refusal
-
     if gif_refusal(outcome.run.config.env):  # no renderer for this env here
         commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
     return "next:\n" + "\n".join(f"  {c.ljust(width)}  # {why}" for c, why in commands)
+
+
+def gif_refusal(env_id: str) -> str | None:
+    """Why ``--gif`` cannot draw ``env_id`` on this machine, or None: Gymnasium's renderer
+    (pygame) draws every env, and without it the env's own
+    :attr:`~jaxcart.core.envs.Env.draw_frame` (CartPole's, with Pillow)."""
+    from jaxcart.core import envs
+    from jaxcart.results.gif import pygame_available
+
+    if pygame_available() or envs.make(env_id).draw_frame is not None:
+        return None
+    return f"--gif of {env_id} needs Gymnasium's renderer: pip install pygame"
 
 
 def stopped_text(outcome: Outcome, resume_hint: str) -> str:
@@ -427,11 +431,7 @@ class ConsoleReport(ProgressBar):
                 f"{run.plan.wave_size:,}"
             )
         if run.resumed_from is not None:
-            wave = run.resume_wave
-            at = f" of wave {wave + 1}/{run.plan.num_waves}" if run.plan.num_waves > 1 else ""
-            self.print(
-                f"resuming from iteration {run.resumed_from}/{run.config.num_iterations}{at}"
-            )
+            self.print(f"resuming from {_at(run, run.resumed_from, run.resume_wave)}")
 
     def on_compiled(self, seconds: float) -> None:
         if not self.compiled_said:  # a later wave's program is cached
@@ -450,8 +450,8 @@ class ConsoleReport(ProgressBar):
         if self.pace_start is None:
             self.pace_start = (progress.elapsed, progress.iteration)
             return
-        seconds, iterations = progress.elapsed - self.pace_start[0], progress.iteration
-        iterations -= self.pace_start[1]
+        seconds = progress.elapsed - self.pace_start[0]
+        iterations = progress.iteration - self.pace_start[1]
         if self.pace_start[1] < 0 or seconds < 10 or iterations <= 0:
             return
         from jaxcart.run.waves import format_duration

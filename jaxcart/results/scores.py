@@ -10,7 +10,7 @@ import csv
 import io
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -103,23 +103,40 @@ def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
 
 
 def load_entries(
-    run_dirs: Sequence[str | os.PathLike],
+    run_dirs: Sequence[str | os.PathLike] = (),
     baseline: str | os.PathLike | None = None,
     score: Score = summary.EVAL,
     policy: str = "final",
-) -> tuple[list[Entry], int]:
-    """The runs to compare (sweeps expanded) and the baseline's index among them.
+    arms: Sequence[tuple[str, Sequence[str | os.PathLike]]] | None = None,
+) -> tuple[list[Entry], int, list[str] | None]:
+    """The runs to compare (sweeps expanded), each scored (:func:`make_entry`), the
+    baseline's index among them and the arms' names (None without ``arms``).
 
     The baseline is the first run unless ``baseline`` names one (a run directory that is not
-    among ``run_dirs`` is added in front).
+    among ``run_dirs`` is added in front). With ``arms`` (``[(name, [run_dir per
+    configuration]), ...]``, instead of ``run_dirs``) the entries are arm-major, the baseline
+    arm (``baseline`` names it; default the first) first: arm ``a``'s run on configuration
+    ``t`` is entry ``a * k + t`` of ``k`` per arm. A sweep stands for its combinations, one
+    configuration each (an evaluation's physics values, say), and the arms' sweeps must
+    sweep the same values, so that each configuration pairs like with like.
 
     Raises:
-        RunDirError: an unusable run directory; CompareError: a run given twice, a sweep as
-            the baseline, or a run without what the score needs.
+        RunDirError: an unusable run directory; CompareError: nothing to compare, both runs
+            and arms, a run given twice, a sweep as the baseline, a run without what the
+            score needs, or arms that do not pair up (see :func:`_arm_dirs`).
     """
-    runs = load_runs(run_dirs)
-    index = 0
-    if baseline is not None:
+    if arms and run_dirs:
+        raise CompareError("give either RUN_DIRs or --arm, not both")
+    if not arms and not run_dirs:
+        raise CompareError("nothing to compare: give RUN_DIRs or --arm NAME=DIR,DIR")
+    index, names = 0, None
+    if arms:
+        arms = _arm_dirs(arms, None if baseline is None else str(baseline))
+        names = [name for name, _ in arms]
+        runs = load_runs([d for _, dirs in arms for d in dirs])
+    else:
+        runs = load_runs(run_dirs)
+    if baseline is not None and not arms:
         if layout.is_sweep(baseline):
             raise CompareError(
                 f"--baseline {baseline} is a sweep; name one of its combinations, "
@@ -130,18 +147,13 @@ def load_entries(
             index = resolved.index(Path(baseline).resolve())
         else:
             runs = load_runs([baseline, *run_dirs])
-    return _entries(runs, score, policy), index
-
-
-def _entries(runs: list[RunCurves], score: Score, policy: str) -> list[Entry]:
-    """Each run scored (:func:`make_entry`); a run given twice is refused."""
     seen: set[tuple[Path, str]] = set()
     for run in runs:
         key = (run.path.resolve(), run.label if run.combination else "")
         if key in seen:
             raise CompareError(f"{run.path} is given twice")
         seen.add(key)
-    return [make_entry(run, score, policy) for run in runs]
+    return [make_entry(run, score, policy) for run in runs], index, names
 
 
 def parse_arm(text: str) -> tuple[str, list[str]]:
@@ -157,52 +169,15 @@ def parse_arm(text: str) -> tuple[str, list[str]]:
     return name.strip(), paths
 
 
-@dataclass(frozen=True)
-class Arms:
-    """Arms across configurations: ``names[a]``'s run on configuration ``k`` is entry
-    ``runs[a][k]``; arm 0 is the baseline."""
-
-    names: list[str]
-    runs: list[list[int]]
-
-
-def load_arms(
-    arms: Sequence[tuple[str, Sequence[str | os.PathLike]]],
-    baseline: str | None = None,
-    score: Score = summary.EVAL,
-    policy: str = "final",
-) -> tuple[list[Entry], Arms]:
-    """The runs of every arm (arm-major), baseline arm first; a sweep stands for its
-    combinations, one configuration each (an evaluation's physics values, say), and the
-    arms' sweeps must sweep the same values, so that each configuration pairs like with like.
+def _arm_dirs(
+    arms: Sequence[tuple[str, Sequence[str | os.PathLike]]], baseline: str | None
+) -> list[tuple[str, list[Path]]]:
+    """Each arm's runs, every sweep replaced by its combinations, baseline arm first.
 
     Raises:
-        CompareError: fewer than two arms, repeated names, unequal configuration counts,
-            sweeps of other values, or an unknown ``baseline``; RunDirError: unusable runs.
+        CompareError: fewer than two arms, repeated names, an unknown ``baseline``, unequal
+            configuration counts or sweeps of other values.
     """
-    arms = _expand_sweeps(arms)
-    names = [name for name, _ in arms]
-    if len(arms) < 2 or len(set(names)) != len(names):
-        raise CompareError("--arm needs at least two arms with distinct names")
-    if baseline is not None and baseline not in names:
-        raise CompareError(f"--baseline {baseline} is not an arm ({', '.join(names)})")
-    arms = sorted(arms, key=lambda arm: arm[0] != baseline)  # stable: baseline first
-    counts = {len(dirs) for _, dirs in arms}
-    if len(counts) != 1:
-        raise CompareError(
-            "every --arm needs one run per configuration, in the same order; got "
-            + ", ".join(f"{name}: {len(dirs)}" for name, dirs in arms)
-        )
-    entries = _entries(load_runs([d for _, dirs in arms for d in dirs]), score, policy)
-    k = counts.pop()
-    index = [[a * k + t for t in range(k)] for a in range(len(arms))]
-    return entries, Arms([name for name, _ in arms], index)
-
-
-def _expand_sweeps(
-    arms: Sequence[tuple[str, Sequence[str | os.PathLike]]],
-) -> list[tuple[str, list[Path]]]:
-    """Each arm's runs with every sweep replaced by its combinations, in order."""
     out, swept = [], set()
     for name, dirs in arms:
         runs: list[Path] = []
@@ -213,9 +188,19 @@ def _expand_sweeps(
             else:
                 runs.append(d)
         out.append((name, runs))
+    names = [name for name, _ in out]
+    if len(out) < 2 or len(set(names)) != len(names):
+        raise CompareError("--arm needs at least two arms with distinct names")
+    if baseline is not None and baseline not in names:
+        raise CompareError(f"--baseline {baseline} is not an arm ({', '.join(names)})")
+    if len({len(runs) for _, runs in out}) != 1:
+        raise CompareError(
+            "every --arm needs one run per configuration, in the same order; got "
+            + ", ".join(f"{name}: {len(runs)}" for name, runs in out)
+        )
     if len(swept) > 1:
         raise CompareError("the --arm sweeps sweep other values; give sweeps of the same values")
-    return out
+    return sorted(out, key=lambda arm: arm[0] != baseline)  # stable: baseline first
 
 
 Stats = dict[str, stats.Estimate | None]
@@ -228,19 +213,19 @@ class Comparison:
     """Every run's statistics, the score, the baseline and what the reader should know.
 
     Attributes:
-        runs: per entry, :data:`stats.ESTIMATORS`' estimates with their bootstrap intervals,
-            ``solved`` (the fraction of seeds solved with its Wilson interval; None: not
-            known), ``difference_iqm`` and ``probability_of_improvement`` against its
-            reference (None for a reference itself).
+        arms: the arms' names, baseline arm first (None without ``--arm``); the entries are
+            arm-major, ``len(entries) // len(arms)`` configurations per arm.
         references: per run, the index of the run it is compared with (itself: a baseline).
-        matrix: ``[R, R]`` ``P(row > column)`` point values, None with two runs or fewer
-            (or arms: across configurations, pairs of runs compare unlike things).
-        saturated: every seed of every run has the same score.
         comparisons: differences read against a reference (each with a ``P(X > Y)``), the
             arms' included.
         confidence: of each difference and ``P(X > Y)`` interval (Bonferroni-widened with
             ``adjust="bonferroni"``).
-        adjust: ``"none"`` or ``"bonferroni"``.
+        runs: per entry, :data:`stats.ESTIMATORS`' estimates with their bootstrap intervals,
+            ``solved`` (the fraction of seeds solved with its Wilson interval; None: not
+            known), ``difference_iqm`` and ``probability_of_improvement`` against its
+            reference (None for a reference itself).
+        matrix: ``[R, R]`` ``P(row > column)`` point values, None with two runs or fewer
+            (or arms: across configurations, pairs of runs compare unlike things).
         arm_stats: per arm over every configuration (stratified estimates,
             :data:`jaxcart.analysis.stats.Scores`): ``iqm`` of all its tasks' scores pooled,
             and against the baseline arm ``difference_iqm`` and ``probability_of_improvement``
@@ -252,16 +237,24 @@ class Comparison:
     baseline: int
     reps: int
     seed: int
-    runs: list[Stats]
+    adjust: str  # "none" or "bonferroni"
+    arms: list[str] | None
     references: list[int]
-    matrix: np.ndarray | None
-    saturated: bool
     comparisons: int
     confidence: float
-    adjust: str
-    arms: Arms | None = None
+    runs: list[Stats]
+    matrix: np.ndarray | None = None
     arm_stats: list[Stats] | None = None
-    notes: list[str] = field(default_factory=list)
+
+    @property
+    def saturated(self) -> bool:
+        """Every seed of every run has the same score."""
+        return stats.saturated([e.scores for e in self.entries])
+
+    @property
+    def notes(self) -> list[str]:
+        """What the reader should know (:func:`comparison_notes`)."""
+        return comparison_notes(self.entries)
 
     def reading_note(self) -> str:
         """One line: how many comparisons, and what that means for reading the intervals."""
@@ -303,29 +296,28 @@ class Comparison:
         }
 
     def to_dict(self) -> dict:
-        s, names = self, [e.name for e in self.entries]
-        matrix = None
-        if s.matrix is not None:
-            matrix = {"runs": names, "values": s.matrix.tolist()}
+        names = [e.name for e in self.entries]
+        matrix = None if self.matrix is None else {"runs": names, "values": self.matrix.tolist()}
         arms = None
         if self.arms is not None and self.arm_stats is not None:
+            k = len(names) // len(self.arms)
             arms = [
-                {"name": name, "runs": [names[i] for i in runs], **_dicts(st)}
-                for name, runs, st in zip(self.arms.names, self.arms.runs, self.arm_stats)
+                {"name": name, "runs": names[a * k : (a + 1) * k], **_dicts(st)}
+                for a, (name, st) in enumerate(zip(self.arms, self.arm_stats))
             ]
         return {
             "score": self.score.label,
             "score_definition": self.score.definition,
-            "saturated": s.saturated,
-            "baseline": self.arms.names[0] if self.arms else names[self.baseline],
+            "saturated": self.saturated,
+            "baseline": self.arms[0] if self.arms else names[self.baseline],
             "definitions": summary.DEFINITIONS,
             "reached_500": REACHED_DEFINITION,
             "confidence": stats.CONFIDENCE,
             "comparisons": {
-                "count": s.comparisons,
-                "adjust": s.adjust,
-                "confidence_each": s.confidence,
-                "note": s.reading_note(),
+                "count": self.comparisons,
+                "adjust": self.adjust,
+                "confidence_each": self.confidence,
+                "note": self.reading_note(),
             },
             "bootstrap": {"method": "percentile", "reps": self.reps, "seed": self.seed},
             "curves_file": layout.COMPARE_CURVES_FILE,
@@ -347,24 +339,19 @@ def build_comparison(
     reps: int = stats.DEFAULT_REPS,
     seed: int = stats.DEFAULT_SEED,
     adjust: str = "none",
-    arms: Arms | None = None,
+    arms: list[str] | None = None,
 ) -> Comparison:
     """Statistics of every run from its per-seed scores, each against the baseline (with
-    ``arms``: against the baseline arm's run on the same configuration), and the arms
-    aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration); ``adjust=
+    ``arms``, the arms' names: against the baseline arm's run on the same configuration), and
+    the arms aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration); ``adjust=
     "bonferroni"`` widens every difference and ``P(X > Y)`` interval to
     :func:`stats.bonferroni_confidence` of the number of comparisons."""
     if adjust not in summary.ADJUSTMENTS:
         raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {adjust!r}")
-    references = [baseline] * len(entries)
-    if arms is not None:
-        references = list(range(len(entries)))
-        for indices in arms.runs[1:]:
-            for task, i in enumerate(indices):
-                references[i] = arms.runs[0][task]
     scores = [stats.check_seeds(e.scores, f"scores[{i}]") for i, e in enumerate(entries)]
-    count = sum(r != i for i, r in enumerate(references))
-    count += 0 if arms is None else len(arms.names) - 1
+    k = len(entries) // len(arms) if arms else 0  # configurations per arm
+    references = [i % k if arms else baseline for i in range(len(entries))]
+    count = sum(r != i for i, r in enumerate(references)) + (len(arms) - 1 if arms else 0)
     confidence = stats.CONFIDENCE
     if adjust == "bonferroni" and count:
         confidence = stats.bonferroni_confidence(count)
@@ -387,36 +374,21 @@ def build_comparison(
         runs.append(
             {**estimates, "solved": solved, **against(x, scores[ref] if ref != i else None)}
         )
-    matrix = arm_stats = None
-    if arms is None and len(scores) > 2:
-        matrix = np.array(
+    comparison = Comparison(
+        entries, score, baseline, reps, seed, adjust, arms, references, count, confidence, runs
+    )
+    if not arms and len(scores) > 2:
+        comparison.matrix = np.array(
             [[stats.probability_of_improvement(x, y) for y in scores] for x in scores]
         )
-    if arms is not None:
-        per_arm = [[scores[i] for i in indices] for indices in arms.runs]
-        arm_stats = [
+    if arms:
+        per_arm = [scores[a * k : (a + 1) * k] for a in range(len(arms))]
+        comparison.arm_stats = [
             {"iqm": stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed)}
             | against(arm, per_arm[0] if a else None)
             for a, arm in enumerate(per_arm)
         ]
-    saturated = stats.saturated(scores)
-    return Comparison(
-        entries,
-        score,
-        baseline,
-        reps,
-        seed,
-        runs,
-        references,
-        matrix,
-        saturated,
-        count,
-        confidence,
-        adjust,
-        arms,
-        arm_stats,
-        comparison_notes(entries),
-    )
+    return comparison
 
 
 def comparison_notes(entries: list[Entry]) -> list[str]:
