@@ -44,7 +44,7 @@ from jaxcart.run.progress import SeedBars
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.directory import evaluation_record, package_versions, write_metrics_csv
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.reader import bounded_int, finite_number, params_headers, read_json
+from jaxcart.rundir.reader import bounded_int, params_headers, read_json
 
 TORCH_CPU_INSTALL = "pip install torch --index-url https://download.pytorch.org/whl/cpu"
 """PyTorch's own install line for its CPU build on Linux (plain ``pip install torch`` pulls
@@ -131,13 +131,6 @@ def sb3_params(state_dict: dict[str, np.ndarray], config: PPOConfig) -> dict:
     return {networks.ROOT: tree}
 
 
-def greedy_returns(act: Callable[[np.ndarray], np.ndarray], episodes: int) -> np.ndarray:
-    """``[episodes]`` returns of ``act`` (observations ``[episodes, 4]`` -> actions
-    ``[episodes]``) in Gymnasium's CartPole-v1, episode ``e`` reset with seed ``EVAL_SEED + e``:
-    jaxcart's own evaluation (:func:`jaxcart.run.greedy.evaluate_gymnasium`)."""
-    return evaluate_gymnasium(lambda obs: np.asarray(act(obs[0]))[None], 1, episodes)[0]
-
-
 def train_seed(
     seed: int,
     total_timesteps: int,
@@ -179,9 +172,9 @@ def train_seed(
     seconds = time.perf_counter() - start
     model.logger.dump(model.num_timesteps)  # the last update's train/* values
     weights = {k: v.detach().cpu().numpy() for k, v in model.policy.state_dict().items()}
-    returns = greedy_returns(
-        lambda obs: model.predict(obs, deterministic=True)[0], NUM_EVAL_EPISODES
-    )
+    # jaxcart's own evaluation: episode e reset with seed EVAL_SEED + e
+    act = lambda obs: model.predict(obs[0], deterministic=True)[0][None]
+    returns = evaluate_gymnasium(act, 1, NUM_EVAL_EPISODES)[0]
     return SeedResult(to_metrics(rows), sb3_params(weights, PPOConfig()), returns, seconds)
 
 
@@ -255,18 +248,18 @@ def _train_seed_job(job: tuple[int, int, int]) -> tuple[int, SeedResult]:
 def save_seed(out: Path, seed: int, result: SeedResult, elapsed: float) -> None:
     """Keeps one finished seed in ``out/sb3-seeds/`` (atomically), so an interrupted run
     loses at most the seeds still training; ``elapsed``: wall seconds since the run began."""
-    arrays = {f"metrics/{k}": np.asarray(v, np.float64) for k, v in result.metrics.items()}
-    arrays |= {f"params/{k}": v for k, v in files.flatten(result.params).items()}
+    arrays = {f"params/{k}": v for k, v in files.flatten(result.params).items()}
+    arrays["metrics"] = np.stack([result.metrics[k] for k in METRIC_COLUMNS], axis=1)
     arrays["returns"] = np.asarray(result.returns, np.float64)
+    arrays["seconds"] = np.array([result.seconds, elapsed])  # training's, the run's so far
     files.subdir(out, layout.SB3_SEEDS_DIR, create=True)
-    meta = {"seed": seed, "seconds": result.seconds, "elapsed": elapsed}
-    files.save_tree(layout.sb3_seed_file(out, seed), arrays, meta)
+    files.save_tree(layout.sb3_seed_file(out, seed), arrays, {"seed": seed})
 
 
 def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, float] | None:
-    """A seed :func:`save_seed` kept, checked (names, shapes, finite weights and returns: the
-    store's :func:`~jaxcart.rundir.files.load_tree`), with the run's elapsed seconds when it
-    was saved; None when that seed has not finished."""
+    """A seed :func:`save_seed` kept, checked (names, shapes, finite weights, returns and
+    seconds: the store's :func:`~jaxcart.rundir.files.load_tree`), with the run's elapsed
+    seconds when it was saved; None when that seed has not finished."""
     path = layout.sb3_seed_file(out, seed)
     files.subdir(out, layout.SB3_SEEDS_DIR)
     if files.refuse_link(path) is None:
@@ -274,22 +267,18 @@ def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, floa
     headers = params_headers(config, 1).items()
     expected = {f"params/{k}": (shape[1:], dtype) for k, (shape, dtype) in headers}
     expected["returns"] = ((NUM_EVAL_EPISODES,), np.dtype(np.float64))
+    expected["seconds"] = ((2,), np.dtype(np.float64))
     what = f"SB3 seed {seed} of this run"
     arrays, meta = files.load_tree(path, 1 << 24, expected, what, exact=False)
-    metrics = {k: arrays.pop(f"metrics/{k}", None) for k in METRIC_COLUMNS}
-    lengths = {None if m is None else m.shape for m in metrics.values()}
-    if (
-        set(arrays) != set(expected)
-        or len(lengths) != 1
-        or len(next(iter(lengths)) or ()) != 1
-        or not isinstance(meta, dict)
-        or meta.get("seed") != seed
-        or not all(finite_number(meta.get(k)) for k in ("seconds", "elapsed"))
-    ):
+    metrics = arrays.pop("metrics", np.empty(0))  # [iterations, columns], NaN where unlogged
+    shape_ok = metrics.shape[1:] == (len(METRIC_COLUMNS),)
+    if set(arrays) != set(expected) or not shape_ok or meta != {"seed": seed}:
         raise RunDirError(f"{path} does not hold {what}; refusing it")
+    seconds, elapsed = arrays.pop("seconds")
     returns = arrays.pop("returns")
     tree = files.unflatten({k[len("params/") :]: v for k, v in arrays.items()})
-    return SeedResult(metrics, tree, returns, float(meta["seconds"])), float(meta["elapsed"])
+    result = SeedResult(dict(zip(METRIC_COLUMNS, metrics.T)), tree, returns, float(seconds))
+    return result, float(elapsed)
 
 
 def read_plan(out: Path) -> dict:
