@@ -214,8 +214,7 @@ def write_run(
     for s, seed in enumerate(evaluation["seeds"]):
         seed["final_ep_rew_mean"] = float(metrics["rollout/ep_rew_mean"][-1, s])
         seed["train_seconds"] = results[s].seconds
-    directory = files.Dir.open(out)  # every file through it, and recorded in its manifest
-    try:
+    with files.opened(out) as directory:  # every file through it, recorded in its manifest
         listing = files.Manifest(directory)
         files.write_config(listing, info)
         listing.write(
@@ -223,9 +222,7 @@ def write_run(
             lambda e, d: write_metrics_csv(e, metrics, config.batch_size, d),
         )
         listing.write(layout.PARAMS_FILE, lambda e, d: files.save_tree(e, stacked, None, d))
-        listing.write(layout.EVALUATION_FILE, lambda e, d: files.write_json(e, evaluation, d))
-    finally:
-        directory.close()
+        listing.write_json(layout.EVALUATION_FILE, evaluation)
 
 
 _ROWS: Any = None
@@ -281,6 +278,10 @@ def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, floa
     return result, float(elapsed)
 
 
+PLAN_BOUNDS = {"num_seeds": 100_000, "first_seed": 2**32 - 1, "total_timesteps": 10**9}
+"""What a run trains, fixed once it starts (``plan.json``), and the largest value of each."""
+
+
 def read_plan(out: Path) -> dict:
     """What an unfinished ``python -m jaxcart.sb3`` run was asked to train (checked).
 
@@ -294,9 +295,8 @@ def read_plan(out: Path) -> dict:
     if files.refuse_link(Path(out) / layout.SB3_PLAN_FILE) is None:
         raise RunDirError(f"{out} is not an unfinished python -m jaxcart.sb3 run (no plan)")
     plan = read_json(out, layout.SB3_PLAN_FILE)
-    bounds = {"first_seed": 2**31 - 1, "num_seeds": 100_000, "total_timesteps": 10**9}
-    if set(plan) != set(bounds) or not all(
-        bounded_int(plan[k], 1 if k != "first_seed" else 0, high) for k, high in bounds.items()
+    if set(plan) != set(PLAN_BOUNDS) or not all(
+        bounded_int(plan[k], int(k != "first_seed"), high) for k, high in PLAN_BOUNDS.items()
     ):
         raise RunDirError(f"{Path(out) / layout.SB3_PLAN_FILE} is damaged; refusing it")
     return plan
@@ -304,14 +304,13 @@ def read_plan(out: Path) -> dict:
 
 def train_run(
     out: Path,
-    plan: dict | None = None,
+    plan: dict | None,
+    on_start: Callable[[dict, int], None],
+    on_seed: Callable[[int, SeedResult], None],
     jobs: int = 1,
     threads: int = 1,
-    on_seed: Callable[[int, SeedResult], None] | None = None,
-    on_start: Callable[[dict, int], None] | None = None,
     loggers: tuple[str, ...] = (),
     logger_dir: Path | None = None,
-    progress: bool = False,
 ) -> list[SeedResult]:
     """Trains SB3's seeds into the run directory ``out``, then writes the run directory (and
     removes the plan and kept seeds). Each seed is kept as it finishes, so an interrupted run
@@ -320,16 +319,16 @@ def train_run(
     Args:
         out: the run directory: created for a new ``plan`` (it must not exist), else an
             unfinished SB3 run, whose seeds not kept yet are trained.
-        plan: a new run's ``{"first_seed": ..., "num_seeds": ..., "total_timesteps": ...}``
-            (seeds ``first_seed ... first_seed + num_seeds - 1``); None resumes ``out``.
-        jobs, threads: seeds trained at once (one process each) and PyTorch's threads.
-        on_seed: ``on_seed(seed, result)`` as each seed finishes (printed above the bars).
+        plan: a new run's :data:`PLAN_BOUNDS` values (seeds ``first_seed ... first_seed +
+            num_seeds - 1``); None resumes ``out``.
         on_start: ``on_start(plan, kept)`` before training.
+        on_seed: ``on_seed(seed, result)`` as each seed finishes (printed above the progress
+            bars, one per seed: :class:`jaxcart.run.progress.SeedBars`).
+        jobs, threads: seeds trained at once (one process each) and PyTorch's threads.
         loggers, logger_dir: as for :func:`jaxcart.run.loggers.make_logger`: each seed's
             curve is logged as SB3 writes its log (an iteration once its update is logged,
             one rollout later), under the names SB3 itself logs; the kept seeds' curves when
             training starts.
-        progress: show a bar per seed (:class:`jaxcart.run.progress.SeedBars`).
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -345,11 +344,10 @@ def train_run(
     config = PPOConfig(total_timesteps=plan["total_timesteps"])  # SB3's defaults: sb3 preset
     seeds = range(plan["first_seed"], plan["first_seed"] + plan["num_seeds"])
     kept = {s: found for s in seeds if (found := load_seed(out, s, config)) is not None}
-    if on_start is not None:
-        on_start(plan, len(kept))
+    on_start(plan, len(kept))
     names = [f"seed{i}" for i in range(len(seeds))]  # seed indices, as jaxcart names runs
     info = {"framework": FRAMEWORK, "preset": "sb3", "config": config.to_dict()}
-    bars = SeedBars(config.num_iterations * config.batch_size, enabled=progress)
+    bars = SeedBars(config.num_iterations * config.batch_size)
     with make_logger(loggers, out, names, info, logger_dir) as logger:
         live = LiveSeeds(logger, config, seeds.start, bars)
         for seed, (result, _) in kept.items():
@@ -362,9 +360,8 @@ def train_run(
                 elapsed = offset + time.perf_counter() - start
                 save_seed(out, seed, result, elapsed)
                 kept[seed] = (result, elapsed)
-                if on_seed is not None:
-                    with bars.outside():
-                        on_seed(seed, result)
+                with bars.outside():
+                    on_seed(seed, result)
         finally:
             bars.close()
         results = [kept[s][0] for s in seeds]
