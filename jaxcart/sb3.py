@@ -73,8 +73,7 @@ def _main(argv: list[str] | None) -> int:
     out = args.resume or args.out or layout.default_run_dir("sb3-torch")
     if args.resume is None and out.exists():
         raise cli.UsageError(f"--out {out} exists; choose a new run directory")
-    sb3.check_available()
-    check_loggers(args.logger)
+    check_loggers(args.logger)  # SB3 and PyTorch: train_run checks them
 
     def on_start(plan: dict, kept: int) -> None:
         resumed = f" | {kept} already kept" if kept else ""

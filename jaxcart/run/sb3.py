@@ -132,10 +132,7 @@ def sb3_params(state_dict: dict[str, np.ndarray], config: PPOConfig) -> dict:
 
 
 def train_seed(
-    seed: int,
-    total_timesteps: int,
-    threads: int = 1,
-    on_row: Callable[[dict], None] | None = None,
+    seed: int, total_timesteps: int, threads: int, on_row: Callable[[dict], None]
 ) -> SeedResult:
     """``PPO("MlpPolicy", "CartPole-v1", seed=seed).learn(total_timesteps)`` on the CPU,
     then its greedy evaluation (runs in a worker process when seeds train in parallel).
@@ -156,15 +153,13 @@ def train_seed(
         def write(self, key_values: dict, key_excluded: dict, step: int = 0) -> None:
             values = filter_excluded_keys(key_values, key_excluded, "csv")
             rows.append({k: str(v) for k, v in values.items() if v is not None})
-            if on_row is not None:
-                on_row(rows[-1])
+            on_row(rows[-1])
 
         def close(self) -> None:
             pass
 
     torch.set_num_threads(threads)  # 1 is fastest for this tiny MLP
-    if on_row is not None:
-        on_row({})
+    on_row({})
     model = PPO("MlpPolicy", "CartPole-v1", seed=seed, device="cpu")
     model.set_logger(Logger(None, [Rows()]))
     start = time.perf_counter()
