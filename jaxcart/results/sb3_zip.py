@@ -152,8 +152,9 @@ def sb3_zip_bytes(params: dict, config: PPOConfig) -> bytes:
     The hyperparameters recorded are the config's (an annealed learning rate as its initial
     value: SB3 would need a schedule function); the optimizer state is empty (Adam's moments
     are not kept), so ``PPO.load(...).learn()`` continues with a fresh Adam. What ``data``
-    leaves out (``seed``, ``target_kl``, ``use_sde``, the episode counters, ...) is SB3's
-    default: ``PPO.load`` builds the model with its defaults, then sets what ``data`` holds.
+    leaves out (``seed``, ``target_kl``, ``use_sde``, the step and episode counters, ...) is
+    SB3's default: ``PPO.load`` builds the model with its defaults, then sets what ``data``
+    holds.
     """
     import gymnasium  # noqa: F401  (the spaces' pickles name gymnasium's classes)
 
@@ -178,9 +179,8 @@ def sb3_zip_bytes(params: dict, config: PPOConfig) -> bytes:
     data["policy_kwargs"] = _serialized(write_pickle(kwargs), "<class 'dict'>")
     data |= {
         "n_envs": config.num_envs,
-        "num_timesteps": 0,
         "_total_timesteps": int(config.env_steps_per_seed),
-        "verbose": 0,
+        "verbose": 0,  # PPO.load reads it when given an env
         "learning_rate": float(config.learning_rate),
         "n_steps": config.num_steps,
         "batch_size": config.minibatch_size,
