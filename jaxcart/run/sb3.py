@@ -56,10 +56,6 @@ FRAMEWORK = "stable-baselines3 (torch)"
 DEFAULT_TIMESTEPS = 80_000
 """``PPO.learn(80_000)``: 40 rollouts of 2048 steps (SB3 finishes the rollout it is in)."""
 
-# SB3 dumps its log before each update, so train/* values appear one row after the rollout
-# they belong to; rollout/* and time/* belong to the row they are on.
-SHIFTED_PREFIX = "train/"
-
 
 class SB3Unavailable(ImportError):
     """Stable-Baselines3 or PyTorch is not installed (the message says what to install)."""
@@ -87,22 +83,21 @@ class SeedResult:
 def to_metrics(rows: list[dict]) -> dict[str, np.ndarray]:
     """SB3 CSV rows -> jaxcart metric arrays ``[iterations]`` (NaN where SB3 logged nothing).
 
+    SB3 dumps its log before each update, so a rollout's ``train/*`` values are on the row
+    after it (the next rollout's, or the final dump); its ``rollout/*`` and ``time/*`` values
+    are on its own row.
+
     Args:
         rows: SB3's ``progress.csv`` as dicts: one row per rollout (it has
             ``time/total_timesteps``), then the final dump holding the last update's values.
     """
-
-    def value(row: dict, name: str) -> float:
-        text = row.get(SB3_NAMES.get(name, name), "")
-        return float(text) if text not in ("", None) else np.nan
-
-    rollout_rows = [r for r in rows if r.get("time/total_timesteps")]
-    out = {name: np.full(len(rollout_rows), np.nan) for name in METRIC_COLUMNS}
-    for i, row in enumerate(rollout_rows):
-        # this iteration's update is logged on the next row (or the final dump)
-        update = rows[i + 1] if i + 1 < len(rows) else {}
-        for name in METRIC_COLUMNS:
-            out[name][i] = value(update if name.startswith(SHIFTED_PREFIX) else row, name)
+    rollouts = [i for i, row in enumerate(rows) if row.get("time/total_timesteps")]
+    rows = [*rows, {}]  # the last rollout's update, when its dump is not in yet
+    out = {}
+    for name in METRIC_COLUMNS:
+        shift = int(name.startswith("train/"))
+        texts = [rows[i + shift].get(SB3_NAMES.get(name, name)) for i in rollouts]
+        out[name] = np.array([float(text) if text else np.nan for text in texts])
     return out
 
 
