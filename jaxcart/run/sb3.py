@@ -268,7 +268,7 @@ def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, floa
     return result, float(elapsed)
 
 
-PLAN_BOUNDS = {"num_seeds": 100_000, "first_seed": 2**32 - 1, "total_timesteps": 10**9}
+PLAN_BOUNDS = {"num_seeds": 100_000, "first_seed": 2**31 - 1, "total_timesteps": 10**9}
 """What a run trains, fixed once it starts (``plan.json``), and the largest value of each."""
 
 
