@@ -37,17 +37,10 @@ SB3_FORMAT_VERSION = "2.9.2"
 (``PPO.load``, ``predict``, ``evaluate_policy``, ``learn``); SB3 reads it only to print it."""
 ACTIVATION_CLASSES = {"tanh": "Tanh", "relu": "ReLU"}
 """jaxcart's activation -> its ``torch.nn`` class (in ``torch.nn.modules.activation``)."""
-ADAM_DEFAULTS = {
-    "betas": (0.9, 0.999),
-    "weight_decay": 0,
-    "amsgrad": False,
-    "maximize": False,
-    "foreach": None,
-    "capturable": False,
-    "differentiable": False,
-    "fused": None,
-}
-"""``torch.optim.Adam``'s settings besides ``lr`` and ``eps`` (SB3's PPO optimizer)."""
+ADAM_DEFAULTS = {"betas": (0.9, 0.999), "weight_decay": 0}
+"""``torch.optim.Adam``'s settings besides ``lr`` and ``eps`` (SB3's PPO optimizer) that its
+``load_state_dict`` needs; it fills in the flags (``amsgrad``, ``maximize``, ``foreach``,
+``fused``, ...) with their defaults itself."""
 _TORCH_ALIGNMENT = 64  # torch.save aligns each tensor record so it can be memory-mapped
 
 
