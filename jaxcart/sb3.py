@@ -29,11 +29,13 @@ class SB3Options:
     """The command's options, each declared once (:func:`jaxcart.cli.option`): its type and
     default here, its help the docstring below it."""
 
-    num_seeds: int = cli.option(1, type=cli.count)
+    num_seeds: int = cli.option(1, type=cli.bounded_count(sb3.PLAN_BOUNDS["num_seeds"]))
     """seeds to train"""
     first_seed: int = cli.option(0, type=cli.seed)
     """seeds are first-seed ... first-seed+num-seeds-1"""
-    total_timesteps: int = cli.option(sb3.DEFAULT_TIMESTEPS, type=cli.count)
+    total_timesteps: int = cli.option(
+        sb3.DEFAULT_TIMESTEPS, type=cli.bounded_count(sb3.PLAN_BOUNDS["total_timesteps"])
+    )
     """PPO.learn(total_timesteps); SB3 finishes the 2048-step rollout it is in"""
     jobs: int = cli.option(1, type=cli.count)
     """seeds trained at once, one process each"""
