@@ -86,18 +86,15 @@ def export(opts: ExportOptions) -> str:
     if trained.note:
         print(f"note: {opts.run_dir}: parameters {trained.note}", file=sys.stderr)
     params = seed_params(trained, opts.seed_index, "--seed-index")
-    what = f"seed {opts.seed_index} of {opts.run_dir}" + (
-        " (its best policy)" if opts.policy == "best" else ""
-    )
     if opts.to == "sb3":
         from jaxcart.results.sb3_zip import ACTIVATION_CLASSES, net_arch, sb3_zip_bytes
 
         data = sb3_zip_bytes(params, trained.config)
         arch = net_arch(trained.config)
         text = (
-            f"wrote {out}: {what} as SB3 PPO (MlpPolicy, net_arch pi={arch['pi']} "
-            f"vf={arch['vf']}, {ACTIVATION_CLASSES[config.activation]}); "
-            f"stable_baselines3.PPO.load({str(out)!r}) opens it"
+            f"SB3 PPO (MlpPolicy, net_arch pi={arch['pi']} vf={arch['vf']}, "
+            f"{ACTIVATION_CLASSES[config.activation]}); stable_baselines3.PPO.load({str(out)!r}) "
+            "opens it"
         )
     else:
         try:
@@ -109,13 +106,11 @@ def export(opts: ExportOptions) -> str:
                 f"--to onnx needs the onnx package ({exc.name} is missing): "
                 "pip install 'jaxcart[export]' (or pip install onnx)"
             ) from None
-        text = (
-            f"wrote {out}: {what} as ONNX (input obs [N, 4] float32; outputs logits "
-            "[N, 2], action [N] int64)"
-        )
+        text = "ONNX (input obs [N, 4] float32; outputs logits [N, 2], action [N] int64)"
     with atomic_file(out, "wb") as f:
         f.write(data)
-    return text
+    best = " (its best policy)" if opts.policy == "best" else ""
+    return f"wrote {out}: seed {opts.seed_index} of {opts.run_dir}{best} as {text}"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -29,11 +29,13 @@ class SB3Options:
     """The command's options, each declared once (:func:`jaxcart.cli.option`): its type and
     default here, its help the docstring below it."""
 
-    num_seeds: int = cli.option(1, type=cli.count)
+    num_seeds: int = cli.option(1, type=cli.bounded_count(sb3.PLAN_BOUNDS["num_seeds"]))
     """seeds to train"""
-    first_seed: int = cli.option(0, type=int)
+    first_seed: int = cli.option(0, type=cli.seed)
     """seeds are first-seed ... first-seed+num-seeds-1"""
-    total_timesteps: int = cli.option(sb3.DEFAULT_TIMESTEPS, type=cli.count)
+    total_timesteps: int = cli.option(
+        sb3.DEFAULT_TIMESTEPS, type=cli.bounded_count(sb3.PLAN_BOUNDS["total_timesteps"])
+    )
     """PPO.learn(total_timesteps); SB3 finishes the 2048-step rollout it is in"""
     jobs: int = cli.option(1, type=cli.count)
     """seeds trained at once, one process each"""
@@ -44,10 +46,6 @@ class SB3Options:
     resume: Path | None = cli.option(type=Path, metavar="RUN_DIR")
     """continue an interrupted run: train the seeds it has not kept yet (each seed is kept as
     it finishes; --jobs, --threads and the loggers may change, nothing else)"""
-
-
-PLAN = ("num_seeds", "first_seed", "total_timesteps")
-"""The options that say what a run trains: fixed once it starts (``--resume`` refuses them)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,22 +67,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.resume is not None:
-        given = [a.split("=")[0] for a in (sys.argv[1:] if argv is None else argv)]
-        for option in [*("--" + name.replace("_", "-") for name in PLAN), "--out"]:
-            if option in given:
-                raise cli.UsageError(
-                    f"--resume continues the run as it was asked for; drop {option}"
-                )
-    elif args.first_seed < 0:
-        raise cli.UsageError(f"--first-seed must be >= 0, got {args.first_seed}")
+    args = build_parser().parse_args(argv)
+    typed = {a.split("=")[0] for a in (sys.argv[1:] if argv is None else argv)}
+    fixed = [o for o in ("--num-seeds", "--first-seed", "--total-timesteps", "--out") if o in typed]
+    if args.resume is not None and fixed:
+        raise cli.UsageError(f"--resume continues the run as it was asked for; drop {fixed[0]}")
     out = args.resume or args.out or layout.default_run_dir("sb3-torch")
     if args.resume is None and out.exists():
         raise cli.UsageError(f"--out {out} exists; choose a new run directory")
-    sb3.check_available()
-    check_loggers(args.logger)
+    check_loggers(args.logger)  # SB3 and PyTorch: train_run checks them
 
     def on_start(plan: dict, kept: int) -> None:
         resumed = f" | {kept} already kept" if kept else ""
@@ -99,11 +90,18 @@ def _main(argv: list[str] | None) -> int:
         mean = result.returns.mean()
         print(f"seed {seed}: {result.seconds:.1f} s, greedy mean {mean:.1f}{solved}", flush=True)
 
-    options = {"jobs": args.jobs, "threads": args.threads, "on_seed": on_seed, "progress": True}
-    options |= {"on_start": on_start, "loggers": tuple(args.logger), "logger_dir": args.logger_dir}
-    plan = {name: getattr(args, name) for name in PLAN}
+    plan = {name: getattr(args, name) for name in sb3.PLAN_BOUNDS}
     try:
-        results = sb3.train_run(out, None if args.resume else plan, **options)
+        results = sb3.train_run(
+            out,
+            None if args.resume else plan,
+            on_start,
+            on_seed,
+            jobs=args.jobs,
+            threads=args.threads,
+            loggers=tuple(args.logger),
+            logger_dir=args.logger_dir,
+        )
     except KeyboardInterrupt:
         kept = sum(1 for _ in (out / layout.SB3_SEEDS_DIR).glob("seed-*.npz"))
         print(

@@ -18,7 +18,7 @@ from jaxcart import sb3 as sb3_command
 from jaxcart.core.config import PPOConfig
 from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run import sb3
-from jaxcart.run.greedy import evaluate_params
+from jaxcart.run.greedy import evaluate_gymnasium, evaluate_params
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.policy import run_params
 
@@ -87,7 +87,9 @@ def test_writer_and_mapping_without_sb3(tmp_path, capsys):
         sb3.SeedResult(
             sb3.to_metrics(fake_rows(3)),
             sb3.sb3_params(state, config),
-            sb3.greedy_returns(lambda obs, s=state: [sb3_forward(s, o) for o in obs], 3),
+            evaluate_gymnasium(
+                lambda obs, s=state: np.array([[sb3_forward(s, o) for o in obs[0]]]), 1, 3
+            )[0],
             12.5,
         )
         for state in states

@@ -19,9 +19,9 @@ from 1.13 on run it."""
 ONNX_NODES = {"tanh": "Tanh", "relu": "Relu"}
 
 
-def onnx_model(actor: dict, activation: str, name: str = "jaxcart_actor"):
+def onnx_model_bytes(actor: dict, activation: str) -> bytes:
     """The actor (:func:`jaxcart.core.networks.actor_params` of one seed, kernels ``[in, out]``)
-    as a checked ``onnx.ModelProto``.
+    as a checked ONNX model, serialized as written to a ``.onnx`` file.
 
     Raises:
         ImportError: the ``onnx`` package is missing (``pip install 'jaxcart[export]'``).
@@ -30,27 +30,23 @@ def onnx_model(actor: dict, activation: str, name: str = "jaxcart_actor"):
     from onnx import TensorProto, helper, numpy_helper
 
     nodes, weights, x = [], [], "obs"
-    names = networks.layer_names(len(actor) - 1)
-    for name_ in names:
-        kernel = np.asarray(actor[name_]["kernel"], np.float32)
-        bias = np.asarray(actor[name_]["bias"], np.float32)
-        weights += [
-            numpy_helper.from_array(kernel, f"{name_}.kernel"),
-            numpy_helper.from_array(bias, f"{name_}.bias"),
-        ]
-        pre = "logits" if name_ == networks.OUT else f"{name_}.pre"
+    for layer in networks.layer_names(len(actor) - 1):
+        for part in ("kernel", "bias"):
+            array = np.asarray(actor[layer][part], np.float32)
+            weights.append(numpy_helper.from_array(array, f"{layer}.{part}"))
+        pre = "logits" if layer == networks.OUT else f"{layer}.pre"
         nodes += [
-            helper.make_node("MatMul", [x, f"{name_}.kernel"], [f"{name_}.matmul"]),
-            helper.make_node("Add", [f"{name_}.matmul", f"{name_}.bias"], [pre]),
+            helper.make_node("MatMul", [x, f"{layer}.kernel"], [f"{layer}.matmul"]),
+            helper.make_node("Add", [f"{layer}.matmul", f"{layer}.bias"], [pre]),
         ]
-        if name_ != networks.OUT:
-            x = f"{name_}.out"
+        if layer != networks.OUT:
+            x = f"{layer}.out"
             nodes.append(helper.make_node(ONNX_NODES[activation], [pre], [x]))
     nodes.append(helper.make_node("ArgMax", ["logits"], ["action"], axis=-1, keepdims=0))
     num_actions = int(np.shape(actor[networks.OUT]["bias"])[-1])
     graph = helper.make_graph(
         nodes,
-        name,
+        "jaxcart_actor",
         [helper.make_tensor_value_info("obs", TensorProto.FLOAT, ["N", 4])],
         [
             helper.make_tensor_value_info("logits", TensorProto.FLOAT, ["N", num_actions]),
@@ -65,9 +61,4 @@ def onnx_model(actor: dict, activation: str, name: str = "jaxcart_actor"):
         producer_name="jaxcart",
     )
     onnx.checker.check_model(model, full_check=True)
-    return model
-
-
-def onnx_model_bytes(actor: dict, activation: str) -> bytes:
-    """:func:`onnx_model` serialized, as written to a ``.onnx`` file."""
-    return onnx_model(actor, activation).SerializeToString()
+    return model.SerializeToString()

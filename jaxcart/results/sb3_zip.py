@@ -37,17 +37,10 @@ SB3_FORMAT_VERSION = "2.9.2"
 (``PPO.load``, ``predict``, ``evaluate_policy``, ``learn``); SB3 reads it only to print it."""
 ACTIVATION_CLASSES = {"tanh": "Tanh", "relu": "ReLU"}
 """jaxcart's activation -> its ``torch.nn`` class (in ``torch.nn.modules.activation``)."""
-ADAM_DEFAULTS = {
-    "betas": (0.9, 0.999),
-    "weight_decay": 0,
-    "amsgrad": False,
-    "maximize": False,
-    "foreach": None,
-    "capturable": False,
-    "differentiable": False,
-    "fused": None,
-}
-"""``torch.optim.Adam``'s settings besides ``lr`` and ``eps`` (SB3's PPO optimizer)."""
+ADAM_DEFAULTS = {"betas": (0.9, 0.999), "weight_decay": 0}
+"""``torch.optim.Adam``'s settings besides ``lr`` and ``eps`` (SB3's PPO optimizer) that its
+``load_state_dict`` needs; it fills in the flags (``amsgrad``, ``maximize``, ``foreach``,
+``fused``, ...) with their defaults itself."""
 _TORCH_ALIGNMENT = 64  # torch.save aligns each tensor record so it can be memory-mapped
 
 
@@ -67,18 +60,11 @@ class TensorRef:
     shape: tuple[int, ...]
 
 
-@dataclass(frozen=True)
-class _Storage:
-    """The persistent ``FloatStorage`` of ``numel`` floats in the record ``data/{key}``."""
-
-    key: str
-    numel: int
-
-
 class _Pickler(pickle._Pickler):
     """Python's own (pure-Python) pickler that also writes a :class:`Global` by name, without
     importing it (torch and SB3 need not be installed), and a :class:`TensorRef` as
-    ``torch.save`` writes a tensor: ``_rebuild_tensor_v2`` of a persistent ``FloatStorage``."""
+    ``torch.save`` writes a tensor: ``_rebuild_tensor_v2`` of a persistent ``FloatStorage``,
+    whose bytes ``torch.load`` reads from the record ``data/{key}``."""
 
     dispatch: ClassVar[dict] = dict(pickle._Pickler.dispatch)
 
@@ -89,16 +75,14 @@ class _Pickler(pickle._Pickler):
         shape = tuple(obj.shape)
         strides = tuple(math.prod(shape[i + 1 :]) for i in range(len(shape)))
         self.save(Global("torch._utils", "_rebuild_tensor_v2"))
-        # storage, offset, size, stride, requires_grad, backward hooks
-        self.save((_Storage(obj.key, math.prod(shape)), 0, shape, strides, False, OrderedDict()))
-        self.write(pickle.REDUCE)
-
-    def persistent_id(self, obj: object) -> tuple | None:
-        """A storage as torch.save names it (BINPERSID): torch.load reads its bytes from the
-        record ``data/{key}``."""
-        if isinstance(obj, _Storage):
-            return ("storage", Global("torch", "FloatStorage"), obj.key, "cpu", obj.numel)
-        return None
+        # (storage, offset, size, stride, requires_grad, backward hooks), the storage as
+        # torch.save names it (BINPERSID)
+        self.write(pickle.MARK)
+        storage = Global("torch", "FloatStorage")
+        self.save_pers(("storage", storage, obj.key, "cpu", math.prod(shape)))
+        for item in (0, shape, strides, False, OrderedDict()):
+            self.save(item)
+        self.write(pickle.TUPLE + pickle.REDUCE)
 
     dispatch[Global] = save_global_name
     dispatch[TensorRef] = save_tensor
@@ -136,7 +120,7 @@ def _aligned_record(archive: zipfile.ZipFile, name: str, data: bytes) -> None:
     archive.writestr(info, data, compress_type=zipfile.ZIP_STORED)
 
 
-def policy_state_dict(params: dict, config: PPOConfig) -> OrderedDict[str, np.ndarray]:
+def policy_state_dict(params: dict) -> OrderedDict[str, np.ndarray]:
     """SB3's ``ActorCriticPolicy.state_dict()`` for one seed's jaxcart parameters, in SB3's
     order: ``mlp_extractor.policy_net.*``, ``mlp_extractor.value_net.*``, ``action_net.*``,
     ``value_net.*`` (weights ``[out, in]``, biases ``[out]``, float32)."""
@@ -155,53 +139,41 @@ def net_arch(config: PPOConfig) -> dict[str, list[int]]:
     return {"pi": [] if config.linear_actor else hidden, "vf": hidden}
 
 
-def sb3_zip_bytes(params: dict, config: PPOConfig, num_timesteps: int = 0) -> bytes:
+def sb3_zip_bytes(params: dict, config: PPOConfig) -> bytes:
     """One seed's parameters (``params``, no seed axis) as the zip ``PPO.load`` reads.
 
     The hyperparameters recorded are the config's (an annealed learning rate as its initial
     value: SB3 would need a schedule function); the optimizer state is empty (Adam's moments
     are not kept), so ``PPO.load(...).learn()`` continues with a fresh Adam. What ``data``
-    leaves out (``seed``, ``target_kl``, ``use_sde``, the episode counters, ...) is SB3's
-    default: ``PPO.load`` builds the model with its defaults, then sets what ``data`` holds.
+    leaves out (``seed``, ``target_kl``, ``use_sde``, the step and episode counters, ...) is
+    SB3's default: ``PPO.load`` builds the model with its defaults, then sets what ``data``
+    holds.
     """
     import gymnasium  # noqa: F401  (the spaces' pickles name gymnasium's classes)
 
     from jaxcart.core import cartpole
 
-    state = policy_state_dict(params, config)
-    keys = {name: str(i) for i, name in enumerate(state)}
-    policy = OrderedDict((name, TensorRef(keys[name], state[name].shape)) for name in state)
-    optimizer = {
-        "state": {},
-        "param_groups": [
-            {"lr": float(config.learning_rate), "eps": float(config.adam_eps), **ADAM_DEFAULTS}
-            | {"params": list(range(len(state)))}
-        ],
+    state = policy_state_dict(params)
+    tensors = {str(i): array for i, array in enumerate(state.values())}
+    policy = OrderedDict(
+        (name, TensorRef(str(i), a.shape)) for i, (name, a) in enumerate(state.items())
+    )
+    adam = {"lr": float(config.learning_rate), "eps": float(config.adam_eps), **ADAM_DEFAULTS}
+    optimizer = {"state": {}, "param_groups": [adam | {"params": list(range(len(state)))}]}
+    activation = Global("torch.nn.modules.activation", ACTIVATION_CLASSES[config.activation])
+    spaces = {
+        "observation_space": cartpole.observation_space(),
+        "action_space": cartpole.action_space(),
     }
-    policy_kwargs = {
-        "net_arch": net_arch(config),
-        "activation_fn": Global(
-            "torch.nn.modules.activation", ACTIVATION_CLASSES[config.activation]
-        ),
-    }
-    data = {
-        "policy_class": _serialized(
-            write_pickle(Global("stable_baselines3.common.policies", "ActorCriticPolicy")),
-            "<class 'abc.ABCMeta'>",
-        ),
-        "policy_kwargs": _serialized(write_pickle(policy_kwargs), "<class 'dict'>"),
-        "observation_space": _serialized(
-            pickle.dumps(cartpole.observation_space(), protocol=4),
-            "<class 'gymnasium.spaces.box.Box'>",
-        ),
-        "action_space": _serialized(
-            pickle.dumps(cartpole.action_space(), protocol=4),
-            "<class 'gymnasium.spaces.discrete.Discrete'>",
-        ),
+    data = {k: _serialized(pickle.dumps(v, protocol=4), str(type(v))) for k, v in spaces.items()}
+    policy_class = Global("stable_baselines3.common.policies", "ActorCriticPolicy")
+    data["policy_class"] = _serialized(write_pickle(policy_class), "<class 'abc.ABCMeta'>")
+    kwargs = {"net_arch": net_arch(config), "activation_fn": activation}
+    data["policy_kwargs"] = _serialized(write_pickle(kwargs), "<class 'dict'>")
+    data |= {
         "n_envs": config.num_envs,
-        "num_timesteps": int(num_timesteps),
         "_total_timesteps": int(config.env_steps_per_seed),
-        "verbose": 0,
+        "verbose": 0,  # PPO.load reads it when given an env
         "learning_rate": float(config.learning_rate),
         "n_steps": config.num_steps,
         "batch_size": config.minibatch_size,
@@ -218,9 +190,7 @@ def sb3_zip_bytes(params: dict, config: PPOConfig, num_timesteps: int = 0) -> by
     with zipfile.ZipFile(buffer, "w") as archive:
         archive.writestr("data", json.dumps(data, indent=4))
         archive.writestr("policy.optimizer.pth", torch_save_bytes(optimizer, {}))
-        archive.writestr(
-            "policy.pth", torch_save_bytes(policy, {keys[n]: a for n, a in state.items()})
-        )
+        archive.writestr("policy.pth", torch_save_bytes(policy, tensors))
         archive.writestr("_stable_baselines3_version", SB3_FORMAT_VERSION)
         archive.writestr(
             "system_info.txt", "- Written by jaxcart (jaxcart.results.sb3_zip), without PyTorch\n"

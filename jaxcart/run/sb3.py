@@ -44,7 +44,7 @@ from jaxcart.run.progress import SeedBars
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.directory import evaluation_record, package_versions, write_metrics_csv
 from jaxcart.rundir.files import RunDirError
-from jaxcart.rundir.reader import bounded_int, finite_number, params_headers, read_json
+from jaxcart.rundir.reader import bounded_int, params_headers, read_json
 
 TORCH_CPU_INSTALL = "pip install torch --index-url https://download.pytorch.org/whl/cpu"
 """PyTorch's own install line for its CPU build on Linux (plain ``pip install torch`` pulls
@@ -55,10 +55,6 @@ FRAMEWORK = "stable-baselines3 (torch)"
 """``config.json``'s ``framework`` of a run trained by SB3."""
 DEFAULT_TIMESTEPS = 80_000
 """``PPO.learn(80_000)``: 40 rollouts of 2048 steps (SB3 finishes the rollout it is in)."""
-
-# SB3 dumps its log before each update, so train/* values appear one row after the rollout
-# they belong to; rollout/* and time/* belong to the row they are on.
-SHIFTED_PREFIX = "train/"
 
 
 class SB3Unavailable(ImportError):
@@ -87,22 +83,21 @@ class SeedResult:
 def to_metrics(rows: list[dict]) -> dict[str, np.ndarray]:
     """SB3 CSV rows -> jaxcart metric arrays ``[iterations]`` (NaN where SB3 logged nothing).
 
+    SB3 dumps its log before each update, so a rollout's ``train/*`` values are on the row
+    after it (the next rollout's, or the final dump); its ``rollout/*`` and ``time/*`` values
+    are on its own row.
+
     Args:
         rows: SB3's ``progress.csv`` as dicts: one row per rollout (it has
             ``time/total_timesteps``), then the final dump holding the last update's values.
     """
-
-    def value(row: dict, name: str) -> float:
-        text = row.get(SB3_NAMES.get(name, name), "")
-        return float(text) if text not in ("", None) else np.nan
-
-    rollout_rows = [r for r in rows if r.get("time/total_timesteps")]
-    out = {name: np.full(len(rollout_rows), np.nan) for name in METRIC_COLUMNS}
-    for i, row in enumerate(rollout_rows):
-        # this iteration's update is logged on the next row (or the final dump)
-        update = rows[i + 1] if i + 1 < len(rows) else {}
-        for name in METRIC_COLUMNS:
-            out[name][i] = value(update if name.startswith(SHIFTED_PREFIX) else row, name)
+    rollouts = [i for i, row in enumerate(rows) if row.get("time/total_timesteps")]
+    rows = [*rows, {}]  # the last rollout's update, when its dump is not in yet
+    out = {}
+    for name in METRIC_COLUMNS:
+        shift = int(name.startswith("train/"))
+        texts = [rows[i + shift].get(SB3_NAMES.get(name, name)) for i in rollouts]
+        out[name] = np.array([float(text) if text else np.nan for text in texts])
     return out
 
 
@@ -131,18 +126,8 @@ def sb3_params(state_dict: dict[str, np.ndarray], config: PPOConfig) -> dict:
     return {networks.ROOT: tree}
 
 
-def greedy_returns(act: Callable[[np.ndarray], np.ndarray], episodes: int) -> np.ndarray:
-    """``[episodes]`` returns of ``act`` (observations ``[episodes, 4]`` -> actions
-    ``[episodes]``) in Gymnasium's CartPole-v1, episode ``e`` reset with seed ``EVAL_SEED + e``:
-    jaxcart's own evaluation (:func:`jaxcart.run.greedy.evaluate_gymnasium`)."""
-    return evaluate_gymnasium(lambda obs: np.asarray(act(obs[0]))[None], 1, episodes)[0]
-
-
 def train_seed(
-    seed: int,
-    total_timesteps: int,
-    threads: int = 1,
-    on_row: Callable[[dict], None] | None = None,
+    seed: int, total_timesteps: int, threads: int, on_row: Callable[[dict], None]
 ) -> SeedResult:
     """``PPO("MlpPolicy", "CartPole-v1", seed=seed).learn(total_timesteps)`` on the CPU,
     then its greedy evaluation (runs in a worker process when seeds train in parallel).
@@ -163,15 +148,13 @@ def train_seed(
         def write(self, key_values: dict, key_excluded: dict, step: int = 0) -> None:
             values = filter_excluded_keys(key_values, key_excluded, "csv")
             rows.append({k: str(v) for k, v in values.items() if v is not None})
-            if on_row is not None:
-                on_row(rows[-1])
+            on_row(rows[-1])
 
         def close(self) -> None:
             pass
 
     torch.set_num_threads(threads)  # 1 is fastest for this tiny MLP
-    if on_row is not None:
-        on_row({})
+    on_row({})
     model = PPO("MlpPolicy", "CartPole-v1", seed=seed, device="cpu")
     model.set_logger(Logger(None, [Rows()]))
     start = time.perf_counter()
@@ -179,9 +162,9 @@ def train_seed(
     seconds = time.perf_counter() - start
     model.logger.dump(model.num_timesteps)  # the last update's train/* values
     weights = {k: v.detach().cpu().numpy() for k, v in model.policy.state_dict().items()}
-    returns = greedy_returns(
-        lambda obs: model.predict(obs, deterministic=True)[0], NUM_EVAL_EPISODES
-    )
+    # jaxcart's own evaluation: episode e reset with seed EVAL_SEED + e
+    act = lambda obs: model.predict(obs[0], deterministic=True)[0][None]
+    returns = evaluate_gymnasium(act, 1, NUM_EVAL_EPISODES)[0]
     return SeedResult(to_metrics(rows), sb3_params(weights, PPOConfig()), returns, seconds)
 
 
@@ -221,8 +204,7 @@ def write_run(
     for s, seed in enumerate(evaluation["seeds"]):
         seed["final_ep_rew_mean"] = float(metrics["rollout/ep_rew_mean"][-1, s])
         seed["train_seconds"] = results[s].seconds
-    directory = files.Dir.open(out)  # every file through it, and recorded in its manifest
-    try:
+    with files.opened(out) as directory:  # every file through it, recorded in its manifest
         listing = files.Manifest(directory)
         files.write_config(listing, info)
         listing.write(
@@ -230,9 +212,7 @@ def write_run(
             lambda e, d: write_metrics_csv(e, metrics, config.batch_size, d),
         )
         listing.write(layout.PARAMS_FILE, lambda e, d: files.save_tree(e, stacked, None, d))
-        listing.write(layout.EVALUATION_FILE, lambda e, d: files.write_json(e, evaluation, d))
-    finally:
-        directory.close()
+        listing.write_json(layout.EVALUATION_FILE, evaluation)
 
 
 _ROWS: Any = None
@@ -255,18 +235,18 @@ def _train_seed_job(job: tuple[int, int, int]) -> tuple[int, SeedResult]:
 def save_seed(out: Path, seed: int, result: SeedResult, elapsed: float) -> None:
     """Keeps one finished seed in ``out/sb3-seeds/`` (atomically), so an interrupted run
     loses at most the seeds still training; ``elapsed``: wall seconds since the run began."""
-    arrays = {f"metrics/{k}": np.asarray(v, np.float64) for k, v in result.metrics.items()}
-    arrays |= {f"params/{k}": v for k, v in files.flatten(result.params).items()}
+    arrays = {f"params/{k}": v for k, v in files.flatten(result.params).items()}
+    arrays["metrics"] = np.stack([result.metrics[k] for k in METRIC_COLUMNS], axis=1)
     arrays["returns"] = np.asarray(result.returns, np.float64)
+    arrays["seconds"] = np.array([result.seconds, elapsed])  # training's, the run's so far
     files.subdir(out, layout.SB3_SEEDS_DIR, create=True)
-    meta = {"seed": seed, "seconds": result.seconds, "elapsed": elapsed}
-    files.save_tree(layout.sb3_seed_file(out, seed), arrays, meta)
+    files.save_tree(layout.sb3_seed_file(out, seed), arrays, {"seed": seed})
 
 
 def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, float] | None:
-    """A seed :func:`save_seed` kept, checked (names, shapes, finite weights and returns: the
-    store's :func:`~jaxcart.rundir.files.load_tree`), with the run's elapsed seconds when it
-    was saved; None when that seed has not finished."""
+    """A seed :func:`save_seed` kept, checked (names, shapes, finite weights, returns and
+    seconds: the store's :func:`~jaxcart.rundir.files.load_tree`), with the run's elapsed
+    seconds when it was saved; None when that seed has not finished."""
     path = layout.sb3_seed_file(out, seed)
     files.subdir(out, layout.SB3_SEEDS_DIR)
     if files.refuse_link(path) is None:
@@ -274,22 +254,22 @@ def load_seed(out: Path, seed: int, config: PPOConfig) -> tuple[SeedResult, floa
     headers = params_headers(config, 1).items()
     expected = {f"params/{k}": (shape[1:], dtype) for k, (shape, dtype) in headers}
     expected["returns"] = ((NUM_EVAL_EPISODES,), np.dtype(np.float64))
+    expected["seconds"] = ((2,), np.dtype(np.float64))
     what = f"SB3 seed {seed} of this run"
     arrays, meta = files.load_tree(path, 1 << 24, expected, what, exact=False)
-    metrics = {k: arrays.pop(f"metrics/{k}", None) for k in METRIC_COLUMNS}
-    lengths = {None if m is None else m.shape for m in metrics.values()}
-    if (
-        set(arrays) != set(expected)
-        or len(lengths) != 1
-        or len(next(iter(lengths)) or ()) != 1
-        or not isinstance(meta, dict)
-        or meta.get("seed") != seed
-        or not all(finite_number(meta.get(k)) for k in ("seconds", "elapsed"))
-    ):
+    metrics = arrays.pop("metrics", np.empty(0))  # [iterations, columns], NaN where unlogged
+    shape_ok = metrics.shape[1:] == (len(METRIC_COLUMNS),)
+    if set(arrays) != set(expected) or not shape_ok or meta != {"seed": seed}:
         raise RunDirError(f"{path} does not hold {what}; refusing it")
+    seconds, elapsed = arrays.pop("seconds")
     returns = arrays.pop("returns")
     tree = files.unflatten({k[len("params/") :]: v for k, v in arrays.items()})
-    return SeedResult(metrics, tree, returns, float(meta["seconds"])), float(meta["elapsed"])
+    result = SeedResult(dict(zip(METRIC_COLUMNS, metrics.T)), tree, returns, float(seconds))
+    return result, float(elapsed)
+
+
+PLAN_BOUNDS = {"num_seeds": 100_000, "first_seed": 2**31 - 1, "total_timesteps": 10**9}
+"""What a run trains, fixed once it starts (``plan.json``), and the largest value of each."""
 
 
 def read_plan(out: Path) -> dict:
@@ -305,9 +285,8 @@ def read_plan(out: Path) -> dict:
     if files.refuse_link(Path(out) / layout.SB3_PLAN_FILE) is None:
         raise RunDirError(f"{out} is not an unfinished python -m jaxcart.sb3 run (no plan)")
     plan = read_json(out, layout.SB3_PLAN_FILE)
-    bounds = {"first_seed": 2**31 - 1, "num_seeds": 100_000, "total_timesteps": 10**9}
-    if set(plan) != set(bounds) or not all(
-        bounded_int(plan[k], 1 if k != "first_seed" else 0, high) for k, high in bounds.items()
+    if set(plan) != set(PLAN_BOUNDS) or not all(
+        bounded_int(plan[k], int(k != "first_seed"), high) for k, high in PLAN_BOUNDS.items()
     ):
         raise RunDirError(f"{Path(out) / layout.SB3_PLAN_FILE} is damaged; refusing it")
     return plan
@@ -315,14 +294,13 @@ def read_plan(out: Path) -> dict:
 
 def train_run(
     out: Path,
-    plan: dict | None = None,
+    plan: dict | None,
+    on_start: Callable[[dict, int], None],
+    on_seed: Callable[[int, SeedResult], None],
     jobs: int = 1,
     threads: int = 1,
-    on_seed: Callable[[int, SeedResult], None] | None = None,
-    on_start: Callable[[dict, int], None] | None = None,
     loggers: tuple[str, ...] = (),
     logger_dir: Path | None = None,
-    progress: bool = False,
 ) -> list[SeedResult]:
     """Trains SB3's seeds into the run directory ``out``, then writes the run directory (and
     removes the plan and kept seeds). Each seed is kept as it finishes, so an interrupted run
@@ -331,16 +309,16 @@ def train_run(
     Args:
         out: the run directory: created for a new ``plan`` (it must not exist), else an
             unfinished SB3 run, whose seeds not kept yet are trained.
-        plan: a new run's ``{"first_seed": ..., "num_seeds": ..., "total_timesteps": ...}``
-            (seeds ``first_seed ... first_seed + num_seeds - 1``); None resumes ``out``.
-        jobs, threads: seeds trained at once (one process each) and PyTorch's threads.
-        on_seed: ``on_seed(seed, result)`` as each seed finishes (printed above the bars).
+        plan: a new run's :data:`PLAN_BOUNDS` values (seeds ``first_seed ... first_seed +
+            num_seeds - 1``); None resumes ``out``.
         on_start: ``on_start(plan, kept)`` before training.
+        on_seed: ``on_seed(seed, result)`` as each seed finishes (printed above the progress
+            bars, one per seed: :class:`jaxcart.run.progress.SeedBars`).
+        jobs, threads: seeds trained at once (one process each) and PyTorch's threads.
         loggers, logger_dir: as for :func:`jaxcart.run.loggers.make_logger`: each seed's
             curve is logged as SB3 writes its log (an iteration once its update is logged,
             one rollout later), under the names SB3 itself logs; the kept seeds' curves when
             training starts.
-        progress: show a bar per seed (:class:`jaxcart.run.progress.SeedBars`).
 
     Raises:
         SB3Unavailable: SB3 or PyTorch is not installed.
@@ -356,11 +334,10 @@ def train_run(
     config = PPOConfig(total_timesteps=plan["total_timesteps"])  # SB3's defaults: sb3 preset
     seeds = range(plan["first_seed"], plan["first_seed"] + plan["num_seeds"])
     kept = {s: found for s in seeds if (found := load_seed(out, s, config)) is not None}
-    if on_start is not None:
-        on_start(plan, len(kept))
+    on_start(plan, len(kept))
     names = [f"seed{i}" for i in range(len(seeds))]  # seed indices, as jaxcart names runs
     info = {"framework": FRAMEWORK, "preset": "sb3", "config": config.to_dict()}
-    bars = SeedBars(config.num_iterations * config.batch_size, enabled=progress)
+    bars = SeedBars(config.num_iterations * config.batch_size)
     with make_logger(loggers, out, names, info, logger_dir) as logger:
         live = LiveSeeds(logger, config, seeds.start, bars)
         for seed, (result, _) in kept.items():
@@ -373,9 +350,8 @@ def train_run(
                 elapsed = offset + time.perf_counter() - start
                 save_seed(out, seed, result, elapsed)
                 kept[seed] = (result, elapsed)
-                if on_seed is not None:
-                    with bars.outside():
-                        on_seed(seed, result)
+                with bars.outside():
+                    on_seed(seed, result)
         finally:
             bars.close()
         results = [kept[s][0] for s in seeds]
