@@ -36,7 +36,7 @@ from jaxcart.engine import devices, distributed, loop
 from jaxcart.engine.loop import CHUNK_SECONDS, Progress, TrainResult, TrainState
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.greedy import CrossCheck, evaluate_runs
+from jaxcart.run.greedy import CrossCheck
 from jaxcart.run.loggers import make_logger, sb3_extras
 from jaxcart.run.progress import ProgressBar, chain_hooks
 from jaxcart.run.spec import Evaluation, Hooks, Outcome, Run, RunOptions, RunSpec, check_option
@@ -570,32 +570,6 @@ def train_wave(
         logger.close()
 
 
-def cross_check_of(run: Run, episodes: int, runs: range) -> CrossCheck:
-    """The JAX half of ``runs``' final evaluation (:func:`evaluate_wave`)."""
-    seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
-    return CrossCheck(run.config, run.spec.seed, seeds, episodes, env_params)
-
-
-def evaluate_wave(
-    run: Run,
-    params: dict,
-    episodes: int,
-    runs: range,
-    stop=None,
-    cross_check: CrossCheck | None = None,
-) -> Evaluation:
-    """Greedy returns of ``runs`` in the env's Gymnasium counterpart and in jaxcart (raises
-    :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile), the
-    latter by ``cross_check`` when given (:func:`cross_check_of`)."""
-    start = time.perf_counter()
-    seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
-    returns = evaluate_runs(
-        params, run.config, run.spec.seed, seeds, episodes, stop, env_params, cross_check
-    )
-    seconds = time.perf_counter() - start
-    return Evaluation(episodes, *returns, seconds, env=run.config.env)
-
-
 def _one_wave(
     run: Run,
     options: RunOptions,
@@ -605,11 +579,15 @@ def _one_wave(
     runs: range,
     wave: int,
 ) -> Block | None:
-    """Trains, checkpoints and evaluates one wave; None when stopped (its state
-    checkpointed, and, for a run in one wave, its metrics so far written)."""
+    """Trains, checkpoints and evaluates one wave (:class:`~jaxcart.run.greedy.CrossCheck`:
+    Gymnasium's verdict and jaxcart's cross-check, of the final and the kept-best policies);
+    None when stopped (its state checkpointed, and, for a run in one wave, its metrics so far
+    written)."""
+    check, episodes = None, options.eval_episodes
+    if run.main_process:  # compiled beside the training, so that the evaluation finds it ready
+        seeds, physics = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
+        check = CrossCheck(run.config, run.spec.seed, seeds, episodes, physics)
     try:
-        # compiled beside the training, so that the evaluation finds it ready
-        check = cross_check_of(run, options.eval_episodes, runs) if run.main_process else None
         result = train_wave(run, options, hooks, stop, runs, wave, check)
     except Stopped:  # during initialisation: the checkpoint on disk (if any) is untouched
         return None
@@ -629,22 +607,22 @@ def _one_wave(
         kept = distributed.gather(result.state.runners.best)
         best_params = files.flatten(kept.params)
         best = {"best_iteration": np.asarray(kept.iteration), "best_score": np.asarray(kept.score)}
-    episodes, none = options.eval_episodes, np.zeros((len(runs), 0))
-    evaluation = Evaluation(episodes, none, none, 0.0)  # other processes: process 0 evaluates
+    gym = jax_returns = np.zeros((len(runs), 0))  # other processes: process 0 evaluates
+    seconds = 0.0
     if run.main_process:
         try:
             stop.check()
-            evaluation = evaluate_wave(run, params, episodes, runs, stop, check)
+            start = time.perf_counter()
+            gym, jax_returns = check.evaluate(params, stop)
+            seconds = time.perf_counter() - start
             if best is not None:  # the Gymnasium verdict of the best policies too
-                best["best_gym_returns"] = evaluate_wave(
-                    run, kept.params, episodes, runs, stop, check
-                ).gym_returns
+                best["best_gym_returns"] = check.evaluate(kept.params, stop)[0]
         except Stopped:
             return None
     timing = {
         "compile_seconds": result.compile_seconds,
         "train_seconds": result.state.elapsed,
-        "eval_seconds": evaluation.seconds,
+        "eval_seconds": seconds,
     }
     return Block(
         runs.start,
@@ -652,8 +630,8 @@ def _one_wave(
         files.flatten(params),
         run.directory.stream.read(),  # memory-mapped from the stream
         diverged,
-        evaluation.gym_returns,
-        evaluation.jax_returns,
+        gym,
+        jax_returns,
         timing,
         best_params,
         best,
