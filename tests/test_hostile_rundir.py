@@ -1011,7 +1011,7 @@ def test_a_run_directory_renamed_or_swapped_for_a_link_while_it_trains_keeps_eve
         (tmp_path / "run").rename(tmp_path / "moved")
         (tmp_path / "elsewhere").mkdir()
         os.symlink(tmp_path / "elsewhere", tmp_path / "run")
-        state = lifecycle.wave_start_state(run, range(0, 1), 0, 1, None, None)
+        state = lifecycle.wave_start_state(run, range(0, 1), 0, 1)
         lifecycle.save_state(run, state)
         run.directory.write_ranking({"x": 1})
     finally:

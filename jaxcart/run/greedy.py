@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable
 from concurrent.futures import Future
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -20,8 +19,7 @@ from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped, in_background
-from jaxcart.rundir import reader
-from jaxcart.rundir.policy import RunParams, make_policy, run_params
+from jaxcart.rundir.policy import RunParams, make_policy
 
 FAST_COMPILE = {"xla_backend_optimization_level": 1}
 """XLA's options for the cross-check program: LLVM's lighter optimization halves its compile
@@ -205,34 +203,6 @@ class CrossCheck:
         num_runs = len(self._keys)
         trained = RunParams(params, self.config, num_runs, env_params=self.env_params)
         return evaluate_params(trained, self.episodes, should_stop), jax_returns.result()
-
-
-def evaluate_run_dir(
-    run_dir: str | Path,
-    episodes: int = NUM_EVAL_EPISODES,
-    combination: int | None = None,
-    network: type | None = None,
-    trust_code: bool = False,
-) -> tuple[np.ndarray, dict]:
-    """Evaluates every seed of a run directory in Gymnasium's env of its id: a finished run's
-    ``params.npz``, or the last checkpoint of one that did not finish.
-
-    Args:
-        combination: for a sweep directory, which combination.
-        network, trust_code: for a run trained with its own network, as
-            :func:`~jaxcart.rundir.policy.load_policy` takes them.
-
-    Returns:
-        ``(returns [num_seeds, episodes], info)`` with ``info`` the run's ``config.json``
-        and ``info["note"]``: None, or where the parameters came from when the run did not
-        finish (``from the checkpoint at iteration 12/40: the run did not finish``).
-
-    Raises:
-        RunDirError: not a usable run (or a sweep without ``combination``).
-    """
-    info = reader.read_run_config(run_dir)
-    trained = run_params(run_dir, combination, network=network, trust_code=trust_code)
-    return evaluate_params(trained, episodes), {**info, "note": trained.note}
 
 
 def evaluate_params(
