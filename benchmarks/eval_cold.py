@@ -1,4 +1,4 @@
-"""Cold ``evaluate_runs`` of a finished run directory, in a fresh process: the final
+"""Cold ``CrossCheck.evaluate`` of a finished run directory, in a fresh process: the final
 evaluation's wall seconds (Gymnasium's episodes and the JAX cross-check, compile included),
 then the two means::
 
@@ -16,19 +16,19 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.run.greedy import CrossCheck, evaluate_runs
+from jaxcart.run.greedy import CrossCheck
 from jaxcart.rundir.policy import run_params
 from jaxcart.rundir.reader import read_run_config
 
 run = Path(sys.argv[1])
 rp = run_params(run)
 seed = read_run_config(run)["seed"]  # through the store's reader, as evaluate reads it
-seeds, check = np.arange(rp.num_seeds), None
-if "--ahead" in sys.argv[2:]:
-    check = CrossCheck(rp.config, seed, seeds, 20, rp.env_params)
+ahead = "--ahead" in sys.argv[2:]
+if ahead:
+    check = CrossCheck(rp.config, seed, np.arange(rp.num_seeds), 20, rp.env_params)
     check.compile_for(rp.params).result()  # compiled, as it is by the end of a training
 t = time.perf_counter()
-g, j = evaluate_runs(
-    rp.params, rp.config, seed, seeds, 20, env_params=rp.env_params, cross_check=check
-)
+if not ahead:  # cold: the cross-check is made, compiled and run within the timing
+    check = CrossCheck(rp.config, seed, np.arange(rp.num_seeds), 20, rp.env_params)
+g, j = check.evaluate(rp.params)
 print(f"{time.perf_counter() - t:.3f} {g.mean():.6f} {np.asarray(j).mean():.6f}")

@@ -85,8 +85,9 @@ def test_a_custom_network_trains_and_a_fresh_process_rebuilds_it(tmp_path):
         "assert isinstance(policy, JaxPolicy)\n"
         f"obs = np.random.default_rng(3).normal(size=(16, 4)).astype(np.float32)\n"
         "print(json.dumps(policy(obs).tolist()))\n"
-        "from jaxcart.run.greedy import evaluate_run_dir\n"
-        f"returns, _ = evaluate_run_dir({str(out)!r}, episodes=3, trust_code=True)\n"
+        "from jaxcart.run.greedy import evaluate_params\n"
+        "from jaxcart.rundir.policy import run_params\n"
+        f"returns = evaluate_params(run_params({str(out)!r}, trust_code=True), 3)\n"
         "print(json.dumps(returns.tolist()))\n"
     )
     env = {**os.environ, "JAX_PLATFORMS": "cpu", "PYTHONPATH": str(TESTS)}

@@ -252,8 +252,9 @@ def test_acrobot_run_stops_resumes_and_reads_back(tmp_path, capsys):
 
     import jaxcart
     from jaxcart.run import lifecycle
-    from jaxcart.run.greedy import evaluate_run_dir
+    from jaxcart.run.greedy import evaluate_params
     from jaxcart.run.spec import RunOptions, RunSpec
+    from jaxcart.rundir.policy import run_params
 
     config = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024, "env": "Acrobot-v1"})
     options = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
@@ -266,9 +267,10 @@ def test_acrobot_run_stops_resumes_and_reads_back(tmp_path, capsys):
 
     info = json.loads((tmp_path / "whole" / "config.json").read_text())
     assert info["config"]["env"] == "Acrobot-v1"
-    returns, read = evaluate_run_dir(tmp_path / "whole", episodes=2)
+    trained = run_params(tmp_path / "whole")
+    returns = evaluate_params(trained, 2)
     np.testing.assert_array_equal(returns, whole.evaluation.gym_returns)
-    assert read["config"].env == "Acrobot-v1" and (returns <= 0).all()
+    assert trained.config.env == "Acrobot-v1" and (returns <= 0).all()
     from jaxcart.rundir import reader
 
     evaluation = reader.read_evaluation(tmp_path / "whole", 2)  # negative returns accepted

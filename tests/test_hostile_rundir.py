@@ -33,6 +33,7 @@ from jaxcart import train
 from jaxcart.core.config import ConfigError
 from jaxcart.results import scores as comparison
 from jaxcart.run import lifecycle, loggers, waves
+from jaxcart.run.greedy import CrossCheck
 from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout, policy, reader
 from jaxcart.rundir.directory import RunDir
@@ -891,13 +892,13 @@ def test_an_interrupted_extension_reads_as_unfinished(bases, tmp_path):
 
 def test_a_run_directory_deleted_during_evaluation_is_not_recreated(bases, tmp_path, monkeypatch):
     run, _ = prepare(bases, "interrupted", tmp_path)
-    evaluate = lifecycle.evaluate_wave
+    evaluate = CrossCheck.evaluate
 
-    def delete_then_evaluate(r, *args, **kwargs):
+    def delete_then_evaluate(check, *args, **kwargs):
         shutil.rmtree(run)
-        return evaluate(r, *args, **kwargs)
+        return evaluate(check, *args, **kwargs)
 
-    monkeypatch.setattr(lifecycle, "evaluate_wave", delete_then_evaluate)
+    monkeypatch.setattr(CrossCheck, "evaluate", delete_then_evaluate)
     with pytest.raises(OSError):
         lifecycle.resume_run(run, OPTIONS)
     assert not run.exists()
@@ -1010,7 +1011,7 @@ def test_a_run_directory_renamed_or_swapped_for_a_link_while_it_trains_keeps_eve
         (tmp_path / "run").rename(tmp_path / "moved")
         (tmp_path / "elsewhere").mkdir()
         os.symlink(tmp_path / "elsewhere", tmp_path / "run")
-        state = lifecycle.wave_start_state(run, range(0, 1), 0, 1, None, None)
+        state = lifecycle.wave_start_state(run, range(0, 1), 0, 1)
         lifecycle.save_state(run, state)
         run.directory.write_ranking({"x": 1})
     finally:

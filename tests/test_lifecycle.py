@@ -11,10 +11,11 @@ from helpers import TINY, assert_same_run_dirs, stopped_run
 
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run import lifecycle
-from jaxcart.run.greedy import evaluate_run_dir
+from jaxcart.run.greedy import evaluate_params
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
+from jaxcart.rundir.policy import run_params
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
 OPTIONS = RunOptions(eval_episodes=2, compile_cache=False, chunk_size=2)
@@ -39,7 +40,7 @@ def test_run_new_writes_a_run_directory_and_prints_nothing(tmp_path, capsys):
         assert (tmp_path / "run" / name).is_file(), name
     info = json.loads((tmp_path / "run" / "config.json").read_text())
     assert info["preset"] == "custom" and info["num_seeds"] == 2 and info["seed"] == 4
-    returns, _ = evaluate_run_dir(tmp_path / "run", episodes=2)
+    returns = evaluate_params(run_params(tmp_path / "run"), 2)
     np.testing.assert_array_equal(returns, outcome.evaluation.gym_returns)
 
 

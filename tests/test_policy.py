@@ -23,11 +23,12 @@ from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.engine.signals import StopRequest
 from jaxcart.results import figure
 from jaxcart.run import lifecycle
-from jaxcart.run.greedy import evaluate_run_dir
+from jaxcart.run.greedy import evaluate_params
 from jaxcart.run.spec import Hooks, RunOptions, RunSpec
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.files import RunDirError, read_stream
 from jaxcart.rundir.layout import CHECKPOINT_FILE, METRICS_STREAM_FILE
+from jaxcart.rundir.policy import run_params
 from jaxcart.rundir.reader import load_runs
 
 SMALL = PPOConfig(**{**TINY.to_dict(), "total_timesteps": 1024})  # 8 iterations
@@ -153,8 +154,9 @@ def test_evaluate_cli_on_stopped_run_and_sweep(runs, capsys):
         f"{runs['stopped']})"
     )
     assert lines[2].split() == ["seed", "mean", "min", "solved"] and len(lines) == 7
-    returns, info = evaluate_run_dir(runs["stopped"], episodes=2)
-    assert returns.shape == (2, 2) and info["note"] == STOPPED_NOTE
+    trained = run_params(runs["stopped"])
+    returns = evaluate_params(trained, 2)
+    assert returns.shape == (2, 2) and trained.note == STOPPED_NOTE
 
     assert evaluate.main([str(runs["sweep"]), "--episodes", "2"]) == 0
     lines = capsys.readouterr().out.splitlines()

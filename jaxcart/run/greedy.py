@@ -7,7 +7,6 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable
 from concurrent.futures import Future
-from pathlib import Path
 from typing import Any
 
 import jax
@@ -20,8 +19,7 @@ from jaxcart.core.ppo import make_network
 from jaxcart.core.solved import DEFAULT_ENV, EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.engine.loop import seed_index_keys
 from jaxcart.engine.signals import Stopped, in_background
-from jaxcart.rundir import reader
-from jaxcart.rundir.policy import RunParams, make_policy, run_params
+from jaxcart.rundir.policy import RunParams, make_policy
 
 FAST_COMPILE = {"xla_backend_optimization_level": 1}
 """XLA's options for the cross-check program: LLVM's lighter optimization halves its compile
@@ -130,19 +128,22 @@ def summarize(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict[str, np.nd
 
 
 class CrossCheck:
-    """jaxcart's half of :func:`evaluate_runs`: every run's greedy returns ``[R, episodes]``
-    in jaxcart's env, from a program that compiles in a thread as soon as the parameters'
-    shapes are known (:meth:`compile_for`). Training starts it when its own program has
-    compiled, so that the final evaluation finds it ready; one program serves the final and
-    the kept-best policies alike.
+    """The final evaluation of a training's runs (:meth:`evaluate`): greedy returns in the
+    env's Gymnasium counterpart (the verdict) and in jaxcart's env (the cross-check), the
+    latter from a program that compiles in a thread as soon as the parameters' shapes are
+    known (:meth:`compile_for`). Training starts it when its own program has compiled, so
+    that the final evaluation finds it ready; one program serves the final and the kept-best
+    policies alike.
 
     Args:
         config: the runs' config (its env and network).
         seed, seed_indices: run r's episodes start from ``fold_in(seed key of
-            seed_indices[r], 1)``.
+            seed_indices[r], 1)`` in jaxcart's env; Gymnasium's use the same reset seeds
+            for all.
         episodes: episodes per run.
         env_params: the physics (default the env's own; a continuous field may hold one
-            value per run, ``[R]``).
+            value per run, ``[R]``; an env without a Gymnasium grid of its own plays
+            Gymnasium's episodes on its own physics).
     """
 
     def __init__(
@@ -161,6 +162,7 @@ class CrossCheck:
             key = jax.random.fold_in(k, 1)
             return greedy_returns(p, key, network, episodes, run_env, config.env)
 
+        self.config, self.episodes, self.env_params = config, episodes, env_params
         self._one_run = one_run
         self._keys = seed_index_keys(seed, np.asarray(seed_indices))
         self._per_run = {n: np.asarray(v, float_dtype()) for n, v in per_run.items()}
@@ -180,68 +182,27 @@ class CrossCheck:
         return self._program
 
     def returns(self, params: dict) -> Future:
-        """A future of the greedy returns ``[R, episodes]`` of ``params`` (NumPy, leaves
-        ``[R, ...]``), computed in a thread once the program is compiled."""
+        """A future of jaxcart's greedy returns ``[R, episodes]`` of ``params`` (NumPy,
+        leaves ``[R, ...]``), computed in a thread once the program is compiled."""
         self.compile_for(params)
         program, done = self._program, Future()
         in_background(lambda: np.asarray(program.result()(params, self._keys, self._per_run)), done)
         return done
 
+    def evaluate(
+        self, params: dict, should_stop: Callable[[], bool] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Greedy returns of ``params`` (NumPy, leaves ``[R, ...]``) in Gymnasium's env and
+        in jaxcart's, ``([R, episodes], [R, episodes])``: jaxcart's program runs in a thread
+        while Gymnasium's episodes run (:func:`evaluate_params`).
 
-def evaluate_runs(
-    params: dict,
-    config: PPOConfig,
-    seed: int,
-    seed_indices: np.ndarray,
-    episodes: int,
-    should_stop: Callable[[], bool] | None = None,
-    env_params: Any = None,
-    cross_check: CrossCheck | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Greedy returns of every run of a training, ``([R, episodes], [R, episodes])``: in
-    Gymnasium's env of ``config.env`` (the same reset seeds for all) and in jaxcart's env (run
-    r's episodes from ``fold_in(seed key of seed_indices[r], 1)``), both with ``env_params``'
-    physics (default CartPole-v1's; a continuous field may hold one value per run, ``[R]``;
-    another env plays on its own). jaxcart's program (``cross_check``'s, when training
-    started compiling it, else a new one) compiles and runs in a thread while Gymnasium's
-    episodes run.
-
-    Args:
-        params: network parameters, leaves ``[R, ...]`` (NumPy).
-    """
-    if cross_check is None:
-        cross_check = CrossCheck(config, seed, seed_indices, episodes, env_params)
-    jax_returns = cross_check.returns(params)
-    trained = RunParams(params, config, len(seed_indices), env_params=env_params)
-    return evaluate_params(trained, episodes, should_stop), jax_returns.result()
-
-
-def evaluate_run_dir(
-    run_dir: str | Path,
-    episodes: int = NUM_EVAL_EPISODES,
-    combination: int | None = None,
-    network: type | None = None,
-    trust_code: bool = False,
-) -> tuple[np.ndarray, dict]:
-    """Evaluates every seed of a run directory in Gymnasium's env of its id: a finished run's
-    ``params.npz``, or the last checkpoint of one that did not finish.
-
-    Args:
-        combination: for a sweep directory, which combination.
-        network, trust_code: for a run trained with its own network, as
-            :func:`~jaxcart.rundir.policy.load_policy` takes them.
-
-    Returns:
-        ``(returns [num_seeds, episodes], info)`` with ``info`` the run's ``config.json``
-        and ``info["note"]``: None, or where the parameters came from when the run did not
-        finish (``from the checkpoint at iteration 12/40: the run did not finish``).
-
-    Raises:
-        RunDirError: not a usable run (or a sweep without ``combination``).
-    """
-    info = reader.read_run_config(run_dir)
-    trained = run_params(run_dir, combination, network=network, trust_code=trust_code)
-    return evaluate_params(trained, episodes), {**info, "note": trained.note}
+        Raises:
+            Stopped: ``should_stop()`` turned true during Gymnasium's episodes.
+        """
+        jax_returns = self.returns(params)
+        num_runs = len(self._keys)
+        trained = RunParams(params, self.config, num_runs, env_params=self.env_params)
+        return evaluate_params(trained, self.episodes, should_stop), jax_returns.result()
 
 
 def evaluate_params(

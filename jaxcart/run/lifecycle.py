@@ -36,7 +36,7 @@ from jaxcart.engine import devices, distributed, loop
 from jaxcart.engine.loop import CHUNK_SECONDS, Progress, TrainResult, TrainState
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.greedy import CrossCheck, evaluate_runs
+from jaxcart.run.greedy import CrossCheck
 from jaxcart.run.loggers import make_logger, sb3_extras
 from jaxcart.run.progress import ProgressBar, chain_hooks
 from jaxcart.run.spec import Evaluation, Hooks, Outcome, Run, RunOptions, RunSpec, check_option
@@ -102,12 +102,6 @@ def resume_run(
     """
     options = _prepare(options, stop)
     run = open_run(out, total_timesteps, allow_device_change, network, trust_code)
-    recorded = run.info.get("eval_episodes")
-    if recorded and options.eval_episodes and options.eval_episodes != recorded:
-        run.close()
-        raise ConfigError(
-            f"{out} evaluates {recorded} episodes per seed (config.json); drop --eval-episodes",
-        )
     return carry_out(run, options, hooks, stop, progress)
 
 
@@ -227,6 +221,10 @@ def open_run(
         num_runs = spec.grid.num_runs
         plan = WavePlan(num_runs, info.get("wave_size") or num_runs, 0, 0)
         wave = 0
+        if plan.num_waves > 1 and extend_to is not None:
+            raise ConfigError(
+                f"cannot extend {out}: it trained in waves, which keep no final state"
+            )
         if plan.num_waves > 1:  # the plan it was started with, and today's estimate
             plan = WavePlan(num_runs, plan.wave_size, bytes_per_run(config), available_bytes())
             waves = range(plan.num_waves)
@@ -273,10 +271,6 @@ def _extend(out: Path, info: dict, total_timesteps: int, from_iteration: int) ->
     "num_iterations"}``: from that iteration on, the rate anneals over that many iterations.
     """
     config = info["config"]
-    if (info.get("wave_size") or info.get("num_seeds")) < info.get("num_seeds", 1) * max(
-        1, len(info.get("combinations", []))
-    ):
-        raise ConfigError(f"cannot extend {out}: it trained in waves, which keep no final state")
     extended = dataclasses.replace(config, total_timesteps=total_timesteps)
     if extended.num_iterations <= config.num_iterations:
         raise ConfigError(
@@ -365,15 +359,25 @@ def carry_out(
     next safe point: the state is checkpointed and the outcome is ``stopped``, resumable.
     A stopped run keeps its checkpoint (and, trained in one wave, a partial metrics.csv).
     ``progress=True`` adds a :class:`~jaxcart.run.progress.ProgressBar` to ``hooks``.
+
+    Raises:
+        ConfigError: ``options`` evaluate another number of episodes than the run records.
     """
-    episodes = options.eval_episodes or run.info.get("eval_episodes") or NUM_EVAL_EPISODES
-    options = dataclasses.replace(options, eval_episodes=episodes)
     bar = ProgressBar() if progress else None
     hooks = chain_hooks(hooks, bar)
     stop = stop or StopRequest(hooks.on_signal)
     try:
+        recorded = run.info.get("eval_episodes")
+        if recorded and options.eval_episodes and options.eval_episodes != recorded:
+            raise ConfigError(
+                f"{run.out} evaluates {recorded} episodes per seed (config.json); "
+                "drop --eval-episodes"
+            )
+        episodes = options.eval_episodes or recorded or NUM_EVAL_EPISODES
         with stop.installed():
-            return _carry_out(run, options, hooks, stop)
+            return _carry_out(
+                run, dataclasses.replace(options, eval_episodes=episodes), hooks, stop
+            )
     except Exception:
         if _nothing_trained(run):  # a new run that failed before its first chunk trained
             run.directory.discard()
@@ -420,7 +424,7 @@ def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -
         keep = num_waves > 1 and run.main_process  # on disk until the outputs are written
         blocks.append(run.directory.save_wave(block, wave) if keep else block)
     if run.main_process:
-        _finish(run, blocks, options.eval_episodes, outcome, options.score)
+        _finish(run, blocks, options, outcome)
     return outcome  # signum set when a signal came while writing: the run finished all the same
 
 
@@ -431,15 +435,11 @@ def wave_start_state(
     wave: int = 0,
     chunk_size: int | None = None,
     on_progress: Callable[[int, int], None] | None = None,
-    chunk_seconds: float = CHUNK_SECONDS,
 ) -> TrainState:
     """The state of ``runs`` (wave ``wave``) from the checkpoint when it holds that wave;
     else a fresh state, saved at once as the wave's iteration-0 checkpoint, so that a run
     killed at any moment can be resumed. ``on_progress(done, total)`` follows the
-    initialisation of large runs. Without ``chunk_size`` its chunks adapt to take about
-    ``chunk_seconds`` each (chunk lengths change no number); with several processes the
-    chunks stay fixed, since every process must run the same chunk lengths."""
-    adapt = None if chunk_size or jax.process_count() > 1 else chunk_seconds
+    initialisation of large runs."""
     meta, spec, columns = run.directory.checkpoint_meta, run.spec, loop.metric_columns(run.config)
     if meta is not None and meta.get("wave", 0) == wave:
         # a one-run template names the arrays; the file has them all
@@ -470,7 +470,7 @@ def wave_start_state(
         )
         run.directory.open_metrics(len(runs), 0, columns)
         save_state(run, state, wave)
-    return dataclasses.replace(state, chunk_seconds=adapt)
+    return state
 
 
 def save_state(run: Run, state: TrainState, wave: int = 0) -> None:
@@ -516,9 +516,12 @@ def train_wave(
         if hooks.on_init:
             hooks.on_init(done, total)
 
-    # chunks no longer than the checkpoint interval, so that checkpoints come on time
-    seconds = min(CHUNK_SECONDS, options.checkpoint_every)
-    state = wave_start_state(run, runs, wave, options.chunk_size, on_progress, seconds)
+    # without a chunk_size, chunks adapt to take about CHUNK_SECONDS each (chunk lengths change
+    # no number), no longer than the checkpoint interval, so that checkpoints come on time;
+    # with several processes they stay fixed: every process must run the same chunk lengths
+    fixed = options.chunk_size or jax.process_count() > 1
+    state = wave_start_state(run, runs, wave, options.chunk_size, on_progress)
+    state.chunk_seconds = None if fixed else min(CHUNK_SECONDS, options.checkpoint_every)
     loggers = list(options.loggers) if run.main_process else []
     info = {**run.info, "config": config.to_dict()}
     names = [grid.run_name(r) for r in runs]
@@ -570,32 +573,6 @@ def train_wave(
         logger.close()
 
 
-def cross_check_of(run: Run, episodes: int, runs: range) -> CrossCheck:
-    """The JAX half of ``runs``' final evaluation (:func:`evaluate_wave`)."""
-    seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
-    return CrossCheck(run.config, run.spec.seed, seeds, episodes, env_params)
-
-
-def evaluate_wave(
-    run: Run,
-    params: dict,
-    episodes: int,
-    runs: range,
-    stop=None,
-    cross_check: CrossCheck | None = None,
-) -> Evaluation:
-    """Greedy returns of ``runs`` in the env's Gymnasium counterpart and in jaxcart (raises
-    :class:`~jaxcart.engine.signals.Stopped` when ``stop`` is requested meanwhile), the
-    latter by ``cross_check`` when given (:func:`cross_check_of`)."""
-    start = time.perf_counter()
-    seeds, env_params = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
-    returns = evaluate_runs(
-        params, run.config, run.spec.seed, seeds, episodes, stop, env_params, cross_check
-    )
-    seconds = time.perf_counter() - start
-    return Evaluation(episodes, *returns, seconds, env=run.config.env)
-
-
 def _one_wave(
     run: Run,
     options: RunOptions,
@@ -605,11 +582,15 @@ def _one_wave(
     runs: range,
     wave: int,
 ) -> Block | None:
-    """Trains, checkpoints and evaluates one wave; None when stopped (its state
-    checkpointed, and, for a run in one wave, its metrics so far written)."""
+    """Trains, checkpoints and evaluates one wave (:class:`~jaxcart.run.greedy.CrossCheck`:
+    Gymnasium's verdict and jaxcart's cross-check, of the final and the kept-best policies);
+    None when stopped (its state checkpointed, and, for a run in one wave, its metrics so far
+    written)."""
+    check, episodes = None, options.eval_episodes
+    if run.main_process:  # compiled beside the training, so that the evaluation finds it ready
+        seeds, physics = run.grid.seed_indices(runs), run.spec.eval_env_params(runs)
+        check = CrossCheck(run.config, run.spec.seed, seeds, episodes, physics)
     try:
-        # compiled beside the training, so that the evaluation finds it ready
-        check = cross_check_of(run, options.eval_episodes, runs) if run.main_process else None
         result = train_wave(run, options, hooks, stop, runs, wave, check)
     except Stopped:  # during initialisation: the checkpoint on disk (if any) is untouched
         return None
@@ -629,22 +610,22 @@ def _one_wave(
         kept = distributed.gather(result.state.runners.best)
         best_params = files.flatten(kept.params)
         best = {"best_iteration": np.asarray(kept.iteration), "best_score": np.asarray(kept.score)}
-    episodes, none = options.eval_episodes, np.zeros((len(runs), 0))
-    evaluation = Evaluation(episodes, none, none, 0.0)  # other processes: process 0 evaluates
+    gym = jax_returns = np.zeros((len(runs), 0))  # other processes: process 0 evaluates
+    seconds = 0.0
     if run.main_process:
         try:
             stop.check()
-            evaluation = evaluate_wave(run, params, episodes, runs, stop, check)
+            start = time.perf_counter()
+            gym, jax_returns = check.evaluate(params, stop)
+            seconds = time.perf_counter() - start
             if best is not None:  # the Gymnasium verdict of the best policies too
-                best["best_gym_returns"] = evaluate_wave(
-                    run, kept.params, episodes, runs, stop, check
-                ).gym_returns
+                best["best_gym_returns"] = check.evaluate(kept.params, stop)[0]
         except Stopped:
             return None
     timing = {
         "compile_seconds": result.compile_seconds,
         "train_seconds": result.state.elapsed,
-        "eval_seconds": evaluation.seconds,
+        "eval_seconds": seconds,
     }
     return Block(
         runs.start,
@@ -652,22 +633,21 @@ def _one_wave(
         files.flatten(params),
         run.directory.stream.read(),  # memory-mapped from the stream
         diverged,
-        evaluation.gym_returns,
-        evaluation.jax_returns,
+        gym,
+        jax_returns,
         timing,
         best_params,
         best,
     )
 
 
-def _finish(
-    run: Run, blocks: list, episodes: int, outcome: Outcome, score: Score | None = None
-) -> None:
+def _finish(run: Run, blocks: list, options: RunOptions, outcome: Outcome) -> None:
     """The run directory's outputs from every block (metrics.csv, params.npz and
     evaluation.json; per combination for a sweep, each with its own config.json) and the
     outcome's per-run summary; then a sweep's ranking (``sweep.json``), read back from its
     combinations' directories (:func:`jaxcart.run.sweep.rank_dirs`, as a structural sweep's
-    groups are ranked) by ``score`` (None: the one config.json records, else eval)."""
+    groups are ranked) by ``options.score`` (None: the one config.json records, else eval)."""
+    episodes = options.eval_episodes
     pieces = list(overlapping(blocks, range(run.grid.num_runs)))  # (block, its runs' rows)
     gym = np.concatenate([block.gym_returns[take] for block, take in pieces])
     jax_returns = np.concatenate([block.jax_returns[take] for block, take in pieces])
@@ -695,7 +675,9 @@ def _finish(
             (c, info) if swept else None,
         )
     if swept:
-        ranked = sweeps.rank_dirs([run.out], score or Score.parse(run.info.get("score", "eval")))
+        ranked = sweeps.rank_dirs(
+            [run.out], options.score or Score.parse(run.info.get("score", "eval"))
+        )
         outcome.ranking = ranked["ranking"]
         record = {"sweep": run.sweep, "num_seeds": run.grid.num_seeds, **ranked}
         run.directory.write_ranking(record)

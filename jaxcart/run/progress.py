@@ -22,9 +22,6 @@ if TYPE_CHECKING:
     from jaxcart.engine.loop import Progress
     from jaxcart.run.spec import Run
 
-HOOK_NAMES = tuple(field.name for field in dataclasses.fields(Hooks))
-"""The fields of :class:`~jaxcart.run.spec.Hooks`."""
-
 
 class ProgressBar:
     """One bar for all of a run's iterations (every wave), with the env steps per seed and the
@@ -145,7 +142,7 @@ def chain_hooks(first: Hooks | None, then: object) -> Hooks:
     :class:`~jaxcart.run.spec.Hooks` or any object with methods of the hooks' names (a
     :class:`ProgressBar`)."""
     first, chained = first or Hooks(), {}
-    for name in HOOK_NAMES:
+    for name in (field.name for field in dataclasses.fields(Hooks)):
         one, two = getattr(first, name), getattr(then, name, None)
         chained[name] = functools.partial(_both, one, two) if one and two else one or two
     return Hooks(**chained)

@@ -155,21 +155,6 @@ def grid_config(config: PPOConfig, grid: RunGrid, runs: range) -> PPOConfig:
     return dataclasses.replace(config, **leaves)
 
 
-def first_reach(returns: np.ndarray, env_steps: np.ndarray, target: float = 500.0) -> np.ndarray:
-    """Env steps at which each run first reached ``target`` (pass ``rollout/ep_rew_max``: the
-    iteration in which a training episode first scored 500).
-
-    Args:
-        returns: ``[iterations, R]``; env_steps: ``[iterations]``.
-
-    Returns:
-        ``[R]`` float, ``inf`` for runs that never reached it.
-    """
-    reached = np.nan_to_num(returns, nan=-np.inf) >= target
-    first = np.where(reached.any(0), reached.argmax(0), -1)
-    return np.where(first >= 0, env_steps[np.maximum(first, 0)], np.inf)
-
-
 def rank(
     grid: RunGrid,
     scores: np.ndarray,
@@ -177,8 +162,6 @@ def rank(
     final_return: np.ndarray,
     steps_to_500: np.ndarray,
     diverged_at: np.ndarray | None = None,
-    reps: int = stats.DEFAULT_REPS,
-    seed: int = stats.DEFAULT_SEED,
     score: str = "eval",
 ) -> list[dict]:
     """Per-combination summary, best first: by the IQM of the per-seed scores (then solve
@@ -189,7 +172,7 @@ def rank(
     IQM share it, and the tie-breakers alone order them), ``iqm`` and
     ``probability_of_improvement`` over combination 0 (None for combination 0 itself) as
     ``{value, ci_low, ci_high}`` with percentile bootstrap intervals at
-    :data:`stats.CONFIDENCE` (``reps`` resamples from ``seed``: deterministic; with fewer
+    :data:`stats.CONFIDENCE` (:data:`stats.DEFAULT_REPS` resamples: deterministic; with fewer
     than :data:`stats.RANGE_BELOW` seeds, the range of the seeds, :func:`stats.interval_label`).
 
     Args:
@@ -211,14 +194,14 @@ def rank(
         steps = steps_to_500[runs]
         improvement = None
         if c > 0:
-            improvement = stats.probability_of_improvement_ci(scores[runs], first, reps, seed=seed)
+            improvement = stats.probability_of_improvement_ci(scores[runs], first)
         rows.append(
             {
                 "combination": c,
                 **combo,
                 "score": ranked_by.label,
                 "scores": [float(s) for s in scores[runs]],
-                "iqm": stats.bootstrap_ci(scores[runs], stats.iqm, reps, seed=seed).to_dict(),
+                "iqm": stats.bootstrap_ci(scores[runs], stats.iqm).to_dict(),
                 "probability_of_improvement": improvement and improvement.to_dict(),
                 "solve_rate": float(np.mean(solved[runs])),
                 "final_return": float(np.nanmean(final_return[runs]))
@@ -303,7 +286,11 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
     diverged = [[s.get("diverged_at_iteration") for s in each] for each in seeds]
     diverged = np.ravel([[-1 if d is None else d for d in each] for each in diverged])
     final = np.concatenate([run.metrics[RETURN_METRIC][-1] for run in runs])
-    reach = [first_reach(run.metrics["rollout/ep_rew_max"], run.env_steps) for run in runs]
+    # env steps at which each seed's training episode first scored 500
+    reach = [
+        stats.first_at_least(run.metrics["rollout/ep_rew_max"], run.env_steps, stats.MAX_RETURN)
+        for run in runs
+    ]
     grid = RunGrid(len(seeds[0]), tuple(dict(run.combination or {}) for run in runs))
     scores = np.concatenate(run_scores(runs, score))
     rows = rank(grid, scores, solved, final, np.concatenate(reach), diverged, score=score.label)
