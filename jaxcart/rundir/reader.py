@@ -812,8 +812,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     with files.opened(path) as directory:
         info = read_run_config(directory)
         if unfinished(directory):
-            labels = [label] if label is not None else None
-            return checkpoint_curves(path, info, labels, directory)[0]
+            return checkpoint_curves(path, info, label, directory)[0]
         trained = not is_evaluation(info)
         if trained and not files.present(directory / layout.METRICS_FILE):
             raise RunDirError(
@@ -834,11 +833,12 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
 def checkpoint_curves(
     path: Path,
     info: dict,
-    labels: Sequence[str | None] | None = None,
+    label: str | None = None,
     directory: files.Dir | None = None,
 ) -> list[RunCurves]:
     """The curves so far of an unfinished run, or of each combination of an unfinished sweep
-    (whose checkpoint holds every combination x seed), from ``checkpoint.npz``.
+    (whose checkpoint holds every combination x seed), from ``checkpoint.npz``; labelled
+    ``label`` when given (else by :func:`_curves`).
 
     Raises:
         RunDirError: no usable checkpoint, or no iteration finished yet.
@@ -854,7 +854,7 @@ def checkpoint_curves(
         _curves(
             path,
             info,
-            labels[c] if labels is not None else None,
+            label,
             {k: v[:, c * num_seeds : (c + 1) * num_seeds] for k, v in saved.metrics.items()},
             env_steps=env_steps,
             evaluation=None,
