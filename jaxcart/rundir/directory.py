@@ -40,7 +40,7 @@ import numpy as np
 
 from jaxcart.core.config import ConfigError, PPOConfig, float_dtype
 from jaxcart.core.envs import DEFAULT_ENV
-from jaxcart.core.solved import is_solved, solved_definition
+from jaxcart.core.solved import solved_definition
 from jaxcart.engine.loop import METRIC_COLUMNS, TrainState, metric_columns
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.files import Manifest, RunDirError, RunLock
@@ -540,15 +540,22 @@ def write_evaluation(
             for s in range(len(g)):
                 seed = {
                     "seed_index": first + s,
-                    **gymnasium_entry(g[s], env_id),
+                    **reader.gymnasium_entry(g[s], env_id),
                     "jaxcart_returns": j[s].tolist(),
                     "jaxcart_mean": float(j[s].mean()),
                     "final_ep_rew_mean": float(final[s]),
                     "diverged_at_iteration": int(d[s]) if d[s] >= 0 else None,
                 }
                 counts["solved_seeds"] += int(seed["solved"])
-                if block.best is not None:
-                    seed |= _best_entry(block.best, take, s, env_id)
+                if block.best is not None:  # the seed's best policy: its verdict and where
+                    iteration = int(block.best["best_iteration"][take][s])
+                    seed["best"] = {
+                        "iteration": iteration if iteration > 0 else None,
+                        "eval_mean_return": (
+                            float(block.best["best_score"][take][s]) if iteration > 0 else None
+                        ),
+                        **reader.gymnasium_entry(block.best["best_gym_returns"][take][s], env_id),
+                    }
                     best = counts.get("best_solved_seeds", 0) + int(seed["best"]["solved"])
                     counts["best_solved_seeds"] = best
                 f.write(sep + "    " + json.dumps(seed))
@@ -556,35 +563,11 @@ def write_evaluation(
         f.write("\n  ],\n" + json.dumps({**counts, **extra}, indent=2)[2:] + "\n")
 
 
-def _best_entry(best: dict[str, np.ndarray], take: slice, s: int, env_id: str) -> dict:
-    """A seed's best policy in ``evaluation.json``: its Gymnasium verdict and where it was."""
-    g = best["best_gym_returns"][take][s]
-    iteration = int(best["best_iteration"][take][s])
-    return {
-        "best": {
-            "iteration": iteration if iteration > 0 else None,
-            "eval_mean_return": float(best["best_score"][take][s]) if iteration > 0 else None,
-            **gymnasium_entry(g, env_id),
-        }
-    }
-
-
-def gymnasium_entry(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
-    """One seed's greedy Gymnasium episodes as ``evaluation.json`` records them: the returns
-    ``[episodes]``, their mean and least, and whether they solve ``env_id``."""
-    return {
-        "gymnasium_returns": returns.tolist(),
-        "gymnasium_mean": float(returns.mean()),
-        "gymnasium_min": float(returns.min()),
-        "solved": bool(is_solved(returns, env_id)),
-    }
-
-
 def evaluation_record(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
     """``evaluation.json`` of greedy Gymnasium returns ``[num_seeds, episodes]``: per seed
     its returns, their mean and least, and whether they solve ``env_id``."""
     returns = np.asarray(returns)
-    seeds = [{"seed_index": s, **gymnasium_entry(g, env_id)} for s, g in enumerate(returns)]
+    seeds = [{"seed_index": s, **reader.gymnasium_entry(g, env_id)} for s, g in enumerate(returns)]
     return {
         "episodes": returns.shape[1],
         "solved_definition": solved_definition(env_id).format(episodes=returns.shape[1]),

@@ -113,9 +113,7 @@ class Dir:
             fd = os.open(path, flags, dir_fd=parent.fd if parent is not None else None)
         except OSError as exc:
             if exc.errno in (errno.ELOOP, errno.ENOTDIR):  # Linux says ENOTDIR for a link
-                st = _lstat(parent / os.fspath(path) if parent else path, quiet=True)
-                if st is not None and stat.S_ISLNK(st.st_mode):
-                    raise RunDirError(f"{shown} is {LINK_REASON}") from None
+                refuse_link(parent / os.fspath(path) if parent else shown)  # a link: says so
                 raise RunDirError(f"{shown} is not a directory; refusing it") from None
             raise
         return cls(shown, fd)
@@ -205,17 +203,18 @@ def _located(target: Target) -> tuple[str, int | None]:
     return os.fspath(target), None
 
 
-def _lstat(target: Target, quiet: bool = False) -> os.stat_result | None:
-    """``target``'s own status (a link is not followed), None when it does not exist (or,
-    ``quiet``, cannot be read); otherwise an unreadable one is a :class:`RunDirError`."""
+def _lstat(target: Target) -> os.stat_result | None:
+    """``target``'s own status (a link is not followed), None when it does not exist.
+
+    Raises:
+        RunDirError: it cannot be read.
+    """
     name, dir_fd = _located(target)
     try:
         return os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
     except FileNotFoundError:
         return None
     except OSError as exc:
-        if quiet:
-            return None
         raise RunDirError(f"{target} cannot be read: {exc.strerror or exc}") from None
 
 
@@ -1007,7 +1006,10 @@ def load_tree(
                 )
     with _reading(path), open_tree(path) as raw, np.load(raw, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files if k != META_KEY}
-    check_finite({n: arrays[n] for n, (_, dt) in (expected or {}).items() if dt is not None}, path)
+    for name, (_, dtype) in (expected or {}).items():
+        a = arrays[name]
+        if dtype is not None and np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
+            raise RunDirError(f"{path}: {name} holds NaN or infinite values; refusing it")
     return arrays, meta
 
 
@@ -1017,10 +1019,3 @@ def read_meta(path: Target) -> dict:
     if meta is None:
         raise RunDirError(f"{path} has no metadata")
     return meta
-
-
-def check_finite(arrays: dict[str, np.ndarray], path: str | os.PathLike) -> None:
-    """Refuses NaN or infinite values in floating-point arrays."""
-    for name, a in arrays.items():
-        if np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
-            raise RunDirError(f"{path}: {name} holds NaN or infinite values; refusing it")

@@ -472,14 +472,12 @@ def _seed_problem(seed: dict, episodes: int | None, env_id: str) -> str | None:
         return "has gymnasium_returns that are not a list of one number per episode"
     if not within(returns):
         return f"has returns outside {span}"
-    returns = np.asarray(returns, float)
-    if not math.isclose(mean, float(returns.mean()), rel_tol=1e-9, abs_tol=1e-9):
+    expected = gymnasium_entry(np.asarray(returns, float), env_id)  # what its returns say
+    if not math.isclose(mean, expected["gymnasium_mean"], rel_tol=1e-9, abs_tol=1e-9):
         return "has a gymnasium_mean that is not the mean of its returns"
-    if "gymnasium_min" in seed and seed["gymnasium_min"] != float(returns.min()):
-        return "has a gymnasium_min that is not the least of its returns"
-    solved = bool(is_solved(returns, env_id))
-    if seed["solved"] != solved:
-        return f"says solved={seed['solved']} where its returns say {solved}"
+    for name in ("gymnasium_min", "solved"):
+        if seed.get(name, expected[name]) != expected[name]:
+            return f"says {name}={seed[name]!r:.20} where its returns say {expected[name]}"
     jax_returns = seed.get("jaxcart_returns")
     if jax_returns is not None and not (isinstance(jax_returns, list) and within(jax_returns)):
         return f"has jaxcart_returns outside {span}"
@@ -488,6 +486,18 @@ def _seed_problem(seed: dict, episodes: int | None, env_id: str) -> str | None:
     if final is not None and not nan and not within([final]):
         return f"has final_ep_rew_mean {final!r:.20}, outside {span}"
     return None
+
+
+def gymnasium_entry(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
+    """One seed's greedy Gymnasium episodes as ``evaluation.json`` records them: the returns
+    ``[episodes]``, their mean and least, and whether they solve ``env_id`` (what every writer
+    of the file records, and what its reader checks a seed's entry against)."""
+    return {
+        "gymnasium_returns": returns.tolist(),
+        "gymnasium_mean": float(returns.mean()),
+        "gymnasium_min": float(returns.min()),
+        "solved": bool(is_solved(returns, env_id)),
+    }
 
 
 def _evaluation_bytes(info: dict) -> int:
@@ -679,14 +689,7 @@ class CheckpointRuns:
     params: dict  # leaves [R, ...]
     metrics: dict[str, np.ndarray]  # name -> [iteration, R]
     iteration: int
-    num_iterations: int
-
-    @property
-    def note(self) -> str:
-        where = f"from the checkpoint at iteration {self.iteration}/{self.num_iterations}"
-        if self.iteration >= self.num_iterations:
-            return f"{where}: training finished but the run stopped before writing its outputs"
-        return f"{where}: the run did not finish"
+    note: str  # "from the checkpoint at iteration 12/40: the run did not finish"
 
 
 def read_checkpoint_runs(
@@ -730,7 +733,12 @@ def read_checkpoint_runs(
         digest = meta.get(files.STREAM_DIGEST_KEY)
         streamed = files.read_stream(stream, metric_columns(config), runs, iteration, digest)
     metrics = {name: a.astype(float) for name, a in streamed.items()}
-    return CheckpointRuns(files.unflatten(arrays), metrics, iteration, config.num_iterations)
+    note = f"from the checkpoint at iteration {iteration}/{config.num_iterations}: " + (
+        "training finished but the run stopped before writing its outputs"
+        if iteration >= config.num_iterations
+        else "the run did not finish"
+    )
+    return CheckpointRuns(files.unflatten(arrays), metrics, iteration, note)
 
 
 # ---- curves: what plot and compare read ----
@@ -804,8 +812,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
     with files.opened(path) as directory:
         info = read_run_config(directory)
         if unfinished(directory):
-            labels = [label] if label is not None else None
-            return checkpoint_curves(path, info, labels, directory)[0]
+            return checkpoint_curves(path, info, label, directory)[0]
         trained = not is_evaluation(info)
         if trained and not files.present(directory / layout.METRICS_FILE):
             raise RunDirError(
@@ -826,11 +833,12 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
 def checkpoint_curves(
     path: Path,
     info: dict,
-    labels: Sequence[str | None] | None = None,
+    label: str | None = None,
     directory: files.Dir | None = None,
 ) -> list[RunCurves]:
     """The curves so far of an unfinished run, or of each combination of an unfinished sweep
-    (whose checkpoint holds every combination x seed), from ``checkpoint.npz``.
+    (whose checkpoint holds every combination x seed), from ``checkpoint.npz``; labelled
+    ``label`` when given (else by :func:`_curves`).
 
     Raises:
         RunDirError: no usable checkpoint, or no iteration finished yet.
@@ -846,7 +854,7 @@ def checkpoint_curves(
         _curves(
             path,
             info,
-            labels[c] if labels is not None else None,
+            label,
             {k: v[:, c * num_seeds : (c + 1) * num_seeds] for k, v in saved.metrics.items()},
             env_steps=env_steps,
             evaluation=None,
