@@ -183,7 +183,7 @@ def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
         steps = jnp.where(ended, 0, steps)
     state = cartpole.EnvState(*start, step_count=steps)
     params = with_floats(params, floats)
-    _, state, reward, terminated, truncated = cartpole.step_env_with_trig(
+    _, state, reward, terminated, truncated = cartpole.step_env(
         state, actions, params, sin_cos_once
     )
     new = [state.x, state.x_dot, state.theta, state.theta_dot]
