@@ -200,14 +200,9 @@ def evaluate_runs(
     network = make_network(config)
 
     def one_run(runner: RunnerState, run_config: PPOConfig, run_env: Any):
+        healthy = runner.diverged_at < 0
         return periodic_evaluation(
-            runner.params,
-            runner.best,
-            runner.diverged_at < 0,
-            run_config,
-            iteration,
-            network,
-            run_env,
+            runner.params, runner.best, healthy, run_config, iteration, network, run_env
         )
 
     axes = (0, 0, env_axes(env_params))  # each run on its own physics, when they differ
