@@ -13,7 +13,7 @@ from helpers import TINY, assert_same_results
 
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, PPOConfig
-from jaxcart.core.ppo import train_iteration
+from jaxcart.core.ppo import prepare_update
 from jaxcart.engine.chunk import group_layout, train_chunk
 from jaxcart.engine.loop import (
     compiled_chunk,
@@ -175,9 +175,9 @@ def test_the_program_reads_one_config_with_no_default_copy(monkeypatch):
 
     def spy(runner, config, iteration, env_params):
         seen.append({name: getattr(config, name) for name in TRACED_FIELDS})
-        return train_iteration(runner, config, iteration, env_params)
+        return prepare_update(runner, config, iteration, env_params)
 
-    monkeypatch.setattr(chunk, "train_iteration", spy)
+    monkeypatch.setattr(chunk, "prepare_update", spy)
     state = initial_state(TINY, 2, 0)
     program = functools.partial(train_chunk, env_params=EnvParams(), chunk_size=2)
     jax.eval_shape(program, state.runners, state.config, np.int32(0))

@@ -34,7 +34,8 @@ from benchmarks import lib
 from benchmarks.ablations import roofline  # noqa: F401
 from jaxcart.core import cartpole
 from jaxcart.core.config import preset
-from jaxcart.engine.chunk import guarded_iteration
+from jaxcart.core.ppo import train_iteration
+from jaxcart.engine.chunk import guard_divergence
 from jaxcart.engine.loop import init_runners
 
 CHUNK = 2
@@ -46,7 +47,8 @@ def chunk_program(scheme: str):
     env_params = cartpole.EnvParams()
 
     def one(runner, config, iteration):
-        return guarded_iteration(runner, config, iteration, env_params)
+        new, metrics = train_iteration(runner, config, iteration, env_params)
+        return guard_divergence(runner, new, metrics, iteration)
 
     def program(runners, configs):
         def body(runners, iteration):

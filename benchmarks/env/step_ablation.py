@@ -56,7 +56,7 @@ def rollout(variant: str, num_envs: int, num_steps: int):
         if variant == "step_batch":
             return cartpole.step_batch(key, state, actions, params)[:5]
         if variant == "sincos-once":
-            final_obs, next_state, reward, terminated, truncated = cartpole.step_env_with_trig(
+            final_obs, next_state, reward, terminated, truncated = cartpole.step_env(
                 state, actions, params, kernels.sin_cos_once
             )
             done = terminated | truncated

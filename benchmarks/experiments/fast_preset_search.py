@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 from benchmarks import lib  # noqa: E402
 from jaxcart.core.config import PPOConfig  # noqa: E402
 from jaxcart.core.ppo import make_network  # noqa: E402
-from jaxcart.engine.loop import seed_keys, train  # noqa: E402
+from jaxcart.engine.loop import seed_index_keys, train  # noqa: E402
 from jaxcart.run.greedy import evaluate_gymnasium, greedy_returns, summarize  # noqa: E402
 from jaxcart.rundir.policy import make_policy  # noqa: E402
 
@@ -46,7 +46,7 @@ LEARNING_RATES = [1e-3, 2.5e-3, 5e-3]
 
 def jax_eval(params, config: PPOConfig, num_runs: int) -> np.ndarray:
     """Greedy returns ``[runs, 20]`` in jaxcart's env."""
-    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_keys(12345, num_runs))
+    keys = jax.vmap(lambda k: jax.random.fold_in(k, 1))(seed_index_keys(12345, np.arange(num_runs)))
     network = make_network(config)
     fn = jax.jit(jax.vmap(lambda p, k: greedy_returns(p, k, network)))
     return np.asarray(fn(params, keys))

@@ -113,14 +113,10 @@ def reset(key: Array, params: EnvParams) -> tuple[Array, EnvState]:
     Returns:
         ``(obs, state)`` with ``obs`` of shape ``(4,)``.
     """
-    dtype = float_dtype()
-    s = jax.random.uniform(
-        key, (4,), dtype=dtype, minval=params.reset_low, maxval=params.reset_high
+    obs = jax.random.uniform(
+        key, (4,), dtype=float_dtype(), minval=params.reset_low, maxval=params.reset_high
     )
-    state = EnvState(
-        x=s[0], x_dot=s[1], theta=s[2], theta_dot=s[3], step_count=jnp.zeros((), jnp.int32)
-    )
-    return get_obs(state), state
+    return obs, state_from_obs(obs)
 
 
 def host_reset(
@@ -246,43 +242,37 @@ def gymnasium_grid(
     return obs, step, int(env.action_space.n)
 
 
-def step_env(
-    state: EnvState, action: Array, params: EnvParams
-) -> tuple[Array, EnvState, Array, Array, Array]:
-    """One physics step without autoreset, in Gymnasium's order of operations.
-
-    Args:
-        state: current state (scalar fields).
-        action: int scalar; ``1`` pushes right, anything else left.
-        params: environment constants.
-
-    Returns:
-        ``(obs, state, reward, terminated, truncated)``; obs ``(4,)``, the rest scalars.
-    """
-    return step_env_with_trig(state, action, params, sin_and_cos)
-
-
 def sin_and_cos(theta: Array) -> tuple[Array, Array]:
-    """``(jnp.sin(theta), jnp.cos(theta))``, the pair :func:`step_env` uses."""
+    """``(jnp.sin(theta), jnp.cos(theta))``, the pair training's :func:`step_env` uses."""
     costheta = jnp.cos(theta)
     sintheta = jnp.sin(theta)
     return sintheta, costheta
 
 
-def step_env_with_trig(
+def step_env(
     state: EnvState,
     action: Array,
     params: EnvParams,
-    trig: Callable[[Array], tuple[Array, Array]],
+    trig: Callable[[Array], tuple[Array, Array]] = sin_and_cos,
 ) -> tuple[Array, EnvState, Array, Array, Array]:
-    """:func:`step_env` with ``(sin, cos)`` of the pole angle computed by ``trig(theta)``.
+    """One physics step without autoreset, in Gymnasium's order of operations.
 
-    ``trig`` must return exactly ``jnp.sin(theta)`` and ``jnp.cos(theta)``; what it may change
-    is how XLA computes them. The Gymnasium vector adapter passes
-    :func:`jaxcart.gym.kernels.sin_cos_once`, which makes XLA:CPU evaluate them once per env
-    instead of once per fusion that uses them. Training keeps :func:`sin_and_cos`: the
-    adapter's way changes which multiply-adds XLA fuses into FMAs in training's programs, so its
-    numbers would no longer be bit-identical (``benchmarks/RESULTS.md``, env throughput).
+    ``trig(theta)`` computes ``(sin, cos)`` of the pole angle; it must return exactly
+    ``jnp.sin(theta)`` and ``jnp.cos(theta)``, and may change only how XLA computes them. The
+    Gymnasium vector adapter passes :func:`jaxcart.gym.kernels.sin_cos_once`, which makes
+    XLA:CPU evaluate them once per env instead of once per fusion that uses them. Training
+    keeps :func:`sin_and_cos`: the adapter's way changes which multiply-adds XLA fuses into
+    FMAs in training's programs, so its numbers would no longer be bit-identical
+    (``benchmarks/RESULTS.md``, env throughput).
+
+    Args:
+        state: current state (scalar fields).
+        action: int scalar; ``1`` pushes right, anything else left.
+        params: environment constants.
+        trig: ``theta -> (sin(theta), cos(theta))``.
+
+    Returns:
+        ``(obs, state, reward, terminated, truncated)``; obs ``(4,)``, the rest scalars.
     """
     x, x_dot, theta, theta_dot = transition(
         state.x, state.x_dot, state.theta, state.theta_dot, action, params, trig

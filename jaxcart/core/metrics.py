@@ -149,15 +149,10 @@ def iteration_metrics(
     if "computed" in losses:  # target_kl may have stopped the epochs: computed steps count
         loss_metrics = _early_stopped_losses(losses)
     else:
-        loss_metrics = {
-            # SB3 resets its KL list every epoch, so it logs the last epoch's mean.
-            "train/approx_kl": losses["approx_kl"][-1].mean(),
-            "train/clip_fraction": losses["clip_fraction"].mean(),
-            "train/entropy_loss": losses["entropy_loss"].mean(),
-            "train/policy_gradient_loss": losses["policy_gradient_loss"].mean(),
-            "train/value_loss": losses["value_loss"].mean(),
-            "train/loss": losses["loss"][-1, -1],
-        }
+        loss_metrics = {f"train/{n}": losses[n].mean() for n in LOSS_NAMES}
+        # SB3 resets its KL list every epoch, so it logs the last epoch's mean.
+        loss_metrics["train/approx_kl"] = losses["approx_kl"][-1].mean()
+        loss_metrics["train/loss"] = losses["loss"][-1, -1]
 
     def window_mean(x: Array) -> Array:
         return jnp.where(count > 0, (x * episodes.valid).sum() / jnp.maximum(count, 1), nan)

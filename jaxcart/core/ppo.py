@@ -11,8 +11,8 @@
 
 Arrays inside an iteration are time-major, ``[num_steps, num_envs, ...]``, and the training
 batch is flat, ``[batch_size, ...]`` with ``batch_size = num_steps * num_envs``. The engine
-(:mod:`jaxcart.engine.chunk`) vmaps :func:`train_iteration` over runs and scans it over
-iterations (with many runs on a CPU device, the update in groups of runs). How some steps
+(:mod:`jaxcart.engine.chunk`) vmaps the phases of :func:`train_iteration` over runs and scans
+them over iterations (with many runs on a CPU device, the update in groups of runs). How some steps
 are made fast lives in :mod:`jaxcart.core.tricks`; the logged metrics and their episode
 window in :mod:`jaxcart.core.metrics`.
 

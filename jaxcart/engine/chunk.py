@@ -11,7 +11,6 @@ one group after another (:func:`grouped_iteration`); the rollout stays vmapped o
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -30,7 +29,6 @@ from jaxcart.core.ppo import (
     make_optimizer,
     prepare_update,
     scheduled,
-    train_iteration,
     update_epochs,
 )
 from jaxcart.core.pytree import split_per_run
@@ -112,17 +110,6 @@ def guard_divergence(
     return new.replace(diverged_at=diverged_at), metrics
 
 
-def guarded_iteration(
-    runner: RunnerState,
-    config: PPOConfig,
-    iteration: Array,
-    env_params: Any,
-) -> tuple[RunnerState, dict[str, Array]]:
-    """:func:`~jaxcart.core.ppo.train_iteration` of one run, then :func:`guard_divergence`."""
-    new, metrics = train_iteration(runner, config, iteration, env_params)
-    return guard_divergence(runner, new, metrics, iteration)
-
-
 def group_layout(num_runs: int, group: int) -> tuple[int, int]:
     """``(groups, width)``: the fewest groups of at most ``group`` runs, all of one width
     (``groups * width >= num_runs``; the last group is padded by at most ``groups - 1`` runs)."""
@@ -158,16 +145,22 @@ def grouped_iteration(
     config: PPOConfig,
     iteration: Array,
     env_params: Any,
-    group: int,
+    group: int | None = None,
 ) -> tuple[RunnerState, dict[str, Array]]:
-    """``vmap(guarded_iteration)`` over runs ``[R]`` with the update in groups of at most
-    ``group`` runs (:func:`in_groups`): the same arithmetic per run, but XLA compiles the update
-    for the group width, so above ``group`` runs the last bits differ from a plain vmap."""
+    """:func:`~jaxcart.core.ppo.train_iteration` of every run ``[R]``, then
+    :func:`guard_divergence`: vmapped over the runs, except the update with more than ``group``
+    runs, computed in groups of at most ``group`` runs (:func:`in_groups`; None: never). The same
+    arithmetic per run, but XLA then compiles the update for the group width, so the last bits
+    differ from a plain vmap."""
     config = scheduled(config, iteration)
     before, rollout, batch, update_key, learning_rate = jax.vmap(
         prepare_update, in_axes=(0, 0, None, env_axes(env_params))
     )(runners, config, iteration, env_params)
-    update = in_groups(update_epochs, len(runners.key), group)
+    num_runs = len(runners.key)
+    if group is None or num_runs <= group:
+        update = jax.vmap(update_epochs)
+    else:
+        update = in_groups(update_epochs, num_runs, group)
     params, opt_state, losses = update(
         before.params, before.opt_state, batch, update_key, learning_rate, config
     )
@@ -200,14 +193,9 @@ def evaluate_runs(
     network = make_network(config)
 
     def one_run(runner: RunnerState, run_config: PPOConfig, run_env: Any):
+        healthy = runner.diverged_at < 0
         return periodic_evaluation(
-            runner.params,
-            runner.best,
-            runner.diverged_at < 0,
-            run_config,
-            iteration,
-            network,
-            run_env,
+            runner.params, runner.best, healthy, run_config, iteration, network, run_env
         )
 
     axes = (0, 0, env_axes(env_params))  # each run on its own physics, when they differ
@@ -265,10 +253,6 @@ def train_chunk(
         donate ``runners`` to this program.
     """
     num_runs = runners.key.shape[0]
-    if update_group is not None and num_runs > update_group:
-        runs_iteration = functools.partial(grouped_iteration, group=update_group)
-    else:  # exactly the program of a plain vmap (the grouped one differs in the last bits)
-        runs_iteration = jax.vmap(guarded_iteration, in_axes=(0, 0, None, env_axes(env_params)))
 
     # Every metric leaves an iteration in the training's float type (float32; float64 under
     # x64), so the skipped iteration's NaNs are known without tracing the iteration again.
@@ -276,7 +260,7 @@ def train_chunk(
     names = (*METRIC_NAMES, *config.extra_metric_names)
 
     def run(runners: RunnerState, iteration: Array):
-        runners, metrics = runs_iteration(runners, config, iteration, env_params)
+        runners, metrics = grouped_iteration(runners, config, iteration, env_params, update_group)
         if config.eval_every:  # nothing is added to the program without it
             runners, metrics = evaluate_runs(runners, metrics, config, iteration, env_params)
         return runners, {name: value.astype(dtype) for name, value in metrics.items()}

@@ -38,11 +38,6 @@ def seed_index_keys(seed: int, indices: np.ndarray) -> np.ndarray:
     return np.asarray(fold(jnp.asarray(np.asarray(indices), dtype=jnp.uint32)))
 
 
-def seed_keys(seed: int, num_seeds: int) -> np.ndarray:
-    """:func:`seed_index_keys` of seed indices ``0 .. num_seeds - 1``."""
-    return seed_index_keys(seed, np.arange(num_seeds))
-
-
 def init_runners(
     config: PPOConfig,
     seed: int,

@@ -19,6 +19,7 @@ import contextlib
 import signal
 import threading
 from collections.abc import Callable, Iterator
+from concurrent import futures
 from concurrent.futures import Future
 from typing import TypeVar
 
@@ -103,30 +104,11 @@ def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
     """
     if threading.current_thread() is not threading.main_thread():
         return fn()
-    box: dict[str, object] = {}
-
-    def work() -> None:
-        try:
-            box["value"] = fn()
-        except BaseException as exc:  # handed to the waiting thread
-            box["error"] = exc
-        finally:
-            _running.discard(worker)
-
-    worker = threading.Thread(target=work, name="jaxcart-wait", daemon=True)
-    _running.add(worker)
-    worker.start()
-    while worker.is_alive():
-        worker.join(poll_seconds)
-    if "error" in box:
-        raise box["error"]  # type: ignore[misc]
-    return box["value"]  # type: ignore[return-value]
-
-
-_running: set[threading.Thread] = set()
-"""The workers of :func:`wait_interruptibly` and :func:`in_background` whose call has not
-returned. (Not ``Thread.is_alive``: a ``join`` interrupted by a signal marks the thread
-stopped.)"""
+    future: Future = Future()
+    _start(fn, future, background=False)
+    while not future.done():
+        futures.wait([future], poll_seconds)
+    return future.result()
 
 
 def in_background(work: Callable[[], T], future: Future) -> None:
@@ -134,6 +116,21 @@ def in_background(work: Callable[[], T], future: Future) -> None:
     returns, :func:`abandoned_work` is true, so a command stopped meanwhile (a signal) ends
     without the interpreter's teardown instead of waiting for it or freeing what it uses; a
     program that simply ends waits for it first (:func:`_finish_background`)."""
+    _start(work, future, background=True)
+
+
+_running: set[threading.Thread] = set()
+"""The workers of :func:`wait_interruptibly` and :func:`in_background` whose call has not
+returned. (Not ``Thread.is_alive``: a ``join`` interrupted by a signal marks the thread
+stopped.)"""
+_background: set[threading.Thread] = set()
+"""The threads of :func:`in_background` whose work has not returned."""
+_background_seen: list = []
+
+
+def _start(work: Callable[[], T], future: Future, background: bool) -> None:
+    """``work()`` on a daemon thread listed in :data:`_running` (and, ``background``, in
+    :data:`_background`) until it returns, its result or exception set on ``future``."""
 
     def target() -> None:
         try:
@@ -144,17 +141,14 @@ def in_background(work: Callable[[], T], future: Future) -> None:
             _running.discard(worker)
             _background.discard(worker)
 
-    worker = threading.Thread(target=target, name="jaxcart-background", daemon=True)
-    if not _background_seen:  # registered after JAX's own exit handlers, so it runs first
-        _background_seen.append(atexit.register(_finish_background))
+    name = "jaxcart-background" if background else "jaxcart-wait"
+    worker = threading.Thread(target=target, name=name, daemon=True)
     _running.add(worker)
-    _background.add(worker)
+    if background:
+        if not _background_seen:  # registered after JAX's own exit handlers, so it runs first
+            _background_seen.append(atexit.register(_finish_background))
+        _background.add(worker)
     worker.start()
-
-
-_background: set[threading.Thread] = set()
-"""The threads of :func:`in_background` whose work has not returned."""
-_background_seen: list = []
 
 
 def _finish_background() -> None:

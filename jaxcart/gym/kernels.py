@@ -155,9 +155,10 @@ def sin_cos_once(theta):
     return jnp.imag(z), jnp.real(z)
 
 
-def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
+def vector_step(rows, spare, inputs, floats, params: EnvParams, mode: AutoresetMode):
     """Steps every env, resetting as ``mode`` says; ``rows`` in, ``rows`` out (see the layout above).
     ``inputs``: uint32 ``[num_envs + 2]``, the actions then this step's key (one transfer).
+    ``spare``: a buffer like ``rows`` (donated, never read), into which XLA writes the result.
 
     NEXT_STEP: the envs whose episode ended on the previous step start a new one instead of
     stepping (reward 0, not terminated or truncated), as Gymnasium's ``CartPoleVectorEnv``.
@@ -175,6 +176,7 @@ def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
 
     from jaxcart.core import cartpole
 
+    del spare
     actions, key = inputs[:-2], inputs[-2:]
     ended = rows[ENDED] != 0  # on the previous step
     start, steps = list(rows[STATE_ROWS]), rows[STEP_COUNT].astype(jnp.int32)
@@ -183,7 +185,7 @@ def vector_step(rows, inputs, floats, params: EnvParams, mode: AutoresetMode):
         steps = jnp.where(ended, 0, steps)
     state = cartpole.EnvState(*start, step_count=steps)
     params = with_floats(params, floats)
-    _, state, reward, terminated, truncated = cartpole.step_env_with_trig(
+    _, state, reward, terminated, truncated = cartpole.step_env(
         state, actions, params, sin_cos_once
     )
     new = [state.x, state.x_dot, state.theta, state.theta_dot]
@@ -236,12 +238,6 @@ def compiled_vector_reset(num_envs: int, mode: AutoresetMode, x64: bool):
     return _compile(vector_reset, x64, rows, key, FLOATS, mask, donate_argnums=0)
 
 
-def _vector_step_into(rows, spare, inputs, floats, params: EnvParams, mode: AutoresetMode):
-    """:func:`vector_step`, its result written into ``spare``'s buffer (donated, not read)."""
-    del spare
-    return vector_step(rows, inputs, floats, params, mode)
-
-
 @functools.cache
 def compiled_vector_step(params: EnvParams, num_envs: int, mode: AutoresetMode, x64: bool):
     """:func:`vector_step` for ``params`` (a :func:`compile_key`) and ``mode``, compiled ahead
@@ -249,7 +245,7 @@ def compiled_vector_step(params: EnvParams, num_envs: int, mode: AutoresetMode, 
     buffer of ``spare`` (donated; the rows of the step before), not over ``rows``. Writing over
     ``rows`` would cost a copy of the whole state per step, as XLA cannot compute the new rows
     in place (each row reads others)."""
-    step = functools.partial(_vector_step_into, params=params, mode=mode)
+    step = functools.partial(vector_step, params=params, mode=mode)
     rows, inputs = (rows_shape(num_envs, mode), None), ((num_envs + 2,), np.uint32)
     return _compile(step, x64, rows, rows, inputs, FLOATS, donate_argnums=1, keep_unused=True)
 
