@@ -82,18 +82,6 @@ def import_jax() -> None:
         _refuse(f"{str(exc).splitlines()[0]}; fix or unset that environment variable")
 
 
-def xla_flags_problem(flags: str) -> str | None:
-    """What is wrong with an ``XLA_FLAGS`` value that XLA would abort on, read without
-    starting XLA: a token that is not a ``--flag`` (XLA reads it as a file of flags)."""
-    for token in flags.split():
-        if not token.startswith("--"):
-            return (
-                f"XLA_FLAGS holds {token!r}, which is not a --flag (XLA would read it as a "
-                "file of flags and abort); fix or unset XLA_FLAGS"
-            )
-    return None
-
-
 def _probe_backend() -> str | None:
     """Starts JAX's backend in a child process (XLA aborts the whole process on an unknown
     flag, and a backend started here could not be given ``jax.distributed`` any more): its
@@ -117,13 +105,15 @@ def check_backend() -> None:
     is one jaxcart does not set itself (flags other than the device count, a platform other
     than ``cpu``)."""
     flags, platforms = os.environ.get("XLA_FLAGS", ""), os.environ.get("JAX_PLATFORMS", "")
-    if flags.strip():
-        problem = xla_flags_problem(flags)
-        needs_probe = not all(t.startswith(devices.DEVICE_COUNT_FLAG) for t in flags.split())
-        if problem is None and needs_probe and (failure := _probe_backend()) is not None:
-            problem = f"XLA cannot start with XLA_FLAGS={flags!r}: {failure}"
-        if problem is not None:
-            _refuse(problem)
+    for token in flags.split():  # XLA reads a token that is not a --flag as a file of flags
+        if not token.startswith("--"):
+            _refuse(
+                f"XLA_FLAGS holds {token!r}, which is not a --flag (XLA would read it as a "
+                "file of flags and abort); fix or unset XLA_FLAGS"
+            )
+    if not all(t.startswith(devices.DEVICE_COUNT_FLAG) for t in flags.split()):
+        if (failure := _probe_backend()) is not None:
+            _refuse(f"XLA cannot start with XLA_FLAGS={flags!r}: {failure}")
     if {p.strip() for p in platforms.split(",") if p.strip()} - {"cpu"}:
         failure = _probe_backend()
         if failure is not None and failure.isidentifier():  # a bare exception: no plugin

@@ -570,42 +570,43 @@ def _is_number(value: Any) -> bool:
     )
 
 
-def _check_field(f: dataclasses.Field, value: Any) -> None:
+def check_field(f: dataclasses.Field, value: Any, option: str | None = None) -> None:
     """Raises :class:`ConfigError` for a value that is not what the field's declaration says
-    (:func:`setting`, :func:`traced`): an integer within its ``minimum`` (default 1) and
-    ``maximum``, true or false, one of its ``choices``, a finite number within its ``bound``."""
+    (:func:`setting`, :func:`traced`): an integer (``int``, or ``int | None`` left at None)
+    within its ``minimum`` (default 1) and ``maximum``, true or false, one of its
+    ``choices``, a finite number within its ``bound``. ``option``: the error's
+    :attr:`ConfigError.option` (a command line then names the field as its option)."""
     meta = f.metadata
     least, most, choices = meta.get("minimum", 1), meta.get("maximum"), meta.get("choices")
-    if f.type == "int" and (
+    if value is None and f.default is None:  # an optional setting left out
+        return
+    if f.type in ("int", "int | None") and (
         isinstance(value, bool)
         or not isinstance(value, int)
         or value < least
         or (most is not None and value > most)
     ):
         what = "a positive integer" if least else "a non-negative integer"
-        raise ConfigError(
-            f"{f.name} must be {f'in [{least}, {most}]' if most else what}, got {value!r}"
-        )
+        what = f"in [{least}, {most}]" if most else what
+        raise ConfigError(f"{f.name} must be {what}, got {value!r}", option)
     if f.type == "bool" and not isinstance(value, bool):
-        raise ConfigError(f"{f.name} must be true or false, got {value!r}")
+        raise ConfigError(f"{f.name} must be true or false, got {value!r}", option)
     if choices and value not in choices:
         either = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-        raise ConfigError(f"{f.name} must be {either}, got {value!r}")
+        raise ConfigError(f"{f.name} must be {either}, got {value!r}", option)
     bound = meta.get("bound")
-    if bound is None or (value is None and f.default is None):
-        return
-    if not _is_number(value) or (np.ndim(value) and not meta.get("traced")):
-        raise ConfigError(f"{f.name} must be a finite number, got {value!r}")
-    if not np.all(BOUNDS[bound](np.asarray(value))):
-        raise ConfigError(f"{f.name} must be {bound}, got {value!r}")
+    if bound is not None and (not _is_number(value) or (np.ndim(value) and not meta.get("traced"))):
+        raise ConfigError(f"{f.name} must be a finite number, got {value!r}", option)
+    if bound is not None and not np.all(BOUNDS[bound](np.asarray(value))):
+        raise ConfigError(f"{f.name} must be {bound}, got {value!r}", option)
 
 
 def validate(config: PPOConfig) -> None:
     """Raises :class:`ConfigError` naming the first invalid field and what to do about it:
-    each field as it is declared (:func:`_check_field`), then what the fields make together."""
+    each field as it is declared (:func:`check_field`), then what the fields make together."""
     c = config
     for f in dataclasses.fields(c):
-        _check_field(f, getattr(c, f.name))
+        check_field(f, getattr(c, f.name))
     if c.batch_size % c.minibatch_size != 0:
         raise ConfigError(
             f"minibatch_size={c.minibatch_size} does not divide the rollout of "
@@ -766,6 +767,7 @@ __all__ = [
     "PPOConfig",
     "RebuildError",
     "RecordedMetric",
+    "check_field",
     "config_fields",
     "preset",
     "validate",
