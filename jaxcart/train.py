@@ -88,17 +88,22 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
         shown = cli.spelled(getattr(defaults, f.name)).replace("%", "%%")
         help_text = f"{docs.get(f.name, '').replace('%', '%%')} (default: {shown})"
         kwargs = dict(dest=f.name, default=argparse.SUPPRESS, help=help_text)
-        if f.type in ("bool", bool):
-            group.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
-        elif f.name == "hidden_sizes":
-            group.add_argument(flag, type=_tuple_of_ints, metavar="N,N", **kwargs)
-        elif f.name == "target_kl":
-            group.add_argument(flag, type=_float_or_none, metavar="KL", **kwargs)
+        if f.type == "bool":
+            kwargs["action"] = argparse.BooleanOptionalAction
         else:
-            # every integer field is a count (validate() wants them positive): 1e5 and
-            # 100_000 are read as 100000
-            kind = {"int": cli.count, "float": float, "str": str}[str(f.type)]
-            group.add_argument(flag, type=kind, **kwargs)
+            kwargs["type"], kwargs["metavar"] = CONFIG_TYPES[f.type]
+        group.add_argument(flag, **kwargs)
+
+
+CONFIG_TYPES = {
+    "int": (cli.count, None),  # every integer field is a count: 1e5 and 100_000 read as 100000
+    "float": (float, None),
+    "str": (str, None),
+    "tuple[int, ...]": (_tuple_of_ints, "N,N"),
+    "float | None": (_float_or_none, "KL"),
+}
+"""The argparse ``type`` and metavar of a config field, by its annotation (bools are
+``--name/--no-name`` switches)."""
 
 
 PRESET_NAMES = ", ".join(
@@ -284,12 +289,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
             f"(one each; the float axes stay vmapped inside each): "
             + "; ".join(group_label(g) for g in groups)
         )
-    if opts.dry_run and groups:
-        for group, group_spec in zip(groups, specs):
-            plan = lifecycle.plan_run(group_spec, run_options)
-            console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
-        return 0
-    if opts.dry_run:
+    if opts.dry_run and not groups:
         import jax
 
         # the header a run would print, without a directory: what would train, in env steps
@@ -298,7 +298,11 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
             grid=spec.grid, config=spec.config, preset=spec.preset, out=out, spec=spec
         )
         console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
-        console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
+    if opts.dry_run:  # the plan of the run, or of each shape group
+        for group, group_spec in zip(groups, specs) if groups else [(None, spec)]:
+            label = f"{group_label(group)}: " if groups else ""
+            plan = lifecycle.plan_run(group_spec, run_options)
+            console.print(label + report.plan_text(plan, group_spec))
         return 0
 
     def on_group(outcome: lifecycle.Outcome) -> None:
