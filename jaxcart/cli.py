@@ -453,8 +453,8 @@ def options_from(cls: type, args: argparse.Namespace, **given: Any) -> Any:
 @dataclasses.dataclass(frozen=True)
 class SharedOptions:
     """The options several commands take, each declared once as an :func:`option` field:
-    :func:`add_logger_arguments` (train, sb3) and :func:`add_trust_code_argument` (train,
-    evaluate) add them."""
+    a command adds those it takes with :func:`add_options` (``--logger`` and ``--logger-dir``:
+    train, sb3; ``--trust-code``: train, evaluate)."""
 
     logger: tuple[str, ...] = option(
         (), action="append", choices=("tensorboard", "swanlab", "wandb")
@@ -470,17 +470,6 @@ class SharedOptions:
     """import and run the code the run directory names (its own network class and metric
     functions, from its config.json): only for runs you trust; without it such a run is
     refused, and the rest of jaxcart never imports a run's code"""
-
-
-def add_logger_arguments(group: argparse._ActionsContainer) -> None:
-    """``--logger`` (repeatable) and ``--logger-dir``, as ``train`` and ``sb3`` share them."""
-    add_options(group, SharedOptions, "", ("logger", "logger_dir"))
-
-
-def add_trust_code_argument(parser: argparse._ActionsContainer) -> None:
-    """``--trust-code``: the opt-in to import the code a run directory names (the commands
-    that run a policy or train share it)."""
-    add_options(parser, SharedOptions, "", ("trust_code",))
 
 
 def spelled(value: object) -> str:

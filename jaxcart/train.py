@@ -69,8 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
         "reward_threshold).",
     )
     run = cli.add_options(parser, TrainOptions, "run")["run"]
-    cli.add_logger_arguments(run)
-    cli.add_trust_code_argument(run)
+    cli.add_options(run, cli.SharedOptions, "")  # --logger, --logger-dir, --trust-code
     _add_config_options(
         parser.add_argument_group(
             "PPO config (defaults shown are the sb3 preset's; --preset changes them)"
