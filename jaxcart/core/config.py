@@ -594,11 +594,11 @@ def check_field(f: dataclasses.Field, value: Any, option: str | None = None) -> 
     if choices and value not in choices:
         either = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
         raise ConfigError(f"{f.name} must be {either}, got {value!r}", option)
-    bound = meta.get("bound")
+    bound, optional = meta.get("bound"), " (or none)" if f.default is None else ""
     if bound is not None and (not _is_number(value) or (np.ndim(value) and not meta.get("traced"))):
-        raise ConfigError(f"{f.name} must be a finite number, got {value!r}", option)
+        raise ConfigError(f"{f.name} must be a finite number{optional}, got {value!r}", option)
     if bound is not None and not np.all(BOUNDS[bound](np.asarray(value))):
-        raise ConfigError(f"{f.name} must be {bound}, got {value!r}", option)
+        raise ConfigError(f"{f.name} must be {bound}{optional}, got {value!r}", option)
 
 
 def validate(config: PPOConfig) -> None:
