@@ -82,18 +82,6 @@ def import_jax() -> None:
         _refuse(f"{str(exc).splitlines()[0]}; fix or unset that environment variable")
 
 
-def xla_flags_problem(flags: str) -> str | None:
-    """What is wrong with an ``XLA_FLAGS`` value that XLA would abort on, read without
-    starting XLA: a token that is not a ``--flag`` (XLA reads it as a file of flags)."""
-    for token in flags.split():
-        if not token.startswith("--"):
-            return (
-                f"XLA_FLAGS holds {token!r}, which is not a --flag (XLA would read it as a "
-                "file of flags and abort); fix or unset XLA_FLAGS"
-            )
-    return None
-
-
 def _probe_backend() -> str | None:
     """Starts JAX's backend in a child process (XLA aborts the whole process on an unknown
     flag, and a backend started here could not be given ``jax.distributed`` any more): its
@@ -117,13 +105,15 @@ def check_backend() -> None:
     is one jaxcart does not set itself (flags other than the device count, a platform other
     than ``cpu``)."""
     flags, platforms = os.environ.get("XLA_FLAGS", ""), os.environ.get("JAX_PLATFORMS", "")
-    if flags.strip():
-        problem = xla_flags_problem(flags)
-        needs_probe = not all(t.startswith(devices.DEVICE_COUNT_FLAG) for t in flags.split())
-        if problem is None and needs_probe and (failure := _probe_backend()) is not None:
-            problem = f"XLA cannot start with XLA_FLAGS={flags!r}: {failure}"
-        if problem is not None:
-            _refuse(problem)
+    for token in flags.split():  # XLA reads a token that is not a --flag as a file of flags
+        if not token.startswith("--"):
+            _refuse(
+                f"XLA_FLAGS holds {token!r}, which is not a --flag (XLA would read it as a "
+                "file of flags and abort); fix or unset XLA_FLAGS"
+            )
+    if not all(t.startswith(devices.DEVICE_COUNT_FLAG) for t in flags.split()):
+        if (failure := _probe_backend()) is not None:
+            _refuse(f"XLA cannot start with XLA_FLAGS={flags!r}: {failure}")
     if {p.strip() for p in platforms.split(",") if p.strip()} - {"cpu"}:
         failure = _probe_backend()
         if failure is not None and failure.isidentifier():  # a bare exception: no plugin
@@ -463,8 +453,8 @@ def options_from(cls: type, args: argparse.Namespace, **given: Any) -> Any:
 @dataclasses.dataclass(frozen=True)
 class SharedOptions:
     """The options several commands take, each declared once as an :func:`option` field:
-    :func:`add_logger_arguments` (train, sb3) and :func:`add_trust_code_argument` (train,
-    evaluate) add them."""
+    a command adds those it takes with :func:`add_options` (``--logger`` and ``--logger-dir``:
+    train, sb3; ``--trust-code``: train, evaluate)."""
 
     logger: tuple[str, ...] = option(
         (), action="append", choices=("tensorboard", "swanlab", "wandb")
@@ -480,17 +470,6 @@ class SharedOptions:
     """import and run the code the run directory names (its own network class and metric
     functions, from its config.json): only for runs you trust; without it such a run is
     refused, and the rest of jaxcart never imports a run's code"""
-
-
-def add_logger_arguments(group: argparse._ActionsContainer) -> None:
-    """``--logger`` (repeatable) and ``--logger-dir``, as ``train`` and ``sb3`` share them."""
-    add_options(group, SharedOptions, "", ("logger", "logger_dir"))
-
-
-def add_trust_code_argument(parser: argparse._ActionsContainer) -> None:
-    """``--trust-code``: the opt-in to import the code a run directory names (the commands
-    that run a policy or train share it)."""
-    add_options(parser, SharedOptions, "", ("trust_code",))
 
 
 def spelled(value: object) -> str:

@@ -200,21 +200,17 @@ def _tokens_of(
 def _tokens(action: argparse.Action, value: object) -> list[str]:
     """The command-line tokens that give ``action`` the file's ``value``."""
     flag = action.option_strings[0]
-    if isinstance(action, argparse.BooleanOptionalAction):
-        return [flag if _truth(value, flag) else "--no-" + flag[2:]]
-    if action.nargs == 0:  # store_true
-        return [flag] if _truth(value, flag) else []
+    if action.nargs == 0:  # a switch: --name/--no-name, or store_true
+        if not isinstance(value, bool):
+            raise ValueError(f"{flag} in a config file takes true or false, got {value!r}")
+        if isinstance(action, argparse.BooleanOptionalAction):
+            return [flag if value else "--no-" + flag[2:]]
+        return [flag] if value else []
     if isinstance(action, argparse._AppendAction):
         if isinstance(value, dict):  # sweep = {learning_rate = [1e-3, 5e-3]}
             value = [f"{k}={cli.spelled(v)}" for k, v in value.items()]
         return [t for v in (value if isinstance(value, list) else [value]) for t in (flag, str(v))]
     return [f"{flag}={cli.spelled(value)}"]
-
-
-def _truth(value: object, flag: str) -> bool:
-    if isinstance(value, bool):
-        return value
-    raise ValueError(f"{flag} in a config file takes true or false, got {value!r}")
 
 
 def parse_with_config(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:

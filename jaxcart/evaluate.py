@@ -79,7 +79,7 @@ class EvaluateOptions:
         help=f"env.reset seed of the GIF's episode (default: {EVAL_SEED}, the first "
         "evaluation episode's)",
     )
-    trust_code: bool = False  # cli.add_trust_code_argument's
+    trust_code: bool = False  # cli.SharedOptions'
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -99,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="jaxcart run (or sweep) directories",
     )
     cli.add_options(parser, EvaluateOptions, "")
-    cli.add_trust_code_argument(parser)
+    cli.add_options(parser, cli.SharedOptions, "", ("trust_code",))
     return parser
 
 

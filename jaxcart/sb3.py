@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
         "metrics, its networks under jaxcart's parameter names, 20 greedy episodes per seed in "
         f"Gymnasium). Needs PyTorch and SB3: {sb3.INSTALL_HINT}",
     )
-    cli.add_logger_arguments(cli.add_options(parser, SB3Options, "run")["run"])
+    run = cli.add_options(parser, SB3Options, "run")["run"]
+    cli.add_options(run, cli.SharedOptions, "", ("logger", "logger_dir"))
     return parser
 
 

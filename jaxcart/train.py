@@ -15,6 +15,7 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
@@ -68,8 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
         "reward_threshold).",
     )
     run = cli.add_options(parser, TrainOptions, "run")["run"]
-    cli.add_logger_arguments(run)
-    cli.add_trust_code_argument(run)
+    cli.add_options(run, cli.SharedOptions, "")  # --logger, --logger-dir, --trust-code
     _add_config_options(
         parser.add_argument_group(
             "PPO config (defaults shown are the sb3 preset's; --preset changes them)"
@@ -87,17 +87,22 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
         shown = cli.spelled(getattr(defaults, f.name)).replace("%", "%%")
         help_text = f"{docs.get(f.name, '').replace('%', '%%')} (default: {shown})"
         kwargs = dict(dest=f.name, default=argparse.SUPPRESS, help=help_text)
-        if f.type in ("bool", bool):
-            group.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
-        elif f.name == "hidden_sizes":
-            group.add_argument(flag, type=_tuple_of_ints, metavar="N,N", **kwargs)
-        elif f.name == "target_kl":
-            group.add_argument(flag, type=_float_or_none, metavar="KL", **kwargs)
+        if f.type == "bool":
+            kwargs["action"] = argparse.BooleanOptionalAction
         else:
-            # every integer field is a count (validate() wants them positive): 1e5 and
-            # 100_000 are read as 100000
-            kind = {"int": cli.count, "float": float, "str": str}[str(f.type)]
-            group.add_argument(flag, type=kind, **kwargs)
+            kwargs["type"], kwargs["metavar"] = CONFIG_TYPES[f.type]
+        group.add_argument(flag, **kwargs)
+
+
+CONFIG_TYPES = {
+    "int": (cli.count, None),  # every integer field is a count: 1e5 and 100_000 read as 100000
+    "float": (float, None),
+    "str": (str, None),
+    "tuple[int, ...]": (_tuple_of_ints, "N,N"),
+    "float | None": (_float_or_none, "KL"),
+}
+"""The argparse ``type`` and metavar of a config field, by its annotation (bools are
+``--name/--no-name`` switches)."""
 
 
 PRESET_NAMES = ", ".join(
@@ -188,16 +193,11 @@ class TrainOptions:
         floats, shapes = split_sweep(list(self.sweep))
         sweep = spec.parse_sweep(floats)
         env_values = spec.parse_env_params(self.env_param)
-        for name in env_values:
-            if physics.PREFIX + name in sweep:
-                raise cli.UsageError(
-                    f"--env-param {name} and --sweep env.{name} both given; keep one"
-                )
+        given = {name: "--" + name.replace("_", "-") for name in self.overrides}
+        given.update({physics.PREFIX + name: f"--env-param {name}" for name in env_values})
         for name in (*sweep, *shapes):
-            if name in self.overrides:
-                raise cli.UsageError(
-                    f"--{name.replace('_', '-')} and --sweep {name} both given; keep one"
-                )
+            if name in given:
+                raise cli.UsageError(f"{given[name]} and --sweep {name} both given; keep one")
         name = self.preset or "sb3"
         return lifecycle.RunSpec(
             config=preset(name, **self.overrides),
@@ -213,7 +213,8 @@ class TrainOptions:
         """The shape groups of a structural sweep (``--sweep num_envs=4,8``...); [] without."""
         from jaxcart.run.structural import shape_groups, split_sweep
 
-        return shape_groups(split_sweep(list(self.sweep))[1]) if self.sweep else []
+        shapes = split_sweep(list(self.sweep))[1]
+        return shape_groups(shapes) if shapes else []
 
     def run_options(self) -> lifecycle.RunOptions:
         """How to carry the run out."""
@@ -274,26 +275,20 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups)
     run_options = opts.run_options()
-    shaped = len(groups) > 1 or any(groups) or (opts.resume and layout.is_groups(opts.resume))
-    if shaped and opts.distributed:
+    if opts.distributed and (groups or (opts.resume and layout.is_groups(opts.resume))):
         raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
     if not distributed.is_main_process():
         console.out, console.progress_bar = open(os.devnull, "w"), False
-    if groups and shaped:
+    if groups:
         specs = structural.group_specs(spec, groups)  # every group checked before anything runs
         console.print(
             f"structural sweep: {len(groups)} shape groups, so {len(groups)} programs compile "
             f"(one each; the float axes stay vmapped inside each): "
             + "; ".join(group_label(g) for g in groups)
         )
-    if opts.dry_run and shaped:
-        for group, group_spec in zip(groups, specs):
-            plan = lifecycle.plan_run(group_spec, run_options)
-            console.print(f"{group_label(group)}: " + report.plan_text(plan, group_spec))
-        return 0
-    if opts.dry_run:
+    if opts.dry_run and not groups:
         import jax
 
         # the header a run would print, without a directory: what would train, in env steps
@@ -302,7 +297,11 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
             grid=spec.grid, config=spec.config, preset=spec.preset, out=out, spec=spec
         )
         console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
-        console.print(report.plan_text(lifecycle.plan_run(spec, run_options), spec))
+    if opts.dry_run:  # the plan of the run, or of each shape group
+        for group, group_spec in zip(groups, specs) if groups else [(None, spec)]:
+            label = f"{group_label(group)}: " if groups else ""
+            plan = lifecycle.plan_run(group_spec, run_options)
+            console.print(label + report.plan_text(plan, group_spec))
         return 0
 
     def on_group(outcome: lifecycle.Outcome) -> None:
@@ -312,17 +311,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     stop, hooks = StopRequest(on_signal=console.on_signal), console.hooks()
     try:
         with stop.installed():  # the training's signal handling, from its plan to its outputs
-            if shaped and spec is None:  # --resume of the sweep: every group not finished
-                out = opts.resume
-                outcome = structural.finish_groups(out, run_options, hooks, stop, on_group)
-            elif shaped:
-                out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
-                command = ["python -m jaxcart.train", *opts.argv]
-                outcome = structural.run_groups(
-                    spec, groups, out, run_options, hooks, stop, command, on_group
-                )
-            else:
-                outcome = _start_or_resume(opts, spec, run_options, hooks, stop)
+            outcome = _start_or_resume(opts, spec, groups, run_options, hooks, stop, on_group)
     except Stopped:
         console.print("stopped before the run started; nothing was written")
         return 128 + (stop.signum or 15)
@@ -338,8 +327,8 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         return 1
     finally:
         console.close()
-    if shaped:
-        return _report_groups(out, outcome, console, time.perf_counter() - wall_start)
+    if isinstance(outcome, structural.GroupsOutcome):
+        return _report_groups(outcome, console, time.perf_counter() - wall_start)
     return _report(outcome, console, time.perf_counter() - wall_start)
 
 
@@ -349,17 +338,17 @@ def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list[dict]) -> N
     from jaxcart.run import structural
     from jaxcart.run.search import check_score
 
-    if not spec.grid.is_sweep and not any(groups):
+    if not spec.grid.is_sweep and not groups:
         raise cli.UsageError(
             "--score ranks the combinations of a --sweep; without one there is nothing to rank "
             "(python -m jaxcart.compare --score scores any run)"
         )
-    for group_spec in structural.group_specs(spec, groups) if any(groups) else [spec]:
+    for group_spec in structural.group_specs(spec, groups) if groups else [spec]:
         check_score(score, [group_spec.config])
 
 
 def _report_groups(
-    out: Path, done: structural.GroupsOutcome, console: report.ConsoleReport, wall: float
+    done: structural.GroupsOutcome, console: report.ConsoleReport, wall: float
 ) -> int:
     """What a structural sweep prints once its groups are done, or one of them stopped."""
     from jaxcart import report
@@ -367,15 +356,15 @@ def _report_groups(
 
     if done.stopped:
         last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
-        hint = report.resume_command(out)
+        hint = report.resume_command(done.out)
         console.print(report.stopped_text(last, hint) if last else f"stopped; resume with: {hint}")
         return 128 + done.signum
     console.print(report.groups_text(done.ranking, done.groups, done.sweep, done.num_seeds))
     console.print(
-        f"wall {wall:.1f} s | structural sweep directory: {out} "
+        f"wall {wall:.1f} s | structural sweep directory: {done.out} "
         f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
-        f"  python -m jaxcart.plot {out}      # every group's curves, into its curves.png\n"
-        f"  python -m jaxcart.compare {out}   # statistics of every combination"
+        f"  python -m jaxcart.plot {done.out}      # every group's curves, into its curves.png\n"
+        f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
     )
     return 0
 
@@ -383,17 +372,26 @@ def _report_groups(
 def _start_or_resume(
     opts: TrainOptions,
     spec: lifecycle.RunSpec | None,
+    groups: list[dict],
     run_options: lifecycle.RunOptions,
     hooks: lifecycle.Hooks,
     stop: StopRequest,
-) -> lifecycle.Outcome:
-    """The run: ``spec`` as a new run, or ``--resume`` (``spec`` None)."""
-    from jaxcart.run import lifecycle
+    on_group: Callable[[lifecycle.Outcome], None],
+) -> lifecycle.Outcome | structural.GroupsOutcome:
+    """The run: ``spec`` as a new run (one per shape group of a structural sweep), or
+    ``--resume`` (``spec`` None) of a run or of every group of a sweep not yet finished."""
+    from jaxcart.run import lifecycle, structural
+    from jaxcart.rundir import layout
     from jaxcart.rundir.files import RunDirError
 
+    command = ["python -m jaxcart.train", *opts.argv]
+    if groups:
+        out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
+        return structural.run_groups(spec, groups, out, run_options, hooks, stop, command, on_group)
     if spec is not None:
-        command = ["python -m jaxcart.train", *opts.argv]
         return lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
+    if layout.is_groups(opts.resume):
+        return structural.finish_groups(opts.resume, run_options, hooks, stop, on_group)
     extend_to = opts.overrides.get("total_timesteps")
     try:
         return lifecycle.resume_run(

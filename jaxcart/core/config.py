@@ -48,10 +48,11 @@ def traced(default: float, bound: str = "> 0") -> Any:
 def setting(default: Any, **meta: Any) -> Any:
     """Declares a static field once, with what :func:`validate`, :meth:`PPOConfig.to_dict` and
     the command line read of it besides its type (an ``int`` field is a positive integer, a
-    ``bool`` one true or false): ``choices`` (the values a string takes), ``minimum`` (an
-    integer's least value), ``new`` (added after the first config.json: left out of it at its
-    default, or while the field it names is off, so that older runs read as they did) and
-    ``cli=False`` (Python API only)."""
+    ``bool`` one true or false): ``choices`` (the values a string takes), ``minimum`` and
+    ``maximum`` (an integer's least and greatest values), ``bound`` (a number's, a key of
+    :data:`BOUNDS`; None passes when it is the default), ``new`` (added after the first
+    config.json: left out of it at its default, or while the field it names is off, so that
+    older runs read as they did) and ``cli=False`` (Python API only)."""
     return field(default=default, metadata=meta)
 
 
@@ -117,7 +118,7 @@ class PPOConfig:
     """Value-loss clipping: off (SB3's default, plain MSE), sb3 (the prediction clipped to
     within clip_range_vf of its value at collection, then MSE) or purejaxrl (half the mean of
     the larger of the clipped and unclipped squared errors)."""
-    target_kl: float | None = None
+    target_kl: float | None = setting(None, bound="> 0")
     """Stop an iteration's epochs at the first minibatch whose approx KL exceeds 1.5 x
     target_kl, before its gradient step (SB3's rule); none: never."""
     bootstrap_truncation: bool = True
@@ -145,7 +146,7 @@ class PPOConfig:
     """Every N iterations, play periodic_eval_episodes greedy episodes in jaxcart's env inside
     the compiled program, from the same start states for every run (eval/mean_return and
     eval/min_return); 0: never."""
-    periodic_eval_episodes: int = setting(10, minimum=0, new="eval_every")
+    periodic_eval_episodes: int = setting(10, maximum=1024, new="eval_every")
     """Greedy episodes of each evaluation during training (with eval_every)."""
     keep_best: bool = setting(False, new="eval_every")
     """Keep each run's policy with the best eval/mean_return so far (ties: the later one) as
@@ -480,33 +481,23 @@ class RecordedMetric:
         raise ConfigError(f"the run's metric function {self.path} was not imported")
 
 
-def import_metric(path: str) -> Any:
-    """The function :func:`function_path` recorded.
-
-    Raises:
-        RebuildError: it cannot be imported (a function of a script or notebook, or of a
-            missing module), saying why.
-    """
-    where = f"cannot rebuild the run's metric function {path}"
-    fn = _import_named(path, where, "define it at the top level of an importable module")
-    if not callable(fn):
-        raise RebuildError(f"{where}: not callable")
-    return fn
-
-
 def rebuild_metrics(config: PPOConfig) -> PPOConfig:
     """``config`` with its recorded metric functions imported (to resume training).
 
     Raises:
-        ConfigError: one cannot be imported (:func:`import_metric`).
+        RebuildError: one cannot be imported (a function of a script or notebook, or of a
+            missing module) or is not callable, saying why.
     """
-    if not any(isinstance(fn, RecordedMetric) for _, fn in config.metrics):
-        return config
-    rebuilt = tuple(
-        (name, import_metric(fn.path) if isinstance(fn, RecordedMetric) else fn)
-        for name, fn in config.metrics
-    )
-    return _replace_unchecked(config, {"metrics": rebuilt})
+    rebuilt = []
+    for name, fn in config.metrics:
+        if isinstance(fn, RecordedMetric):
+            where = f"cannot rebuild the run's metric function {fn.path}"
+            hint = "define it at the top level of an importable module"
+            fn = _import_named(fn.path, where, hint)
+            if not callable(fn):
+                raise RebuildError(f"{where}: not callable")
+        rebuilt.append((name, fn))
+    return _replace_unchecked(config, {"metrics": tuple(rebuilt)})
 
 
 def _is_json(value: Any) -> bool:
@@ -567,47 +558,61 @@ MAX_ITERATIONS = 2**31 - 1
 ``config.json`` are held to it alike)."""
 
 
-def _check_setting(f: dataclasses.Field, value: Any) -> None:
+def _is_number(value: Any) -> bool:
+    """Whether ``value`` is a real number, or a 1-d array of them, every one finite."""
+    return (
+        not isinstance(value, bool)
+        and isinstance(value, (int, float, np.ndarray, jax.Array, np.number))
+        and np.ndim(value) <= 1
+        and np.issubdtype(np.asarray(value).dtype, np.number)
+        and np.asarray(value).dtype != bool
+        and bool(np.all(np.isfinite(value)))
+    )
+
+
+def check_field(f: dataclasses.Field, value: Any, option: str | None = None) -> None:
     """Raises :class:`ConfigError` for a value that is not what the field's declaration says
-    (:func:`setting`): an integer of at least its ``minimum`` (default 1), true or false, one
-    of its ``choices``."""
-    least, choices = f.metadata.get("minimum", 1), f.metadata.get("choices")
-    if f.type == "int" and (isinstance(value, bool) or not isinstance(value, int) or value < least):
+    (:func:`setting`, :func:`traced`): an integer (``int``, or ``int | None`` left at None)
+    within its ``minimum`` (default 1) and ``maximum``, true or false, one of its
+    ``choices``, a finite number within its ``bound``. ``option``: the error's
+    :attr:`ConfigError.option` (a command line then names the field as its option)."""
+    meta = f.metadata
+    least, most, choices = meta.get("minimum", 1), meta.get("maximum"), meta.get("choices")
+    if value is None and f.default is None:  # an optional setting left out
+        return
+    if f.type in ("int", "int | None") and (
+        isinstance(value, bool)
+        or not isinstance(value, int)
+        or value < least
+        or (most is not None and value > most)
+    ):
         what = "a positive integer" if least else "a non-negative integer"
-        raise ConfigError(f"{f.name} must be {what}, got {value!r}")
+        what = f"in [{least}, {most}]" if most else what
+        raise ConfigError(f"{f.name} must be {what}, got {value!r}", option)
     if f.type == "bool" and not isinstance(value, bool):
-        raise ConfigError(f"{f.name} must be true or false, got {value!r}")
+        raise ConfigError(f"{f.name} must be true or false, got {value!r}", option)
     if choices and value not in choices:
         either = ", ".join(map(repr, choices[:-1])) + f" or {choices[-1]!r}"
-        raise ConfigError(f"{f.name} must be {either}, got {value!r}")
+        raise ConfigError(f"{f.name} must be {either}, got {value!r}", option)
+    bound, optional = meta.get("bound"), " (or none)" if f.default is None else ""
+    if bound is not None and (not _is_number(value) or (np.ndim(value) and not meta.get("traced"))):
+        raise ConfigError(f"{f.name} must be a finite number{optional}, got {value!r}", option)
+    if bound is not None and not np.all(BOUNDS[bound](np.asarray(value))):
+        raise ConfigError(f"{f.name} must be {bound}{optional}, got {value!r}", option)
 
 
 def validate(config: PPOConfig) -> None:
-    """Raises :class:`ConfigError` naming the first invalid field and what to do about it."""
+    """Raises :class:`ConfigError` naming the first invalid field and what to do about it:
+    each field as it is declared (:func:`check_field`), then what the fields make together."""
     c = config
     for f in dataclasses.fields(c):
-        _check_setting(f, getattr(c, f.name))
+        check_field(f, getattr(c, f.name))
     if c.batch_size % c.minibatch_size != 0:
         raise ConfigError(
             f"minibatch_size={c.minibatch_size} does not divide the rollout of "
             f"num_envs x num_steps = {c.num_envs} x {c.num_steps} = {c.batch_size}; "
             f"pick a divisor of {c.batch_size}"
         )
-    for name in TRACED_FIELDS:
-        value = getattr(c, name)
-        if (
-            isinstance(value, bool)
-            or not isinstance(value, (int, float, np.ndarray, jax.Array, np.number))
-            or np.ndim(value) > 1
-            or not np.issubdtype(np.asarray(value).dtype, np.number)
-            or np.asarray(value).dtype == bool
-            or not np.all(np.isfinite(value))
-        ):
-            raise ConfigError(f"{name} must be a finite number, got {value!r}")
-    for f in dataclasses.fields(c):
-        value, bound = getattr(c, f.name), f.metadata.get("bound")
-        if bound is not None and not np.all(BOUNDS[bound](np.asarray(value))):
-            raise ConfigError(f"{f.name} must be {bound}, got {value!r}")
     if not c.hidden_sizes or any(
         isinstance(h, bool) or not isinstance(h, int) or h <= 0 for h in c.hidden_sizes
     ):
@@ -632,22 +637,14 @@ def validate(config: PPOConfig) -> None:
             f"{c.batch_size:,} transitions, more than the {MAX_ITERATIONS:,} this trainer counts; "
             "use fewer total_timesteps"
         )
-    if c.target_kl is not None and (
-        isinstance(c.target_kl, bool)
-        or not isinstance(c.target_kl, (int, float))
-        or not math.isfinite(c.target_kl)
-        or c.target_kl <= 0
-    ):
-        raise ConfigError(f"target_kl must be a finite number > 0 (or none), got {c.target_kl!r}")
-    if (
-        c.network is not None
-        and not isinstance(c.network, RecordedNetwork)
-        and not (
+    if c.network is not None and not isinstance(c.network, RecordedNetwork):
+        if not (
             callable(getattr(c.network, "apply", None))
             and callable(getattr(c.network, "init", None))
-        )
-    ):
-        raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
+        ):
+            raise ConfigError(
+                f"network must be a flax module (with init and apply), got {c.network!r}"
+            )
     if not isinstance(c.env, str):
         raise ConfigError(f"env must be an env id, got {c.env!r}")
     try:
@@ -655,10 +652,6 @@ def validate(config: PPOConfig) -> None:
     except envs.EnvError as exc:
         raise ConfigError(str(exc), "env") from None
     _validate_metrics(c.metrics)
-    if c.periodic_eval_episodes == 0 or c.periodic_eval_episodes > 1024:
-        raise ConfigError(
-            f"periodic_eval_episodes must be in [1, 1024], got {c.periodic_eval_episodes}"
-        )
     if c.keep_best and not c.eval_every:
         raise ConfigError("keep_best needs eval_every: give the iterations between evaluations")
 
@@ -774,6 +767,7 @@ __all__ = [
     "PPOConfig",
     "RebuildError",
     "RecordedMetric",
+    "check_field",
     "config_fields",
     "preset",
     "validate",

@@ -21,7 +21,7 @@ import numpy as np
 from jaxcart.analysis.summary import Score
 from jaxcart.core import envs, physics
 from jaxcart.core.cartpole import EnvParams
-from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
+from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, check_field, setting
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved
 from jaxcart.engine.loop import Progress, TrainResult
@@ -180,10 +180,6 @@ def check_option(ok: bool, option: str, problem: str) -> None:
         raise ConfigError(f"{option} {problem}", option=option)
 
 
-def _is_int(value: object) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-
-
 @dataclass(frozen=True)
 class RunSpec:
     """What a new run trains; ``config.json`` records all of it."""
@@ -191,9 +187,9 @@ class RunSpec:
     config: PPOConfig = field(default_factory=PPOConfig)
     preset: str = "custom"
     """The preset the config started from (a label in config.json and the header)."""
-    num_seeds: int = 1
+    num_seeds: int = setting(1)
     """Independent seeds (per combination in a sweep)."""
-    seed: int = 0
+    seed: int = setting(0, minimum=0, maximum=2**32 - 1)
     """Base seed: seed index i uses ``fold_in(PRNGKey(seed), i)``."""
     sweep: dict[str, list[float]] = field(default_factory=dict)
     """Traced float hyperparameter (or ``env.NAME``, a continuous physics field) -> values;
@@ -208,16 +204,8 @@ class RunSpec:
     """Physics fields drawn uniformly per run (from the seed) or per episode (at every reset)."""
 
     def __post_init__(self) -> None:
-        check_option(
-            _is_int(self.num_seeds) and self.num_seeds > 0,
-            "num_seeds",
-            f"must be a positive integer, got {self.num_seeds}",
-        )
-        check_option(
-            _is_int(self.seed) and 0 <= self.seed < 2**32,
-            "seed",
-            f"must be in [0, 2**32), got {self.seed}",
-        )
+        for f in dataclasses.fields(self):  # num_seeds and seed, as declared
+            check_field(f, getattr(self, f.name), f.name)
         combos = len(self.combinations) or math.prod(len(v) for v in self.sweep.values())
         check_num_runs(self.num_seeds, combos)  # what the readers accept, before any list
         sweeps.validate_sweep(self.config, self.sweep)  # before anything is created
@@ -364,7 +352,7 @@ class RunOptions:
 
     checkpoint_every: float = 30.0
     """Seconds between checkpoints."""
-    eval_episodes: int | None = None
+    eval_episodes: int | None = setting(None)
     """Greedy Gymnasium evaluation episodes per seed (None: 20, or a resumed run's own)."""
     loggers: tuple[str, ...] = ()
     """Metric backends besides metrics.csv: ``tensorboard``, ``swanlab``, ``wandb``."""
@@ -373,23 +361,18 @@ class RunOptions:
     ``$SWANLAB_LOG_DIR`` or ``./swanlog``; see :func:`jaxcart.run.loggers.make_logger`)."""
     compile_cache: bool = True
     """Use JAX's persistent compilation cache."""
-    chunk_size: int | None = None
+    chunk_size: int | None = setting(None)
     """Iterations per compiled call between progress reports (default: as many as take about
     2 s, measured as the run goes)."""
-    wave_size: int | None = None
+    wave_size: int | None = setting(None)
     """Runs trained at once in a new run (default: the fewest that fill the devices)."""
     score: Score | None = None
     """What ranks a sweep's combinations, as ``compare --score`` scores a run (None: eval, or
     the score a resumed sweep recorded in config.json)."""
 
     def __post_init__(self) -> None:
-        for name in ("eval_episodes", "chunk_size", "wave_size"):
-            value = getattr(self, name)
-            check_option(
-                value is None or (_is_int(value) and value > 0),
-                name,
-                f"must be a positive integer, got {value}",
-            )
+        for f in dataclasses.fields(self):
+            check_field(f, getattr(self, f.name), f.name)
         check_option(
             0 < self.checkpoint_every <= 86_400 * 365,  # NaN fails too
             "checkpoint_every",
