@@ -31,15 +31,26 @@ def arms(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def printed_rows(text: str, header: str) -> list[list[str]]:
-    """The rows of the table under the line that starts with ``header``."""
+    """The rows of the table under the line that starts with ``header``, with the columns of
+    the tables that continue it (``cli.format_table`` moves columns that would make a line too
+    wide, as a long run path does, into further tables that repeat the first column)."""
     lines = text.splitlines()
-    start = next(i for i, line in enumerate(lines) if line.split()[:1] == header.split()[:1])
-    rows = []
-    for line in lines[start + 2 :]:
-        if not line.startswith(" ") and not line[:1].isdigit() and not line.startswith("/"):
+    first = header.split()[:1]
+    start = next(i for i, line in enumerate(lines) if line.split()[:1] == first)
+    rows: list[list[str]] | None = None
+    while start < len(lines) and lines[start].split()[:1] == first:
+        table, end = [], start + 2
+        while end < len(lines) and (lines[end].startswith((" ", "/")) or lines[end][:1].isdigit()):
+            table.append(lines[end].split())
+            end += 1
+        if rows is None:
+            rows = table
+        elif [t[0] for t in table] == [r[0] for r in rows]:
+            rows = [r + t[1:] for r, t in zip(rows, table)]
+        else:
             break
-        rows.append(line.split())
-    return rows
+        start = end + (end < len(lines) and not lines[end].strip())  # one blank line between
+    return rows or []
 
 
 def one_line_error(capsys) -> str:
