@@ -7,7 +7,9 @@ then the two means::
 
 With ``--ahead``, the cross-check's program is compiled first and not timed, as training
 compiles it beside its chunks (``run.greedy.CrossCheck``): the seconds are then what the
-evaluation at the end of a training takes.
+evaluation at the end of a training takes. With ``--gymnasium``, only the Gymnasium episodes
+are timed (:func:`~jaxcart.run.greedy.evaluate_params`): what ``python -m jaxcart.evaluate RUN``
+runs, in NumPy with no program to compile, so a fresh process is as cold as it gets.
 """
 
 import sys
@@ -16,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.run.greedy import CrossCheck
+from jaxcart.run.greedy import CrossCheck, evaluate_params
 from jaxcart.rundir.policy import run_params
 from jaxcart.rundir.reader import read_run_config
 
@@ -24,6 +26,11 @@ run = Path(sys.argv[1])
 rp = run_params(run)
 seed = read_run_config(run)["seed"]  # through the store's reader, as evaluate reads it
 ahead = "--ahead" in sys.argv[2:]
+if "--gymnasium" in sys.argv[2:]:
+    t = time.perf_counter()
+    g = evaluate_params(rp, 20)
+    print(f"{time.perf_counter() - t:.3f} {g.mean():.6f}")
+    sys.exit(0)
 if ahead:
     check = CrossCheck(rp.config, seed, np.arange(rp.num_seeds), 20, rp.env_params)
     check.compile_for(rp.params).result()  # compiled, as it is by the end of a training
