@@ -9,16 +9,20 @@ With ``--ahead``, the cross-check's program is compiled first and not timed, as 
 compiles it beside its chunks (``run.greedy.CrossCheck``): the seconds are then what the
 evaluation at the end of a training takes. With ``--gymnasium``, only the Gymnasium episodes
 are timed (:func:`~jaxcart.run.greedy.evaluate_params`): what ``python -m jaxcart.evaluate RUN``
-runs, in NumPy with no program to compile, so a fresh process is as cold as it gets.
+runs, in NumPy with no program to compile, so a fresh process is as cold as it gets. With
+``--stages``, the cold cross-check is split into building it, lowering, XLA's compile and the
+run (``--stages '{"xla_backend_optimization_level": 0}'`` compiles with other XLA options).
 """
 
+import json
 import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
-from jaxcart.run.greedy import CrossCheck, evaluate_params
+from jaxcart.run.greedy import FAST_COMPILE, CrossCheck, evaluate_params
 from jaxcart.rundir.policy import run_params
 from jaxcart.rundir.reader import read_run_config
 
@@ -26,6 +30,22 @@ run = Path(sys.argv[1])
 rp = run_params(run)
 seed = read_run_config(run)["seed"]  # through the store's reader, as evaluate reads it
 ahead = "--ahead" in sys.argv[2:]
+if "--stages" in sys.argv[2:]:
+    options = json.loads(sys.argv[sys.argv.index("--stages") + 1]) if len(sys.argv) > 3 else {}
+    t = [time.perf_counter()]
+    check = CrossCheck(rp.config, seed, np.arange(rp.num_seeds), 20, rp.env_params)
+    t.append(time.perf_counter())
+    program = jax.jit(jax.vmap(check._one_run))
+    shapes = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), rp.params)
+    lowered = program.lower(shapes, check._keys, check._per_run)
+    t.append(time.perf_counter())
+    compiled = lowered.compile(options or FAST_COMPILE)
+    t.append(time.perf_counter())
+    returns = np.asarray(compiled(rp.params, check._keys, check._per_run))
+    t.append(time.perf_counter())
+    build, lower, xla, run_s = np.diff(t)
+    print(f"build {build:.3f} lower {lower:.3f} compile {xla:.3f} run {run_s:.3f} {returns.mean()}")
+    sys.exit(0)
 if "--gymnasium" in sys.argv[2:]:
     t = time.perf_counter()
     g = evaluate_params(rp, 20)
