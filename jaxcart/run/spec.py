@@ -29,7 +29,7 @@ from jaxcart.run import sweep as sweeps
 from jaxcart.run.loggers import LoggerUnavailable, check_available
 from jaxcart.run.waves import WavePlan
 from jaxcart.rundir.directory import RunDir
-from jaxcart.rundir.reader import check_num_runs, env_values, sweep_combinations
+from jaxcart.rundir.reader import check_num_runs, combo_config, env_values, sweep_combinations
 
 
 # -- the one reading of NAME=VALUE options (--sweep, --env-param, --randomize, --space) ------
@@ -343,7 +343,7 @@ class RunSpec:
         """The config of one combination (the config itself without a sweep)."""
         if not self.grid.is_sweep:
             return self.config
-        return sweeps.combo_config(self.config, self.grid.combos[combination])
+        return combo_config(self.config, self.grid.combos[combination])
 
 
 @dataclass(frozen=True)

@@ -124,12 +124,6 @@ def validate_combinations(config: PPOConfig, combos: tuple[dict[str, float], ...
             raise ConfigError(f"combination value out of range: {exc}") from None
 
 
-def combo_config(config: PPOConfig, combo: dict[str, float]) -> PPOConfig:
-    """The config of one combination (its physics entries are not config fields)."""
-    fields = {k: v for k, v in combo.items() if not k.startswith(physics.PREFIX)}
-    return dataclasses.replace(config, **fields)
-
-
 def grid_values(grid: RunGrid, runs: range, name: str, base: float, dtype=float) -> np.ndarray:
     """Each of ``runs``' value of the swept field ``name`` (in ``grid`` order; a wave's, never
     every seed's), ``[len(runs)]`` of ``dtype``: its combination's, or ``base`` where that

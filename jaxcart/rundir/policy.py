@@ -7,7 +7,6 @@ Parameters come from ``params.npz`` of a finished run, or, for a run that did no
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
 import warnings
@@ -264,10 +263,8 @@ def _checked_config(run_dir: Path, read: Any, info: dict, combination: int | Non
 def _combo_config(info: dict, combination: int | None) -> PPOConfig:
     """The config of one combination of an unfinished sweep (the run's config otherwise)."""
     if combination is None:
-        return info["config"]
-    values = reader.recorded_combinations(info)[combination]
-    values = {k: v for k, v in values.items() if not k.startswith("env.")}
-    return dataclasses.replace(info["config"], **values)  # keeps its resolved network
+        return info["config"]  # keeps its resolved network, as the combination's does
+    return reader.combo_config(info["config"], reader.recorded_combinations(info)[combination])
 
 
 def seed_params(

@@ -202,6 +202,13 @@ def env_values(combination: dict) -> dict:
     return {k[len(prefix) :]: v for k, v in combination.items() if k.startswith(prefix)}
 
 
+def combo_config(config: PPOConfig, combination: dict) -> PPOConfig:
+    """The config of one combination of a sweep: ``config`` with the combination's values
+    but its physics entries (``env.NAME``), which are not config fields."""
+    fields = {k: v for k, v in combination.items() if not k.startswith(physics.PREFIX)}
+    return dataclasses.replace(config, **fields)
+
+
 def run_env_params(info: dict, combination: int | None = None):
     """The physics a run (or one combination of a sweep) trained on, from its ``config.json``
     (read by :func:`read_run_config`): the env's defaults, with ``env_params`` and the
