@@ -31,7 +31,8 @@ rp = run_params(run)
 seed = read_run_config(run)["seed"]  # through the store's reader, as evaluate reads it
 ahead = "--ahead" in sys.argv[2:]
 if "--stages" in sys.argv[2:]:
-    options = json.loads(sys.argv[sys.argv.index("--stages") + 1]) if len(sys.argv) > 3 else {}
+    after = sys.argv[sys.argv.index("--stages") + 1 :]  # XLA options, when a JSON object follows
+    options = json.loads(after[0]) if after and not after[0].startswith("--") else {}
     t = [time.perf_counter()]
     check = CrossCheck(rp.config, seed, np.arange(rp.num_seeds), 20, rp.env_params)
     t.append(time.perf_counter())
