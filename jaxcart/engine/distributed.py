@@ -159,20 +159,15 @@ def launch_local(
         for p in procs:
             p.kill()
         raise
-    return wait_forwarding_signals(procs) if wait else procs
-
-
-def wait_forwarding_signals(procs: list[subprocess.Popen]) -> list[int]:
-    """Waits for every process, passing SIGINT and SIGTERM on to them; their exit codes.
-
-    Outside the main thread (where Python cannot handle signals) it only waits.
-    """
+    if not wait:
+        return procs
 
     def forward(signum: int, frame: object) -> None:
         for p in procs:
             if p.poll() is None:
                 p.send_signal(signum)
 
+    # Outside the main thread (where Python cannot handle signals) this only waits.
     with signals.handling(forward):
         while any(p.poll() is None for p in procs):
             # short waits: a signal that another thread took is handled here within 0.1 s

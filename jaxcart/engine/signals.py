@@ -53,16 +53,13 @@ class StopRequest:
         if self.signum is not None:
             raise Stopped(signal.Signals(self.signum).name)
 
-    def request(self, signum: int) -> None:
-        """What the handler does; callable directly (tests, notebooks)."""
+    def request(self, signum: int, frame: object = None) -> None:
+        """The signal handler; callable directly (tests, notebooks)."""
         if self.signum is not None:
             raise KeyboardInterrupt
         self.signum = signum
         if self.on_signal:
             self.on_signal(signum)
-
-    def _handle(self, signum: int, frame: object) -> None:
-        self.request(signum)
 
     @contextlib.contextmanager
     def installed(self) -> Iterator[StopRequest]:
@@ -71,7 +68,7 @@ class StopRequest:
         outermost = self._installed == 0
         self._installed += 1
         try:
-            with handling(self._handle) if outermost else contextlib.nullcontext():
+            with handling(self.request) if outermost else contextlib.nullcontext():
                 yield self
         finally:
             self._installed -= 1

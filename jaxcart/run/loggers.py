@@ -250,7 +250,7 @@ class SwanLabBackend(Backend):
         class FlushRecords(base):
             name = "jaxcart-flush-records"
 
-            def on_scalar_flush(self, scalar_records, *args, **kwargs) -> None:
+            def on_scalar_flush(self, *args, **kwargs) -> None:
                 store = getattr(getattr(backend.run, "_core", None), "_store", None)
                 if store is not None and hasattr(store, "ensure_flushed"):
                     store.ensure_flushed()
@@ -364,9 +364,6 @@ BACKENDS: dict[str, type[Backend]] = {
     WandbBackend.name: WandbBackend,
 }
 """Logger name -> backend class (tests may register more)."""
-
-LOGGER_NAMES = tuple(BACKENDS)
-"""The names :func:`make_logger` accepts (for the CLI's choices)."""
 
 _STOP = object()
 
@@ -537,7 +534,7 @@ def make_logger(
     """A :class:`Logger` writing to each named backend (``[]``: a logger that does nothing).
 
     Args:
-        names: backends, a subset of :data:`LOGGER_NAMES` (``"tensorboard"``, ``"swanlab"``,
+        names: backends, a subset of :data:`BACKENDS` (``"tensorboard"``, ``"swanlab"``,
             ``"wandb"``).
         out_dir: the run directory; each backend writes in its own subdirectory.
         run_names: one name per run (the ``R`` axis of the metrics), used as directory names.
