@@ -27,11 +27,6 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 T = TypeVar("T")
 
 
-def raise_interrupt(signum: int, frame: object) -> None:
-    """A handler that treats SIGTERM as Ctrl-C (:class:`KeyboardInterrupt`)."""
-    raise KeyboardInterrupt
-
-
 class Stopped(Exception):
     """Raised at a safe point after a stop was requested."""
 

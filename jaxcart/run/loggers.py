@@ -134,7 +134,7 @@ class Backend:
         self.config = json.loads(json.dumps(config, default=str))  # every value JSON-able
         self.log_dir = log_dir  # the folder shared with other runs (None: the library's own)
         # the name the logs go under: the run directory's
-        self.experiment = Path(out_dir).resolve().name or "jaxcart"
+        self.experiment = self.out_dir.resolve().name or "jaxcart"
         self.per_run: list[Any] = []  # each run's writer (TensorBoard) or W&B run
 
 
@@ -561,7 +561,5 @@ def make_logger(
     for name in names:  # here, not first in a logger's thread: imports racing can deadlock
         if BACKENDS[name].module is not None:
             importlib.import_module(BACKENDS[name].module)
-    out_dir = Path(out_dir)
-    config = dict(config or {})
-    backends = [BACKENDS[n](out_dir, run_names, config, log_dir) for n in names]
+    backends = [BACKENDS[n](Path(out_dir), run_names, config or {}, log_dir) for n in names]
     return Logger(backends, len(run_names))
