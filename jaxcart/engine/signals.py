@@ -87,8 +87,8 @@ def handling(handler: Callable[[int, object], None]) -> Iterator[None]:
             signal.signal(sig, old)
 
 
-def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
-    """``fn()`` on a worker thread while this thread waits in short steps, so that signal
+def wait_interruptibly(fn: Callable[[], T]) -> T:
+    """``fn()`` on a worker thread while this thread waits in short steps (0.1 s), so that signal
     handlers run promptly (Python runs them only between bytecodes of the main thread).
 
     Exceptions of ``fn`` are re-raised here; a :class:`KeyboardInterrupt` raised by a handler
@@ -99,7 +99,7 @@ def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
     future: Future = Future()
     _start(fn, future, background=False)
     while not future.done():
-        futures.wait([future], poll_seconds)
+        futures.wait([future], 0.1)
     return future.result()
 
 

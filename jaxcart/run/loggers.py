@@ -496,7 +496,7 @@ class Logger(contextlib.AbstractContextManager):
         with contextlib.suppress(LoggerError):  # already reported on stderr
             self.close()
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type, *exc_info) -> None:
         try:
             self.close()
         except LoggerError:
