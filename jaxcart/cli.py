@@ -559,7 +559,7 @@ def command_main(
     """
     try:
         try:
-            signal.signal(signal.SIGTERM, signals.raise_interrupt)
+            signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM as Ctrl-C
             devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
             check_backend()  # JAX_PLATFORMS, XLA_FLAGS: one line, not an abort
             code = main(argv)

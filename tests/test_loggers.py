@@ -493,7 +493,7 @@ def test_bad_names_are_rejected(tmp_path):
         make_logger([], tmp_path, ["seed0", "seed0"])
     with pytest.raises(ValueError, match="directory names"):
         make_logger([], tmp_path, ["../escape"])
-    assert loggers.LOGGER_NAMES == ("tensorboard", "swanlab", "wandb")
+    assert tuple(loggers.BACKENDS) == ("tensorboard", "swanlab", "wandb")
 
 
 @pytest.mark.parametrize(

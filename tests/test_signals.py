@@ -335,7 +335,7 @@ def test_a_call_given_up_on_is_abandoned_work(monkeypatch):
     """A second signal leaves XLA's call running on the worker thread: ``command_main`` then
     ends the process without the interpreter's teardown."""
     release = threading.Event()
-    previous = signal.signal(signal.SIGUSR1, signals.raise_interrupt)
+    previous = signal.signal(signal.SIGUSR1, signal.default_int_handler)
     timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGUSR1))
     try:
         timer.start()

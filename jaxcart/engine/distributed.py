@@ -68,17 +68,11 @@ def is_main_process() -> bool:
     return jax.process_index() == 0
 
 
-def multi_process() -> bool:
-    import jax
-
-    return jax.process_count() > 1
-
-
 def to_global(tree: Any, sharding) -> Any:
     """Places host arrays (the same on every process) as global arrays with ``sharding``."""
     import jax
 
-    if not multi_process():
+    if jax.process_count() == 1:
         return jax.device_put(tree, sharding)
 
     def place(x):
@@ -92,7 +86,7 @@ def gather(tree: Any) -> Any:
     """NumPy copies of (possibly global, sharded) arrays, on every process."""
     import jax
 
-    if not multi_process():
+    if jax.process_count() == 1:
         return jax.device_get(tree)
     from jax.experimental import multihost_utils
 
@@ -106,7 +100,9 @@ def gather(tree: Any) -> Any:
 
 def any_process(flag: bool) -> bool:
     """True on every process if ``flag`` is true on any (a no-op with one process)."""
-    if not multi_process():
+    import jax
+
+    if jax.process_count() == 1:
         return flag
     from jax.experimental import multihost_utils
 
@@ -159,20 +155,15 @@ def launch_local(
         for p in procs:
             p.kill()
         raise
-    return wait_forwarding_signals(procs) if wait else procs
-
-
-def wait_forwarding_signals(procs: list[subprocess.Popen]) -> list[int]:
-    """Waits for every process, passing SIGINT and SIGTERM on to them; their exit codes.
-
-    Outside the main thread (where Python cannot handle signals) it only waits.
-    """
+    if not wait:
+        return procs
 
     def forward(signum: int, frame: object) -> None:
         for p in procs:
             if p.poll() is None:
                 p.send_signal(signum)
 
+    # Outside the main thread (where Python cannot handle signals) this only waits.
     with signals.handling(forward):
         while any(p.poll() is None for p in procs):
             # short waits: a signal that another thread took is handled here within 0.1 s

@@ -27,11 +27,6 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM)
 T = TypeVar("T")
 
 
-def raise_interrupt(signum: int, frame: object) -> None:
-    """A handler that treats SIGTERM as Ctrl-C (:class:`KeyboardInterrupt`)."""
-    raise KeyboardInterrupt
-
-
 class Stopped(Exception):
     """Raised at a safe point after a stop was requested."""
 
@@ -53,16 +48,13 @@ class StopRequest:
         if self.signum is not None:
             raise Stopped(signal.Signals(self.signum).name)
 
-    def request(self, signum: int) -> None:
-        """What the handler does; callable directly (tests, notebooks)."""
+    def request(self, signum: int, frame: object = None) -> None:
+        """The signal handler; callable directly (tests, notebooks)."""
         if self.signum is not None:
             raise KeyboardInterrupt
         self.signum = signum
         if self.on_signal:
             self.on_signal(signum)
-
-    def _handle(self, signum: int, frame: object) -> None:
-        self.request(signum)
 
     @contextlib.contextmanager
     def installed(self) -> Iterator[StopRequest]:
@@ -71,7 +63,7 @@ class StopRequest:
         outermost = self._installed == 0
         self._installed += 1
         try:
-            with handling(self._handle) if outermost else contextlib.nullcontext():
+            with handling(self.request) if outermost else contextlib.nullcontext():
                 yield self
         finally:
             self._installed -= 1
@@ -95,8 +87,8 @@ def handling(handler: Callable[[int, object], None]) -> Iterator[None]:
             signal.signal(sig, old)
 
 
-def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
-    """``fn()`` on a worker thread while this thread waits in short steps, so that signal
+def wait_interruptibly(fn: Callable[[], T]) -> T:
+    """``fn()`` on a worker thread while this thread waits in short steps (0.1 s), so that signal
     handlers run promptly (Python runs them only between bytecodes of the main thread).
 
     Exceptions of ``fn`` are re-raised here; a :class:`KeyboardInterrupt` raised by a handler
@@ -107,7 +99,7 @@ def wait_interruptibly(fn: Callable[[], T], poll_seconds: float = 0.1) -> T:
     future: Future = Future()
     _start(fn, future, background=False)
     while not future.done():
-        futures.wait([future], poll_seconds)
+        futures.wait([future], 0.1)
     return future.result()
 
 

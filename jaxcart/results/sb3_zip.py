@@ -24,8 +24,7 @@ import pickle
 import struct
 import zipfile
 from collections import OrderedDict
-from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -41,19 +40,17 @@ ADAM_DEFAULTS = {"betas": (0.9, 0.999), "weight_decay": 0}
 """``torch.optim.Adam``'s settings besides ``lr`` and ``eps`` (SB3's PPO optimizer) that its
 ``load_state_dict`` needs; it fills in the flags (``amsgrad``, ``maximize``, ``foreach``,
 ``fused``, ...) with their defaults itself."""
-_TORCH_ALIGNMENT = 64  # torch.save aligns each tensor record so it can be memory-mapped
+_TORCH_ALIGNMENT = 64  # torch.save aligns each record so it can be memory-mapped
 
 
-@dataclass(frozen=True)
-class Global:
+class Global(NamedTuple):
     """A class or function, named by module and attribute: pickled without importing it."""
 
     module: str
     name: str
 
 
-@dataclass(frozen=True)
-class TensorRef:
+class TensorRef(NamedTuple):
     """A float32 tensor of ``shape`` whose bytes are the archive's record ``data/{key}``."""
 
     key: str
@@ -98,26 +95,25 @@ def write_pickle(obj: object) -> bytes:
 
 def torch_save_bytes(obj: object, tensors: dict[str, np.ndarray]) -> bytes:
     """What ``torch.save(obj)`` writes, for ``obj`` made of :func:`write_pickle`'s types whose
-    :class:`TensorRef` keys name the float32 arrays in ``tensors``."""
+    :class:`TensorRef` keys name the float32 arrays in ``tensors``.
+
+    Each record is stored uncompressed, its data starting on a multiple of 64 bytes, padded as
+    torch pads (an extra field ``FB`` in the local header), so that it can be memory-mapped.
+    """
+    records = {"data.pkl": write_pickle(obj), "byteorder": b"little"}
+    for key, array in tensors.items():
+        records[f"data/{key}"] = np.ascontiguousarray(array, dtype="<f4").tobytes()
+    records["version"] = b"3\n"
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
-        _aligned_record(archive, "archive/data.pkl", write_pickle(obj))
-        _aligned_record(archive, "archive/byteorder", b"little")
-        for key, array in tensors.items():
-            data = np.ascontiguousarray(array, dtype="<f4").tobytes()
-            _aligned_record(archive, f"archive/data/{key}", data)
-        _aligned_record(archive, "archive/version", b"3\n")
+        for name, data in records.items():
+            info = zipfile.ZipInfo(f"archive/{name}", date_time=(1980, 1, 1, 0, 0, 0))
+            # the data follows the local header (30 bytes), the name and the extra's head
+            start = archive.fp.tell() + 30 + len(info.filename.encode()) + 4
+            pad = -start % _TORCH_ALIGNMENT
+            info.extra = b"FB" + struct.pack("<H", pad) + b"Z" * pad
+            archive.writestr(info, data, compress_type=zipfile.ZIP_STORED)
     return buffer.getvalue()
-
-
-def _aligned_record(archive: zipfile.ZipFile, name: str, data: bytes) -> None:
-    """One stored record whose data starts on a multiple of 64 bytes, padded as torch pads
-    (an extra field ``FB`` in the local header)."""
-    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
-    start = archive.fp.tell() + 30 + len(name.encode()) + 4  # local header, name, extra's head
-    pad = -start % _TORCH_ALIGNMENT
-    info.extra = b"FB" + struct.pack("<H", pad) + b"Z" * pad
-    archive.writestr(info, data, compress_type=zipfile.ZIP_STORED)
 
 
 def policy_state_dict(params: dict) -> OrderedDict[str, np.ndarray]:

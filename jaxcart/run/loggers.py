@@ -134,7 +134,7 @@ class Backend:
         self.config = json.loads(json.dumps(config, default=str))  # every value JSON-able
         self.log_dir = log_dir  # the folder shared with other runs (None: the library's own)
         # the name the logs go under: the run directory's
-        self.experiment = Path(out_dir).resolve().name or "jaxcart"
+        self.experiment = self.out_dir.resolve().name or "jaxcart"
         self.per_run: list[Any] = []  # each run's writer (TensorBoard) or W&B run
 
 
@@ -250,7 +250,7 @@ class SwanLabBackend(Backend):
         class FlushRecords(base):
             name = "jaxcart-flush-records"
 
-            def on_scalar_flush(self, scalar_records, *args, **kwargs) -> None:
+            def on_scalar_flush(self, *args, **kwargs) -> None:
                 store = getattr(getattr(backend.run, "_core", None), "_store", None)
                 if store is not None and hasattr(store, "ensure_flushed"):
                     store.ensure_flushed()
@@ -364,9 +364,6 @@ BACKENDS: dict[str, type[Backend]] = {
     WandbBackend.name: WandbBackend,
 }
 """Logger name -> backend class (tests may register more)."""
-
-LOGGER_NAMES = tuple(BACKENDS)
-"""The names :func:`make_logger` accepts (for the CLI's choices)."""
 
 _STOP = object()
 
@@ -499,7 +496,7 @@ class Logger(contextlib.AbstractContextManager):
         with contextlib.suppress(LoggerError):  # already reported on stderr
             self.close()
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type, *exc_info) -> None:
         try:
             self.close()
         except LoggerError:
@@ -537,7 +534,7 @@ def make_logger(
     """A :class:`Logger` writing to each named backend (``[]``: a logger that does nothing).
 
     Args:
-        names: backends, a subset of :data:`LOGGER_NAMES` (``"tensorboard"``, ``"swanlab"``,
+        names: backends, a subset of :data:`BACKENDS` (``"tensorboard"``, ``"swanlab"``,
             ``"wandb"``).
         out_dir: the run directory; each backend writes in its own subdirectory.
         run_names: one name per run (the ``R`` axis of the metrics), used as directory names.
@@ -564,7 +561,5 @@ def make_logger(
     for name in names:  # here, not first in a logger's thread: imports racing can deadlock
         if BACKENDS[name].module is not None:
             importlib.import_module(BACKENDS[name].module)
-    out_dir = Path(out_dir)
-    config = dict(config or {})
-    backends = [BACKENDS[n](out_dir, run_names, config, log_dir) for n in names]
+    backends = [BACKENDS[n](Path(out_dir), run_names, config or {}, log_dir) for n in names]
     return Logger(backends, len(run_names))
