@@ -31,8 +31,6 @@ from jaxcart.core.solved import EVAL_SEED, NUM_EVAL_EPISODES, is_solved
 from jaxcart.rundir import files, layout
 
 if TYPE_CHECKING:  # the modules that import JAX load once the options are read (--help: none)
-    from matplotlib.figure import Figure
-
     from jaxcart.rundir.policy import RunParams
 
     Run = tuple[Path, dict, list[tuple[str | float | None, RunParams]]]
@@ -293,8 +291,14 @@ def _write(
     each value), and ``robustness.png`` in ``--out``."""
     from jaxcart.results import figure  # matplotlib: only when drawn
     from jaxcart.rundir.directory import write_evaluation_dir
+    from jaxcart.rundir.reader import default_label
 
-    fig = None if iqms is None else _robustness_figure(runs, field, iqms, opts.episodes)
+    fig = None
+    if iqms is not None:  # drawn first: a figure that cannot be drawn leaves no directory
+        labels = [default_label(Path(run_dir), info) for run_dir, info, _ in runs]
+        env_ids = [info["config"].env for _, info, _ in runs]
+        values = [value for value, _ in runs[0][2]]
+        fig = figure.draw_robustness(field, values, labels, iqms, env_ids, IQM_TEXT, opts.episodes)
     opts.out.mkdir(parents=True)  # never an existing one: a race for it ends here, in one line
     written = []
     for k, ((run_dir, info, sources), rs) in enumerate(zip(runs, returns)):
@@ -353,30 +357,6 @@ def _record(run_dir: Path, info: dict, opts: EvaluateOptions, trained: RunParams
         },
         **extra,
     }
-
-
-def _robustness_figure(
-    runs: list[Run], field: str, iqms: list[list[stats.Estimate]], episodes: int
-) -> Figure:
-    """``robustness.png``: each run's IQM over seeds at each value of ``field``."""
-    from jaxcart.results.figure import draw_robustness
-    from jaxcart.rundir.reader import default_label
-
-    curves = [
-        (
-            default_label(Path(run_dir), info),
-            *np.array([[e.value, e.ci_low, e.ci_high] for e in iqm]).T,
-        )
-        for (run_dir, info, _), iqm in zip(runs, iqms)
-    ]
-    values = [value for value, _ in runs[0][2]]
-    env_id = runs[0][1]["config"].env
-    title = (
-        f"Greedy return in Gymnasium's {env_id} ({episodes} episodes per seed) against "
-        f"{field}: {IQM_TEXT}; band: that interval"
-    )
-    env_ids = [info["config"].env for _, info, _ in runs]
-    return draw_robustness(field, values, curves, title, env_ids)
 
 
 def _print_written(out: Path, written: list[Path], field: str | None) -> None:

@@ -435,10 +435,10 @@ def test_render_gif(backend, tmp_path):
 def test_gymnasium_and_pillow_frames_agree():
     if not render.pygame_available():
         pytest.skip("pygame is not installed")
-    gym_frames, ret, _ = render.render_frames(balancing_policy, 1, 10, backend="gymnasium")
-    own_frames, own_ret, _ = render.render_frames(balancing_policy, 1, 10, backend="pillow")
-    assert ret == own_ret == 10.0
-    for a, b in zip(gym_frames, own_frames):
+    gym = list(render.episode_frames(balancing_policy, 1, 10, backend="gymnasium"))
+    own = list(render.episode_frames(balancing_policy, 1, 10, backend="pillow"))
+    assert gym[-1][2] == own[-1][2] == 10.0
+    for (a, _, _), (b, _, _) in zip(gym, own):
         differ = (np.abs(a.astype(int) - b).max(-1) > 60).sum()
         assert differ < 150  # only anti-aliased edges differ (~3,400 drawn pixels)
 

@@ -516,13 +516,8 @@ def _limits(
 
 def _rows(comparison: Comparison, key: str) -> list[tuple[str, str, stats.Estimate]]:
     """``(colour, name, estimate)`` of each run that has an estimate of ``key``."""
-    pairs = zip(comparison.entries, comparison.runs, _styles(comparison))
+    pairs = zip(comparison.entries, comparison.runs, run_styles(len(comparison.entries)))
     return [(s["color"], e.name, st[key]) for e, st, s in pairs if st[key] is not None]
-
-
-def _styles(comparison: Comparison) -> list[dict]:
-    """Each compared run's :func:`run_styles` (as in ``python -m jaxcart.plot``'s figure)."""
-    return run_styles(len(comparison.entries))
 
 
 def _against_baseline(ax, comparison: Comparison, key: str) -> None:
@@ -547,7 +542,7 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
-    for entry, style in zip(comparison.entries, _styles(comparison)):
+    for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
         profile, low, high = stats.performance_profile_band(
             entry.scores, TAUS, comparison.reps, seed=comparison.seed, at_least=True
         )
@@ -564,7 +559,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
 
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
-    for entry, style in zip(comparison.entries, _styles(comparison)):
+    for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
         values = entry.train_return
         if values is None or not np.isfinite(values).any():
             continue
@@ -587,7 +582,7 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
 def _reached_panel(ax, comparison: Comparison) -> None:
     """Fraction of seeds in which a training episode had scored 500, by env steps."""
     reached_any = False
-    for entry, style in zip(comparison.entries, _styles(comparison)):
+    for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
         x = entry.run.env_steps
         first = entry.first_reached(x)
         if first is None:
@@ -665,21 +660,25 @@ def draw_comparison(comparison: Comparison) -> Figure:
 def draw_robustness(
     field: str,
     values: Sequence[float],
-    curves: Sequence[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
-    title: str,
+    labels: Sequence[str],
+    iqms: Sequence[Sequence[stats.Estimate]],
     env_ids: Sequence[str],
+    statistic: str,
+    episodes: int,
 ) -> Figure:
-    """``robustness.png``: one curve per run, ``(label, iqm, low, high)`` each ``[V]``: the
-    IQM over seeds of each seed's mean greedy return at each of ``values`` of the physics
-    ``field`` (``env.length``), its interval as a band; on a log axis when the values are
+    """``robustness.png``: one curve per run (``labels``), the IQM over seeds of each seed's
+    mean greedy return at each of ``values`` of the physics ``field`` (``env.length``) with
+    its interval (``iqms``, per run and value) as a band; on a log axis when the values are
     positive and span a factor of 4 or more. ``env_ids``: the env each run trained on (the
-    return axis is theirs, :func:`return_axis`)."""
+    return axis is theirs, :func:`return_axis`); ``statistic`` and ``episodes`` go into the
+    title."""
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullLocator
 
     fig = Figure(figsize=(9, 5.5), layout="constrained")
     ax = fig.add_subplot()
-    for style, (label, point, low, high) in zip(run_styles(len(curves)), curves):
+    for style, label, iqm in zip(run_styles(len(labels)), labels, iqms):
+        point, low, high = np.array([[e.value, e.ci_low, e.ci_high] for e in iqm]).T
         band(ax, values, point, low, high, marker="o", label=label, **style)
     if min(values) > 0 and max(values) >= 4 * min(values):
         ax.set_xscale("log", base=2)
@@ -689,5 +688,9 @@ def draw_robustness(
     ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return, IQM over seeds")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower left")
+    title = (
+        f"Greedy return in Gymnasium's {env_ids[0]} ({episodes} episodes per seed) against "
+        f"{field}: {statistic}; band: that interval"
+    )
     ax.set_title(textwrap.fill(title, 95), fontsize=10)
     return fig

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import io
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Literal, NamedTuple
 
@@ -69,34 +69,6 @@ def _check_options(max_steps: int, fps: float, frame_skip: int, scale: float) ->
         raise ValueError(f"scale must be in (0, 4], got {scale!r}")
 
 
-def render_frames(
-    policy: Callable[[np.ndarray], int],
-    seed: int = 0,
-    max_steps: int = 500,
-    backend: Literal["auto", "gymnasium", "pillow"] = "auto",
-    env_id: str = "CartPole-v1",
-    env_params: EnvParams | None = None,
-) -> tuple[list[np.ndarray], float, str]:
-    """Runs one greedy episode and yields its frames.
-
-    Args:
-        policy: maps a float32 observation ``(4,)`` to an action (e.g. :func:`jaxcart.load_policy`).
-        seed: ``env.reset(seed=seed)``.
-        max_steps: stop after this many steps even if the episode goes on.
-        backend: ``"gymnasium"`` (pygame), ``"pillow"``, or ``"auto"`` (pygame when installed).
-        env_params: the physics (default CartPole-v1's; e.g. ``policy.env_params`` of a
-            :func:`jaxcart.load_policy` policy).
-
-    Returns:
-        ``(frames, episode_return, backend)``: ``steps + 1`` frames ``(400, 600, 3)`` uint8 (the
-        reset state and the state after every step; 360 MB for 500 steps, so
-        :func:`render_gif` streams them instead).
-    """
-    backend = _backend(backend)
-    episode = list(_episode(policy, seed, max_steps, backend, env_id, env_params))
-    return [frame for frame, _, _ in episode], episode[-1][2], backend
-
-
 def _backend(backend: str) -> str:
     """``"gymnasium"`` or ``"pillow"``: ``backend``, with ``"auto"`` resolved and checked."""
     if backend not in ("auto", "gymnasium", "pillow"):
@@ -110,10 +82,21 @@ def _backend(backend: str) -> str:
     return "pillow"
 
 
-def _episode(policy, seed, max_steps, backend, env_id, env_params=None):
-    """Yields ``(frame [H, W, 3] uint8, steps, return so far)`` after the reset and after every
-    step of one episode in Gymnasium (``backend`` resolved: :func:`_backend`): frames from
-    Gymnasium's renderer, or drawn by the env's :attr:`~jaxcart.core.envs.Env.draw_frame`."""
+def episode_frames(
+    policy: Callable[[np.ndarray], int],
+    seed: int = 0,
+    max_steps: int = 500,
+    backend: Literal["auto", "gymnasium", "pillow"] = "auto",
+    env_id: str = "CartPole-v1",
+    env_params: EnvParams | None = None,
+) -> Iterator[tuple[np.ndarray, int, float]]:
+    """Runs one greedy episode of ``policy`` in Gymnasium and yields ``(frame [400, 600, 3]
+    uint8, steps, return so far)`` after the reset and after every step (``max_steps`` at
+    most): frames from Gymnasium's renderer (``backend="gymnasium"``, pygame) or drawn by
+    the env's :attr:`~jaxcart.core.envs.Env.draw_frame` (``"pillow"``); ``"auto"``: pygame
+    when installed. ``env_params``: the physics (default CartPole-v1's). One at a time:
+    500 steps' frames are 360 MB, so :func:`render_gif` streams them."""
+    backend = _backend(backend)
     draw = envs.make(env_id).draw_frame if backend == "pillow" else None  # the env's own
     if backend == "pillow" and draw is None:
         raise ValueError(f"env {env_id} draws no frames with Pillow; use backend='gymnasium'")
@@ -191,7 +174,7 @@ def render_gif(
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")
     backend, images = _backend(backend), []
-    episode = _episode(policy, seed, max_steps, backend, env_id, env_params)
+    episode = episode_frames(policy, seed, max_steps, backend, env_id, env_params)
 
     def add(frame: np.ndarray, steps: int, total: float) -> None:
         """The frame resized, captioned and mapped onto the GIF's palette (the first frame's)."""
