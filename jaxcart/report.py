@@ -243,9 +243,10 @@ def evaluation_columns_text(episodes: int) -> str:
 
 
 def summary_line(outcome: Outcome, wall_seconds: float) -> str:
-    """``solved 2/2 run(s) | wall ... | N env steps at M steps/s ... on D device(s)``; after a
-    resume, the times and steps are this session's, and say so, with the training time in
-    all added where the run records it."""
+    """``solved 2/2 run(s) | wall ... | N env steps at M steps/s ... on D device(s)``, with
+    ``(best policies 2/2)`` after the count when the runs kept their best; after a resume,
+    the times and steps are this session's, and say so, with the training time in all added
+    where the run records it."""
     ev = outcome.evaluation
     steps, run_s, compile_s = outcome.env_steps, outcome.train_seconds, outcome.compile_seconds
     train, session = f"train {run_s:.1f} s", ""
@@ -261,8 +262,12 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
         rate = (
             f" at {steps / run_s:,.0f} steps/s ({steps / (run_s + compile_s):,.0f} incl. compile)"
         )
+    kept = ""  # keep_best: the verdict of the policies a user takes away too
+    if ev.best_gym_returns is not None:
+        best = solved.is_solved(ev.best_gym_returns, ev.env)
+        kept = f" (best policies {int(best.sum())}/{len(best)})"
     return (
-        f"\nsolved {int(ev.solved.sum())}/{len(ev.solved)} run(s) | wall {wall_seconds:.1f} s "
+        f"\nsolved {int(ev.solved.sum())}/{len(ev.solved)} run(s){kept} | wall {wall_seconds:.1f} s "
         f"(compile {compile_s:.1f} s, {train}, eval {ev.seconds:.1f} s) | "
         f"{steps:,} env steps{session}{rate} on {outcome.num_devices} device(s)"
     )
@@ -270,16 +275,20 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
 
 def next_steps_text(outcome: Outcome) -> str:
     """The commands a user runs next on a finished run: its learning curves, a GIF of a
-    policy (the first solved seed, else seed 0; a sweep's best-ranked combination) and a
+    policy (the first solved seed, else seed 0; a sweep's best-ranked combination; each
+    seed's best policy when the run kept it) and a
     comparison (with another run; a sweep's combinations with each other). Paths are quoted
     for the shell."""
-    out, grid, q = outcome.run.out, outcome.run.grid, shlex.quote
-    run, solved_seeds = q(str(out)), outcome.evaluation.solved
+    out, grid, q, ev = outcome.run.out, outcome.run.grid, shlex.quote, outcome.evaluation
+    run, solved_seeds = q(str(out)), ev.solved
+    if ev.best_gym_returns is not None:  # keep_best: the best policies are what to watch
+        solved_seeds = solved.is_solved(ev.best_gym_returns, ev.env)
     if grid.is_sweep:
         best = outcome.ranking[0]["combination"] if outcome.ranking else 0
         solved_seeds = solved_seeds[grid.runs_of(best)]
     seed = int(np.argmax(solved_seeds))  # the first solved seed (none: seed 0)
     pick = f" --seed-index {seed}" if seed else ""
+    pick += " --policy best" if ev.best_gym_returns is not None else ""
     if grid.is_sweep:
         gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
         commands = [

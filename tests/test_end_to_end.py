@@ -1,4 +1,5 @@
-"""End to end: several seeds of the ``fast`` preset solve CartPole in Gymnasium's own env."""
+"""End to end: several seeds of the ``fast`` preset solve CartPole in Gymnasium's own env
+(the preset keeps each seed's best policy: those are the policies checked)."""
 
 from __future__ import annotations
 
@@ -33,15 +34,15 @@ def test_fast_preset_solves_cartpole_in_gymnasium(tmp_path, capsys):
         == 0
     )
     text = capsys.readouterr().out
-    assert "solved 4/4 run(s)" in text, text
+    assert "(best policies 4/4)" in text, text
     evaluation = json.loads((out / "evaluation.json").read_text())
-    assert evaluation["solved_seeds"] == 4
+    assert evaluation["best_solved_seeds"] == 4
     for seed in evaluation["seeds"]:
-        assert seed["gymnasium_returns"] == [500.0] * 20
+        assert seed["best"]["gymnasium_returns"] == [500.0] * 20
 
     # and independently of jaxcart's evaluation code: a plain Gymnasium loop with load_policy
     for seed_index in range(4):
-        policy = jaxcart.load_policy(out, seed_index)
+        policy = jaxcart.load_policy(out, seed_index, policy="best")
         env = gym.make("CartPole-v1")
         returns = []
         for episode in range(5):

@@ -660,6 +660,9 @@ def _finish(run: Run, blocks: list, options: RunOptions, outcome: Outcome) -> No
     }
     env = run.config.env
     outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"], env=env)
+    if run.config.keep_best:
+        best = [block.best["best_gym_returns"][take] for block, take in pieces]
+        outcome.evaluation.best_gym_returns = np.concatenate(best)
     timing |= {"devices": outcome.num_devices, "waves": len(blocks)}
     swept = run.grid.is_sweep
     for c, combo in enumerate(run.grid.combos or ({},)):

@@ -407,6 +407,7 @@ class Evaluation:
     jax_returns: np.ndarray  # in jaxcart's env
     seconds: float
     env: str = DEFAULT_ENV  # whose notion of solved applies
+    best_gym_returns: np.ndarray | None = None  # keep_best's policies, in gymnasium.make(env)
 
     @property
     def solved(self) -> np.ndarray:
