@@ -453,7 +453,7 @@ def wave_start_state(
         most = max(iterations, loop.default_chunk_size(iterations, 1))
         if state.chunk_size > most:
             raise RunDirError(
-                f"{run.directory.checkpoint_path} is corrupted: chunk_size {state.chunk_size} "
+                f"{run.directory.path / layout.CHECKPOINT_FILE} is corrupted: chunk_size {state.chunk_size} "
                 f"is more than the {most} iterations a chunk of this run can run"
             )
         run.directory.open_metrics(len(runs), state.iteration, columns)  # rows after it are cut

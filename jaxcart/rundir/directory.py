@@ -225,10 +225,6 @@ class RunDir:
         """``config.json``: ``info`` with ``config`` (:func:`~jaxcart.rundir.files.write_config`)."""
         files.write_config(self.manifest, {**info, "config": config.to_dict()})
 
-    @property
-    def checkpoint_path(self) -> Path:
-        return self.path / layout.CHECKPOINT_FILE
-
     def save_checkpoint(self, state: TrainState, meta: dict) -> None:
         """Writes a (gathered) training state and its ``meta`` over the last checkpoint,
         once the metrics stream holds (durably) as many rows as the state has iterations;
