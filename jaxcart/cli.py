@@ -232,13 +232,14 @@ MAX_COUNT = 2**63 - 1
 """The largest count :func:`count` accepts (a 64-bit integer)."""
 
 
-def count(text: str, maximum: int = MAX_COUNT) -> int:
+def count(text: str, maximum: int = MAX_COUNT, minimum: int = 1) -> int:
     """A positive integer as a user writes one: ``100000``, ``100_000``, ``1e5`` or ``1.5e5``
-    (an argparse ``type``; :func:`bounded_count` gives one with another ``maximum``).
+    (an argparse ``type``; :func:`bounded_count` gives one with another ``maximum``, and
+    ``minimum=0`` one that may be 0, as ``--eval-every 0`` turns the evaluations off).
 
     Raises:
-        argparse.ArgumentTypeError: not a number, not whole (``1.5e0``), not positive, or
-            over ``maximum``.
+        argparse.ArgumentTypeError: not a number, not whole (``1.5e0``), under ``minimum``,
+            or over ``maximum``.
     """
     try:
         value = decimal.Decimal(text.strip())
@@ -248,8 +249,9 @@ def count(text: str, maximum: int = MAX_COUNT) -> int:
         raise argparse.ArgumentTypeError(
             f"expected a whole number (such as 4, 100_000 or 1e5), got {text!r}"
         )
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    if value < minimum:
+        least = "a positive integer" if minimum == 1 else f"an integer of at least {minimum}"
+        raise argparse.ArgumentTypeError(f"must be {least}, got {text}")
     if value > maximum:  # int() of 1e999999999 would take the memory of a billion digits
         shown = f"{maximum:.3g}" if maximum == MAX_COUNT else f"{maximum:,}"
         raise argparse.ArgumentTypeError(f"must be at most {shown}, got {text}")

@@ -12,6 +12,7 @@ checkpoint.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
@@ -91,6 +92,8 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
             kwargs["action"] = argparse.BooleanOptionalAction
         else:
             kwargs["type"], kwargs["metavar"] = CONFIG_TYPES[f.type]
+        if f.type == "int" and f.metadata.get("minimum") == 0:  # 0 turns it off
+            kwargs["type"] = functools.partial(cli.count, minimum=0)
         group.add_argument(flag, **kwargs)
 
 

@@ -653,7 +653,10 @@ def validate(config: PPOConfig) -> None:
         raise ConfigError(str(exc), "env") from None
     _validate_metrics(c.metrics)
     if c.keep_best and not c.eval_every:
-        raise ConfigError("keep_best needs eval_every: give the iterations between evaluations")
+        raise ConfigError(
+            "keep_best needs eval_every: give the iterations between evaluations, or turn "
+            "keep_best off (--no-keep-best)"
+        )
 
 
 MAX_CUSTOM_METRICS = 32
