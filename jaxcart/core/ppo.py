@@ -4,8 +4,8 @@
 2. Rollout (:func:`collect_rollout`): ``num_steps`` steps of ``num_envs`` envs under the policy.
 3. GAE (:func:`compute_gae`, applied by :func:`training_batch`): advantages and returns.
 4. The loss (:func:`ppo_loss`) on one minibatch.
-5. The update: one gradient step per minibatch (:func:`update_minibatch`), minibatches per
-   epoch (:func:`update_epoch`), ``update_epochs`` shuffled epochs (:func:`update_epochs`).
+5. The update: one gradient step per minibatch (:func:`update_minibatch`), ``update_epochs``
+   shuffled epochs of minibatches (:func:`update_epochs`).
 6. One training iteration (:func:`train_iteration`): 2 to 5, and the iteration's metrics
    (:func:`prepare_update`, the update, :func:`finish_iteration`).
 
@@ -25,7 +25,6 @@ global grad-norm clipping, Adam; its logged metrics keep SB3's names and definit
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -339,15 +338,6 @@ def update_minibatch(
     return (keep(params, new_params), keep(opt_state, new_opt_state), stop), aux
 
 
-def update_epoch(
-    carry: Carry, perm: Array, rows: Array, minibatch_step: Callable, config: PPOConfig
-) -> tuple[Carry, dict[str, Array]]:
-    """One pass over the packed batch ``rows [B, obs_dim + 4]`` in the order ``perm [B]``, as
-    ``num_minibatches`` gradient steps; loss terms ``[num_minibatches]``."""
-    shape = (config.num_minibatches, config.minibatch_size, rows.shape[-1])
-    return jax.lax.scan(minibatch_step, carry, rows[perm].reshape(shape))
-
-
 def update_epochs(
     params: dict,
     opt_state: optax.OptState,
@@ -369,9 +359,14 @@ def update_epochs(
         config=config,
         learning_rate=learning_rate,
     )
-    epoch = functools.partial(
-        update_epoch, rows=pack_batch(batch), minibatch_step=minibatch_step, config=config
-    )
+    rows = pack_batch(batch)  # [B, obs_dim + 4]
+    shape = (config.num_minibatches, config.minibatch_size, rows.shape[-1])
+
+    def epoch(carry: Carry, perm: Array) -> tuple[Carry, dict[str, Array]]:
+        """One pass over ``rows`` in the order ``perm [B]``, as ``num_minibatches`` gradient
+        steps; loss terms ``[num_minibatches]``."""
+        return jax.lax.scan(minibatch_step, carry, rows[perm].reshape(shape))
+
     perms = random_permutations(key, config.update_epochs, config.batch_size)
     if config.target_kl is None:
         (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), perms)

@@ -463,6 +463,9 @@ def _seed_problem(seed: dict, episodes: int | None, env_id: str) -> str | None:
     within = lambda values: (
         len(values) and all(finite_number(v) and low <= v <= high for v in values)
     )
+    best = seed.get("best")  # the best policy's own evaluation, when the run kept one
+    if isinstance(best, dict) and not finite_number(best.get("gymnasium_mean")):
+        return "has a best policy without a finite gymnasium_mean"
     mean = seed["gymnasium_mean"]
     if not within([mean]):
         return f"has gymnasium_mean {mean!r:.20}, outside {span}"
