@@ -12,7 +12,7 @@ import dataclasses
 import functools
 import sys
 from collections.abc import Callable
-from typing import IO, TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,12 +29,11 @@ class ProgressBar:
     training's (the evaluation after it is not counted).
 
     Args:
-        file: where a text bar goes (default stderr; a notebook's widget ignores it).
         enabled: ``False`` draws nothing (the hooks still track the run).
     """
 
-    def __init__(self, file: IO[str] | None = None, enabled: bool = True) -> None:
-        self.file, self.progress_bar = file, enabled
+    def __init__(self, enabled: bool = True) -> None:
+        self.progress_bar = enabled
         self.bar: Any = None
         self.run: Run | None = None
         self.wave_offset = 0
@@ -54,7 +53,7 @@ class ProgressBar:
             return  # a later wave (its program is cached): the bar goes on
         self.total = self.run.config.num_iterations * self.run.plan.num_waves
         initial = self.wave_offset + (self.run.resumed_from or 0)
-        self.bar = new_bar(self.total, "training", "it", self.file, initial)
+        self.bar = new_bar(self.total, "training", "it", initial)
 
     def on_chunk(self, progress: Progress) -> None:
         if self.bar is None:
@@ -71,13 +70,13 @@ class ProgressBar:
     def write(self, text: str) -> None:
         """A line above the bar (or on stderr without one)."""
         if self.bar is not None:
-            self.bar.write(text, file=self.file or sys.stderr)
+            self.bar.write(text, file=sys.stderr)
         else:
             print(text, file=sys.stderr, flush=True)
 
-    def hooks(self, base: Hooks | None = None) -> Hooks:
-        """These methods as the lifecycle's hooks, each called after ``base``'s (if any)."""
-        return chain_hooks(base, self)
+    def hooks(self) -> Hooks:
+        """These methods as the lifecycle's hooks."""
+        return chain_hooks(None, self)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -92,19 +91,16 @@ class SeedBars:
 
     Args:
         total: env steps each seed trains.
-        file, enabled: as for :class:`ProgressBar`.
     """
 
-    def __init__(self, total: int, file: IO[str] | None = None, enabled: bool = True) -> None:
-        self.total, self.file, self.enabled = total, file, enabled
+    def __init__(self, total: int) -> None:
+        self.total = total
         self.bars: dict[int, Any] = {}
 
     def update(self, seed: int, env_steps: int, ep_rew_mean: float = float("nan")) -> None:
         """Seed ``seed`` has trained ``env_steps`` steps (its bar starts at the first call)."""
-        if not self.enabled:
-            return
         if seed not in self.bars:
-            self.bars[seed] = new_bar(self.total, f"seed {seed}", "step", self.file)
+            self.bars[seed] = new_bar(self.total, f"seed {seed}", "step")
         bar = self.bars[seed]
         if ep_rew_mean == ep_rew_mean:  # not NaN: an episode has ended
             bar.set_postfix_str(f"ep_rew_mean {ep_rew_mean:.1f}", refresh=False)
@@ -123,8 +119,8 @@ class SeedBars:
         return next(iter(self.bars.values())).external_write_mode(file=sys.stdout)
 
 
-def new_bar(total: int, desc: str, unit: str, file: IO[str] | None = None, initial: int = 0):
-    """A ``tqdm.auto`` bar of ``total`` ``unit`` on ``file`` (default stderr)."""
+def new_bar(total: int, desc: str, unit: str, initial: int = 0):
+    """A ``tqdm.auto`` bar of ``total`` ``unit`` on stderr."""
     from tqdm.auto import tqdm
 
     return tqdm(
@@ -133,7 +129,7 @@ def new_bar(total: int, desc: str, unit: str, file: IO[str] | None = None, initi
         unit=unit,
         desc=desc,
         dynamic_ncols=True,
-        file=file or sys.stderr,
+        file=sys.stderr,
     )
 
 
