@@ -289,6 +289,7 @@ def next_steps_text(outcome: Outcome) -> str:
     seed = int(np.argmax(solved_seeds))  # the first solved seed (none: seed 0)
     pick = f" --seed-index {seed}" if seed else ""
     pick += " --policy best" if ev.best_gym_returns is not None else ""
+    kind = "best policy" if ev.best_gym_returns is not None else "policy"
     if grid.is_sweep:
         gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
         commands = [
@@ -306,7 +307,7 @@ def next_steps_text(outcome: Outcome) -> str:
         gif = q(str(out / f"seed{seed}.gif"))
         commands = [
             (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png"),
-            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s policy"),
+            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s {kind}"),
             (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
         ]
     if gif_refusal(outcome.run.config.env):  # no renderer for this env here

@@ -79,8 +79,18 @@ def test_best_policies_survive_waves_and_a_resume_and_reach_every_reader(tmp_pat
 
     hooks = Hooks(on_chunk=on_chunk, on_wave=lambda w, n, runs: waves.append(w))
     assert lifecycle.run_new(spec, tmp_path / "part", options, hooks, stop).stopped
-    lifecycle.resume_run(tmp_path / "part", options)
+    resumed = lifecycle.resume_run(tmp_path / "part", options)
     assert_same_run_dirs(tmp_path / "whole", tmp_path / "part")
+    # the console gives the best policies' verdict too, and watches a best policy next
+    from jaxcart import report
+
+    kept = whole.evaluation.best_gym_returns
+    assert kept.shape == (4, 2)
+    np.testing.assert_array_equal(resumed.evaluation.best_gym_returns, kept)
+    recorded = json.loads((tmp_path / "whole" / layout.EVALUATION_FILE).read_text())
+    line = report.summary_line(whole, 1.0)
+    assert f"(best policies {recorded['best_solved_seeds']}/4) |" in line, line
+    assert " --policy best --gif " in report.next_steps_text(whole)
     best = reader.load_params(tmp_path / "whole", policy="best")
     for x, y in zip(
         jax.tree.leaves(best),
