@@ -263,8 +263,7 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
             f" at {steps / run_s:,.0f} steps/s ({steps / (run_s + compile_s):,.0f} incl. compile)"
         )
     kept = ""  # keep_best: the verdict of the policies a user takes away too
-    if ev.best_gym_returns is not None:
-        best = solved.is_solved(ev.best_gym_returns, ev.env)
+    if (best := ev.best_solved) is not None:
         kept = f" (best policies {int(best.sum())}/{len(best)})"
     return (
         f"\nsolved {int(ev.solved.sum())}/{len(ev.solved)} run(s){kept} | wall {wall_seconds:.1f} s "
@@ -280,16 +279,14 @@ def next_steps_text(outcome: Outcome) -> str:
     comparison (with another run; a sweep's combinations with each other). Paths are quoted
     for the shell."""
     out, grid, q, ev = outcome.run.out, outcome.run.grid, shlex.quote, outcome.evaluation
-    run, solved_seeds = q(str(out)), ev.solved
-    if ev.best_gym_returns is not None:  # keep_best: the best policies are what to watch
-        solved_seeds = solved.is_solved(ev.best_gym_returns, ev.env)
+    kept = ev.best_solved is not None  # keep_best: the best policies are what to watch
+    run, solved_seeds = q(str(out)), ev.best_solved if kept else ev.solved
     if grid.is_sweep:
         best = outcome.ranking[0]["combination"] if outcome.ranking else 0
         solved_seeds = solved_seeds[grid.runs_of(best)]
     seed = int(np.argmax(solved_seeds))  # the first solved seed (none: seed 0)
-    pick = f" --seed-index {seed}" if seed else ""
-    pick += " --policy best" if ev.best_gym_returns is not None else ""
-    kind = "best policy" if ev.best_gym_returns is not None else "policy"
+    pick = (f" --seed-index {seed}" if seed else "") + (" --policy best" if kept else "")
+    kind = "best policy" if kept else "policy"
     if grid.is_sweep:
         gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
         commands = [

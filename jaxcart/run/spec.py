@@ -413,6 +413,13 @@ class Evaluation:
     def solved(self) -> np.ndarray:
         return is_solved(self.gym_returns, self.env)
 
+    @property
+    def best_solved(self) -> np.ndarray | None:
+        """Whether each run's kept best policy solved (None: the runs kept none)."""
+        if self.best_gym_returns is None:
+            return None
+        return is_solved(self.best_gym_returns, self.env)
+
 
 @dataclass
 class Outcome:
