@@ -176,9 +176,7 @@ def solved_text(comparison: Comparison) -> str:
 def report_text(comparison: Comparison) -> str:
     """Heading, table, matrix, arms and notes, as printed."""
     reps, seed, score = comparison.reps, comparison.seed, comparison.score
-    env_ids = sorted({e.run.env for e in comparison.entries})
-    where = f"gymnasium.make('{env_ids[0]}')" if len(env_ids) == 1 else "each run's env"
-    definition = score.definition.replace(f"gymnasium.make('{solved.DEFAULT_ENV}')", where)
+    definition = score.definition([e.run.env for e in comparison.entries])
     baseline = comparison.entries[comparison.baseline].name
     if comparison.arms:
         baseline = f"arm {comparison.arms[0]} (each run against its configuration's run)"

@@ -193,7 +193,7 @@ def results_text(outcome: Outcome) -> str:
         return (
             f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = {rule}):\n"
             f"{format_table(rows, header)}{ranking_lines(outcome.ranking)}\n"
-            f"{SWEEP_COLUMNS.format(score=score.definition)}\n"
+            f"{SWEEP_COLUMNS.format(score=score.definition([env_id]))}\n"
             f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
         )
     rows, header = evaluation_rows(outcome)

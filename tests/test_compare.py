@@ -294,6 +294,16 @@ def test_return_at_score(runs, tmp_path, capsys):
     assert "never reaches 100000 env steps" in one_line_error(capsys)
 
 
+def test_the_eval_score_names_the_runs_env():
+    """One wording of a score for every reader (the train sweep's ranking, compare's table,
+    its JSON and figure): ``eval`` names the env the runs were evaluated in."""
+    score = summary.Score.parse("eval")
+    assert "gymnasium.make('CartPole-v1')" in score.definition()
+    assert "gymnasium.make('Acrobot-v1')" in score.definition(["Acrobot-v1", "Acrobot-v1"])
+    assert "each run's env" in score.definition(["Acrobot-v1", "CartPole-v1"])
+    assert "100,000 env steps" in summary.Score.parse("return-at:100000").definition()
+
+
 def test_saturated_scores_are_said_out_loud(tmp_path, capsys):
     x, y = sb3_run(tmp_path / "x", 3, score=500.0), sb3_run(tmp_path / "y", 3, score=500.0)
     assert compare.main([str(x), str(y), "--out", str(tmp_path / "eval")]) == 0

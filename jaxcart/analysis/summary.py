@@ -33,7 +33,7 @@ numbers.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,14 +43,15 @@ from jaxcart.core.solved import DEFAULT_ENV, return_bounds
 RETURN_METRIC = "rollout/ep_rew_mean"
 """The learning curve the scores here read (a ``metrics.csv`` column)."""
 SCORES = {
-    "eval": "each seed's mean greedy return in gymnasium.make('CartPole-v1') (evaluation.json)",
+    "eval": "each seed's mean greedy return in {where} (evaluation.json)",
     "auc": "each seed's mean of rollout/ep_rew_mean over all iterations (area under its "
     "learning curve / env steps; no value, before the first episode ends or after a "
     "divergence, counts as the env's worst return)",
     "return-at": "each seed's rollout/ep_rew_mean at the first iteration at or past {steps:,} "
     "env steps (no value counts as the env's worst return)",
 }
-"""Each score's one-line definition (``return-at``'s is formatted with its steps)."""
+"""Each score's one-line definition (formatted with ``return-at``'s steps and the env:
+:meth:`Score.definition`)."""
 ADJUSTMENTS = ("none", "bonferroni")
 DEFINITIONS = {
     "score": "one number per seed, chosen by --score: eval, auc or return-at:STEPS",
@@ -182,9 +183,12 @@ class Score:
         """``eval``, ``auc`` or ``return-at:100000`` (as given to ``--score``)."""
         return self.name if self.steps is None else f"{self.name}:{self.steps}"
 
-    @property
-    def definition(self) -> str:
-        return SCORES[self.name].format(steps=self.steps)
+    def definition(self, env_ids: Sequence[str] = (DEFAULT_ENV,)) -> str:
+        """The score's one-line definition for runs of ``env_ids``: ``eval`` names the env
+        (``gymnasium.make('Acrobot-v1')``, or "each run's env" when they differ)."""
+        envs = sorted(set(env_ids))
+        where = f"gymnasium.make('{envs[0]}')" if len(envs) == 1 else "each run's env"
+        return SCORES[self.name].format(steps=self.steps, where=where)
 
     def compute(
         self,

@@ -645,7 +645,7 @@ def draw_comparison(comparison: Comparison) -> Figure:
     _matrix_panel(fig.add_subplot(grid[2, 8:12]), comparison)
     env_ids = sorted({entry.run.env for entry in comparison.entries})
     title = (
-        f"{', '.join(env_ids)}, {n} run(s); score = {score.label}: {score.definition}; "
+        f"{', '.join(env_ids)}, {n} run(s); score = {score.label}: {score.definition(env_ids)}; "
         f"{stats.CONFIDENCE:.0%} percentile bootstrap intervals over seeds"
     )
     if comparison.saturated:

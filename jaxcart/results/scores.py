@@ -304,7 +304,7 @@ class Comparison:
             ]
         return {
             "score": self.score.label,
-            "score_definition": self.score.definition,
+            "score_definition": self.score.definition([e.run.env for e in self.entries]),
             "saturated": self.saturated,
             "baseline": self.arms[0] if self.arms else names[self.baseline],
             "definitions": summary.DEFINITIONS,

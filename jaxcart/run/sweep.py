@@ -294,7 +294,7 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
             row.update({"group": g, **json_values(groups[g]), "group_combination": c})
     return {
         "score": score.label,
-        "score_definition": score.definition,
+        "score_definition": score.definition([run.env for run in runs]),
         "saturated": saturated(rows),
         "ranking": rows,
     }
