@@ -5,6 +5,7 @@ inputs (one line, exit code 2)."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -377,15 +378,53 @@ def test_figure_panels_share_one_score_axis_and_show_small_differences_small(
     location = [by_title[figure.ESTIMATE_TITLES[n]].get_xlim() for n in ("iqm", "median", "mean")]
     assert location[0] == location[1] == location[2]
     low, high = location[0]
-    assert high - low >= figure.MIN_SPAN and high <= 500 * 1.05 and low >= -500 * 0.05
+    least = figure.MIN_SPAN * 500  # a tenth of CartPole's returns, [0, 500]
+    assert high - low >= least and high <= 500 * 1.05 and low >= -500 * 0.05
+    titles = {title.format(target="500") for title in figure.ESTIMATE_TITLES.values()}
     for ax in fig.axes:  # every interval panel writes its numbers out
-        if ax.get_title() in figure.ESTIMATE_TITLES.values():
+        if ax.get_title() in titles:
             assert any("[" in t.get_text() for t in ax.texts)
 
-    # Two estimates 1.6 points apart near 500 get a panel at least MIN_SPAN wide within [0, 500].
+    # Two estimates 1.6 points apart near 500 get a panel at least 50 points wide within [0, 500].
     close = [stats.Estimate(498.4, 497.0, 499.5), stats.Estimate(500.0, 499.0, 500.0)]
-    low, high = figure._limits(close, 0.0, 500.0, include=498.4)
-    assert high - low >= figure.MIN_SPAN and high < 500 + 0.05 * figure.MIN_SPAN + 1
+    low, high = figure._limits(close, 0.0, 500.0, 498.4, 500.0)
+    assert high - low >= least and high < 500 + 0.05 * least + 1
+
+
+def test_acrobot_scores_are_read_against_its_own_returns(tmp_path, no_warnings):
+    """An env whose returns are negative (Acrobot-v1: [-500, 0], solved at -100): the
+    optimality gap and "reached" measure against -100, and every panel shows the scores."""
+    from jaxcart.results import figure
+    from jaxcart.rundir.reader import RunCurves
+
+    steps = np.arange(1.0, 5.0) * 1024
+
+    def entry(name: str, scores: list[float], reached_at: int) -> compare.runs.Entry:
+        best = np.full((len(steps), len(scores)), -300.0)
+        best[reached_at:] = -90.0  # a training episode at -90 from this iteration on
+        metrics = {"rollout/ep_rew_max": best, "rollout/ep_rew_mean": best - 20}
+        run = RunCurves(tmp_path / name, name, metrics, steps, None, len(scores), None)
+        run = dataclasses.replace(run, env="Acrobot-v1")
+        x = np.asarray(scores)
+        return compare.runs.Entry(run, x, solved=int((x >= -100).sum()), episodes=20)
+
+    a = entry("a", [-80.0, -90.0, -120.0, -85.0], 1)
+    b = entry("b", [-82.0, -95.0, -500.0, -81.0], 2)
+    comparison = compare.runs.build_comparison([a, b], reps=200)
+    assert comparison.runs[0]["optimality_gap"].value == pytest.approx(20 / 4)  # -120: 20 short
+    assert comparison.runs[1]["optimality_gap"].value == pytest.approx(400 / 4)
+    assert a.first_reached(steps).tolist() == [2048.0] * 4
+    text = compare.report_text(comparison)
+    assert "reached -100" in text and "gymnasium.make('Acrobot-v1')" in text
+    fig = figure.draw_comparison(comparison)
+    by_title = {ax.get_title(): ax for ax in fig.axes}
+    for name in ("IQM over seeds", "median over seeds", "mean over seeds"):
+        low, high = by_title[name].get_xlim()
+        assert -520 < low < -120 and -81 < high < 20, name
+    assert by_title["optimality gap: mean of -100 - score"].get_xlim()[1] > 100
+    profile = by_title["performance profile (eval); dot: fraction at -100"]
+    assert profile.get_xlim()[0] == -500
+    assert "a training episode at -100 (rollout/ep_rew_max)" in by_title
 
 
 @pytest.mark.parametrize(

@@ -72,7 +72,7 @@ DESCRIPTIONS = {
     "sbx-default": ("sbx (SB3's JAX port)", "sbx defaults, 80k steps"),
     "sbx-zoo": ("sbx (SB3's JAX port)", "rl-zoo3 tuned (SB3's): 8 envs, 100k steps"),
     "jaxcart-sb3": ("jaxcart", "`sb3` preset (SB3's defaults), 80k steps"),
-    "jaxcart-fast": ("jaxcart", "`fast` preset, 50k steps"),
+    "jaxcart-fast": ("jaxcart", "`fast` preset, 100k steps, each seed's best policy kept"),
     "jaxcart-purejaxrl": (
         "jaxcart running PureJaxRL's configuration",
         "`purejaxrl` preset (PureJaxRL's CartPole hyperparameters), 500k steps",

@@ -59,9 +59,11 @@ DEFINITIONS = {
     "mean": "mean over seeds",
     "median": "median over seeds (rliable's aggregate_median is the median over tasks of "
     "each task's mean: a different statistic)",
-    "optimality_gap": "mean over seeds of max(500 - score, 0)",
-    "solved": "fraction of seeds whose every greedy evaluation episode scored 500, with its "
-    "95% Wilson interval",
+    "optimality_gap": "mean over seeds of max(T - score, 0), T the env's solved return "
+    "(CartPole-v1: 500, Acrobot-v1: -100)",
+    "solved": "fraction of seeds solved by their env's rule (CartPole-v1: every greedy "
+    "evaluation episode scored 500; the others: the mean reached the env's reward_threshold), "
+    "with its 95% Wilson interval",
     "difference_iqm": "IQM of the run minus IQM of its baseline; bootstrap interval with the "
     "seeds of each run resampled independently",
     "probability_of_improvement": "P(X > Y) + 0.5 P(X = Y) over all pairs of a seed of run X "

@@ -6,6 +6,8 @@ MountainCar-v0: -110). Over :data:`NUM_EVAL_EPISODES` episodes whose resets are 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 
 DEFAULT_ENV = "CartPole-v1"
@@ -61,6 +63,20 @@ def is_solved(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> np.ndarray:
     if rule == "every":
         return (returns >= threshold).all(axis=-1)
     return returns.mean(axis=-1) >= threshold
+
+
+def solved_return(env_id: str = DEFAULT_ENV) -> float:
+    """The return that solves ``env_id`` (:data:`SOLVED_BY`'s threshold: 500 on CartPole-v1,
+    the ``reward_threshold`` on the others): what ``compare``'s optimality gap and its
+    "reached" (a training episode that scored it) measure against."""
+    return SOLVED_BY[env_id][1]
+
+
+def reached_label(env_ids: Iterable[str]) -> str:
+    """The solved return of ``env_ids`` as a column label: ``500``, ``-100``, or
+    ``threshold`` for envs whose thresholds differ."""
+    targets = {solved_return(env_id) for env_id in env_ids}
+    return f"{targets.pop():g}" if len(targets) == 1 else "threshold"
 
 
 def solved_definition(env_id: str = DEFAULT_ENV) -> str:

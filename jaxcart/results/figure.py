@@ -6,12 +6,14 @@ never pyplot, so the caller's backend is never changed).
 - :func:`draw_comparison`: ``compare.png``, the figure of a
   :class:`~jaxcart.results.scores.Comparison`. Top row: each run's IQM, median over seeds, mean
   and optimality gap with their intervals, each written out; IQM, median and mean share one
-  score axis, and no panel spans less than :data:`MIN_SPAN` points, so that a small difference
-  looks small. Middle: the IQM difference and ``P(X > Y)`` against the baseline, and the
-  performance profile (fraction of seeds scoring at least tau, the solved fraction marked at
-  500). Bottom: sample efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction
-  of seeds whose training had produced a 500 episode by env steps, and the all-pairs
-  ``P(X > Y)`` matrix. Wall time is left out: it depends on the machine and its load
+  score axis (the envs' range of returns: [0, 500] on CartPole-v1, [-500, 0] on Acrobot-v1),
+  and no panel spans less than a tenth of it (:data:`MIN_SPAN`), so that a small difference
+  looks small; the optimality gap is the shortfall from the env's solved return. Middle: the
+  IQM difference and ``P(X > Y)`` against the baseline, and the performance profile (fraction
+  of seeds scoring at least tau, the fraction at the solved return marked: 500 on CartPole-v1).
+  Bottom: sample efficiency (IQM across seeds of ``rollout/ep_rew_mean``), the fraction of
+  seeds whose training had produced an episode at the solved return by env steps, and the
+  all-pairs ``P(X > Y)`` matrix. Wall time is left out: it depends on the machine and its load
   (``python -m jaxcart.plot`` draws it).
 - :func:`draw_robustness`: ``robustness.png``, ``python -m jaxcart.evaluate --sweep``'s return
   against a physics value.
@@ -39,7 +41,7 @@ import numpy as np
 
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import RETURN_METRIC
-from jaxcart.core.solved import SOLVED_BY, return_bounds
+from jaxcart.core.solved import SOLVED_BY, reached_label, return_bounds, solved_return
 from jaxcart.rundir import files
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
@@ -440,20 +442,22 @@ def _draw_summary(ax, runs: list[RunCurves], styles: list[dict]) -> None:
     _text_below(ax, more, (0.0, 1.0), "axes fraction", tops[keep], size, "0.3")
 
 
-TAUS = np.linspace(0.0, stats.MAX_RETURN, 101)
+PROFILE_POINTS = 101
+"""Taus of a performance profile, evenly spaced over the envs' returns."""
 CURVE_POINTS = 100
 """Sample-efficiency curves are drawn at most at this many iterations (evenly spaced)."""
 CURVE_REPS = 1000
 """Resamples per point of a drawn band (the reported numbers use ``--reps``)."""
-MIN_SPAN = 0.1 * stats.MAX_RETURN
-"""The narrowest score range a panel shows, so that a difference of a few points between runs
-looks as small as it is, instead of filling the panel."""
+MIN_SPAN = 0.1
+"""The narrowest score range a panel shows, as a fraction of the envs' range of returns (50
+points on CartPole-v1), so that a difference of a few points between runs looks as small as
+it is, instead of filling the panel."""
 LABEL_SIZE = 10
 ESTIMATE_TITLES = {
     "iqm": "IQM over seeds",
     "median": "median over seeds",
     "mean": "mean over seeds",
-    "optimality_gap": "optimality gap: mean of 500 - score",
+    "optimality_gap": "optimality gap: mean of {target} - score",
 }
 
 
@@ -497,19 +501,33 @@ def _intervals(
     ax.grid(axis="x", alpha=0.3)
 
 
+def solved_return_label(comparison: Comparison) -> str:
+    """The compared runs' solved return as a label (``500``; ``threshold`` when their envs'
+    differ)."""
+    return reached_label(e.run.env for e in comparison.entries)
+
+
+def _score_range(comparison: Comparison) -> tuple[float, float]:
+    """The least and greatest return of the compared runs' envs: where a score can lie."""
+    bounds = [return_bounds(e.run.env) for e in comparison.entries]
+    return min(low for low, _ in bounds), max(high for _, high in bounds)
+
+
 def _limits(
-    estimates: list[stats.Estimate], lower: float | None, upper: float | None, include: float
+    estimates: list[stats.Estimate], lower: float, upper: float, include: float, span: float
 ) -> tuple[float, float]:
-    """An x range holding every interval and ``include``, at least :data:`MIN_SPAN` wide,
-    within ``[lower, upper]`` (where the score cannot go), with a margin for the bars' ends."""
+    """An x range holding every interval and ``include``, at least :data:`MIN_SPAN` of
+    ``span`` (the envs' range of returns) wide, within ``[lower, upper]`` (where the score
+    cannot go), with a margin for the bars' ends."""
+    least = MIN_SPAN * span
     low = min([include, *(e.ci_low for e in estimates)])
     high = max([include, *(e.ci_high for e in estimates)])
-    grow = max(MIN_SPAN - (high - low), 0.0) / 2
+    grow = max(least - (high - low), 0.0) / 2
     low, high = low - grow, high + grow
-    if lower is not None and low < lower:
-        low, high = lower, max(high, lower + MIN_SPAN)
-    if upper is not None and high > upper:
-        low, high = min(low, upper - MIN_SPAN), upper
+    if low < lower:
+        low, high = lower, max(high, lower + least)
+    if high > upper:
+        low, high = min(low, upper - least), upper
     margin = 0.04 * (high - low)
     return low - margin, high + margin
 
@@ -527,8 +545,9 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
     base = "its baseline arm's run" if comparison.arms else base
     if key == "difference_iqm":
         title, xlabel, zero = f"IQM difference from {base}", "IQM(run) - IQM(baseline)", 0.0
-        span = stats.MAX_RETURN  # a difference of scores in [0, 500]
-        xlim = rows and _limits([e for _, _, e in rows], -span, span, include=0.0)
+        low, high = _score_range(comparison)
+        span = high - low  # a difference of two scores in [low, high]
+        xlim = rows and _limits([e for _, _, e in rows], -span, span, 0.0, span)
     else:
         title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
         xlim = (-0.02, 1.02)
@@ -542,17 +561,22 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
+    least, most = _score_range(comparison)
+    reached = solved_return_label(comparison)
+    targets = sorted({solved_return(e.run.env) for e in comparison.entries})
+    taus = np.union1d(np.linspace(least, most, PROFILE_POINTS), targets)
     for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
         profile, low, high = stats.performance_profile_band(
-            entry.scores, TAUS, comparison.reps, seed=comparison.seed, at_least=True
+            entry.scores, taus, comparison.reps, seed=comparison.seed, at_least=True
         )
-        band(ax, TAUS, profile, low, high, label=entry.name, **style)
-        ax.plot([TAUS[-1]], [profile[-1]], "o", color=style["color"], ms=6)
+        band(ax, taus, profile, low, high, label=entry.name, **style)
+        at = np.searchsorted(taus, solved_return(entry.run.env))  # its env's solved return
+        ax.plot([taus[at]], [profile[at]], "o", color=style["color"], ms=6)
     ax.set(
-        title=f"performance profile ({score}); dot: fraction at 500",
+        title=f"performance profile ({score}); dot: fraction at {reached}",
         xlabel=f"score ({score}) tau",
         ylabel="fraction of seeds scoring >= tau",
-        xlim=(0, stats.MAX_RETURN * 1.02),
+        xlim=(least, most + 0.02 * (most - least)),
         ylim=(-0.02, 1.02),
     )
     _finish(ax, "", "lower left")
@@ -580,7 +604,9 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
 
 
 def _reached_panel(ax, comparison: Comparison) -> None:
-    """Fraction of seeds in which a training episode had scored 500, by env steps."""
+    """Fraction of seeds in which a training episode had scored the env's solved return
+    (500 on CartPole-v1), by env steps."""
+    reached = solved_return_label(comparison)
     reached_any = False
     for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
         x = entry.run.env_steps
@@ -591,13 +617,13 @@ def _reached_panel(ax, comparison: Comparison) -> None:
         x = np.r_[0.0, x[np.isfinite(x)]]
         ax.step(x, stats.fraction_reached(first, x), where="post", label=entry.name, **style)
     ax.set(
-        title="a training episode at 500 (rollout/ep_rew_max)",
+        title=f"a training episode at {reached} (rollout/ep_rew_max)",
         xlabel="env steps per seed",
         ylabel="fraction of seeds",
         ylim=(-0.02, 1.02),
     )
     if _finish(ax, "not recorded", "lower right") and not reached_any:
-        no_data(ax, "no seed's training reached 500")
+        no_data(ax, f"no seed's training reached {reached}")
 
 
 def _matrix_panel(ax, comparison: Comparison) -> None:
@@ -627,15 +653,17 @@ def draw_comparison(comparison: Comparison) -> Figure:
     grid = fig.add_gridspec(3, 12, height_ratios=[0.6 + 0.12 * n, 1, 1])
     score = comparison.score
     location = [st[name] for st in comparison.runs for name in ("iqm", "median", "mean")]
-    shared = _limits(location, 0.0, stats.MAX_RETURN, include=location[0].value)
+    low, high = _score_range(comparison)
+    shared = _limits(location, low, high, location[0].value, high - low)
     for k, (name, title) in enumerate(ESTIMATE_TITLES.items()):
         rows = _rows(comparison, name)
         # One score axis for IQM, median and mean, so that they read alike; the gap
-        # (500 - score) gets its own, as wide as theirs.
+        # (solved return - score) gets its own, as wide as theirs.
         xlim = shared
         if name == "optimality_gap":
-            xlim = _limits([e for _, _, e in rows], 0.0, stats.MAX_RETURN, include=0.0)
+            xlim = _limits([e for _, _, e in rows], 0.0, high - low, 0.0, high - low)
         ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
+        title = title.format(target=solved_return_label(comparison))
         _intervals(ax, rows, title, f"score ({score.label})", xlim)
     _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference_iqm")
     _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "probability_of_improvement")

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import os
 from collections.abc import Sequence
@@ -17,12 +18,26 @@ import numpy as np
 
 from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import RETURN_METRIC, Score
+from jaxcart.core.solved import reached_label, solved_return
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import RunCurves, load_runs
 
 REACHED_METRIC = "rollout/ep_rew_max"
-REACHED_DEFINITION = "first iteration in which a training episode scored 500 (rollout/ep_rew_max)"
+REACHED_DEFINITION = (
+    "first iteration in which a training episode scored {target} (rollout/ep_rew_max)"
+)
+"""Formatted with the solved return (:func:`reached_definition`)."""
+
+
+def reached_definition(env_ids: Sequence[str]) -> str:
+    """What "reached" means for runs of ``env_ids``: a training episode scored the env's
+    solved return (CartPole-v1: 500; Acrobot-v1: at least -100)."""
+    label = reached_label(env_ids)
+    target = label if label == "500" else f"at least {label}"
+    if label == "threshold":
+        target = "at least its env's solved return"
+    return REACHED_DEFINITION.format(target=target)
 
 
 class CompareError(ValueError):
@@ -49,11 +64,12 @@ class Entry:
 
     def first_reached(self, x: np.ndarray | None) -> np.ndarray | None:
         """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each
-        seed first scored 500, ``[num_seeds]`` (``inf``: never); None without the data."""
+        seed first scored its env's solved return (:func:`~jaxcart.core.solved.solved_return`:
+        500 on CartPole-v1), ``[num_seeds]`` (``inf``: never); None without the data."""
         best = self.run.metrics.get(REACHED_METRIC)
         if x is None or best is None or not np.isfinite(best).any():
             return None
-        return stats.first_at_least(best, x, stats.MAX_RETURN)
+        return stats.first_at_least(best, x, solved_return(self.run.env))
 
 
 def read_evaluation(
@@ -308,7 +324,7 @@ class Comparison:
             "saturated": self.saturated,
             "baseline": self.arms[0] if self.arms else names[self.baseline],
             "definitions": summary.DEFINITIONS,
-            "reached_500": REACHED_DEFINITION,
+            "reached_500": reached_definition([e.run.env for e in self.entries]),
             "confidence": stats.CONFIDENCE,
             "comparisons": {
                 "count": self.comparisons,
@@ -367,7 +383,10 @@ def build_comparison(
     runs = []
     for i, (x, e, ref) in enumerate(zip(scores, entries, references)):
         solved = None if e.solved is None else stats.wilson_interval(int(e.solved), x.size)
-        estimates = stats.bootstrap_cis(x, stats.ESTIMATORS, reps, seed=seed)
+        # the optimality gap: the mean shortfall from the run's env's solved return
+        gap = functools.partial(stats.optimality_gap, target=solved_return(e.run.env))
+        estimators = stats.ESTIMATORS | {"optimality_gap": gap}
+        estimates = stats.bootstrap_cis(x, estimators, reps, seed=seed)
         runs.append(
             {**estimates, "solved": solved, **against(x, scores[ref] if ref != i else None)}
         )
@@ -417,12 +436,13 @@ def comparison_notes(entries: list[Entry]) -> list[str]:
         )
     if len(entries) == 1:
         notes.append("one run only: nothing to compare it with (no probability of improvement)")
+    reached = reached_label(e.run.env for e in entries)
     evaluations = [e.name for e in entries if not e.run.metrics]  # evaluate --out's: no curves
     if evaluations:
         who = "every run is" if len(evaluations) == len(entries) else ", ".join(evaluations) + ":"
         notes.append(
             f"{who} an evaluation of a trained run (python -m jaxcart.evaluate --out): no "
-            "learning curves, so no sample efficiency and no steps to 500"
+            f"learning curves, so no sample efficiency and no steps to {reached}"
         )
     for e in entries:
         if e.solved is None:
@@ -434,7 +454,7 @@ def comparison_notes(entries: list[Entry]) -> list[str]:
         if e.first_reached(e.run.env_steps) is None:
             notes.append(
                 f"{e.name} did not record {REACHED_METRIC} (Stable-Baselines3 logs none): "
-                "left out of steps to 500"
+                f"left out of steps to {reached}"
             )
         if e.run.note:
             notes.append(f"{e.name}: {e.run.note}")

@@ -37,7 +37,10 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
     t0 = time.perf_counter()
     result = train(config, num_runs=num_seeds, seed=0, on_compiled=on_compiled)
     t1, c1 = time.perf_counter(), time.process_time()
-    params = jax.device_get(result.params)
+    # a preset that keeps each seed's best policy (keep_best) hands that one to the user
+    # (params_best.npz, `evaluate --policy best`): it is the one judged
+    kept = result.state.runners.best if config.keep_best else None
+    params = jax.device_get(result.params if kept is None else kept.params)
     data = {
         "num_seeds": num_seeds,
         "env_steps": int(result.env_steps),
@@ -48,6 +51,7 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
         "jax_devices": [str(d) for d in jax.devices()],
         "devices_used": result.num_devices,
         "config": config.to_dict(),
+        "policy": "best" if config.keep_best else "final",
     }
     # make_policy: the NumPy actor, taking the observations of config.env (6 for Acrobot)
     return data, make_policy(params, config, stacked=True)
