@@ -137,7 +137,8 @@ def child_main(args: argparse.Namespace) -> int:
     try:
         if kind not in RUNNERS:
             raise ValueError(f"unknown contender {args.child!r}")
-        data, policy = RUNNERS[kind](preset_name, num_seeds, args.quick, args.cache_dir)
+        budget = {"timesteps": args.timesteps} if args.timesteps else {}  # jaxcart, rejax
+        data, policy = RUNNERS[kind](preset_name, num_seeds, args.quick, args.cache_dir, **budget)
         data.update(evaluate_policy(policy, data["num_seeds"], env_of(args.child)))
         data["status"] = "ok"
         code = 0
@@ -187,6 +188,7 @@ def run_child(
     cache_dir: str | None,
     warm: bool,
     timeout: float,
+    timesteps: int | None = None,
 ) -> dict:
     """Runs ``name`` in a fresh ``python`` process; adds wall time, max RSS and CPU time from
     ``wait4`` to what the child reported. ``warm``: ``cache_dir`` already holds its programs."""
@@ -199,6 +201,8 @@ def run_child(
     cmd += ["--child-out", str(result_path.resolve())]
     if quick:
         cmd.append("--quick")
+    if timesteps:
+        cmd += ["--timesteps", str(timesteps)]
     if cache_dir:
         cmd += ["--cache-dir", cache_dir]
     env = dict(os.environ)
@@ -272,7 +276,9 @@ def run_contender(name: str, report: dict, args: argparse.Namespace, out: Path) 
         tmp = tempfile.mkdtemp(prefix=f"jaxcache-{name}-")
         runs = [(tmp, False), (tmp, True)]
     for cache_dir, warm in runs:
-        row = run_child(name, python, out, args.quick, cache_dir, warm, args.timeout)
+        row = run_child(
+            name, python, out, args.quick, cache_dir, warm, args.timeout, args.timesteps
+        )
         report["results"].append(row)
         if row.get("status") == "ok" and kind in ("rejax", "sbx"):
             package = {"rejax": "rejax", "sbx": "sbx-rl"}[kind]
@@ -361,6 +367,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--sbx-python", default=str(DEFAULT_SBX_PYTHON), help="interpreter with sbx installed"
     )
     parser.add_argument("--timeout", type=float, default=3600, help="seconds per contender")
+    parser.add_argument(
+        "--timesteps",
+        type=int,
+        default=None,
+        metavar="N",
+        help="env steps per seed for every contender, in place of its configuration's "
+        "(jaxcart and rejax contenders only): one point of a time-to-solve curve "
+        "(benchmarks.train_speed.budgets draws them)",
+    )
     lib.add_output_options(parser)
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--child-out", default=None, help=argparse.SUPPRESS)
@@ -410,6 +425,8 @@ def main(argv: list[str] | None = None) -> int:
         args.seeds = list(QUICK_SEEDS)
     groups = seeds_by_group(args)
     names = selected(contender_names(groups), args.only)
+    if args.timesteps and any(parse_name(n)[0] not in ("jaxcart", "rejax") for n in names):
+        raise SystemExit("--timesteps sets jaxcart and rejax contenders only; pick them --only")
     out = lib.output_dir(args.out)
     out.mkdir(parents=True, exist_ok=True)
     settings = {
@@ -423,6 +440,7 @@ def main(argv: list[str] | None = None) -> int:
         "rejax_python": args.rejax_python,
         "sbx_python": args.sbx_python,
         "eval_episodes": EVAL_EPISODES,
+        "timesteps": args.timesteps,
     }
     report = lib.new_report("train_speed", settings, names)
     for name in names:

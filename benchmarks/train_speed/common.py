@@ -82,7 +82,7 @@ DESCRIPTIONS = {
         "rejax",
         "rejax's CartPole config (configs/gymnax/cartpole.yaml), 100k steps",
     ),
-    "jaxcart-acrobot": ("jaxcart", "Acrobot-v1: `acrobot` preset, 300k steps"),
+    "jaxcart-acrobot": ("jaxcart", "Acrobot-v1: `acrobot` preset, 153,600 steps"),
     "rejax-acrobot": (
         "rejax",
         "Acrobot-v1: rejax's Acrobot config (configs/gymnax/acrobot.yaml), 100k steps",

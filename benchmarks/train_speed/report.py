@@ -263,10 +263,20 @@ def time_to_solve_section(report: dict) -> list[str]:
             "checked against rejax's own actor on sampled observations inside the timed "
             "process (under a second; `policy_check_seconds` in the JSON)."
         )
-    if any(group_of(r["contender"]) == "jaxcart-acrobot" for r in rows):
+    acrobot = [r for r in rows if group_of(r["contender"]) == "jaxcart-acrobot"]
+    if acrobot:
+        c = acrobot[0].get("config") or {}  # the preset as the contender trained it
+        steps = acrobot[0]["env_steps"] // acrobot[0]["num_seeds"]
+        shape = (
+            f" ({c['num_envs']} envs x {c['num_steps']} steps, {steps:,} steps, "
+            f"{c['update_epochs']} epochs of minibatch "
+            f"{c['minibatch_size']}, {'-'.join(map(str, c['hidden_sizes']))} "
+            f"{c['activation']}, lr {c['learning_rate']:g} annealed, entropy {c['ent_coef']:g})"
+            if c
+            else ""
+        )
         out.append(
-            "- jaxcart's `acrobot` preset: `python -m jaxcart.train --env Acrobot-v1 --preset "
-            "acrobot` (16 envs x 64 steps, 300,032 steps, lr 2.5e-3 annealed, entropy 0.01), "
+            f"- jaxcart's `acrobot` preset: `python -m jaxcart.train --preset acrobot`{shape}, "
             "on gymnax's Acrobot-v1."
         )
     out += [

@@ -10,8 +10,15 @@ import time
 from benchmarks.train_speed.common import QUICK_TIMESTEPS, configure_jax_cache
 
 
-def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
-    """``jaxcart.engine.loop.train(preset(preset_name), num_seeds, seed=0)``.
+def run(
+    preset_name: str,
+    num_seeds: int,
+    quick: bool,
+    cache_dir: str | None,
+    timesteps: int | None = None,
+):
+    """``jaxcart.engine.loop.train(preset(preset_name), num_seeds, seed=0)``, for
+    ``timesteps`` env steps per seed when given (the preset's otherwise).
 
     Returns:
         ``(data, policy)``: the timings and settings, and the seeds' stacked greedy policy
@@ -28,6 +35,8 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
     from jaxcart.rundir.policy import make_policy
 
     overrides = {"total_timesteps": QUICK_TIMESTEPS[preset_name]} if quick else {}
+    if timesteps:
+        overrides = {"total_timesteps": timesteps}
     config = preset(preset_name, **overrides)
     marks = {}
 

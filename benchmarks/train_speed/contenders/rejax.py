@@ -192,9 +192,16 @@ def check_policy(algo, ts, policy, env_id: str) -> float:
     return agree
 
 
-def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
+def run(
+    preset_name: str,
+    num_seeds: int,
+    quick: bool,
+    cache_dir: str | None,
+    timesteps: int | None = None,
+):
     """Trains ``num_seeds`` rejax PPO agents at SB3's settings (``preset_name`` ``sb3``) or at
-    rejax's own CartPole or Acrobot configuration (``cartpole``, ``acrobot``), and checks the
+    rejax's own CartPole or Acrobot configuration (``cartpole``, ``acrobot``), for
+    ``timesteps`` env steps each when given (the configuration's otherwise), and checks the
     normalised greedy policy taken out of them (Acrobot's) against rejax's own actor
     (:func:`check_policy`, timed apart as ``policy_check_seconds``, inside the process's wall
     time).
@@ -224,6 +231,8 @@ def run(preset_name: str, num_seeds: int, quick: bool, cache_dir: str | None):
     if preset_name not in configs:
         raise ValueError(f"unknown rejax configuration {preset_name!r}")
     config = configs[preset_name](quick)
+    if timesteps:  # one evaluation period still spans the run (see own_config)
+        config = dict(config, total_timesteps=timesteps, eval_freq=timesteps)
     t0 = time.perf_counter()
     algo = PPO.create(**config)
     algo = algo.replace(eval_callback=lambda algo, ts, rng: jnp.zeros(()))
