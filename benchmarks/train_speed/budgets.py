@@ -22,14 +22,16 @@ STEM = "time_to_solve.json"
 
 
 def read_points(dirs: list[Path]) -> dict[str, list[dict]]:
-    """Contender group -> its rows (``status`` ok) across ``dirs``, by process wall time."""
+    """Contender group -> its rows (``status`` ok) across ``dirs``, by env steps per seed."""
     points: dict[str, list[dict]] = {}
     for d in dirs:
         report = json.loads((d / STEM).read_text())
         for row in report["results"]:
             if row.get("status") == "ok":
                 points.setdefault(group_of(row["contender"]), []).append(row)
-    return {g: sorted(rows, key=lambda r: r["process_wall_seconds"]) for g, rows in points.items()}
+    return {
+        g: sorted(rows, key=lambda r: r["env_steps"] / r["num_seeds"]) for g, rows in points.items()
+    }
 
 
 def table(points: dict[str, list[dict]]) -> str:
