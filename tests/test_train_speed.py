@@ -139,3 +139,37 @@ def test_acrobot_rows_compare_with_rejax_on_acrobot_not_with_sb3(ts):
     # at the same seeds as the reference (setup + train 58 s against 28 s)
     ratio = [line for line in text.splitlines() if line.startswith("| jaxcart acrobot x64")][-1]
     assert ratio.split(" | ")[1:5] == ["-", "-", "-", ts.lib.format_ratio(58 / 28)]
+
+
+def test_a_step_budget_goes_to_jaxcart_and_rejax_only(ts, tmp_path):
+    """``--timesteps N``: one point of the time-to-solve curve; other tools are refused before
+    anything runs, and the budget reaches the children's command line."""
+    argv = ["--only", "sb3", "--timesteps", "1000", "--out", str(tmp_path)]
+    with pytest.raises(SystemExit, match="--timesteps sets jaxcart and rejax contenders only"):
+        ts.main(argv)
+    args = ts.build_parser().parse_args(["--timesteps", "51200"])
+    assert args.timesteps == 51200
+
+
+def test_the_budget_curve_reads_every_budgets_rows(tmp_path):
+    """``benchmarks.train_speed.budgets``: one point per contender and budget, by env steps."""
+    import json
+
+    from benchmarks.train_speed import budgets
+
+    def row(name: str, steps: int, wall: float, solved: int) -> dict:
+        return {
+            "contender": name, "status": "ok", "env_steps": 64 * steps, "num_seeds": 64,
+            "process_wall_seconds": wall, "compile_seconds": 10.0, "train_seconds": wall / 2,
+            "solved": solved, "env_id": "Acrobot-v1",
+        }  # fmt: skip
+
+    for budget, (wall, solved) in {102400: (43.0, 59), 51200: (50.0, 16)}.items():
+        (tmp_path / str(budget)).mkdir()
+        rows = [row("jaxcart-acrobot-x64", budget, wall, solved), {"status": "failed"}]
+        (tmp_path / str(budget) / budgets.STEM).write_text(json.dumps({"results": rows}))
+    points = budgets.read_points([tmp_path / "102400", tmp_path / "51200"])
+    assert [r["solved"] for r in points["jaxcart-acrobot"]] == [16, 59]  # by env steps
+    assert "| jaxcart | 51,200 | 50.0 | 10.0 | 25.0 | 16/64 |" in budgets.table(points)
+    budgets.draw(points, tmp_path / "curve.png")
+    assert (tmp_path / "curve.png").stat().st_size > 0
