@@ -79,7 +79,7 @@ def table(comparison: Comparison) -> str:
     """The terminal table: one row per run, split so that it fits 100 columns; names longer
     than :data:`NAME_WIDTH` are numbered in it and listed under it."""
     reference = f"{comparison.arms[0]} same config" if comparison.arms else "baseline"
-    reached = solved.reached_label(e.run.env for e in comparison.entries)
+    reached = comparison.reached
     counts = [len(entry.scores) for entry in comparison.entries]
     ci = f"{100 * comparison.confidence:.3g}% CI"  # wider with --adjust bonferroni
     if stats.interval_label(counts) != f"{stats.CONFIDENCE:.0%} CI":  # too few seeds for one
@@ -153,7 +153,7 @@ def solved_text(comparison: Comparison) -> str:
     """What solved, opt. gap and reached mean for the compared runs' envs: each env's rule
     and its solved return (:data:`jaxcart.core.solved.SOLVED_BY`), which the opt. gap and
     reached measure against."""
-    env_ids = {e.run.env for e in comparison.entries}  # the envs judged by their mean first:
+    env_ids = set(comparison.env_ids)  # the envs judged by their mean first:
     env_ids = sorted(env_ids, key=lambda env_id: (solved.SOLVED_BY[env_id][0] != "mean", env_id))
     reached = solved.reached_label(env_ids)
     after = (
@@ -178,7 +178,7 @@ def solved_text(comparison: Comparison) -> str:
 def report_text(comparison: Comparison) -> str:
     """Heading, table, matrix, arms and notes, as printed."""
     reps, seed, score = comparison.reps, comparison.seed, comparison.score
-    definition = score.definition([e.run.env for e in comparison.entries])
+    definition = score.definition(comparison.env_ids)
     baseline = comparison.entries[comparison.baseline].name
     if comparison.arms:
         baseline = f"arm {comparison.arms[0]} (each run against its configuration's run)"

@@ -312,9 +312,7 @@ def test_compare_states_each_envs_notion_of_solved():
     from jaxcart.compare import solved_text
 
     def comparison(*env_ids):
-        return SimpleNamespace(
-            entries=[SimpleNamespace(run=SimpleNamespace(env=e)) for e in env_ids]
-        )
+        return SimpleNamespace(env_ids=list(env_ids))
 
     assert solved_text(comparison("CartPole-v1")).startswith(
         "solved: every greedy episode scored 500"

@@ -167,7 +167,8 @@ def test_the_budget_curve_reads_every_budgets_rows(tmp_path):
     for budget, (wall, solved) in {102400: (43.0, 59), 51200: (50.0, 16)}.items():
         (tmp_path / str(budget)).mkdir()
         rows = [row("jaxcart-acrobot-x64", budget, wall, solved), {"status": "failed"}]
-        (tmp_path / str(budget) / budgets.STEM).write_text(json.dumps({"results": rows}))
+        path = tmp_path / str(budget) / f"{budgets.TIME_TO_SOLVE_STEM}.json"
+        path.write_text(json.dumps({"results": rows}))
     points = budgets.read_points([tmp_path / "102400", tmp_path / "51200"])
     assert [r["solved"] for r in points["jaxcart-acrobot"]] == [16, 59]  # by env steps
     assert "| jaxcart | 51,200 | 50.0 | 10.0 | 25.0 | 16/64 |" in budgets.table(points)

@@ -78,6 +78,7 @@ from benchmarks.train_speed.common import (
     EVAL_EPISODES,
     GROUPS,
     OPT_IN_GROUPS,
+    TIME_TO_SOLVE_STEM,
     ChildUnavailable,
     contender_names,
     default_groups,
@@ -99,7 +100,6 @@ DEFAULT_REJAX_PYTHON = lib.REPO_ROOT / "benchmarks" / ".venv-rejax" / "bin" / "p
 DEFAULT_SBX_PYTHON = lib.REPO_ROOT / "benchmarks" / ".venv-sbx" / "bin" / "python"
 UNAVAILABLE_EXIT = 3
 STEM = "train_speed"
-TIME_TO_SOLVE_STEM = "time_to_solve"  # --time-to-solve leaves train_speed.* as they are
 
 # Each kind's run(preset_name, num_seeds, quick, cache_dir) -> (data, greedy policy).
 RUNNERS = {

@@ -16,16 +16,14 @@ import argparse
 import json
 from pathlib import Path
 
-from benchmarks.train_speed.common import DESCRIPTIONS, group_of
-
-STEM = "time_to_solve.json"
+from benchmarks.train_speed.common import DESCRIPTIONS, TIME_TO_SOLVE_STEM, group_of
 
 
 def read_points(dirs: list[Path]) -> dict[str, list[dict]]:
     """Contender group -> its rows (``status`` ok) across ``dirs``, by env steps per seed."""
     points: dict[str, list[dict]] = {}
     for d in dirs:
-        report = json.loads((d / STEM).read_text())
+        report = json.loads((d / f"{TIME_TO_SOLVE_STEM}.json").read_text())
         for row in report["results"]:
             if row.get("status") == "ok":
                 points.setdefault(group_of(row["contender"]), []).append(row)

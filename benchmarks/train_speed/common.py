@@ -57,6 +57,7 @@ GROUPS = (
 )
 # Groups on another env than CartPole-v1 (trained there and evaluated in Gymnasium's env of
 # the same id); every other group is CartPole-v1's.
+TIME_TO_SOLVE_STEM = "time_to_solve"  # --time-to-solve's report (train_speed.* left as they are)
 ENV_IDS = {"jaxcart-acrobot": "Acrobot-v1", "rejax-acrobot": "Acrobot-v1"}
 # Groups that run only when asked for by name (``--only jaxcart-acrobot``, ``--seeds-for
 # rejax-acrobot=64``), so the CartPole tables and ``--only jaxcart`` stay as they were.

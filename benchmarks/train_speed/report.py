@@ -166,9 +166,11 @@ def ratio_rows(rows: list[dict], sb3: dict | None) -> list[list[str]]:
 
 
 def config_cell(r: dict) -> str:
-    """What a time-to-solve row ran: the group's configuration, and how S > 1 seeds of a
-    one-seed tool were spread over processes."""
+    """What a time-to-solve row ran: the group's configuration (at another step budget with
+    ``--timesteps``), and how S > 1 seeds of a one-seed tool were spread over processes."""
     text = DESCRIPTIONS[group_of(r["contender"])][1]
+    if r.get("timesteps"):  # --timesteps: another budget than the configuration's
+        text += f", run for {r['env_steps'] // r['num_seeds']:,} steps (--timesteps)"
     if r["contender"] == "sb3":
         text += ", torch's default threads"
     if r["num_seeds"] > 1 and parse_name(r["contender"])[0] in PROCESS_KINDS:
@@ -209,7 +211,12 @@ def time_to_solve_row(r: dict, ref: dict | None) -> list:
 
 def time_to_solve_section(report: dict) -> list[str]:
     """The time-to-solve table (cold runs, by seed count then tool) and its notes."""
-    rows = [r for r in report["results"] if r.get("status") == "ok" and not r["warm_cache"]]
+    budget = report["settings"].get("timesteps")  # --timesteps: every row ran that budget
+    rows = [
+        {**r, "timesteps": budget}
+        for r in report["results"]
+        if r.get("status") == "ok" and not r["warm_cache"]
+    ]
     # CartPole rows first, then each other env's, each by seed count then tool
     rows.sort(
         key=lambda r: (

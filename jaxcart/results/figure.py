@@ -41,7 +41,7 @@ import numpy as np
 
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import RETURN_METRIC
-from jaxcart.core.solved import SOLVED_BY, reached_label, return_bounds, solved_return
+from jaxcart.core.solved import SOLVED_BY, return_bounds, solved_return
 from jaxcart.rundir import files
 
 if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn, JAX when runs are read
@@ -501,15 +501,9 @@ def _intervals(
     ax.grid(axis="x", alpha=0.3)
 
 
-def solved_return_label(comparison: Comparison) -> str:
-    """The compared runs' solved return as a label (``500``; ``threshold`` when their envs'
-    differ)."""
-    return reached_label(e.run.env for e in comparison.entries)
-
-
 def _score_range(comparison: Comparison) -> tuple[float, float]:
     """The least and greatest return of the compared runs' envs: where a score can lie."""
-    bounds = [return_bounds(e.run.env) for e in comparison.entries]
+    bounds = [return_bounds(env_id) for env_id in comparison.env_ids]
     return min(low for low, _ in bounds), max(high for _, high in bounds)
 
 
@@ -562,8 +556,8 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
     least, most = _score_range(comparison)
-    reached = solved_return_label(comparison)
-    targets = sorted({solved_return(e.run.env) for e in comparison.entries})
+    reached = comparison.reached
+    targets = sorted({solved_return(env_id) for env_id in comparison.env_ids})
     taus = np.union1d(np.linspace(least, most, PROFILE_POINTS), targets)
     for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
         profile, low, high = stats.performance_profile_band(
@@ -600,13 +594,13 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
         ylabel=RETURN_METRIC,
     )
     _finish(ax, f"{RETURN_METRIC} not recorded", "lower right")
-    return_axis(ax, [entry.run.env for entry in comparison.entries])
+    return_axis(ax, comparison.env_ids)
 
 
 def _reached_panel(ax, comparison: Comparison) -> None:
     """Fraction of seeds in which a training episode had scored the env's solved return
     (500 on CartPole-v1), by env steps."""
-    reached = solved_return_label(comparison)
+    reached = comparison.reached
     reached_any = False
     for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
         x = entry.run.env_steps
@@ -663,7 +657,7 @@ def draw_comparison(comparison: Comparison) -> Figure:
         if name == "optimality_gap":
             xlim = _limits([e for _, _, e in rows], 0.0, high - low, 0.0, high - low)
         ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
-        title = title.format(target=solved_return_label(comparison))
+        title = title.format(target=comparison.reached)
         _intervals(ax, rows, title, f"score ({score.label})", xlim)
     _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference_iqm")
     _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "probability_of_improvement")
@@ -671,7 +665,7 @@ def draw_comparison(comparison: Comparison) -> Figure:
     _sample_efficiency_panel(fig.add_subplot(grid[2, 0:4]), comparison)
     _reached_panel(fig.add_subplot(grid[2, 4:8]), comparison)
     _matrix_panel(fig.add_subplot(grid[2, 8:12]), comparison)
-    env_ids = sorted({entry.run.env for entry in comparison.entries})
+    env_ids = sorted(set(comparison.env_ids))
     title = (
         f"{', '.join(env_ids)}, {n} run(s); score = {score.label}: {score.definition(env_ids)}; "
         f"{stats.CONFIDENCE:.0%} percentile bootstrap intervals over seeds"

@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import RETURN_METRIC, Score
-from jaxcart.core.solved import reached_label, solved_return
+from jaxcart.core.solved import reached_label, return_bounds, solved_return
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import RunCurves, load_runs
@@ -32,12 +32,13 @@ REACHED_DEFINITION = (
 
 def reached_definition(env_ids: Sequence[str]) -> str:
     """What "reached" means for runs of ``env_ids``: a training episode scored the env's
-    solved return (CartPole-v1: 500; Acrobot-v1: at least -100)."""
+    solved return (CartPole-v1: 500, its best return; Acrobot-v1: at least -100)."""
     label = reached_label(env_ids)
-    target = label if label == "500" else f"at least {label}"
-    if label == "threshold":
-        target = "at least its env's solved return"
-    return REACHED_DEFINITION.format(target=target)
+    if all(solved_return(e) == return_bounds(e)[1] for e in env_ids):  # none scores more
+        return REACHED_DEFINITION.format(target=label)
+    return REACHED_DEFINITION.format(
+        target="at least " + ("its env's solved return" if label == "threshold" else label)
+    )
 
 
 class CompareError(ValueError):
@@ -260,6 +261,16 @@ class Comparison:
     arm_stats: list[Stats] | None = None
 
     @property
+    def env_ids(self) -> list[str]:
+        """The env each compared run trained on, in entry order."""
+        return [e.run.env for e in self.entries]
+
+    @property
+    def reached(self) -> str:
+        """The compared runs' solved return as a label (:func:`reached_label`: ``500``)."""
+        return reached_label(self.env_ids)
+
+    @property
     def saturated(self) -> bool:
         """Every seed of every run has the same score."""
         return stats.saturated([e.scores for e in self.entries])
@@ -320,11 +331,11 @@ class Comparison:
             ]
         return {
             "score": self.score.label,
-            "score_definition": self.score.definition([e.run.env for e in self.entries]),
+            "score_definition": self.score.definition(self.env_ids),
             "saturated": self.saturated,
             "baseline": self.arms[0] if self.arms else names[self.baseline],
             "definitions": summary.DEFINITIONS,
-            "reached_500": reached_definition([e.run.env for e in self.entries]),
+            "reached_500": reached_definition(self.env_ids),
             "confidence": stats.CONFIDENCE,
             "comparisons": {
                 "count": self.comparisons,
