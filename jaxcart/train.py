@@ -330,6 +330,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         return 1
     finally:
         console.close()
+    distributed.leave()
     if isinstance(outcome, structural.GroupsOutcome):
         return _report_groups(outcome, console, time.perf_counter() - wall_start)
     return _report(outcome, console, time.perf_counter() - wall_start)

@@ -740,6 +740,8 @@ def test_soak_64_seeds_killed_every_few_seconds_until_done(tmp_path, monkeypatch
         pytest.fail("the soak run did not finish after 60 restarts")
     assert kills >= 3, "the run finished before it was killed 3 times; the soak proved little"
     assert_same_run_dirs(reference, out)
+    # every resume removed what the kill before it left half-written
+    assert not [p for p in out.rglob("*") if layout.is_temporary(p)]
     if waves > 1:
         assert len(list((out / "waves").iterdir())) == waves
     FAULT_FIGURES[f"soak: 64-seed runs ({waves} wave(s)) ending bit-identical"] += 1

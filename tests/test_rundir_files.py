@@ -114,6 +114,26 @@ def test_every_file_of_a_run_directory_has_the_mode_open_gives(tmp_path):
     assert not os.path.exists(tmp_path / "stopped" / layout.PARAMS_FILE)
 
 
+def test_taking_a_run_removes_what_killed_writes_left(tmp_path):
+    """A write killed mid-way (SIGKILL) leaves its temporary; the next process to lock the
+    run (``--resume``) removes those, in the run and in ``waves/``, and nothing else."""
+    from jaxcart.rundir.directory import RunDir
+
+    (tmp_path / layout.WAVES_DIR).mkdir()
+    left = [
+        tmp_path / f"{layout.temporary_prefix(layout.CHECKPOINT_FILE)}0123456789ab.tmp",
+        tmp_path / layout.WAVES_DIR / f"{layout.temporary_prefix('wave-00001.npz')}ab.tmp",
+    ]
+    kept = [layout.wave_file(tmp_path, 0), tmp_path / "notes.tmp", tmp_path / ".notes"]
+    for path in [*left, *kept]:
+        path.write_bytes(b"x")
+    run = RunDir.open(tmp_path)
+    try:
+        assert [p.exists() for p in left + kept] == [False] * len(left) + [True] * len(kept)
+    finally:
+        run.close()
+
+
 def test_a_file_written_through_the_store_is_recorded_and_checked(tmp_path):
     """``record_json`` (a structural sweep's ``groups.json``) writes a file into the
     directory's manifest, as a run's files are; ``verified`` then refuses it once edited, and

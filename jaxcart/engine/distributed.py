@@ -61,6 +61,20 @@ def initialize(
         raise ConfigError(f"cannot start jax.distributed: {first}") from None
 
 
+def leave() -> None:
+    """Leaves ``jax.distributed`` together with the other processes, once the run ended in
+    order (finished, or stopped with its checkpoint); a no-op with one process.
+
+    Process 0 holds the coordination service: exiting before the others would make them
+    abort (SIGABRT) as they finish. The shutdown waits for every process at a barrier. It
+    is not called on an error, where an abort of the others is the quickest way out.
+    """
+    import jax
+
+    if jax.process_count() > 1:
+        jax.distributed.shutdown()
+
+
 def is_main_process() -> bool:
     """Process 0 writes the run directory and prints."""
     import jax

@@ -150,6 +150,12 @@ class RunDir:
         self.dir = directory
         # a run from before manifests keeps none: it stays a run that cannot be verified
         self.manifest = Manifest(directory, kept=verified)
+        # Only the lock's holder writes here, so a temporary now is what a killed write left
+        self._wave_file(0, create=False)
+        for opened in (directory, self._waves):
+            for name in opened.names() if opened is not None else ():
+                if layout.is_temporary(name):
+                    opened.unlink(name)
 
     @classmethod
     def create(
