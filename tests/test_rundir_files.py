@@ -134,6 +134,18 @@ def test_taking_a_run_removes_what_killed_writes_left(tmp_path):
         run.close()
 
 
+def test_a_run_refused_while_taken_is_not_left_locked(tmp_path):
+    """``waves/`` a link: taking the run refuses it, and releases the lock it took."""
+    from jaxcart.rundir.directory import RunDir
+
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / layout.WAVES_DIR).symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(files.RunDirError):
+        RunDir.open(tmp_path)
+    with files.RunLock(tmp_path):  # would raise RunInUse had the refused open kept it
+        pass
+
+
 def test_a_file_written_through_the_store_is_recorded_and_checked(tmp_path):
     """``record_json`` (a structural sweep's ``groups.json``) writes a file into the
     directory's manifest, as a run's files are; ``verified`` then refuses it once edited, and

@@ -150,12 +150,15 @@ class RunDir:
         self.dir = directory
         # a run from before manifests keeps none: it stays a run that cannot be verified
         self.manifest = Manifest(directory, kept=verified)
-        # Only the lock's holder writes here, so a temporary now is what a killed write left
-        self._wave_file(0, create=False)
-        for opened in (directory, self._waves):
-            for name in opened.names() if opened is not None else ():
-                if layout.is_temporary(name):
-                    opened.unlink(name)
+        try:  # only the lock's holder writes here: a temporary now is what a killed write left
+            self._wave_file(0, create=False)  # a link for waves/ is refused here
+            for opened in (directory, self._waves):
+                for name in opened.names() if opened is not None else ():
+                    if layout.is_temporary(name):
+                        opened.unlink(name)
+        except BaseException:
+            self.close()  # the lock too: a refused run is not left locked
+            raise
 
     @classmethod
     def create(
