@@ -1,9 +1,10 @@
 """How often a two-process run stopped by SIGTERM ends with every process exiting cleanly.
 
-Each trial does what ``tests/test_distributed.py::test_launch_local_forwards_sigterm_to_its_processes``
-does, with each process's stderr kept: ``launch_local`` of a 10^7-step, 2-seed tiny run on
-127.0.0.1, SIGTERM to both processes ``--after`` seconds after the first checkpoint, then
-the exit codes. ``[143, 143]`` is the stop the docs promise; ``-6`` is a process that
+Each trial trains the run of ``tests/test_distributed.py::test_launch_local_forwards_sigterm_to_its_processes``
+with each process's stderr kept: ``launch_local`` of a 10^7-step, 2-seed tiny run on
+127.0.0.1, then SIGTERM sent to both processes ``--after`` seconds after the first
+checkpoint (the test signals the launcher, which forwards it to them), then the exit
+codes. ``[143, 143]`` is the stop the docs promise; ``-6`` is a process that
 jax.distributed aborted (its last stderr lines are printed).
 
     python -m benchmarks.ablations.distributed_sigterm --trials 10

@@ -151,8 +151,7 @@ class RunDir:
         # a run from before manifests keeps none: it stays a run that cannot be verified
         self.manifest = Manifest(directory, kept=verified)
         try:  # only the lock's holder writes here: a temporary now is what a killed write left
-            self._wave_file(0, create=False)  # a link for waves/ is refused here
-            for opened in (directory, self._waves):
+            for opened in (directory, self._waves_dir(create=False)):  # waves/ a link: refused
                 for name in opened.names() if opened is not None else ():
                     if layout.is_temporary(name):
                         opened.unlink(name)
@@ -282,12 +281,18 @@ class RunDir:
         self.manifest.forget(*names)
         self.dir.fsync()
 
+    def _waves_dir(self, create: bool) -> files.Dir | None:
+        """``waves/``, opened once (created with ``create``; None when it does not exist
+        and is not to be)."""
+        if self._waves is None and (create or self._present(layout.WAVES_DIR)):
+            self._waves = self.dir.sub(layout.WAVES_DIR, create=create)
+        return self._waves
+
     def _wave_file(self, wave: int, create: bool = True) -> files.Entry | None:
         """Wave ``wave``'s block file in ``waves/`` (created with ``create``; None when it
         does not exist and is not to be)."""
-        if self._waves is None and (create or self._present(layout.WAVES_DIR)):
-            self._waves = self.dir.sub(layout.WAVES_DIR, create=create)
-        return self._waves and self._waves / layout.wave_file(".", wave).name
+        waves = self._waves_dir(create)
+        return waves and waves / layout.wave_file(".", wave).name
 
     def has_wave(self, wave: int) -> bool:
         """Whether wave ``wave`` finished (its block file is saved; a link is refused)."""
