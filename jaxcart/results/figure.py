@@ -138,9 +138,11 @@ def no_data(ax, text: str) -> None:
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
-def _finish(ax, empty: str, legend: str | None = None) -> bool:
-    """A grid, and ``empty`` written in the middle if no run was drawn, else a legend of the
-    runs at ``legend`` (a ``loc``; none without); whether any run was drawn."""
+def _finish(ax, empty: str, legend: str | None = None, **labels) -> bool:
+    """``labels`` (``Axes.set``'s: title, axis labels, limits), a grid, and ``empty`` written
+    in the middle if no run was drawn, else a legend of the runs at ``legend`` (a ``loc``;
+    none without); whether any run was drawn."""
+    ax.set(**labels)
     ax.grid(alpha=0.3)
     if not ax.lines:
         no_data(ax, empty)
@@ -323,29 +325,22 @@ def _draw_returns(runs: list[RunCurves], styles: list[dict], ax_steps, ax_time) 
             )
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
-    ax_steps.set(
-        title="episode return vs env steps" + (f" (dots: {EVAL_METRIC})" if evaluated else ""),
-        xlabel="env steps per seed",
-        ylabel=RETURN_METRIC,
-    )
-    ax_time.set(
-        title="episode return vs wall time",
-        xlabel="training wall time [s] (compile excluded)",
-        ylabel=RETURN_METRIC,
-    )
-    _finish(ax_steps, f"{RETURN_METRIC} not recorded")
-    _finish(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded")
-    for ax in (ax_steps, ax_time):
+    dots = f" (dots: {EVAL_METRIC})" if evaluated else ""
+    wall_time = "training wall time [s] (compile excluded)"
+    for ax, against, xlabel, missing in (
+        (ax_steps, f"env steps{dots}", "env steps per seed", ""),
+        (ax_time, "wall time", wall_time, f" or {ELAPSED_METRIC}"),
+    ):
+        title = f"episode return vs {against}"
+        _finish(ax, f"{RETURN_METRIC}{missing} not recorded", None, title=title, xlabel=xlabel)
+        ax.set_ylabel(RETURN_METRIC)
         return_axis(ax, [run.env for run in runs])
     step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
 
 
 def _draw_metrics(
-    runs: list[RunCurves],
-    styles: list[dict],
-    axes: list,
-    panels: list[tuple[str, str]],
+    runs: list[RunCurves], styles: list[dict], axes: list, panels: list[tuple[str, str]]
 ) -> None:
     """One panel per ``(metric, title)`` against env steps, for every run that records it;
     the y axis fits the means within the metric's range (the bands are clipped to the axes,
@@ -378,15 +373,9 @@ def _draw_legend(fig, runs: list[RunCurves], styles: list[dict]) -> None:
     handles = [Line2D([], [], **style) for style in styles]
     # About 0.6 em a character at 9 pt, plus the handle and gaps: the columns that fit 14 in.
     columns = int(14 * 72 / (max(map(len, labels)) * 9 * 0.6 + 60))
-    fig.legend(
-        handles,
-        labels,
-        loc="outside lower center",
-        ncols=max(1, min(len(labels), columns, 4)),
-        fontsize=9,
-        handlelength=4,
-        frameon=False,
-    )
+    look = {"fontsize": 9, "handlelength": 4, "frameon": False}
+    ncols = max(1, min(len(labels), columns, 4))
+    fig.legend(handles, labels, loc="outside lower center", ncols=ncols, **look)
 
 
 def wall_time_notes(runs: list[RunCurves]) -> list[str]:
@@ -453,6 +442,8 @@ MIN_SPAN = 0.1
 points on CartPole-v1), so that a difference of a few points between runs looks as small as
 it is, instead of filling the panel."""
 LABEL_SIZE = 10
+FRACTION = (-0.02, 1.02)
+"""The axis limits of a fraction or a probability."""
 ESTIMATE_TITLES = {
     "iqm": "IQM over seeds",
     "median": "median over seeds",
@@ -467,13 +458,11 @@ def _tick_label(name: str, width: int = 14) -> str:
     return textwrap.fill(name, width, break_on_hyphens=True) or name
 
 
-def _intervals(
-    ax,
-    rows: list[tuple[str, str, stats.Estimate]],
-    title: str,
-    xlabel: str,
-    xlim: tuple[float, float],
-) -> None:
+Row = tuple[str, str, stats.Estimate]
+"""A run's line in an interval panel: its colour, its name and an estimate."""
+
+
+def _intervals(ax, rows: list[Row], title: str, xlabel: str, xlim: tuple[float, float]) -> None:
     """One point with its interval per ``(colour index, name, estimate)``, top to bottom, each
     written out as ``value [low, high]`` above its bar; the run names are the y labels (the
     panel's legend). The text starts at its point and runs towards the panel's middle, so
@@ -486,14 +475,9 @@ def _intervals(
         ax.plot([e.ci_low, e.ci_high], [y, y], color=colour, lw=6, alpha=0.45)
         ax.plot([e.value], [y], "|", color=colour, ms=16, mew=2)
         right = e.value > (xlim[0] + xlim[1]) / 2
-        ax.annotate(
-            e.format(1 if abs(e.value) >= 2 else 2),
-            (e.value, y),
-            xytext=(-4 if right else 4, 9),
-            textcoords="offset points",
-            ha="right" if right else "left",
-            fontsize=9,
-        )
+        text = e.format(1 if abs(e.value) >= 2 else 2)
+        offset = {"xytext": (-4 if right else 4, 9), "textcoords": "offset points"}
+        ax.annotate(text, (e.value, y), ha="right" if right else "left", fontsize=9, **offset)
     names = [_tick_label(name) for _, name, _ in reversed(rows)]
     ax.set_yticks(range(n), names, fontsize=LABEL_SIZE)
     ax.tick_params(axis="x", labelsize=LABEL_SIZE)
@@ -526,10 +510,15 @@ def _limits(
     return low - margin, high + margin
 
 
-def _rows(comparison: Comparison, key: str) -> list[tuple[str, str, stats.Estimate]]:
+def _styled(comparison: Comparison) -> zip:
+    """Each compared run's entry, with its style (:func:`run_styles`)."""
+    return zip(comparison.entries, run_styles(len(comparison.entries)))
+
+
+def _rows(comparison: Comparison, key: str) -> list[Row]:
     """``(colour, name, estimate)`` of each run that has an estimate of ``key``."""
-    pairs = zip(comparison.entries, comparison.runs, run_styles(len(comparison.entries)))
-    return [(s["color"], e.name, st[key]) for e, st, s in pairs if st[key] is not None]
+    pairs = zip(_styled(comparison), comparison.runs)
+    return [(s["color"], e.name, st[key]) for (e, s), st in pairs if st[key] is not None]
 
 
 def _against_baseline(ax, comparison: Comparison, key: str) -> None:
@@ -544,7 +533,7 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
         xlim = rows and _limits([e for _, _, e in rows], -span, span, 0.0, span)
     else:
         title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
-        xlim = (-0.02, 1.02)
+        xlim = FRACTION
     if not rows:
         ax.set(title=title)
         return no_data(ax, "one run: nothing to compare")
@@ -559,25 +548,21 @@ def _profile_panel(ax, comparison: Comparison) -> None:
     reached = comparison.reached
     targets = sorted({solved_return(env_id) for env_id in comparison.env_ids})
     taus = np.union1d(np.linspace(least, most, PROFILE_POINTS), targets)
-    for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
+    for entry, style in _styled(comparison):
         profile, low, high = stats.performance_profile_band(
             entry.scores, taus, comparison.reps, seed=comparison.seed, at_least=True
         )
         band(ax, taus, profile, low, high, label=entry.name, **style)
         at = np.searchsorted(taus, solved_return(entry.run.env))  # its env's solved return
         ax.plot([taus[at]], [profile[at]], "o", color=style["color"], ms=6)
-    ax.set(
-        title=f"performance profile ({score}); dot: fraction at {reached}",
-        xlabel=f"score ({score}) tau",
-        ylabel="fraction of seeds scoring >= tau",
-        xlim=(least, most + 0.02 * (most - least)),
-        ylim=(-0.02, 1.02),
-    )
-    _finish(ax, "", "lower left")
+    title = f"performance profile ({score}); dot: fraction at {reached}"
+    labels = {"xlabel": f"score ({score}) tau", "ylabel": "fraction of seeds scoring >= tau"}
+    limits = {"xlim": (least, most + 0.02 * (most - least)), "ylim": FRACTION}
+    _finish(ax, "", "lower left", title=title, **labels, **limits)
 
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
-    for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
+    for entry, style in _styled(comparison):
         values = entry.train_return
         if values is None or not np.isfinite(values).any():
             continue
@@ -588,21 +573,17 @@ def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
         )
         x = entry.run.env_steps[points]
         band(ax, x, iqm, low, high, label=entry.name, **style)
-    ax.set(
-        title="sample efficiency: IQM over seeds of the training return",
-        xlabel="env steps per seed",
-        ylabel=RETURN_METRIC,
-    )
-    _finish(ax, f"{RETURN_METRIC} not recorded", "lower right")
+    title = "sample efficiency: IQM over seeds of the training return"
+    labels = {"title": title, "xlabel": "env steps per seed", "ylabel": RETURN_METRIC}
+    _finish(ax, f"{RETURN_METRIC} not recorded", "lower right", **labels)
     return_axis(ax, comparison.env_ids)
 
 
 def _reached_panel(ax, comparison: Comparison) -> None:
     """Fraction of seeds in which a training episode had scored the env's solved return
     (500 on CartPole-v1), by env steps."""
-    reached = comparison.reached
-    reached_any = False
-    for entry, style in zip(comparison.entries, run_styles(len(comparison.entries))):
+    reached, reached_any = comparison.reached, False
+    for entry, style in _styled(comparison):
         x = entry.run.env_steps
         first = entry.first_reached(x)
         if first is None:
@@ -610,13 +591,9 @@ def _reached_panel(ax, comparison: Comparison) -> None:
         reached_any |= bool(np.isfinite(first).any())
         x = np.r_[0.0, x[np.isfinite(x)]]
         ax.step(x, stats.fraction_reached(first, x), where="post", label=entry.name, **style)
-    ax.set(
-        title=f"a training episode at {reached} (rollout/ep_rew_max)",
-        xlabel="env steps per seed",
-        ylabel="fraction of seeds",
-        ylim=(-0.02, 1.02),
-    )
-    if _finish(ax, "not recorded", "lower right") and not reached_any:
+    title = f"a training episode at {reached} (rollout/ep_rew_max)"
+    labels = {"title": title, "xlabel": "env steps per seed", "ylabel": "fraction of seeds"}
+    if _finish(ax, "not recorded", "lower right", ylim=FRACTION, **labels) and not reached_any:
         no_data(ax, f"no seed's training reached {reached}")
 
 
