@@ -132,34 +132,29 @@ def _ranking_columns(ranking: list[dict], names: list[str], num_seeds: int) -> l
     return [*values, (iqm, lambda r: _interval(r["iqm"]))]
 
 
-def _table(ranking: list[dict], columns: list[Column]) -> tuple[list[list], list[str]]:
-    """``(rows, header)`` of a ranking: one row per ranked combination."""
-    return [[cell(r) for _, cell in columns] for r in ranking], [h for h, _ in columns]
+def _table(ranking: list[dict], columns: list[Column]) -> str:
+    """A ranking as a table: one row per ranked combination."""
+    header = [h for h, _ in columns]
+    return format_table([[cell(r) for _, cell in columns] for r in ranking], header)
 
 
-def sweep_rows(outcome: Outcome) -> tuple[list[list], list[str]]:
+def sweep_table(outcome: Outcome) -> str:
     """The ranking table of a sweep: each combination's rank, the IQM of its seeds' scores
     (``--score``, by default the mean greedy Gymnasium return) with its bootstrap interval,
     and the probability of improvement over combination 0."""
     ranking, grid = outcome.ranking, outcome.run.grid
     n, scores = grid.num_seeds, outcome.evaluation.gym_returns.mean(axis=-1)
     steps = "median_steps_to_500"  # the env's solved return (500 on CartPole-v1)
-    reached = solved.reached_label([outcome.run.config.env])
+    reached, ci = solved.reached_label([outcome.run.config.env]), stats.interval_label(n)
     columns = [
         ("rank", lambda r: _rank(r, ranking)),
         ("combo", lambda r: r["combination"]),
         *_ranking_columns(ranking, list(outcome.run.sweep), n),
         ("gym mean", lambda r: f"{scores[grid.runs_of(r['combination'])].mean():.1f}"),
-        (
-            f"P(> combo 0) [{stats.interval_label(n)}]",
-            lambda r: _interval(r["probability_of_improvement"], 2),
-        ),
+        (f"P(> combo 0) [{ci}]", lambda r: _interval(r["probability_of_improvement"], 2)),
         ("solved", lambda r: f"{r['solve_rate']:.0%}"),
         ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
-        (
-            f"median steps to a {reached} episode",
-            lambda r: f"{r[steps]:,.0f}" if np.isfinite(r[steps]) else "never",
-        ),
+        (f"median steps to a {reached} episode", lambda r: steps_text(r[steps])),
         (f"reached {reached}", lambda r: f"{r['seeds_reaching_500']}/{n}"),
         ("diverged", lambda r: f"{r['seeds_diverged']}/{n}"),
     ]
@@ -176,6 +171,11 @@ SWEEP_COLUMNS = (
 the same per-seed scores by default), so they differ whenever the seeds do."""
 
 
+def steps_text(steps: float) -> str:
+    """Env steps as a table cell: ``81,920``, or ``never`` (infinite)."""
+    return f"{steps:,.0f}" if np.isfinite(steps) else "never"
+
+
 def ranking_lines(ranking: list[dict]) -> str:
     """The lines under a ranking table: what it cannot tell (saturation, ties), if any."""
     return "".join(f"\n{line}" for line in sweeps.ranking_notes(ranking))
@@ -186,25 +186,21 @@ def results_text(outcome: Outcome) -> str:
     episodes, grid = outcome.evaluation.episodes, outcome.run.grid
     env_id = outcome.run.config.env
     if grid.is_sweep:
-        rows, header = sweep_rows(outcome)
         rule = solved.solved_definition(env_id).format(episodes=episodes)
         score = Score.parse(outcome.ranking[0]["score"])
         return (
             f"\nSweep ranking ({grid.num_seeds} seed(s) each; solved = {rule}):\n"
-            f"{format_table(rows, header)}{ranking_lines(outcome.ranking)}\n"
+            f"{sweep_table(outcome)}{ranking_lines(outcome.ranking)}\n"
             f"{SWEEP_COLUMNS.format(score=score.definition([env_id]))}\n"
             f"per-combination results: {outcome.run.out}/combo-NNN/ (sweep.json ranks them)"
         )
-    rows, header = evaluation_rows(outcome)
     overrides = physics.overrides(outcome.run.spec.env_params)
     on = f" with {physics.describe(overrides)}" if overrides else ""
     nominal = " (nominal physics)" if outcome.run.spec.randomize else ""
+    table = format_table(*evaluation_rows(outcome))
     return (
         f"\nGreedy evaluation, {episodes} episodes per seed in gymnasium.make('{env_id}')"
-        + f"{on}{nominal}{mean_rule(env_id)}:\n"
-        + format_table(rows, header)
-        + "\n"
-        + evaluation_columns_text(episodes)
+        f"{on}{nominal}{mean_rule(env_id)}:\n{table}\n{evaluation_columns_text(episodes)}"
     )
 
 
@@ -220,11 +216,9 @@ def groups_text(ranking: list[dict], groups: list[dict], sweep: dict, num_seeds:
         ("solved", lambda r: f"{r['solve_rate']:.0%}"),
         ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
     ]
-    rows, header = _table(ranking, columns)
+    what = f"{len(groups)} shape group(s) ({num_seeds} seed(s) each)"
     return (
-        f"\nStructural sweep ranking, {len(groups)} shape group(s) ({num_seeds} seed(s) each):\n"
-        + format_table(rows, header)
-        + ranking_lines(ranking)
+        f"\nStructural sweep ranking, {what}:\n{_table(ranking, columns)}{ranking_lines(ranking)}"
     )
 
 
@@ -288,24 +282,19 @@ def next_steps_text(outcome: Outcome) -> str:
     kind = "best policy" if kept else "policy"
     if grid.is_sweep:
         gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
-        commands = [
-            (
-                f"python -m jaxcart.plot {run} --out {q(str(out / 'curves.png'))}",
-                "learning curves of every combination",
-            ),
-            (
-                f"python -m jaxcart.evaluate {run} --combination {best}{pick} --gif {gif}",
-                f"watch seed {seed} of the best-ranked combination",
-            ),
-            (f"python -m jaxcart.compare {run}", "the combinations' statistics"),
-        ]
+        plot = (f" --out {q(str(out / 'curves.png'))}", "learning curves of every combination")
+        watch = (f" --combination {best}", f"watch seed {seed} of the best-ranked combination")
+        compare = ("", "the combinations' statistics")
     else:
         gif = q(str(out / f"seed{seed}.gif"))
-        commands = [
-            (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png"),
-            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s {kind}"),
-            (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
-        ]
+        plot = ("", "learning curves, into its curves.png")
+        watch = ("", f"watch seed {seed}'s {kind}")
+        compare = (" OTHER_RUN", "statistics against another run")
+    commands = [
+        (f"python -m jaxcart.plot {run}{plot[0]}", plot[1]),
+        (f"python -m jaxcart.evaluate {run}{watch[0]}{pick} --gif {gif}", watch[1]),
+        (f"python -m jaxcart.compare {run}{compare[0]}", compare[1]),
+    ]
     if gif_refusal(outcome.run.config.env):  # no renderer for this env here
         commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)
@@ -428,13 +417,13 @@ class ConsoleReport(ProgressBar):
                 f"devices takes {padded // device_count} ({padded - runs} padding run(s) "
                 "computed and discarded)"
             )
-        if run.plan.num_waves > 1:
+        plan = run.plan
+        if plan.num_waves > 1 and plan.bytes_per_run:
+            self.print(plan_text(plan, run.spec))
+        elif plan.num_waves > 1:
             what = "runs" if run.grid.is_sweep else "seeds"
             self.print(
-                plan_text(run.plan, run.spec)
-                if run.plan.bytes_per_run
-                else f"{run.plan.num_runs:,} {what} in {run.plan.num_waves:,} waves of "
-                f"{run.plan.wave_size:,}"
+                f"{plan.num_runs:,} {what} in {plan.num_waves:,} waves of {plan.wave_size:,}"
             )
         if run.resumed_from is not None:
             self.print(f"resuming from {_at(run, run.resumed_from, run.resume_wave)}")
@@ -480,13 +469,8 @@ class ConsoleReport(ProgressBar):
         )
 
     def on_signal(self, signum: int) -> None:
-        name = signal.Signals(signum).name
-        print(
-            f"\n{name} received: stopping at the next safe point and saving a checkpoint "
-            "(again to stop at once)...",
-            file=sys.stderr,
-            flush=True,
-        )
+        what = "stopping at the next safe point and saving a checkpoint (again to stop at once)"
+        print(f"\n{signal.Signals(signum).name} received: {what}...", file=sys.stderr, flush=True)
 
     def on_init(self, done: int, total: int) -> None:
         """A progress bar for initialising large runs (on the host, seconds per 10^4 runs)."""
