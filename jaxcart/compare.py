@@ -61,18 +61,14 @@ def _against(st: dict) -> list[str]:
 def _row(name: str, entry: runs.Entry, st: dict) -> list:
     """One run's row of :func:`table`."""
     n, steps, solved = len(entry.scores), entry.first_reached(entry.run.env_steps), st["solved"]
-    median = np.inf if steps is None else float(np.median(steps))
-    return [
-        name,
-        n,
-        *(st[name].format(1) for name in ESTIMATE_NAMES),
-        "n/a"
-        if solved is None
-        else f"{entry.solved}/{n} [{solved.ci_low:.1%}, {solved.ci_high:.1%}]",
-        *_against(st),
-        "n/a" if steps is None else f"{int(np.isfinite(steps).sum())}/{n}",
-        "n/a" if steps is None else f"{median:,.0f}" if np.isfinite(median) else "never",
-    ]
+    rate, reached = "n/a", ["n/a", "n/a"]
+    if solved is not None:
+        rate = f"{entry.solved}/{n} [{solved.ci_low:.1%}, {solved.ci_high:.1%}]"
+    if steps is not None:
+        median = float(np.median(steps))
+        steps_to = f"{median:,.0f}" if np.isfinite(median) else "never"
+        reached = [f"{int(np.isfinite(steps).sum())}/{n}", steps_to]
+    return [name, n, *(st[k].format(1) for k in ESTIMATE_NAMES), rate, *_against(st), *reached]
 
 
 def table(comparison: Comparison) -> str:
@@ -84,16 +80,11 @@ def table(comparison: Comparison) -> str:
     ci = f"{100 * comparison.confidence:.3g}% CI"  # wider with --adjust bonferroni
     if stats.interval_label(counts) != f"{stats.CONFIDENCE:.0%} CI":  # too few seeds for one
         ci = stats.interval_label(counts)
-    header = [
-        "run",
-        "seeds",
-        *(f"{label} [{stats.interval_label(counts, k)}]" for k, label in ESTIMATE_NAMES.items()),
-        "solved [95% CI]",
-        f"IQM - {reference} [{ci}]",
-        f"P(> {reference}) [{ci}]",
-        f"reached {reached}",
-        f"steps to {reached}",
+    estimates = [
+        f"{name} [{stats.interval_label(counts, k)}]" for k, name in ESTIMATE_NAMES.items()
     ]
+    header = ["run", "seeds", *estimates, "solved [95% CI]", f"IQM - {reference} [{ci}]"]
+    header += [f"P(> {reference}) [{ci}]", f"reached {reached}", f"steps to {reached}"]
     names = [entry.name for entry in comparison.entries]
     numbered = max(map(len, names)) > NAME_WIDTH
     shown = [f"[{i}]" for i in range(len(names))] if numbered else names
@@ -111,12 +102,9 @@ def matrix_text(comparison: Comparison) -> str | None:
         return None
     names = [e.name for e in comparison.entries]
     rows = [[name, *(f"{v:.2f}" for v in row)] for name, row in zip(names, matrix)]
-    return (
-        "P(row > column) over seed pairs (point values):\n"
-        + cli.format_table(rows, ["", *(f"[{i}]" for i in range(len(names)))], cli.TABLE_WIDTH)
-        + "\n"
-        + cli.wrap("columns: " + ", ".join(f"[{i}] {name}" for i, name in enumerate(names)))
-    )
+    text = cli.format_table(rows, ["", *(f"[{i}]" for i in range(len(names)))], cli.TABLE_WIDTH)
+    columns = cli.wrap("columns: " + ", ".join(f"[{i}] {name}" for i, name in enumerate(names)))
+    return f"P(row > column) over seed pairs (point values):\n{text}\n{columns}"
 
 
 def arms_text(comparison: Comparison) -> str | None:
@@ -182,20 +170,15 @@ def report_text(comparison: Comparison) -> str:
     baseline = comparison.entries[comparison.baseline].name
     if comparison.arms:
         baseline = f"arm {comparison.arms[0]} (each run against its configuration's run)"
-    wrap = cli.wrap
-    lines = [
-        wrap(
-            f"Comparing {len(comparison.entries)} run(s); score = {score.label}: "
-            f"{definition}; {stats.CONFIDENCE:.0%} percentile bootstrap CIs ({reps} "
-            f"resamples, seed {seed}); baseline {baseline}"
-        ),
-        table(comparison),
-        wrap(solved_text(comparison)),
-        wrap(saturation_text(comparison)),
-        wrap(comparison.reading_note()),
-    ]
+    heading = (
+        f"Comparing {len(comparison.entries)} run(s); score = {score.label}: "
+        f"{definition}; {stats.CONFIDENCE:.0%} percentile bootstrap CIs ({reps} "
+        f"resamples, seed {seed}); baseline {baseline}"
+    )
+    texts = [solved_text(comparison), saturation_text(comparison), comparison.reading_note()]
+    lines = [cli.wrap(heading), table(comparison), *map(cli.wrap, texts)]
     lines += [text for text in (matrix_text(comparison), arms_text(comparison)) if text]
-    lines += [wrap(f"note: {note}") for note in comparison.notes]
+    lines += [cli.wrap(f"note: {note}") for note in comparison.notes]
     return "\n".join(lines)
 
 

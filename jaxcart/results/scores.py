@@ -34,11 +34,9 @@ def reached_definition(env_ids: Sequence[str]) -> str:
     """What "reached" means for runs of ``env_ids``: a training episode scored the env's
     solved return (CartPole-v1: 500, its best return; Acrobot-v1: at least -100)."""
     label = reached_label(env_ids)
-    if all(solved_return(e) == return_bounds(e)[1] for e in env_ids):  # none scores more
-        return REACHED_DEFINITION.format(target=label)
-    return REACHED_DEFINITION.format(
-        target="at least " + ("its env's solved return" if label == "threshold" else label)
-    )
+    if any(solved_return(e) != return_bounds(e)[1] for e in env_ids):  # some score more
+        label = "at least " + ("its env's solved return" if label == "threshold" else label)
+    return REACHED_DEFINITION.format(target=label)
 
 
 class CompareError(ValueError):
@@ -161,12 +159,10 @@ def load_entries(
             index = resolved.index(Path(baseline).resolve())
         else:
             runs = load_runs([baseline, *run_dirs])
-    seen: set[tuple[Path, str]] = set()
-    for run in runs:
-        key = (run.path.resolve(), run.label if run.combination else "")
-        if key in seen:
+    keys = [(run.path.resolve(), run.label if run.combination else "") for run in runs]
+    for i, run in enumerate(runs):
+        if keys[i] in keys[:i]:
             raise CompareError(f"{run.path} is given twice")
-        seen.add(key)
     return [make_entry(run, score, policy) for run in runs], index, names
 
 
@@ -384,12 +380,9 @@ def build_comparison(
         """The IQM difference and ``P(X > Y)``, each with its interval (None without ``y``)."""
         if y is None:
             return {"difference_iqm": None, "probability_of_improvement": None}
-        return {
-            "difference_iqm": stats.difference_ci(x, y, stats.iqm, reps, confidence, seed),
-            "probability_of_improvement": stats.probability_of_improvement_ci(
-                x, y, reps, confidence, seed
-            ),
-        }
+        difference = stats.difference_ci(x, y, stats.iqm, reps, confidence, seed)
+        better = stats.probability_of_improvement_ci(x, y, reps, confidence, seed)
+        return {"difference_iqm": difference, "probability_of_improvement": better}
 
     runs = []
     for i, (x, e, ref) in enumerate(zip(scores, entries, references)):
@@ -398,9 +391,8 @@ def build_comparison(
         gap = functools.partial(stats.optimality_gap, target=solved_return(e.run.env))
         estimators = stats.ESTIMATORS | {"optimality_gap": gap}
         estimates = stats.bootstrap_cis(x, estimators, reps, seed=seed)
-        runs.append(
-            {**estimates, "solved": solved, **against(x, scores[ref] if ref != i else None)}
-        )
+        versus = against(x, scores[ref] if ref != i else None)
+        runs.append({**estimates, "solved": solved, **versus})
     comparison = Comparison(
         entries, score, baseline, reps, seed, adjust, arms, references, count, confidence, runs
     )
