@@ -89,13 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
         "one seed's policy to an animated GIF. A run that did not finish is evaluated from "
         "its last checkpoint (and says so); a sweep directory, every combination.",
     )
-    parser.add_argument(
-        "run_dirs",
-        type=Path,
-        nargs="+",
-        metavar="RUN_DIR",
-        help="jaxcart run (or sweep) directories",
-    )
+    what = "jaxcart run (or sweep) directories"
+    parser.add_argument("run_dirs", type=Path, nargs="+", metavar="RUN_DIR", help=what)
     cli.add_options(parser, EvaluateOptions, "")
     cli.add_options(parser, cli.SharedOptions, "", ("trust_code",))
     return parser
@@ -174,8 +169,7 @@ def _read_run(
     if (chosen or field) and not has_physics(env_id):
         option = "--sweep" if field else "--env-param"
         raise cli.UsageError(f"{option} sets CartPole's physics; {run_dir} trained {env_id}")
-    refusal = None if opts.gif is None else report.gif_refusal(env_id)
-    if refusal:
+    if opts.gif is not None and (refusal := report.gif_refusal(env_id)):
         raise cli.UsageError(refusal)
     if opts.gif is not None and combos and opts.combination is None:
         raise cli.UsageError("--gif on a sweep needs --combination C (which policy to render)")
@@ -243,10 +237,8 @@ def _print_values(
     for (run_dir, info, sources), rs, estimates in zip(runs, returns, iqms):
         for (value, _), r, iqm in zip(sources, rs, estimates):
             solved = is_solved(r, info["config"].env)
-            rows.append(
-                [run_dir, f"{value:g}", f"{solved.sum()}/{solved.size}", iqm.format(1)]
-                + [f"{r.mean():.1f}", f"{r.mean(-1).min():.1f}"]
-            )
+            row = [run_dir, f"{value:g}", f"{solved.sum()}/{solved.size}", iqm.format(1)]
+            rows.append([*row, f"{r.mean():.1f}", f"{r.mean(-1).min():.1f}"])
     on = " with each run's physics" + (f" and {physics.describe(chosen)}" if chosen else "")
     print(_heading(f"at each {field}", runs[0][1]["config"].env, on, opts))
     header = ["run", field, "solved", "IQM [95% CI]", "mean", "worst seed"]

@@ -187,13 +187,11 @@ def _plot_command(argv: list[str] | None) -> int:
         figures.save(draw_figure(runs), out, args.dpi)
     except OSError as exc:
         raise cli.UsageError(f"cannot write the plot: {exc.strerror or exc}") from None
-    for line in unfinished_notes(runs):
-        print(f"note: {line}", file=sys.stderr)
+    notes = unfinished_notes(runs)
     if args.out is None and out.parent == Path() and out.name != COMPARISON:
-        print(
-            f"note: {COMPARISON} exists and is kept: drew into {out} (--out FILE to choose)",
-            file=sys.stderr,
-        )
+        notes.append(f"{COMPARISON} exists and is kept: drew into {out} (--out FILE to choose)")
+    for line in notes:
+        print(f"note: {line}", file=sys.stderr)
     print(out.absolute())  # the full path: several runs' figure goes to the current folder
     return 0
 
@@ -203,11 +201,9 @@ def unfinished_notes(runs: list[RunCurves]) -> list[str]:
     lines = []
     for path in dict.fromkeys(run.path for run in runs if run.note):
         mine = [run for run in runs if run.path == path]
-        what = (
-            f"a sweep: its {len(mine)} combinations drawn"
-            if mine[0].combination
-            else "curves drawn"
-        )
+        what = "curves drawn"
+        if mine[0].combination:
+            what = f"a sweep: its {len(mine)} combinations drawn"
         lines.append(
             f"{path}: {what} {mine[0].note}; no Gymnasium evaluation until it finishes "
             f"(python -m jaxcart.train --resume {path})"

@@ -285,12 +285,10 @@ def draw_figure(runs: list[RunCurves]) -> Figure:
         num += ", 1 seed" if len(runs) == 1 else ", 1 seed per run"
         what = "no confidence band (train several seeds for one)"
     else:
-        band = stats.interval_label([run.num_seeds for run in runs if run.num_seeds > 1], "mean")
-        if band == f"{stats.CONFIDENCE:.0%} CI":
-            band = f"{stats.CONFIDENCE:.0%} bootstrap confidence interval"
-        what = (
-            f"mean across seeds, shaded {band} (the axes fit the means; a band may run past them)"
-        )
+        ci = stats.interval_label([run.num_seeds for run in runs if run.num_seeds > 1], "mean")
+        if ci == f"{stats.CONFIDENCE:.0%} CI":
+            ci = f"{stats.CONFIDENCE:.0%} bootstrap confidence interval"
+        what = f"mean across seeds, shaded {ci} (the axes fit the means; a band may run past them)"
     env_ids = sorted({run.env for run in runs})
     fig.suptitle(f"PPO on {', '.join(env_ids)}, {num}: {what}", fontsize=13)
     fig.draw_without_rendering()  # the layout: the panels' sizes are known from here on
@@ -319,10 +317,8 @@ def _draw_returns(runs: list[RunCurves], styles: list[dict], ax_steps, ax_time) 
         evaluated = run.metrics.get(EVAL_METRIC, np.full((1, 1), np.nan))
         rows = np.isfinite(evaluated).any(axis=1)  # the iterations --eval-every evaluated at
         if rows.any():
-            mean = np.nanmean(evaluated[rows], axis=1)
-            ax_steps.plot(
-                run.env_steps[rows], mean, "o", color=style["color"], ms=4, label=EVAL_METRIC
-            )
+            x, mean = run.env_steps[rows], np.nanmean(evaluated[rows], axis=1)
+            ax_steps.plot(x, mean, "o", color=style["color"], ms=4, label=EVAL_METRIC)
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
     dots = f" (dots: {EVAL_METRIC})" if evaluated else ""
@@ -603,8 +599,7 @@ def _matrix_panel(ax, comparison: Comparison) -> None:
     if matrix is None:
         ax.set_axis_off()
         why = "arms: see the table" if comparison.arms else "two runs: see P(run > ...) above"
-        no_data(ax, why)
-        return
+        return no_data(ax, why)
     names = [_tick_label(e.name) for e in comparison.entries]
     image = ax.imshow(matrix, vmin=0, vmax=1, cmap="RdBu")
     for (r, c), v in np.ndenumerate(matrix):
@@ -634,8 +629,9 @@ def draw_comparison(comparison: Comparison) -> Figure:
         if name == "optimality_gap":
             xlim = _limits([e for _, _, e in rows], 0.0, high - low, 0.0, high - low)
         ax = fig.add_subplot(grid[0, 3 * k : 3 * k + 3])
-        title = title.format(target=comparison.reached)
-        _intervals(ax, rows, title, f"score ({score.label})", xlim)
+        _intervals(
+            ax, rows, title.format(target=comparison.reached), f"score ({score.label})", xlim
+        )
     _against_baseline(fig.add_subplot(grid[1, 0:4]), comparison, "difference_iqm")
     _against_baseline(fig.add_subplot(grid[1, 4:8]), comparison, "probability_of_improvement")
     _profile_panel(fig.add_subplot(grid[1, 8:12]), comparison)

@@ -195,15 +195,8 @@ def render_gif(
         add(*last)
 
     buf = io.BytesIO()
-    images[0].save(
-        buf,
-        format="GIF",
-        save_all=True,
-        append_images=images[1:],
-        duration=max(10, round(100 * frame_skip / fps) * 10),  # whole centiseconds, in ms
-        loop=0,
-        optimize=False,
-        disposal=1,
-    )
+    duration = max(10, round(100 * frame_skip / fps) * 10)  # whole centiseconds, in ms
+    frames = {"save_all": True, "append_images": images[1:], "duration": duration}
+    images[0].save(buf, format="GIF", loop=0, optimize=False, disposal=1, **frames)
     atomic_write_bytes(path, buf.getvalue())
     return RenderedGif(path, len(images), last[1], last[2], backend)

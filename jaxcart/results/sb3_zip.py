@@ -157,10 +157,8 @@ def sb3_zip_bytes(params: dict, config: PPOConfig) -> bytes:
     adam = {"lr": float(config.learning_rate), "eps": float(config.adam_eps), **ADAM_DEFAULTS}
     optimizer = {"state": {}, "param_groups": [adam | {"params": list(range(len(state)))}]}
     activation = Global("torch.nn.modules.activation", ACTIVATION_CLASSES[config.activation])
-    spaces = {
-        "observation_space": cartpole.observation_space(),
-        "action_space": cartpole.action_space(),
-    }
+    spaces = {"observation_space": cartpole.observation_space()}
+    spaces["action_space"] = cartpole.action_space()
     data = {k: _serialized(pickle.dumps(v, protocol=4), str(type(v))) for k, v in spaces.items()}
     policy_class = Global("stable_baselines3.common.policies", "ActorCriticPolicy")
     data["policy_class"] = _serialized(write_pickle(policy_class), "<class 'abc.ABCMeta'>")
@@ -188,9 +186,8 @@ def sb3_zip_bytes(params: dict, config: PPOConfig) -> bytes:
         archive.writestr("policy.optimizer.pth", torch_save_bytes(optimizer, {}))
         archive.writestr("policy.pth", torch_save_bytes(policy, tensors))
         archive.writestr("_stable_baselines3_version", SB3_FORMAT_VERSION)
-        archive.writestr(
-            "system_info.txt", "- Written by jaxcart (jaxcart.results.sb3_zip), without PyTorch\n"
-        )
+        about = "- Written by jaxcart (jaxcart.results.sb3_zip), without PyTorch\n"
+        archive.writestr("system_info.txt", about)
     return buffer.getvalue()
 
 
