@@ -270,12 +270,7 @@ class RunDir:
         """Removes a finished run's top-level outputs before it is trained further, so that
         until the extension finishes every reader says the run is unfinished (and reads its
         checkpoint) instead of presenting the old outputs as the run's."""
-        names = (
-            layout.SWEEP_FILE,
-            layout.EVALUATION_FILE,
-            layout.PARAMS_FILE,
-            layout.PARAMS_BEST_FILE,
-        )
+        names = (layout.SWEEP_FILE, layout.EVALUATION_FILE, *layout.POLICY_FILES.values())
         for name in names:
             self.dir.unlink(name)
         self.manifest.forget(*names)
@@ -389,6 +384,9 @@ def save_checkpoint(
 # ---- outputs, from blocks of runs ----
 
 
+RUN_ARRAYS = ("diverged_at", "gym_returns", "jax_returns")
+"""What a block holds of each run besides its parameters and metrics: the iteration it
+diverged at (or -1) ``[n]``, its Gymnasium and JAX greedy returns ``[n, episodes]``."""
 BEST_ARRAYS = ("best_gym_returns", "best_iteration", "best_score")
 """What a block of a run that keeps its best policies holds of them: their Gymnasium returns
 ``[n, episodes]``, the (1-based) iteration each was evaluated at and its eval/mean_return
@@ -416,11 +414,7 @@ class Block:
         arrays |= {BLOCK_BEST_PARAMS + k: v for k, v in (self.best_params or {}).items()}
         arrays |= self.best or {}
         arrays |= {BLOCK_METRICS + k: np.asarray(v) for k, v in self.metrics.items()}
-        arrays |= {
-            "diverged_at": self.diverged_at,
-            "gym_returns": self.gym_returns,
-            "jax_returns": self.jax_returns,
-        }
+        arrays |= {name: getattr(self, name) for name in RUN_ARRAYS}
         meta = {"start": self.start, "stop": self.stop, **self.timing}
         files.save_tree(path, arrays, {**meta, layout.DIGEST_KEY: files.arrays_digest(arrays)})
 
@@ -431,17 +425,16 @@ class Block:
             k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)
         }
         timing = {k: v for k, v in meta.items() if k not in ("start", "stop", layout.DIGEST_KEY)}
+        best = {k: arrays[k] for k in BEST_ARRAYS if k in arrays} or None
         return cls(
-            int(meta["start"]),
-            int(meta["stop"]),
-            take(BLOCK_PARAMS),
-            take(BLOCK_METRICS),
-            arrays["diverged_at"],
-            arrays["gym_returns"],
-            arrays["jax_returns"],
-            timing,
-            take(BLOCK_BEST_PARAMS) or None,
-            {k: arrays[k] for k in BEST_ARRAYS if k in arrays} or None,
+            **{name: arrays[name] for name in RUN_ARRAYS},
+            start=int(meta["start"]),
+            stop=int(meta["stop"]),
+            params=take(BLOCK_PARAMS),
+            metrics=take(BLOCK_METRICS),
+            timing=timing,
+            best_params=take(BLOCK_BEST_PARAMS) or None,
+            best=best,
         )
 
 

@@ -669,8 +669,7 @@ class RunLock:
     """An exclusive lock on a run directory; :meth:`acquire` fails at once if it is held."""
 
     def __init__(self, run_dir: str | os.PathLike | Dir) -> None:
-        is_dir = isinstance(run_dir, Dir)
-        self.target = run_dir / layout.LOCK_FILE if is_dir else Path(run_dir) / layout.LOCK_FILE
+        self.target = (run_dir if isinstance(run_dir, Dir) else Path(run_dir)) / layout.LOCK_FILE
         self._fd: int | None = None
 
     def acquire(self) -> RunLock:
@@ -875,14 +874,9 @@ def flatten(tree: Any, is_leaf: Any = None) -> dict[str, Any]:
 
 def unflatten(flat: dict[str, np.ndarray]) -> dict:
     """Inverse of :func:`flatten` for trees of nested dicts."""
-    tree: dict = {}
-    for name, value in flat.items():
-        node = tree
-        *parents, leaf = name.split("/")
-        for p in parents:
-            node = node.setdefault(p, {})
-        node[leaf] = value
-    return tree
+    from flax.traverse_util import unflatten_dict
+
+    return unflatten_dict(flat, sep="/")
 
 
 def save_tree(
