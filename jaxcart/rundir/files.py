@@ -539,11 +539,8 @@ def atomic_file(
             parent = Dir.open(path.parent)
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
-        try:
-            with atomic_file(parent / path.name, mode, on_digest) as f:
-                yield f
-        finally:
-            parent.close()
+        with contextlib.closing(parent), atomic_file(parent / path.name, mode, on_digest) as f:
+            yield f
         return
     directory, name = target.dir, target.name
     tmp = None
