@@ -29,7 +29,7 @@ from jaxcart.results.sb3_zip import sb3_zip_bytes
 from jaxcart.run import lifecycle
 from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import layout, reader
-from jaxcart.rundir.policy import NumpyPolicy
+from jaxcart.rundir.policy import Policy
 from jaxcart.rundir.reader import load_runs
 
 SB3_FILES = {"data", "policy.pth", "policy.optimizer.pth", "_stable_baselines3_version"}
@@ -186,7 +186,7 @@ def test_sb3_zip_holds_the_network_sb3_would_rebuild(name):
     assert optimizer["param_groups"][0]["eps"] == pytest.approx(config.adam_eps)
 
     obs = np.random.default_rng(1).normal(size=(100, 4)).astype(np.float32)
-    policy = NumpyPolicy(networks.actor_params(params), config.activation)
+    policy = Policy(networks.actor_params(params), activation=config.activation)
     logits = sb3_forward(state, "policy_net", "action_net", obs, config.activation)
     np.testing.assert_allclose(logits, policy.logits(obs), rtol=1e-5, atol=1e-6)
     value = sb3_forward(state, "value_net", "value_net", obs, config.activation)[:, 0]
@@ -277,7 +277,7 @@ def test_onnx_model_matches_load_policy_on_1000_observations(run, tmp_path):
 def test_predict_follows_sb3s_signature_and_return():
     config = CONFIGS["tanh-64-64"]
     params = ActorCritic.from_config(config).host_init(np.random.default_rng(4))
-    policy = NumpyPolicy(networks.actor_params(params), config.activation, rng=0)
+    policy = Policy(networks.actor_params(params), activation=config.activation, rng=0)
     obs = np.random.default_rng(5).normal(size=(64, 4)).astype(np.float32)
 
     actions, state = policy.predict(obs)
@@ -345,7 +345,7 @@ def test_stable_baselines3_rebuilds_relu_and_linear_actors(name, tmp_path):
     obs = np.random.default_rng(7).normal(size=(200, 4)).astype(np.float32)
     with th.no_grad():
         logits = model.policy.get_distribution(th.as_tensor(obs)).distribution.logits.numpy()
-    policy = NumpyPolicy(networks.actor_params(params), config.activation)
+    policy = Policy(networks.actor_params(params), activation=config.activation)
     # SB3's Categorical normalises logits (log-softmax): compare up to a per-row constant
     expected = policy.logits(obs)
     np.testing.assert_allclose(

@@ -16,7 +16,7 @@ from jaxcart.core.cartpole import EnvParams, gymnasium_step
 from jaxcart.core.solved import EVAL_SEED, SOLVED_RETURN
 from jaxcart.engine.signals import Stopped
 from jaxcart.run.greedy import evaluate_gymnasium
-from jaxcart.rundir.policy import NumpyPolicy
+from jaxcart.rundir.policy import Policy
 
 NUM_POLICIES, NUM_EPISODES = 64, 20
 
@@ -53,7 +53,7 @@ def reference_evaluation(
 
 def mixed_policy(num_policies: int) -> Callable[[np.ndarray], np.ndarray]:
     """Stacked policies ``[num_policies, N, 4] -> [num_policies, N]`` of three kinds: random
-    tanh MLPs (a NumpyPolicy, as the package evaluates trained runs), the two constant
+    tanh MLPs (a NumPy Policy, as the package evaluates trained runs), the two constant
     actions, and linear controllers ``obs @ w > 0`` around a balancing one, some of which
     solve every episode, some a few, some none."""
     rng = np.random.default_rng(0)
@@ -68,7 +68,7 @@ def mixed_policy(num_policies: int) -> Callable[[np.ndarray], np.ndarray]:
         }
         for name, n_in, n_out in zip(names, sizes[:-1], sizes[1:])
     }
-    mlps = NumpyPolicy(actor, "tanh", stacked=True)
+    mlps = Policy(actor, activation="tanh", stacked=True)
     weights = np.array([0.0, 0.0, 1.0, 1.0]) + rng.normal(0.0, 0.6, (num_linear, 4))
     weights[:, 2] = np.abs(weights[:, 2]) + 0.2  # push towards the side the pole leans
     weights = weights.astype(np.float32)

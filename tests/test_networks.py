@@ -12,7 +12,7 @@ import pytest
 
 from jaxcart.core import networks
 from jaxcart.core.networks import ActorCritic, actor_params, mlp, orthogonal
-from jaxcart.rundir.policy import NumpyPolicy
+from jaxcart.rundir.policy import Policy
 
 
 def _gram(w: np.ndarray) -> np.ndarray:
@@ -127,11 +127,11 @@ def test_numpy_policy_matches_jax_logits_single_and_stacked():
         name: {k: np.stack([actor_params(p)[name][k] for p in seeds]) for k in ("kernel", "bias")}
         for name in actor_params(seeds[0])
     }
-    stacked = NumpyPolicy(stacked_actor, "tanh", stacked=True)
+    stacked = Policy(stacked_actor, activation="tanh", stacked=True)
     assert stacked(obs).shape == (3, 7)
     for s, params in enumerate(seeds):
         expected = np.asarray(network.logits(params, jnp.asarray(obs[s])))
-        single = NumpyPolicy(actor_params(params), "tanh")
+        single = Policy(actor_params(params), activation="tanh")
         np.testing.assert_allclose(single.logits(obs[s]), expected, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(stacked.logits(obs)[s], expected, rtol=1e-5, atol=1e-6)
         assert isinstance(single(obs[s, 0]), int)
@@ -152,7 +152,7 @@ def test_linear_actor_is_one_layer_and_the_critic_keeps_its_hidden_layers():
     obs = np.random.default_rng(1).normal(size=(6, 4)).astype(np.float32)
     w, b = params["params"]["actor"]["out"]["kernel"], params["params"]["actor"]["out"]["bias"]
     np.testing.assert_allclose(network.logits(params, jnp.asarray(obs)), obs @ w + b, rtol=1e-5)
-    policy = NumpyPolicy(actor_params(params), "tanh")
+    policy = Policy(actor_params(params), activation="tanh")
     np.testing.assert_array_equal(policy(obs), (obs @ w + b).argmax(-1))
 
 

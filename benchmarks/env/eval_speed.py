@@ -21,10 +21,10 @@ import numpy as np
 from jaxcart.core import networks
 from jaxcart.core.solved import NUM_EVAL_EPISODES, SOLVED_RETURN
 from jaxcart.run.greedy import evaluate_gymnasium
-from jaxcart.rundir.policy import NumpyPolicy
+from jaxcart.rundir.policy import Policy
 
 
-def balancing_policies(num_policies: int, hidden: int = 64, seed: int = 0) -> NumpyPolicy:
+def balancing_policies(num_policies: int, hidden: int = 64, seed: int = 0) -> Policy:
     """``num_policies`` stacked MLPs whose greedy action is ``w . obs > 0`` (``w`` near
     ``[0.05, 0.3, 1, 0.4]``, a controller that balances CartPole-v1 for 500 steps): unit 0 of
     each hidden layer carries ``w . obs`` through the tanh layers; the other units get small
@@ -42,7 +42,7 @@ def balancing_policies(num_policies: int, hidden: int = 64, seed: int = 0) -> Nu
     actor["hidden_1"]["kernel"][:, 0, 0] = 1.0
     actor["out"]["kernel"][:] = 0.0
     actor["out"]["kernel"][:, 0, :] = [-1.0, 1.0]  # logits (-h, h): action 1 when h > 0
-    return NumpyPolicy(actor, "tanh", stacked=True)
+    return Policy(actor, activation="tanh", stacked=True)
 
 
 def main(argv: list[str] | None = None) -> None:

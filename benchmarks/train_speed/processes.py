@@ -89,12 +89,12 @@ def check_policy(actor: dict, predict: Callable[[np.ndarray], np.ndarray]) -> fl
     """Checks that the weights taken out of a model act as the model does: the greedy actions
     of ``actor`` (jaxcart's NumPy forward pass) against ``predict`` (the tool's own
     deterministic ``predict``) on random CartPole states. Returns the fraction that agree."""
-    from jaxcart.rundir.policy import NumpyPolicy
+    from jaxcart.rundir.policy import Policy
 
     scale = np.array([2.4, 3.0, 0.21, 3.0], np.float32)
     obs = np.random.default_rng(0).uniform(-1, 1, (CHECK_OBSERVATIONS, 4)).astype(np.float32)
     obs *= scale
-    ours = NumpyPolicy(actor, "tanh")(obs)
+    ours = Policy(actor, activation="tanh")(obs)
     agree = float(np.mean(ours == np.asarray(predict(obs)).reshape(-1)))
     if agree < 0.99:  # an exact tie in the logits may break either way; nothing else may
         raise RuntimeError(f"extracted policy agrees with the model on only {agree:.1%} of states")
@@ -134,14 +134,14 @@ def worker_result(model, actor: dict, seconds: tuple[float, float, float], info:
 
 
 def stacked_policy(actors: list[dict]):
-    """One stacked :class:`jaxcart.rundir.policy.NumpyPolicy` over the seeds' actors."""
-    from jaxcart.rundir.policy import NumpyPolicy
+    """One stacked :class:`jaxcart.rundir.policy.Policy` (NumPy) over the seeds' actors."""
+    from jaxcart.rundir.policy import Policy
 
     stacked = {
         name: {k: np.stack([a[name][k] for a in actors]) for k in ("kernel", "bias")}
         for name in actors[0]
     }
-    return NumpyPolicy(stacked, "tanh", stacked=True)
+    return Policy(stacked, activation="tanh", stacked=True)
 
 
 def cpu_seconds_with_children() -> float:

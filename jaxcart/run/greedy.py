@@ -82,7 +82,7 @@ def evaluate_gymnasium(
 
     Args:
         policy: maps observations ``[num_policies, num_episodes, obs_dim]`` float32 to actions
-            ``[num_policies, num_episodes]`` (a stacked :class:`NumpyPolicy`).
+            ``[num_policies, num_episodes]`` (a stacked :class:`~jaxcart.rundir.policy.Policy`).
         env_id: a registered Gymnasium env with discrete actions (``CartPole-v1``,
             ``CartPole-v0``, ``Acrobot-v1``, ...).
         should_stop: polled before every step.

@@ -30,8 +30,13 @@ class Policy:
     """A trained policy for one or a stack of seeds, callable on float32 observations:
     ``(obs_dim,) -> int``, ``(N, obs_dim) -> (N,)``, and when stacked ``(S, N, obs_dim) ->
     (S, N)``. Greedy (argmax) when ``deterministic``, else sampled from the policy's softmax
-    with ``rng`` (a NumPy ``Generator``, or a seed for one). Subclasses set :attr:`num_seeds`,
-    :attr:`obs_dim` and ``_logits``, the network's logits of checked observations."""
+    with ``rng`` (a NumPy ``Generator``, or a seed for one).
+
+    The built-in MLP (``network`` None: ``params`` holds its actor's layers,
+    :func:`jaxcart.core.networks.actor_params`, with a leading seed axis ``[S, ...]`` on every
+    array when ``stacked``) runs in plain NumPy, no JAX call per step. Any other flax
+    ``network`` runs through JAX, one compiled call per step: the logits of
+    ``network.apply(params, obs)``, vmapped over the seeds when ``stacked``."""
 
     num_seeds: int | None = None  # the leading seed axis of a stacked policy (else None)
     obs_dim: int | None = None  # the observation size (None: taken as given)
@@ -43,13 +48,33 @@ class Policy:
 
     def __init__(
         self,
+        params: dict,
+        network: Any = None,
+        activation: str = "tanh",
         stacked: bool = False,
         deterministic: bool = True,
         rng: np.random.Generator | int | None = None,
     ) -> None:
-        self.stacked = stacked
-        self.deterministic = deterministic
+        self.network, self.stacked, self.deterministic = network, stacked, deterministic
         self.rng = np.random.default_rng(rng)
+        if network is not None:  # any flax network, through JAX
+            self.params = jax.tree.map(jnp.asarray, params)
+            logits = lambda p, x: network.apply(p, x)[0]
+            self._logits = functools.partial(
+                jax.jit(jax.vmap(logits) if stacked else logits), self.params
+            )
+            self.num_seeds = jax.tree.leaves(self.params)[0].shape[0] if stacked else None
+            return
+
+        def layer(p: dict) -> dict:  # the built-in MLP's actor, in NumPy
+            kernel, bias = (np.asarray(p[name], np.float32) for name in ("kernel", "bias"))
+            # stacked: bias [S, out] -> [S, 1, out] broadcasts over the N observations
+            return {"kernel": kernel, "bias": bias[:, None, :] if stacked else bias}
+
+        self.params = {name: layer(p) for name, p in params.items()}
+        first = self.params[networks.layer_names(len(params) - 1)[0]]["kernel"]  # [S, obs_dim, h]
+        self.num_seeds, self.obs_dim = first.shape[0] if stacked else None, first.shape[-2]
+        self._logits = functools.partial(networks.mlp, self.params, activation=activation, xp=np)
 
     def _checked(self, obs: np.ndarray) -> np.ndarray:
         x = np.asarray(obs, np.float32)
@@ -98,58 +123,6 @@ class Policy:
         return self.actions(observation, deterministic), state
 
 
-class NumpyPolicy(Policy):
-    """The built-in MLP's actor in plain NumPy (no JAX call per step).
-
-    ``actor`` holds the actor's layers (:func:`jaxcart.core.networks.actor_params`), with a
-    leading seed axis ``[S, ...]`` on every array when ``stacked``.
-    """
-
-    def __init__(
-        self,
-        actor: dict,
-        activation: str,
-        stacked: bool = False,
-        deterministic: bool = True,
-        rng: np.random.Generator | int | None = None,
-    ) -> None:
-        def layer(p: dict) -> dict:
-            kernel, bias = np.asarray(p["kernel"], np.float32), np.asarray(p["bias"], np.float32)
-            # stacked: bias [S, out] -> [S, 1, out] broadcasts over the N observations
-            return {"kernel": kernel, "bias": bias[:, None, :] if stacked else bias}
-
-        super().__init__(stacked, deterministic, rng)
-        self.actor = {name: layer(p) for name, p in actor.items()}
-        self.activation = activation
-        first = self.actor[networks.layer_names(len(actor) - 1)[0]]["kernel"]  # [S, obs_dim, h]
-        self.num_seeds, self.obs_dim = first.shape[0] if stacked else None, first.shape[-2]
-        self._logits = functools.partial(networks.mlp, self.actor, activation=activation, xp=np)
-
-
-class JaxPolicy(Policy):
-    """Any flax network's policy, through JAX: one compiled call per step (the logits of
-    ``network.apply(params, obs)``, vmapped over the seeds when ``stacked``)."""
-
-    def __init__(
-        self,
-        network: Any,
-        params: dict,
-        stacked: bool = False,
-        deterministic: bool = True,
-        rng: np.random.Generator | int | None = None,
-    ) -> None:
-        super().__init__(stacked, deterministic, rng)
-        self.params = jax.tree.map(jnp.asarray, params)
-
-        def logits(p: dict, x: jax.Array) -> jax.Array:
-            return network.apply(p, x)[0]
-
-        self._logits = functools.partial(
-            jax.jit(jax.vmap(logits) if stacked else logits), self.params
-        )
-        self.num_seeds = jax.tree.leaves(self.params)[0].shape[0] if stacked else None
-
-
 def make_policy(
     params: dict,
     config: PPOConfig,
@@ -157,14 +130,12 @@ def make_policy(
     deterministic: bool = True,
     rng: np.random.Generator | int | None = None,
 ) -> Policy:
-    """The policy of ``config``'s network with ``params``: the built-in MLP in NumPy
-    (:class:`NumpyPolicy`), any other network through JAX (:class:`JaxPolicy`); it takes
-    observations of ``config.env`` (:attr:`Policy.obs_dim` values, :attr:`Policy.env_id`)."""
+    """The :class:`Policy` of ``config``'s network with ``params``: the built-in MLP in NumPy,
+    any other network through JAX; it takes observations of ``config.env``
+    (:attr:`Policy.obs_dim` values, :attr:`Policy.env_id`)."""
     if config.network is None:
-        actor = networks.actor_params(jax.device_get(params))
-        policy: Policy = NumpyPolicy(actor, config.activation, stacked, deterministic, rng)
-    else:
-        policy = JaxPolicy(config.network, params, stacked, deterministic, rng)
+        params = networks.actor_params(jax.device_get(params))
+    policy = Policy(params, config.network, config.activation, stacked, deterministic, rng)
     env = envs.make(config.env)
     policy.env_id, policy.obs_dim = env.id, env.obs_dim
     return policy

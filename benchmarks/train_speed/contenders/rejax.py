@@ -122,7 +122,7 @@ class NormalizedPolicy:
     with each seed's running ``mean`` and ``var`` ``[S, obs_dim]`` from its train state."""
 
     def __init__(self, policy, mean: np.ndarray, var: np.ndarray) -> None:
-        self.policy = policy  # a stacked jaxcart NumpyPolicy over the seeds' actors
+        self.policy = policy  # a stacked jaxcart Policy (NumPy) over the seeds' actors
         # [S, obs_dim] -> [S, 1, obs_dim]: broadcast over each seed's N observations
         self.mean = np.asarray(mean, np.float32)[:, None, :]
         self.scale = np.sqrt(np.asarray(var, np.float32) + np.float32(1e-8))[:, None, :]
@@ -140,7 +140,7 @@ def greedy_policy(ts, env_id: str, obs_dim: int, normalized: bool):
     """jaxcart's NumPy greedy policy over the seeds' stacked rejax train states ``ts`` (on
     the host): the actor's layers, after rejax's observation normalisation when the run
     ``normalized`` (its train state holds the running statistics either way)."""
-    from jaxcart.rundir.policy import NumpyPolicy
+    from jaxcart.rundir.policy import Policy
 
     p = ts.actor_ts.params["params"]
     layers = {
@@ -148,7 +148,7 @@ def greedy_policy(ts, env_id: str, obs_dim: int, normalized: bool):
         "hidden_1": p["features"]["Dense_1"],
         "out": p["action_logits"],
     }
-    policy = NumpyPolicy(layers, "tanh", stacked=True)
+    policy = Policy(layers, activation="tanh", stacked=True)
     policy.env_id, policy.obs_dim = env_id, obs_dim
     if not normalized:
         return policy
