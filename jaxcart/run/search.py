@@ -42,7 +42,7 @@ from jaxcart.engine.loop import Progress
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
 from jaxcart.run.progress import chain_hooks
-from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec, assignments
+from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec, assignments, parse_value
 from jaxcart.run.structural import by_shape, group_config, group_spec, shape_groups
 from jaxcart.run.sweep import RETURN_METRIC, run_scores
 from jaxcart.rundir import layout
@@ -135,22 +135,11 @@ def split_params(params: dict[str, Any]) -> tuple[dict, dict]:
 
 
 def _choice(name: str, text: str) -> Any:
-    """One categorical value of config field ``name``, from its text, of the field's kind (as
-    Optuna stores it: ``hidden_sizes`` as widths joined by x)."""
-    text, kind = text.strip(), _KINDS[name]
-    if name == "hidden_sizes":
-        if not all(s.isdigit() and int(s) > 0 for s in text.split("x")):
-            raise ValueError(
-                f"hidden_sizes choices are layer widths joined by x, e.g. 64x64; got {text!r}"
-            )
-        return text
-    if kind == "bool":
-        if text.lower() not in ("on", "off", "true", "false"):
-            raise ValueError(f"{name} choices are on/off, got {text!r}")
-        return text.lower() in ("on", "true")
-    if kind == "int":
-        return int(float(text)) if float(text).is_integer() else int(text)
-    return float(text) if kind == "float" else text
+    """One categorical value of config field ``name``, from its text, of the field's kind
+    (:func:`~jaxcart.run.spec.parse_value`; ``hidden_sizes`` as Optuna stores it: widths
+    joined by x)."""
+    value = parse_value(_KINDS[name], text)
+    return "x".join(map(str, value)) if name == "hidden_sizes" else value
 
 
 def _distribution(optuna: Any, param: str, text: str) -> Any:

@@ -119,6 +119,33 @@ def parse_env_params(specs: Sequence[str]) -> dict[str, Any]:
 
 
 _ENV_KINDS = {f.name: str(f.type) for f in dataclasses.fields(EnvParams)}
+BOOLS = {"true": True, "on": True, "1": True, "false": False, "off": False, "0": False}
+EXAMPLES = {"bool": "on", "int": "8", "float": "0.5", "tuple[int, ...]": "64x64"}
+"""A value of each kind of field, as :func:`parse_value` reads it (a ``str`` takes any)."""
+
+
+def parse_value(kind: str, text: str) -> Any:
+    """``text`` as a value of a field annotated ``kind`` (``bool``: on/off, true/false, 1/0;
+    ``int``: a whole number, ``1e5`` too; ``tuple[int, ...]``: widths joined by x, ``64x64``;
+    ``float``; ``str``): the one reading of a single value that ``--env-param``, a
+    structural ``--sweep`` and ``--space`` choices share.
+
+    Raises:
+        ConfigError: ``'TEXT' is not a value like EXAMPLE`` (the caller names the option).
+    """
+    text = text.strip()
+    try:
+        if kind == "bool":
+            return BOOLS[text.lower()]
+        if kind == "int":
+            if not float(text).is_integer():
+                raise ValueError
+            return int(float(text))
+        if kind == "tuple[int, ...]":
+            return tuple(int(w) for w in text.split("x"))
+        return float(text) if kind == "float" else text
+    except (KeyError, ValueError):
+        raise ConfigError(f"{text!r} is not a value like {EXAMPLES[kind]}") from None
 
 
 def _env_value(name: str, text: str) -> Any:
@@ -131,20 +158,10 @@ def _env_value(name: str, text: str) -> Any:
         raise ConfigError(
             f"CartPole has no env param {name!r}; choose one of: {', '.join(physics.FIELDS)}"
         )
-    kind, text = _ENV_KINDS[name], text.strip()
     try:
-        if kind == "bool":
-            if text.lower() not in ("true", "false", "on", "off", "1", "0"):
-                raise ValueError
-            return text.lower() in ("true", "on", "1")
-        if kind == "int":
-            value = float(text)
-            if not value.is_integer():
-                raise ValueError
-            return int(value)
-        return text if kind == "str" else float(text)
-    except ValueError:
-        raise ConfigError(f"env param {name}: {text!r} is not a {kind}") from None
+        return parse_value(_ENV_KINDS[name], text)
+    except ConfigError as exc:
+        raise ConfigError(f"env param {name}: {exc}") from None
 
 
 def parse_randomize(specs: Sequence[str]) -> tuple[physics.Randomization, ...]:

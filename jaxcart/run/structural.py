@@ -33,6 +33,7 @@ from jaxcart.run.spec import (
     RunSpec,
     assigned_name,
     distinct_values,
+    parse_value,
     sweep_assignments,
 )
 from jaxcart.rundir import files, layout, reader
@@ -44,14 +45,11 @@ MAX_GROUPS = 64
 
 def parse_shape_value(name: str, text: str) -> int | tuple[int, ...]:
     """One value of a shape axis: an integer, or for ``hidden_sizes`` widths joined by ``x``
-    (``64x64``)."""
+    (``64x64``): :func:`~jaxcart.run.spec.parse_value` of the field's kind."""
     try:
-        if name == "hidden_sizes":
-            return tuple(int(w) for w in text.strip().split("x"))
-        return int(text)
-    except ValueError:
-        example = "64x64" if name == "hidden_sizes" else "8"
-        raise ConfigError(f"--sweep {name}: {text!r} is not a value like {example}") from None
+        return parse_value("tuple[int, ...]" if name == "hidden_sizes" else "int", text)
+    except ConfigError as exc:
+        raise ConfigError(f"--sweep {name}: {exc}") from None
 
 
 def split_sweep(specs: list[str]) -> tuple[list[str], dict[str, list]]:
