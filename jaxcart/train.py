@@ -408,41 +408,7 @@ def _start_or_resume(
             trust_code=opts.trust_code,
         )
     except RunDirError as exc:
-        finished = isinstance(exc, lifecycle.RunFinished) and extend_to is None
-        hint = _extend_hint(opts.resume) if finished else ""
-        raise cli.UsageError(f"cannot resume: {exc}{hint}") from None
-
-
-def _extend_hint(out: Path) -> str:
-    """For a run that finished (:class:`~jaxcart.run.lifecycle.RunFinished`): how to train
-    it further (``--total-timesteps`` above its current total), or why it cannot be."""
-    import shlex
-
-    from jaxcart.rundir import reader
-    from jaxcart.rundir.files import RunDirError
-
-    try:
-        info = reader.read_run_config(out)
-    except (RunDirError, OSError, ValueError):
-        return ""
-    config, total = info["config"], info["config"].env_steps_per_seed
-    runs = int(info.get("num_seeds", 1)) * max(1, len(info.get("combinations", [])))
-    if (info.get("wave_size") or runs) < runs:  # as lifecycle's _extend decides
-        return (
-            ". It trained in waves, which keep no final state, so it cannot be extended: start "
-            f"a new run with a --total-timesteps above its {total:,}"
-        )
-    annealed = (
-        "; its annealed learning rate then anneals over N from here on, as SB3's "
-        "learn(reset_num_timesteps=False) does"
-        if config.anneal_lr
-        else ""
-    )
-    return (
-        f". To train it further, give a larger total: python -m jaxcart.train --resume "
-        f"{shlex.quote(str(out))} --total-timesteps N, with N above its current {total:,} "
-        f"env steps per seed{annealed}"
-    )
+        raise cli.UsageError(f"cannot resume: {exc}") from None
 
 
 def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: float) -> int:

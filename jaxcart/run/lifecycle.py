@@ -213,7 +213,8 @@ def open_run(
         config = info["config"]
         if meta and meta["iteration"] >= config.num_iterations and directory.finished():
             raise RunFinished(
-                f"{out} already finished all {config.num_iterations} iterations; nothing to resume"
+                f"{out} already finished all {config.num_iterations} iterations; nothing to "
+                f"resume{_extend_hint(out, info)}"
             )
         # the run's own code, only now that the directory is checked, and only if asked
         config = resolve_code(config, network, trust_code, str(out))
@@ -258,6 +259,29 @@ def _device_change(out: Path, info: dict, allowed: bool) -> bool:
     info["device_changes"] = [*info.get("device_changes", []), {"from": recorded, "to": now}]
     info["device_count"] = now
     return True
+
+
+def _extend_hint(out: Path, info: dict) -> str:
+    """For a run that finished (:class:`RunFinished`): how to train it further
+    (``--total-timesteps`` above its current total), or why it cannot be (as :func:`_extend`
+    and :func:`open_run` decide)."""
+    config, total = info["config"], info["config"].env_steps_per_seed
+    runs = int(info.get("num_seeds", 1)) * max(1, len(info.get("combinations", [])))
+    if (info.get("wave_size") or runs) < runs:
+        return (
+            ". It trained in waves, which keep no final state, so it cannot be extended: start "
+            f"a new run with a --total-timesteps above its {total:,}"
+        )
+    annealed = (
+        "; its annealed learning rate then anneals over N from here on, as SB3's "
+        "learn(reset_num_timesteps=False) does"
+        if config.anneal_lr
+        else ""
+    )
+    return (
+        f". To train it further, give a larger total: {RESUME_HINT.format(out=shlex.quote(str(out)))}"
+        f" --total-timesteps N, with N above its current {total:,} env steps per seed{annealed}"
+    )
 
 
 def _extend(out: Path, info: dict, total_timesteps: int, from_iteration: int) -> dict:
@@ -649,11 +673,14 @@ def _finish(run: Run, blocks: list, options: RunOptions, outcome: Outcome) -> No
     groups are ranked) by ``options.score`` (None: the one config.json records, else eval)."""
     episodes = options.eval_episodes
     pieces = list(overlapping(blocks, range(run.grid.num_runs)))  # (block, its runs' rows)
-    gym = np.concatenate([block.gym_returns[take] for block, take in pieces])
-    jax_returns = np.concatenate([block.jax_returns[take] for block, take in pieces])
-    outcome.diverged_at = np.concatenate([block.diverged_at[take] for block, take in pieces])
-    final = [block.metrics[sweeps.RETURN_METRIC][-1, take] for block, take in pieces]
-    outcome.final_return = np.concatenate(final)
+
+    def joined(rows: Callable[[Block], np.ndarray]) -> np.ndarray:
+        """Every run's rows of ``rows(block)``, block after block."""
+        return np.concatenate([rows(block)[take] for block, take in pieces])
+
+    gym, jax_returns = joined(lambda b: b.gym_returns), joined(lambda b: b.jax_returns)
+    outcome.diverged_at = joined(lambda b: b.diverged_at)
+    outcome.final_return = joined(lambda b: b.metrics[sweeps.RETURN_METRIC][-1])
     timing = {
         k: sum(float(block.timing.get(k, 0.0)) for block, _ in pieces)
         for k in ("compile_seconds", "train_seconds", "eval_seconds")
@@ -661,8 +688,7 @@ def _finish(run: Run, blocks: list, options: RunOptions, outcome: Outcome) -> No
     env = run.config.env
     outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"], env=env)
     if run.config.keep_best:
-        best = [block.best["best_gym_returns"][take] for block, take in pieces]
-        outcome.evaluation.best_gym_returns = np.concatenate(best)
+        outcome.evaluation.best_gym_returns = joined(lambda b: b.best["best_gym_returns"])
     timing |= {"devices": outcome.num_devices, "waves": len(blocks)}
     swept = run.grid.is_sweep
     for c, combo in enumerate(run.grid.combos or ({},)):
