@@ -37,7 +37,7 @@ from jaxcart.engine.loop import CHUNK_SECONDS, Progress, TrainResult, TrainState
 from jaxcart.engine.signals import Stopped, StopRequest
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.greedy import CrossCheck
-from jaxcart.run.loggers import make_logger, sb3_extras
+from jaxcart.run.loggers import make_logger
 from jaxcart.run.progress import ProgressBar, chain_hooks
 from jaxcart.run.spec import Evaluation, Hooks, Outcome, Run, RunOptions, RunSpec, check_option
 from jaxcart.run.waves import WavePlan, available_bytes, bytes_per_run, plan_waves
@@ -568,11 +568,9 @@ def train_wave(
             for r in sorted(new):
                 hooks.on_diverged(grid.run_name(runs.start + r), int(progress.diverged_at[r]))
         run.directory.stream.append(progress.metrics)
-        count = len(progress.metrics["time/fps"])
-        first = progress.iteration - count
-        steps = (first + 1 + np.arange(count)) * config.batch_size
-        extras = sb3_extras(first, count, config.update_epochs, clip_ranges)
-        logger.log(first, steps, {**progress.metrics, **extras})
+        first = progress.iteration - len(progress.metrics["time/fps"])
+        epochs = config.update_epochs
+        logger.log_iterations(first, progress.metrics, config.batch_size, epochs, clip_ranges)
         # every process must agree on when to gather
         due = distributed.any_process(time.monotonic() - last_save >= options.checkpoint_every)
         if due and progress.iteration < config.num_iterations:

@@ -66,17 +66,6 @@ SB3_NAMES = {"time/elapsed": "time/time_elapsed"}
 """jaxcart metric name -> the name Stable-Baselines3 logs it under, where they differ."""
 
 
-def sb3_extras(
-    first_iteration: int, count: int, update_epochs: int, clip_range: np.ndarray
-) -> dict[str, np.ndarray]:
-    """The metrics SB3 logs that jaxcart's step does not compute, for ``count`` iterations
-    after ``first_iteration``: ``train/n_updates`` ``[count]`` (epochs run so far, as SB3
-    counts them) and ``train/clip_range`` ``[count, R]`` from each run's ``clip_range [R]``."""
-    iterations = first_iteration + 1 + np.arange(count)
-    clip = np.broadcast_to(np.asarray(clip_range, np.float64), (count, len(clip_range)))
-    return {"train/n_updates": iterations * update_epochs, "train/clip_range": clip}
-
-
 class LoggerUnavailable(ValueError):
     """A requested logger's package is not installed (the message says which extra to add)."""
 
@@ -471,6 +460,25 @@ class Logger(contextlib.AbstractContextManager):
         batch = MetricBatch(int(first_iteration), steps, copied, runs)
         for worker in self._workers:
             worker.queue.put(batch)
+
+    def log_iterations(
+        self,
+        first_iteration: int,
+        metrics: dict[str, np.ndarray],
+        batch_size: int,
+        update_epochs: int,
+        clip_range: np.ndarray,
+        run: int | None = None,
+    ) -> None:
+        """:meth:`log` of a training's ``metrics`` for the iterations after
+        ``first_iteration`` (``batch_size`` env steps each), with the metrics SB3 logs that
+        jaxcart's step does not compute: ``train/n_updates`` (epochs run so far, as SB3 counts
+        them) and ``train/clip_range`` from each run's ``clip_range [R]``."""
+        count = len(metrics["time/fps"])
+        iterations = first_iteration + 1 + np.arange(count)
+        clip = np.broadcast_to(np.asarray(clip_range, np.float64), (count, len(clip_range)))
+        extras = {"train/n_updates": iterations * update_epochs, "train/clip_range": clip}
+        self.log(first_iteration, iterations * batch_size, {**metrics, **extras}, run)
 
     def close(self) -> None:
         """Writes everything queued, closes the backends and waits for them. Idempotent.

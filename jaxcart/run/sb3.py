@@ -39,7 +39,7 @@ from jaxcart.core.config import PPOConfig
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine.loop import METRIC_COLUMNS
 from jaxcart.run.greedy import evaluate_gymnasium
-from jaxcart.run.loggers import SB3_NAMES, Logger, make_logger, sb3_extras
+from jaxcart.run.loggers import SB3_NAMES, Logger, make_logger
 from jaxcart.run.progress import SeedBars
 from jaxcart.rundir import files, layout
 from jaxcart.rundir.directory import evaluation_record, package_versions, write_metrics_csv
@@ -394,10 +394,11 @@ class LiveSeeds:
         """Logs seed ``seed``'s ``metrics`` (name -> ``[n]``, as :func:`to_metrics` makes
         them) of iterations ``first_iteration + 1 ... first_iteration + n``, with SB3's
         ``train/n_updates`` and ``train/clip_range``."""
-        n, c = len(metrics["time/fps"]), self.config
-        extras = sb3_extras(first_iteration, n, c.update_epochs, np.full(1, float(c.clip_coef)))
-        steps = (first_iteration + 1 + np.arange(n)) * c.batch_size
-        self.logger.log(first_iteration, steps, metrics | extras, run=seed - self.first_seed)
+        c, run = self.config, seed - self.first_seed
+        clip = np.full(1, float(c.clip_coef))
+        self.logger.log_iterations(
+            first_iteration, metrics, c.batch_size, c.update_epochs, clip, run
+        )
 
 
 def _train(
