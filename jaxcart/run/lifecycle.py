@@ -569,8 +569,7 @@ def train_wave(
                 hooks.on_diverged(grid.run_name(runs.start + r), int(progress.diverged_at[r]))
         run.directory.stream.append(progress.metrics)
         first = progress.iteration - len(progress.metrics["time/fps"])
-        epochs = config.update_epochs
-        logger.log_iterations(first, progress.metrics, config.batch_size, epochs, clip_ranges)
+        logger.log_iterations(first, progress.metrics, config, clip_ranges)
         # every process must agree on when to gather
         due = distributed.any_process(time.monotonic() - last_save >= options.checkpoint_every)
         if due and progress.iteration < config.num_iterations:

@@ -60,6 +60,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from jaxcart.core.config import PPOConfig
 from jaxcart.rundir import files
 
 SB3_NAMES = {"time/elapsed": "time/time_elapsed"}
@@ -462,23 +463,17 @@ class Logger(contextlib.AbstractContextManager):
             worker.queue.put(batch)
 
     def log_iterations(
-        self,
-        first_iteration: int,
-        metrics: dict[str, np.ndarray],
-        batch_size: int,
-        update_epochs: int,
-        clip_range: np.ndarray,
-        run: int | None = None,
+        self, first: int, metrics: dict, config: PPOConfig, clip: np.ndarray, run: int | None = None
     ) -> None:
-        """:meth:`log` of a training's ``metrics`` for the iterations after
-        ``first_iteration`` (``batch_size`` env steps each), with the metrics SB3 logs that
+        """:meth:`log` of a training's ``metrics`` for the iterations after ``first`` (the
+        ``config``'s batch size of env steps each), with the metrics SB3 logs that
         jaxcart's step does not compute: ``train/n_updates`` (epochs run so far, as SB3 counts
-        them) and ``train/clip_range`` from each run's ``clip_range [R]``."""
+        them) and ``train/clip_range`` from each run's ``clip [R]``."""
         count = len(metrics["time/fps"])
-        iterations = first_iteration + 1 + np.arange(count)
-        clip = np.broadcast_to(np.asarray(clip_range, np.float64), (count, len(clip_range)))
-        extras = {"train/n_updates": iterations * update_epochs, "train/clip_range": clip}
-        self.log(first_iteration, iterations * batch_size, {**metrics, **extras}, run)
+        iterations = first + 1 + np.arange(count)
+        clip = np.broadcast_to(np.asarray(clip, np.float64), (count, len(clip)))
+        extras = {"train/n_updates": iterations * config.update_epochs, "train/clip_range": clip}
+        self.log(first, iterations * config.batch_size, {**metrics, **extras}, run)
 
     def close(self) -> None:
         """Writes everything queued, closes the backends and waits for them. Idempotent.

@@ -394,11 +394,8 @@ class LiveSeeds:
         """Logs seed ``seed``'s ``metrics`` (name -> ``[n]``, as :func:`to_metrics` makes
         them) of iterations ``first_iteration + 1 ... first_iteration + n``, with SB3's
         ``train/n_updates`` and ``train/clip_range``."""
-        c, run = self.config, seed - self.first_seed
-        clip = np.full(1, float(c.clip_coef))
-        self.logger.log_iterations(
-            first_iteration, metrics, c.batch_size, c.update_epochs, clip, run
-        )
+        clip, run = np.full(1, float(self.config.clip_coef)), seed - self.first_seed
+        self.logger.log_iterations(first_iteration, metrics, self.config, clip, run)
 
 
 def _train(
