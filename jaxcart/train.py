@@ -275,8 +275,9 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     opts.check()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
     groups = opts.shape_groups() if spec is not None else []
+    specs = structural.group_specs(spec, groups) if groups else [spec]  # each group checked
     if spec is not None and opts.score is not None:
-        _check_score(opts.score, spec, groups)
+        _check_score(opts.score, spec, groups, specs)
     run_options = opts.run_options()
     if opts.distributed and (groups or (opts.resume and layout.is_groups(opts.resume))):
         raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
@@ -285,7 +286,6 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if not distributed.is_main_process():
         console.out, console.progress_bar = open(os.devnull, "w"), False
     if groups:
-        specs = structural.group_specs(spec, groups)  # every group checked before anything runs
         console.print(
             f"structural sweep: {len(groups)} shape groups, so {len(groups)} programs compile "
             f"(one each; the float axes stay vmapped inside each): "
@@ -301,7 +301,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         )
         console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
     if opts.dry_run:  # the plan of the run, or of each shape group
-        for group, group_spec in zip(groups, specs) if groups else [(None, spec)]:
+        for group, group_spec in zip(groups or [None], specs):
             label = f"{group_label(group)}: " if groups else ""
             plan = lifecycle.plan_run(group_spec, run_options)
             console.print(label + report.plan_text(plan, group_spec))
@@ -336,10 +336,9 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     return _report(outcome, console, time.perf_counter() - wall_start)
 
 
-def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list[dict]) -> None:
+def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list, specs: list) -> None:
     """Refuses, before anything trains, a ``--score`` without a sweep to rank, and a
-    ``return-at:STEPS`` past the end of the run (or of one of its shape groups)."""
-    from jaxcart.run import structural
+    ``return-at:STEPS`` past the end of the run (or of one of its shape groups, ``specs``)."""
     from jaxcart.run.search import check_score
 
     if not spec.grid.is_sweep and not groups:
@@ -347,8 +346,7 @@ def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list[dict]) -> N
             "--score ranks the combinations of a --sweep; without one there is nothing to rank "
             "(python -m jaxcart.compare --score scores any run)"
         )
-    for group_spec in structural.group_specs(spec, groups) if groups else [spec]:
-        check_score(score, [group_spec.config])
+    check_score(score, [group_spec.config for group_spec in specs])
 
 
 def _report_groups(
