@@ -223,14 +223,11 @@ class TrainOptions:
         """How to carry the run out."""
         from jaxcart.run import lifecycle
 
+        same = ("checkpoint_every", "eval_episodes", "logger_dir", "wave_size", "score")
         return lifecycle.RunOptions(
-            checkpoint_every=self.checkpoint_every,
-            eval_episodes=self.eval_episodes,
             loggers=self.logger,
-            logger_dir=self.logger_dir,
             compile_cache=not self.no_compile_cache,
-            wave_size=self.wave_size,
-            score=self.score,
+            **{name: getattr(self, name) for name in same},
         )
 
     def check(self) -> None:
