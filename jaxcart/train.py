@@ -212,13 +212,6 @@ class TrainOptions:
             randomize=spec.parse_randomize(self.randomize),
         )
 
-    def shape_groups(self) -> list[dict]:
-        """The shape groups of a structural sweep (``--sweep num_envs=4,8``...); [] without."""
-        from jaxcart.run.structural import shape_groups, split_sweep
-
-        shapes = split_sweep(list(self.sweep))[1]
-        return shape_groups(shapes) if shapes else []
-
     def run_options(self) -> lifecycle.RunOptions:
         """How to carry the run out."""
         from jaxcart.run import lifecycle
@@ -271,7 +264,8 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     wall_start = time.perf_counter()
     opts.check()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
-    groups = opts.shape_groups() if spec is not None else []
+    shapes = structural.split_sweep(list(opts.sweep))[1]  # a structural sweep's axes, if any
+    groups = structural.shape_groups(shapes) if spec is not None and shapes else []
     specs = structural.group_specs(spec, groups) if groups else [spec]  # each group checked
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups, specs)
