@@ -19,7 +19,6 @@ cli.import_jax()  # before run.sb3, which imports JAX: JAX reads JAX_* then
 
 from jaxcart.core.solved import is_solved  # noqa: E402
 from jaxcart.run import sb3  # noqa: E402
-from jaxcart.run.loggers import LoggerUnavailable  # noqa: E402
 from jaxcart.run.loggers import check_available as check_loggers  # noqa: E402
 from jaxcart.rundir import layout  # noqa: E402
 
@@ -64,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Runs the command; returns the exit code (2 with one line for a user's mistake)."""
-    return cli.run_command(lambda: _main(argv), also=(sb3.SB3Unavailable, LoggerUnavailable))
+    return cli.run_command(lambda: _main(argv), also=(sb3.SB3Unavailable,))
 
 
 def _main(argv: list[str] | None) -> int:

@@ -86,7 +86,7 @@ class TuneOptions:
     group stops when all its trials are pruned"""
     top: int = cli.option(5, type=cli.count)
     """trials in the final table"""
-    heldout_top: int = cli.option(3, type=int, metavar="K")
+    heldout_top: int = cli.option(3, type=functools.partial(cli.count, minimum=0), metavar="K")
     """at the end, train the top K trials again on fresh seeds, as one batch, and rank them
     by those held-out scores (0: skip; default: 3)"""
     config: Path | None = cli.option(type=Path, metavar="FILE", group=TRIAL)
@@ -233,8 +233,6 @@ def _on_signal(signum: int) -> None:
 
 
 def _tune(opts: TuneOptions) -> int:
-    if opts.heldout_top < 0:
-        raise cli.UsageError(f"--heldout-top must be 0 or more, got {opts.heldout_top}")
     spec = opts.base.run_spec()
     space = search.parse_space(list(opts.space), spec.config, opts.score)
     for param in space:

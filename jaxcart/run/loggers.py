@@ -60,15 +60,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from jaxcart.core.config import PPOConfig
+from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.rundir import files
 
 SB3_NAMES = {"time/elapsed": "time/time_elapsed"}
 """jaxcart metric name -> the name Stable-Baselines3 logs it under, where they differ."""
 
 
-class LoggerUnavailable(ValueError):
-    """A requested logger's package is not installed (the message says which extra to add)."""
+class LoggerUnavailable(ConfigError):
+    """A requested logger's package is not installed (the message says which extra to add):
+    a user's mistake, as every :class:`ConfigError` is (one line from a command)."""
 
 
 class LoggerError(RuntimeError):

@@ -26,7 +26,7 @@ from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.solved import is_solved
 from jaxcart.engine.loop import Progress, TrainResult
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.loggers import LoggerUnavailable, check_available
+from jaxcart.run.loggers import check_available
 from jaxcart.run.waves import WavePlan
 from jaxcart.rundir.directory import RunDir
 from jaxcart.rundir.reader import check_num_runs, combo_config, env_values, sweep_combinations
@@ -395,11 +395,7 @@ class RunOptions:
             "checkpoint_every",
             f"must be in (0, 31536000] seconds, got {self.checkpoint_every}",
         )
-        if self.loggers:
-            try:
-                check_available(self.loggers)
-            except LoggerUnavailable as exc:
-                raise ConfigError(str(exc)) from None
+        check_available(self.loggers)  # a LoggerUnavailable is a ConfigError
 
 
 @dataclass
