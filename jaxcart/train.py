@@ -16,7 +16,6 @@ import functools
 import os
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
@@ -259,6 +258,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     from jaxcart.engine.signals import Stopped
     from jaxcart.run import lifecycle, structural
     from jaxcart.rundir import layout
+    from jaxcart.rundir.files import RunDirError
     from jaxcart.rundir.reader import group_label
 
     wall_start = time.perf_counter()
@@ -302,10 +302,30 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
         if not outcome.stopped and outcome.evaluation is not None:
             console.print(report.results_text(outcome))
 
+    def start_or_resume() -> lifecycle.Outcome | structural.GroupsOutcome:
+        """The run: ``spec`` as a new run (one per shape group of a structural sweep), or
+        ``--resume`` (``spec`` None) of a run or of every group of a sweep not yet finished."""
+        command = ["python -m jaxcart.train", *opts.argv]
+        if groups:
+            out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
+            args = (run_options, hooks, stop, command, on_group)
+            return structural.run_groups(spec, groups, out, *args)
+        if spec is not None:
+            return lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
+        if layout.is_groups(opts.resume):
+            return structural.finish_groups(opts.resume, run_options, hooks, stop, on_group)
+        extend_to, allow = opts.overrides.get("total_timesteps"), opts.allow_device_change
+        try:
+            return lifecycle.resume_run(
+                opts.resume, run_options, hooks, stop, extend_to, allow, trust_code=opts.trust_code
+            )
+        except RunDirError as exc:
+            raise cli.UsageError(f"cannot resume: {exc}") from None
+
     stop, hooks = StopRequest(on_signal=console.on_signal), console.hooks()
     try:
         with stop.installed():  # the training's signal handling, from its plan to its outputs
-            outcome = _start_or_resume(opts, spec, groups, run_options, hooks, stop, on_group)
+            outcome = start_or_resume()
     except Stopped:
         console.print("stopped before the run started; nothing was written")
         return 128 + (stop.signum or 15)
@@ -360,44 +380,6 @@ def _report_groups(
         f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
     )
     return 0
-
-
-def _start_or_resume(
-    opts: TrainOptions,
-    spec: lifecycle.RunSpec | None,
-    groups: list[dict],
-    run_options: lifecycle.RunOptions,
-    hooks: lifecycle.Hooks,
-    stop: StopRequest,
-    on_group: Callable[[lifecycle.Outcome], None],
-) -> lifecycle.Outcome | structural.GroupsOutcome:
-    """The run: ``spec`` as a new run (one per shape group of a structural sweep), or
-    ``--resume`` (``spec`` None) of a run or of every group of a sweep not yet finished."""
-    from jaxcart.run import lifecycle, structural
-    from jaxcart.rundir import layout
-    from jaxcart.rundir.files import RunDirError
-
-    command = ["python -m jaxcart.train", *opts.argv]
-    if groups:
-        out = opts.out or layout.default_run_dir(f"{spec.preset}-groups")
-        return structural.run_groups(spec, groups, out, run_options, hooks, stop, command, on_group)
-    if spec is not None:
-        return lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
-    if layout.is_groups(opts.resume):
-        return structural.finish_groups(opts.resume, run_options, hooks, stop, on_group)
-    extend_to = opts.overrides.get("total_timesteps")
-    try:
-        return lifecycle.resume_run(
-            opts.resume,
-            run_options,
-            hooks,
-            stop,
-            extend_to,
-            opts.allow_device_change,
-            trust_code=opts.trust_code,
-        )
-    except RunDirError as exc:
-        raise cli.UsageError(f"cannot resume: {exc}") from None
 
 
 def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: float) -> int:
