@@ -525,9 +525,10 @@ STATIC_FIELDS: tuple[str, ...] = tuple(
 """Every other field, in declaration order: the pytree's structure."""
 
 
-def _replace_unchecked(config: PPOConfig, values: dict[str, Any]) -> PPOConfig:
+def _replace_unchecked(config: PPOConfig | None, values: dict[str, Any]) -> PPOConfig:
     """``dataclasses.replace`` without ``__init__``'s validation: for JAX's unflattening (the
-    leaves may be tracers or placeholders) and for values already checked."""
+    leaves may be tracers or placeholders; ``config`` None: every field is in ``values``) and
+    for values already checked."""
     new = object.__new__(PPOConfig)
     for f in dataclasses.fields(PPOConfig):
         object.__setattr__(new, f.name, values.get(f.name, getattr(config, f.name, None)))
@@ -540,10 +541,8 @@ def _flatten(config: PPOConfig) -> tuple[list, tuple]:
 
 
 def _unflatten(static: tuple, leaves: list) -> PPOConfig:
-    blank = object.__new__(PPOConfig)
-    return _replace_unchecked(
-        blank, {**dict(zip(STATIC_FIELDS, static)), **dict(zip(TRACED_FIELDS, leaves))}
-    )
+    values = {**dict(zip(STATIC_FIELDS, static)), **dict(zip(TRACED_FIELDS, leaves))}
+    return _replace_unchecked(None, values)
 
 
 jax.tree_util.register_pytree_with_keys(PPOConfig, _flatten, _unflatten)
@@ -637,14 +636,9 @@ def validate(config: PPOConfig) -> None:
             f"{c.batch_size:,} transitions, more than the {MAX_ITERATIONS:,} this trainer counts; "
             "use fewer total_timesteps"
         )
-    if c.network is not None and not isinstance(c.network, RecordedNetwork):
-        if not (
-            callable(getattr(c.network, "apply", None))
-            and callable(getattr(c.network, "init", None))
-        ):
-            raise ConfigError(
-                f"network must be a flax module (with init and apply), got {c.network!r}"
-            )
+    flax_like = all(callable(getattr(c.network, name, None)) for name in ("init", "apply"))
+    if not (c.network is None or isinstance(c.network, RecordedNetwork) or flax_like):
+        raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
     if not isinstance(c.env, str):
         raise ConfigError(f"env must be an env id, got {c.env!r}")
     try:

@@ -76,17 +76,26 @@ PARAM_ATTRIBUTES = (*kernels.FLOAT_PARAMS[:-2], "kinematics_integrator")
 """``CartPoleEnv``'s attributes that both front-ends read from ``self.params`` (read-only)."""
 
 
-def _param_attribute(name: str) -> property:
+VECTOR_PARAM_ATTRIBUTES = {
+    "max_episode_steps": "max_episode_steps",
+    "low": "reset_low",
+    "high": "reset_high",
+}
+"""``CartPoleVectorEnv``'s further attributes, each read from the field of ``self.params`` it
+names (read-only)."""
+
+
+def _param_attribute(name: str, field: str) -> property:
     def get(env: Any) -> Any:
-        return getattr(env.params, name)
+        return getattr(env.params, field)
 
     def refuse(env: Any, value: Any) -> None:
         raise AttributeError(
             f"{name} is read-only on jaxcart's env (its physics is compiled from the params): "
-            f'make the env with gym.make("{ENV_ID}", params=EnvParams({name}=...)) instead'
+            f'make the env with gym.make("{ENV_ID}", params=EnvParams({field}=...)) instead'
         )
 
-    return property(get, refuse, doc=f"``params.{name}``, as ``CartPoleEnv.{name}``.")
+    return property(get, refuse, doc=f"``params.{field}``, as Gymnasium's CartPole ``{name}``.")
 
 
 class CartPoleAttributes:
@@ -174,14 +183,15 @@ class CartPoleAttributes:
             frames.append(self._renderer.render())
         return frames
 
-    def _close_renderer(self) -> None:
+    def close_extras(self, **kwargs: Any) -> None:
+        """Closes the renderer (``VectorEnv.close`` calls it; it is ``JaxCartPoleEnv.close``)."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
 
 
 for _name in PARAM_ATTRIBUTES:
-    setattr(CartPoleAttributes, _name, _param_attribute(_name))
+    setattr(CartPoleAttributes, _name, _param_attribute(_name, _name))
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:
@@ -308,8 +318,7 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         frames = self._frames(None if self._state is None else self._state[None], "make")
         return frames[0] if frames else None
 
-    def close(self) -> None:
-        self._close_renderer()
+    close = CartPoleAttributes.close_extras
 
 
 _KEY_BLOCK = 1024  # step keys drawn from np_random at a time
@@ -466,20 +475,6 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
         self._ended = np.zeros(self.num_envs, dtype=np.bool_)  # for DISABLED's check
 
     @property
-    def max_episode_steps(self) -> int:
-        return int(self.params.max_episode_steps)
-
-    @property
-    def low(self) -> float:
-        """The default lower reset bound, as ``CartPoleVectorEnv.low``."""
-        return self.params.reset_low
-
-    @property
-    def high(self) -> float:
-        """The default upper reset bound, as ``CartPoleVectorEnv.high``."""
-        return self.params.reset_high
-
-    @property
     def state(self) -> np.ndarray | None:
         if self._rows is None:
             return None
@@ -549,8 +544,9 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
             raise ValueError("Call reset before rendering.")
         return self._frames(None if self._rows is None else self.state.T, "make_vec")
 
-    def close_extras(self, **kwargs: Any) -> None:
-        self._close_renderer()
+
+for _name, _field in VECTOR_PARAM_ATTRIBUTES.items():
+    setattr(JaxCartPoleVectorEnv, _name, _param_attribute(_name, _field))
 
 
 SPIN_SECONDS = 300e-6
