@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcart.core import pytree
+from jaxcart.core.pytree import float_dtype
 
 Array = jax.Array
 
@@ -83,11 +84,6 @@ class EnvState:
     theta: Array
     theta_dot: Array
     step_count: Array  # int32
-
-
-def float_dtype() -> jnp.dtype:
-    """float64 when JAX's x64 mode is on, float32 otherwise."""
-    return jnp.zeros(()).dtype
 
 
 def get_obs(state: EnvState) -> Array:

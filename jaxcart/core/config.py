@@ -29,6 +29,7 @@ from jaxcart.core import envs
 from jaxcart.core.envs import DEFAULT_ENV
 from jaxcart.core.errors import ConfigError
 from jaxcart.core.metrics import EVAL_METRICS, METRIC_NAMES
+from jaxcart.core.pytree import float_dtype
 
 BOUNDS = {
     "> 0": lambda v: v > 0,
@@ -54,12 +55,6 @@ def setting(default: Any, **meta: Any) -> Any:
     config.json: left out of it at its default, or while the field it names is off, so that
     older runs read as they did) and ``cli=False`` (Python API only)."""
     return field(default=default, metadata=meta)
-
-
-def float_dtype() -> np.dtype:
-    """The float type training runs in: float32, or float64 when JAX runs with x64 enabled
-    (``JAX_ENABLE_X64=1``), so that the env state, the network and the update all follow."""
-    return np.dtype(np.float64 if jax.config.jax_enable_x64 else np.float32)
 
 
 @dataclass(frozen=True)
@@ -569,25 +564,33 @@ def _is_number(value: Any) -> bool:
     )
 
 
+def _is_int(value: Any, least: int = 1, most: int | None = None) -> bool:
+    """Whether ``value`` is an ``int`` (not a bool) in ``[least, most]`` (no upper bound: None)."""
+    return (
+        isinstance(value, int)
+        and not isinstance(value, bool)
+        and least <= value
+        and (most is None or value <= most)
+    )
+
+
 def check_field(f: dataclasses.Field, value: Any, option: str | None = None) -> None:
     """Raises :class:`ConfigError` for a value that is not what the field's declaration says
     (:func:`setting`, :func:`traced`): an integer (``int``, or ``int | None`` left at None)
-    within its ``minimum`` (default 1) and ``maximum``, true or false, one of its
+    within its ``minimum`` (default 1) and ``maximum``, positive integers (``tuple[int, ...]``,
+    one or more), true or false, one of its
     ``choices``, a finite number within its ``bound``. ``option``: the error's
     :attr:`ConfigError.option` (a command line then names the field as its option)."""
     meta = f.metadata
     least, most, choices = meta.get("minimum", 1), meta.get("maximum"), meta.get("choices")
     if value is None and f.default is None:  # an optional setting left out
         return
-    if f.type in ("int", "int | None") and (
-        isinstance(value, bool)
-        or not isinstance(value, int)
-        or value < least
-        or (most is not None and value > most)
-    ):
+    if f.type in ("int", "int | None") and not _is_int(value, least, most):
         what = "a positive integer" if least else "a non-negative integer"
         what = f"in [{least}, {most}]" if most else what
         raise ConfigError(f"{f.name} must be {what}, got {value!r}", option)
+    if f.type == "tuple[int, ...]" and not (value and all(_is_int(h) for h in value)):
+        raise ConfigError(f"{f.name} must be one or more positive integers, got {value!r}", option)
     if f.type == "bool" and not isinstance(value, bool):
         raise ConfigError(f"{f.name} must be true or false, got {value!r}", option)
     if choices and value not in choices:
@@ -611,12 +614,6 @@ def validate(config: PPOConfig) -> None:
             f"minibatch_size={c.minibatch_size} does not divide the rollout of "
             f"num_envs x num_steps = {c.num_envs} x {c.num_steps} = {c.batch_size}; "
             f"pick a divisor of {c.batch_size}"
-        )
-    if not c.hidden_sizes or any(
-        isinstance(h, bool) or not isinstance(h, int) or h <= 0 for h in c.hidden_sizes
-    ):
-        raise ConfigError(
-            f"hidden_sizes must be one or more positive integers, got {c.hidden_sizes!r}"
         )
     sizes = (4, *c.hidden_sizes)
     weights = sum(a * b for a, b in zip(sizes, sizes[1:]))

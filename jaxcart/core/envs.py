@@ -218,7 +218,7 @@ def from_step(
 
 def _flat_obs(obs: Array, batch_dims: int) -> Array:
     """Observations as floats of the training dtype, flattened to ``[..., obs_dim]``."""
-    obs = jnp.asarray(obs, jnp.zeros(()).dtype)
+    obs = jnp.asarray(obs, pytree.float_dtype())
     return obs.reshape(obs.shape[:batch_dims] + (-1,))
 
 

@@ -41,14 +41,12 @@ def check_physics(params: EnvParams, dtype: np.dtype | None = None) -> None:
     length, ``tau`` and thresholds must be positive, gravity and the force not negative,
     every number finite, the episode limit a positive integer and the reset bounds ordered.
     Numbers are checked in the float type the env runs in (``dtype``, default
-    :func:`~jaxcart.core.config.float_dtype`: float32, float64 under x64), and so are the
+    :func:`~jaxcart.core.pytree.float_dtype`: float32, float64 under x64), and so are the
     quantities the step derives from them alone (total mass, pole mass x length, the pole's
     angular acceleration when pushed from rest): a value that overflows there, or a positive
     one that rounds to 0, would make every run diverge at its first iteration.
     Fields may hold arrays (one value per run); every value is checked."""
-    if dtype is None:  # the flag, not a JAX array: no backend starts here
-        dtype = np.float64 if jax.config.jax_enable_x64 else np.float32
-    dtype = np.dtype(dtype)
+    dtype = np.dtype(pytree.float_dtype() if dtype is None else dtype)  # starts no backend
     positive = ("masscart", "masspole", "length", "tau", "x_threshold", "theta_threshold_radians")
     ran: dict[str, np.ndarray] = {}  # each number as the env holds it
     for name in (*positive, "gravity", "force_mag", "reset_low", "reset_high"):

@@ -66,6 +66,13 @@ def with_values(params: T, values: dict[str, Any]) -> T:
     return dataclasses.replace(params, **values) if values else params
 
 
+def float_dtype() -> np.dtype:
+    """The float type training runs in: float32, or float64 when JAX runs with x64 enabled
+    (``JAX_ENABLE_X64=1``, or inside ``jax.enable_x64``), so that the env state, the network
+    and the update all follow."""
+    return np.dtype(np.float64 if jax.config.jax_enable_x64 else np.float32)
+
+
 def where(mask: jax.Array, on_true: T, on_false: T) -> T:
     """``jnp.where`` leaf by leaf over two pytrees of one structure, with ``mask`` (e.g. a
     batch's ``done [N]``) broadcast over each leaf's trailing axes (``[N, ...]``)."""
