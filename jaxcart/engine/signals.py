@@ -97,22 +97,14 @@ def wait_interruptibly(fn: Callable[[], T]) -> T:
     if threading.current_thread() is not threading.main_thread():
         return fn()
     future: Future = Future()
-    _start(fn, future, background=False)
+    in_background(fn, future, background=False)
     while not future.done():
         futures.wait([future], 0.1)
     return future.result()
 
 
-def in_background(work: Callable[[], T], future: Future) -> None:
-    """``work()`` on a daemon thread, its result or exception set on ``future``. Until it
-    returns, :func:`abandoned_work` is true, so a command stopped meanwhile (a signal) ends
-    without the interpreter's teardown instead of waiting for it or freeing what it uses; a
-    program that simply ends waits for it first (:func:`_finish_background`)."""
-    _start(work, future, background=True)
-
-
 _running: set[threading.Thread] = set()
-"""The workers of :func:`wait_interruptibly` and :func:`in_background` whose call has not
+"""The workers of :func:`in_background` (:func:`wait_interruptibly`'s too) whose call has not
 returned. (Not ``Thread.is_alive``: a ``join`` interrupted by a signal marks the thread
 stopped.)"""
 _background: set[threading.Thread] = set()
@@ -120,9 +112,15 @@ _background: set[threading.Thread] = set()
 _background_seen: list = []
 
 
-def _start(work: Callable[[], T], future: Future, background: bool) -> None:
-    """``work()`` on a daemon thread listed in :data:`_running` (and, ``background``, in
-    :data:`_background`) until it returns, its result or exception set on ``future``."""
+def in_background(work: Callable[[], T], future: Future, background: bool = True) -> None:
+    """``work()`` on a daemon thread, its result or exception set on ``future``. Until it
+    returns, :func:`abandoned_work` is true, so a command stopped meanwhile (a signal) ends
+    without the interpreter's teardown instead of waiting for it or freeing what it uses; a
+    program that simply ends waits for it first (:func:`_finish_background`), unless
+    ``background`` is False (:func:`wait_interruptibly`'s worker, which its caller waits for).
+
+    The thread is listed in :data:`_running` (and, ``background``, in :data:`_background`)
+    until ``work`` returns."""
 
     def target() -> None:
         try:
