@@ -62,8 +62,7 @@ def init_runners(
     """
     env = envs.make(config.env)
     env_params = split_per_run(env_params or env.default_params())[0]
-    indices = np.asarray(seed_indices)
-    keys = seed_index_keys(seed, indices)
+    keys = seed_index_keys(seed, seed_indices)
     reset_obs = jax.eval_shape(env.reset, jax.random.PRNGKey(0), env_params)[0]
     dtype, obs_dim = reset_obs.dtype, reset_obs.shape[-1]
     network = make_network(config)
