@@ -75,7 +75,7 @@ def export(opts: ExportOptions) -> str:
     config = read_run_config(opts.run_dir)["config"]  # refused before any params are read:
     if config.network is not None:
         raise cli.UsageError(
-            f"{opts.run_dir} trained its own network ({config.network.class_path}); "
+            f"{opts.run_dir} trained its own network ({config.network.path}); "
             f"--to {opts.to} exports the built-in SB3 MLP only"
         )
     if not has_physics(config.env):  # the zip declares CartPole's spaces, ONNX its obs [N, 4]

@@ -13,7 +13,7 @@ from custom_metrics import mean_abs_pole_angle, not_a_scalar, value_loss_again
 from helpers import TINY, assert_same_run_dirs, stopped_run
 from test_loggers import read_tfrecords
 
-from jaxcart.core.config import ConfigError, PPOConfig, RecordedMetric, rebuild_metrics
+from jaxcart.core.config import ConfigError, PPOConfig, RecordedMetric, resolve_code
 from jaxcart.core.metrics import METRIC_NAMES
 from jaxcart.engine.loop import METRIC_COLUMNS, train
 from jaxcart.run.lifecycle import resume_run, run_new
@@ -36,7 +36,7 @@ def test_metrics_are_recorded_by_name_and_rebuilt():
     assert recorded.metric_names == config.metric_names  # readers: names, nothing imported
     assert all(isinstance(fn, RecordedMetric) for _, fn in recorded.metrics)
     assert recorded.to_dict() == config.to_dict()
-    assert rebuild_metrics(recorded) == config  # a resume imports them
+    assert resolve_code(recorded, trust_code=True) == config  # a resume imports them
     assert "metrics" not in SMALL.to_dict()  # the default config.json is unchanged
 
 
@@ -51,7 +51,7 @@ def test_a_function_that_cannot_be_imported_keeps_its_name_and_refuses_to_resume
     config = PPOConfig.from_dict({**SMALL.to_dict(), "metrics": {"custom/x": path}})
     assert config.metric_names == ("custom/x",)
     with pytest.raises(ConfigError, match=f"cannot rebuild the run's metric function {message}"):
-        rebuild_metrics(config)
+        resolve_code(config, trust_code=True)
 
 
 @pytest.mark.parametrize(

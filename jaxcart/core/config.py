@@ -250,8 +250,8 @@ class PPOConfig:
     def from_dict(cls, data: dict) -> PPOConfig:
         """Inverse of :meth:`to_dict`; rejects unknown keys with a :class:`ConfigError`.
 
-        Nothing is imported: a recorded network stays data (:class:`RecordedNetwork`) and
-        recorded metrics keep their names but not their functions (:class:`RecordedMetric`).
+        Nothing is imported: a recorded network stays data and recorded metrics keep their
+        names but not their functions (:class:`RecordedCode`).
         Readers need neither; running the policy or training needs the code, which
         :func:`resolve_code` brings in only when the caller passes it or opts in."""
         names = {f.name for f in dataclasses.fields(cls)}
@@ -262,14 +262,14 @@ class PPOConfig:
         if "hidden_sizes" in data:
             data["hidden_sizes"] = tuple(int(h) for h in data["hidden_sizes"])
         if data.get("network") is not None:
-            data["network"] = RecordedNetwork.from_spec(data["network"])
+            data["network"] = RecordedCode.from_spec(data["network"])
         if "metrics" in data:
             recorded = data["metrics"]
             if not isinstance(recorded, dict) or not all(
                 isinstance(v, str) for v in recorded.values()
             ):
                 raise ConfigError(f"metrics must map names to 'module:function', got {recorded!r}")
-            data["metrics"] = {name: RecordedMetric(path) for name, path in recorded.items()}
+            data["metrics"] = {name: RecordedCode(path) for name, path in recorded.items()}
         return cls(**data)
 
 
@@ -283,7 +283,7 @@ def network_spec(network: Any) -> dict:
     Raises:
         ConfigError: a field set to something other than its default is not a JSON value.
     """
-    if isinstance(network, RecordedNetwork):  # as it was read
+    if isinstance(network, RecordedCode):  # as it was read
         return network.spec()
     cls = type(network)
     where = f"{cls.__module__}:{cls.__qualname__}"
@@ -316,50 +316,24 @@ class RebuildError(ConfigError):
     imported or built in this process: the run directory is sound, its code is out of reach."""
 
 
-def _import_named(path: str, where: str, local_hint: str) -> Any:
-    """The object ``"module:QualName"`` names, imported; one of a script, a notebook or a
-    function's body (``__main__``, ``<locals>``, ``<lambda>``) is refused with ``local_hint``.
-
-    Raises:
-        RebuildError: it cannot be imported, saying why (``where`` first).
-    """
-    import importlib
-
-    module, _, name = path.partition(":")
-    if module == "__main__" or "<locals>" in name or "<lambda>" in name:
-        raise RebuildError(f"{where}: {local_hint}")
-    try:
-        found = importlib.import_module(module)
-        for part in name.split("."):
-            found = getattr(found, part)
-    except Exception as exc:  # someone else's module, imported by name on request
-        hint = (
-            " (run from the folder the run was trained in, or add the module's folder to "
-            "PYTHONPATH)"
-            if isinstance(exc, ModuleNotFoundError)
-            else ""
-        )
-        raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
-    return found
-
-
 class UntrustedCodeError(RebuildError):
     """A run directory names code (a network class, metric functions) that the caller did
     not pass and did not opt in to import: nothing from the directory runs unless asked."""
 
 
 @dataclass(frozen=True)
-class RecordedNetwork:
-    """A network as a run directory records it, not imported: the class as
-    ``"module:QualName"`` and its fields as canonical JSON. Plots and comparisons need no
-    more; :func:`resolve_code` turns it into the module when the policy must run."""
+class RecordedCode:
+    """A run's own code as its directory records it, not imported: a network class or a
+    metric function as ``"module:QualName"`` (``path``), with a network's fields as canonical
+    JSON (``fields_json``; None for a function). Readers (plots, comparisons) need no more;
+    :func:`resolve_code` imports it (:meth:`build`) when the policy must run or train."""
 
-    class_path: str
-    fields_json: str = "{}"
+    path: str
+    fields_json: str | None = None
 
     @classmethod
-    def from_spec(cls, spec: Any) -> RecordedNetwork:
-        """Checks the shape of what :func:`network_spec` wrote; imports nothing.
+    def from_spec(cls, spec: Any) -> RecordedCode:
+        """A network from what :func:`network_spec` wrote, its shape checked; imports nothing.
 
         Raises:
             ConfigError: not ``{"class": "module:Name", "fields": {JSON}}``.
@@ -381,47 +355,87 @@ class RecordedNetwork:
         return cls(path, json.dumps(fields, sort_keys=True))
 
     def spec(self) -> dict:
-        """The ``{"class", "fields"}`` object it was read from."""
-        return {"class": self.class_path, "fields": json.loads(self.fields_json)}
+        """A network's ``{"class", "fields"}`` object, as it was read."""
+        return {"class": self.path, "fields": json.loads(self.fields_json)}
+
+    def build(self, code: Any = None) -> Any:
+        """The code: ``code`` (a class the caller passed), else the object :attr:`path` names,
+        imported. A function must be callable; a network's class must be a
+        ``flax.linen.Module`` subclass, checked before it is called with the recorded fields
+        (lists become tuples). One of a script, a notebook or a function's body
+        (``__main__``, ``<locals>``, ``<lambda>``) is not imported.
+
+        Raises:
+            RebuildError: it cannot be imported or built, saying why.
+        """
+        import importlib
+
+        network = self.fields_json is not None
+        where = (
+            f"cannot rebuild the run's {'network' if network else 'metric function'} {self.path}"
+        )
+        module, _, name = self.path.partition(":")
+        if code is None and (module == "__main__" or "<locals>" in name or "<lambda>" in name):
+            if network:
+                raise RebuildError(
+                    f"{where}: a class defined in a script or notebook can only be rebuilt "
+                    "there; pass it (network=...) or define it in an importable module"
+                )
+            raise RebuildError(f"{where}: define it at the top level of an importable module")
+        try:
+            if code is None:
+                code = importlib.import_module(module)
+                for part in name.split("."):
+                    code = getattr(code, part)
+        except Exception as exc:  # someone else's module, imported by name on request
+            hint = (
+                " (run from the folder the run was trained in, or add the module's folder to "
+                "PYTHONPATH)"
+                if isinstance(exc, ModuleNotFoundError)
+                else ""
+            )
+            raise RebuildError(f"{where}: {type(exc).__name__}: {exc}{hint}") from None
+        if not network:
+            if not callable(code):
+                raise RebuildError(f"{where}: not callable")
+            return code
+        import flax.linen as nn
+
+        if not (isinstance(code, type) and issubclass(code, nn.Module)):
+            raise RebuildError(f"{where}: {code!r:.80} is not a flax.linen.Module subclass")
+        fields = json.loads(self.fields_json)
+        try:
+            return code(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+        except Exception as exc:  # a constructor of someone else's code
+            raise RebuildError(f"{where}: {type(exc).__name__}: {exc}") from None
+
+    def __call__(self, *args: Any) -> Any:
+        raise ConfigError(f"the run's metric function {self.path} was not imported")
 
     def __repr__(self) -> str:
-        return f"RecordedNetwork({self.class_path})"
+        return f"RecordedCode({self.path})"
+
+
+RecordedNetwork = RecordedMetric = RecordedCode
+"""What a run directory records of a network class and of a metric function: one kind."""
 
 
 def build_network(spec: Any, cls: type | None = None) -> Any:
-    """The network :func:`network_spec` recorded, called with its fields (lists become
-    tuples): with ``cls`` that class, else the recorded class imported by name. Either must
-    be a ``flax.linen.Module`` subclass, checked before anything is called.
+    """The network :func:`network_spec` recorded (:meth:`RecordedCode.build`): with ``cls``
+    that class, else the recorded class imported by name.
 
     Raises:
         ConfigError: not a recorded network; :class:`RebuildError` when its class cannot be
             imported, is not a flax module, or cannot be built with the recorded fields.
     """
-    import flax.linen as nn
-
-    recorded = spec if isinstance(spec, RecordedNetwork) else RecordedNetwork.from_spec(spec)
-    where = f"cannot rebuild the run's network {recorded.class_path}"
-    if cls is None:
-        cls = _import_named(
-            recorded.class_path,
-            where,
-            "a class defined in a script or notebook can only be rebuilt there; pass it "
-            "(network=...) or define it in an importable module",
-        )
-    if not (isinstance(cls, type) and issubclass(cls, nn.Module)):
-        raise RebuildError(f"{where}: {cls!r:.80} is not a flax.linen.Module subclass")
-    fields = json.loads(recorded.fields_json)
-    try:
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
-    except Exception as exc:  # a constructor of someone else's code
-        raise RebuildError(f"{where}: {type(exc).__name__}: {exc}") from None
+    return (spec if isinstance(spec, RecordedCode) else RecordedCode.from_spec(spec)).build(cls)
 
 
 def recorded_code(config: PPOConfig) -> list[str]:
     """What of ``config`` is code named by a run directory and not yet imported:
     ``module:Name`` of its network and of each metric function."""
-    named = [config.network.class_path] if isinstance(config.network, RecordedNetwork) else []
-    return named + [fn.path for _, fn in config.metrics if isinstance(fn, RecordedMetric)]
+    code = (config.network, *(fn for _, fn in config.metrics))
+    return [c.path for c in code if isinstance(c, RecordedCode)]
 
 
 def untrusted_code(paths: list[str], where: str = "") -> UntrustedCodeError:
@@ -439,60 +453,33 @@ def resolve_code(
 ) -> PPOConfig:
     """``config`` ready to run: a recorded network built from ``network`` (the class, passed
     by the caller) or, with ``trust_code``, imported by its recorded name; recorded metric
-    functions imported with ``trust_code``. A config that names no code is returned as is.
+    functions imported with ``trust_code`` (a resume). A config that names no code is
+    returned as is.
 
     Raises:
         UntrustedCodeError: the run names code and the caller neither passed it nor opted
             in; the message names both ways in.
-        RebuildError: the code cannot be imported or built (see :func:`build_network`).
+        RebuildError: the code cannot be imported or built (:meth:`RecordedCode.build`).
     """
-    needs_import = [
-        path
-        for path in recorded_code(config)
-        if not (network is not None and path == getattr(config.network, "class_path", None))
-    ]
+    passed = getattr(config.network, "path", None) if network is not None else None
+    needs_import = [path for path in recorded_code(config) if path != passed]
     if needs_import and not trust_code:
         raise untrusted_code(needs_import, where)
-    if isinstance(config.network, RecordedNetwork):
-        config = _replace_unchecked(config, {"network": build_network(config.network, network)})
-    return rebuild_metrics(config)
+    built = {"network": build_code(config.network, network)}  # the network first, as ever
+    built["metrics"] = tuple((name, build_code(fn)) for name, fn in config.metrics)
+    return _replace_unchecked(config, built)
+
+
+def build_code(code: Any, cls: type | None = None) -> Any:
+    """``code`` built if it is recorded (:meth:`RecordedCode.build`), else as it is."""
+    return code.build(cls) if isinstance(code, RecordedCode) else code
 
 
 def function_path(fn: Any) -> str:
     """How a run directory records a metric function: ``"module:QualName"``."""
-    if isinstance(fn, RecordedMetric):
+    if isinstance(fn, RecordedCode):
         return fn.path
     return f"{getattr(fn, '__module__', None)}:{getattr(fn, '__qualname__', type(fn).__name__)}"
-
-
-@dataclass(frozen=True)
-class RecordedMetric:
-    """A metric function as a run directory records it, not imported: its name tells readers
-    (plot, compare) the column; :func:`rebuild_metrics` imports it to train."""
-
-    path: str
-
-    def __call__(self, *args: Any) -> Any:
-        raise ConfigError(f"the run's metric function {self.path} was not imported")
-
-
-def rebuild_metrics(config: PPOConfig) -> PPOConfig:
-    """``config`` with its recorded metric functions imported (to resume training).
-
-    Raises:
-        RebuildError: one cannot be imported (a function of a script or notebook, or of a
-            missing module) or is not callable, saying why.
-    """
-    rebuilt = []
-    for name, fn in config.metrics:
-        if isinstance(fn, RecordedMetric):
-            where = f"cannot rebuild the run's metric function {fn.path}"
-            hint = "define it at the top level of an importable module"
-            fn = _import_named(fn.path, where, hint)
-            if not callable(fn):
-                raise RebuildError(f"{where}: not callable")
-        rebuilt.append((name, fn))
-    return _replace_unchecked(config, {"metrics": tuple(rebuilt)})
 
 
 def _is_json(value: Any) -> bool:
@@ -634,7 +621,7 @@ def validate(config: PPOConfig) -> None:
             "use fewer total_timesteps"
         )
     flax_like = all(callable(getattr(c.network, name, None)) for name in ("init", "apply"))
-    if not (c.network is None or isinstance(c.network, RecordedNetwork) or flax_like):
+    if not (c.network is None or isinstance(c.network, RecordedCode) or flax_like):
         raise ConfigError(f"network must be a flax module (with init and apply), got {c.network!r}")
     if not isinstance(c.env, str):
         raise ConfigError(f"env must be an env id, got {c.env!r}")

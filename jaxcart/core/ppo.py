@@ -36,7 +36,7 @@ from jaxcart.core import envs, networks, pytree
 from jaxcart.core.config import (
     TRACED_FIELDS,
     PPOConfig,
-    RecordedNetwork,
+    RecordedCode,
     recorded_code,
     untrusted_code,
 )
@@ -108,7 +108,7 @@ def make_network(config: PPOConfig) -> nn.Module:
     observations ``[..., obs_dim]`` to ``(logits [..., num_actions], value [...])``."""
     if config.network is None:
         return ActorCritic.from_config(config)
-    if isinstance(config.network, RecordedNetwork):  # read from a run, not resolved
+    if isinstance(config.network, RecordedCode):  # read from a run, not resolved
         raise untrusted_code(recorded_code(config))
     return config.network
 
