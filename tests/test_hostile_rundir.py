@@ -413,6 +413,8 @@ CASES = [
     ),
     # crafted config.json
     Case("config-hidden-1e400", "interrupted", hidden("1e400"), (resume, *READERS), CORRUPT),
+    Case("config-hidden-fraction", "interrupted", hidden("64.5"), (resume, *READERS), CORRUPT),
+    Case("config-hidden-bool", "finished", hidden("true"), READERS, CORRUPT),
     Case("config-num-seeds-1e30", "finished", config_text('"num_seeds": 1e30'), READERS, CORRUPT),
     Case("config-preset-list", "finished", config_field(preset=["sb3"]), READERS, CORRUPT),
     Case("config-preset-dict", "finished", config_field(preset={"a": 1}), READERS, CORRUPT),

@@ -260,7 +260,12 @@ class PPOConfig:
             raise ConfigError(f"unknown config field(s): {', '.join(unknown)}")
         data = dict(data)
         if "hidden_sizes" in data:
-            data["hidden_sizes"] = tuple(int(h) for h in data["hidden_sizes"])
+            sizes = data["hidden_sizes"]
+            if not isinstance(sizes, (list, tuple)) or not all(_is_int(h) for h in sizes):
+                raise ConfigError(
+                    f"hidden_sizes must be a list of positive integers, got {sizes!r}"
+                )
+            data["hidden_sizes"] = tuple(sizes)
         if data.get("network") is not None:
             data["network"] = RecordedCode.from_spec(data["network"])
         if "metrics" in data:
