@@ -259,13 +259,8 @@ class PPOConfig:
         if unknown:
             raise ConfigError(f"unknown config field(s): {', '.join(unknown)}")
         data = dict(data)
-        if "hidden_sizes" in data:
-            sizes = data["hidden_sizes"]
-            if not isinstance(sizes, (list, tuple)) or not all(_is_int(h) for h in sizes):
-                raise ConfigError(
-                    f"hidden_sizes must be a list of positive integers, got {sizes!r}"
-                )
-            data["hidden_sizes"] = tuple(sizes)
+        if isinstance(data.get("hidden_sizes"), list):  # JSON's array; validate checks it
+            data["hidden_sizes"] = tuple(data["hidden_sizes"])
         if data.get("network") is not None:
             data["network"] = RecordedCode.from_spec(data["network"])
         if "metrics" in data:
@@ -581,7 +576,9 @@ def check_field(f: dataclasses.Field, value: Any, option: str | None = None) -> 
         what = "a positive integer" if least else "a non-negative integer"
         what = f"in [{least}, {most}]" if most else what
         raise ConfigError(f"{f.name} must be {what}, got {value!r}", option)
-    if f.type == "tuple[int, ...]" and not (value and all(_is_int(h) for h in value)):
+    if f.type == "tuple[int, ...]" and not (
+        isinstance(value, (tuple, list)) and value and all(_is_int(h) for h in value)
+    ):
         raise ConfigError(f"{f.name} must be one or more positive integers, got {value!r}", option)
     if f.type == "bool" and not isinstance(value, bool):
         raise ConfigError(f"{f.name} must be true or false, got {value!r}", option)
