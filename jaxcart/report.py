@@ -282,19 +282,24 @@ def next_steps_text(outcome: Outcome) -> str:
     kind = "best policy" if kept else "policy"
     if grid.is_sweep:
         gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
-        plot = (f" --out {q(str(out / 'curves.png'))}", "learning curves of every combination")
-        watch = (f" --combination {best}", f"watch seed {seed} of the best-ranked combination")
-        compare = ("", "the combinations' statistics")
+        commands = [
+            (
+                f"python -m jaxcart.plot {run} --out {q(str(out / 'curves.png'))}",
+                "learning curves of every combination",
+            ),
+            (
+                f"python -m jaxcart.evaluate {run} --combination {best}{pick} --gif {gif}",
+                f"watch seed {seed} of the best-ranked combination",
+            ),
+            (f"python -m jaxcart.compare {run}", "the combinations' statistics"),
+        ]
     else:
         gif = q(str(out / f"seed{seed}.gif"))
-        plot = ("", "learning curves, into its curves.png")
-        watch = ("", f"watch seed {seed}'s {kind}")
-        compare = (" OTHER_RUN", "statistics against another run")
-    commands = [
-        (f"python -m jaxcart.plot {run}{plot[0]}", plot[1]),
-        (f"python -m jaxcart.evaluate {run}{watch[0]}{pick} --gif {gif}", watch[1]),
-        (f"python -m jaxcart.compare {run}{compare[0]}", compare[1]),
-    ]
+        commands = [
+            (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png"),
+            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s {kind}"),
+            (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
+        ]
     if gif_refusal(outcome.run.config.env):  # no renderer for this env here
         commands = [(c, why) for c, why in commands if "--gif" not in c]
     width = max(len(c) for c, _ in commands)

@@ -322,14 +322,21 @@ def _draw_returns(runs: list[RunCurves], styles: list[dict], ax_steps, ax_time) 
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
     dots = f" (dots: {EVAL_METRIC})" if evaluated else ""
-    wall_time = "training wall time [s] (compile excluded)"
-    for ax, against, xlabel, missing in (
-        (ax_steps, f"env steps{dots}", "env steps per seed", ""),
-        (ax_time, "wall time", wall_time, f" or {ELAPSED_METRIC}"),
-    ):
-        title = f"episode return vs {against}"
-        _finish(ax, f"{RETURN_METRIC}{missing} not recorded", None, title=title, xlabel=xlabel)
-        ax.set_ylabel(RETURN_METRIC)
+    _finish(
+        ax_steps,
+        f"{RETURN_METRIC} not recorded",
+        title=f"episode return vs env steps{dots}",
+        xlabel="env steps per seed",
+        ylabel=RETURN_METRIC,
+    )
+    _finish(
+        ax_time,
+        f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded",
+        title="episode return vs wall time",
+        xlabel="training wall time [s] (compile excluded)",
+        ylabel=RETURN_METRIC,
+    )
+    for ax in (ax_steps, ax_time):
         return_axis(ax, [run.env for run in runs])
     step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
