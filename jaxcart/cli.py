@@ -131,7 +131,7 @@ class UsageError(Exception):
 
 
 class ParserExit(SystemExit):
-    """``--help`` or ``--version`` was answered: :func:`run_command` returns the code, so
+    """``--help`` or ``--version`` was answered: :func:`command` returns the code, so
     ``main(argv)`` returns instead of exiting (uncaught, it exits as argparse would)."""
 
 
@@ -591,25 +591,34 @@ def _note_line(shown: Callable, message, category, *args, **kwargs) -> None:
         shown(message, category, *args, **kwargs)
 
 
-def run_command(body: Callable[[], int], also: tuple[type[Exception], ...] = ()) -> int:
-    """Runs a command's body; a user's mistake (bad option, bad config, unusable run
-    directory, unwritable path, or one of the exception types in ``also``) becomes
-    ``error: ...`` on stderr and exit code 2."""
-    try:
-        with warnings.catch_warnings():  # restores showwarning afterwards
-            shown = warnings.showwarning
-            warnings.showwarning = functools.partial(_note_line, shown)
-            return body()
-    except ParserExit as exc:  # --help, --version
-        return int(exc.code or 0)
-    except ConfigError as exc:
-        message, option = str(exc), exc.option
-        if option and message.startswith(option):  # name the setting as the command line does
-            message = "--" + option.replace("_", "-") + message[len(option) :]
-        print(f"error: {message}", file=sys.stderr)
-    except (UsageError, RunDirError, *also) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-    except OSError as exc:
-        where = f": {exc.filename}" if exc.filename else ""
-        print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
-    return EXIT_USAGE
+def command(*also: type[Exception]) -> Callable[[Callable[..., int]], Callable[..., int]]:
+    """Decorates a command's ``main(argv=None)``: a user's mistake (bad option, bad config,
+    unusable run directory, unwritable path, or one of the exception types in ``also``)
+    becomes ``error: ...`` on stderr and exit code 2, and ``--help``/``--version`` return
+    their code."""
+
+    def decorate(body: Callable[..., int]) -> Callable[..., int]:
+        @functools.wraps(body)
+        def main(argv: list[str] | None = None) -> int:
+            try:
+                with warnings.catch_warnings():  # restores showwarning afterwards
+                    shown = warnings.showwarning
+                    warnings.showwarning = functools.partial(_note_line, shown)
+                    return body(argv)
+            except ParserExit as exc:  # --help, --version
+                return int(exc.code or 0)
+            except ConfigError as exc:
+                message, option = str(exc), exc.option
+                if option and message.startswith(option):  # named as the command line does
+                    message = "--" + option.replace("_", "-") + message[len(option) :]
+                print(f"error: {message}", file=sys.stderr)
+            except (UsageError, RunDirError, *also) as exc:
+                print(f"error: {exc}", file=sys.stderr)
+            except OSError as exc:
+                where = f": {exc.filename}" if exc.filename else ""
+                print(f"error: {exc.strerror or exc}{where}", file=sys.stderr)
+            return EXIT_USAGE
+
+        return main
+
+    return decorate

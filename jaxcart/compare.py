@@ -301,7 +301,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _compare_command(argv: list[str] | None) -> int:
+@cli.command(CompareError)
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 bad input)."""
     args = build_parser().parse_args(argv)
     if not 100 <= args.reps <= cli.MAX_REPS:
         raise cli.UsageError(f"--reps must be in [100, {cli.MAX_REPS:,}], got {args.reps}")
@@ -313,11 +315,6 @@ def _compare_command(argv: list[str] | None) -> int:
     paths = (result.json_path, result.figure_path, result.curves_path)
     print(f"wrote {', '.join(map(str, paths))}", flush=True)
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input)."""
-    return cli.run_command(lambda: _compare_command(argv), also=(CompareError,))
 
 
 if __name__ == "__main__":

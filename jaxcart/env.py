@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from jaxcart import cli
 from jaxcart.core.cartpole import EnvParams, action_space, float_dtype, observation_space
 
 
@@ -47,11 +48,10 @@ def describe(params: EnvParams | None = None) -> str:
     return "\n".join(lines)
 
 
+@cli.command()
 def main(argv: list[str] | None = None) -> int:
     """Prints :func:`describe` for the default parameters, or with the integrator and reward
     given: a command like every other (:class:`jaxcart.cli.Parser`, one-line errors)."""
-    from jaxcart import cli
-
     parser = cli.Parser(
         prog="python -m jaxcart.env", description="Show CartPole's spaces, bounds and limits."
     )
@@ -59,17 +59,11 @@ def main(argv: list[str] | None = None) -> int:
         "--kinematics-integrator", choices=["euler", "semi-implicit"], default="euler"
     )
     parser.add_argument("--sutton-barto-reward", action="store_true")
-
-    def body() -> int:
-        args = parser.parse_args(argv)
-        integrator, reward = args.kinematics_integrator, args.sutton_barto_reward
-        print(describe(EnvParams(kinematics_integrator=integrator, sutton_barto_reward=reward)))
-        return 0
-
-    return cli.run_command(body)
+    args = parser.parse_args(argv)
+    integrator, reward = args.kinematics_integrator, args.sutton_barto_reward
+    print(describe(EnvParams(kinematics_integrator=integrator, sutton_barto_reward=reward)))
+    return 0
 
 
 if __name__ == "__main__":
-    from jaxcart import cli
-
     cli.command_main(main)

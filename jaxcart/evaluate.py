@@ -247,7 +247,12 @@ def _print_values(
     return iqms
 
 
-def _evaluate_command(argv: list[str] | None) -> int:
+@cli.command(ValueError, ImportError)
+def main(argv: list[str] | None = None) -> int:
+    """``python -m jaxcart.evaluate RUN_DIR [RUN_DIR ...]``: prints the per-seed Gymnasium
+    evaluation table (with ``--sweep``, the IQM over seeds at each value); with ``--out``,
+    writes the evaluation; with ``--gif``, renders seed ``--seed-index``. Returns 0, or 2 for
+    bad input."""
     opts = cli.options_from(EvaluateOptions, build_parser().parse_args(argv))
     from jaxcart.run.greedy import evaluate_params  # JAX: once the options are read
 
@@ -376,14 +381,6 @@ def _write_gif(opts: EvaluateOptions, trained: RunParams) -> None:
         f"wrote {gif.path}: seed {opts.seed_index}, {gif.steps} steps, return "
         f"{gif.episode_return:.0f}, {gif.frames} frames ({gif.backend} renderer)"
     )
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m jaxcart.evaluate RUN_DIR [RUN_DIR ...]``: prints the per-seed Gymnasium
-    evaluation table (with ``--sweep``, the IQM over seeds at each value); with ``--out``,
-    writes the evaluation; with ``--gif``, renders seed ``--seed-index``. Returns 0, or 2 for
-    bad input."""
-    return cli.run_command(lambda: _evaluate_command(argv), also=(ValueError, ImportError))
 
 
 if __name__ == "__main__":

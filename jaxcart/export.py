@@ -113,14 +113,11 @@ def export(opts: ExportOptions) -> str:
     return f"wrote {out}: seed {opts.seed_index} of {opts.run_dir}{best} as {text}"
 
 
+@cli.command()
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 written, 2 a user's mistake)."""
-
-    def body() -> int:
-        print(export(cli.options_from(ExportOptions, build_parser().parse_args(argv))))
-        return 0
-
-    return cli.run_command(body)
+    print(export(cli.options_from(ExportOptions, build_parser().parse_args(argv))))
+    return 0
 
 
 if __name__ == "__main__":

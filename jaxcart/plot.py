@@ -178,7 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _plot_command(argv: list[str] | None) -> int:
+@cli.command(ValueError)
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 bad input)."""
     args = build_parser().parse_args(argv)
     cli.check_dpi(args.dpi)
     runs = _load_runs(args.run_dirs, args.label or None)  # no --label: the default names
@@ -209,11 +211,6 @@ def unfinished_notes(runs: list[RunCurves]) -> list[str]:
             f"(python -m jaxcart.train --resume {path})"
         )
     return lines
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input)."""
-    return cli.run_command(lambda: _plot_command(argv), also=(ValueError,))
 
 
 if __name__ == "__main__":

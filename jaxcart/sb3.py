@@ -61,12 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@cli.command(sb3.SB3Unavailable)
 def main(argv: list[str] | None = None) -> int:
     """Runs the command; returns the exit code (2 with one line for a user's mistake)."""
-    return cli.run_command(lambda: _main(argv), also=(sb3.SB3Unavailable,))
-
-
-def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     typed = {a.split("=")[0] for a in (sys.argv[1:] if argv is None else argv)}
     fixed = [o for o in ("--num-seeds", "--first-seed", "--total-timesteps", "--out") if o in typed]

@@ -397,35 +397,32 @@ def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: flo
     return 128 + outcome.signum if outcome.signum else 0
 
 
+@cli.command()
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input, 1 a failed write, 128+signal
     when a signal stopped the training). While the run trains (planned, written, trained and
     evaluated), a first SIGINT/SIGTERM stops it at the next safe point with a checkpoint and a
     second one at once, without a traceback; before that, Ctrl-C is Python's
     :class:`KeyboardInterrupt` (one line from :func:`jaxcart.cli.command_main`)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = _parse_args(argv)
+    opts = TrainOptions.from_args(args, argv)
+    from jaxcart import report  # the training's modules: not for --help
 
-    def body() -> int:
-        argv_ = sys.argv[1:] if argv is None else list(argv)
-        args = _parse_args(argv_)
-        opts = TrainOptions.from_args(args, argv_)
-        from jaxcart import report  # the training's modules: not for --help
-
-        console = report.ConsoleReport(sys.stdout)
-        console.progress_bar = not opts.quiet
-        try:
-            return _train(opts, console)
-        except RuntimeError as exc:  # JAX's runtime errors are RuntimeErrors
-            if "RESOURCE_EXHAUSTED" not in str(exc):
-                raise  # anything else is jaxcart's bug: its traceback is the report
-            console.close()
-            print(
-                "error: the device ran out of memory compiling or running the training; "
-                "train fewer runs at once (--wave-size N, or fewer --num-seeds)",
-                file=sys.stderr,
-            )
-            return 1
-
-    return cli.run_command(body)
+    console = report.ConsoleReport(sys.stdout)
+    console.progress_bar = not opts.quiet
+    try:
+        return _train(opts, console)
+    except RuntimeError as exc:  # JAX's runtime errors are RuntimeErrors
+        if "RESOURCE_EXHAUSTED" not in str(exc):
+            raise  # anything else is jaxcart's bug: its traceback is the report
+        console.close()
+        print(
+            "error: the device ran out of memory compiling or running the training; "
+            "train fewer runs at once (--wave-size N, or fewer --num-seeds)",
+            file=sys.stderr,
+        )
+        return 1
 
 
 def _parse_args(argv: list[str]) -> argparse.Namespace:

@@ -271,14 +271,11 @@ def _tune(opts: TuneOptions) -> int:
     return 0
 
 
+@cli.command()
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input, 128+signal when stopped)."""
-
-    def body() -> int:
-        argv_ = sys.argv[1:] if argv is None else list(argv)
-        return _tune(TuneOptions.from_args(_parse_args(argv_), argv_))
-
-    return cli.run_command(body)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    return _tune(TuneOptions.from_args(_parse_args(argv), argv))
 
 
 def _parse_args(argv: list[str]) -> argparse.Namespace:
