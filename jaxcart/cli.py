@@ -315,15 +315,9 @@ MAX_DPI = 1000
 """The highest PNG resolution plot and compare draw at (a 15 x 11 inch figure: 165 MP)."""
 
 
-def check_dpi(dpi: int) -> None:
-    """Refuses a ``--dpi`` out of ``[1, MAX_DPI]``."""
-    if not 1 <= dpi <= MAX_DPI:
-        raise UsageError(f"--dpi must be in [1, {MAX_DPI}], got {dpi}")
-
-
-def bounded_count(maximum: int) -> Callable[[str], int]:
-    """An argparse ``type``: :func:`count`, at most ``maximum``."""
-    return functools.partial(count, maximum=maximum)
+def bounded_count(maximum: int, minimum: int = 1) -> Callable[[str], int]:
+    """An argparse ``type``: :func:`count`, in ``[minimum, maximum]``."""
+    return functools.partial(count, maximum=maximum, minimum=minimum)
 
 
 SCRIPTS = {"jaxcart-train": "jaxcart.train"}

@@ -264,11 +264,11 @@ class CompareOptions:
     out: Path | None = cli.option(type=cli.out_dir, metavar="DIR")
     """directory for compare.json, compare.png and curves.csv (default: a new compare-<time>
     beside the first RUN_DIR, e.g. runs/compare-<time>)"""
-    reps: int = cli.option(stats.DEFAULT_REPS, type=int)
-    """bootstrap resamples (default 2000)"""
+    reps: int = cli.option(stats.DEFAULT_REPS, type=cli.bounded_count(cli.MAX_REPS, 100))
+    """bootstrap resamples, 100 to 100,000 (default 2000)"""
     seed: int = cli.option(stats.DEFAULT_SEED, type=cli.seed)
     """bootstrap seed"""
-    dpi: int = cli.option(100, type=int)
+    dpi: int = cli.option(100, type=cli.bounded_count(cli.MAX_DPI))
     """PNG resolution"""
 
 
@@ -305,9 +305,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input)."""
     args = build_parser().parse_args(argv)
-    if not 100 <= args.reps <= cli.MAX_REPS:
-        raise cli.UsageError(f"--reps must be in [100, {cli.MAX_REPS:,}], got {args.reps}")
-    cli.check_dpi(args.dpi)
     options = vars(args)  # compare_runs's parameters, by name
     options["arms"] = [runs.parse_arm(text) for text in options.pop("arm")]
     result = compare_runs(**options)

@@ -152,8 +152,6 @@ def _zoo_values(entry: dict, path: Path, notes: list[str]) -> dict:
             if match:
                 values["anneal_lr" if key == "learning_rate" else "anneal_clip"] = True
                 values["anneal_progress"] = "sb3"
-        elif key == "n_timesteps" and isinstance(value, float) and value.is_integer():
-            values[key] = int(value)
         else:
             values[key] = value
     return values

@@ -159,8 +159,8 @@ class PlotOptions:
     label: tuple[str, ...] | None = cli.option(action="append")
     """legend label; repeat once per RUN_DIR, in order (default: directory names, and a sweep
     combination's hyperparameter values, which a sweep's label prefixes)"""
-    dpi: int = cli.option(100, type=int)
-    """PNG resolution (15x11 in figure)"""
+    dpi: int = cli.option(100, type=cli.bounded_count(cli.MAX_DPI))
+    """PNG resolution, at most 1000 (15x11 in figure)"""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -182,7 +182,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input)."""
     args = build_parser().parse_args(argv)
-    cli.check_dpi(args.dpi)
     runs = _load_runs(args.run_dirs, args.label or None)  # no --label: the default names
     out = _checked(default_out(runs) if args.out is None else args.out)
     try:
