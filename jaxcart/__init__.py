@@ -35,45 +35,39 @@ from jaxcart.gym import register as _register_gymnasium_env
 
 __version__ = "0.1.0"
 
-_LAZY: dict[str, str | tuple[str, str]] = {
-    "EnvParams": "jaxcart.core.cartpole",
-    "EnvState": "jaxcart.core.cartpole",
-    "reset": "jaxcart.core.cartpole",
-    "step": "jaxcart.core.cartpole",
-    "step_env": "jaxcart.core.cartpole",
-    "observation_space": "jaxcart.core.cartpole",
-    "action_space": "jaxcart.core.cartpole",
-    "describe": "jaxcart.env",
-    "Env": "jaxcart.core.envs",
-    "env_from_step": ("jaxcart.core.envs", "from_step"),
-    "register_env": ("jaxcart.core.envs", "register"),
-    "PPOConfig": "jaxcart.core.config",
-    "ConfigError": "jaxcart.core.config",
-    "preset": "jaxcart.core.config",
-    "PRESETS": "jaxcart.core.config",
-    "train_runs": ("jaxcart.engine.loop", "train"),
-    "use_all_host_cores": "jaxcart.engine.devices",
-    "load_policy": "jaxcart.rundir.policy",
-    "RunSpec": "jaxcart.run.spec",
-    "RunOptions": "jaxcart.run.spec",
-    "run_new": "jaxcart.run.lifecycle",
-    "resume_run": "jaxcart.run.lifecycle",
-    "JaxCartPoleEnv": "jaxcart.gym.adapter",
-    "JaxCartPoleVectorEnv": "jaxcart.gym.adapter",
-    "plot_runs": "jaxcart.plot",
-    "compare_runs": "jaxcart.compare",
-    "iqm": "jaxcart.analysis.stats",
-    "bootstrap_ci": "jaxcart.analysis.stats",
-    "probability_of_improvement": "jaxcart.analysis.stats",
-    "render_gif": "jaxcart.results.gif",
+_LAZY_FROM = {
+    "jaxcart.core.cartpole": (
+        "EnvParams EnvState reset step step_env observation_space action_space"
+    ),
+    "jaxcart.env": "describe",
+    "jaxcart.core.envs": "Env env_from_step=from_step register_env=register",
+    "jaxcart.core.config": "PPOConfig ConfigError preset PRESETS",
+    "jaxcart.engine.loop": "train_runs=train",
+    "jaxcart.engine.devices": "use_all_host_cores",
+    "jaxcart.rundir.policy": "load_policy",
+    "jaxcart.run.spec": "RunSpec RunOptions",
+    "jaxcart.run.lifecycle": "run_new resume_run",
+    "jaxcart.gym.adapter": "JaxCartPoleEnv JaxCartPoleVectorEnv",
+    "jaxcart.plot": "plot_runs",
+    "jaxcart.compare": "compare_runs",
+    "jaxcart.analysis.stats": "iqm bootstrap_ci probability_of_improvement",
+    "jaxcart.results.gif": "render_gif",
 }
+"""Each module and the names it gives the package, space-separated (``NAME=ATTR``: the
+module's ``ATTR`` under another name)."""
+_LAZY: dict[str, tuple[str, str]] = {
+    name: (module, attr or name)
+    for module, names in _LAZY_FROM.items()
+    for name, _, attr in (entry.partition("=") for entry in names.split())
+}
+"""Each lazily loaded name -> its module and attribute there."""
 
 __all__ = sorted(_LAZY)
 
 
 def __getattr__(name: str):
     if name in _LAZY:
-        module, attr = _LAZY[name] if isinstance(_LAZY[name], tuple) else (_LAZY[name], name)
+        module, attr = _LAZY[name]
         value = getattr(importlib.import_module(module), attr)
         globals()[name] = value
         return value

@@ -141,14 +141,8 @@ class HelpFormatter(argparse.HelpFormatter):
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text, default = action.help or "", action.default
-        if (
-            "(default" in text
-            or not action.option_strings
-            or default is None
-            or default is False
-            or default is argparse.SUPPRESS
-            or (isinstance(default, list) and not default)
-        ):
+        unshown = any(default is v for v in (None, False, argparse.SUPPRESS)) or default == []
+        if "(default" in text or not action.option_strings or unshown:
             return text
         return f"{text} (default: %(default)s)"
 

@@ -107,20 +107,17 @@ def _load(path: Path) -> object:
             raw = f.read(MAX_FILE_BYTES + 1)
     if len(raw) > MAX_FILE_BYTES:
         raise cli.UsageError(f"--config {path}: larger than {MAX_FILE_BYTES:,} bytes")
-    try:
-        if suffix == ".toml":
-            return tomllib.loads(raw.decode())
-        if suffix == ".json":
-            return json.loads(raw)
+    if suffix in (".yml", ".yaml"):
         try:
             import yaml
         except ImportError:
             raise cli.UsageError(
                 f"--config {path}: reading YAML needs PyYAML (pip install pyyaml)"
             ) from None
-        return yaml.safe_load(raw)
-    except cli.UsageError:
-        raise
+    try:
+        if suffix == ".toml":
+            return tomllib.loads(raw.decode())
+        return json.loads(raw) if suffix == ".json" else yaml.safe_load(raw)
     except Exception as exc:  # each parser has its own error class: all mean "not readable"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise cli.UsageError(f"--config {path}: not valid {suffix[1:].upper()}: {first}") from None

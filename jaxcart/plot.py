@@ -184,10 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     runs = _load_runs(args.run_dirs, args.label or None)  # no --label: the default names
     out = _checked(default_out(runs) if args.out is None else args.out)
-    try:
-        figures.save(draw_figure(runs), out, args.dpi)
-    except OSError as exc:
-        raise cli.UsageError(f"cannot write the plot: {exc.strerror or exc}") from None
+    figures.save(draw_figure(runs), out, args.dpi)  # an OSError: cli.command's one line
     notes = unfinished_notes(runs)
     if args.out is None and out.parent == Path() and out.name != COMPARISON:
         notes.append(f"{COMPARISON} exists and is kept: drew into {out} (--out FILE to choose)")
