@@ -14,34 +14,28 @@ def describe(params: EnvParams | None = None) -> str:
     p = params or EnvParams()
     obs_space = observation_space(p)
     names = ["cart position x", "cart velocity x_dot", "pole angle theta", "pole ang. vel."]
+    reward = "+1 every step, terminating step included"
+    if p.sutton_barto_reward:
+        reward = "Sutton-Barto (0, -1 on failure)"
+    physics = ("gravity", "masscart", "masspole", "length", "force_mag", "tau")
     lines = [
         "jaxcart CartPole-v1 (numerically matches gymnasium.make('CartPole-v1'))",
         "",
         f"observation space: {obs_space}",
-    ]
-    for i, name in enumerate(names):
-        lines.append(
+        *(
             f"  [{i}] {name:<22} low {obs_space.low[i]: .4f}  high {obs_space.high[i]: .4f}"
-        )
-    lines += [
+            for i, name in enumerate(names)
+        ),
         f"action space:      {action_space(p)}  (0 = push left, 1 = push right)",
         "",
         f"termination: |x| > {p.x_threshold} or |theta| > {p.theta_threshold_radians:.6f} rad "
         f"({math.degrees(p.theta_threshold_radians):.1f} degrees)",
         f"truncation:  after {p.max_episode_steps} steps (TimeLimit)",
-        "reward:      "
-        + (
-            "Sutton-Barto (0, -1 on failure)"
-            if p.sutton_barto_reward
-            else "+1 every step, terminating step included"
-        ),
+        f"reward:      {reward}",
         f"reset:       each state variable uniform in [{p.reset_low}, {p.reset_high})",
         "",
         "physics: "
-        + ", ".join(
-            f"{k}={getattr(p, k)}"
-            for k in ("gravity", "masscart", "masspole", "length", "force_mag", "tau")
-        )
+        + ", ".join(f"{k}={getattr(p, k)}" for k in physics)
         + f", kinematics_integrator={p.kinematics_integrator!r}",
         f"float dtype: {float_dtype()} (float64 when jax_enable_x64 is on)",
     ]
