@@ -115,9 +115,7 @@ def _rank(row: dict, ranking: list[dict]) -> str:
 
 def _interval(e: dict | None, digits: int = 1) -> str:
     """A ranking's ``{value, ci_low, ci_high}`` as ``412.3 [380.0, 450.5]`` (``-``: none)."""
-    return (
-        "-" if e is None else stats.Estimate(e["value"], e["ci_low"], e["ci_high"]).format(digits)
-    )
+    return "-" if e is None else stats.Estimate(**e).format(digits)
 
 
 Column = tuple[str, Callable[[dict], object]]
