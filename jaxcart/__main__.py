@@ -30,9 +30,7 @@ def overview() -> str:
         f"{VERSION_TEXT}: CartPole-v1 and PPO in pure JAX.",
         "",
         "commands (python -m jaxcart.COMMAND --help for each one's options):",
-    ]
-    lines += [f"  python -m jaxcart.{name:<{width}}  {text}" for name, text in COMMANDS.items()]
-    lines += [
+        *(f"  python -m jaxcart.{name:<{width}}  {text}" for name, text in COMMANDS.items()),
         "",
         "python -m jaxcart COMMAND [ARGS] (or the installed jaxcart COMMAND [ARGS]) is the",
         "same as python -m jaxcart.COMMAND [ARGS]; jaxcart-train is python -m jaxcart.train.",

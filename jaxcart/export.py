@@ -60,7 +60,7 @@ def export(opts: ExportOptions) -> str:
     import sys
 
     from jaxcart.core import networks
-    from jaxcart.rundir.files import atomic_file
+    from jaxcart.rundir.files import atomic_write_bytes
     from jaxcart.rundir.policy import has_physics, run_params, seed_params
     from jaxcart.rundir.reader import read_run_config
 
@@ -107,8 +107,7 @@ def export(opts: ExportOptions) -> str:
                 "pip install 'jaxcart[export]' (or pip install onnx)"
             ) from None
         text = "ONNX (input obs [N, 4] float32; outputs logits [N, 2], action [N] int64)"
-    with atomic_file(out, "wb") as f:
-        f.write(data)
+    atomic_write_bytes(out, data)
     best = " (its best policy)" if opts.policy == "best" else ""
     return f"wrote {out}: seed {opts.seed_index} of {opts.run_dir}{best} as {text}"
 
