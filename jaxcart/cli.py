@@ -252,6 +252,15 @@ def count(text: str, maximum: int = MAX_COUNT, minimum: int = 1) -> int:
     return int(value)
 
 
+def bounded_count(maximum: int, minimum: int = 1) -> Callable[[str], int]:
+    """An argparse ``type``: :func:`count`, in ``[minimum, maximum]``."""
+    return functools.partial(count, maximum=maximum, minimum=minimum)
+
+
+seed = bounded_count(2**32 - 1, minimum=0)
+"""A seed for ``env.reset``: a whole number in [0, 2**32) (an argparse ``type``)."""
+
+
 def score_steps(text: str) -> int:
     """STEPS of ``--score return-at:STEPS``: ``100000``, ``100_000`` or ``1e5``."""
     try:
@@ -269,17 +278,6 @@ def score(text: str) -> Score:
         return Score.parse(text, score_steps)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def seed(text: str) -> int:
-    """A seed for ``env.reset``: a whole number in [0, 2**32) (an argparse ``type``)."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value < 2**32:
-        raise argparse.ArgumentTypeError(f"must be a whole number in [0, 2**32), got {text}")
-    return value
 
 
 KERNEL_FILESYSTEMS = ("/proc", "/sys", "/dev")
@@ -307,11 +305,6 @@ MAX_REPS = 100_000
 """The most bootstrap resamples ``compare --reps`` takes."""
 MAX_DPI = 1000
 """The highest PNG resolution plot and compare draw at (a 15 x 11 inch figure: 165 MP)."""
-
-
-def bounded_count(maximum: int, minimum: int = 1) -> Callable[[str], int]:
-    """An argparse ``type``: :func:`count`, in ``[minimum, maximum]``."""
-    return functools.partial(count, maximum=maximum, minimum=minimum)
 
 
 SCRIPTS = {"jaxcart-train": "jaxcart.train"}
