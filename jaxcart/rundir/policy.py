@@ -76,7 +76,8 @@ class Policy:
         self.num_seeds, self.obs_dim = first.shape[0] if stacked else None, first.shape[-2]
         self._logits = functools.partial(networks.mlp, self.params, activation=activation, xp=np)
 
-    def _checked(self, obs: np.ndarray) -> np.ndarray:
+    def logits(self, obs: np.ndarray) -> np.ndarray:
+        """Policy logits for ``obs`` (any leading shape matching the stacking)."""
         x = np.asarray(obs, np.float32)
         if self.obs_dim is not None and x.shape[-1:] != (self.obs_dim,):
             raise ValueError(
@@ -88,11 +89,7 @@ class Policy:
                 f"a policy of {self.num_seeds} stacked seeds takes observations "
                 f"[{self.num_seeds}, N, {self.obs_dim or 'obs_dim'}], got shape {x.shape}"
             )
-        return x
-
-    def logits(self, obs: np.ndarray) -> np.ndarray:
-        """Policy logits for ``obs`` (any leading shape matching the stacking)."""
-        return np.asarray(self._logits(self._checked(obs)))
+        return np.asarray(self._logits(x))
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
         actions = self.actions(obs, self.deterministic)
