@@ -202,7 +202,7 @@ def run_params(
         elif combination is not None:
             raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
         if not sweep:
-            num_seeds, config, env = int(info.get("num_seeds", 1)), info["config"], None
+            num_seeds, config = int(info.get("num_seeds", 1)), info["config"]
             physical = has_physics(config.env)
             try:  # the physics and config of the run, or of one combination of a sweep
                 env = reader.run_env_params(info, combination) if physical else None
