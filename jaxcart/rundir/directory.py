@@ -97,16 +97,16 @@ def prepare_out_dir(out: Path) -> files.Dir:
             f"overwritten (or continue it: --resume {out} on the command line, "
             f"jaxcart.resume_run({str(out)!r}) from Python)"
         )
+    directory = None
     try:
         out.mkdir(parents=True, exist_ok=True)
         directory = files.Dir.open(out)
-    except OSError as exc:
-        raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
-    try:  # the probe is written through the directory's descriptor: never through a link
+        # the probe is written through the directory's descriptor: never through a link
         files.atomic_write_bytes(directory / layout.WRITE_PROBE, b"")
         directory.unlink(layout.WRITE_PROBE)
     except OSError as exc:
-        directory.close()
+        if directory is not None:
+            directory.close()
         raise ConfigError(f"cannot write to --out {out}: {exc.strerror or exc}") from None
     return directory
 
@@ -141,22 +141,20 @@ class RunDir:
         self._waves: files.Dir | None = None
 
     def _take(self, directory: files.Dir, verified: bool) -> None:
-        """Locks the opened ``directory`` (closed when that fails) and keeps it."""
+        """Locks the opened ``directory`` and keeps it (closed, and the lock released, when
+        that or anything after it fails: a refused run is not left locked)."""
+        self.dir = directory
         try:
             self.lock = RunLock(directory).acquire()
-        except BaseException:
-            directory.close()
-            raise
-        self.dir = directory
-        # a run from before manifests keeps none: it stays a run that cannot be verified
-        self.manifest = Manifest(directory, kept=verified)
-        try:  # only the lock's holder writes here: a temporary now is what a killed write left
+            # a run from before manifests keeps none: it stays a run that cannot be verified
+            self.manifest = Manifest(directory, kept=verified)
+            # only the lock's holder writes here: a temporary now is what a killed write left
             for opened in (directory, self._waves_dir(create=False)):  # waves/ a link: refused
                 for name in opened.names() if opened is not None else ():
                     if layout.is_temporary(name):
                         opened.unlink(name)
         except BaseException:
-            self.close()  # the lock too: a refused run is not left locked
+            self.close()
             raise
 
     @classmethod
@@ -206,7 +204,6 @@ class RunDir:
         full disk) leaves nothing behind, and the same command starts it afresh."""
         if self.dir is None:
             return
-        self.stream.close()
         for name in STARTING_FILES:
             with contextlib.suppress(OSError, RunDirError):
                 if self._present(name):

@@ -493,11 +493,8 @@ def _not_a_run(directory: Dir) -> str:
         # SB3's seeds are kept one by one; the run directory is written once all finish
         kept = 0
         if layout.SB3_SEEDS_DIR in names:
-            seeds = directory.sub(layout.SB3_SEEDS_DIR)
-            try:
+            with contextlib.closing(directory.sub(layout.SB3_SEEDS_DIR)) as seeds:
                 kept = len(fnmatch.filter(seeds.names(), "seed-*.npz"))
-            finally:
-                seeds.close()
         hint = (
             f" yet: it is an interrupted python -m jaxcart.sb3 run ({kept} seed(s) kept); "
             f"train the others, then plot or evaluate it: python -m jaxcart.sb3 --resume "

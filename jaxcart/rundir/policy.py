@@ -76,7 +76,8 @@ class Policy:
         self.num_seeds, self.obs_dim = first.shape[0] if stacked else None, first.shape[-2]
         self._logits = functools.partial(networks.mlp, self.params, activation=activation, xp=np)
 
-    def _checked(self, obs: np.ndarray) -> np.ndarray:
+    def logits(self, obs: np.ndarray) -> np.ndarray:
+        """Policy logits for ``obs`` (any leading shape matching the stacking)."""
         x = np.asarray(obs, np.float32)
         if self.obs_dim is not None and x.shape[-1:] != (self.obs_dim,):
             raise ValueError(
@@ -88,11 +89,7 @@ class Policy:
                 f"a policy of {self.num_seeds} stacked seeds takes observations "
                 f"[{self.num_seeds}, N, {self.obs_dim or 'obs_dim'}], got shape {x.shape}"
             )
-        return x
-
-    def logits(self, obs: np.ndarray) -> np.ndarray:
-        """Policy logits for ``obs`` (any leading shape matching the stacking)."""
-        return np.asarray(self._logits(self._checked(obs)))
+        return np.asarray(self._logits(x))
 
     def __call__(self, obs: np.ndarray) -> int | np.ndarray:
         actions = self.actions(obs, self.deterministic)
@@ -205,37 +202,25 @@ def run_params(
         elif combination is not None:
             raise RunDirError(f"{run_dir} is not a sweep; it has no combination {combination!r}")
         if not sweep:
-            num_seeds = int(info.get("num_seeds", 1))
-            env = None
-            if has_physics(info["config"].env):
-                env = _checked_config(run_dir, reader.run_env_params, info, combination)
+            num_seeds, config = int(info.get("num_seeds", 1)), info["config"]
+            physical = has_physics(config.env)
+            try:  # the physics and config of the run, or of one combination of a sweep
+                env = reader.run_env_params(info, combination) if physical else None
+                if combination is not None:
+                    config = reader.combo_config(config, combos[combination])
+            except (ConfigError, TypeError, ValueError) as exc:
+                what = "env_params" if combination is None else f"combination {combination}"
+                raise RunDirError(f"{run_dir}: config.json {what} is unusable: {exc}") from None
             if not combos and files.present(directory / layout.PARAMS_FILE):
                 params = reader.load_params(directory, policy, info)
-                return RunParams(params, info["config"], num_seeds, None, env)
+                return RunParams(params, config, num_seeds, None, env)
             saved = read_checkpoint_runs(directory, info, policy)  # unfinished
             first = (combination or 0) * num_seeds
             params = jax.tree.map(lambda x: x[first : first + num_seeds], saved.params)
-            config = _checked_config(run_dir, _combo_config, info, combination)
             return RunParams(params, config, num_seeds, saved.note, env)
     # a finished sweep: each combination is a run directory of its own (a link is refused)
     name = layout.combo_dir(".", int(combination)).name
     return run_params(files.subdir(run_dir, name), None, policy, network, trust_code)
-
-
-def _checked_config(run_dir: Path, read: Any, info: dict, combination: int | None) -> Any:
-    """``read(info, combination)``, a value of config.json it cannot take one line."""
-    try:
-        return read(info, combination)
-    except (ConfigError, TypeError, ValueError) as exc:
-        what = "env_params" if combination is None else f"combination {combination}"
-        raise RunDirError(f"{run_dir}: config.json {what} is unusable: {exc}") from None
-
-
-def _combo_config(info: dict, combination: int | None) -> PPOConfig:
-    """The config of one combination of an unfinished sweep (the run's config otherwise)."""
-    if combination is None:
-        return info["config"]  # keeps its resolved network, as the combination's does
-    return reader.combo_config(info["config"], reader.recorded_combinations(info)[combination])
 
 
 def seed_params(

@@ -597,10 +597,9 @@ def check_block(
     """
     n = len(runs)
     expected = params_headers(config, n, dtype, layout.BLOCK_PARAMS)
-    if config.keep_best:
-        expected |= params_headers(config, n, dtype, layout.BLOCK_BEST_PARAMS)
     fixed = {"diverged_at": (n,), "gym_returns": (n, episodes), "jax_returns": (n, episodes)}
     if config.keep_best:
+        expected |= params_headers(config, n, dtype, layout.BLOCK_BEST_PARAMS)
         fixed |= {"best_gym_returns": (n, episodes), "best_iteration": (n,), "best_score": (n,)}
     expected |= {name: (shape, None) for name, shape in fixed.items()}
     params = files.nbytes(params_headers(config, n)) * (2 if config.keep_best else 1)
@@ -774,10 +773,9 @@ class RunCurves:
 def unfinished(run_dir: files.Where) -> bool:
     """A run (or sweep) that did not write its outputs but has a checkpoint to plot from."""
     with files.opened(run_dir) as directory:
-        done = layout.SWEEP_FILE if is_sweep(directory) else layout.PARAMS_FILE
-        return not files.present(directory / done) and files.present(
-            directory / layout.CHECKPOINT_FILE
-        )
+        done = (layout.SWEEP_FILE, layout.PARAMS_FILE)  # a finished sweep's, a finished run's
+        finished = any(files.present(directory / name) for name in done)
+        return not finished and files.present(directory / layout.CHECKPOINT_FILE)
 
 
 def started(run_dir: Path) -> bool:
