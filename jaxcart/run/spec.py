@@ -283,14 +283,12 @@ class RunSpec:
         differ from CartPole-v1's, and ``randomize``, each only when there is one, so a run on
         the default physics records what it always did) and a search's ``combinations``."""
         out = {"preset": self.preset, "num_seeds": self.num_seeds, "seed": self.seed}
-        out["sweep"] = self.sweep
-        if physics.overrides(self.env_params):
-            out["env_params"] = physics.overrides(self.env_params)
-        if self.randomize:
-            out["randomize"] = {r.name: r.to_dict() for r in self.randomize}
-        if self.combinations:
-            out["combinations"] = [dict(c) for c in self.combinations]
-        return out
+        optional = {
+            "env_params": physics.overrides(self.env_params),
+            "randomize": {r.name: r.to_dict() for r in self.randomize},
+            "combinations": [dict(c) for c in self.combinations],
+        }
+        return {**out, "sweep": self.sweep, **{k: v for k, v in optional.items() if v}}
 
     def options(self) -> dict:
         """The spec as the options that train it again, keyed by their names (``train
