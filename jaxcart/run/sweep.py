@@ -22,7 +22,6 @@ from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
 from jaxcart.core.solved import solved_return
-from jaxcart.results.scores import CompareError, make_entry
 from jaxcart.rundir import layout, reader
 
 RETURN_METRIC = "rollout/ep_rew_mean"
@@ -231,16 +230,22 @@ def saturated(ranking: list[dict]) -> bool:
 
 def run_scores(runs: list[reader.RunCurves], score: summary.Score) -> list[np.ndarray]:
     """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
-    ``compare`` scores it (:func:`jaxcart.results.scores.make_entry`; ``eval``: each seed's
-    mean greedy Gymnasium return).
+    ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
 
     Raises:
         ConfigError: a score the run cannot give (``return-at`` past its end).
     """
-    try:
-        return [make_entry(run, score).scores for run in runs]
-    except CompareError as exc:  # the same line, as a user's mistake of this command
-        raise ConfigError(str(exc)) from None
+    results = []
+    for run in runs:
+        evaluation = None
+        if run.evaluation is not None:
+            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
+        try:
+            curve = run.metrics.get(RETURN_METRIC)
+            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    return results
 
 
 def json_values(group: dict) -> dict:
