@@ -124,14 +124,15 @@ EXAMPLES = {"bool": "on", "int": "8", "float": "0.5", "tuple[int, ...]": "64x64"
 """A value of each kind of field, as :func:`parse_value` reads it (a ``str`` takes any)."""
 
 
-def parse_value(kind: str, text: str) -> Any:
+def parse_value(kind: str, text: str, option: str = "") -> Any:
     """``text`` as a value of a field annotated ``kind`` (``bool``: on/off, true/false, 1/0;
     ``int``: a whole number, ``1e5`` too; ``tuple[int, ...]``: widths joined by x, ``64x64``;
     ``float``; ``str``): the one reading of a single value that ``--env-param``, a
     structural ``--sweep`` and ``--space`` choices share.
 
     Raises:
-        ConfigError: ``'TEXT' is not a value like EXAMPLE`` (the caller names the option).
+        ConfigError: ``OPTION: 'TEXT' is not a value like EXAMPLE`` (without ``option``, the
+            caller names the option).
     """
     text = text.strip()
     try:
@@ -145,7 +146,8 @@ def parse_value(kind: str, text: str) -> Any:
             return tuple(int(w) for w in text.split("x"))
         return float(text) if kind == "float" else text
     except (KeyError, ValueError):
-        raise ConfigError(f"{text!r} is not a value like {EXAMPLES[kind]}") from None
+        where = f"{option}: " if option else ""
+        raise ConfigError(f"{where}{text!r} is not a value like {EXAMPLES[kind]}") from None
 
 
 def _env_value(name: str, text: str) -> Any:
@@ -158,10 +160,7 @@ def _env_value(name: str, text: str) -> Any:
         raise ConfigError(
             f"CartPole has no env param {name!r}; choose one of: {', '.join(physics.FIELDS)}"
         )
-    try:
-        return parse_value(_ENV_KINDS[name], text)
-    except ConfigError as exc:
-        raise ConfigError(f"env param {name}: {exc}") from None
+    return parse_value(_ENV_KINDS[name], text, f"env param {name}")
 
 
 def parse_randomize(specs: Sequence[str]) -> tuple[physics.Randomization, ...]:
@@ -284,14 +283,12 @@ class RunSpec:
         differ from CartPole-v1's, and ``randomize``, each only when there is one, so a run on
         the default physics records what it always did) and a search's ``combinations``."""
         out = {"preset": self.preset, "num_seeds": self.num_seeds, "seed": self.seed}
-        out["sweep"] = self.sweep
-        if physics.overrides(self.env_params):
-            out["env_params"] = physics.overrides(self.env_params)
-        if self.randomize:
-            out["randomize"] = {r.name: r.to_dict() for r in self.randomize}
-        if self.combinations:
-            out["combinations"] = [dict(c) for c in self.combinations]
-        return out
+        optional = {
+            "env_params": physics.overrides(self.env_params),
+            "randomize": {r.name: r.to_dict() for r in self.randomize},
+            "combinations": [dict(c) for c in self.combinations],
+        }
+        return {**out, "sweep": self.sweep, **{k: v for k, v in optional.items() if v}}
 
     def options(self) -> dict:
         """The spec as the options that train it again, keyed by their names (``train

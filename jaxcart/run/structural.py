@@ -43,15 +43,6 @@ MAX_GROUPS = 64
 """Shape groups per structural sweep: each compiles a program of its own."""
 
 
-def parse_shape_value(name: str, text: str) -> int | tuple[int, ...]:
-    """One value of a shape axis: an integer, or for ``hidden_sizes`` widths joined by ``x``
-    (``64x64``): :func:`~jaxcart.run.spec.parse_value` of the field's kind."""
-    try:
-        return parse_value("tuple[int, ...]" if name == "hidden_sizes" else "int", text)
-    except ConfigError as exc:
-        raise ConfigError(f"--sweep {name}: {exc}") from None
-
-
 def split_sweep(specs: list[str]) -> tuple[list[str], dict[str, list]]:
     """The ``--sweep`` options on float hyperparameters (one program), and the shape axes
     ``{name: [values]}`` (one program per combination of their values).
@@ -61,10 +52,11 @@ def split_sweep(specs: list[str]) -> tuple[list[str], dict[str, list]]:
     """
     shaped = [s for s in specs if "=" in s and assigned_name(s) in SHAPE_FIELDS]
     floats = [s for s in specs if s not in shaped]
-    shapes = {
-        name: distinct_values("--sweep", name, text, functools.partial(parse_shape_value, name))
-        for name, text in sweep_assignments(shaped)
-    }
+    shapes = {}
+    for name, text in sweep_assignments(shaped):  # an integer each, or hidden_sizes' 64x64
+        kind = "tuple[int, ...]" if name == "hidden_sizes" else "int"
+        parse = functools.partial(parse_value, kind, option=f"--sweep {name}")
+        shapes[name] = distinct_values("--sweep", name, text, parse)
     groups = math.prod(len(v) for v in shapes.values())
     if groups > MAX_GROUPS:
         raise ConfigError(

@@ -187,9 +187,7 @@ def rank(
     for c, combo in enumerate(grid.combos):
         runs = grid.runs_of(c)
         steps = steps_to_500[runs]
-        improvement = None
-        if c > 0:
-            improvement = stats.probability_of_improvement_ci(scores[runs], first)
+        improvement = stats.probability_of_improvement_ci(scores[runs], first) if c else None
         rows.append(
             {
                 "combination": c,
