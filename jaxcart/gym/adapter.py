@@ -98,7 +98,7 @@ class CartPoleAttributes:
 
     params: EnvParams
     render_mode: str | None
-    metadata: ClassVar[dict[str, Any]]
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
     _renderer: Any = None
     screen_width = 600
     screen_height = 400
@@ -216,8 +216,6 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         steps_beyond_terminated: as ``CartPoleEnv``'s (``None`` until the episode ends).
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
-
     def __init__(
         self,
         render_mode: str | None = None,
@@ -235,15 +233,11 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         self._device_actions = (jnp.asarray(0, jnp.int32), jnp.asarray(1, jnp.int32))
         self._state: np.ndarray | None = None
         self._device_state = None  # [*state, terminated] on the device; None: upload _state
-        self._steps_beyond_terminated: int | None = None
+        self.steps_beyond_terminated: int | None = None
 
     @property
     def state(self) -> np.ndarray | None:
         return self._state
-
-    @property
-    def steps_beyond_terminated(self) -> int | None:
-        return self._steps_beyond_terminated
 
     @state.setter
     def state(self, value: Any) -> None:
@@ -261,7 +255,7 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         super().reset(seed=seed)
         low, high = self._reset_bounds(options)
         self.state = self.np_random.uniform(low=low, high=high, size=(4,))
-        self._steps_beyond_terminated = None
+        self.steps_beyond_terminated = None
         return self._state.astype(np.float32), {}
 
     def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -286,17 +280,17 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         # 0 (Sutton-Barto: -1) for steps taken after termination, with a warning.
         if not terminated:
             reward = 0.0 if sutton_barto else 1.0
-        elif self._steps_beyond_terminated is None:
-            self._steps_beyond_terminated = 0
+        elif self.steps_beyond_terminated is None:
+            self.steps_beyond_terminated = 0
             reward = -1.0 if sutton_barto else 1.0
         else:
-            if self._steps_beyond_terminated == 0:
+            if self.steps_beyond_terminated == 0:
                 gym.logger.warn(
                     "You are calling 'step()' even though this environment has already returned "
                     "terminated = True. You should always call 'reset()' once you receive "
                     "'terminated = True' -- any further steps are undefined behavior."
                 )
-            self._steps_beyond_terminated += 1
+            self.steps_beyond_terminated += 1
             reward = -1.0 if sutton_barto else 0.0
         return self._state.astype(np.float32), reward, terminated, False, {}
 
@@ -413,8 +407,7 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
     """
 
     metadata: ClassVar[dict[str, Any]] = {
-        "render_modes": ["rgb_array"],
-        "render_fps": 50,
+        **CartPoleAttributes.metadata,
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
     # CartPoleVectorEnv's further attributes, each read from the field of params it names
