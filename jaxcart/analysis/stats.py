@@ -360,12 +360,9 @@ def wilson_interval(successes: int, n: int, confidence: float = CONFIDENCE) -> E
         successes: ``0 <= successes <= n``; n: trials, ``>= 1``.
         confidence: in (0, 1).
     """
-    if int(n) != n or n < 1:
-        raise ValueError(f"n must be a positive whole number of trials, got {n}")
+    _check("n", n, confidence, " of trials")
     if int(successes) != successes or not 0 <= successes <= n:
         raise ValueError(f"successes must be a whole number in [0, n={n}], got {successes}")
-    if not 0 < confidence < 1:
-        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
     z = NormalDist().inv_cdf(1 - (1 - confidence) / 2)
     p, z2 = successes / n, z * z
     center = (p + z2 / (2 * n)) / (1 + z2 / n)
@@ -583,9 +580,11 @@ def saturated(runs: Sequence[np.ndarray]) -> bool:
     return bool((pooled == pooled[0]).all())
 
 
-def _check(comparisons: int, confidence: float) -> None:
-    if int(comparisons) != comparisons or comparisons < 1:
-        raise ValueError(f"comparisons must be a positive whole number, got {comparisons}")
+def _check(name: str, count: int, confidence: float, unit: str = "") -> None:
+    """Raises ``ValueError`` unless ``count`` (named ``name``) is a positive whole number (of
+    ``unit``) and ``confidence`` is in (0, 1)."""
+    if int(count) != count or count < 1:
+        raise ValueError(f"{name} must be a positive whole number{unit}, got {count}")
     if not 0 < confidence < 1:
         raise ValueError(f"confidence must be in (0, 1), got {confidence}")
 
@@ -595,7 +594,7 @@ def bonferroni_confidence(comparisons: int, confidence: float = CONFIDENCE) -> f
     with probability at least ``confidence``: ``1 - (1 - confidence) / comparisons``
     (0.9875 for 4 comparisons at 95%). Pass it as ``confidence=`` to the interval functions.
     """
-    _check(comparisons, confidence)
+    _check("comparisons", comparisons, confidence)
     return 1 - (1 - confidence) / comparisons
 
 
@@ -605,5 +604,5 @@ def familywise_miss_bound(comparisons: int, confidence: float = CONFIDENCE) -> f
     (Bonferroni; independent intervals would give ``1 - confidence ** comparisons``, a little
     less; intervals against one shared baseline are not independent, hence the bound).
     """
-    _check(comparisons, confidence)
+    _check("comparisons", comparisons, confidence)
     return min(1.0, comparisons * (1 - confidence))

@@ -368,7 +368,7 @@ class RecordedCode:
         Raises:
             RebuildError: it cannot be imported or built, saying why.
         """
-        import importlib
+        import pkgutil
 
         network = self.fields_json is not None
         where = (
@@ -383,10 +383,7 @@ class RecordedCode:
                 )
             raise RebuildError(f"{where}: define it at the top level of an importable module")
         try:
-            if code is None:
-                code = importlib.import_module(module)
-                for part in name.split("."):
-                    code = getattr(code, part)
+            code = pkgutil.resolve_name(self.path) if code is None else code
         except Exception as exc:  # someone else's module, imported by name on request
             hint = (
                 " (run from the folder the run was trained in, or add the module's folder to "
@@ -540,13 +537,12 @@ MAX_ITERATIONS = 2**31 - 1
 
 
 def _is_number(value: Any) -> bool:
-    """Whether ``value`` is a real number, or a 1-d array of them, every one finite."""
+    """Whether ``value`` is a real number, or a 1-d array of them, every one finite (a bool is
+    none: NumPy's bool is no ``np.number``)."""
     return (
-        not isinstance(value, bool)
-        and isinstance(value, (int, float, np.ndarray, jax.Array, np.number))
+        isinstance(value, (int, float, np.ndarray, jax.Array, np.number))
         and np.ndim(value) <= 1
         and np.issubdtype(np.asarray(value).dtype, np.number)
-        and np.asarray(value).dtype != bool
         and bool(np.all(np.isfinite(value)))
     )
 

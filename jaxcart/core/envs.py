@@ -159,11 +159,6 @@ def make(env_id: str) -> Env:
             f"env {env_id} is not one jaxcart trains: runs are judged in Gymnasium's env of the "
             f"same id, which Gymnasium lacks for it {trains}"
         )
-    return _gymnax_env(env_id, env, params)
-
-
-def _gymnax_env(env_id: str, env: Any, params: Any) -> Env:
-    shape = env.observation_space(params).shape
 
     def step(key: Array, state: Any, action: Array, params: Any) -> tuple:
         # gymnax 1.x's done is the natural termination; truncation is its time limit's
@@ -172,7 +167,7 @@ def _gymnax_env(env_id: str, env: Any, params: Any) -> Env:
 
     return from_step(
         env_id,
-        obs_dim=int(math.prod(shape)),
+        obs_dim=int(math.prod(env.observation_space(params).shape)),
         num_actions=int(env.action_space(params).n),
         reset=env.reset_env,
         step=step,

@@ -148,19 +148,13 @@ class ActorCritic(nn.Module):
 
         def head(hidden: tuple[int, ...], out_dim: int) -> dict:
             sizes = (obs_dim, *hidden, out_dim)
-            names = layer_names(len(hidden))
             return {
                 n: {"kernel": (sizes[i], sizes[i + 1]), "bias": (sizes[i + 1],)}
-                for i, n in enumerate(names)
+                for i, n in enumerate(layer_names(len(hidden)))
             }
 
-        actor_hidden = () if self.linear_actor else tuple(self.hidden_sizes)
-        return {
-            ROOT: {
-                ACTOR: head(actor_hidden, self.num_actions),
-                CRITIC: head(tuple(self.hidden_sizes), 1),
-            }
-        }
+        actor = head(() if self.linear_actor else tuple(self.hidden_sizes), self.num_actions)
+        return {ROOT: {ACTOR: actor, CRITIC: head(tuple(self.hidden_sizes), 1)}}
 
     def host_init(
         self, rng: np.random.Generator, obs_dim: int = 4, dtype: Any = np.float32

@@ -76,15 +76,6 @@ PARAM_ATTRIBUTES = (*kernels.FLOAT_PARAMS[:-2], "kinematics_integrator")
 """``CartPoleEnv``'s attributes that both front-ends read from ``self.params`` (read-only)."""
 
 
-VECTOR_PARAM_ATTRIBUTES = {
-    "max_episode_steps": "max_episode_steps",
-    "low": "reset_low",
-    "high": "reset_high",
-}
-"""``CartPoleVectorEnv``'s further attributes, each read from the field of ``self.params`` it
-names (read-only)."""
-
-
 def _param_attribute(name: str, field: str) -> property:
     def get(env: Any) -> Any:
         return getattr(env.params, field)
@@ -107,7 +98,7 @@ class CartPoleAttributes:
 
     params: EnvParams
     render_mode: str | None
-    metadata: ClassVar[dict[str, Any]]
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
     _renderer: Any = None
     screen_width = 600
     screen_height = 400
@@ -225,8 +216,6 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         steps_beyond_terminated: as ``CartPoleEnv``'s (``None`` until the episode ends).
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 50}
-
     def __init__(
         self,
         render_mode: str | None = None,
@@ -244,15 +233,11 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         self._device_actions = (jnp.asarray(0, jnp.int32), jnp.asarray(1, jnp.int32))
         self._state: np.ndarray | None = None
         self._device_state = None  # [*state, terminated] on the device; None: upload _state
-        self._steps_beyond_terminated: int | None = None
+        self.steps_beyond_terminated: int | None = None
 
     @property
     def state(self) -> np.ndarray | None:
         return self._state
-
-    @property
-    def steps_beyond_terminated(self) -> int | None:
-        return self._steps_beyond_terminated
 
     @state.setter
     def state(self, value: Any) -> None:
@@ -270,13 +255,16 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         super().reset(seed=seed)
         low, high = self._reset_bounds(options)
         self.state = self.np_random.uniform(low=low, high=high, size=(4,))
-        self._steps_beyond_terminated = None
+        self.steps_beyond_terminated = None
         return self._state.astype(np.float32), {}
 
-    def _advance(self, action: Any) -> bool:
-        """Steps the physics (one compiled call, one transfer back); returns ``terminated``."""
+    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """One step (no autoreset, no truncation: ``TimeLimit`` adds that, as in Gymnasium):
+        one compiled call, one transfer back."""
         import jax
 
+        assert self.action_space.contains(action), f"{action!r} ({type(action)}) invalid"
+        assert self._state is not None, "Call reset before using step method."
         if self._device_state is None:
             with kernels.precision(self._x64):
                 self._device_state = jax.device_put(np.append(self._state, 0.0))
@@ -285,31 +273,24 @@ class JaxCartPoleEnv(CartPoleAttributes, gym.Env[np.ndarray, int]):
         self._device_state = self._step_fn(self._device_state, device_action, self._floats)
         # A copy: the device buffer is donated to the next step.
         packed = np.array(self._device_state)
-        self._state = _read_only(packed[:4])
-        return bool(packed[4])
-
-    def step(self, action: int) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """One step (no autoreset, no truncation: ``TimeLimit`` adds that, as in Gymnasium)."""
-        assert self.action_space.contains(action), f"{action!r} ({type(action)}) invalid"
-        assert self._state is not None, "Call reset before using step method."
-        terminated = self._advance(action)
+        self._state, terminated = _read_only(packed[:4]), bool(packed[4])
 
         sutton_barto = bool(self.params.sutton_barto_reward)
         # Gymnasium pays +1 (Sutton-Barto: 0) per step, the terminating one included (-1), and
         # 0 (Sutton-Barto: -1) for steps taken after termination, with a warning.
         if not terminated:
             reward = 0.0 if sutton_barto else 1.0
-        elif self._steps_beyond_terminated is None:
-            self._steps_beyond_terminated = 0
+        elif self.steps_beyond_terminated is None:
+            self.steps_beyond_terminated = 0
             reward = -1.0 if sutton_barto else 1.0
         else:
-            if self._steps_beyond_terminated == 0:
+            if self.steps_beyond_terminated == 0:
                 gym.logger.warn(
                     "You are calling 'step()' even though this environment has already returned "
                     "terminated = True. You should always call 'reset()' once you receive "
                     "'terminated = True' -- any further steps are undefined behavior."
                 )
-            self._steps_beyond_terminated += 1
+            self.steps_beyond_terminated += 1
             reward = -1.0 if sutton_barto else 0.0
         return self._state.astype(np.float32), reward, terminated, False, {}
 
@@ -358,27 +339,6 @@ def _reset_mask(mask: Any, num_envs: int, every_env: bool) -> np.ndarray:
     return np.ones(num_envs, dtype=np.bool_) if mask is None or every_env else mask
 
 
-def _same_step_info(final_rows: np.ndarray, done: np.ndarray) -> dict[str, Any]:
-    """``SyncVectorEnv``'s same-step info from the stepped states ``[4, num_envs]``:
-    ``final_obs`` an object array ``[num_envs]`` holding the last observation of each env whose
-    episode ended (``None`` elsewhere), ``final_info`` the (empty) info of those steps, each
-    with its mask."""
-    final_obs = final_rows.T[done].astype(np.float32)  # [ended, 4], C order
-    per_env = np.full(done.shape[0], None, dtype=object)
-    # One row of final_obs per ended env, without a Python loop.
-    per_env[done] = np.fromiter(final_obs, dtype=object, count=len(final_obs))
-    return {"final_obs": per_env, "_final_obs": done, "final_info": {}, "_final_info": done.copy()}
-
-
-def _current_states(rows: np.ndarray, mode: AutoresetMode) -> np.ndarray:
-    """The physical states ``[4, num_envs]`` in the host copy of the rows: in ``SAME_STEP``,
-    where an episode just ended, the next episode's start state."""
-    if mode is not AutoresetMode.SAME_STEP:
-        return rows[kernels.STATE_ROWS]
-    ended = rows[kernels.ENDED] != 0
-    return np.where(ended, rows[kernels.START_ROWS], rows[kernels.STATE_ROWS])
-
-
 def _valid_actions(actions: Any, space: Any) -> bool:
     """``space.contains(actions)`` (``space``: the batched ``Discrete(2)``), without its generic
     checks for the usual case of an integer array of the right shape: every action 0 or 1."""
@@ -391,7 +351,11 @@ def _step_results(
     rows: np.ndarray, mode: AutoresetMode
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """``step``'s ``(obs [num_envs, 4] float32, reward [num_envs] float32, terminated,
-    truncated, info)`` from the host copy of the rows after a step in ``mode``."""
+    truncated, info)`` from the host copy of the rows after a step in ``mode``. In
+    ``SAME_STEP``, where an episode ended, ``info`` is ``SyncVectorEnv``'s same-step info:
+    ``final_obs`` an object array ``[num_envs]`` holding the last observation of each env whose
+    episode ended (``None`` elsewhere), ``final_info`` the (empty) info of those steps, each
+    with its mask."""
     obs = kernels.observations(rows)
     reward = rows[kernels.REWARD].astype(np.float32)
     code = rows[kernels.ENDED].astype(np.uint8)
@@ -400,7 +364,12 @@ def _step_results(
     if mode is AutoresetMode.SAME_STEP:
         done = terminated | truncated
         if done.any():
-            info = _same_step_info(rows[kernels.STATE_ROWS], done)
+            final_obs = rows[kernels.STATE_ROWS].T[done].astype(np.float32)  # [ended, 4], C order
+            per_env = np.full(done.shape[0], None, dtype=object)
+            # One row of final_obs per ended env, without a Python loop.
+            per_env[done] = np.fromiter(final_obs, dtype=object, count=len(final_obs))
+            info = {"final_obs": per_env, "_final_obs": done}
+            info |= {"final_info": {}, "_final_info": done.copy()}
             obs[done] = rows[kernels.START_ROWS].T[done]  # the next episodes' first
     return obs, reward, terminated, truncated, info
 
@@ -438,10 +407,13 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
     """
 
     metadata: ClassVar[dict[str, Any]] = {
-        "render_modes": ["rgb_array"],
-        "render_fps": 50,
+        **CartPoleAttributes.metadata,
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
+    # CartPoleVectorEnv's further attributes, each read from the field of params it names
+    max_episode_steps = _param_attribute("max_episode_steps", "max_episode_steps")
+    low = _param_attribute("low", "reset_low")
+    high = _param_attribute("high", "reset_high")
 
     def __init__(
         self,
@@ -476,9 +448,15 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
 
     @property
     def state(self) -> np.ndarray | None:
+        """The physical states in a host copy of the rows: in ``SAME_STEP``, where an episode
+        just ended, the next episode's start state."""
         if self._rows is None:
             return None
-        return _read_only(_current_states(np.array(self._rows), self.autoreset_mode))
+        rows = np.array(self._rows)
+        states = rows[kernels.STATE_ROWS]
+        if self.autoreset_mode is AutoresetMode.SAME_STEP:
+            states = np.where(rows[kernels.ENDED] != 0, rows[kernels.START_ROWS], states)
+        return _read_only(states)
 
     @state.setter
     def state(self, value: Any) -> None:
@@ -510,13 +488,6 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
         self._ended &= ~mask
         return kernels.observations(np.asarray(self._rows)), {}  # a new array
 
-    def _step_key(self) -> np.ndarray:
-        """The next step's key (``uint32[2]``), from a block drawn from ``np_random``."""
-        if not len(self._keys):
-            self._keys = self.np_random.integers(2**32, size=(_KEY_BLOCK, 2), dtype=np.uint32)
-        key, self._keys = self._keys[0], self._keys[1:]
-        return key
-
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -528,7 +499,10 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
                 f"sub-environments {np.flatnonzero(self._ended).tolist()} have ended; with "
                 "autoreset disabled, reset them (reset(options={'reset_mask': mask})) first"
             )
-        inputs = kernels.step_inputs(actions, self._step_key())
+        if not len(self._keys):  # the step keys come in blocks drawn from np_random
+            self._keys = self.np_random.integers(2**32, size=(_KEY_BLOCK, 2), dtype=np.uint32)
+        inputs = kernels.step_inputs(actions, self._keys[0])
+        self._keys = self._keys[1:]
         rows = self._step_fn(self._rows, self._spare, inputs, self._floats)
         self._rows, self._spare = rows, self._rows
         _spin_until_ready(rows)
@@ -543,10 +517,6 @@ class JaxCartPoleVectorEnv(CartPoleAttributes, VectorEnv[np.ndarray, np.ndarray,
         if self.render_mode is not None and self._rows is None:
             raise ValueError("Call reset before rendering.")
         return self._frames(None if self._rows is None else self.state.T, "make_vec")
-
-
-for _name, _field in VECTOR_PARAM_ATTRIBUTES.items():
-    setattr(JaxCartPoleVectorEnv, _name, _param_attribute(_name, _field))
 
 
 SPIN_SECONDS = 300e-6

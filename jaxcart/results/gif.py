@@ -59,16 +59,6 @@ def pygame_available() -> bool:
     return True
 
 
-def _check_options(max_steps: int, fps: float, frame_skip: int, scale: float) -> None:
-    for name, value in (("max_steps", max_steps), ("frame_skip", frame_skip)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if not fps > 0:
-        raise ValueError(f"fps must be positive, got {fps!r}")
-    if not 0 < scale <= 4:
-        raise ValueError(f"scale must be in (0, 4], got {scale!r}")
-
-
 def _backend(backend: str) -> str:
     """``"gymnasium"`` or ``"pillow"``: ``backend``, with ``"auto"`` resolved and checked."""
     if backend not in ("auto", "gymnasium", "pillow"):
@@ -168,8 +158,13 @@ def render_gif(
     Returns:
         A :class:`RenderedGif` with the path, frame count, steps and episode return.
     """
-
-    _check_options(max_steps, fps, frame_skip, scale)
+    for name, value in (("max_steps", max_steps), ("frame_skip", frame_skip)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps!r}")
+    if not 0 < scale <= 4:
+        raise ValueError(f"scale must be in (0, 4], got {scale!r}")
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: directory {path.parent} does not exist")

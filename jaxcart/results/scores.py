@@ -24,10 +24,6 @@ from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import RunCurves, load_runs
 
 REACHED_METRIC = "rollout/ep_rew_max"
-REACHED_DEFINITION = (
-    "first iteration in which a training episode scored {target} (rollout/ep_rew_max)"
-)
-"""Formatted with the solved return (:func:`reached_definition`)."""
 
 
 def reached_definition(env_ids: Sequence[str]) -> str:
@@ -36,7 +32,7 @@ def reached_definition(env_ids: Sequence[str]) -> str:
     label = reached_label(env_ids)
     if any(solved_return(e) != return_bounds(e)[1] for e in env_ids):  # some score more
         label = "at least " + ("its env's solved return" if label == "threshold" else label)
-    return REACHED_DEFINITION.format(target=label)
+    return f"first iteration in which a training episode scored {label} ({REACHED_METRIC})"
 
 
 class CompareError(ValueError):
