@@ -37,38 +37,40 @@ __version__ = "0.1.0"
 
 _LAZY_FROM = {
     "jaxcart.core.cartpole": (
-        "EnvParams EnvState reset step step_env observation_space action_space"
+        "EnvParams",
+        "EnvState",
+        "reset",
+        "step",
+        "step_env",
+        "observation_space",
+        "action_space",
     ),
-    "jaxcart.env": "describe",
-    "jaxcart.core.envs": "Env env_from_step=from_step register_env=register",
-    "jaxcart.core.config": "PPOConfig ConfigError preset PRESETS",
-    "jaxcart.engine.loop": "train_runs=train",
-    "jaxcart.engine.devices": "use_all_host_cores",
-    "jaxcart.rundir.policy": "load_policy",
-    "jaxcart.run.spec": "RunSpec RunOptions",
-    "jaxcart.run.lifecycle": "run_new resume_run",
-    "jaxcart.gym.adapter": "JaxCartPoleEnv JaxCartPoleVectorEnv",
-    "jaxcart.plot": "plot_runs",
-    "jaxcart.compare": "compare_runs",
-    "jaxcart.analysis.stats": "iqm bootstrap_ci probability_of_improvement",
-    "jaxcart.results.gif": "render_gif",
+    "jaxcart.env": ("describe",),
+    "jaxcart.core.envs": ("Env", "env_from_step", "register_env"),
+    "jaxcart.core.config": ("PPOConfig", "ConfigError", "preset", "PRESETS"),
+    "jaxcart.engine.loop": ("train_runs",),
+    "jaxcart.engine.devices": ("use_all_host_cores",),
+    "jaxcart.rundir.policy": ("load_policy",),
+    "jaxcart.run.spec": ("RunSpec", "RunOptions"),
+    "jaxcart.run.lifecycle": ("run_new", "resume_run"),
+    "jaxcart.gym.adapter": ("JaxCartPoleEnv", "JaxCartPoleVectorEnv"),
+    "jaxcart.plot": ("plot_runs",),
+    "jaxcart.compare": ("compare_runs",),
+    "jaxcart.analysis.stats": ("iqm", "bootstrap_ci", "probability_of_improvement"),
+    "jaxcart.results.gif": ("render_gif",),
 }
-"""Each module and the names it gives the package, space-separated (``NAME=ATTR``: the
-module's ``ATTR`` under another name)."""
-_LAZY: dict[str, tuple[str, str]] = {
-    name: (module, attr or name)
-    for module, names in _LAZY_FROM.items()
-    for name, _, attr in (entry.partition("=") for entry in names.split())
-}
-"""Each lazily loaded name -> its module and attribute there."""
+"""Each module and the names it gives the package, loaded on first use."""
+_RENAMED = {"env_from_step": "from_step", "register_env": "register", "train_runs": "train"}
+"""Names the package gives under another name than their module's."""
+_LAZY = {name: module for module, names in _LAZY_FROM.items() for name in names}
 
 __all__ = sorted(_LAZY)
 
 
 def __getattr__(name: str):
     if name in _LAZY:
-        module, attr = _LAZY[name]
-        value = getattr(importlib.import_module(module), attr)
+        module = importlib.import_module(_LAZY[name])
+        value = getattr(module, _RENAMED.get(name, name))
         globals()[name] = value
         return value
     if name == "train":  # the submodule, once imported, is an attribute and never gets here
