@@ -22,7 +22,7 @@ from custom_networks import ReluMLP
 from helpers import TINY, seal, stopped_run
 
 from jaxcart import compare, evaluate, export, plot, train
-from jaxcart.core.config import ConfigError
+from jaxcart.core.config import ConfigError, RebuildError, RecordedCode
 from jaxcart.run import lifecycle
 from jaxcart.run.spec import RunOptions, RunSpec
 from jaxcart.rundir import files, layout, policy
@@ -187,6 +187,14 @@ def test_trusting_code_builds_only_a_flax_module(payload, bases, place, tmp_path
         policy.load_policy(run, trust_code=True)
     assert evaluate.main([str(run), "--episodes", "1", "--trust-code"]) == 2
     assert traces(outside, cwd, run) == []
+
+
+@pytest.mark.parametrize("path", ["os.system", "subprocess.getoutput"])
+def test_trusted_code_is_only_a_recorded_module_colon_name(path):
+    """Even trusted, a recorded name is ``module:Name``: a dotted name without the colon is
+    not walked down module by module to whatever it reaches (``os.system``)."""
+    with pytest.raises(RebuildError, match="ModuleNotFoundError"):
+        RecordedCode(path).build()
 
 
 @pytest.mark.slow

@@ -368,7 +368,7 @@ class RecordedCode:
         Raises:
             RebuildError: it cannot be imported or built, saying why.
         """
-        import pkgutil
+        import importlib
 
         network = self.fields_json is not None
         where = (
@@ -383,7 +383,10 @@ class RecordedCode:
                 )
             raise RebuildError(f"{where}: define it at the top level of an importable module")
         try:
-            code = pkgutil.resolve_name(self.path) if code is None else code
+            if code is None:  # exactly "module:Name": the module, then the names in it
+                code = importlib.import_module(module)
+                for part in name.split("."):
+                    code = getattr(code, part)
         except Exception as exc:  # someone else's module, imported by name on request
             hint = (
                 " (run from the folder the run was trained in, or add the module's folder to "
