@@ -403,17 +403,22 @@ def carry_out(
                 run, dataclasses.replace(options, eval_episodes=episodes), hooks, stop
             )
     except Exception:
-        # a new run, owned by this process, that failed before its first chunk trained (its
-        # only checkpoint, if any, the one written before the first iteration): discarded
-        new = run.resumed_from is None and run.main_process and not run.trained_chunks
-        meta = run.directory.checkpoint_meta or {}
-        if new and int(meta.get("iteration", 0)) == 0 and int(meta.get("wave", 0)) == 0:
+        if _nothing_trained(run):  # a new run that failed before its first chunk trained
             run.directory.discard()
         raise
     finally:
         if bar is not None:
             bar.close()
         run.close()
+
+
+def _nothing_trained(run: Run) -> bool:
+    """Whether ``run`` is a new run, owned by this process, none of whose iterations trained
+    (its only checkpoint, if any, is the one written before the first iteration)."""
+    if run.resumed_from is not None or not run.main_process or run.trained_chunks:
+        return False
+    meta = run.directory.checkpoint_meta or {}
+    return int(meta.get("iteration", 0)) == 0 and int(meta.get("wave", 0)) == 0
 
 
 def _carry_out(run: Run, options: RunOptions, hooks: Hooks, stop: StopRequest) -> Outcome:

@@ -266,6 +266,8 @@ class SwanLabBackend(Backend):
         """name -> ``[R]``: row ``i``'s values of every run, once every run has logged its
         step (a batch of one run, an SB3 seed, waits for the others: SwanLab keeps the first
         value logged at a step, so the mean is logged once); None while some have not."""
+        if len(batch.runs) == len(self.run_names):  # a training's batch: every run at once
+            return {name: values[i] for name, values in batch.metrics.items()}
         step = int(batch.env_steps[i])
         seen = self.pending.setdefault(step, {})
         for c, r in enumerate(batch.runs):
