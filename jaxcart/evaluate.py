@@ -127,7 +127,7 @@ def _options(opts: EvaluateOptions) -> tuple[dict, str | None, list[float]]:
         ((field, values),) = parse_sweep(opts.sweep).items()
         if field[len(physics.PREFIX) :] in chosen:
             raise cli.UsageError(f"{field} is both swept and set by --env-param; keep one")
-    if opts.out is not None and layout.present(opts.out):
+    if opts.out is not None and files.present(opts.out):
         raise cli.UsageError(
             f"--out {opts.out} exists; evaluate writes a new directory, so that nothing is "
             "overwritten"

@@ -257,7 +257,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     from jaxcart.engine import distributed
     from jaxcart.engine.signals import Stopped
     from jaxcart.run import lifecycle, structural
-    from jaxcart.rundir import layout
+    from jaxcart.rundir import layout, reader
     from jaxcart.rundir.files import RunDirError
     from jaxcart.rundir.reader import group_label
 
@@ -270,7 +270,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups, specs)
     run_options = opts.run_options()
-    if opts.distributed and (groups or (opts.resume and layout.is_groups(opts.resume))):
+    if opts.distributed and (groups or (opts.resume and reader.is_groups(opts.resume))):
         raise cli.UsageError("a structural sweep (--sweep of a shape) runs in one process")
     if opts.distributed:
         lifecycle.start_distributed(opts.coordinator_address, opts.num_processes, opts.process_id)
@@ -312,7 +312,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
             return structural.run_groups(spec, groups, out, *args)
         if spec is not None:
             return lifecycle.run_new(spec, opts.out, run_options, hooks, stop, command)
-        if layout.is_groups(opts.resume):
+        if reader.is_groups(opts.resume):
             return structural.finish_groups(opts.resume, run_options, hooks, stop, on_group)
         extend_to, allow = opts.overrides.get("total_timesteps"), opts.allow_device_change
         try:

@@ -67,7 +67,7 @@ def test_sweep_through_the_library(tmp_path):
     spec = RunSpec(SMALL, num_seeds=2, sweep={"learning_rate": [1e-3, 3e-3]})
     outcome = lifecycle.run_new(spec, tmp_path / "sweep", OPTIONS)
     assert outcome.run.grid.num_runs == 4 and len(outcome.ranking) == 2
-    assert layout.is_sweep(tmp_path / "sweep")
+    assert reader.is_sweep(tmp_path / "sweep")
     for c in range(2):
         combo = json.loads((layout.combo_dir(tmp_path / "sweep", c) / "config.json").read_text())
         assert combo["config"]["learning_rate"] == [1e-3, 3e-3][c]

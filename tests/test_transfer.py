@@ -16,7 +16,7 @@ from helpers import seal, tiny_args
 from PIL import Image
 
 from jaxcart import compare, evaluate, plot
-from jaxcart.rundir import layout
+from jaxcart.rundir import layout, reader
 from jaxcart.train import main as train_main
 
 
@@ -132,7 +132,7 @@ def test_a_physics_sweep_of_two_runs_draws_one_figure_and_compares_per_value(
 
     one = tmp_path / "one"  # one run: the output is its sweep, the figure inside
     assert evaluate.main([str(arms[0]), "--sweep", "env.masspole=0.1,0.2", "--out", str(one)]) == 0
-    assert (one / layout.ROBUSTNESS_FIGURE_FILE).is_file() and layout.is_sweep(one)
+    assert (one / layout.ROBUSTNESS_FIGURE_FILE).is_file() and reader.is_sweep(one)
     assert compare.main([str(one), "--out", str(tmp_path / "cmp-one")]) == 0
 
 

@@ -145,7 +145,7 @@ def load_entries(
     else:
         runs = load_runs(run_dirs)
     if baseline is not None and not arms:
-        if layout.is_sweep(baseline):
+        if reader.is_sweep(baseline):
             raise CompareError(
                 f"--baseline {baseline} is a sweep; name one of its combinations, "
                 f"e.g. {layout.combo_dir(baseline, 0)}"
@@ -188,7 +188,7 @@ def _arm_dirs(
     for name, dirs in arms:
         runs: list[Path] = []
         for d in map(Path, dirs):
-            if layout.is_sweep(d):
+            if reader.is_sweep(d):
                 swept.add(repr(reader.recorded_combinations(reader.read_run_config(d))))
                 runs += reader.combo_dirs(d)
             else:
@@ -481,7 +481,7 @@ def named_dir(run: RunCurves) -> Path:
     and so do a structural sweep's groups."""
     in_combo_dir = run.path.name.startswith("combo-")  # layout.combo_dir's names
     path = run.path.parent if run.combination is not None and in_combo_dir else run.path
-    return path.parent if layout.is_groups(path.parent) else path
+    return path.parent if reader.is_groups(path.parent) else path
 
 
 def prepare_out(out: Path | None, entries: list[Entry]) -> Path:

@@ -22,7 +22,7 @@ from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
 from jaxcart.core.solved import solved_return
-from jaxcart.rundir import layout, reader
+from jaxcart.rundir import files, layout, reader
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 
@@ -270,7 +270,7 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
     """
     runs, where = [], []  # every combination's run, and its (group, combination) there
     for g, path in enumerate(dirs):
-        swept = layout.present(layout.combo_dir(path, 0))  # before sweep.json is written
+        swept = files.present(layout.combo_dir(path, 0))  # before sweep.json is written
         for c, combo_dir in enumerate(reader.combo_dirs(path) if swept else [path]):
             runs.append(reader.load_run(combo_dir))
             where.append((g, c if swept else None))

@@ -204,7 +204,8 @@ def _located(target: Target) -> tuple[str, int | None]:
 
 
 def _lstat(target: Target) -> os.stat_result | None:
-    """``target``'s own status (a link is not followed), None when it does not exist.
+    """``target``'s own status (a link is not followed), None when it does not exist (nor
+    does its parent, or its parent is a file).
 
     Raises:
         RunDirError: it cannot be read.
@@ -212,7 +213,7 @@ def _lstat(target: Target) -> os.stat_result | None:
     name, dir_fd = _located(target)
     try:
         return os.stat(name, dir_fd=dir_fd, follow_symlinks=False)
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):
         return None
     except OSError as exc:
         raise RunDirError(f"{target} cannot be read: {exc.strerror or exc}") from None
@@ -444,7 +445,7 @@ def read_manifest(run_dir: Where) -> dict[str, list[str]]:
 
 CLASSIFYING_FILES = (layout.SWEEP_FILE, layout.PARAMS_FILE, layout.CHECKPOINT_FILE)
 """Whether these exist says whether a directory is a sweep, a finished or an unfinished run
-(:func:`~jaxcart.rundir.layout.is_sweep`): :func:`read_config` refuses each as a link."""
+(:func:`~jaxcart.rundir.reader.is_sweep`): :func:`read_config` refuses each as a link."""
 
 
 def read_config(run_dir: Where, verify: bool = False) -> dict:

@@ -129,11 +129,6 @@ def group_dir(sweep_dir: str | os.PathLike, group: int) -> Path:
     return Path(sweep_dir) / f"group-{group:03d}"
 
 
-def is_groups(run_dir: str | os.PathLike) -> bool:
-    """Whether ``run_dir`` is a structural sweep: shape groups, each a run directory."""
-    return present(group_dir(run_dir, 0))
-
-
 def wave_file(run_dir: str | os.PathLike, wave: int) -> Path:
     """The block file of one finished wave: ``RUN_DIR/waves/wave-00003.npz``."""
     return Path(run_dir) / WAVES_DIR / f"wave-{wave:05d}.npz"
@@ -153,18 +148,6 @@ def is_temporary(path: str | os.PathLike) -> bool:
     """A leftover of a write that never finished (see :data:`TEMPORARY_SUFFIX`)."""
     name = Path(path).name
     return name.startswith(".") and name.endswith(TEMPORARY_SUFFIX)
-
-
-def present(path: str | os.PathLike) -> bool:
-    """Whether ``path`` exists, by ``lstat``: a link counts as present whatever it points to,
-    so that what a directory is never depends on a link's target (its reader then refuses
-    the link by name)."""
-    return os.path.lexists(path)
-
-
-def is_sweep(run_dir: str | os.PathLike) -> bool:
-    """Whether ``run_dir`` is a sweep (its combinations are run directories of their own)."""
-    return present(Path(run_dir) / SWEEP_FILE) and not present(Path(run_dir) / PARAMS_FILE)
 
 
 def fresh_dir(base: str | os.PathLike) -> Path:

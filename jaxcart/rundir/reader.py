@@ -304,11 +304,17 @@ def combo_dirs(sweep_dir: str | os.PathLike) -> list[Path]:
     return _run_dirs(sweep_dir, layout.COMBO_GLOB, none)
 
 
-def is_sweep(directory: files.Dir) -> bool:
-    """:func:`jaxcart.rundir.layout.is_sweep`, through the directory's descriptor."""
-    return files.present(directory / layout.SWEEP_FILE) and not files.present(
-        directory / layout.PARAMS_FILE
-    )
+def is_sweep(run_dir: files.Where) -> bool:
+    """Whether ``run_dir`` (a path, or a directory opened once) is a sweep: its combinations
+    are run directories of their own."""
+    directory = run_dir if isinstance(run_dir, files.Dir) else Path(run_dir)
+    sweep = files.present(directory / layout.SWEEP_FILE)
+    return sweep and not files.present(directory / layout.PARAMS_FILE)
+
+
+def is_groups(run_dir: str | os.PathLike) -> bool:
+    """Whether ``run_dir`` is a structural sweep: shape groups, each a run directory."""
+    return files.present(layout.group_dir(run_dir, 0))
 
 
 # ---- metrics.csv and evaluation.json ----
@@ -909,7 +915,7 @@ def load_runs(
     runs: list[RunCurves] = []
     for i, path in enumerate(Path(p) for p in run_dirs):
         label = labels[i] if labels is not None else None
-        if layout.is_groups(path):  # a structural sweep: every group's runs, labelled by it
+        if is_groups(path):  # a structural sweep: every group's runs, labelled by it
             groups = [(name, group) for name, group in read_groups(path) if started(group)]
             if not groups:
                 raise RunDirError(
@@ -918,7 +924,7 @@ def load_runs(
                 )
             for name, group in groups:
                 runs += load_runs([group], [name if label is None else f"{label} {name}"])
-        elif layout.is_sweep(path):
+        elif is_sweep(path):
             read_run_config(path)  # a clear error for a broken sweep
             runs += _prefixed((load_run(combo) for combo in combo_dirs(path)), label)
         elif (info := read_run_config(path)).get("combinations") and unfinished(path):
