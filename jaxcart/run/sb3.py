@@ -207,11 +207,8 @@ def write_run(
     with files.opened(out) as directory:  # every file through it, recorded in its manifest
         listing = files.Manifest(directory)
         files.write_config(listing, info)
-        listing.write(
-            layout.METRICS_FILE,
-            lambda e, d: write_metrics_csv(e, metrics, config.batch_size, d),
-        )
-        listing.write(layout.PARAMS_FILE, lambda e, d: files.save_tree(e, stacked, None, d))
+        listing.write(layout.METRICS_FILE, write_metrics_csv, metrics, config.batch_size)
+        listing.write(layout.PARAMS_FILE, files.save_tree, stacked)
         listing.write_json(layout.EVALUATION_FILE, evaluation)
 
 

@@ -237,9 +237,7 @@ class RunDir:
         digest = self.stream.sync(state.iteration)
         if digest is not None:
             meta = {**meta, files.STREAM_DIGEST_KEY: digest}
-        self.manifest.write(
-            layout.CHECKPOINT_FILE, lambda entry, d: save_checkpoint(entry, state, meta, d)
-        )
+        self.manifest.write(layout.CHECKPOINT_FILE, save_checkpoint, state, meta)
         self.checkpoint_meta = {**meta, "iteration": state.iteration}
 
     def open_metrics(self, runs: int, rows: int, columns: tuple[str, ...] = METRIC_COLUMNS) -> None:
@@ -310,10 +308,7 @@ class RunDir:
 
     def write_metrics(self, batch_size: int) -> None:
         """``metrics.csv`` of a stopped run, from its stream's rows so far."""
-        rows = self.stream.read()
-        self.manifest.write(
-            layout.METRICS_FILE, lambda entry, d: write_metrics_csv(entry, rows, batch_size, d)
-        )
+        self.manifest.write(layout.METRICS_FILE, write_metrics_csv, self.stream.read(), batch_size)
 
     def write_outputs(
         self,
@@ -332,25 +327,18 @@ class RunDir:
         if combo is not None:
             directory = self.dir.sub(layout.combo_dir(".", combo[0]).name, create=True)
             manifest = Manifest(directory)
-        parts = lambda: (
+        parts = (
             (b.metrics, b.start + t.start - runs.start, t) for b, t in overlapping(blocks, runs)
         )
-        batch_size, env_id = config.batch_size, config.env
         try:
             if combo is not None:
                 files.write_config(manifest, {**combo[1], "config": config.to_dict()})
-            manifest.write(
-                layout.METRICS_FILE, lambda e, d: write_metrics_csv(e, parts(), batch_size, d)
-            )
-            manifest.write(layout.PARAMS_FILE, lambda e, d: write_params(e, blocks, runs, d))
+            manifest.write(layout.METRICS_FILE, write_metrics_csv, parts, config.batch_size)
+            manifest.write(layout.PARAMS_FILE, write_params, blocks, runs)
             if config.keep_best:
-                manifest.write(
-                    layout.PARAMS_BEST_FILE,
-                    lambda e, d: write_params(e, blocks, runs, d, best=True),
-                )
+                manifest.write(layout.PARAMS_BEST_FILE, write_params, blocks, runs, best=True)
             manifest.write(
-                layout.EVALUATION_FILE,
-                lambda e, d: write_evaluation(e, blocks, runs, episodes, timing, d, env_id),
+                layout.EVALUATION_FILE, write_evaluation, blocks, runs, episodes, timing, config.env
             )
         finally:
             if directory is not self.dir:
@@ -522,8 +510,8 @@ def write_evaluation(
     runs: range,
     episodes: int,
     extra: dict,
-    on_digest: Digest = None,
     env_id: str = DEFAULT_ENV,
+    on_digest: Digest = None,
 ) -> None:
     """``evaluation.json`` for ``runs``: per-seed returns and solved flags (solved as
     ``env_id`` defines it), streamed."""

@@ -582,8 +582,8 @@ def write_json(target: Target, data: dict, on_digest: Callable[[str], None] | No
     atomic_write_bytes(target, (json.dumps(data, indent=2) + "\n").encode(), on_digest)
 
 
-Writer = Callable[[Entry, Callable[[str], None] | None], None]
-"""Writes one file: ``writer(entry, on_digest)``, through :func:`atomic_file`."""
+Writer = Callable[..., None]
+"""Writes one file: ``writer(entry, *args, on_digest=...)``, through :func:`atomic_file`."""
 
 
 class Manifest:
@@ -598,23 +598,24 @@ class Manifest:
             with contextlib.suppress(RunDirError):  # a resumed run keeps what it recorded
                 self.digests = read_manifest(directory)
 
-    def write(self, name: str, writer: Writer) -> None:
-        """Writes ``name`` with ``writer(entry, on_digest)`` and records it: its new digest
-        beside the old before it is renamed into place, only the new one after."""
+    def write(self, name: str, writer: Writer, *args: Any, **kwargs: Any) -> None:
+        """Writes ``name`` with ``writer(entry, *args, on_digest=..., **kwargs)`` and records
+        it: its new digest beside the old before it is renamed into place, only the new one
+        after."""
         if not self.kept:
-            return writer(self.dir / name, None)
+            return writer(self.dir / name, *args, on_digest=None, **kwargs)
 
         def stage(digest: str) -> None:
             self.digests[name] = [*self.digests.get(name, [])[-1:], digest]
             self._write()
 
-        writer(self.dir / name, stage)
+        writer(self.dir / name, *args, on_digest=stage, **kwargs)
         self.digests[name] = self.digests[name][-1:]
         self._write()
 
     def write_json(self, name: str, data: dict) -> None:
         """``name`` as indented JSON (:func:`write_json`), recorded."""
-        self.write(name, lambda entry, digest: write_json(entry, data, digest))
+        self.write(name, write_json, data)
 
     def forget(self, *names: str) -> None:
         if self.kept:
