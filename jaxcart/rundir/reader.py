@@ -418,11 +418,11 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB).
     """
     with files.opened(run_dir) as directory:
-        config = files.read_config(directory)
-        name, limit = layout.EVALUATION_FILE, _evaluation_bytes(config)
-        data = read_json(directory, name, limit, verify=True, info=config)
+        info = read_run_config(directory)
+        name, limit = layout.EVALUATION_FILE, _evaluation_bytes(info)
+        data = read_json(directory, name, limit, verify=True, info=info)
         path = directory / name
-    env_id = _env_of(config)
+    env_id = info["config"].env
     seeds = data.get("seeds")
     if not isinstance(seeds, list) or not all(
         isinstance(s, dict)
@@ -448,16 +448,6 @@ def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
     if solved is not None and solved != sum(s["solved"] for s in seeds):
         raise RunDirError(f"{path}: solved_seeds {solved!r:.20} does not count the solved seeds")
     return data
-
-
-def _env_of(config: object) -> str:
-    """The env id a raw ``config.json`` names (the default env when it names none), or
-    refuses it."""
-    inner = config.get("config") if isinstance(config, dict) else None
-    env_id = inner.get("env", DEFAULT_ENV) if isinstance(inner, dict) else DEFAULT_ENV
-    if env_id not in EPISODE_LIMITS:
-        raise RunDirError(f"config.json names env {env_id!r:.40}, which jaxcart does not train")
-    return env_id
 
 
 def _seed_problem(seed: dict, episodes: int | None, env_id: str) -> str | None:
@@ -517,12 +507,10 @@ def gymnasium_entry(returns: np.ndarray, env_id: str = DEFAULT_ENV) -> dict:
 
 
 def _evaluation_bytes(info: dict) -> int:
-    """The largest ``evaluation.json`` the run's ``config.json`` (``info``, as read) allows:
-    its declared seeds x combinations x episodes (read as declared, within the reader's
-    bounds)."""
-    seeds, episodes = info.get("num_seeds", 1), info.get("eval_episodes", 20)
-    seeds = seeds if bounded_int(seeds, 1, MAX_RUNS) else 1
-    episodes = episodes if bounded_int(episodes, 1, MAX_EVAL_EPISODES) else 20
+    """The largest ``evaluation.json`` the run's ``config.json`` (``info``, read by
+    :func:`read_run_config`: its numbers within the reader's bounds) allows: its declared
+    seeds x episodes."""
+    seeds, episodes = info.get("num_seeds", 1), info.get("eval_episodes") or 20
     per_seed = EVAL_JSON_BYTES_PER_SEED + episodes * EVAL_JSON_BYTES_PER_EPISODE
     return MAX_JSON_BYTES + seeds * per_seed
 
