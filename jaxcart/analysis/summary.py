@@ -35,9 +35,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from jaxcart.core.config import ConfigError
 from jaxcart.core.solved import DEFAULT_ENV, return_bounds
 
 RETURN_METRIC = "rollout/ep_rew_mean"
@@ -219,6 +221,23 @@ class Score:
         if self.name == "auc":
             return auc(returns, env_id)
         return return_at(returns, env_steps, self.steps, env_id)
+
+    def of_run(self, run: Any, means: np.ndarray | None = None) -> np.ndarray:
+        """Each seed's score of a run read back (a :class:`~jaxcart.rundir.reader.RunCurves`:
+        its curve, env steps and env), as ``compare``, a sweep's ranking and ``tune`` score
+        it; ``means``: its seeds' mean greedy returns (default: its final policies', from its
+        ``evaluation.json`` when it has one).
+
+        Raises:
+            ConfigError: ``PATH: cannot score by --score LABEL: why`` (a score the run cannot
+                give: no evaluation, no curve, ``return-at`` past its end).
+        """
+        if means is None and run.evaluation is not None:
+            means = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
+        try:
+            return self.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {self.label}: {exc}") from None
 
 
 EVAL = Score()

@@ -352,17 +352,13 @@ def _draw_metrics(
         means = [
             _plot_metric(ax, run.env_steps, run, style, name)
             for run, style in zip(runs, styles)
-            if name in run.metrics
+            if np.isfinite(run.metrics.get(name, np.nan)).any()
         ]
-        ax.set(title=title, xlabel="env steps per seed", ylabel=name)
-        ax.grid(alpha=0.3)
-        step_axis(ax.xaxis)
         lows, highs = zip(*(metric_bounds(name, run.env) for run in runs))
         limits = curve_limits(means, (min(lows), max(highs)))  # every run's range
-        if limits is None:
-            no_data(ax, f"{name} not recorded")
-        else:
-            ax.set_ylim(limits)
+        labels = {"title": title, "xlabel": "env steps per seed", "ylabel": name}
+        _finish(ax, f"{name} not recorded", ylim=limits, **labels)
+        step_axis(ax.xaxis)
 
 
 def _draw_legend(fig, runs: list[RunCurves], styles: list[dict]) -> None:
@@ -538,8 +534,8 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
         title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
         xlim = FRACTION
     if not rows:
-        ax.set(title=title)
-        return no_data(ax, "one run: nothing to compare")
+        _finish(ax, "one run: nothing to compare", title=title)
+        return
     _intervals(ax, rows, title, xlabel, xlim)
     ax.axvline(zero, color="0.5", ls="--", lw=0.8, label="no difference")
     ax.legend(fontsize=8, loc="lower right")
@@ -686,10 +682,9 @@ def draw_robustness(
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xticks(values, [f"{v:g}" for v in values])
+    xlabel = f"{field} of the physics evaluated on"
+    _finish(ax, "", "lower left", xlabel=xlabel, ylabel="greedy return, IQM over seeds")
     return_axis(ax, env_ids)
-    ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return, IQM over seeds")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower left")
     title = (
         f"Greedy return in Gymnasium's {env_ids[0]} ({episodes} episodes per seed) against "
         f"{field}: {statistic}; band: that interval"

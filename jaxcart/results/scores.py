@@ -98,14 +98,11 @@ def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
     """A run scored by ``score``.
 
     Raises:
-        RunDirError: an unusable ``evaluation.json``; CompareError: the run lacks what the
-            score needs (e.g. it ends before ``return-at``'s steps).
+        RunDirError: an unusable ``evaluation.json``; ConfigError: the run lacks what the
+            score needs (e.g. it ends before ``return-at``'s steps: :meth:`Score.of_run`).
     """
     means, solved = read_evaluation(run, score.name == "eval" or policy == "best", policy)
-    try:
-        scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
-    except ValueError as exc:
-        raise CompareError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    scores = score.of_run(run, means)
     episodes = (run.evaluation or {}).get("episodes")  # a bounded int or None (the store checks)
     return Entry(run, scores, solved, episodes)
 

@@ -228,26 +228,6 @@ def saturated(ranking: list[dict]) -> bool:
     return stats.saturated([np.asarray(r["scores"]) for r in ranking])
 
 
-def run_scores(runs: list[reader.RunCurves], score: summary.Score) -> list[np.ndarray]:
-    """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
-    ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
-
-    Raises:
-        ConfigError: a score the run cannot give (``return-at`` past its end).
-    """
-    results = []
-    for run in runs:
-        evaluation = None
-        if run.evaluation is not None:
-            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
-        try:
-            curve = run.metrics.get(RETURN_METRIC)
-            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
-        except ValueError as exc:
-            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
-    return results
-
-
 def json_values(group: dict) -> dict:
     """A shape group's values as JSON writes them (``hidden_sizes`` a list)."""
     return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
@@ -288,7 +268,7 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
         for run in runs
     ]
     grid = RunGrid(len(seeds[0]), tuple(dict(run.combination or {}) for run in runs))
-    scores = np.concatenate(run_scores(runs, score))
+    scores = np.concatenate([score.of_run(run) for run in runs])
     rows = rank(grid, scores, solved, final, np.concatenate(reach), diverged, score=score.label)
     if groups is not None:
         for row in rows:
