@@ -183,6 +183,7 @@ def wrap_to_axes(text, ax) -> None:
     text.set_text(wrap_to_width(text.get_text(), columns))
 
 
+WALL_TIME_LABEL = "training wall time [s] (compile excluded)"
 EVAL_METRIC = "eval/mean_return"
 """The periodic greedy evaluation (``--eval-every``), drawn as dots over the return curve."""
 KEY_METRICS = (
@@ -322,21 +323,12 @@ def _draw_returns(runs: list[RunCurves], styles: list[dict], ax_steps, ax_time) 
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
     dots = f" (dots: {EVAL_METRIC})" if evaluated else ""
-    _finish(
-        ax_steps,
-        f"{RETURN_METRIC} not recorded",
-        title=f"episode return vs env steps{dots}",
-        xlabel="env steps per seed",
-        ylabel=RETURN_METRIC,
-    )
-    _finish(
-        ax_time,
-        f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded",
-        title="episode return vs wall time",
-        xlabel="training wall time [s] (compile excluded)",
-        ylabel=RETURN_METRIC,
-    )
+    steps = {"title": f"episode return vs env steps{dots}", "xlabel": "env steps per seed"}
+    _finish(ax_steps, f"{RETURN_METRIC} not recorded", **steps)
+    wall = {"title": "episode return vs wall time", "xlabel": WALL_TIME_LABEL}
+    _finish(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded", **wall)
     for ax in (ax_steps, ax_time):
+        ax.set_ylabel(RETURN_METRIC)
         return_axis(ax, [run.env for run in runs])
     step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))

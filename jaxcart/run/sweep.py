@@ -59,15 +59,8 @@ class RunGrid:
 
     def seed_indices(self, runs: range | None = None) -> np.ndarray:
         """Each run's seed index, ``[len(runs)]`` (default: every run, ``[num_runs]``)."""
-        return self._runs(runs) % self.num_seeds
-
-    def combo_indices(self, runs: range | None = None) -> np.ndarray:
-        """Each run's combination, ``[len(runs)]`` (default: every run, ``[num_runs]``)."""
-        return self._runs(runs) // self.num_seeds
-
-    def _runs(self, runs: range | None) -> np.ndarray:
         runs = range(self.num_runs) if runs is None else runs
-        return np.arange(runs.start, runs.stop)
+        return np.arange(runs.start, runs.stop) % self.num_seeds
 
     def runs_of(self, combo: int) -> slice:
         """The runs of one combination, as a slice of the seed axis."""
@@ -130,7 +123,7 @@ def grid_values(grid: RunGrid, runs: range, name: str, base: float, dtype=float)
     every seed's), ``[len(runs)]`` of ``dtype``: its combination's, or ``base`` where that
     sets none."""
     per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], dtype)
-    return per_combo[grid.combo_indices(runs)]
+    return per_combo[np.arange(runs.start, runs.stop) // grid.num_seeds]  # each run's combination
 
 
 def grid_env_values(grid: RunGrid, runs: range) -> dict[str, np.ndarray]:
