@@ -39,11 +39,14 @@ from typing import Any
 
 import numpy as np
 
+from jaxcart.analysis.stats import first_at_least
 from jaxcart.core.config import ConfigError
-from jaxcart.core.solved import DEFAULT_ENV, return_bounds
+from jaxcart.core.solved import DEFAULT_ENV, return_bounds, solved_return
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 """The learning curve the scores here read (a ``metrics.csv`` column)."""
+REACHED_METRIC = "rollout/ep_rew_max"
+"""What says a seed's training reached its env's solved return (:func:`first_reached`)."""
 SCORES = {
     "eval": "each seed's mean greedy return in {where} (evaluation.json)",
     "auc": "each seed's mean of rollout/ep_rew_mean over all iterations (area under its "
@@ -238,6 +241,17 @@ class Score:
             return self.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
         except ValueError as exc:
             raise ConfigError(f"{run.path}: cannot score by --score {self.label}: {exc}") from None
+
+
+def first_reached(run: Any, x: np.ndarray | None) -> np.ndarray | None:
+    """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each seed
+    of ``run`` (a :class:`~jaxcart.rundir.reader.RunCurves`) first scored its env's solved
+    return (:func:`~jaxcart.core.solved.solved_return`: 500 on CartPole-v1), ``[num_seeds]``
+    (``inf``: never); None without the data (Stable-Baselines3 logs no episode maximum)."""
+    best = run.metrics.get(REACHED_METRIC)
+    if x is None or best is None or not np.isfinite(best).any():
+        return None
+    return first_at_least(best, x, solved_return(run.env))
 
 
 EVAL = Score()

@@ -21,7 +21,6 @@ from jaxcart.analysis import stats, summary
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
-from jaxcart.core.solved import solved_return
 from jaxcart.rundir import layout, reader
 
 RETURN_METRIC = "rollout/ep_rew_mean"
@@ -253,16 +252,13 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
     diverged = np.ravel([[-1 if d is None else d for d in each] for each in diverged])
     final = np.concatenate([run.metrics[RETURN_METRIC][-1] for run in runs])
     # env steps at which each seed's training episode first scored its env's solved return
-    # (500 on CartPole-v1; the ranking's keys keep that name)
-    reach = [
-        stats.first_at_least(
-            run.metrics["rollout/ep_rew_max"], run.env_steps, solved_return(run.env)
-        )
-        for run in runs
-    ]
+    # (500 on CartPole-v1; the ranking's keys keep that name), inf: never
+    reach = [summary.first_reached(run, run.env_steps) for run in runs]
+    never = [np.full(run.num_seeds, np.inf) for run in runs]
     grid = RunGrid(len(seeds[0]), tuple(dict(run.combination or {}) for run in runs))
     scores = np.concatenate([score.of_run(run) for run in runs])
-    rows = rank(grid, scores, solved, final, np.concatenate(reach), diverged, score=score.label)
+    reach = np.concatenate([n if r is None else r for r, n in zip(reach, never)])
+    rows = rank(grid, scores, solved, final, reach, diverged, score=score.label)
     if groups is not None:
         for row in rows:
             g, c = where[row["combination"]]
