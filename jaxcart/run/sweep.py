@@ -165,7 +165,8 @@ def rank(
     Args:
         scores: per run, ``[num_runs]``: each seed's score by ``score``
             (:meth:`jaxcart.analysis.summary.Score.compute`, as ``compare`` scores a run).
-        solved, final_return, steps_to_500, diverged_at: per run, ``[num_runs]``.
+        solved, final_return, steps_to_500: per run, ``[num_runs]``.
+        diverged_at: per run, the iteration it diverged at (-1 or NaN: never).
         score: what the scores are: ``"eval"`` (each seed's mean greedy Gymnasium return),
             ``"auc"`` or ``"return-at:STEPS"``.
 
@@ -246,16 +247,15 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
         for c, combo_dir in enumerate(reader.combo_dirs(path) if swept else [path]):
             runs.append(reader.load_run(combo_dir))
             where.append((g, c if swept else None))
-    seeds = [run.evaluation["seeds"] for run in runs]
-    solved = np.ravel([[bool(s["solved"]) for s in each] for each in seeds])
-    diverged = [[s.get("diverged_at_iteration") for s in each] for each in seeds]
-    diverged = np.ravel([[-1 if d is None else d for d in each] for each in diverged])
+    seeds = [seed for run in runs for seed in run.evaluation["seeds"]]  # every run's, in order
+    solved = np.array([bool(s["solved"]) for s in seeds])
+    diverged = np.array([s.get("diverged_at_iteration") for s in seeds], float)  # NaN: never
     final = np.concatenate([run.metrics[RETURN_METRIC][-1] for run in runs])
     # env steps at which each seed's training episode first scored its env's solved return
     # (500 on CartPole-v1; the ranking's keys keep that name), inf: never
     reach = [summary.first_reached(run, run.env_steps) for run in runs]
     never = [np.full(run.num_seeds, np.inf) for run in runs]
-    grid = RunGrid(len(seeds[0]), tuple(dict(run.combination or {}) for run in runs))
+    grid = RunGrid(runs[0].num_seeds, tuple(dict(run.combination or {}) for run in runs))
     scores = np.concatenate([score.of_run(run) for run in runs])
     reach = np.concatenate([n if r is None else r for r, n in zip(reach, never)])
     rows = rank(grid, scores, solved, final, reach, diverged, score=score.label)
