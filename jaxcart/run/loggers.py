@@ -407,6 +407,11 @@ class Logger(contextlib.AbstractContextManager):
             atexit.register(self._close_at_exit)
 
     @property
+    def names(self) -> list[str]:
+        """The active backends' names."""
+        return [w.backend.name for w in self._workers]
+
+    @property
     def errors(self) -> dict[str, BaseException]:
         """Backend name -> the first error it raised (empty while all is well)."""
         return {w.backend.name: w.error for w in self._workers if w.error is not None}
