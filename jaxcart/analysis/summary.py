@@ -35,13 +35,18 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from jaxcart.core.solved import DEFAULT_ENV, return_bounds
+from jaxcart.analysis.stats import first_at_least
+from jaxcart.core.config import ConfigError
+from jaxcart.core.solved import DEFAULT_ENV, return_bounds, solved_return
 
 RETURN_METRIC = "rollout/ep_rew_mean"
 """The learning curve the scores here read (a ``metrics.csv`` column)."""
+REACHED_METRIC = "rollout/ep_rew_max"
+"""What says a seed's training reached its env's solved return (:func:`first_reached`)."""
 SCORES = {
     "eval": "each seed's mean greedy return in {where} (evaluation.json)",
     "auc": "each seed's mean of rollout/ep_rew_mean over all iterations (area under its "
@@ -219,6 +224,34 @@ class Score:
         if self.name == "auc":
             return auc(returns, env_id)
         return return_at(returns, env_steps, self.steps, env_id)
+
+    def of_run(self, run: Any, means: np.ndarray | None = None) -> np.ndarray:
+        """Each seed's score of a run read back (a :class:`~jaxcart.rundir.reader.RunCurves`:
+        its curve, env steps and env), as ``compare``, a sweep's ranking and ``tune`` score
+        it; ``means``: its seeds' mean greedy returns (default: its final policies', from its
+        ``evaluation.json`` when it has one).
+
+        Raises:
+            ConfigError: ``PATH: cannot score by --score LABEL: why`` (a score the run cannot
+                give: no evaluation, no curve, ``return-at`` past its end).
+        """
+        if means is None and run.evaluation is not None:
+            means = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
+        try:
+            return self.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
+        except ValueError as exc:
+            raise ConfigError(f"{run.path}: cannot score by --score {self.label}: {exc}") from None
+
+
+def first_reached(run: Any, x: np.ndarray | None) -> np.ndarray | None:
+    """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each seed
+    of ``run`` (a :class:`~jaxcart.rundir.reader.RunCurves`) first scored its env's solved
+    return (:func:`~jaxcart.core.solved.solved_return`: 500 on CartPole-v1), ``[num_seeds]``
+    (``inf``: never); None without the data (Stable-Baselines3 logs no episode maximum)."""
+    best = run.metrics.get(REACHED_METRIC)
+    if x is None or best is None or not np.isfinite(best).any():
+        return None
+    return first_at_least(best, x, solved_return(run.env))
 
 
 EVAL = Score()

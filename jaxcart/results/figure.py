@@ -183,6 +183,7 @@ def wrap_to_axes(text, ax) -> None:
     text.set_text(wrap_to_width(text.get_text(), columns))
 
 
+WALL_TIME_LABEL = "training wall time [s] (compile excluded)"
 EVAL_METRIC = "eval/mean_return"
 """The periodic greedy evaluation (``--eval-every``), drawn as dots over the return curve."""
 KEY_METRICS = (
@@ -322,21 +323,12 @@ def _draw_returns(runs: list[RunCurves], styles: list[dict], ax_steps, ax_time) 
 
     evaluated = any(line.get_label() == EVAL_METRIC for line in ax_steps.lines)
     dots = f" (dots: {EVAL_METRIC})" if evaluated else ""
-    _finish(
-        ax_steps,
-        f"{RETURN_METRIC} not recorded",
-        title=f"episode return vs env steps{dots}",
-        xlabel="env steps per seed",
-        ylabel=RETURN_METRIC,
-    )
-    _finish(
-        ax_time,
-        f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded",
-        title="episode return vs wall time",
-        xlabel="training wall time [s] (compile excluded)",
-        ylabel=RETURN_METRIC,
-    )
+    steps = {"title": f"episode return vs env steps{dots}", "xlabel": "env steps per seed"}
+    _finish(ax_steps, f"{RETURN_METRIC} not recorded", **steps)
+    wall = {"title": "episode return vs wall time", "xlabel": WALL_TIME_LABEL}
+    _finish(ax_time, f"{RETURN_METRIC} or {ELAPSED_METRIC} not recorded", **wall)
     for ax in (ax_steps, ax_time):
+        ax.set_ylabel(RETURN_METRIC)
         return_axis(ax, [run.env for run in runs])
     step_axis(ax_steps.xaxis)
     ax_time.xaxis.set_major_locator(MaxNLocator(nbins=6))
@@ -352,17 +344,13 @@ def _draw_metrics(
         means = [
             _plot_metric(ax, run.env_steps, run, style, name)
             for run, style in zip(runs, styles)
-            if name in run.metrics
+            if np.isfinite(run.metrics.get(name, np.nan)).any()
         ]
-        ax.set(title=title, xlabel="env steps per seed", ylabel=name)
-        ax.grid(alpha=0.3)
-        step_axis(ax.xaxis)
         lows, highs = zip(*(metric_bounds(name, run.env) for run in runs))
         limits = curve_limits(means, (min(lows), max(highs)))  # every run's range
-        if limits is None:
-            no_data(ax, f"{name} not recorded")
-        else:
-            ax.set_ylim(limits)
+        labels = {"title": title, "xlabel": "env steps per seed", "ylabel": name}
+        _finish(ax, f"{name} not recorded", ylim=limits, **labels)
+        step_axis(ax.xaxis)
 
 
 def _draw_legend(fig, runs: list[RunCurves], styles: list[dict]) -> None:
@@ -538,8 +526,8 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
         title, xlabel, zero = f"P(run > {base})", "P(X > Y) + 0.5 P(X = Y), seed pairs", 0.5
         xlim = FRACTION
     if not rows:
-        ax.set(title=title)
-        return no_data(ax, "one run: nothing to compare")
+        _finish(ax, "one run: nothing to compare", title=title)
+        return
     _intervals(ax, rows, title, xlabel, xlim)
     ax.axvline(zero, color="0.5", ls="--", lw=0.8, label="no difference")
     ax.legend(fontsize=8, loc="lower right")
@@ -686,10 +674,9 @@ def draw_robustness(
         ax.set_xscale("log", base=2)
         ax.xaxis.set_minor_locator(NullLocator())
     ax.set_xticks(values, [f"{v:g}" for v in values])
+    xlabel = f"{field} of the physics evaluated on"
+    _finish(ax, "", "lower left", xlabel=xlabel, ylabel="greedy return, IQM over seeds")
     return_axis(ax, env_ids)
-    ax.set(xlabel=f"{field} of the physics evaluated on", ylabel="greedy return, IQM over seeds")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower left")
     title = (
         f"Greedy return in Gymnasium's {env_ids[0]} ({episodes} episodes per seed) against "
         f"{field}: {statistic}; band: that interval"

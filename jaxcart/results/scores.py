@@ -17,13 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.analysis import stats, summary
-from jaxcart.analysis.summary import RETURN_METRIC, Score
+from jaxcart.analysis.summary import REACHED_METRIC, RETURN_METRIC, Score
 from jaxcart.core.solved import reached_label, return_bounds, solved_return
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
 from jaxcart.rundir.reader import RunCurves, load_runs
-
-REACHED_METRIC = "rollout/ep_rew_max"
 
 
 def reached_definition(env_ids: Sequence[str]) -> str:
@@ -61,10 +59,7 @@ class Entry:
         """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each
         seed first scored its env's solved return (:func:`~jaxcart.core.solved.solved_return`:
         500 on CartPole-v1), ``[num_seeds]`` (``inf``: never); None without the data."""
-        best = self.run.metrics.get(REACHED_METRIC)
-        if x is None or best is None or not np.isfinite(best).any():
-            return None
-        return stats.first_at_least(best, x, solved_return(self.run.env))
+        return summary.first_reached(self.run, x)
 
 
 def read_evaluation(
@@ -98,14 +93,11 @@ def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
     """A run scored by ``score``.
 
     Raises:
-        RunDirError: an unusable ``evaluation.json``; CompareError: the run lacks what the
-            score needs (e.g. it ends before ``return-at``'s steps).
+        RunDirError: an unusable ``evaluation.json``; ConfigError: the run lacks what the
+            score needs (e.g. it ends before ``return-at``'s steps: :meth:`Score.of_run`).
     """
     means, solved = read_evaluation(run, score.name == "eval" or policy == "best", policy)
-    try:
-        scores = score.compute(means, run.metrics.get(RETURN_METRIC), run.env_steps, run.env)
-    except ValueError as exc:
-        raise CompareError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
+    scores = score.of_run(run, means)
     episodes = (run.evaluation or {}).get("episodes")  # a bounded int or None (the store checks)
     return Entry(run, scores, solved, episodes)
 

@@ -46,6 +46,8 @@ from jaxcart.rundir.directory import Block, RunDir, check_versions, overlapping,
 from jaxcart.rundir.files import RunDirError, UnverifiedRunWarning
 
 RESUME_HINT = "python -m jaxcart.train --resume {out}"
+TIMING = ("compile_seconds", "train_seconds", "eval_seconds")
+"""The seconds a block records of its wave, summed over the waves in ``evaluation.json``."""
 
 
 MAX_RECORDED_SEEDS = 10_000
@@ -643,11 +645,7 @@ def _one_wave(
                 best["best_gym_returns"] = check.evaluate(kept.params, stop)[0]
         except Stopped:
             return None
-    timing = {
-        "compile_seconds": result.compile_seconds,
-        "train_seconds": result.state.elapsed,
-        "eval_seconds": seconds,
-    }
+    timing = dict(zip(TIMING, (result.compile_seconds, result.state.elapsed, seconds)))
     return Block(
         runs.start,
         runs.stop,
@@ -678,10 +676,7 @@ def _finish(run: Run, blocks: list, options: RunOptions, outcome: Outcome) -> No
     gym, jax_returns = joined(lambda b: b.gym_returns), joined(lambda b: b.jax_returns)
     outcome.diverged_at = joined(lambda b: b.diverged_at)
     outcome.final_return = joined(lambda b: b.metrics[sweeps.RETURN_METRIC][-1])
-    timing = {
-        k: sum(float(block.timing.get(k, 0.0)) for block, _ in pieces)
-        for k in ("compile_seconds", "train_seconds", "eval_seconds")
-    }
+    timing = {k: sum(float(block.timing.get(k, 0.0)) for block, _ in pieces) for k in TIMING}
     env = run.config.env
     outcome.evaluation = Evaluation(episodes, gym, jax_returns, timing["eval_seconds"], env=env)
     if run.config.keep_best:

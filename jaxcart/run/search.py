@@ -44,7 +44,7 @@ from jaxcart.run.lifecycle import run_new
 from jaxcart.run.progress import chain_hooks
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec, assignments, parse_value
 from jaxcart.run.structural import by_shape, group_config, group_spec, shape_groups
-from jaxcart.run.sweep import RETURN_METRIC, run_scores
+from jaxcart.run.sweep import RETURN_METRIC
 from jaxcart.rundir import layout
 from jaxcart.rundir.reader import load_runs
 
@@ -591,7 +591,7 @@ class Tuner:
                 return [TrialResult(t.number, last[t.number], out, True) for t in trials]
         if outcome.stopped:
             raise BatchStopped(outcome.signum or 15)
-        scores = run_scores(load_runs([out]), self.score)
+        scores = [self.score.of_run(run) for run in load_runs([out])]
         return [
             TrialResult(t.number, s, out / f"combo-{c:03d}", t.number in pruning.pruned)
             for c, (t, s) in enumerate(zip(trials, scores))

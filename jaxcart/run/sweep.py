@@ -21,7 +21,6 @@ from jaxcart.analysis import stats, summary
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
-from jaxcart.core.solved import solved_return
 from jaxcart.rundir import files, layout, reader
 
 RETURN_METRIC = "rollout/ep_rew_mean"
@@ -59,15 +58,8 @@ class RunGrid:
 
     def seed_indices(self, runs: range | None = None) -> np.ndarray:
         """Each run's seed index, ``[len(runs)]`` (default: every run, ``[num_runs]``)."""
-        return self._runs(runs) % self.num_seeds
-
-    def combo_indices(self, runs: range | None = None) -> np.ndarray:
-        """Each run's combination, ``[len(runs)]`` (default: every run, ``[num_runs]``)."""
-        return self._runs(runs) // self.num_seeds
-
-    def _runs(self, runs: range | None) -> np.ndarray:
         runs = range(self.num_runs) if runs is None else runs
-        return np.arange(runs.start, runs.stop)
+        return np.arange(runs.start, runs.stop) % self.num_seeds
 
     def runs_of(self, combo: int) -> slice:
         """The runs of one combination, as a slice of the seed axis."""
@@ -130,7 +122,7 @@ def grid_values(grid: RunGrid, runs: range, name: str, base: float, dtype=float)
     every seed's), ``[len(runs)]`` of ``dtype``: its combination's, or ``base`` where that
     sets none."""
     per_combo = np.array([c.get(name, base) for c in grid.combos] or [base], dtype)
-    return per_combo[grid.combo_indices(runs)]
+    return per_combo[np.arange(runs.start, runs.stop) // grid.num_seeds]  # each run's combination
 
 
 def grid_env_values(grid: RunGrid, runs: range) -> dict[str, np.ndarray]:
@@ -173,7 +165,8 @@ def rank(
     Args:
         scores: per run, ``[num_runs]``: each seed's score by ``score``
             (:meth:`jaxcart.analysis.summary.Score.compute`, as ``compare`` scores a run).
-        solved, final_return, steps_to_500, diverged_at: per run, ``[num_runs]``.
+        solved, final_return, steps_to_500: per run, ``[num_runs]``.
+        diverged_at: per run, the iteration it diverged at (-1 or NaN: never).
         score: what the scores are: ``"eval"`` (each seed's mean greedy Gymnasium return),
             ``"auc"`` or ``"return-at:STEPS"``.
 
@@ -228,26 +221,6 @@ def saturated(ranking: list[dict]) -> bool:
     return stats.saturated([np.asarray(r["scores"]) for r in ranking])
 
 
-def run_scores(runs: list[reader.RunCurves], score: summary.Score) -> list[np.ndarray]:
-    """Each run's per-seed scores ``[num_seeds]`` by ``score``, from its directory as
-    ``compare`` reads it (``eval``: each seed's mean greedy Gymnasium return).
-
-    Raises:
-        ConfigError: a score the run cannot give (``return-at`` past its end).
-    """
-    results = []
-    for run in runs:
-        evaluation = None
-        if run.evaluation is not None:
-            evaluation = np.array([float(s["gymnasium_mean"]) for s in run.evaluation["seeds"]])
-        try:
-            curve = run.metrics.get(RETURN_METRIC)
-            results.append(score.compute(evaluation, curve, run.env_steps, run.env))
-        except ValueError as exc:
-            raise ConfigError(f"{run.path}: cannot score by --score {score.label}: {exc}") from None
-    return results
-
-
 def json_values(group: dict) -> dict:
     """A shape group's values as JSON writes them (``hidden_sizes`` a list)."""
     return {k: list(v) if isinstance(v, tuple) else v for k, v in group.items()}
@@ -274,22 +247,18 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
         for c, combo_dir in enumerate(reader.combo_dirs(path) if swept else [path]):
             runs.append(reader.load_run(combo_dir))
             where.append((g, c if swept else None))
-    seeds = [run.evaluation["seeds"] for run in runs]
-    solved = np.ravel([[bool(s["solved"]) for s in each] for each in seeds])
-    diverged = [[s.get("diverged_at_iteration") for s in each] for each in seeds]
-    diverged = np.ravel([[-1 if d is None else d for d in each] for each in diverged])
+    seeds = [seed for run in runs for seed in run.evaluation["seeds"]]  # every run's, in order
+    solved = np.array([bool(s["solved"]) for s in seeds])
+    diverged = np.array([s.get("diverged_at_iteration") for s in seeds], float)  # NaN: never
     final = np.concatenate([run.metrics[RETURN_METRIC][-1] for run in runs])
     # env steps at which each seed's training episode first scored its env's solved return
-    # (500 on CartPole-v1; the ranking's keys keep that name)
-    reach = [
-        stats.first_at_least(
-            run.metrics["rollout/ep_rew_max"], run.env_steps, solved_return(run.env)
-        )
-        for run in runs
-    ]
-    grid = RunGrid(len(seeds[0]), tuple(dict(run.combination or {}) for run in runs))
-    scores = np.concatenate(run_scores(runs, score))
-    rows = rank(grid, scores, solved, final, np.concatenate(reach), diverged, score=score.label)
+    # (500 on CartPole-v1; the ranking's keys keep that name), inf: never
+    reach = [summary.first_reached(run, run.env_steps) for run in runs]
+    never = [np.full(run.num_seeds, np.inf) for run in runs]
+    grid = RunGrid(runs[0].num_seeds, tuple(dict(run.combination or {}) for run in runs))
+    scores = np.concatenate([score.of_run(run) for run in runs])
+    reach = np.concatenate([n if r is None else r for r, n in zip(reach, never)])
+    rows = rank(grid, scores, solved, final, reach, diverged, score=score.label)
     if groups is not None:
         for row in rows:
             g, c = where[row["combination"]]
