@@ -18,6 +18,7 @@ import numpy as np
 
 from jaxcart.analysis import stats, summary
 from jaxcart.analysis.summary import REACHED_METRIC, RETURN_METRIC, Score
+from jaxcart.core.config import ConfigError
 from jaxcart.core.solved import reached_label, return_bounds, solved_return
 from jaxcart.rundir import layout, reader
 from jaxcart.rundir.files import RunDirError
@@ -93,11 +94,14 @@ def make_entry(run: RunCurves, score: Score, policy: str = "final") -> Entry:
     """A run scored by ``score``.
 
     Raises:
-        RunDirError: an unusable ``evaluation.json``; ConfigError: the run lacks what the
+        RunDirError: an unusable ``evaluation.json``; CompareError: the run lacks what the
             score needs (e.g. it ends before ``return-at``'s steps: :meth:`Score.of_run`).
     """
     means, solved = read_evaluation(run, score.name == "eval" or policy == "best", policy)
-    scores = score.of_run(run, means)
+    try:
+        scores = score.of_run(run, means)
+    except ConfigError as exc:  # a comparison's error, as compare_runs documents
+        raise CompareError(str(exc)) from None
     episodes = (run.evaluation or {}).get("episodes")  # a bounded int or None (the store checks)
     return Entry(run, scores, solved, episodes)
 
