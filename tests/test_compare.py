@@ -293,6 +293,8 @@ def test_return_at_score(runs, tmp_path, capsys):
     capsys.readouterr()
     assert compare.main([str(a), "--score", "return-at:1e5", "--out", str(tmp_path / "x")]) == 2
     assert "never reaches 100000 env steps" in one_line_error(capsys)
+    with pytest.raises(compare.runs.CompareError, match="never reaches 100000 env steps"):
+        compare.runs.load_entries([a], score=summary.Score("return-at", 100_000))
 
 
 def test_the_eval_score_names_the_runs_env():
