@@ -34,9 +34,12 @@ MAX_TABLE_ROWS = 100
 """Seeds listed on the terminal; evaluation.json holds them all."""
 
 
-def header_line(run: Run, device_count: int, backend: str) -> str:
+def header_line(
+    run: Run | RunSpec, device_count: int, backend: str, out: Path | str | None = None
+) -> str:
     """``jaxcart PPO | preset sb3 + learning_rate=0.001 | 2 seed(s) x 81,920 env steps (...) |
-    2 cpu device(s) | out ...``."""
+    2 cpu device(s) | out ...``: of a run, or of the spec a dry run plans (``out``: what it
+    says instead of a run directory)."""
     grid, config = run.grid, run.config
     combos = f"{grid.num_combos} combination{'s' if grid.num_combos != 1 else ''}"
     what = f"{combos} x {grid.num_seeds} seed(s)" if grid.is_sweep else f"{grid.num_seeds} seed(s)"
@@ -52,7 +55,7 @@ def header_line(run: Run, device_count: int, backend: str) -> str:
         f"jaxcart PPO | preset {run.preset}{modified}{physics_text(run)} | {what} x "
         f"{config.env_steps_per_seed:,} env steps "
         f"({config.num_iterations} iterations of {config.num_envs} env(s) x {config.num_steps} steps) "
-        f"| {device_count} {backend} device(s) | out {run.out}"
+        f"| {device_count} {backend} device(s) | out {run.out if out is None else out}"
     )
 
 

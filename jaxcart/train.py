@@ -12,13 +12,11 @@ checkpoint.
 from __future__ import annotations
 
 import argparse
-import functools
 import os
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import TYPE_CHECKING, NoReturn
 
 from jaxcart import cli
@@ -26,7 +24,6 @@ from jaxcart import cli
 cli.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
 
 from jaxcart.core.config import PRESETS, PPOConfig, config_fields, preset  # noqa: E402
-from jaxcart.engine import devices  # noqa: E402
 from jaxcart.engine.signals import StopRequest  # noqa: E402
 
 if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
@@ -92,7 +89,7 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
         else:
             kwargs["type"], kwargs["metavar"] = CONFIG_TYPES[f.type]
         if f.type == "int" and f.metadata.get("minimum") == 0:  # 0 turns it off
-            kwargs["type"] = functools.partial(cli.count, minimum=0)
+            kwargs["type"] = cli.bounded_count(minimum=0)
         group.add_argument(flag, **kwargs)
 
 
@@ -287,10 +284,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
 
         # the header a run would print, without a directory: what would train, in env steps
         out = opts.out or "(none: --dry-run creates nothing)"
-        planned = SimpleNamespace(
-            grid=spec.grid, config=spec.config, preset=spec.preset, out=out, spec=spec
-        )
-        console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
+        console.print(report.header_line(spec, jax.device_count(), jax.default_backend(), out))
     if opts.dry_run:  # the plan of the run, or of each shape group
         for group, group_spec in zip(groups or [None], specs):
             label = f"{group_label(group)}: " if groups else ""
@@ -433,17 +427,10 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     return configfile.parse_with_config(build_parser(), argv)
 
 
-def main_on_all_cores(argv: list[str] | None = None) -> int:
-    """:func:`main` as the command runs it (``python -m jaxcart.train``, ``jaxcart-train``,
-    ``python -m jaxcart train``): on one CPU device per core."""
-    devices.use_all_host_cores()
-    return main(argv)
-
-
 def cli_main(argv: list[str] | None = None) -> NoReturn:
     """The process entry (the ``jaxcart-train`` script, ``python -m jaxcart.train``):
-    :func:`main_on_all_cores` through :func:`jaxcart.cli.command_main`; exits."""
-    cli.command_main(main_on_all_cores, argv)
+    :func:`main` through :func:`jaxcart.cli.command_main`, on one CPU device per core; exits."""
+    cli.command_main(main, argv, all_cores=True)
 
 
 if __name__ == "__main__":
