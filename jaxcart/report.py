@@ -27,6 +27,7 @@ if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
 
     from jaxcart.engine.loop import Progress
     from jaxcart.run.spec import Outcome, Run, RunSpec
+    from jaxcart.run.structural import GroupsOutcome
     from jaxcart.run.waves import WavePlan
 
 
@@ -263,6 +264,33 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
         f"\nsolved {int(ev.solved.sum())}/{len(ev.solved)} run(s){kept} | wall {wall_seconds:.1f} s "
         f"(compile {compile_s:.1f} s, {train}, eval {ev.seconds:.1f} s) | "
         f"{steps:,} env steps{session}{rate} on {outcome.num_devices} device(s)"
+    )
+
+
+def finished_text(outcome: Outcome, wall_seconds: float) -> str:
+    """What a run prints once it is done (its evaluation, the summary line, its directory and
+    what to run next), or once it stopped (where, and how to resume)."""
+    if outcome.stopped:
+        return stopped_text(outcome, resume_command(outcome.run.out))
+    lines = [results_text(outcome), summary_line(outcome, wall_seconds)]
+    lines += [f"run directory: {outcome.run.out}", next_steps_text(outcome)]
+    return "\n".join(lines)
+
+
+def groups_finished_text(done: GroupsOutcome, wall_seconds: float) -> str:
+    """What a structural sweep prints once its groups are done, or one of them stopped."""
+    from jaxcart.rundir.layout import GROUPS_FILE
+
+    if done.stopped:
+        last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
+        hint = resume_command(done.out)
+        return stopped_text(last, hint) if last else f"stopped; resume with: {hint}"
+    return (
+        groups_text(done.ranking, done.groups, done.sweep, done.num_seeds)
+        + f"\nwall {wall_seconds:.1f} s | structural sweep directory: {done.out} "
+        f"({GROUPS_FILE} ranks every combination)\nnext:\n"
+        f"  python -m jaxcart.plot {done.out}      # every group's curves, into its curves.png\n"
+        f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
     )
 
 

@@ -336,9 +336,14 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     finally:
         console.close()
     distributed.leave()
+    wall = time.perf_counter() - wall_start
     if isinstance(outcome, structural.GroupsOutcome):
-        return _report_groups(outcome, console, time.perf_counter() - wall_start)
-    return _report(outcome, console, time.perf_counter() - wall_start)
+        console.print(report.groups_finished_text(outcome, wall))
+        return 128 + outcome.signum if outcome.stopped else 0
+    if not outcome.stopped and outcome.evaluation is None:  # not process 0: it reports
+        return 0
+    console.print(report.finished_text(outcome, wall))
+    return 128 + outcome.signum if outcome.signum else 0
 
 
 def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list, specs: list) -> None:
@@ -352,43 +357,6 @@ def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list, specs: lis
             "(python -m jaxcart.compare --score scores any run)"
         )
     check_score(score, [group_spec.config for group_spec in specs])
-
-
-def _report_groups(
-    done: structural.GroupsOutcome, console: report.ConsoleReport, wall: float
-) -> int:
-    """What a structural sweep prints once its groups are done, or one of them stopped."""
-    from jaxcart import report
-    from jaxcart.rundir import layout
-
-    if done.stopped:
-        last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
-        hint = report.resume_command(done.out)
-        console.print(report.stopped_text(last, hint) if last else f"stopped; resume with: {hint}")
-        return 128 + done.signum
-    console.print(report.groups_text(done.ranking, done.groups, done.sweep, done.num_seeds))
-    console.print(
-        f"wall {wall:.1f} s | structural sweep directory: {done.out} "
-        f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
-        f"  python -m jaxcart.plot {done.out}      # every group's curves, into its curves.png\n"
-        f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
-    )
-    return 0
-
-
-def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: float) -> int:
-    from jaxcart import report
-
-    if outcome.stopped:
-        console.print(report.stopped_text(outcome, report.resume_command(outcome.run.out)))
-        return 128 + outcome.signum
-    if outcome.evaluation is None:  # not process 0: it evaluates and reports
-        return 0
-    console.print(report.results_text(outcome))
-    console.print(report.summary_line(outcome, wall))
-    console.print(f"run directory: {outcome.run.out}")
-    console.print(report.next_steps_text(outcome))
-    return 128 + outcome.signum if outcome.signum else 0
 
 
 @cli.command()
