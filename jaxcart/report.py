@@ -21,6 +21,7 @@ from jaxcart.core import physics, solved
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar, new_bar
+from jaxcart.rundir.layout import CHECKPOINT_FILE, CONFIG_FILE, GROUPS_FILE
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
@@ -279,8 +280,6 @@ def finished_text(outcome: Outcome, wall_seconds: float) -> str:
 
 def groups_finished_text(done: GroupsOutcome, wall_seconds: float) -> str:
     """What a structural sweep prints once its groups are done, or one of them stopped."""
-    from jaxcart.rundir.layout import GROUPS_FILE
-
     if done.stopped:
         last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
         hint = resume_command(done.out)
@@ -390,8 +389,6 @@ def checkpoint_text(run: Run) -> str:
 
 def write_failed_text(run: Run | None, exc: OSError) -> str:
     """The one line after a write failed (ENOSPC, EROFS, EACCES, ...)."""
-    from jaxcart.rundir.layout import CHECKPOINT_FILE
-
     what = f"error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}"
     if run is None or not (run.out / CHECKPOINT_FILE).exists():
         return what
@@ -405,8 +402,6 @@ def write_failed_text(run: Run | None, exc: OSError) -> str:
 def interrupted_text(run: Run | None, signum: int | None) -> str:
     """The one line after a second signal stopped the process at once: which iteration the
     checkpoint on disk holds, and how to resume."""
-    from jaxcart.rundir.layout import CONFIG_FILE
-
     if run is None or not (run.out / CONFIG_FILE).exists():
         return "stopped at once; no run directory was written"
     at = checkpoint_text(run)
