@@ -10,6 +10,7 @@ from typing import NoReturn
 
 from jaxcart import cli
 from jaxcart.cli import EXIT_USAGE, VERSION_TEXT
+from jaxcart.engine import devices
 
 COMMANDS = {
     "train": "train PPO, evaluate every seed in Gymnasium, save a run directory",
@@ -58,9 +59,10 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
+    module = importlib.import_module(f"jaxcart.{command}")
     if command in ("train", "tune"):  # one CPU device per core, as python -m jaxcart.COMMAND
-        return importlib.import_module(f"jaxcart.{command}").main_on_all_cores(rest)
-    return importlib.import_module(f"jaxcart.{command}").main(rest)
+        devices.use_all_host_cores()
+    return module.main(rest)
 
 
 def cli_main(argv: list[str] | None = None) -> NoReturn:

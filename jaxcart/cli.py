@@ -26,6 +26,15 @@ if TYPE_CHECKING:
     from jaxcart.analysis.summary import Score
 
 
+EXIT_USAGE = 2
+
+
+def _refuse(message: str) -> NoReturn:
+    """``error: MESSAGE`` on stderr, then exit code 2."""
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(EXIT_USAGE)
+
+
 def check_not_shadowed() -> None:
     """Refuses, in one line, a ``jaxcart`` that is a folder rather than this package: a folder
     named ``jaxcart`` in the current directory (a clone of the repository, seen from its
@@ -43,8 +52,7 @@ def check_not_shadowed() -> None:
     )
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     if spec is not None and spec.name.startswith("jaxcart."):
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(2)
+        _refuse(message)
     raise ImportError(message)
 
 
@@ -55,7 +63,6 @@ from jaxcart.core.errors import ConfigError  # noqa: E402
 from jaxcart.engine import devices, signals  # noqa: E402
 from jaxcart.rundir.files import RunDirError  # noqa: E402
 
-EXIT_USAGE = 2
 VERSION_TEXT = f"jaxcart {__version__}"
 
 
@@ -67,11 +74,6 @@ VERSION_TEXT = f"jaxcart {__version__}"
 # in a command whose own module imports JAX, before that import. check_backend() does the same
 # for what JAX reads when it starts its backend (JAX_PLATFORMS, XLA_FLAGS); command_main calls
 # it before the command's main.
-
-
-def _refuse(message: str) -> None:
-    print(f"error: {message}", file=sys.stderr)
-    raise SystemExit(EXIT_USAGE)
 
 
 def import_jax() -> None:
@@ -145,13 +147,6 @@ class HelpFormatter(argparse.HelpFormatter):
         if "(default" in text or not action.option_strings or unshown:
             return text
         return f"{text} (default: %(default)s)"
-
-    def _format_text(self, text: str) -> str:
-        # argparse %-formats a description only when it names %(prog); read "%%" as "%"
-        # in the others too, as in every help string.
-        if "%(prog)" not in text:
-            text = text.replace("%%", "%")
-        return super()._format_text(text)
 
 
 # Other libraries' names for jaxcart's options (Stable-Baselines3, CleanRL, PureJaxRL, rl-zoo):
@@ -252,7 +247,7 @@ def count(text: str, maximum: int = MAX_COUNT, minimum: int = 1) -> int:
     return int(value)
 
 
-def bounded_count(maximum: int, minimum: int = 1) -> Callable[[str], int]:
+def bounded_count(maximum: int = MAX_COUNT, minimum: int = 1) -> Callable[[str], int]:
     """An argparse ``type``: :func:`count`, in ``[minimum, maximum]``."""
     return functools.partial(count, maximum=maximum, minimum=minimum)
 
@@ -525,7 +520,7 @@ def wrap(text: str, width: int = TABLE_WIDTH) -> str:
 
 
 def command_main(
-    main: Callable[[list[str] | None], int], argv: list[str] | None = None
+    main: Callable[[list[str] | None], int], argv: list[str] | None = None, all_cores: bool = False
 ) -> NoReturn:
     """The process entry of every command, and the one place a command meets Ctrl-C:
     ``python -m jaxcart`` and ``python -m jaxcart.COMMAND``, and the ``jaxcart`` and
@@ -538,13 +533,16 @@ def command_main(
     and SIGTERM take their default action, so that one during the interpreter's teardown
     (``atexit``) ends the process without a traceback; and when a second signal left XLA
     working on a thread (:func:`jaxcart.engine.signals.abandoned_work`), the process ends
-    without that teardown.
+    without that teardown. ``all_cores`` (train, tune): ``main`` runs on one CPU device per
+    core (:func:`jaxcart.engine.devices.use_all_host_cores`).
     """
     try:
         try:
             signal.signal(signal.SIGTERM, signal.default_int_handler)  # SIGTERM as Ctrl-C
             devices.check_device_count_flag(os.environ.get("XLA_FLAGS", ""))
             check_backend()  # JAX_PLATFORMS, XLA_FLAGS: one line, not an abort
+            if all_cores:
+                devices.use_all_host_cores()
             code = main(argv)
         finally:
             for sig in signals.SIGNALS:

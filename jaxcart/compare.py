@@ -290,7 +290,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=_Formatter,
         description="Compare runs over their seeds with the statistics of Agarwal et al. "
         "(2021): IQM, median over seeds, mean and optimality gap of a per-seed score with "
-        "95%% percentile bootstrap intervals, the solve rate with its Wilson interval, the IQM "
+        "95% percentile bootstrap intervals, the solve rate with its Wilson interval, the IQM "
         "difference and the probability of improvement over a baseline, performance profiles "
         "and sample-efficiency curves. A sweep directory stands for its combinations. "
         "Example: python -m jaxcart.compare runs/a runs/b --score auc --out cmp",

@@ -21,12 +21,14 @@ from jaxcart.core import physics, solved
 from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar, new_bar
+from jaxcart.rundir.layout import CHECKPOINT_FILE, CONFIG_FILE, GROUPS_FILE
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
 
     from jaxcart.engine.loop import Progress
     from jaxcart.run.spec import Outcome, Run, RunSpec
+    from jaxcart.run.structural import GroupsOutcome
     from jaxcart.run.waves import WavePlan
 
 
@@ -34,9 +36,12 @@ MAX_TABLE_ROWS = 100
 """Seeds listed on the terminal; evaluation.json holds them all."""
 
 
-def header_line(run: Run, device_count: int, backend: str) -> str:
+def header_line(
+    run: Run | RunSpec, device_count: int, backend: str, out: Path | str | None = None
+) -> str:
     """``jaxcart PPO | preset sb3 + learning_rate=0.001 | 2 seed(s) x 81,920 env steps (...) |
-    2 cpu device(s) | out ...``."""
+    2 cpu device(s) | out ...``: of a run, or of the spec a dry run plans (``out``: what it
+    says instead of a run directory)."""
     grid, config = run.grid, run.config
     combos = f"{grid.num_combos} combination{'s' if grid.num_combos != 1 else ''}"
     what = f"{combos} x {grid.num_seeds} seed(s)" if grid.is_sweep else f"{grid.num_seeds} seed(s)"
@@ -52,7 +57,7 @@ def header_line(run: Run, device_count: int, backend: str) -> str:
         f"jaxcart PPO | preset {run.preset}{modified}{physics_text(run)} | {what} x "
         f"{config.env_steps_per_seed:,} env steps "
         f"({config.num_iterations} iterations of {config.num_envs} env(s) x {config.num_steps} steps) "
-        f"| {device_count} {backend} device(s) | out {run.out}"
+        f"| {device_count} {backend} device(s) | out {run.out if out is None else out}"
     )
 
 
@@ -263,6 +268,31 @@ def summary_line(outcome: Outcome, wall_seconds: float) -> str:
     )
 
 
+def finished_text(outcome: Outcome, wall_seconds: float) -> str:
+    """What a run prints once it is done (its evaluation, the summary line, its directory and
+    what to run next), or once it stopped (where, and how to resume)."""
+    if outcome.stopped:
+        return stopped_text(outcome, resume_command(outcome.run.out))
+    lines = [results_text(outcome), summary_line(outcome, wall_seconds)]
+    lines += [f"run directory: {outcome.run.out}", next_steps_text(outcome)]
+    return "\n".join(lines)
+
+
+def groups_finished_text(done: GroupsOutcome, wall_seconds: float) -> str:
+    """What a structural sweep prints once its groups are done, or one of them stopped."""
+    if done.stopped:
+        last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
+        hint = resume_command(done.out)
+        return stopped_text(last, hint) if last else f"stopped; resume with: {hint}"
+    return (
+        groups_text(done.ranking, done.groups, done.sweep, done.num_seeds)
+        + f"\nwall {wall_seconds:.1f} s | structural sweep directory: {done.out} "
+        f"({GROUPS_FILE} ranks every combination)\nnext:\n"
+        f"  python -m jaxcart.plot {done.out}      # every group's curves, into its curves.png\n"
+        f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
+    )
+
+
 def next_steps_text(outcome: Outcome) -> str:
     """The commands a user runs next on a finished run: its learning curves, a GIF of a
     policy (the first solved seed, else seed 0; a sweep's best-ranked combination; each
@@ -359,8 +389,6 @@ def checkpoint_text(run: Run) -> str:
 
 def write_failed_text(run: Run | None, exc: OSError) -> str:
     """The one line after a write failed (ENOSPC, EROFS, EACCES, ...)."""
-    from jaxcart.rundir.layout import CHECKPOINT_FILE
-
     what = f"error: cannot write {exc.filename or 'a file'}: {exc.strerror or exc}"
     if run is None or not (run.out / CHECKPOINT_FILE).exists():
         return what
@@ -374,8 +402,6 @@ def write_failed_text(run: Run | None, exc: OSError) -> str:
 def interrupted_text(run: Run | None, signum: int | None) -> str:
     """The one line after a second signal stopped the process at once: which iteration the
     checkpoint on disk holds, and how to resume."""
-    from jaxcart.rundir.layout import CONFIG_FILE
-
     if run is None or not (run.out / CONFIG_FILE).exists():
         return "stopped at once; no run directory was written"
     at = checkpoint_text(run)

@@ -12,13 +12,11 @@ checkpoint.
 from __future__ import annotations
 
 import argparse
-import functools
 import os
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import TYPE_CHECKING, NoReturn
 
 from jaxcart import cli
@@ -26,7 +24,6 @@ from jaxcart import cli
 cli.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
 
 from jaxcart.core.config import PRESETS, PPOConfig, config_fields, preset  # noqa: E402
-from jaxcart.engine import devices  # noqa: E402
 from jaxcart.engine.signals import StopRequest  # noqa: E402
 
 if TYPE_CHECKING:  # the modules that import JAX load in main(), after the options are read
@@ -92,7 +89,7 @@ def _add_config_options(group: argparse._ArgumentGroup) -> None:
         else:
             kwargs["type"], kwargs["metavar"] = CONFIG_TYPES[f.type]
         if f.type == "int" and f.metadata.get("minimum") == 0:  # 0 turns it off
-            kwargs["type"] = functools.partial(cli.count, minimum=0)
+            kwargs["type"] = cli.bounded_count(minimum=0)
         group.add_argument(flag, **kwargs)
 
 
@@ -287,10 +284,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
 
         # the header a run would print, without a directory: what would train, in env steps
         out = opts.out or "(none: --dry-run creates nothing)"
-        planned = SimpleNamespace(
-            grid=spec.grid, config=spec.config, preset=spec.preset, out=out, spec=spec
-        )
-        console.print(report.header_line(planned, jax.device_count(), jax.default_backend()))
+        console.print(report.header_line(spec, jax.device_count(), jax.default_backend(), out))
     if opts.dry_run:  # the plan of the run, or of each shape group
         for group, group_spec in zip(groups or [None], specs):
             label = f"{group_label(group)}: " if groups else ""
@@ -342,9 +336,14 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     finally:
         console.close()
     distributed.leave()
+    wall = time.perf_counter() - wall_start
     if isinstance(outcome, structural.GroupsOutcome):
-        return _report_groups(outcome, console, time.perf_counter() - wall_start)
-    return _report(outcome, console, time.perf_counter() - wall_start)
+        console.print(report.groups_finished_text(outcome, wall))
+        return 128 + outcome.signum if outcome.stopped else 0
+    if not outcome.stopped and outcome.evaluation is None:  # not process 0: it reports
+        return 0
+    console.print(report.finished_text(outcome, wall))
+    return 128 + outcome.signum if outcome.signum else 0
 
 
 def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list, specs: list) -> None:
@@ -358,43 +357,6 @@ def _check_score(score: Score, spec: lifecycle.RunSpec, groups: list, specs: lis
             "(python -m jaxcart.compare --score scores any run)"
         )
     check_score(score, [group_spec.config for group_spec in specs])
-
-
-def _report_groups(
-    done: structural.GroupsOutcome, console: report.ConsoleReport, wall: float
-) -> int:
-    """What a structural sweep prints once its groups are done, or one of them stopped."""
-    from jaxcart import report
-    from jaxcart.rundir import layout
-
-    if done.stopped:
-        last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
-        hint = report.resume_command(done.out)
-        console.print(report.stopped_text(last, hint) if last else f"stopped; resume with: {hint}")
-        return 128 + done.signum
-    console.print(report.groups_text(done.ranking, done.groups, done.sweep, done.num_seeds))
-    console.print(
-        f"wall {wall:.1f} s | structural sweep directory: {done.out} "
-        f"({layout.GROUPS_FILE} ranks every combination)\nnext:\n"
-        f"  python -m jaxcart.plot {done.out}      # every group's curves, into its curves.png\n"
-        f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
-    )
-    return 0
-
-
-def _report(outcome: lifecycle.Outcome, console: report.ConsoleReport, wall: float) -> int:
-    from jaxcart import report
-
-    if outcome.stopped:
-        console.print(report.stopped_text(outcome, report.resume_command(outcome.run.out)))
-        return 128 + outcome.signum
-    if outcome.evaluation is None:  # not process 0: it evaluates and reports
-        return 0
-    console.print(report.results_text(outcome))
-    console.print(report.summary_line(outcome, wall))
-    console.print(f"run directory: {outcome.run.out}")
-    console.print(report.next_steps_text(outcome))
-    return 128 + outcome.signum if outcome.signum else 0
 
 
 @cli.command()
@@ -433,17 +395,10 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     return configfile.parse_with_config(build_parser(), argv)
 
 
-def main_on_all_cores(argv: list[str] | None = None) -> int:
-    """:func:`main` as the command runs it (``python -m jaxcart.train``, ``jaxcart-train``,
-    ``python -m jaxcart train``): on one CPU device per core."""
-    devices.use_all_host_cores()
-    return main(argv)
-
-
 def cli_main(argv: list[str] | None = None) -> NoReturn:
     """The process entry (the ``jaxcart-train`` script, ``python -m jaxcart.train``):
-    :func:`main_on_all_cores` through :func:`jaxcart.cli.command_main`; exits."""
-    cli.command_main(main_on_all_cores, argv)
+    :func:`main` through :func:`jaxcart.cli.command_main`, on one CPU device per core; exits."""
+    cli.command_main(main, argv, all_cores=True)
 
 
 if __name__ == "__main__":

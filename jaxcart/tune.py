@@ -26,7 +26,6 @@ from pathlib import Path
 from jaxcart import cli, train
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
-from jaxcart.engine import devices
 from jaxcart.run import search
 from jaxcart.run.spec import Hooks
 
@@ -86,7 +85,7 @@ class TuneOptions:
     group stops when all its trials are pruned"""
     top: int = cli.option(5, type=cli.count)
     """trials in the final table"""
-    heldout_top: int = cli.option(3, type=functools.partial(cli.count, minimum=0), metavar="K")
+    heldout_top: int = cli.option(3, type=cli.bounded_count(minimum=0), metavar="K")
     """at the end, train the top K trials again on fresh seeds, as one batch, and rank them
     by those held-out scores (0: skip; default: 3)"""
     config: Path | None = cli.option(type=Path, metavar="FILE", group=TRIAL)
@@ -285,12 +284,5 @@ def _parse_args(argv: list[str]) -> argparse.Namespace:
     return configfile.parse_with_config(build_parser(), argv)
 
 
-def main_on_all_cores(argv: list[str] | None = None) -> int:
-    """:func:`main` as the command runs it (``python -m jaxcart.tune``, ``python -m jaxcart
-    tune``): on one CPU device per core, as ``jaxcart.train`` runs."""
-    devices.use_all_host_cores()
-    return main(argv)
-
-
 if __name__ == "__main__":
-    cli.command_main(main_on_all_cores)
+    cli.command_main(main, all_cores=True)  # one CPU device per core, as jaxcart.train
