@@ -132,8 +132,13 @@ def test_compare_runs_and_a_sweep(runs, tmp_path, capsys):
     assert_png(out / "compare.png")
     assert not (a / "compare.json").exists()
 
-    # The same runs give the same output.
-    assert compare.main([str(a), str(sweep), "--out", str(tmp_path / "again")]) == 0
+    # The same runs give the same output (compare.json; the figure of these runs was drawn,
+    # saved and checked above, so the repeat does not render it again).
+    from jaxcart.results import figure
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(figure, "save", lambda fig, out, dpi=100: None)
+        assert compare.main([str(a), str(sweep), "--out", str(tmp_path / "again")]) == 0
     again = (tmp_path / "again" / "compare.json").read_text()
     assert again == (out / "compare.json").read_text()
 
@@ -368,14 +373,27 @@ def test_help_defines_every_statistic(capsys):
     assert "median over seeds" in text and "--score" in text and "--arm" in text
 
 
+def saved_figure(command) -> object:
+    """Runs ``command`` (a comparison that writes compare.png) and returns the figure it drew
+    and saved, as saving left it (laid out)."""
+    from jaxcart.results import figure
+
+    drawn = []
+    with pytest.MonkeyPatch.context() as mp:
+        real = figure.draw_comparison
+        mp.setattr(figure, "draw_comparison", lambda c: drawn.append(real(c)) or drawn[-1])
+        command()
+    [fig] = drawn
+    return fig
+
+
 def test_figure_panels_share_one_score_axis_and_show_small_differences_small(
     runs, tmp_path, no_warnings
 ):
     from jaxcart.results import figure
 
     a, sweep = runs
-    result = compare.compare_runs([a, sweep], out=tmp_path / "cmp")
-    fig = figure.draw_comparison(result.comparison)
+    fig = saved_figure(lambda: compare.compare_runs([a, sweep], out=tmp_path / "cmp"))
     by_title = {ax.get_title(): ax for ax in fig.axes}
     location = [by_title[figure.ESTIMATE_TITLES[n]].get_xlim() for n in ("iqm", "median", "mean")]
     assert location[0] == location[1] == location[2]
@@ -440,15 +458,14 @@ def test_the_courses_comparisons_draw_cleanly(tmp_path, seeds, scores, no_warnin
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.transforms import Bbox
 
-    from jaxcart.results import figure
-
     names = ("course-base", "course-linear")
     dirs = [sb3_run(tmp_path / name, seeds, score) for name, score in zip(names, scores)]
-    result = compare.compare_runs(dirs, out=tmp_path / "cmp", reps=200)
-    assert_png(result.figure_path)
-    fig = figure.draw_comparison(result.comparison)
-    renderer = FigureCanvasAgg(fig).get_renderer()
-    fig.draw_without_rendering()
+    result = []
+    fig = saved_figure(
+        lambda: result.append(compare.compare_runs(dirs, out=tmp_path / "cmp", reps=200))
+    )
+    assert_png(result[0].figure_path)
+    renderer = FigureCanvasAgg(fig).get_renderer()  # the figure as saved: laid out
     boxes = [ax.get_tightbbox(renderer) for ax in fig.axes]
     for ax, box in zip(fig.axes, boxes):
         inside = ax.get_window_extent(renderer)
