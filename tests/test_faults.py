@@ -124,25 +124,16 @@ def _garbled_config(run: Path) -> None:
 
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
+    """A finished tiny run, trained in this process (two CPU devices, as a subprocess with
+    TRAIN_ENV has): the directory the bad-input cases copy and damage."""
+    from jaxcart.train import main
+
     out = tmp_path_factory.mktemp("bad") / "run"
-    done = _run(
-        "--num-envs",
-        "4",
-        "--num-steps",
-        "32",
-        "--total-timesteps",
-        "256",
-        "--minibatch-size",
-        "64",
-        "--update-epochs",
-        "1",
-        "--eval-episodes",
-        "1",
-        "--quiet",
-        "--out",
-        str(out),
-    )
-    assert done.returncode == 0, done.stdout + done.stderr
+    argv = [
+        *("--num-envs", "4", "--num-steps", "32", "--total-timesteps", "256"),
+        *("--minibatch-size", "64", "--update-epochs", "1", "--eval-episodes", "1"),
+    ]
+    assert main([*argv, "--quiet", "--no-compile-cache", "--out", str(out)]) == 0
     return out
 
 
@@ -220,10 +211,12 @@ def test_bad_resume_directories_rejected(damage, message, finished_run, tmp_path
     damage(run)
     seal(run)  # crafted, digests and all: the checks behind the manifest refuse it
     FAULT_FIGURES["bad inputs tried"] += 1
-    done = _run("--resume", str(run))
-    assert done.returncode == 2, done.stdout + done.stderr
-    assert message in done.stderr and "Traceback" not in done.stderr
-    assert len(done.stderr.strip().splitlines()) == 1
+    from jaxcart.train import main
+
+    code, err = _capture(lambda: main(["--resume", str(run)]))  # the command, in this process
+    assert code == 2, err
+    assert message in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
     FAULT_FIGURES["bad inputs rejected cleanly"] += 1
 
 
