@@ -95,35 +95,21 @@ def test_a_jaxcart_folder_in_the_working_directory_is_one_line(tmp_path, args, s
 
 
 @pytest.mark.parametrize("where", ["/proc/jaxcart-cache", "FILE"])
-def test_an_unusable_jaxcart_cache_dir_is_one_line_and_exit_2(tmp_path, where):
+def test_an_unusable_jaxcart_cache_dir_is_one_line_and_exit_2(tmp_path, where, monkeypatch, capsys):
+    """The command, run in this process with the variable set (what it reads is the
+    environment of the process it runs in)."""
+    from jaxcart.train import main
+
     if where == "FILE":
         where = str(tmp_path / "a-file")
         Path(where).write_text("not a directory")
     out = tmp_path / "run"
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "jaxcart.train",
-            "--total-timesteps",
-            "256",
-            "--num-envs",
-            "4",
-            "--num-steps",
-            "32",
-            "--minibatch-size",
-            "64",
-            "--out",
-            str(out),
-        ],
-        env={**os.environ, "JAXCART_CACHE_DIR": where},
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert done.returncode == 2, done.stderr
-    lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and "JAXCART_CACHE_DIR" in lines[0] and "Traceback" not in done.stderr
+    monkeypatch.setenv("JAXCART_CACHE_DIR", where)
+    argv = ["--total-timesteps", "256", "--num-envs", "4", "--num-steps", "32"]
+    assert main([*argv, "--minibatch-size", "64", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "JAXCART_CACHE_DIR" in lines[0] and "Traceback" not in err
     assert not out.exists()
 
 
