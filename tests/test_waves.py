@@ -115,7 +115,9 @@ def test_evaluation_json_bound_scales_with_the_declared_seeds(tmp_path):
     one larger than its config.json declares is refused."""
     from jaxcart.rundir.files import RunDirError
 
-    (tmp_path / "config.json").write_text(json.dumps({"num_seeds": 100_000, "eval_episodes": 20}))
+    config = PPOConfig().to_dict()  # a config.json as a run writes it, with its seeds declared
+    declared = {"config": config, "num_seeds": 100_000, "eval_episodes": 20}
+    (tmp_path / "config.json").write_text(json.dumps(declared))
     seed = {
         "seed_index": 0,
         "gymnasium_returns": [500.0] * 20,
@@ -127,7 +129,7 @@ def test_evaluation_json_bound_scales_with_the_declared_seeds(tmp_path):
     assert len(text) > 16 << 20
     (tmp_path / "evaluation.json").write_text(text)
     assert len(reader.read_evaluation(tmp_path)["seeds"]) == 100_000
-    (tmp_path / "config.json").write_text(json.dumps({"num_seeds": 10, "eval_episodes": 20}))
+    (tmp_path / "config.json").write_text(json.dumps({**declared, "num_seeds": 10}))
     with pytest.raises(RunDirError, match="larger than any"):
         reader.read_evaluation(tmp_path)
 
