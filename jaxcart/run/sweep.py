@@ -18,12 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from jaxcart.analysis import stats, summary
+from jaxcart.analysis.summary import RETURN_METRIC
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, float_dtype
 from jaxcart.rundir import files, layout, reader
-
-RETURN_METRIC = "rollout/ep_rew_mean"
 
 
 @dataclass(frozen=True)
@@ -254,10 +253,11 @@ def rank_dirs(dirs: list[Path], score: summary.Score, groups: list[dict] | None 
     # env steps at which each seed's training episode first scored its env's solved return
     # (500 on CartPole-v1; the ranking's keys keep that name), inf: never
     reach = [summary.first_reached(run, run.env_steps) for run in runs]
-    never = [np.full(run.num_seeds, np.inf) for run in runs]
+    reach = np.concatenate(
+        [np.full(run.num_seeds, np.inf) if r is None else r for run, r in zip(runs, reach)]
+    )
     grid = RunGrid(runs[0].num_seeds, tuple(dict(run.combination or {}) for run in runs))
     scores = np.concatenate([score.of_run(run) for run in runs])
-    reach = np.concatenate([n if r is None else r for r, n in zip(reach, never)])
     rows = rank(grid, scores, solved, final, reach, diverged, score=score.label)
     if groups is not None:
         for row in rows:

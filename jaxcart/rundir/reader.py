@@ -411,14 +411,17 @@ def check_metrics(
             )
 
 
-def read_evaluation(run_dir: files.Where, num_seeds: int | None = None) -> dict:
+def read_evaluation(
+    run_dir: files.Where, num_seeds: int | None = None, info: dict | None = None
+) -> dict:
     """A run's ``evaluation.json`` (per-seed returns and solved flags), checked: one entry
     per seed (``num_seeds``, from its ``config.json``, when given), each with a finite
     ``gymnasium_mean`` and a boolean ``solved``. Its size is bounded by the seeds x episodes
-    the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB).
+    the run's ``config.json`` declares (a 100,000-seed run writes ~24 MB); ``info``: that
+    config as :func:`read_run_config` read it (default: read here).
     """
     with files.opened(run_dir) as directory:
-        info = read_run_config(directory)
+        info = read_run_config(directory) if info is None else info
         name, limit = layout.EVALUATION_FILE, _evaluation_bytes(info)
         data = read_json(directory, name, limit, verify=True, info=info)
         path = directory / name
@@ -825,7 +828,7 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         metrics = read_run_metrics(directory, info) if trained else {}
         evaluation = None
         if files.present(directory / layout.EVALUATION_FILE):
-            evaluation = read_evaluation(directory, int(info.get("num_seeds", 1)))
+            evaluation = read_evaluation(directory, int(info.get("num_seeds", 1)), info)
     if trained and "env_steps" not in metrics:
         raise RunDirError(f"{path / layout.METRICS_FILE} has no env_steps column")
     env_steps = _first_finite(metrics["env_steps"]) if trained else np.empty(0)
