@@ -185,9 +185,6 @@ def reset_options(params: EnvParams | None = None) -> dict | None:
     return {"low": float(params.reset_low), "high": float(params.reset_high)}
 
 
-__all__ = ["PHYSICS", "make_cartpole", "reset_options"]
-
-
 def gymnasium_grid(
     env_id: str, params: EnvParams | None, shape: tuple[int, int], seed: int, stack: Any
 ) -> tuple[np.ndarray, Callable, int]:

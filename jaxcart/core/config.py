@@ -747,18 +747,3 @@ def config_fields() -> list[dataclasses.Field]:
     ``metrics``), in
     declaration order."""
     return [f for f in dataclasses.fields(PPOConfig) if f.metadata.get("cli", True)]
-
-
-__all__ = [
-    "PRESETS",
-    "STATIC_FIELDS",
-    "TRACED_FIELDS",
-    "ConfigError",
-    "PPOConfig",
-    "RebuildError",
-    "RecordedMetric",
-    "check_field",
-    "config_fields",
-    "preset",
-    "validate",
-]

@@ -237,17 +237,3 @@ def _step_batch(
     obs, state_out = pytree.where(done, fresh, (final_obs, next_state))
     reward = jnp.asarray(reward, final_obs.dtype)
     return obs, state_out, reward, terminated, truncated, {"final_obs": final_obs}
-
-
-__all__ = [
-    "ACTION_COUNTS",
-    "CARTPOLE",
-    "DEFAULT_ENV",
-    "GYMNAX_ENVS",
-    "Env",
-    "EnvError",
-    "env_ids",
-    "from_step",
-    "make",
-    "register",
-]

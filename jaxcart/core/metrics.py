@@ -196,15 +196,3 @@ def custom_metrics(
             raise ValueError(f"metric {name!r} must return a scalar, got shape {value.shape}")
         out[name] = value.reshape(()).astype(jnp.float32)
     return out
-
-
-__all__ = [
-    "EPISODE_WINDOW",
-    "EVAL_METRICS",
-    "METRIC_NAMES",
-    "EpisodeBuffer",
-    "custom_metrics",
-    "explained_variance",
-    "iteration_metrics",
-    "update_episode_buffer",
-]

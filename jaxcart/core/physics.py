@@ -24,7 +24,8 @@ import numpy as np
 from jaxcart.core import cartpole, pytree
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.errors import ConfigError
-from jaxcart.core.pytree import split_per_run, with_values
+from jaxcart.core.pytree import split_per_run as split_per_run
+from jaxcart.core.pytree import with_values as with_values
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EnvParams))
 """Every field of :class:`EnvParams`, the names ``--env-param`` takes."""
@@ -233,22 +234,3 @@ def step_batch(
         drawn = state.low[name] + (state.high[name] - state.low[name]) * unit
         values[name] = jnp.where(done, drawn, value)
     return obs, state.replace(env=env, values=values), reward, terminated, truncated, info
-
-
-__all__ = [
-    "CONTINUOUS",
-    "FIELDS",
-    "PREFIX",
-    "EpisodeState",
-    "Randomization",
-    "check_continuous",
-    "check_physics",
-    "describe",
-    "episode_state",
-    "make_env_params",
-    "overrides",
-    "randomized_values",
-    "split_per_run",
-    "step_batch",
-    "with_values",
-]

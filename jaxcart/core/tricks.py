@@ -92,12 +92,3 @@ def random_permutations(key: Array, num: int, size: int) -> Array:
         order = jnp.sort((bits & ~low) | jnp.arange(size, dtype=jnp.uint32), axis=-1) & low
         perms = jnp.take_along_axis(perms, order.astype(jnp.int32), axis=-1)
     return perms.astype(jnp.int32)
-
-
-__all__ = [
-    "categorical_entropy",
-    "categorical_log_prob",
-    "pack_batch",
-    "random_permutations",
-    "unpack_batch",
-]
