@@ -104,7 +104,6 @@ def explained_variance(y_pred: Array, y_true: Array) -> Array:
 
 
 LOSS_NAMES = ("approx_kl", "clip_fraction", "entropy_loss", "policy_gradient_loss", "value_loss")
-_LOSS_METRICS = tuple(f"train/{n}" for n in (*LOSS_NAMES, "loss"))
 
 
 def _early_stopped_losses(losses: dict[str, Array]) -> dict[str, Array]:
@@ -165,7 +164,7 @@ def iteration_metrics(
         "rollout/ep_rew_max": jnp.nan_to_num(
             jnp.max(jnp.where(done, episode_return, -jnp.inf)), neginf=jnp.nan
         ).astype(jnp.float32),
-        **{name: loss_metrics[name] for name in _LOSS_METRICS},
+        **loss_metrics,
         "train/explained_variance": explained_variance(value_pred, returns),
         "train/learning_rate": jnp.asarray(learning_rate, jnp.float32),
     }
