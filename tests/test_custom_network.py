@@ -23,7 +23,6 @@ from jaxcart.core.config import (
     PPOConfig,
     RecordedNetwork,
     UntrustedCodeError,
-    build_network,
     network_spec,
     resolve_code,
 )
@@ -40,8 +39,8 @@ OBS = np.random.default_rng(3).normal(size=(16, 4)).astype(np.float32)
 def test_a_network_is_recorded_by_class_and_changed_fields():
     spec = network_spec(GeluLayerNorm(width=64))
     assert spec == {"class": "custom_networks:GeluLayerNorm", "fields": {"width": 64}}
-    assert build_network(spec) == GeluLayerNorm(width=64)
-    assert build_network(spec, GeluLayerNorm) == GeluLayerNorm(width=64)
+    assert RecordedNetwork.from_spec(spec).build() == GeluLayerNorm(width=64)
+    assert RecordedNetwork.from_spec(spec).build(GeluLayerNorm) == GeluLayerNorm(width=64)
     config = dataclasses.replace(TINY, network=GeluLayerNorm(width=64))
     recorded = json.loads(json.dumps(config.to_dict()))
     read = PPOConfig.from_dict(recorded)
@@ -60,7 +59,7 @@ def test_a_network_is_recorded_by_class_and_changed_fields():
     assert "network" not in TINY.to_dict()  # the built-in network's config.json is unchanged
     assert set(BUILTIN_NETWORK_FIELDS) <= set(TINY.to_dict())
     with pytest.raises(ConfigError, match="cannot rebuild the run's network nowhere:Net"):
-        build_network({"class": "nowhere:Net", "fields": {}})
+        RecordedNetwork.from_spec({"class": "nowhere:Net", "fields": {}}).build()
     with pytest.raises(ConfigError, match="network must be a flax module"):
         PPOConfig(network="mlp")
 

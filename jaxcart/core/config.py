@@ -278,7 +278,7 @@ def network_spec(network: Any) -> dict:
     dataclass fields (a flax module is a dataclass) that differ from the class's defaults.
 
     A class defined in ``__main__`` (a script or a notebook) is recorded too: the same
-    process rebuilds it, another one refuses in one line (:func:`build_network`).
+    process rebuilds it, another one refuses in one line (:meth:`RecordedCode.build`).
 
     Raises:
         ConfigError: a field set to something other than its default is not a JSON value.
@@ -418,17 +418,6 @@ class RecordedCode:
 
 RecordedNetwork = RecordedMetric = RecordedCode
 """What a run directory records of a network class and of a metric function: one kind."""
-
-
-def build_network(spec: Any, cls: type | None = None) -> Any:
-    """The network :func:`network_spec` recorded (:meth:`RecordedCode.build`): with ``cls``
-    that class, else the recorded class imported by name.
-
-    Raises:
-        ConfigError: not a recorded network; :class:`RebuildError` when its class cannot be
-            imported, is not a flax module, or cannot be built with the recorded fields.
-    """
-    return (spec if isinstance(spec, RecordedCode) else RecordedCode.from_spec(spec)).build(cls)
 
 
 def recorded_code(config: PPOConfig) -> list[str]:

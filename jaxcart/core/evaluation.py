@@ -15,7 +15,6 @@ import jax.numpy as jnp
 from jaxcart.core import envs, networks, pytree
 from jaxcart.core.config import PPOConfig
 from jaxcart.core.envs import DEFAULT_ENV
-from jaxcart.core.networks import ActorCritic
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 
 Array = jax.Array
@@ -37,7 +36,7 @@ class BestPolicy:
 def greedy_returns(
     params: dict,
     key: Array,
-    network: Any = None,
+    network: Any,
     num_episodes: int = NUM_EVAL_EPISODES,
     env_params: Any = None,
     env_id: str = DEFAULT_ENV,
@@ -52,12 +51,11 @@ def greedy_returns(
     Args:
         params: the network parameters (no run axis).
         key: episode ``e`` starts from ``env.reset(split(key, num_episodes)[e])``.
-        network: the flax actor-critic ``params`` belong to (default: the built-in MLP).
+        network: the flax actor-critic ``params`` belong to (:func:`jaxcart.core.ppo.make_network`).
         env_params: the env's params (default: its own).
     """
     env = envs.make(env_id)
     env_params = env.default_params() if env_params is None else env_params
-    network = ActorCritic(num_actions=env.num_actions) if network is None else network
     obs, state = jax.vmap(env.reset, in_axes=(0, None))(
         jax.random.split(key, num_episodes), env_params
     )
