@@ -63,12 +63,9 @@ def unpack_batch(rows: Array, like: Fields) -> Fields:
         if field is None:
             fields.append(None)
             continue
-        if field.ndim == 2:
-            width = field.shape[-1]
-            fields.append(rows[:, start : start + width].astype(field.dtype))
-        else:
-            width = 1
-            fields.append(rows[:, start].astype(field.dtype))
+        width = field.shape[-1] if field.ndim == 2 else 1
+        column = rows[:, start : start + width] if field.ndim == 2 else rows[:, start]
+        fields.append(column.astype(field.dtype))
         start += width
     return type(like)(*fields)
 
