@@ -368,7 +368,11 @@ def read_run_metrics(run_dir: files.Where, info: dict) -> dict[str, np.ndarray]:
     ``config.json``) trains; leaves ``[iterations, S]``."""
     num_seeds, iterations = int(info.get("num_seeds", 1)), info["config"].num_iterations
     with files.opened(run_dir) as directory:
-        path = files.verified(directory, layout.METRICS_FILE, info)
+        missing = (
+            f"{directory} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
+            "never started training"
+        )
+        path = files.verified(directory, layout.METRICS_FILE, info, missing)
         metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
     check_metrics(metrics, path, info["config"].env)
     return metrics
@@ -547,11 +551,6 @@ def load_params(run_dir: files.Where, policy: str = "final", info: dict | None =
     the run's config as already read (its network resolved: :func:`resolve_code`)."""
     name = policy_file(policy)
     with files.opened(run_dir) as directory:
-        if is_sweep(directory):
-            raise RunDirError(
-                f"{directory} is a sweep: each combination is a run directory of its own, "
-                f"e.g. {layout.combo_dir(directory.path, 0)}"
-            )
         info = info or read_run_config(directory)
         missing = f"{directory} has no {name}: the run did not finish saving parameters"
         if policy == "best" and not info["config"].keep_best:
@@ -819,11 +818,6 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         if unfinished(directory):
             return checkpoint_curves(path, info, label, directory)[0]
         trained = not is_evaluation(info)
-        if trained and not files.present(directory / layout.METRICS_FILE):
-            raise RunDirError(
-                f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
-                "never started training"
-            )
         # an evaluation's curves are its run's: none here, as for a run that logged none
         metrics = read_run_metrics(directory, info) if trained else {}
         evaluation = None
