@@ -387,24 +387,20 @@ METRIC_BOUNDS = {
     "time/fps": (0.0, FLOAT32_MAX),
     "time/elapsed": (0.0, FLOAT32_MAX),
 }
-"""What each metric can hold besides the episode statistics (:func:`metric_bounds`): fractions
+"""What each metric can hold besides the episode statistics (:func:`check_metrics`): fractions
 in [0, 1], losses and rates within float32 (the stream stores float32). NaN is allowed (a
 diverged run's iterations, and no finished episode yet); infinities never."""
-
-
-def metric_bounds(env_id: str = DEFAULT_ENV) -> dict[str, tuple[float, float]]:
-    """:data:`METRIC_BOUNDS` with the episode statistics of ``env_id``'s returns and lengths."""
-    returns, limit = return_bounds(env_id), float(EPISODE_LIMITS[env_id])
-    episodes = {"rollout/ep_rew_mean": returns, "rollout/ep_rew_max": returns}
-    return {**METRIC_BOUNDS, **episodes, "rollout/ep_len_mean": (0.0, limit)}
 
 
 def check_metrics(
     metrics: dict[str, np.ndarray], path: files.Target, env_id: str = DEFAULT_ENV
 ) -> None:
-    """Refuses metrics outside what training on ``env_id`` can produce
-    (:func:`metric_bounds`; any other column within float32)."""
-    bounds = metric_bounds(env_id)
+    """Refuses metrics outside what training on ``env_id`` can produce: :data:`METRIC_BOUNDS`,
+    the episode statistics within ``env_id``'s returns and lengths, any other column within
+    float32."""
+    returns, limit = return_bounds(env_id), float(EPISODE_LIMITS[env_id])
+    episodes = {"rollout/ep_rew_mean": returns, "rollout/ep_rew_max": returns}
+    bounds = {**METRIC_BOUNDS, **episodes, "rollout/ep_len_mean": (0.0, limit)}
     for name, values in metrics.items():
         low, high = bounds.get(name, (-FLOAT32_MAX, FLOAT32_MAX))
         a = np.asarray(values, float)
