@@ -423,34 +423,32 @@ class Block:
         )
 
 
-def _overlap(start: int, stop: int, runs: range) -> slice | None:
-    """The slice of a block of runs ``[start, stop)`` that holds some of ``runs``."""
-    lo, hi = max(start, runs.start), min(stop, runs.stop)
-    return slice(lo - start, hi - start) if lo < hi else None
+def _spans(blocks: list, runs: range) -> Iterator[tuple[Block | files.Target, slice]]:
+    """Each block (or block file, whose span is read from its metadata alone) that holds some
+    of ``runs``, with the slice of its axis that does."""
+    for item in blocks:
+        # a block in memory: its own fields; a file: its metadata, no array read
+        meta = vars(item) if isinstance(item, Block) else files.read_meta(item)
+        start, stop = int(meta["start"]), int(meta["stop"])
+        lo, hi = max(start, runs.start), min(stop, runs.stop)
+        if lo < hi:
+            yield item, slice(lo - start, hi - start)
 
 
 def overlapping(blocks: list, runs: range) -> Iterator[tuple[Block, slice]]:
     """Each block that holds some of ``runs`` (loaded when it is a path), with the slice of
     its axis that does."""
-    for item in blocks:
-        block = item if isinstance(item, Block) else Block.load(item)
-        take = _overlap(block.start, block.stop, runs)
-        if take is not None:
-            yield block, take
+    for item, take in _spans(blocks, runs):
+        yield (item if isinstance(item, Block) else Block.load(item)), take
 
 
 def _param_slices(blocks: list, runs: range, name: str, best: bool = False) -> Iterator[np.ndarray]:
     """One parameter array of each block that holds some of ``runs``, sliced to them (the
     best policies' with ``best``); a block file is read for that array alone."""
-    for item in blocks:
+    for item, take in _spans(blocks, runs):
         if isinstance(item, Block):
-            take = _overlap(item.start, item.stop, runs)
-            if take is not None:
-                yield (item.best_params if best else item.params)[name][take]
-            continue
-        meta = files.read_meta(item)
-        take = _overlap(int(meta["start"]), int(meta["stop"]), runs)
-        if take is not None:
+            yield (item.best_params if best else item.params)[name][take]
+        else:
             with files.open_tree(item) as raw, np.load(raw, allow_pickle=False) as data:
                 yield data[(BLOCK_BEST_PARAMS if best else BLOCK_PARAMS) + name][take]
 

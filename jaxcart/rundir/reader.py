@@ -368,7 +368,11 @@ def read_run_metrics(run_dir: files.Where, info: dict) -> dict[str, np.ndarray]:
     ``config.json``) trains; leaves ``[iterations, S]``."""
     num_seeds, iterations = int(info.get("num_seeds", 1)), info["config"].num_iterations
     with files.opened(run_dir) as directory:
-        path = files.verified(directory, layout.METRICS_FILE, info)
+        missing = (
+            f"{directory} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
+            "never started training"
+        )
+        path = files.verified(directory, layout.METRICS_FILE, info, missing)
         metrics = read_metrics_csv(path, num_seeds * iterations, (iterations, num_seeds))
     check_metrics(metrics, path, info["config"].env)
     return metrics
@@ -383,24 +387,20 @@ METRIC_BOUNDS = {
     "time/fps": (0.0, FLOAT32_MAX),
     "time/elapsed": (0.0, FLOAT32_MAX),
 }
-"""What each metric can hold besides the episode statistics (:func:`metric_bounds`): fractions
+"""What each metric can hold besides the episode statistics (:func:`check_metrics`): fractions
 in [0, 1], losses and rates within float32 (the stream stores float32). NaN is allowed (a
 diverged run's iterations, and no finished episode yet); infinities never."""
-
-
-def metric_bounds(env_id: str = DEFAULT_ENV) -> dict[str, tuple[float, float]]:
-    """:data:`METRIC_BOUNDS` with the episode statistics of ``env_id``'s returns and lengths."""
-    returns, limit = return_bounds(env_id), float(EPISODE_LIMITS[env_id])
-    episodes = {"rollout/ep_rew_mean": returns, "rollout/ep_rew_max": returns}
-    return {**METRIC_BOUNDS, **episodes, "rollout/ep_len_mean": (0.0, limit)}
 
 
 def check_metrics(
     metrics: dict[str, np.ndarray], path: files.Target, env_id: str = DEFAULT_ENV
 ) -> None:
-    """Refuses metrics outside what training on ``env_id`` can produce
-    (:func:`metric_bounds`; any other column within float32)."""
-    bounds = metric_bounds(env_id)
+    """Refuses metrics outside what training on ``env_id`` can produce: :data:`METRIC_BOUNDS`,
+    the episode statistics within ``env_id``'s returns and lengths, any other column within
+    float32."""
+    returns, limit = return_bounds(env_id), float(EPISODE_LIMITS[env_id])
+    episodes = {"rollout/ep_rew_mean": returns, "rollout/ep_rew_max": returns}
+    bounds = {**METRIC_BOUNDS, **episodes, "rollout/ep_len_mean": (0.0, limit)}
     for name, values in metrics.items():
         low, high = bounds.get(name, (-FLOAT32_MAX, FLOAT32_MAX))
         a = np.asarray(values, float)
@@ -547,11 +547,6 @@ def load_params(run_dir: files.Where, policy: str = "final", info: dict | None =
     the run's config as already read (its network resolved: :func:`resolve_code`)."""
     name = policy_file(policy)
     with files.opened(run_dir) as directory:
-        if is_sweep(directory):
-            raise RunDirError(
-                f"{directory} is a sweep: each combination is a run directory of its own, "
-                f"e.g. {layout.combo_dir(directory.path, 0)}"
-            )
         info = info or read_run_config(directory)
         missing = f"{directory} has no {name}: the run did not finish saving parameters"
         if policy == "best" and not info["config"].keep_best:
@@ -819,11 +814,6 @@ def load_run(run_dir: str | os.PathLike, label: str | None = None) -> RunCurves:
         if unfinished(directory):
             return checkpoint_curves(path, info, label, directory)[0]
         trained = not is_evaluation(info)
-        if trained and not files.present(directory / layout.METRICS_FILE):
-            raise RunDirError(
-                f"{path} has no {layout.METRICS_FILE} and no {layout.CHECKPOINT_FILE}: the run "
-                "never started training"
-            )
         # an evaluation's curves are its run's: none here, as for a run that logged none
         metrics = read_run_metrics(directory, info) if trained else {}
         evaluation = None
