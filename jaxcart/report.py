@@ -446,14 +446,8 @@ class ConsoleReport(ProgressBar):
                 f"devices takes {padded // device_count} ({padded - runs} padding run(s) "
                 "computed and discarded)"
             )
-        plan = run.plan
-        if plan.num_waves > 1 and plan.bytes_per_run:
-            self.print(plan_text(plan, run.spec))
-        elif plan.num_waves > 1:
-            what = "runs" if run.grid.is_sweep else "seeds"
-            self.print(
-                f"{plan.num_runs:,} {what} in {plan.num_waves:,} waves of {plan.wave_size:,}"
-            )
+        if run.plan.num_waves > 1:  # a new run's plan, or a resumed one's with today's memory
+            self.print(plan_text(run.plan, run.spec))
         if run.resumed_from is not None:
             self.print(f"resuming from {_at(run, run.resumed_from, run.resume_wave)}")
 
