@@ -22,6 +22,7 @@ from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar, new_bar
 from jaxcart.rundir.layout import CHECKPOINT_FILE, CONFIG_FILE, GROUPS_FILE
+from jaxcart.rundir.reader import group_label
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
@@ -207,24 +208,6 @@ def results_text(outcome: Outcome) -> str:
     )
 
 
-def groups_text(ranking: list[dict], groups: list[dict], sweep: dict, num_seeds: int) -> str:
-    """The ranking of a structural sweep: every combination of every shape group, together."""
-    from jaxcart.rundir.reader import group_label
-
-    columns = [
-        ("rank", lambda r: _rank(r, ranking)),
-        ("group", lambda r: r["group"]),
-        ("shapes", lambda r: group_label({k: r[k] for k in groups[r["group"]]})),
-        *_ranking_columns(ranking, list(sweep), num_seeds),
-        ("solved", lambda r: f"{r['solve_rate']:.0%}"),
-        ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
-    ]
-    what = f"{len(groups)} shape group(s) ({num_seeds} seed(s) each)"
-    return (
-        f"\nStructural sweep ranking, {what}:\n{_table(ranking, columns)}{ranking_lines(ranking)}"
-    )
-
-
 def evaluation_columns_text(episodes: int) -> str:
     """The one line under the evaluation table that says what each column is over: the two
     greedy means start from different states, so they differ for a policy that does not
@@ -279,14 +262,25 @@ def finished_text(outcome: Outcome, wall_seconds: float) -> str:
 
 
 def groups_finished_text(done: GroupsOutcome, wall_seconds: float) -> str:
-    """What a structural sweep prints once its groups are done, or one of them stopped."""
+    """What a structural sweep prints once its groups are done (every combination of every
+    shape group ranked together, then where and what next), or once one of them stopped."""
     if done.stopped:
         last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
         hint = resume_command(done.out)
         return stopped_text(last, hint) if last else f"stopped; resume with: {hint}"
+    ranking, groups = done.ranking, done.groups
+    columns = [
+        ("rank", lambda r: _rank(r, ranking)),
+        ("group", lambda r: r["group"]),
+        ("shapes", lambda r: group_label({k: r[k] for k in groups[r["group"]]})),
+        *_ranking_columns(ranking, list(done.sweep), done.num_seeds),
+        ("solved", lambda r: f"{r['solve_rate']:.0%}"),
+        ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
+    ]
+    what = f"{len(groups)} shape group(s) ({done.num_seeds} seed(s) each)"
     return (
-        groups_text(done.ranking, done.groups, done.sweep, done.num_seeds)
-        + f"\nwall {wall_seconds:.1f} s | structural sweep directory: {done.out} "
+        f"\nStructural sweep ranking, {what}:\n{_table(ranking, columns)}{ranking_lines(ranking)}"
+        f"\nwall {wall_seconds:.1f} s | structural sweep directory: {done.out} "
         f"({GROUPS_FILE} ranks every combination)\nnext:\n"
         f"  python -m jaxcart.plot {done.out}      # every group's curves, into its curves.png\n"
         f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
