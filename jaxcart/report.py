@@ -296,30 +296,28 @@ def next_steps_text(outcome: Outcome) -> str:
     out, grid, q, ev = outcome.run.out, outcome.run.grid, shlex.quote, outcome.evaluation
     kept = ev.best_solved is not None  # keep_best: the best policies are what to watch
     run, solved_seeds = q(str(out)), ev.best_solved if kept else ev.solved
+    where, pick = out, ""  # the directory of the policy to watch, and how evaluate picks it
     if grid.is_sweep:
         best = outcome.ranking[0]["combination"] if outcome.ranking else 0
         solved_seeds = solved_seeds[grid.runs_of(best)]
+        where, pick = out / f"combo-{best:03d}", f" --combination {best}"
     seed = int(np.argmax(solved_seeds))  # the first solved seed (none: seed 0)
-    pick = (f" --seed-index {seed}" if seed else "") + (" --policy best" if kept else "")
-    kind = "best policy" if kept else "policy"
+    pick += (f" --seed-index {seed}" if seed else "") + (" --policy best" if kept else "")
+    watch = f"python -m jaxcart.evaluate {run}{pick} --gif {q(str(where / f'seed{seed}.gif'))}"
     if grid.is_sweep:
-        gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
         commands = [
             (
                 f"python -m jaxcart.plot {run} --out {q(str(out / 'curves.png'))}",
                 "learning curves of every combination",
             ),
-            (
-                f"python -m jaxcart.evaluate {run} --combination {best}{pick} --gif {gif}",
-                f"watch seed {seed} of the best-ranked combination",
-            ),
+            (watch, f"watch seed {seed} of the best-ranked combination"),
             (f"python -m jaxcart.compare {run}", "the combinations' statistics"),
         ]
     else:
-        gif = q(str(out / f"seed{seed}.gif"))
+        kind = "best policy" if kept else "policy"
         commands = [
             (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png"),
-            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s {kind}"),
+            (watch, f"watch seed {seed}'s {kind}"),
             (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
         ]
     if gif_refusal(outcome.run.config.env):  # no renderer for this env here
