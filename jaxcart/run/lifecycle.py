@@ -400,10 +400,9 @@ def carry_out(
                 "drop --eval-episodes"
             )
         episodes = options.eval_episodes or recorded or NUM_EVAL_EPISODES
+        options = dataclasses.replace(options, eval_episodes=episodes)
         with stop.installed():
-            return _carry_out(
-                run, dataclasses.replace(options, eval_episodes=episodes), hooks, stop
-            )
+            return _carry_out(run, options, hooks, stop)
     except Exception:
         if _nothing_trained(run):  # a new run that failed before its first chunk trained
             run.directory.discard()
