@@ -22,6 +22,7 @@ from jaxcart.core.config import PRESETS, config_fields, preset
 from jaxcart.run import sweep as sweeps
 from jaxcart.run.progress import ProgressBar, new_bar
 from jaxcart.rundir.layout import CHECKPOINT_FILE, CONFIG_FILE, GROUPS_FILE
+from jaxcart.rundir.reader import group_label
 
 if TYPE_CHECKING:  # annotations only: the lifecycle does not import this module
     from pathlib import Path
@@ -207,24 +208,6 @@ def results_text(outcome: Outcome) -> str:
     )
 
 
-def groups_text(ranking: list[dict], groups: list[dict], sweep: dict, num_seeds: int) -> str:
-    """The ranking of a structural sweep: every combination of every shape group, together."""
-    from jaxcart.rundir.reader import group_label
-
-    columns = [
-        ("rank", lambda r: _rank(r, ranking)),
-        ("group", lambda r: r["group"]),
-        ("shapes", lambda r: group_label({k: r[k] for k in groups[r["group"]]})),
-        *_ranking_columns(ranking, list(sweep), num_seeds),
-        ("solved", lambda r: f"{r['solve_rate']:.0%}"),
-        ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
-    ]
-    what = f"{len(groups)} shape group(s) ({num_seeds} seed(s) each)"
-    return (
-        f"\nStructural sweep ranking, {what}:\n{_table(ranking, columns)}{ranking_lines(ranking)}"
-    )
-
-
 def evaluation_columns_text(episodes: int) -> str:
     """The one line under the evaluation table that says what each column is over: the two
     greedy means start from different states, so they differ for a policy that does not
@@ -279,14 +262,25 @@ def finished_text(outcome: Outcome, wall_seconds: float) -> str:
 
 
 def groups_finished_text(done: GroupsOutcome, wall_seconds: float) -> str:
-    """What a structural sweep prints once its groups are done, or one of them stopped."""
+    """What a structural sweep prints once its groups are done (every combination of every
+    shape group ranked together, then where and what next), or once one of them stopped."""
     if done.stopped:
         last = done.outcomes[-1] if done.outcomes and done.outcomes[-1].stopped else None
         hint = resume_command(done.out)
         return stopped_text(last, hint) if last else f"stopped; resume with: {hint}"
+    ranking, groups = done.ranking, done.groups
+    columns = [
+        ("rank", lambda r: _rank(r, ranking)),
+        ("group", lambda r: r["group"]),
+        ("shapes", lambda r: group_label({k: r[k] for k in groups[r["group"]]})),
+        *_ranking_columns(ranking, list(done.sweep), done.num_seeds),
+        ("solved", lambda r: f"{r['solve_rate']:.0%}"),
+        ("final ep_rew_mean", lambda r: f"{r['final_return']:.1f}"),
+    ]
+    what = f"{len(groups)} shape group(s) ({done.num_seeds} seed(s) each)"
     return (
-        groups_text(done.ranking, done.groups, done.sweep, done.num_seeds)
-        + f"\nwall {wall_seconds:.1f} s | structural sweep directory: {done.out} "
+        f"\nStructural sweep ranking, {what}:\n{_table(ranking, columns)}{ranking_lines(ranking)}"
+        f"\nwall {wall_seconds:.1f} s | structural sweep directory: {done.out} "
         f"({GROUPS_FILE} ranks every combination)\nnext:\n"
         f"  python -m jaxcart.plot {done.out}      # every group's curves, into its curves.png\n"
         f"  python -m jaxcart.compare {done.out}   # statistics of every combination"
@@ -302,30 +296,28 @@ def next_steps_text(outcome: Outcome) -> str:
     out, grid, q, ev = outcome.run.out, outcome.run.grid, shlex.quote, outcome.evaluation
     kept = ev.best_solved is not None  # keep_best: the best policies are what to watch
     run, solved_seeds = q(str(out)), ev.best_solved if kept else ev.solved
+    where, pick = out, ""  # the directory of the policy to watch, and how evaluate picks it
     if grid.is_sweep:
         best = outcome.ranking[0]["combination"] if outcome.ranking else 0
         solved_seeds = solved_seeds[grid.runs_of(best)]
+        where, pick = out / f"combo-{best:03d}", f" --combination {best}"
     seed = int(np.argmax(solved_seeds))  # the first solved seed (none: seed 0)
-    pick = (f" --seed-index {seed}" if seed else "") + (" --policy best" if kept else "")
-    kind = "best policy" if kept else "policy"
+    pick += (f" --seed-index {seed}" if seed else "") + (" --policy best" if kept else "")
+    watch = f"python -m jaxcart.evaluate {run}{pick} --gif {q(str(where / f'seed{seed}.gif'))}"
     if grid.is_sweep:
-        gif = q(str(out / f"combo-{best:03d}" / f"seed{seed}.gif"))
         commands = [
             (
                 f"python -m jaxcart.plot {run} --out {q(str(out / 'curves.png'))}",
                 "learning curves of every combination",
             ),
-            (
-                f"python -m jaxcart.evaluate {run} --combination {best}{pick} --gif {gif}",
-                f"watch seed {seed} of the best-ranked combination",
-            ),
+            (watch, f"watch seed {seed} of the best-ranked combination"),
             (f"python -m jaxcart.compare {run}", "the combinations' statistics"),
         ]
     else:
-        gif = q(str(out / f"seed{seed}.gif"))
+        kind = "best policy" if kept else "policy"
         commands = [
             (f"python -m jaxcart.plot {run}", "learning curves, into its curves.png"),
-            (f"python -m jaxcart.evaluate {run}{pick} --gif {gif}", f"watch seed {seed}'s {kind}"),
+            (watch, f"watch seed {seed}'s {kind}"),
             (f"python -m jaxcart.compare {run} OTHER_RUN", "statistics against another run"),
         ]
     if gif_refusal(outcome.run.config.env):  # no renderer for this env here
@@ -446,14 +438,8 @@ class ConsoleReport(ProgressBar):
                 f"devices takes {padded // device_count} ({padded - runs} padding run(s) "
                 "computed and discarded)"
             )
-        plan = run.plan
-        if plan.num_waves > 1 and plan.bytes_per_run:
-            self.print(plan_text(plan, run.spec))
-        elif plan.num_waves > 1:
-            what = "runs" if run.grid.is_sweep else "seeds"
-            self.print(
-                f"{plan.num_runs:,} {what} in {plan.num_waves:,} waves of {plan.wave_size:,}"
-            )
+        if run.plan.num_waves > 1:  # a new run's plan, or a resumed one's with today's memory
+            self.print(plan_text(run.plan, run.spec))
         if run.resumed_from is not None:
             self.print(f"resuming from {_at(run, run.resumed_from, run.resume_wave)}")
 

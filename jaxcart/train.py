@@ -263,7 +263,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
     shapes = structural.split_sweep(list(opts.sweep))[1]  # a structural sweep's axes, if any
     groups = structural.shape_groups(shapes) if spec is not None and shapes else []
-    specs = structural.group_specs(spec, groups) if groups else [spec]  # each group checked
+    specs = [structural.group_spec(spec, g) for g in groups] if groups else [spec]  # each checked
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups, specs)
     run_options = opts.run_options()

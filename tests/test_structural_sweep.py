@@ -15,7 +15,7 @@ from jaxcart import train
 from jaxcart.analysis.summary import auc
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run.spec import RunSpec
-from jaxcart.run.structural import group_specs, shape_groups, split_sweep
+from jaxcart.run.structural import group_spec, shape_groups, split_sweep
 from jaxcart.rundir import files, layout, reader
 
 BASE = [  # 2 envs or 4 envs x 32 steps, minibatches of 32: 4 or 8 iterations of 512 steps
@@ -38,7 +38,8 @@ def test_shape_axes_are_split_from_the_float_axes():
     with pytest.raises(ConfigError, match="give distinct values"):
         split_sweep(["num_envs=4,4"])
     with pytest.raises(ConfigError, match="group num_steps=32: minibatch_size=64 does not divide"):
-        group_specs(RunSpec(PPOConfig(num_steps=64)), [{"num_steps": 64}, {"num_steps": 32}])
+        for group in [{"num_steps": 64}, {"num_steps": 32}]:
+            group_spec(RunSpec(PPOConfig(num_steps=64)), group)
 
 
 def test_a_structural_sweep_plans_one_program_per_group(capsys):

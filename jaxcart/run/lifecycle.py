@@ -31,6 +31,7 @@ import numpy as np
 
 from jaxcart.analysis.summary import Score
 from jaxcart.core.config import ConfigError, float_dtype, resolve_code
+from jaxcart.core.ppo import RunnerState
 from jaxcart.core.solved import NUM_EVAL_EPISODES
 from jaxcart.engine import devices, distributed, loop
 from jaxcart.engine.loop import CHUNK_SECONDS, Progress, TrainResult, TrainState
@@ -221,14 +222,13 @@ def open_run(
         # the run's own code, only now that the directory is checked, and only if asked
         config = resolve_code(config, network, trust_code, str(out))
         spec = RunSpec.from_record({**info, "config": config})
-        num_runs = spec.grid.num_runs
+        num_runs, wave = spec.grid.num_runs, 0
         plan = WavePlan(num_runs, info.get("wave_size") or num_runs, 0, 0)
-        wave = 0
-        if plan.num_waves > 1 and extend_to is not None:
-            raise ConfigError(
-                f"cannot extend {out}: it trained in waves, which keep no final state"
-            )
         if plan.num_waves > 1:  # the plan it was started with, and today's estimate
+            if extend_to is not None:
+                raise ConfigError(
+                    f"cannot extend {out}: it trained in waves, which keep no final state"
+                )
             plan = WavePlan(num_runs, plan.wave_size, bytes_per_run(config), available_bytes())
             waves = range(plan.num_waves)
             wave = next((w for w in waves if not directory.has_wave(w)), plan.num_waves)
@@ -400,10 +400,9 @@ def carry_out(
                 "drop --eval-episodes"
             )
         episodes = options.eval_episodes or recorded or NUM_EVAL_EPISODES
+        options = dataclasses.replace(options, eval_episodes=episodes)
         with stop.installed():
-            return _carry_out(
-                run, dataclasses.replace(options, eval_episodes=episodes), hooks, stop
-            )
+            return _carry_out(run, options, hooks, stop)
     except Exception:
         if _nothing_trained(run):  # a new run that failed before its first chunk trained
             run.directory.discard()
@@ -499,11 +498,12 @@ def wave_start_state(
     return state
 
 
-def save_state(run: Run, state: TrainState, wave: int = 0) -> None:
-    """Checkpoints ``state``: every process takes part in gathering it; process 0 writes."""
+def save_state(run: Run, state: TrainState, wave: int = 0) -> RunnerState:
+    """Checkpoints ``state``: every process takes part in gathering it; process 0 writes.
+    Returns the runners gathered (NumPy, every run's, on every process)."""
     arrays = distributed.gather({"runners": state.runners, "config": state.config})
     if not run.main_process:
-        return
+        return arrays["runners"]
     gathered = dataclasses.replace(state, runners=arrays["runners"], config=arrays["config"])
     meta = {
         "num_runs": len(arrays["runners"].diverged_at),
@@ -512,6 +512,7 @@ def save_state(run: Run, state: TrainState, wave: int = 0) -> None:
         "versions": package_versions(),
     }
     run.directory.save_checkpoint(gathered, meta)
+    return arrays["runners"]
 
 
 def train_wave(
@@ -621,16 +622,14 @@ def _one_wave(
     outcome.compile_seconds += result.compile_seconds
     outcome.train_seconds += result.run_seconds
     outcome.env_steps += result.env_steps
-    save_state(run, result.state, wave)
-    diverged = np.asarray(distributed.gather(result.state.runners.diverged_at))
+    runners = save_state(run, result.state, wave)  # the final state, gathered once
     if result.stopped:
         if run.main_process and run.plan.num_waves == 1:
             run.directory.write_metrics(run.config.batch_size)
         return None
-    params = distributed.gather(result.params)
     best_params = best = None
     if run.config.keep_best:
-        kept = distributed.gather(result.state.runners.best)
+        kept = runners.best
         best_params = files.flatten(kept.params)
         best = {"best_iteration": np.asarray(kept.iteration), "best_score": np.asarray(kept.score)}
     gym = jax_returns = np.zeros((len(runs), 0))  # other processes: process 0 evaluates
@@ -639,7 +638,7 @@ def _one_wave(
         try:
             stop.check()
             start = time.perf_counter()
-            gym, jax_returns = check.evaluate(params, stop)
+            gym, jax_returns = check.evaluate(runners.params, stop)
             seconds = time.perf_counter() - start
             if best is not None:  # the Gymnasium verdict of the best policies too
                 best["best_gym_returns"] = check.evaluate(kept.params, stop)[0]
@@ -649,9 +648,9 @@ def _one_wave(
     return Block(
         runs.start,
         runs.stop,
-        files.flatten(params),
+        files.flatten(runners.params),
         run.directory.stream.read(),  # memory-mapped from the stream
-        diverged,
+        np.asarray(runners.diverged_at),
         gym,
         jax_returns,
         timing,

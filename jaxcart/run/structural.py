@@ -103,11 +103,6 @@ def group_spec(spec: RunSpec, shape: dict, **changes: object) -> RunSpec:
     return dataclasses.replace(spec, config=group_config(spec.config, shape), **changes)
 
 
-def group_specs(spec: RunSpec, groups: list[dict]) -> list[RunSpec]:
-    """Each group's run (:func:`group_spec`), every group checked before any runs."""
-    return [group_spec(spec, group) for group in groups]
-
-
 @dataclass
 class GroupsOutcome:
     """What a structural sweep did: the outcome of each group trained by this call, and,
@@ -143,7 +138,7 @@ def run_groups(
         ConfigError: a group that does not fit together, or ``out`` not empty.
     """
     options = options or RunOptions()
-    specs = group_specs(spec, groups)
+    specs = [group_spec(spec, group) for group in groups]  # every group checked before any runs
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"--out {out} is not empty; a structural sweep starts in a new directory")
