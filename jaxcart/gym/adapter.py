@@ -162,12 +162,10 @@ class CartPoleAttributes:
         if states is None:
             return None
         if self._renderer is None:
-            from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+            from jaxcart.core.cartpole import make_cartpole
 
-            self._renderer = CartPoleEnv(render_mode="rgb_array")
-            # The drawing scale and pole length come from these two constants.
-            self._renderer.x_threshold = self.params.x_threshold
-            self._renderer.length = self.params.length
+            # Gymnasium's CartPole with these physics (its drawing reads x_threshold, length)
+            self._renderer = make_cartpole(self.params, render_mode="rgb_array").unwrapped
         frames = []
         for state in states:
             self._renderer.state = state.copy()
