@@ -162,10 +162,12 @@ class CartPoleAttributes:
         if states is None:
             return None
         if self._renderer is None:
-            from jaxcart.core.cartpole import make_cartpole
+            from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
-            # Gymnasium's CartPole with these physics (its drawing reads x_threshold, length)
-            self._renderer = make_cartpole(self.params, render_mode="rgb_array").unwrapped
+            self._renderer = CartPoleEnv(render_mode="rgb_array")
+            # The drawing scale and pole length come from these two constants.
+            self._renderer.x_threshold = self.params.x_threshold
+            self._renderer.length = self.params.length
         frames = []
         for state in states:
             self._renderer.state = state.copy()
