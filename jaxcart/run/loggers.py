@@ -350,9 +350,7 @@ class WandbBackend(Backend):
 
 
 BACKENDS: dict[str, type[Backend]] = {
-    TensorBoardBackend.name: TensorBoardBackend,
-    SwanLabBackend.name: SwanLabBackend,
-    WandbBackend.name: WandbBackend,
+    backend.name: backend for backend in (TensorBoardBackend, SwanLabBackend, WandbBackend)
 }
 """Logger name -> backend class (tests may register more)."""
 
