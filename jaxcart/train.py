@@ -187,10 +187,8 @@ class TrainOptions:
         """The new run these options describe."""
         from jaxcart.core import physics
         from jaxcart.run import lifecycle, spec
-        from jaxcart.run.structural import split_sweep
 
-        floats, shapes = split_sweep(list(self.sweep))
-        sweep = spec.parse_sweep(floats)
+        sweep, shapes = spec.parse_sweep(self.sweep)
         env_values = spec.parse_env_params(self.env_param)
         given = {name: "--" + name.replace("_", "-") for name in self.overrides}
         given.update({physics.PREFIX + name: f"--env-param {name}" for name in env_values})
@@ -254,6 +252,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     from jaxcart.engine import distributed
     from jaxcart.engine.signals import Stopped
     from jaxcart.run import lifecycle, structural
+    from jaxcart.run.spec import parse_sweep
     from jaxcart.rundir import layout, reader
     from jaxcart.rundir.files import RunDirError
     from jaxcart.rundir.reader import group_label
@@ -261,7 +260,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     wall_start = time.perf_counter()
     opts.check()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
-    shapes = structural.split_sweep(list(opts.sweep))[1]  # a structural sweep's axes, if any
+    shapes = parse_sweep(opts.sweep)[1]  # a structural sweep's axes, if any
     groups = structural.shape_groups(shapes) if spec is not None and shapes else []
     specs = structural.group_specs(spec, groups) if groups else [spec]  # each group checked
     if spec is not None and opts.score is not None:
