@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-from jaxcart import cli
+from jaxcart import cli, configfile
 
 cli.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
 
@@ -366,7 +366,9 @@ def main(argv: list[str] | None = None) -> int:
     second one at once, without a traceback; before that, Ctrl-C is Python's
     :class:`KeyboardInterrupt` (one line from :func:`jaxcart.cli.command_main`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = _parse_args(argv)
+    # the command line, after the --config file's options when it names one (so that the
+    # command line's override the file's); the file's ignored keys are printed, a line each
+    args = configfile.parse_with_config(build_parser(), argv)
     opts = TrainOptions.from_args(args, argv)
     from jaxcart import report  # the training's modules: not for --help
 
@@ -384,14 +386,6 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
-
-
-def _parse_args(argv: list[str]) -> argparse.Namespace:
-    """The command line, after the ``--config`` file's options when it names one (so that
-    the command line's override the file's); the file's ignored keys are printed, a line each."""
-    from jaxcart import configfile
-
-    return configfile.parse_with_config(build_parser(), argv)
 
 
 def cli_main(argv: list[str] | None = None) -> NoReturn:

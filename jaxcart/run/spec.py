@@ -275,21 +275,18 @@ class RunSpec:
         PPOConfig): the one reading of a record, for ``--resume``, a replay and ``train
         --config RUN`` (:meth:`options`)."""
         sweep = {k: list(v) for k, v in (info.get("sweep") or {}).items()}
-        points = () if sweep else tuple(dict(c) for c in info.get("combinations") or ())
-        env_params = physics.make_env_params(info.get("env_params") or {})
-        randomize = tuple(
-            physics.Randomization(name, float(r["low"]), float(r["high"]), str(r["per"]))
-            for name, r in (info.get("randomize") or {}).items()
-        )
         return cls(
-            info["config"],
-            info.get("preset", "custom"),
-            int(info.get("num_seeds", 1)),
-            int(info.get("seed", 0)),
-            sweep,
-            points,
-            env_params,
-            randomize,
+            config=info["config"],
+            preset=info.get("preset", "custom"),
+            num_seeds=int(info.get("num_seeds", 1)),
+            seed=int(info.get("seed", 0)),
+            sweep=sweep,
+            combinations=() if sweep else tuple(dict(c) for c in info.get("combinations") or ()),
+            env_params=physics.make_env_params(info.get("env_params") or {}),
+            randomize=tuple(
+                physics.Randomization(name, float(r["low"]), float(r["high"]), str(r["per"]))
+                for name, r in (info.get("randomize") or {}).items()
+            ),
         )
 
     def record(self) -> dict:
