@@ -186,7 +186,7 @@ class TrainOptions:
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
         from jaxcart.core import physics
-        from jaxcart.run import lifecycle, spec
+        from jaxcart.run import spec
 
         sweep, shapes = spec.parse_sweep(self.sweep)
         env_values = spec.parse_env_params(self.env_param)
@@ -196,7 +196,7 @@ class TrainOptions:
             if name in given:
                 raise cli.UsageError(f"{given[name]} and --sweep {name} both given; keep one")
         name = self.preset or "sb3"
-        return lifecycle.RunSpec(
+        return spec.RunSpec(
             config=preset(name, **self.overrides),
             preset=name,
             num_seeds=1 if self.num_seeds is None else self.num_seeds,
