@@ -154,7 +154,7 @@ def _zoo_values(entry: dict, path: Path, notes: list[str]) -> dict:
     return values
 
 
-def _option(key: str, parser: argparse.ArgumentParser, zoo: bool) -> argparse.Action | None:
+def action_of(key: str, parser: argparse.ArgumentParser, zoo: bool) -> argparse.Action | None:
     """The parser's action for a file's key: its own option, or (rl-zoo3) an SB3 alias."""
     actions = parser._option_string_actions  # argparse has no public map of its options
     name = key.replace("_", "-").lower()
@@ -173,7 +173,7 @@ def _tokens_of(
     """Each key's tokens; unknown keys are notes (rl-zoo3) or errors."""
     tokens, unknown = [], []
     for key, value in values.items():
-        action = _option(str(key), parser, zoo)
+        action = action_of(str(key), parser, zoo)
         if action is None and zoo:
             notes.append(f"note: --config {path}: {key} is not supported by jaxcart; ignored")
         elif action is None:
@@ -184,7 +184,7 @@ def _tokens_of(
             )
         else:
             try:
-                tokens += _tokens(action, value)
+                tokens += option_tokens(action, value)
             except (ValueError, cli.UsageError) as exc:
                 raise cli.UsageError(f"--config {path}: {exc}") from None
     if unknown:
@@ -192,7 +192,7 @@ def _tokens_of(
     return tokens
 
 
-def _tokens(action: argparse.Action, value: object) -> list[str]:
+def option_tokens(action: argparse.Action, value: object) -> list[str]:
     """The command-line tokens that give ``action`` the file's ``value``."""
     flag = action.option_strings[0]
     if action.nargs == 0:  # a switch: --name/--no-name, or store_true

@@ -124,7 +124,7 @@ def _options(opts: EvaluateOptions) -> tuple[dict, str | None, list[float]]:
                 "--sweep evaluates on other physics, one field: env.NAME=V1,V2,... (e.g. "
                 f"env.length=0.25,0.5,1), got {' '.join(opts.sweep)}"
             )
-        ((field, values),) = parse_sweep(opts.sweep).items()
+        ((field, values),) = parse_sweep(opts.sweep)[0].items()
         if field[len(physics.PREFIX) :] in chosen:
             raise cli.UsageError(f"{field} is both swept and set by --env-param; keep one")
     if opts.out is not None and files.present(opts.out):

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-from jaxcart import cli
+from jaxcart import cli, configfile
 
 cli.import_jax()  # before core.config, a JAX pytree: JAX reads JAX_* on import
 
@@ -186,11 +186,9 @@ class TrainOptions:
     def run_spec(self) -> lifecycle.RunSpec:
         """The new run these options describe."""
         from jaxcart.core import physics
-        from jaxcart.run import lifecycle, spec
-        from jaxcart.run.structural import split_sweep
+        from jaxcart.run import spec
 
-        floats, shapes = split_sweep(list(self.sweep))
-        sweep = spec.parse_sweep(floats)
+        sweep, shapes = spec.parse_sweep(self.sweep)
         env_values = spec.parse_env_params(self.env_param)
         given = {name: "--" + name.replace("_", "-") for name in self.overrides}
         given.update({physics.PREFIX + name: f"--env-param {name}" for name in env_values})
@@ -198,7 +196,7 @@ class TrainOptions:
             if name in given:
                 raise cli.UsageError(f"{given[name]} and --sweep {name} both given; keep one")
         name = self.preset or "sb3"
-        return lifecycle.RunSpec(
+        return spec.RunSpec(
             config=preset(name, **self.overrides),
             preset=name,
             num_seeds=1 if self.num_seeds is None else self.num_seeds,
@@ -254,6 +252,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     from jaxcart.engine import distributed
     from jaxcart.engine.signals import Stopped
     from jaxcart.run import lifecycle, structural
+    from jaxcart.run.spec import parse_sweep
     from jaxcart.rundir import layout, reader
     from jaxcart.rundir.files import RunDirError
     from jaxcart.rundir.reader import group_label
@@ -261,7 +260,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     wall_start = time.perf_counter()
     opts.check()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
-    shapes = structural.split_sweep(list(opts.sweep))[1]  # a structural sweep's axes, if any
+    shapes = parse_sweep(opts.sweep)[1]  # a structural sweep's axes, if any
     groups = structural.shape_groups(shapes) if spec is not None and shapes else []
     specs = [structural.group_spec(spec, g) for g in groups] if groups else [spec]  # each checked
     if spec is not None and opts.score is not None:
@@ -367,7 +366,9 @@ def main(argv: list[str] | None = None) -> int:
     second one at once, without a traceback; before that, Ctrl-C is Python's
     :class:`KeyboardInterrupt` (one line from :func:`jaxcart.cli.command_main`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = _parse_args(argv)
+    # the command line, after the --config file's options when it names one (so that the
+    # command line's override the file's); the file's ignored keys are printed, a line each
+    args = configfile.parse_with_config(build_parser(), argv)
     opts = TrainOptions.from_args(args, argv)
     from jaxcart import report  # the training's modules: not for --help
 
@@ -385,14 +386,6 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
-
-
-def _parse_args(argv: list[str]) -> argparse.Namespace:
-    """The command line, after the ``--config`` file's options when it names one (so that
-    the command line's override the file's); the file's ignored keys are printed, a line each."""
-    from jaxcart import configfile
-
-    return configfile.parse_with_config(build_parser(), argv)
 
 
 def cli_main(argv: list[str] | None = None) -> NoReturn:

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from jaxcart import cli, train
+from jaxcart import cli, configfile, train
 from jaxcart.analysis import stats
 from jaxcart.analysis.summary import Score
 from jaxcart.run import search
@@ -114,15 +114,11 @@ class TuneOptions:
 def retrain_command(opts: TuneOptions, params: dict, out: str, seed: int) -> str:
     """The ``python -m jaxcart.train`` command that trains a trial again: the tune command's
     base options, the trial's values, its number of seeds from base seed ``seed``."""
-    base = opts.base
+    base, parser = opts.base, train.build_parser()
     words = ["python", "-m", "jaxcart.train", *(["--preset", base.preset] if base.preset else [])]
     static, traced = search.split_params(params)
-    for name, value in {**base.overrides, **static, **traced}.items():
-        flag = "--" + name.replace("_", "-")
-        if isinstance(value, bool):  # --FIELD / --no-FIELD
-            words.append(flag if value else "--no-" + flag[2:])
-        else:
-            words.append(f"{flag}={cli.spelled(value)}")
+    for name, value in {**base.overrides, **static, **traced}.items():  # as a file's keys
+        words += configfile.option_tokens(configfile.action_of(name, parser, False), value)
     words += ["--num-seeds", str(base.num_seeds), "--seed", str(seed)]
     if base.eval_episodes:
         words += ["--eval-episodes", str(base.eval_episodes)]
@@ -274,14 +270,8 @@ def _tune(opts: TuneOptions) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad input, 128+signal when stopped)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    return _tune(TuneOptions.from_args(_parse_args(argv), argv))
-
-
-def _parse_args(argv: list[str]) -> argparse.Namespace:
-    """The command line, after the ``--config`` file's options (the command line's win)."""
-    from jaxcart import configfile
-
-    return configfile.parse_with_config(build_parser(), argv)
+    args = configfile.parse_with_config(build_parser(), argv)  # the command line's win
+    return _tune(TuneOptions.from_args(args, argv))
 
 
 if __name__ == "__main__":

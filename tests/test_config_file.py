@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from helpers import assert_same_run_dirs, tiny_args
 
-from jaxcart import cli
-from jaxcart.train import TrainOptions, _parse_args, main
+from jaxcart import cli, configfile
+from jaxcart.train import TrainOptions, build_parser, main
 
 # rl-zoo3's hyperparams/ppo.yml entry for CartPole-v1, with another env around it and keys
 # jaxcart has no equivalent for
@@ -39,7 +39,7 @@ Pendulum-v1:
 
 
 def _options(argv: list[str]) -> TrainOptions:
-    return TrainOptions.from_args(_parse_args(argv), argv)
+    return TrainOptions.from_args(configfile.parse_with_config(build_parser(), argv), argv)
 
 
 def _config(argv: list[str]):

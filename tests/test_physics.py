@@ -12,7 +12,7 @@ import pytest
 from helpers import TINY, assert_same_run_dirs, stopped_run, tiny_args
 
 import jaxcart
-from jaxcart import evaluate, train
+from jaxcart import configfile, evaluate, train
 from jaxcart.core import physics
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import ConfigError, PPOConfig
@@ -171,7 +171,7 @@ def test_bad_physics_is_one_line(argv, message, capsys, tmp_path):
 def test_physics_from_a_config_file(tmp_path, capsys):
     path = tmp_path / "physics.toml"
     path.write_text('env_param = {length = 1.0}\nrandomize = {"env.masspole" = "0.05:0.2"}\n')
-    args = train._parse_args(["--config", str(path)])
+    args = configfile.parse_with_config(train.build_parser(), ["--config", str(path)])
     opts = train.TrainOptions.from_args(args)
     spec = opts.run_spec()
     assert spec.env_params.length == 1.0
@@ -277,7 +277,8 @@ def test_a_runs_config_json_trains_again_with_its_physics(tmp_path):
     spec = RunSpec(SMALL, preset="sb3", env_params=gravity, randomize=randomize)
     run = lifecycle.create_run(spec, tmp_path / "mars")
     run.close()
-    again = train.TrainOptions.from_args(train._parse_args(["--config", str(tmp_path / "mars")]))
+    argv = ["--config", str(tmp_path / "mars")]
+    again = train.TrainOptions.from_args(configfile.parse_with_config(train.build_parser(), argv))
     rebuilt = again.run_spec()
     assert rebuilt.env_params == spec.env_params and rebuilt.randomize == spec.randomize
 

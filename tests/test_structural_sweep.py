@@ -14,8 +14,8 @@ from helpers import assert_same_run_dirs
 from jaxcart import train
 from jaxcart.analysis.summary import auc
 from jaxcart.core.config import ConfigError, PPOConfig
-from jaxcart.run.spec import RunSpec
-from jaxcart.run.structural import group_spec, shape_groups, split_sweep
+from jaxcart.run.spec import RunSpec, parse_sweep
+from jaxcart.run.structural import group_spec, shape_groups
 from jaxcart.rundir import files, layout, reader
 
 BASE = [  # 2 envs or 4 envs x 32 steps, minibatches of 32: 4 or 8 iterations of 512 steps
@@ -26,17 +26,17 @@ SWEEP = ["--sweep", "num_envs=2,4", "--sweep", "learning_rate=1e-3,3e-3"]
 
 
 def test_shape_axes_are_split_from_the_float_axes():
-    floats, shapes = split_sweep(["learning_rate=1e-3,3e-3", "hidden_sizes=32x32,64", "num_envs=4"])
-    assert floats == ["learning_rate=1e-3,3e-3"]
+    floats, shapes = parse_sweep(["learning_rate=1e-3,3e-3", "hidden_sizes=32x32,64", "num_envs=4"])
+    assert floats == {"learning_rate": [1e-3, 3e-3]}
     assert shapes == {"hidden_sizes": [(32, 32), (64,)], "num_envs": [4]}
     assert shape_groups(shapes) == [
         {"hidden_sizes": (32, 32), "num_envs": 4},
         {"hidden_sizes": (64,), "num_envs": 4},
     ]
     with pytest.raises(ConfigError, match="'wide' is not a value like 64x64"):
-        split_sweep(["hidden_sizes=wide"])
+        parse_sweep(["hidden_sizes=wide"])
     with pytest.raises(ConfigError, match="give distinct values"):
-        split_sweep(["num_envs=4,4"])
+        parse_sweep(["num_envs=4,4"])
     with pytest.raises(ConfigError, match="group num_steps=32: minibatch_size=64 does not divide"):
         for group in [{"num_steps": 64}, {"num_steps": 32}]:
             group_spec(RunSpec(PPOConfig(num_steps=64)), group)

@@ -23,7 +23,7 @@ optuna = pytest.importorskip("optuna")
 
 from helpers import TINY, TRAIN_ENV  # noqa: E402
 
-from jaxcart import train, tune  # noqa: E402
+from jaxcart import configfile, train, tune  # noqa: E402
 from jaxcart.analysis.stats import iqm  # noqa: E402
 from jaxcart.analysis.summary import Score  # noqa: E402
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, preset  # noqa: E402
@@ -115,7 +115,9 @@ def test_no_space_is_rl_zoo3s_current_float_ranges_and_the_old_one_stays_reachab
     old = search.parse_space(["rl-zoo3-v2.5"], base)
     assert old["gamma"].high == 0.9999 and old["vf_coef"].low == 0.1
     assert old["learning_rate"].high == 1e-2 and not old["gamma"].log
-    assert tune._parse_args(["--space", "rl-zoo3-v2.5"]).space == ["rl-zoo3-v2.5"]
+    assert configfile.parse_with_config(tune.build_parser(), ["--space", "rl-zoo3-v2.5"]).space == [
+        "rl-zoo3-v2.5"
+    ]
 
 
 def test_a_study_of_the_old_space_refuses_the_new_one(tmp_path, capsys):
@@ -293,7 +295,9 @@ def test_space_from_a_config_file(tmp_path, capsys):
     db = tmp_path / "study.db"
     assert tune.main(["--config", str(config), "--storage", f"sqlite:///{db}"]) == 2
     assert "--space clip_coef: low 0.3 must be below high 0.1" in capsys.readouterr().err
-    args = tune._parse_args(["--config", str(config), "--space", "gamma=0.9:0.99"])
+    args = configfile.parse_with_config(
+        tune.build_parser(), ["--config", str(config), "--space", "gamma=0.9:0.99"]
+    )
     assert args.preset == "fast"
     assert args.space == ["learning_rate=log:1e-5:1e-2", "clip_coef=0.3:0.1", "gamma=0.9:0.99"]
 

@@ -309,10 +309,10 @@ def heldout_seeds(args) -> list[int]:
 def jaxcart_train_command(args, params: dict, out: Path) -> list[str]:
     """``python -m jaxcart.train`` at the trial's values (jaxcart's own ``retrain_command``)
     over the search's base, on the held-out seeds (``fold_in(--heldout-seed, i)``)."""
-    from jaxcart import tune
+    from jaxcart import configfile, tune
 
     argv = [*jaxcart_base(args), *(w for s in args.space for w in ("--space", s))]
-    opts = tune.TuneOptions.from_args(tune._parse_args(argv), argv)
+    opts = tune.TuneOptions.from_args(configfile.parse_with_config(tune.build_parser(), argv), argv)
     words = shlex.split(tune.retrain_command(opts, params, str(out), args.heldout_seed))
     words[words.index("--num-seeds") + 1] = str(args.heldout_seeds)
     return [sys.executable, *words[1:], "--eval-episodes", str(HELDOUT_EPISODES), "--quiet"]

@@ -29,22 +29,23 @@ from jaxcart.run import sweep as sweeps
 from jaxcart.run.loggers import check_available
 from jaxcart.run.waves import WavePlan
 from jaxcart.rundir.directory import RunDir
-from jaxcart.rundir.reader import check_num_runs, combo_config, env_values, sweep_combinations
+from jaxcart.rundir.reader import (
+    SHAPE_FIELDS,
+    check_num_runs,
+    combo_config,
+    env_values,
+    sweep_combinations,
+)
 
 
 # -- the one reading of NAME=VALUE options (--sweep, --env-param, --randomize, --space) ------
-def assigned_name(spec: str) -> str:
-    """The NAME of a ``NAME=VALUE`` option as it is read: stripped, its dashes read as
-    underscores (``clip-coef`` is ``clip_coef``)."""
-    return spec.partition("=")[0].strip().replace("-", "_")
-
-
 def assignments(
     specs: Sequence[str], option: str, form: str, twice: str = "keep one", prefix: str = ""
 ) -> Iterator[tuple[str, str]]:
-    """Each ``NAME=VALUE`` of a repeatable ``option`` as ``(NAME, VALUE)``, NAME read by
-    :func:`assigned_name` less an optional ``prefix`` (``env.`` of ``--env-param``): what
-    every option that assigns parses its values with.
+    """Each ``NAME=VALUE`` of a repeatable ``option`` as ``(NAME, VALUE)``, NAME as it is read:
+    stripped, its dashes read as underscores (``clip-coef`` is ``clip_coef``), less an
+    optional ``prefix`` (``env.`` of ``--env-param``): what every option that assigns parses
+    its values with.
 
     Raises:
         ConfigError: a spec without ``=``, NAME or VALUE (``malformed OPTION 'SPEC';
@@ -53,7 +54,7 @@ def assignments(
     seen = set()
     for spec in specs:
         name, sep, text = spec.partition("=")
-        name = assigned_name(name).removeprefix(prefix)
+        name = name.strip().replace("-", "_").removeprefix(prefix)
         if not sep or not name or not text.strip():
             raise ConfigError(f"malformed {option} {spec!r}; expected {form}")
         if name in seen:
@@ -74,21 +75,30 @@ def distinct_values(option: str, name: str, text: str, parse: Callable[[str], An
     return values
 
 
-def sweep_assignments(specs: Sequence[str]) -> Iterator[tuple[str, str]]:
-    """:func:`assignments` of ``--sweep`` (its float and its shape axes alike)."""
-    form = "NAME=V1,V2,... e.g. learning_rate=1e-4,3e-4"
-    return assignments(specs, "--sweep", form, "put all its values in one option")
+MAX_GROUPS = 64
+"""Shape groups per structural sweep: each compiles a program of its own."""
 
 
-def parse_sweep(specs: Sequence[str]) -> dict[str, list[float]]:
-    """``["learning_rate=1e-4,3e-4", "clip_coef=0.1,0.2"]`` -> ``{name: [values]}``; a
-    continuous physics field sweeps as ``env.length=0.5,1.0`` (kept with its prefix).
+def parse_sweep(specs: Sequence[str]) -> tuple[dict[str, list[float]], dict[str, list]]:
+    """``--sweep``'s one reading: ``["learning_rate=1e-4,3e-4", "num_envs=4,8"]`` -> its float
+    axes ``{name: [values]}``, every combination in one program (a continuous physics field
+    sweeps as ``env.length=0.5,1.0``, kept with its prefix), and its shape axes
+    ``{name: [values]}`` (:data:`~jaxcart.rundir.reader.SHAPE_FIELDS`: an integer each, or
+    hidden_sizes' ``64x64``), one program per combination of their values.
 
     Raises:
-        ConfigError: malformed spec, unknown or non-sweepable field, bad or repeated value.
+        ConfigError: malformed spec, unknown or non-sweepable field, bad or repeated value,
+            or too many shape groups.
     """
     sweep: dict[str, list[float]] = {}
-    for name, text in sweep_assignments(specs):
+    shapes: dict[str, list] = {}
+    form = "NAME=V1,V2,... e.g. learning_rate=1e-4,3e-4"
+    for name, text in assignments(specs, "--sweep", form, "put all its values in one option"):
+        if name in SHAPE_FIELDS:
+            kind = "tuple[int, ...]" if name == "hidden_sizes" else "int"
+            parse = functools.partial(parse_value, kind, option=f"--sweep {name}")
+            shapes[name] = distinct_values("--sweep", name, text, parse)
+            continue
         if name.startswith(physics.PREFIX):
             physics.check_continuous(name[len(physics.PREFIX) :], "--sweep")
         elif name not in TRACED_FIELDS:
@@ -103,7 +113,12 @@ def parse_sweep(specs: Sequence[str]) -> dict[str, list[float]]:
             raise
         except ValueError:  # float() of a word
             raise ConfigError(f"--sweep {name}: values must be numbers, got {text!r}") from None
-    return sweep
+    groups = math.prod(len(v) for v in shapes.values())
+    if groups > MAX_GROUPS:
+        raise ConfigError(
+            f"--sweep: {groups} shape groups, each its own program; at most {MAX_GROUPS}"
+        )
+    return sweep, shapes
 
 
 def parse_env_params(specs: Sequence[str]) -> dict[str, Any]:
@@ -260,21 +275,18 @@ class RunSpec:
         PPOConfig): the one reading of a record, for ``--resume``, a replay and ``train
         --config RUN`` (:meth:`options`)."""
         sweep = {k: list(v) for k, v in (info.get("sweep") or {}).items()}
-        points = () if sweep else tuple(dict(c) for c in info.get("combinations") or ())
-        env_params = physics.make_env_params(info.get("env_params") or {})
-        randomize = tuple(
-            physics.Randomization(name, float(r["low"]), float(r["high"]), str(r["per"]))
-            for name, r in (info.get("randomize") or {}).items()
-        )
         return cls(
-            info["config"],
-            info.get("preset", "custom"),
-            int(info.get("num_seeds", 1)),
-            int(info.get("seed", 0)),
-            sweep,
-            points,
-            env_params,
-            randomize,
+            config=info["config"],
+            preset=info.get("preset", "custom"),
+            num_seeds=int(info.get("num_seeds", 1)),
+            seed=int(info.get("seed", 0)),
+            sweep=sweep,
+            combinations=() if sweep else tuple(dict(c) for c in info.get("combinations") or ()),
+            env_params=physics.make_env_params(info.get("env_params") or {}),
+            randomize=tuple(
+                physics.Randomization(name, float(r["low"]), float(r["high"]), str(r["per"]))
+                for name, r in (info.get("randomize") or {}).items()
+            ),
         )
 
     def record(self) -> dict:

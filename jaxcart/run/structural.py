@@ -14,9 +14,7 @@ shape with the same routine (:func:`by_shape`).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import itertools
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,43 +24,9 @@ from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig
 from jaxcart.engine.signals import StopRequest
 from jaxcart.run import lifecycle
 from jaxcart.run import sweep as sweeps
-from jaxcart.run.spec import (
-    Hooks,
-    Outcome,
-    RunOptions,
-    RunSpec,
-    assigned_name,
-    distinct_values,
-    parse_value,
-    sweep_assignments,
-)
+from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
 from jaxcart.rundir import files, layout, reader
-from jaxcart.rundir.reader import AXES_KEY, SHAPE_FIELDS, group_label, group_values
-
-MAX_GROUPS = 64
-"""Shape groups per structural sweep: each compiles a program of its own."""
-
-
-def split_sweep(specs: list[str]) -> tuple[list[str], dict[str, list]]:
-    """The ``--sweep`` options on float hyperparameters (one program), and the shape axes
-    ``{name: [values]}`` (one program per combination of their values).
-
-    Raises:
-        ConfigError: a shape axis given twice, with repeated values, or too many groups.
-    """
-    shaped = [s for s in specs if "=" in s and assigned_name(s) in SHAPE_FIELDS]
-    floats = [s for s in specs if s not in shaped]
-    shapes = {}
-    for name, text in sweep_assignments(shaped):  # an integer each, or hidden_sizes' 64x64
-        kind = "tuple[int, ...]" if name == "hidden_sizes" else "int"
-        parse = functools.partial(parse_value, kind, option=f"--sweep {name}")
-        shapes[name] = distinct_values("--sweep", name, text, parse)
-    groups = math.prod(len(v) for v in shapes.values())
-    if groups > MAX_GROUPS:
-        raise ConfigError(
-            f"--sweep: {groups} shape groups, each its own program; at most {MAX_GROUPS}"
-        )
-    return floats, shapes
+from jaxcart.rundir.reader import AXES_KEY, group_label, group_values
 
 
 def shape_groups(shapes: dict[str, list], limit: int | None = None) -> list[dict]:
