@@ -190,19 +190,22 @@ class CrossCheck:
         return done
 
     def evaluate(
-        self, params: dict, should_stop: Callable[[], bool] | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
+        self, params: dict, should_stop: Callable[[], bool] | None = None, cross_check: bool = True
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """Greedy returns of ``params`` (NumPy, leaves ``[R, ...]``) in Gymnasium's env and
         in jaxcart's, ``([R, episodes], [R, episodes])``: jaxcart's program runs in a thread
-        while Gymnasium's episodes run (:func:`evaluate_params`).
+        while Gymnasium's episodes run (:func:`evaluate_params`). Without ``cross_check``
+        (the kept-best policies, whose verdict alone is recorded) jaxcart's is not played and
+        comes back as None.
 
         Raises:
             Stopped: ``should_stop()`` turned true during Gymnasium's episodes.
         """
-        jax_returns = self.returns(params)
+        jax_returns = self.returns(params) if cross_check else None
         num_runs = len(self._keys)
         trained = RunParams(params, self.config, num_runs, env_params=self.env_params)
-        return evaluate_params(trained, self.episodes, should_stop), jax_returns.result()
+        gym = evaluate_params(trained, self.episodes, should_stop)
+        return gym, None if jax_returns is None else jax_returns.result()
 
 
 def evaluate_params(
