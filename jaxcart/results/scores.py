@@ -11,7 +11,7 @@ import functools
 import io
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -235,18 +235,66 @@ class Comparison:
     """
 
     entries: list[Entry]
-    score: Score
-    baseline: int
-    reps: int
-    seed: int
-    adjust: str  # "none" or "bonferroni"
-    arms: list[str] | None
-    references: list[int]
-    comparisons: int
-    confidence: float
-    runs: list[Stats]
-    matrix: np.ndarray | None = None
-    arm_stats: list[Stats] | None = None
+    baseline: int = 0
+    score: Score = summary.EVAL
+    reps: int = stats.DEFAULT_REPS
+    seed: int = stats.DEFAULT_SEED
+    adjust: str = "none"  # or "bonferroni"
+    arms: list[str] | None = None
+    references: list[int] = field(init=False)
+    comparisons: int = field(init=False)
+    confidence: float = field(init=False)
+    runs: list[Stats] = field(init=False)
+    matrix: np.ndarray | None = field(init=False, default=None)
+    arm_stats: list[Stats] | None = field(init=False, default=None)
+
+    def __post_init__(self) -> None:
+        """Statistics of every run from its per-seed scores, each against the baseline (with
+        ``arms``, the arms' names: against the baseline arm's run on the same configuration),
+        and the arms aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration);
+        ``adjust="bonferroni"`` widens every difference and ``P(X > Y)`` interval to
+        :func:`stats.bonferroni_confidence` of the number of comparisons."""
+        entries, arms, reps, seed = self.entries, self.arms, self.reps, self.seed
+        if self.adjust not in summary.ADJUSTMENTS:
+            raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {self.adjust!r}")
+        scores = [stats.check_seeds(e.scores, f"scores[{i}]") for i, e in enumerate(entries)]
+        k = len(entries) // len(arms) if arms else 0  # configurations per arm
+        self.references = [i % k if arms else self.baseline for i in range(len(entries))]
+        self.comparisons = sum(r != i for i, r in enumerate(self.references))
+        self.comparisons += len(arms) - 1 if arms else 0
+        self.confidence = stats.CONFIDENCE
+        if self.adjust == "bonferroni" and self.comparisons:
+            self.confidence = stats.bonferroni_confidence(self.comparisons)
+
+        def against(x: stats.Scores, y: stats.Scores | None) -> Stats:
+            """The IQM difference and ``P(X > Y)``, each with its interval (None without
+            ``y``)."""
+            if y is None:
+                return {"difference_iqm": None, "probability_of_improvement": None}
+            difference = stats.difference_ci(x, y, stats.iqm, reps, self.confidence, seed)
+            better = stats.probability_of_improvement_ci(x, y, reps, self.confidence, seed)
+            return {"difference_iqm": difference, "probability_of_improvement": better}
+
+        self.runs = []
+        for i, (x, e, ref) in enumerate(zip(scores, entries, self.references)):
+            solved = None if e.solved is None else stats.wilson_interval(int(e.solved), x.size)
+            # the optimality gap: the mean shortfall from the run's env's solved return
+            gap = functools.partial(stats.optimality_gap, target=solved_return(e.run.env))
+            estimators = stats.ESTIMATORS | {"optimality_gap": gap}
+            estimates = stats.bootstrap_cis(x, estimators, reps, seed=seed)
+            versus = against(x, scores[ref] if ref != i else None)
+            self.runs.append({**estimates, "solved": solved, **versus})
+        if not arms and len(scores) > 2:
+            self.matrix = np.array(
+                [[stats.probability_of_improvement(x, y) for y in scores] for x in scores]
+            )
+        if arms:
+            per_arm = [scores[a * k : (a + 1) * k] for a in range(len(arms))]
+            self.arm_stats = [
+                {"iqm": stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed)}
+                | against(arm, per_arm[0] if a else None)
+                for a, arm in enumerate(per_arm)
+            ]
 
     @property
     def env_ids(self) -> list[str]:
@@ -344,62 +392,9 @@ def _dicts(estimates: Stats) -> dict:
     return {name: e and e.to_dict() for name, e in estimates.items()}
 
 
-def build_comparison(
-    entries: list[Entry],
-    baseline: int = 0,
-    score: Score = summary.EVAL,
-    reps: int = stats.DEFAULT_REPS,
-    seed: int = stats.DEFAULT_SEED,
-    adjust: str = "none",
-    arms: list[str] | None = None,
-) -> Comparison:
-    """Statistics of every run from its per-seed scores, each against the baseline (with
-    ``arms``, the arms' names: against the baseline arm's run on the same configuration), and
-    the arms aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration); ``adjust=
-    "bonferroni"`` widens every difference and ``P(X > Y)`` interval to
-    :func:`stats.bonferroni_confidence` of the number of comparisons."""
-    if adjust not in summary.ADJUSTMENTS:
-        raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {adjust!r}")
-    scores = [stats.check_seeds(e.scores, f"scores[{i}]") for i, e in enumerate(entries)]
-    k = len(entries) // len(arms) if arms else 0  # configurations per arm
-    references = [i % k if arms else baseline for i in range(len(entries))]
-    count = sum(r != i for i, r in enumerate(references)) + (len(arms) - 1 if arms else 0)
-    confidence = stats.CONFIDENCE
-    if adjust == "bonferroni" and count:
-        confidence = stats.bonferroni_confidence(count)
-
-    def against(x: stats.Scores, y: stats.Scores | None) -> Stats:
-        """The IQM difference and ``P(X > Y)``, each with its interval (None without ``y``)."""
-        if y is None:
-            return {"difference_iqm": None, "probability_of_improvement": None}
-        difference = stats.difference_ci(x, y, stats.iqm, reps, confidence, seed)
-        better = stats.probability_of_improvement_ci(x, y, reps, confidence, seed)
-        return {"difference_iqm": difference, "probability_of_improvement": better}
-
-    runs = []
-    for i, (x, e, ref) in enumerate(zip(scores, entries, references)):
-        solved = None if e.solved is None else stats.wilson_interval(int(e.solved), x.size)
-        # the optimality gap: the mean shortfall from the run's env's solved return
-        gap = functools.partial(stats.optimality_gap, target=solved_return(e.run.env))
-        estimators = stats.ESTIMATORS | {"optimality_gap": gap}
-        estimates = stats.bootstrap_cis(x, estimators, reps, seed=seed)
-        versus = against(x, scores[ref] if ref != i else None)
-        runs.append({**estimates, "solved": solved, **versus})
-    comparison = Comparison(
-        entries, score, baseline, reps, seed, adjust, arms, references, count, confidence, runs
-    )
-    if not arms and len(scores) > 2:
-        comparison.matrix = np.array(
-            [[stats.probability_of_improvement(x, y) for y in scores] for x in scores]
-        )
-    if arms:
-        per_arm = [scores[a * k : (a + 1) * k] for a in range(len(arms))]
-        comparison.arm_stats = [
-            {"iqm": stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed)}
-            | against(arm, per_arm[0] if a else None)
-            for a, arm in enumerate(per_arm)
-        ]
-    return comparison
+build_comparison = Comparison
+"""A comparison's statistics from its scored runs (:class:`Comparison`, which computes them
+when made): ``build_comparison(entries, baseline, score, reps, seed, adjust, arms)``."""
 
 
 def comparison_notes(entries: list[Entry]) -> list[str]:
