@@ -293,26 +293,10 @@ def bootstrap_ci(
     Returns:
         The estimate; with one seed the interval is that one value (degenerate).
     """
-    return bootstrap_cis(scores, {"x": statistic}, reps, confidence, seed)["x"]
-
-
-def bootstrap_cis(
-    scores: Scores,
-    statistics: dict[str, Statistic],
-    reps: int = DEFAULT_REPS,
-    confidence: float = CONFIDENCE,
-    seed: int = DEFAULT_SEED,
-) -> dict[str, Estimate]:
-    """Several statistics of ``scores`` (:func:`bootstrap_ci`'s) over one shared set of
-    resamples."""
     tasks = check_tasks(scores, "scores")
     resampled = _resampled(tasks, reps, np.random.default_rng(seed))
-    pooled = np.concatenate(tasks)
-    out = {}
-    for name, statistic in statistics.items():
-        low, high = percentile_interval(statistic(resampled, axis=-1), confidence)
-        out[name] = Estimate(float(statistic(pooled, axis=-1)), float(low), float(high))
-    return out
+    low, high = percentile_interval(statistic(resampled, axis=-1), confidence)
+    return Estimate(float(statistic(np.concatenate(tasks), axis=-1)), float(low), float(high))
 
 
 def difference_ci(

@@ -281,7 +281,10 @@ class Comparison:
             # the optimality gap: the mean shortfall from the run's env's solved return
             gap = functools.partial(stats.optimality_gap, target=solved_return(e.run.env))
             estimators = stats.ESTIMATORS | {"optimality_gap": gap}
-            estimates = stats.bootstrap_cis(x, estimators, reps, seed=seed)
+            estimates = {  # each from the same resamples (one seed)
+                name: stats.bootstrap_ci(x, statistic, reps, seed=seed)
+                for name, statistic in estimators.items()
+            }
             versus = against(x, scores[ref] if ref != i else None)
             self.runs.append({**estimates, "solved": solved, **versus})
         if not arms and len(scores) > 2:
