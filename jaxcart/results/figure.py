@@ -205,7 +205,6 @@ METRIC_BOUNDS: dict[str, tuple[float, float]] = {
 }
 """Each metric's range on CartPole-v1; confidence bands are clipped to it (a run's returns to
 its env's, the entropy to its actions': :func:`metric_bounds`)."""
-ALL = (-math.inf, math.inf)
 SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
 """The summary panel's font sizes, tried largest first until every run's block fits."""
 
@@ -220,7 +219,7 @@ def metric_bounds(name: str, env_id: str) -> tuple[float, float]:
         return return_bounds(env_id)
     if name == "train/entropy_loss" and env_id in ACTION_COUNTS:
         return -math.log(ACTION_COUNTS[env_id]), 0.0
-    return METRIC_BOUNDS.get(name, ALL)
+    return METRIC_BOUNDS.get(name, (-math.inf, math.inf))
 
 
 def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: dict, name: str) -> np.ndarray:
