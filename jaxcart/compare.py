@@ -178,7 +178,7 @@ def report_text(comparison: Comparison) -> str:
     texts = [solved_text(comparison), saturation_text(comparison), comparison.reading_note()]
     lines = [cli.wrap(heading), table(comparison), *map(cli.wrap, texts)]
     lines += [text for text in (matrix_text(comparison), arms_text(comparison)) if text]
-    lines += [cli.wrap(f"note: {note}") for note in comparison.notes]
+    lines += [cli.wrap(f"note: {note}") for note in runs.comparison_notes(comparison.entries)]
     return "\n".join(lines)
 
 

@@ -314,11 +314,6 @@ class Comparison:
         """Every seed of every run has the same score."""
         return stats.saturated([e.scores for e in self.entries])
 
-    @property
-    def notes(self) -> list[str]:
-        """What the reader should know (:func:`comparison_notes`)."""
-        return comparison_notes(self.entries)
-
     def reading_note(self) -> str:
         """One line: how many comparisons, and what that means for reading the intervals."""
         n = self.comparisons
@@ -384,7 +379,7 @@ class Comparison:
             },
             "bootstrap": {"method": "percentile", "reps": self.reps, "seed": self.seed},
             "curves_file": layout.COMPARE_CURVES_FILE,
-            "notes": self.notes,
+            "notes": comparison_notes(self.entries),
             "runs": [self.run_dict(i) for i in range(len(self.entries))],
             "probability_of_improvement_matrix": matrix,
             "arms": arms,
