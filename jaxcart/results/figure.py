@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.analysis import stats
-from jaxcart.analysis.summary import RETURN_METRIC
+from jaxcart.analysis.summary import RETURN_METRIC, first_reached
 from jaxcart.core.solved import SOLVED_BY, return_bounds, solved_return
 from jaxcart.rundir import files
 
@@ -553,7 +553,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
     for entry, style in _styled(comparison):
-        values = entry.train_return
+        values = entry.run.metrics.get(RETURN_METRIC)
         if values is None or not np.isfinite(values).any():
             continue
         points = np.unique(np.linspace(0, len(values) - 1, CURVE_POINTS).round().astype(int))
@@ -575,7 +575,7 @@ def _reached_panel(ax, comparison: Comparison) -> None:
     reached, reached_any = comparison.reached, False
     for entry, style in _styled(comparison):
         x = entry.run.env_steps
-        first = entry.first_reached(x)
+        first = first_reached(entry.run, x)
         if first is None:
             continue
         reached_any |= bool(np.isfinite(first).any())

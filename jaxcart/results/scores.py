@@ -51,17 +51,6 @@ class Entry:
     def name(self) -> str:
         return self.run.label
 
-    @property
-    def train_return(self) -> np.ndarray | None:
-        """``rollout/ep_rew_mean`` ``[iterations, num_seeds]``, None if not recorded."""
-        return self.run.metrics.get(RETURN_METRIC)
-
-    def first_reached(self, x: np.ndarray | None) -> np.ndarray | None:
-        """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each
-        seed first scored its env's solved return (:func:`~jaxcart.core.solved.solved_return`:
-        500 on CartPole-v1), ``[num_seeds]`` (``inf``: never); None without the data."""
-        return summary.first_reached(self.run, x)
-
 
 def read_evaluation(
     run: RunCurves, required: bool, policy: str = "final"
@@ -349,8 +338,8 @@ class Comparison:
             "solved_seeds": entry.solved,
             "reference": self.entries[self.references[i]].name,
             "evaluation_episodes": entry.episodes,
-            "steps_to_500": seeds(entry.first_reached(entry.run.env_steps)),
-            "seconds_to_500": seeds(entry.first_reached(entry.run.elapsed)),
+            "steps_to_500": seeds(summary.first_reached(entry.run, entry.run.env_steps)),
+            "seconds_to_500": seeds(summary.first_reached(entry.run, entry.run.elapsed)),
         }
 
     def to_dict(self) -> dict:
@@ -437,9 +426,9 @@ def comparison_notes(entries: list[Entry]) -> list[str]:
             notes.append(f"{e.name} has no {layout.EVALUATION_FILE}: its solve rate is unknown")
         if not e.run.metrics:
             continue
-        if e.train_return is None or not np.isfinite(e.train_return).any():
+        if not np.isfinite(e.run.metrics.get(RETURN_METRIC, np.nan)).any():
             notes.append(f"{e.name} has no {RETURN_METRIC}: no sample-efficiency curve")
-        if e.first_reached(e.run.env_steps) is None:
+        if summary.first_reached(e.run, e.run.env_steps) is None:
             notes.append(
                 f"{e.name} did not record {REACHED_METRIC} (Stable-Baselines3 logs none): "
                 f"left out of steps to {reached}"
@@ -455,7 +444,7 @@ def curves_csv(entries: list[Entry]) -> bytes:
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(["run", "seed", "env_steps", "ep_rew_mean"])
     for e in entries:
-        values = e.train_return
+        values = e.run.metrics.get(RETURN_METRIC)
         if values is None:
             continue
         for s in range(values.shape[1]):
