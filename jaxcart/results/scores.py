@@ -126,15 +126,14 @@ def load_entries(
     if arms:
         arms = _arm_dirs(arms, None if baseline is None else str(baseline))
         names = [name for name, _ in arms]
-        runs = load_runs([d for _, dirs in arms for d in dirs])
-    else:
-        runs = load_runs(run_dirs)
+        run_dirs = [d for _, dirs in arms for d in dirs]
+    elif baseline is not None and reader.is_sweep(baseline):
+        raise CompareError(
+            f"--baseline {baseline} is a sweep; name one of its combinations, "
+            f"e.g. {layout.combo_dir(baseline, 0)}"
+        )
+    runs = load_runs(run_dirs)
     if baseline is not None and not arms:
-        if reader.is_sweep(baseline):
-            raise CompareError(
-                f"--baseline {baseline} is a sweep; name one of its combinations, "
-                f"e.g. {layout.combo_dir(baseline, 0)}"
-            )
         resolved = [r.path.resolve() for r in runs]
         if Path(baseline).resolve() in resolved:
             index = resolved.index(Path(baseline).resolve())
