@@ -200,7 +200,9 @@ difference from itself)."""
 
 @dataclass
 class Comparison:
-    """Every run's statistics, the score, the baseline and what the reader should know.
+    """Every run's statistics, computed when made from the scored entries
+    (:func:`make_entry`), the score and the baseline; what the reader should know besides is
+    :func:`comparison_notes`'s.
 
     Attributes:
         arms: the arms' names, baseline arm first (None without ``--arm``); the entries are
