@@ -535,8 +535,7 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
     least, most = _score_range(comparison)
-    reached = comparison.reached
-    targets = sorted({solved_return(env_id) for env_id in comparison.env_ids})
+    targets = [solved_return(env_id) for env_id in comparison.env_ids]  # each env's taus too
     taus = np.union1d(np.linspace(least, most, PROFILE_POINTS), targets)
     for entry, style in _styled(comparison):
         profile, low, high = stats.performance_profile_band(
@@ -545,7 +544,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
         band(ax, taus, profile, low, high, label=entry.name, **style)
         at = np.searchsorted(taus, solved_return(entry.run.env))  # its env's solved return
         ax.plot([taus[at]], [profile[at]], "o", color=style["color"], ms=6)
-    title = f"performance profile ({score}); dot: fraction at {reached}"
+    title = f"performance profile ({score}); dot: fraction at {comparison.reached}"
     labels = {"xlabel": f"score ({score}) tau", "ylabel": "fraction of seeds scoring >= tau"}
     limits = {"xlim": (least, most + 0.02 * (most - least)), "ylim": FRACTION}
     _finish(ax, "", "lower left", title=title, **labels, **limits)
