@@ -468,7 +468,6 @@ def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
     compared run, e.g. in ``runs/``); refuses one inside a compared run (or its sweep)."""
     if out is None:
         out = layout.default_compare_dir(named_dir(entries[0].run).parent)
-    out = Path(out)
     target = out.resolve()
     for entry in entries:
         owner = named_dir(entry.run).resolve()
