@@ -80,17 +80,15 @@ def run_styles(count: int) -> list[dict]:
 
 
 def curve_limits(
-    curves: Sequence[np.ndarray],
-    bounds: tuple[float, float] = (-math.inf, math.inf),
-    margin: float = Y_MARGIN,
+    curves: Sequence[np.ndarray], bounds: tuple[float, float] = (-math.inf, math.inf)
 ) -> tuple[float, float] | None:
-    """Axis limits that fit the mean curves (not their bands) with a margin, kept inside the
-    metric's range unless a curve reaches its edge (then the margin keeps the line visible).
+    """Axis limits that fit the mean curves (not their bands) with a margin
+    (:data:`Y_MARGIN` of their range on each side), kept inside the metric's range unless a
+    curve reaches its edge (then the margin keeps the line visible).
 
     Args:
         curves: each ``[iterations]``, NaN where there is no value.
         bounds: the metric's range (``jaxcart.plot.METRIC_BOUNDS``).
-        margin: room on each side, as a fraction of the curves' range.
 
     Returns:
         ``(low, high)`` with ``low < high``, or None if no curve has a finite value.
@@ -101,7 +99,7 @@ def curve_limits(
         return None
     lo, hi = float(values.min()), float(values.max())
     # A flat curve gets a margin from its size (or an absolute one at zero).
-    pad = (hi - lo) * margin if hi > lo else max(abs(hi) * margin, 1e-3)
+    pad = (hi - lo) * Y_MARGIN if hi > lo else max(abs(hi) * Y_MARGIN, 1e-3)
     low = lo - pad if lo <= bounds[0] else max(lo - pad, bounds[0])
     high = hi + pad if hi >= bounds[1] else min(hi + pad, bounds[1])
     return low, high
