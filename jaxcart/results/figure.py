@@ -533,7 +533,7 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
     least, most = _score_range(comparison)
-    targets = [solved_return(env_id) for env_id in comparison.env_ids]  # each env's taus too
+    targets = [solved_return(env_id) for env_id in comparison.env_ids]  # each a tau as well
     taus = np.union1d(np.linspace(least, most, PROFILE_POINTS), targets)
     for entry, style in _styled(comparison):
         profile, low, high = stats.performance_profile_band(
