@@ -60,7 +60,8 @@ def _against(st: dict) -> list[str]:
 
 def _row(name: str, entry: runs.Entry, st: dict) -> list:
     """One run's row of :func:`table`."""
-    n, steps, solved = len(entry.scores), entry.first_reached(entry.run.env_steps), st["solved"]
+    n, solved = len(entry.scores), st["solved"]
+    steps = summary.first_reached(entry.run, entry.run.env_steps)
     rate, reached = "n/a", ["n/a", "n/a"]
     if solved is not None:
         rate = f"{entry.solved}/{n} [{solved.ci_low:.1%}, {solved.ci_high:.1%}]"
@@ -178,7 +179,7 @@ def report_text(comparison: Comparison) -> str:
     texts = [solved_text(comparison), saturation_text(comparison), comparison.reading_note()]
     lines = [cli.wrap(heading), table(comparison), *map(cli.wrap, texts)]
     lines += [text for text in (matrix_text(comparison), arms_text(comparison)) if text]
-    lines += [cli.wrap(f"note: {note}") for note in comparison.notes]
+    lines += [cli.wrap(f"note: {note}") for note in runs.comparison_notes(comparison.entries)]
     return "\n".join(lines)
 
 

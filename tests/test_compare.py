@@ -433,7 +433,7 @@ def test_acrobot_scores_are_read_against_its_own_returns(tmp_path, no_warnings):
     comparison = compare.runs.build_comparison([a, b], reps=200)
     assert comparison.runs[0]["optimality_gap"].value == pytest.approx(20 / 4)  # -120: 20 short
     assert comparison.runs[1]["optimality_gap"].value == pytest.approx(400 / 4)
-    assert a.first_reached(steps).tolist() == [2048.0] * 4
+    assert summary.first_reached(a.run, steps).tolist() == [2048.0] * 4
     text = compare.report_text(comparison)
     assert "reached -100" in text and "gymnasium.make('Acrobot-v1')" in text
     fig = figure.draw_comparison(comparison)

@@ -93,8 +93,6 @@ import numpy as np
 
 from jaxcart.core.solved import SOLVED_RETURN
 
-MAX_RETURN = SOLVED_RETURN
-"""CartPole-v1's maximum return (the optimality gap's target)."""
 DEFAULT_REPS = 2000
 """Bootstrap resamples: enough for stable 2.5%/97.5% percentiles (rliable's profile default)."""
 CONFIDENCE = 0.95
@@ -202,8 +200,9 @@ def median(scores: np.ndarray, axis: int = -1) -> np.ndarray:
     return np.median(check_scores(scores), axis=axis)
 
 
-def optimality_gap(scores: np.ndarray, axis: int = -1, target: float = MAX_RETURN) -> np.ndarray:
-    """Mean shortfall from ``target``: ``mean(max(target - x, 0))`` along ``axis``."""
+def optimality_gap(scores: np.ndarray, axis: int = -1, target: float = SOLVED_RETURN) -> np.ndarray:
+    """Mean shortfall from ``target`` (default CartPole-v1's maximum return, 500):
+    ``mean(max(target - x, 0))`` along ``axis``."""
     return np.mean(np.maximum(target - check_scores(scores), 0.0), axis=axis)
 
 
@@ -293,26 +292,10 @@ def bootstrap_ci(
     Returns:
         The estimate; with one seed the interval is that one value (degenerate).
     """
-    return bootstrap_cis(scores, {"x": statistic}, reps, confidence, seed)["x"]
-
-
-def bootstrap_cis(
-    scores: Scores,
-    statistics: dict[str, Statistic],
-    reps: int = DEFAULT_REPS,
-    confidence: float = CONFIDENCE,
-    seed: int = DEFAULT_SEED,
-) -> dict[str, Estimate]:
-    """Several statistics of ``scores`` (:func:`bootstrap_ci`'s) over one shared set of
-    resamples."""
     tasks = check_tasks(scores, "scores")
     resampled = _resampled(tasks, reps, np.random.default_rng(seed))
-    pooled = np.concatenate(tasks)
-    out = {}
-    for name, statistic in statistics.items():
-        low, high = percentile_interval(statistic(resampled, axis=-1), confidence)
-        out[name] = Estimate(float(statistic(pooled, axis=-1)), float(low), float(high))
-    return out
+    low, high = percentile_interval(statistic(resampled, axis=-1), confidence)
+    return Estimate(float(statistic(np.concatenate(tasks), axis=-1)), float(low), float(high))
 
 
 def difference_ci(

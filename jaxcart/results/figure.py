@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jaxcart.analysis import stats
-from jaxcart.analysis.summary import RETURN_METRIC
+from jaxcart.analysis.summary import RETURN_METRIC, first_reached
 from jaxcart.core.solved import SOLVED_BY, return_bounds, solved_return
 from jaxcart.rundir import files
 
@@ -80,17 +80,15 @@ def run_styles(count: int) -> list[dict]:
 
 
 def curve_limits(
-    curves: Sequence[np.ndarray],
-    bounds: tuple[float, float] = (-math.inf, math.inf),
-    margin: float = Y_MARGIN,
+    curves: Sequence[np.ndarray], bounds: tuple[float, float] = (-math.inf, math.inf)
 ) -> tuple[float, float] | None:
-    """Axis limits that fit the mean curves (not their bands) with a margin, kept inside the
-    metric's range unless a curve reaches its edge (then the margin keeps the line visible).
+    """Axis limits that fit the mean curves (not their bands) with a margin
+    (:data:`Y_MARGIN` of their range on each side), kept inside the metric's range unless a
+    curve reaches its edge (then the margin keeps the line visible).
 
     Args:
         curves: each ``[iterations]``, NaN where there is no value.
         bounds: the metric's range (``jaxcart.plot.METRIC_BOUNDS``).
-        margin: room on each side, as a fraction of the curves' range.
 
     Returns:
         ``(low, high)`` with ``low < high``, or None if no curve has a finite value.
@@ -101,7 +99,7 @@ def curve_limits(
         return None
     lo, hi = float(values.min()), float(values.max())
     # A flat curve gets a margin from its size (or an absolute one at zero).
-    pad = (hi - lo) * margin if hi > lo else max(abs(hi) * margin, 1e-3)
+    pad = (hi - lo) * Y_MARGIN if hi > lo else max(abs(hi) * Y_MARGIN, 1e-3)
     low = lo - pad if lo <= bounds[0] else max(lo - pad, bounds[0])
     high = hi + pad if hi >= bounds[1] else min(hi + pad, bounds[1])
     return low, high
@@ -205,7 +203,6 @@ METRIC_BOUNDS: dict[str, tuple[float, float]] = {
 }
 """Each metric's range on CartPole-v1; confidence bands are clipped to it (a run's returns to
 its env's, the entropy to its actions': :func:`metric_bounds`)."""
-ALL = (-math.inf, math.inf)
 SUMMARY_FONTSIZES = (8.5, 8.0, 7.5, 7.0, 6.5)
 """The summary panel's font sizes, tried largest first until every run's block fits."""
 
@@ -220,7 +217,7 @@ def metric_bounds(name: str, env_id: str) -> tuple[float, float]:
         return return_bounds(env_id)
     if name == "train/entropy_loss" and env_id in ACTION_COUNTS:
         return -math.log(ACTION_COUNTS[env_id]), 0.0
-    return METRIC_BOUNDS.get(name, ALL)
+    return METRIC_BOUNDS.get(name, (-math.inf, math.inf))
 
 
 def _plot_metric(ax, x: np.ndarray, run: RunCurves, style: dict, name: str) -> np.ndarray:
@@ -536,8 +533,7 @@ def _against_baseline(ax, comparison: Comparison, key: str) -> None:
 def _profile_panel(ax, comparison: Comparison) -> None:
     score = comparison.score.label
     least, most = _score_range(comparison)
-    reached = comparison.reached
-    targets = sorted({solved_return(env_id) for env_id in comparison.env_ids})
+    targets = [solved_return(env_id) for env_id in comparison.env_ids]  # each a tau as well
     taus = np.union1d(np.linspace(least, most, PROFILE_POINTS), targets)
     for entry, style in _styled(comparison):
         profile, low, high = stats.performance_profile_band(
@@ -546,7 +542,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
         band(ax, taus, profile, low, high, label=entry.name, **style)
         at = np.searchsorted(taus, solved_return(entry.run.env))  # its env's solved return
         ax.plot([taus[at]], [profile[at]], "o", color=style["color"], ms=6)
-    title = f"performance profile ({score}); dot: fraction at {reached}"
+    title = f"performance profile ({score}); dot: fraction at {comparison.reached}"
     labels = {"xlabel": f"score ({score}) tau", "ylabel": "fraction of seeds scoring >= tau"}
     limits = {"xlim": (least, most + 0.02 * (most - least)), "ylim": FRACTION}
     _finish(ax, "", "lower left", title=title, **labels, **limits)
@@ -554,7 +550,7 @@ def _profile_panel(ax, comparison: Comparison) -> None:
 
 def _sample_efficiency_panel(ax, comparison: Comparison) -> None:
     for entry, style in _styled(comparison):
-        values = entry.train_return
+        values = entry.run.metrics.get(RETURN_METRIC)
         if values is None or not np.isfinite(values).any():
             continue
         points = np.unique(np.linspace(0, len(values) - 1, CURVE_POINTS).round().astype(int))
@@ -576,7 +572,7 @@ def _reached_panel(ax, comparison: Comparison) -> None:
     reached, reached_any = comparison.reached, False
     for entry, style in _styled(comparison):
         x = entry.run.env_steps
-        first = entry.first_reached(x)
+        first = first_reached(entry.run, x)
         if first is None:
             continue
         reached_any |= bool(np.isfinite(first).any())

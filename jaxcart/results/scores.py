@@ -11,7 +11,7 @@ import functools
 import io
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -50,17 +50,6 @@ class Entry:
     @property
     def name(self) -> str:
         return self.run.label
-
-    @property
-    def train_return(self) -> np.ndarray | None:
-        """``rollout/ep_rew_mean`` ``[iterations, num_seeds]``, None if not recorded."""
-        return self.run.metrics.get(RETURN_METRIC)
-
-    def first_reached(self, x: np.ndarray | None) -> np.ndarray | None:
-        """``x`` (env steps or seconds, ``[iterations]``) where a training episode of each
-        seed first scored its env's solved return (:func:`~jaxcart.core.solved.solved_return`:
-        500 on CartPole-v1), ``[num_seeds]`` (``inf``: never); None without the data."""
-        return summary.first_reached(self.run, x)
 
 
 def read_evaluation(
@@ -137,15 +126,14 @@ def load_entries(
     if arms:
         arms = _arm_dirs(arms, None if baseline is None else str(baseline))
         names = [name for name, _ in arms]
-        runs = load_runs([d for _, dirs in arms for d in dirs])
-    else:
-        runs = load_runs(run_dirs)
+        run_dirs = [d for _, dirs in arms for d in dirs]
+    elif baseline is not None and reader.is_sweep(baseline):
+        raise CompareError(
+            f"--baseline {baseline} is a sweep; name one of its combinations, "
+            f"e.g. {layout.combo_dir(baseline, 0)}"
+        )
+    runs = load_runs(run_dirs)
     if baseline is not None and not arms:
-        if reader.is_sweep(baseline):
-            raise CompareError(
-                f"--baseline {baseline} is a sweep; name one of its combinations, "
-                f"e.g. {layout.combo_dir(baseline, 0)}"
-            )
         resolved = [r.path.resolve() for r in runs]
         if Path(baseline).resolve() in resolved:
             index = resolved.index(Path(baseline).resolve())
@@ -212,7 +200,9 @@ difference from itself)."""
 
 @dataclass
 class Comparison:
-    """Every run's statistics, the score, the baseline and what the reader should know.
+    """Every run's statistics, computed when made from the scored entries
+    (:func:`make_entry`), the score and the baseline; what the reader should know besides is
+    :func:`comparison_notes`'s.
 
     Attributes:
         arms: the arms' names, baseline arm first (None without ``--arm``); the entries are
@@ -235,18 +225,69 @@ class Comparison:
     """
 
     entries: list[Entry]
-    score: Score
-    baseline: int
-    reps: int
-    seed: int
-    adjust: str  # "none" or "bonferroni"
-    arms: list[str] | None
-    references: list[int]
-    comparisons: int
-    confidence: float
-    runs: list[Stats]
-    matrix: np.ndarray | None = None
-    arm_stats: list[Stats] | None = None
+    baseline: int = 0
+    score: Score = summary.EVAL
+    reps: int = stats.DEFAULT_REPS
+    seed: int = stats.DEFAULT_SEED
+    adjust: str = "none"  # or "bonferroni"
+    arms: list[str] | None = None
+    references: list[int] = field(init=False)
+    comparisons: int = field(init=False)
+    confidence: float = field(init=False)
+    runs: list[Stats] = field(init=False)
+    matrix: np.ndarray | None = field(init=False, default=None)
+    arm_stats: list[Stats] | None = field(init=False, default=None)
+
+    def __post_init__(self) -> None:
+        """Statistics of every run from its per-seed scores, each against the baseline (with
+        ``arms``, the arms' names: against the baseline arm's run on the same configuration),
+        and the arms aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration);
+        ``adjust="bonferroni"`` widens every difference and ``P(X > Y)`` interval to
+        :func:`stats.bonferroni_confidence` of the number of comparisons."""
+        entries, arms, reps, seed = self.entries, self.arms, self.reps, self.seed
+        if self.adjust not in summary.ADJUSTMENTS:
+            raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {self.adjust!r}")
+        scores = [stats.check_seeds(e.scores, f"scores[{i}]") for i, e in enumerate(entries)]
+        k = len(entries) // len(arms) if arms else 0  # configurations per arm
+        self.references = [i % k if arms else self.baseline for i in range(len(entries))]
+        self.comparisons = sum(r != i for i, r in enumerate(self.references))
+        self.comparisons += len(arms) - 1 if arms else 0
+        self.confidence = stats.CONFIDENCE
+        if self.adjust == "bonferroni" and self.comparisons:
+            self.confidence = stats.bonferroni_confidence(self.comparisons)
+
+        def against(x: stats.Scores, y: stats.Scores | None) -> Stats:
+            """The IQM difference and ``P(X > Y)``, each with its interval (None without
+            ``y``)."""
+            if y is None:
+                return {"difference_iqm": None, "probability_of_improvement": None}
+            difference = stats.difference_ci(x, y, stats.iqm, reps, self.confidence, seed)
+            better = stats.probability_of_improvement_ci(x, y, reps, self.confidence, seed)
+            return {"difference_iqm": difference, "probability_of_improvement": better}
+
+        self.runs = []
+        for i, (x, e, ref) in enumerate(zip(scores, entries, self.references)):
+            solved = None if e.solved is None else stats.wilson_interval(int(e.solved), x.size)
+            # the optimality gap: the mean shortfall from the run's env's solved return
+            gap = functools.partial(stats.optimality_gap, target=solved_return(e.run.env))
+            estimators = stats.ESTIMATORS | {"optimality_gap": gap}
+            estimates = {  # each from the same resamples (one seed)
+                name: stats.bootstrap_ci(x, statistic, reps, seed=seed)
+                for name, statistic in estimators.items()
+            }
+            versus = against(x, scores[ref] if ref != i else None)
+            self.runs.append({**estimates, "solved": solved, **versus})
+        if not arms and len(scores) > 2:
+            self.matrix = np.array(
+                [[stats.probability_of_improvement(x, y) for y in scores] for x in scores]
+            )
+        if arms:
+            per_arm = [scores[a * k : (a + 1) * k] for a in range(len(arms))]
+            self.arm_stats = [
+                {"iqm": stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed)}
+                | against(arm, per_arm[0] if a else None)
+                for a, arm in enumerate(per_arm)
+            ]
 
     @property
     def env_ids(self) -> list[str]:
@@ -262,11 +303,6 @@ class Comparison:
     def saturated(self) -> bool:
         """Every seed of every run has the same score."""
         return stats.saturated([e.scores for e in self.entries])
-
-    @property
-    def notes(self) -> list[str]:
-        """What the reader should know (:func:`comparison_notes`)."""
-        return comparison_notes(self.entries)
 
     def reading_note(self) -> str:
         """One line: how many comparisons, and what that means for reading the intervals."""
@@ -303,8 +339,8 @@ class Comparison:
             "solved_seeds": entry.solved,
             "reference": self.entries[self.references[i]].name,
             "evaluation_episodes": entry.episodes,
-            "steps_to_500": seeds(entry.first_reached(entry.run.env_steps)),
-            "seconds_to_500": seeds(entry.first_reached(entry.run.elapsed)),
+            "steps_to_500": seeds(summary.first_reached(entry.run, entry.run.env_steps)),
+            "seconds_to_500": seeds(summary.first_reached(entry.run, entry.run.elapsed)),
         }
 
     def to_dict(self) -> dict:
@@ -333,7 +369,7 @@ class Comparison:
             },
             "bootstrap": {"method": "percentile", "reps": self.reps, "seed": self.seed},
             "curves_file": layout.COMPARE_CURVES_FILE,
-            "notes": self.notes,
+            "notes": comparison_notes(self.entries),
             "runs": [self.run_dict(i) for i in range(len(self.entries))],
             "probability_of_improvement_matrix": matrix,
             "arms": arms,
@@ -344,62 +380,9 @@ def _dicts(estimates: Stats) -> dict:
     return {name: e and e.to_dict() for name, e in estimates.items()}
 
 
-def build_comparison(
-    entries: list[Entry],
-    baseline: int = 0,
-    score: Score = summary.EVAL,
-    reps: int = stats.DEFAULT_REPS,
-    seed: int = stats.DEFAULT_SEED,
-    adjust: str = "none",
-    arms: list[str] | None = None,
-) -> Comparison:
-    """Statistics of every run from its per-seed scores, each against the baseline (with
-    ``arms``, the arms' names: against the baseline arm's run on the same configuration), and
-    the arms aggregated (:data:`jaxcart.analysis.stats.Scores` per configuration); ``adjust=
-    "bonferroni"`` widens every difference and ``P(X > Y)`` interval to
-    :func:`stats.bonferroni_confidence` of the number of comparisons."""
-    if adjust not in summary.ADJUSTMENTS:
-        raise ValueError(f"adjust must be one of {summary.ADJUSTMENTS}, got {adjust!r}")
-    scores = [stats.check_seeds(e.scores, f"scores[{i}]") for i, e in enumerate(entries)]
-    k = len(entries) // len(arms) if arms else 0  # configurations per arm
-    references = [i % k if arms else baseline for i in range(len(entries))]
-    count = sum(r != i for i, r in enumerate(references)) + (len(arms) - 1 if arms else 0)
-    confidence = stats.CONFIDENCE
-    if adjust == "bonferroni" and count:
-        confidence = stats.bonferroni_confidence(count)
-
-    def against(x: stats.Scores, y: stats.Scores | None) -> Stats:
-        """The IQM difference and ``P(X > Y)``, each with its interval (None without ``y``)."""
-        if y is None:
-            return {"difference_iqm": None, "probability_of_improvement": None}
-        difference = stats.difference_ci(x, y, stats.iqm, reps, confidence, seed)
-        better = stats.probability_of_improvement_ci(x, y, reps, confidence, seed)
-        return {"difference_iqm": difference, "probability_of_improvement": better}
-
-    runs = []
-    for i, (x, e, ref) in enumerate(zip(scores, entries, references)):
-        solved = None if e.solved is None else stats.wilson_interval(int(e.solved), x.size)
-        # the optimality gap: the mean shortfall from the run's env's solved return
-        gap = functools.partial(stats.optimality_gap, target=solved_return(e.run.env))
-        estimators = stats.ESTIMATORS | {"optimality_gap": gap}
-        estimates = stats.bootstrap_cis(x, estimators, reps, seed=seed)
-        versus = against(x, scores[ref] if ref != i else None)
-        runs.append({**estimates, "solved": solved, **versus})
-    comparison = Comparison(
-        entries, score, baseline, reps, seed, adjust, arms, references, count, confidence, runs
-    )
-    if not arms and len(scores) > 2:
-        comparison.matrix = np.array(
-            [[stats.probability_of_improvement(x, y) for y in scores] for x in scores]
-        )
-    if arms:
-        per_arm = [scores[a * k : (a + 1) * k] for a in range(len(arms))]
-        comparison.arm_stats = [
-            {"iqm": stats.bootstrap_ci(arm, stats.iqm, reps, seed=seed)}
-            | against(arm, per_arm[0] if a else None)
-            for a, arm in enumerate(per_arm)
-        ]
-    return comparison
+build_comparison = Comparison
+"""A comparison's statistics from its scored runs (:class:`Comparison`, which computes them
+when made): ``build_comparison(entries, baseline, score, reps, seed, adjust, arms)``."""
 
 
 def comparison_notes(entries: list[Entry]) -> list[str]:
@@ -444,9 +427,9 @@ def comparison_notes(entries: list[Entry]) -> list[str]:
             notes.append(f"{e.name} has no {layout.EVALUATION_FILE}: its solve rate is unknown")
         if not e.run.metrics:
             continue
-        if e.train_return is None or not np.isfinite(e.train_return).any():
+        if not np.isfinite(e.run.metrics.get(RETURN_METRIC, np.nan)).any():
             notes.append(f"{e.name} has no {RETURN_METRIC}: no sample-efficiency curve")
-        if e.first_reached(e.run.env_steps) is None:
+        if summary.first_reached(e.run, e.run.env_steps) is None:
             notes.append(
                 f"{e.name} did not record {REACHED_METRIC} (Stable-Baselines3 logs none): "
                 f"left out of steps to {reached}"
@@ -462,7 +445,7 @@ def curves_csv(entries: list[Entry]) -> bytes:
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(["run", "seed", "env_steps", "ep_rew_mean"])
     for e in entries:
-        values = e.train_return
+        values = e.run.metrics.get(RETURN_METRIC)
         if values is None:
             continue
         for s in range(values.shape[1]):
@@ -485,7 +468,6 @@ def prepare_out(out: Path | None, entries: list[Entry]) -> Path:
     compared run, e.g. in ``runs/``); refuses one inside a compared run (or its sweep)."""
     if out is None:
         out = layout.default_compare_dir(named_dir(entries[0].run).parent)
-    out = Path(out)
     target = out.resolve()
     for entry in entries:
         owner = named_dir(entry.run).resolve()
