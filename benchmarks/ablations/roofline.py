@@ -48,7 +48,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from benchmarks import lib  # noqa: E402
-from jaxcart.core import env as cartpole  # noqa: E402
+from jaxcart.core import cartpole  # noqa: E402
 from jaxcart.core.config import PPOConfig, preset  # noqa: E402
 from jaxcart.core.ppo import Batch, collect_rollout, training_batch, update_epochs  # noqa: E402
 from jaxcart.engine.loop import init_runners  # noqa: E402

@@ -94,18 +94,20 @@ def training_return_table(arms: list[Path]) -> str:
     """The training return (``rollout/ep_rew_mean``) at half, three quarters and all of the
     shortest run's env steps: its IQM across seeds with a 95% bootstrap interval, and P(arm >
     the first arm) over seed pairs with its interval (``jaxcart.analysis``, the statistics of
-    ``jaxcart.compare``). Each seed's value is read with ``curves.return_at``: at the first
+    ``jaxcart.compare``). Each seed's value is read with ``summary.return_at``: at the first
     iteration at or past those steps, a seed with no value there (not yet, or diverged)
-    counting as 0."""
-    from jaxcart import plot
-    from jaxcart.analysis import curves, stats
+    counting as the env's worst return (0 on CartPole)."""
+    from jaxcart.analysis import stats, summary
 
     runs = [load_run(a) for a in arms]
     shortest = min(runs, key=lambda r: r.env_steps[-1])
     n = len(shortest.env_steps)
     budgets = [float(shortest.env_steps[i]) for i in (n // 2 - 1, (3 * n) // 4 - 1, n - 1)]
     values = [
-        [curves.return_at(r.metrics[plot.RETURN_METRIC], r.env_steps, b) for b in budgets]
+        [
+            summary.return_at(r.metrics[summary.RETURN_METRIC], r.env_steps, b, r.env)
+            for b in budgets
+        ]
         for r in runs
     ]
     steps = " / ".join(f"{b / 1e3:,.0f}k" for b in budgets)
