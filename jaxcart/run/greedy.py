@@ -132,8 +132,8 @@ class CrossCheck:
     env's Gymnasium counterpart (the verdict) and in jaxcart's env (the cross-check), the
     latter from a program that compiles in a thread as soon as the parameters' shapes are
     known (:meth:`compile_for`). Training starts it when its own program has compiled, so
-    that the final evaluation finds it ready; one program serves the final and the kept-best
-    policies alike.
+    that the final evaluation finds it ready. The kept-best policies get the Gymnasium verdict
+    alone (``cross_check=False``): nothing records a JAX replay of them.
 
     Args:
         config: the runs' config (its env and network).
