@@ -24,8 +24,6 @@ import numpy as np
 from jaxcart.core import cartpole, pytree
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.errors import ConfigError
-from jaxcart.core.pytree import split_per_run as split_per_run
-from jaxcart.core.pytree import with_values as with_values
 
 FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(EnvParams))
 """Every field of :class:`EnvParams`, the names ``--env-param`` takes."""

@@ -12,7 +12,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxcart.core import envs, physics
+from jaxcart.core import envs, pytree
 from jaxcart.core.config import PPOConfig, float_dtype
 from jaxcart.core.evaluation import greedy_returns
 from jaxcart.core.ppo import make_network
@@ -154,11 +154,11 @@ class CrossCheck:
         episodes: int,
         env_params: Any = None,
     ) -> None:
-        static, per_run = (None, {}) if env_params is None else physics.split_per_run(env_params)
+        static, per_run = (None, {}) if env_params is None else pytree.split_per_run(env_params)
         network = make_network(config)
 
         def one_run(p: dict, k: jax.Array, values: dict) -> jax.Array:
-            run_env = physics.with_values(static, values)
+            run_env = pytree.with_values(static, values)
             key = jax.random.fold_in(k, 1)
             return greedy_returns(p, key, network, episodes, run_env, config.env)
 

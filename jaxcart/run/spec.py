@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from jaxcart.analysis.summary import Score
-from jaxcart.core import envs, physics
+from jaxcart.core import envs, physics, pytree
 from jaxcart.core.cartpole import EnvParams
 from jaxcart.core.config import TRACED_FIELDS, ConfigError, PPOConfig, check_field, setting
 from jaxcart.core.envs import DEFAULT_ENV
@@ -339,7 +339,7 @@ class RunSpec:
         values = sweeps.grid_env_values(self.grid, runs)
         indices = self.grid.seed_indices(runs)
         values.update(physics.randomized_values(self.randomize, self.seed, indices))
-        return physics.with_values(self.env_params, values)
+        return pytree.with_values(self.env_params, values)
 
     def eval_env_params(self, runs: range) -> EnvParams | None:
         """The physics ``runs`` are evaluated on: a sweep's own values per run, the nominal
@@ -347,7 +347,7 @@ class RunSpec:
         are not."""
         if not self.takes_physics:
             return None
-        return physics.with_values(self.env_params, sweeps.grid_env_values(self.grid, runs))
+        return pytree.with_values(self.env_params, sweeps.grid_env_values(self.grid, runs))
 
     @property
     def episode_ranges(self) -> dict[str, tuple[float, float]]:

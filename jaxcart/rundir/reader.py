@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxcart.core import envs, physics
+from jaxcart.core import envs, physics, pytree
 from jaxcart.core.config import (
     MAX_CUSTOM_METRICS,
     ConfigError,
@@ -186,7 +186,7 @@ def _check_physics_fields(data: dict) -> None:
     combination = env_values(data.get("combination") or {})
     for name in (*env_values(data.get("sweep", {})), *combination):
         physics.check_continuous(name, "config.json: sweep")
-    physics.check_physics(physics.with_values(params, combination), dtype)
+    physics.check_physics(pytree.with_values(params, combination), dtype)
 
 
 def is_evaluation(info: dict) -> bool:
