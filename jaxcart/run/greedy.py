@@ -133,7 +133,7 @@ class CrossCheck:
     latter from a program that compiles in a thread as soon as the parameters' shapes are
     known (:meth:`compile_for`). Training starts it when its own program has compiled, so
     that the final evaluation finds it ready. The kept-best policies get the Gymnasium verdict
-    alone (``cross_check=False``): nothing records a JAX replay of them.
+    alone (:meth:`verdict`): nothing records a JAX replay of them.
 
     Args:
         config: the runs' config (its env and network).
@@ -190,22 +190,28 @@ class CrossCheck:
         return done
 
     def evaluate(
-        self, params: dict, should_stop: Callable[[], bool] | None = None, cross_check: bool = True
-    ) -> tuple[np.ndarray, np.ndarray | None]:
+        self, params: dict, should_stop: Callable[[], bool] | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Greedy returns of ``params`` (NumPy, leaves ``[R, ...]``) in Gymnasium's env and
         in jaxcart's, ``([R, episodes], [R, episodes])``: jaxcart's program runs in a thread
-        while Gymnasium's episodes run (:func:`evaluate_params`). Without ``cross_check``
-        (the kept-best policies, whose verdict alone is recorded) jaxcart's is not played and
-        comes back as None.
+        while Gymnasium's episodes run (:meth:`verdict`).
 
         Raises:
             Stopped: ``should_stop()`` turned true during Gymnasium's episodes.
         """
-        jax_returns = self.returns(params) if cross_check else None
-        num_runs = len(self._keys)
-        trained = RunParams(params, self.config, num_runs, env_params=self.env_params)
-        gym = evaluate_params(trained, self.episodes, should_stop)
-        return gym, None if jax_returns is None else jax_returns.result()
+        jax_returns = self.returns(params)
+        return self.verdict(params, should_stop), jax_returns.result()
+
+    def verdict(self, params: dict, should_stop: Callable[[], bool] | None = None) -> np.ndarray:
+        """Greedy returns ``[R, episodes]`` of ``params`` in Gymnasium's env alone
+        (:func:`evaluate_params`): the kept-best policies' verdict, of which no JAX replay is
+        recorded.
+
+        Raises:
+            Stopped: ``should_stop()`` turned true during Gymnasium's episodes.
+        """
+        trained = RunParams(params, self.config, len(self._keys), env_params=self.env_params)
+        return evaluate_params(trained, self.episodes, should_stop)
 
 
 def evaluate_params(

@@ -641,7 +641,7 @@ def _one_wave(
             gym, jax_returns = check.evaluate(runners.params, stop)
             seconds = time.perf_counter() - start
             if best is not None:  # the Gymnasium verdict of the best policies too
-                best["best_gym_returns"] = check.evaluate(kept.params, stop, cross_check=False)[0]
+                best["best_gym_returns"] = check.verdict(kept.params, stop)
         except Stopped:
             return None
     timing = dict(zip(TIMING, (result.compile_seconds, result.state.elapsed, seconds)))
