@@ -261,7 +261,7 @@ def _train(opts: TrainOptions, console: report.ConsoleReport) -> int:
     opts.check()
     spec = None if opts.resume is not None else opts.run_spec()  # bad options fail here
     shapes = parse_sweep(opts.sweep)[1]  # a structural sweep's axes, if any
-    groups = structural.shape_groups(shapes) if spec is not None and shapes else []
+    groups = reader.sweep_combinations(shapes) if spec is not None else []
     specs = [structural.group_spec(spec, g) for g in groups] if groups else [spec]  # each checked
     if spec is not None and opts.score is not None:
         _check_score(opts.score, spec, groups, specs)

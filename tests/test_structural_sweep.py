@@ -15,7 +15,7 @@ from jaxcart import train
 from jaxcart.analysis.summary import auc
 from jaxcart.core.config import ConfigError, PPOConfig
 from jaxcart.run.spec import RunSpec, parse_sweep
-from jaxcart.run.structural import group_spec, shape_groups
+from jaxcart.run.structural import group_spec
 from jaxcart.rundir import files, layout, reader
 
 BASE = [  # 2 envs or 4 envs x 32 steps, minibatches of 32: 4 or 8 iterations of 512 steps
@@ -29,7 +29,7 @@ def test_shape_axes_are_split_from_the_float_axes():
     floats, shapes = parse_sweep(["learning_rate=1e-3,3e-3", "hidden_sizes=32x32,64", "num_envs=4"])
     assert floats == {"learning_rate": [1e-3, 3e-3]}
     assert shapes == {"hidden_sizes": [(32, 32), (64,)], "num_envs": [4]}
-    assert shape_groups(shapes) == [
+    assert reader.sweep_combinations(shapes) == [
         {"hidden_sizes": (32, 32), "num_envs": 4},
         {"hidden_sizes": (64,), "num_envs": 4},
     ]

@@ -43,10 +43,10 @@ from jaxcart.engine.signals import StopRequest
 from jaxcart.run.lifecycle import run_new
 from jaxcart.run.progress import chain_hooks
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec, assignments, parse_value
-from jaxcart.run.structural import by_shape, group_config, group_spec, shape_groups
+from jaxcart.run.structural import by_shape, group_config, group_spec
 from jaxcart.run.sweep import RETURN_METRIC
 from jaxcart.rundir import layout
-from jaxcart.rundir.reader import load_runs
+from jaxcart.rundir.reader import load_runs, sweep_combinations
 
 RUNGS = 8
 """Intermediate scores reported to the pruner per trial, at evenly spaced iterations."""
@@ -227,7 +227,7 @@ def parse_space(
         if name not in TRACED_FIELDS and hasattr(dist, "choices"):
             choices[name] = [config_value(param, v) for v in dist.choices]
     # num_envs x num_steps must divide into minibatches, ...: the one shape-group check
-    for shape in shape_groups(choices, limit=10_000) if len(choices) > 1 else []:
+    for shape in sweep_combinations(choices, limit=10_000) if len(choices) > 1 else []:
         group_config(config, shape, "--space")
     if score is not None:
         check_score(score, configs)

@@ -14,7 +14,6 @@ shape with the same routine (:func:`by_shape`).
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,13 +26,6 @@ from jaxcart.run import sweep as sweeps
 from jaxcart.run.spec import Hooks, Outcome, RunOptions, RunSpec
 from jaxcart.rundir import files, layout, reader
 from jaxcart.rundir.reader import AXES_KEY, group_label, group_values
-
-
-def shape_groups(shapes: dict[str, list], limit: int | None = None) -> list[dict]:
-    """Every combination of the shape axes (the first ``limit``), in ``itertools.product``
-    order."""
-    combinations = itertools.islice(itertools.product(*shapes.values()), limit)
-    return [dict(zip(shapes, values)) for values in combinations]
 
 
 def by_shape(points: Sequence[dict]) -> list[tuple[dict, list[int]]]:

@@ -223,13 +223,15 @@ def run_env_params(info: dict, combination: int | None = None):
     return physics.make_env_params(values)
 
 
-def sweep_combinations(sweep: dict[str, list[float]]) -> list[dict[str, float]]:
-    """Every combination of a sweep's values, in ``itertools.product`` order: the one run
-    order (``config.json`` records the sweep, not its million combinations)."""
+def sweep_combinations(sweep: dict[str, list], limit: int | None = None) -> list[dict]:
+    """Every combination of a sweep's values (the first ``limit``), in ``itertools.product``
+    order: the one run order of a float sweep (``config.json`` records the sweep, not its
+    million combinations) and of a structural sweep's or a search space's shape groups; none
+    without axes."""
     if not sweep:
         return []
-    names = list(sweep)
-    return [dict(zip(names, values)) for values in itertools.product(*sweep.values())]
+    combinations = itertools.islice(itertools.product(*sweep.values()), limit)
+    return [dict(zip(sweep, values)) for values in combinations]
 
 
 def recorded_combinations(info: dict) -> list[dict[str, float]]:
