@@ -88,8 +88,14 @@ def test_rerun_after_a_kill_waits_for_its_trials_then_finishes_the_study(
     # what a process killed mid-batch leaves: 2 running trials with a heartbeat, and their
     # half-written run directory
     killed = _tuner(storage, out)
-    for trial in killed._ask(2, 2):
+    trials = killed._ask(2, 2)
+    for trial in trials:
         trial.set_user_attr("run_dir", str(out / "trials-00000-00001"))
+    # a killed batch's heartbeat thread stamps its trials together; SQLite keeps the stamp to
+    # the second, so stamp both early in one second, or they go stale one poll apart and the
+    # rerun asks them again one at a time
+    time.sleep(1.05 - time.time() % 1)
+    search.record_heartbeats(killed.storage, killed.study, trials)
     (out / "trials-00000-00001").mkdir(parents=True)
     shutil.copy(__file__, out / "trials-00000-00001" / "config.json")  # not a run's config
     argv = [*ARGV, "--storage", storage, "--study-name", "s", "--space", LR, "--out", str(out)]
