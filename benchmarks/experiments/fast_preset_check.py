@@ -18,6 +18,7 @@ so they are comparable only within one invocation.
     # the same on 4 further base seeds (the first four are used)
     python -m benchmarks.experiments.fast_preset_check --stage holdout-isa2 --candidates NAME \
         --isa native,avx2 --out benchmarks/results
+    # and on 4 more (holdout-isa3), for the 32-32 candidate
 
 XLA's float results differ between CPU models (their vector ISA), and a preset tuned to one
 machine's numbers may not solve every seed on another. ``--isa avx2`` runs each training with
@@ -49,6 +50,9 @@ HOLDOUT_ISA_BASE_SEEDS = (57721566, 66260701, 29979245, 60221407)
 HOLDOUT_ISA2_BASE_SEEDS = (14142135, 17320508, 22360679, 26457513)
 """The second check under two ISA settings (the first four were used by the 150k candidate):
 written here before any candidate was trained on them."""
+HOLDOUT_ISA3_BASE_SEEDS = (31415926, 27182818, 16180339, 11235813)
+"""The third check under two ISA settings, for the 32-32 candidate (the second four checked
+the 64-64 preset): written here before any candidate was trained on them."""
 ISA_FLAGS = {"native": "", "avx2": "--xla_cpu_max_isa=AVX2"}
 """What each ``--isa`` setting adds to ``XLA_FLAGS``."""
 SEEDS_PER_BASE = 64
@@ -90,6 +94,9 @@ CANDIDATES: dict[str, list[str]] = {
         *("--total-timesteps", "100000", "--ent-coef", "0.01", "--eval-every", "14"),
         *("--periodic-eval-episodes", "64", "--keep-best"),
     ],
+    # the preset of issue 41's second check (entropy 0.01, best of 14 evaluations of 64
+    # episodes) with a 32-32 network, about half the update's arithmetic: the preset since
+    "h32": ["--hidden-sizes", "32,32"],
     "8x64-100k": ["--num-envs", "8", "--num-steps", "64", "--total-timesteps", "100000"],
     "64x16-mb256-100k": [
         "--num-envs",
@@ -204,7 +211,9 @@ def markdown(report: dict) -> str:
 def main() -> None:
     parser = lib.arg_parser(__doc__)
     parser.add_argument(
-        "--stage", choices=("tune", "holdout", "holdout-isa", "holdout-isa2"), required=True
+        "--stage",
+        choices=("tune", "holdout", "holdout-isa", "holdout-isa2", "holdout-isa3"),
+        required=True,
     )
     parser.add_argument(
         "--candidates",
@@ -235,11 +244,13 @@ def main() -> None:
     if any(isa not in ISA_FLAGS for isa in args.isa):
         parser.error(f"--isa takes: {', '.join(ISA_FLAGS)}")
     held_out = (*HOLDOUT_BASE_SEEDS, *HOLDOUT_ISA_BASE_SEEDS, *HOLDOUT_ISA2_BASE_SEEDS)
+    held_out += HOLDOUT_ISA3_BASE_SEEDS
     bases = {
         "tune": TUNING_BASE_SEEDS,
         "holdout": HOLDOUT_BASE_SEEDS,
         "holdout-isa": HOLDOUT_ISA_BASE_SEEDS,
         "holdout-isa2": HOLDOUT_ISA2_BASE_SEEDS,
+        "holdout-isa3": HOLDOUT_ISA3_BASE_SEEDS,
     }[args.stage]
     if args.base_seeds is not None:
         if args.stage != "tune" or set(args.base_seeds) & set(held_out):
